@@ -1,0 +1,13 @@
+"""Environments: PyBullet simulator, sensors, tasks and the Gymnasium env classes."""
+
+from elastic_gym.envs.arm_env import ArmEnv, ElasticArmEnv, RewardWeights, RigidArmEnv
+from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
+
+__all__ = [
+    "AccelerometerConfig",
+    "ArmEnv",
+    "ElasticArmEnv",
+    "EncoderConfig",
+    "RewardWeights",
+    "RigidArmEnv",
+]

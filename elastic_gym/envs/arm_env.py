@@ -1,0 +1,385 @@
+"""Gymnasium environments of arms with elastic (or rigid) joints and realistic sensing.
+
+Observation (a ``spaces.Dict``, float64), only what a real arm measures:
+
+* elastic arms: ``motor_position`` (N, quantized motor encoders), ``acceleration``
+  (3 per accelerometer: specific force in the sensor frame, gravity included),
+  ``reference`` (q_d, q_d');
+* rigid arms: ``link_position`` (N, link encoders), ``reference``.
+
+No link position and no velocity of an elastic arm is ever observed; the ground
+truth is in ``info["true_state"]``. Action: motor torque (N m), clipped to the torque
+limits (``info["torque_saturated"]``).
+
+Reward (documented in the README), with e = q - q_d, dt the control period:
+
+    r = -dt * (w_track |e|^2 + w_velocity |q' - q_d'|^2 + w_torque |tau / tau_max|^2
+               + w_torsion |theta - q|^2)
+
+so that the return approximates an integral cost independent of the control rate.
+An episode whose physics breaks (non-finite state, or a velocity above
+``max_velocity``) ends with ``terminated=True``, reward ``TERMINATION_PENALTY`` and
+``info["termination_reason"]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from elastic_gym.envs.sensors import (
+    AccelerometerArray,
+    AccelerometerConfig,
+    Encoder,
+    EncoderConfig,
+)
+from elastic_gym.envs.simulator import ArmSimulator
+from elastic_gym.envs.tasks import make_task
+from elastic_gym.model import ParameterScaling, RobotModel
+from elastic_gym.robots.catalog import get_robot
+from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
+
+STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
+TERMINATION_PENALTY = -1.0  # reward of the step that ends an episode on broken physics
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Weights of the quadratic reward (see module docstring)."""
+
+    track: float = 1.0
+    velocity: float = 0.01
+    torque: float = 1e-3
+    torsion: float = 0.0
+
+    @classmethod
+    def from_config(cls, config) -> RewardWeights:
+        if config is None:
+            return cls()
+        if isinstance(config, cls):
+            return config
+        if not isinstance(config, dict):
+            raise TypeError(f"reward_weights must be a dict, got {type(config).__name__}")
+        allowed = {f.name for f in fields(cls)}
+        unknown = set(config) - allowed
+        if unknown:
+            raise ValueError(f"unknown reward weight(s) {sorted(unknown)}; valid: {sorted(allowed)}")
+        for key, value in config.items():
+            if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+                raise ValueError(f"reward weight {key!r} must be a number >= 0, got {value!r}")
+        return cls(**config)
+
+
+class ArmEnv(gym.Env):
+    """An arm of the catalog in PyBullet with sensors, a task and a nominal model.
+
+    Args:
+        robot: robot name (``elastic_gym.robots.catalog.ROBOTS``) or a ``RobotSpec``.
+        task: ``"tracking"``, ``"regulation"`` or ``"excitation"``.
+        task_options: options of the task (see ``elastic_gym.envs.tasks``).
+        physics_dt: physics step (s), default from the robot; must keep
+            ``physics_dt * omega_max <= 0.2`` for the stiffest joint mode.
+        control_dt: control period (s), an integer multiple of ``physics_dt`` (default 1 ms).
+        encoder: ``{"resolution": rad, "noise_std": rad}``.
+        accelerometer: error model, see ``AccelerometerConfig`` (``"ideal"`` for none).
+        accelerometers: list of mounts ``{"link", "position", "rpy", "name"}`` replacing
+            the robot's default sensor placement.
+        plant_scaling: parameter changes of the *simulated* robot relative to the nominal
+            model (``ParameterScaling`` fields, e.g. ``{"link_mass": 1.3}``).
+        torque_limit: override of the motor torque limits (N m).
+        reward_weights: see :class:`RewardWeights`.
+        max_velocity: |q'| or |theta'| above this ends the episode (rad/s).
+        render_mode: ``"rgb_array"`` or ``"human"``.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+
+    def __init__(
+        self,
+        robot: str | RobotSpec,
+        task: str = "tracking",
+        task_options: dict | None = None,
+        physics_dt: float | None = None,
+        control_dt: float | None = None,
+        encoder: dict | EncoderConfig | None = None,
+        accelerometer: dict | AccelerometerConfig | str | None = None,
+        accelerometers: list | None = None,
+        plant_scaling: dict | ParameterScaling | None = None,
+        torque_limit: list | None = None,
+        reward_weights: dict | RewardWeights | None = None,
+        max_velocity: float = 100.0,
+        render_mode: str | None = None,
+    ) -> None:
+        spec = robot if isinstance(robot, RobotSpec) else get_robot(robot)
+        self.robot = spec
+        n = spec.n_joints
+        self.n_joints = n
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode {render_mode!r} not supported; valid: {self.metadata['render_modes']}"
+            )
+        self.render_mode = render_mode
+
+        self.physics_dt, self.control_dt, self.n_substeps = self._timing(physics_dt, control_dt)
+        mounts = spec.accelerometers if accelerometers is None else tuple(
+            AccelerometerMount.from_config(m) for m in accelerometers
+        )
+        self.model = RobotModel(spec, accelerometers=mounts)
+        self.plant_model = RobotModel(spec, plant_scaling, mounts)
+        self._check_stability()
+        self.torque_limit = self._torque_limit(torque_limit)
+        self.max_velocity = float(max_velocity)
+        self.reward_weights = RewardWeights.from_config(reward_weights)
+        self.task = make_task(task, spec, self.model, task_options)
+
+        encoder_cfg = EncoderConfig.from_config(encoder)
+        self.encoder = Encoder(
+            spec.encoder_resolution if encoder_cfg.resolution is None else encoder_cfg.resolution,
+            spec.encoder_noise_std if encoder_cfg.noise_std is None else encoder_cfg.noise_std,
+        )
+        accel_cfg = (
+            AccelerometerConfig.ideal() if accelerometer == "ideal"
+            else AccelerometerConfig.from_config(accelerometer)
+        )
+        self.accelerometer_array = AccelerometerArray(
+            accel_cfg, self.model.n_sensors, self.control_dt
+        )
+
+        self.metadata = {
+            **self.metadata,
+            "physics_dt": self.physics_dt,
+            "control_dt": self.control_dt,
+            "robot": spec.name,
+            "task": self.task.name,
+        }
+        self.action_space = spaces.Box(-self.torque_limit, self.torque_limit, dtype=np.float64)
+        self.observation_space = self._observation_space()
+
+        self.sim = ArmSimulator(spec, self.plant_model, self.physics_dt, gui=render_mode == "human")
+        self.time = 0.0
+        self._needs_reset = True
+        self._last_obs: dict[str, np.ndarray] | None = None
+        self._last_torque = np.zeros(n)
+
+    # ------------------------------------------------------------------ setup
+    def _timing(self, physics_dt, control_dt) -> tuple[float, float, int]:
+        physics = self.robot.physics_dt if physics_dt is None else physics_dt
+        control = self.robot.control_dt if control_dt is None else control_dt
+        for key, value in (("physics_dt", physics), ("control_dt", control)):
+            if not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
+                raise ValueError(f"{key} must be a positive number, got {value!r}")
+        if physics > 1e-3 + 1e-15:
+            raise ValueError(f"physics_dt must be <= 1 ms, got {physics}")
+        ratio = control / physics
+        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+            raise ValueError(
+                f"control_dt ({control}) must be an integer multiple of physics_dt ({physics})"
+            )
+        return float(physics), float(control), round(ratio)
+
+    def _check_stability(self) -> None:
+        if not self.robot.elastic:
+            return
+        q = 0.5 * (np.asarray(self.robot.workspace_low) + np.asarray(self.robot.workspace_high))
+        omega = self.plant_model.natural_frequencies(q)[0].max()
+        if self.physics_dt * omega > STABILITY_LIMIT:
+            raise ValueError(
+                f"physics_dt={self.physics_dt} too coarse for the stiffest joint mode "
+                f"({omega:.0f} rad/s): need physics_dt * omega <= {STABILITY_LIMIT}"
+            )
+
+    def _torque_limit(self, torque_limit) -> np.ndarray:
+        if torque_limit is None:
+            return np.asarray(self.robot.torque_limit, dtype=float)
+        limit = np.asarray(torque_limit, dtype=float)
+        if limit.ndim == 0:
+            limit = np.full(self.n_joints, float(limit))
+        if limit.shape != (self.n_joints,) or not np.all(np.isfinite(limit)) or np.any(limit <= 0):
+            raise ValueError(f"torque_limit must be {self.n_joints} positive numbers, got {torque_limit!r}")
+        return limit
+
+    def _observation_space(self) -> spaces.Dict:
+        n = self.n_joints
+        inf = np.full(n, np.inf)
+        position_key = "motor_position" if self.robot.elastic else "link_position"
+        entries = {position_key: spaces.Box(-inf, inf, dtype=np.float64)}
+        if self.model.n_sensors:
+            r = np.full(3 * self.model.n_sensors, self.accelerometer_array.config.range)
+            entries["acceleration"] = spaces.Box(-r, r, dtype=np.float64)
+        entries["reference"] = spaces.Box(-np.full(2 * n, np.inf), np.full(2 * n, np.inf),
+                                          dtype=np.float64)
+        return spaces.Dict(entries)
+
+    # ------------------------------------------------------------------ API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode at rest (or at ``options["initial_state"]``).
+
+        ``options["initial_state"]`` may give ``q`` and ``dq`` (and ``theta``,
+        ``dtheta`` for elastic arms; default: static equilibrium theta = q + K^-1 g(q)).
+        """
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = set(options) - {"initial_state"}
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: ['initial_state']")
+        q0 = self.task.reset(self.np_random)
+        q, dq, theta, dtheta = self._initial_state(q0, options.get("initial_state"))
+        self.sim.reset_state(q, dq, theta, dtheta)
+        self.accelerometer_array.reset(self.np_random)
+        self.time = 0.0
+        self._needs_reset = False
+        self._last_torque = self._equilibrium_torque(q, theta)
+        ddq = self.sim.link_acceleration(self._last_torque)
+        obs = self._observe(ddq)
+        info = self._info(ddq, self._last_torque, saturated=False)
+        return obs, info
+
+    def step(self, action):
+        tau_action = self._validate_action(action)
+        if self._needs_reset:
+            raise RuntimeError("call reset() before step() (and after an episode has ended)")
+        sim = self.sim
+        command = tau_action + self.task.external_torque(self.time, sim.q)
+        tau = np.clip(command, -self.torque_limit, self.torque_limit)
+        saturated = bool(np.any(tau != command))
+        sim.step(tau, self.n_substeps)
+        self.time += self.control_dt
+        self._last_torque = tau
+
+        reason = self._termination_reason()
+        if reason is not None:
+            self._needs_reset = True
+            info = {"time": self.time, "termination_reason": reason, "torque": tau.copy(),
+                    "torque_saturated": saturated}
+            return self._last_obs, TERMINATION_PENALTY, True, False, info
+        ddq = sim.link_acceleration(tau)
+        obs = self._observe(ddq)
+        reward = self._reward(tau)
+        info = self._info(ddq, tau, saturated)
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, False, False, info
+
+    def render(self):
+        if self.render_mode == "rgb_array":
+            return self.sim.render()
+        return None
+
+    def close(self) -> None:
+        if getattr(self, "sim", None) is not None:
+            self.sim.close()
+
+    # ------------------------------------------------------------------ internals
+    def _validate_action(self, action) -> np.ndarray:
+        arr = np.asarray(action)
+        if arr.dtype.kind not in "fiu":
+            raise TypeError(f"action must be a real numeric array, got dtype {arr.dtype}")
+        if arr.shape != (self.n_joints,):
+            raise ValueError(f"action must have shape ({self.n_joints},), got {arr.shape}")
+        arr = arr.astype(np.float64)
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"action must be finite, got {arr}")
+        return arr
+
+    def _initial_state(self, q0: np.ndarray, given: dict | None):
+        n = self.n_joints
+        allowed = {"q", "dq", "theta", "dtheta"} if self.robot.elastic else {"q", "dq"}
+        given = dict(given or {})
+        unknown = set(given) - allowed
+        if unknown:
+            raise ValueError(f"unknown initial_state key(s) {sorted(unknown)}; valid: {sorted(allowed)}")
+        values = {}
+        for key in given:
+            arr = np.asarray(given[key], dtype=float)
+            if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+                raise ValueError(f"initial_state[{key!r}] must be {n} finite numbers")
+            values[key] = arr
+        q = values.get("q", q0)
+        dq = values.get("dq", np.zeros(n))
+        if not self.robot.elastic:
+            return q, dq, q, dq
+        theta = values.get("theta", self.plant_model.static_motor_position(q))
+        dtheta = values.get("dtheta", dq.copy())
+        return q, dq, theta, dtheta
+
+    def _equilibrium_torque(self, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """Motor torque that keeps a static state static (used for the reset reading)."""
+        if self.robot.elastic:
+            return self.plant_model.K * (theta - q)
+        return self.plant_model.gravity(q)
+
+    def _termination_reason(self) -> str | None:
+        sim = self.sim
+        state = np.concatenate([sim.q, sim.dq, sim.theta, sim.dtheta])
+        if not np.all(np.isfinite(state)):
+            return "non-finite state"
+        if max(np.abs(sim.dq).max(), np.abs(sim.dtheta).max()) > self.max_velocity:
+            return "velocity limit exceeded"
+        return None
+
+    def _observe(self, ddq: np.ndarray) -> dict[str, np.ndarray]:
+        sim, rng = self.sim, self.np_random
+        reference = self.task.reference(self.time)
+        if self.robot.elastic:
+            obs = {"motor_position": self.encoder.measure(sim.theta, rng)}
+        else:
+            obs = {"link_position": self.encoder.measure(sim.q, rng)}
+        if self.model.n_sensors:
+            force = self.plant_model.accelerometer_readings(sim.q, sim.dq, ddq)
+            obs["acceleration"] = self.accelerometer_array.measure(force, rng)
+        obs["reference"] = np.concatenate([reference[0], reference[1]])
+        self._last_obs = obs
+        return obs
+
+    def _reward(self, tau: np.ndarray) -> float:
+        sim, w = self.sim, self.reward_weights
+        reference = self.task.reference(self.time)
+        cost = w.track * np.sum((sim.q - reference[0]) ** 2)
+        cost += w.velocity * np.sum((sim.dq - reference[1]) ** 2)
+        cost += w.torque * np.sum((tau / self.torque_limit) ** 2)
+        if w.torsion:
+            cost += w.torsion * np.sum((sim.theta - sim.q) ** 2)
+        return float(-self.control_dt * cost)
+
+    def _info(self, ddq: np.ndarray, tau: np.ndarray, saturated: bool) -> dict:
+        sim = self.sim
+        reference = self.task.reference(self.time)
+        return {
+            "time": self.time,
+            "true_state": {
+                "q": sim.q.copy(),
+                "dq": sim.dq.copy(),
+                "theta": sim.theta.copy(),
+                "dtheta": sim.dtheta.copy(),
+                "ddq": ddq,
+                "x": sim.state,
+            },
+            "torque": tau.copy(),
+            "torque_saturated": saturated,
+            "reference": {
+                "q": reference[0], "dq": reference[1], "ddq": reference[2],
+                "d3q": reference[3], "d4q": reference[4],
+            },
+            "termination_reason": None,
+        }
+
+
+class ElasticArmEnv(ArmEnv):
+    """Arm with elastic joints: model (1), or model (2) when the robot has a coupling S."""
+
+    def __init__(self, robot: str | RobotSpec = "two_link_elastic", **kwargs) -> None:
+        super().__init__(robot, **kwargs)
+        if not self.robot.elastic:
+            raise ValueError(f"robot {self.robot.name!r} has rigid joints; use RigidArmEnv")
+
+
+class RigidArmEnv(ArmEnv):
+    """Arm with rigid joints measured by link encoders (the rigid-robot observer papers)."""
+
+    def __init__(self, robot: str | RobotSpec = "two_link_rigid", **kwargs) -> None:
+        super().__init__(robot, **kwargs)
+        if self.robot.elastic:
+            raise ValueError(f"robot {self.robot.name!r} has elastic joints; use ElasticArmEnv")

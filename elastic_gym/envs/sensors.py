@@ -1,0 +1,148 @@
+"""Sensor models: position encoders and 3-axis MEMS accelerometers.
+
+Only these reach the observation. Noise is drawn from the environment's
+``np_random`` so that a seed fixes every sample.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+GRAVITY = 9.81
+
+
+def _from_config(cls, config, what: str):
+    """Build a frozen sensor config from None, an instance or a dict; unknown keys are errors."""
+    if config is None:
+        return cls()
+    if isinstance(config, cls):
+        return config
+    if not isinstance(config, dict):
+        raise TypeError(f"{what} config must be a dict, got {type(config).__name__}")
+    allowed = {f.name for f in fields(cls)}
+    unknown = set(config) - allowed
+    if unknown:
+        raise ValueError(f"unknown {what} field(s) {sorted(unknown)}; valid: {sorted(allowed)}")
+    return cls(**config)
+
+
+def _check_nonnegative(owner: str, **values: float | None) -> None:
+    for key, value in values.items():
+        if value is None:
+            continue
+        if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+            raise ValueError(f"{owner}.{key} must be a finite number >= 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    """Position encoder: quantization ``resolution`` (rad, 0 = ideal) and Gaussian noise.
+
+    ``None`` fields take the robot's defaults (``RobotSpec.encoder_resolution`` and
+    ``encoder_noise_std``).
+    """
+
+    resolution: float | None = None
+    noise_std: float | None = None
+
+    def __post_init__(self) -> None:
+        _check_nonnegative("encoder", resolution=self.resolution, noise_std=self.noise_std)
+
+    @classmethod
+    def from_config(cls, config) -> EncoderConfig:
+        return _from_config(cls, config, "encoder")
+
+
+class Encoder:
+    """Quantized, optionally noisy position measurement: round((x + n) / r) * r."""
+
+    def __init__(self, resolution: float, noise_std: float) -> None:
+        self.resolution = float(resolution)
+        self.noise_std = float(noise_std)
+
+    def measure(self, position: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        y = position
+        if self.noise_std > 0.0:
+            y = y + self.noise_std * rng.standard_normal(position.shape)
+        if self.resolution > 0.0:
+            y = np.round(y / self.resolution) * self.resolution
+        return np.array(y, dtype=float)
+
+
+@dataclass(frozen=True)
+class AccelerometerConfig:
+    """Error model of every 3-axis accelerometer of the arm.
+
+    Defaults are those of a good industrial MEMS part sampled at the control rate:
+
+    * ``noise_density`` 1.5e-3 m/s^2/sqrt(Hz) (~150 ug/sqrt(Hz)); the per-sample standard
+      deviation is noise_density * sqrt(f_s / 2);
+    * ``bias_std`` 0.02 m/s^2 (~2 mg): a constant bias per axis drawn at each reset;
+    * ``range`` 16 g: readings saturate there;
+    * ``cutoff_hz`` None: optional first-order low-pass (anti-aliasing) filter;
+    * ``resolution`` None: optional output quantization (m/s^2).
+    """
+
+    noise_density: float = 1.5e-3
+    bias_std: float = 0.02
+    range: float = 16.0 * GRAVITY
+    cutoff_hz: float | None = None
+    resolution: float | None = None
+
+    def __post_init__(self) -> None:
+        _check_nonnegative(
+            "accelerometer", noise_density=self.noise_density, bias_std=self.bias_std,
+            resolution=self.resolution,
+        )
+        if not isinstance(self.range, (int, float)) or not self.range > 0:
+            raise ValueError(f"accelerometer.range must be > 0, got {self.range!r}")
+        if self.cutoff_hz is not None and (
+            not isinstance(self.cutoff_hz, (int, float)) or not self.cutoff_hz > 0
+        ):
+            raise ValueError(f"accelerometer.cutoff_hz must be > 0 or None, got {self.cutoff_hz!r}")
+
+    @classmethod
+    def from_config(cls, config) -> AccelerometerConfig:
+        return _from_config(cls, config, "accelerometer")
+
+    @classmethod
+    def ideal(cls) -> AccelerometerConfig:
+        """Noise-free, unbiased, unfiltered, practically unbounded."""
+        return cls(noise_density=0.0, bias_std=0.0, range=1e9)
+
+
+class AccelerometerArray:
+    """Applies the error model of :class:`AccelerometerConfig` to true specific forces."""
+
+    def __init__(self, config: AccelerometerConfig, n_sensors: int, sample_time: float) -> None:
+        self.config = config
+        self.size = 3 * n_sensors
+        self.sample_std = config.noise_density * np.sqrt(0.5 / sample_time)
+        self.alpha = (
+            float(np.exp(-2.0 * np.pi * config.cutoff_hz * sample_time))
+            if config.cutoff_hz is not None
+            else 0.0
+        )
+        self.bias = np.zeros(self.size)
+        self._filtered: np.ndarray | None = None
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.bias = self.config.bias_std * rng.standard_normal(self.size)
+        self._filtered = None
+
+    def measure(self, specific_force: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        y = specific_force + self.bias
+        if self.sample_std > 0.0:
+            y = y + self.sample_std * rng.standard_normal(self.size)
+        if self.alpha > 0.0:
+            self._filtered = y if self._filtered is None else (
+                self.alpha * self._filtered + (1.0 - self.alpha) * y
+            )
+            y = self._filtered
+        limit = self.config.range
+        y = np.clip(y, -limit, limit)
+        if self.config.resolution:
+            y = np.round(y / self.config.resolution) * self.config.resolution
+        return np.array(y, dtype=float)

@@ -1,0 +1,243 @@
+"""Tasks: what the arm is asked to do, selected by the env kwarg ``task``.
+
+* ``tracking``: follow smooth C^4 rest-to-rest motions between random reachable
+  configurations (or given ``waypoints``); the reference carries q_d .. q_d^(4).
+* ``regulation``: go to a goal configuration and stay there (constant reference).
+* ``excitation``: an open-loop torque (e.g. g(q) + (cos t/2, -cos t) of Cristofaro &
+  De Luca, Example 1) to which the action is added; for observer-only studies.
+
+Every task options mapping is validated: unknown keys raise ``ValueError`` naming them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from elastic_gym.envs.trajectories import RestToRestPath
+from elastic_gym.model import RobotModel
+from elastic_gym.robots.spec import RobotSpec
+
+REFERENCE_ORDER = 4
+
+
+def _vector(value, n: int, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(n, float(arr))
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"task option {name!r} must be {n} finite numbers, got {value!r}")
+    return arr
+
+
+def _configs(value, n: int, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != n or len(arr) < 1 or not np.all(np.isfinite(arr)):
+        raise ValueError(f"task option {name!r} must be a list of {n}-vectors, got {value!r}")
+    return arr
+
+
+@dataclass
+class Task:
+    """Base class: a reference trajectory, an optional external torque, a start configuration."""
+
+    spec: RobotSpec
+    model: RobotModel
+    name: str = field(default="", init=False)
+
+    def reset(self, rng: np.random.Generator) -> np.ndarray:
+        """Sample the episode; return the initial link configuration (at rest)."""
+        raise NotImplementedError
+
+    def reference(self, t: float) -> np.ndarray:
+        """(REFERENCE_ORDER + 1, N) array: q_d and its time derivatives at time t."""
+        raise NotImplementedError
+
+    def external_torque(self, t: float, q: np.ndarray) -> np.ndarray:
+        """Open-loop torque added to the action (zero except for ``excitation``)."""
+        return np.zeros(self.spec.n_joints)
+
+    # helpers
+    @property
+    def low(self) -> np.ndarray:
+        return np.asarray(self.spec.workspace_low, dtype=float)
+
+    @property
+    def high(self) -> np.ndarray:
+        return np.asarray(self.spec.workspace_high, dtype=float)
+
+    def sample_configuration(self, rng: np.random.Generator) -> np.ndarray:
+        return rng.uniform(self.low, self.high)
+
+    def sample_move(self, rng: np.random.Generator, start: np.ndarray, max_move: float) -> np.ndarray:
+        """A reachable configuration within ``max_move`` (per joint) of ``start``."""
+        step = rng.uniform(-max_move, max_move, size=start.shape)
+        return np.clip(start + step, self.low, self.high)
+
+    @classmethod
+    def option_names(cls) -> list[str]:
+        return [f.name for f in fields(cls) if f.init and f.name not in ("spec", "model")]
+
+
+@dataclass
+class TrackingTask(Task):
+    """Rest-to-rest C^4 motions (9th-order timing law) through random or given waypoints.
+
+    Options: ``waypoints`` (list of configurations; default random), ``n_moves`` (2),
+    ``move_time`` (s, 1.0), ``dwell_time`` (s, 0.25), ``max_move`` (rad, robot default),
+    ``start`` (first configuration; default random).
+    """
+
+    waypoints: list | None = None
+    n_moves: int = 2
+    move_time: float = 1.0
+    dwell_time: float = 0.25
+    max_move: float | None = None
+    start: list | None = None
+
+    def __post_init__(self) -> None:
+        self.name = "tracking"
+        n = self.spec.n_joints
+        if self.waypoints is not None:
+            self._given = _configs(self.waypoints, n, "waypoints")
+        else:
+            self._given = None
+        if self.start is not None:
+            self._start = _vector(self.start, n, "start")
+        else:
+            self._start = None
+        if not (isinstance(self.n_moves, int) and self.n_moves >= 1):
+            raise ValueError(f"task option 'n_moves' must be an integer >= 1, got {self.n_moves!r}")
+        for key in ("move_time", "dwell_time"):
+            value = getattr(self, key)
+            if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+                raise ValueError(f"task option {key!r} must be a number >= 0, got {value!r}")
+        if self.move_time <= 0:
+            raise ValueError("task option 'move_time' must be > 0")
+        self._max_move = self.spec.max_move if self.max_move is None else float(self.max_move)
+        self.path = RestToRestPath(np.zeros((1, n)), self.move_time, self.dwell_time)
+
+    def reset(self, rng: np.random.Generator) -> np.ndarray:
+        if self._given is not None:
+            points = self._given
+            if self._start is not None:
+                points = np.vstack([self._start, points])
+        else:
+            first = self._start if self._start is not None else self.sample_configuration(rng)
+            points = [first]
+            for _ in range(self.n_moves):
+                points.append(self.sample_move(rng, points[-1], self._max_move))
+            points = np.asarray(points)
+        self.path = RestToRestPath(points, self.move_time, self.dwell_time)
+        return points[0].copy()
+
+    def reference(self, t: float) -> np.ndarray:
+        return self.path.evaluate(t, REFERENCE_ORDER)
+
+
+@dataclass
+class RegulationTask(Task):
+    """Go to ``goal`` (default: random within ``max_move`` of the start) and stay.
+
+    Options: ``goal``, ``start``, ``max_move``.
+    """
+
+    goal: list | None = None
+    start: list | None = None
+    max_move: float | None = None
+
+    def __post_init__(self) -> None:
+        self.name = "regulation"
+        n = self.spec.n_joints
+        self._goal = _vector(self.goal, n, "goal") if self.goal is not None else None
+        self._start = _vector(self.start, n, "start") if self.start is not None else None
+        self._max_move = self.spec.max_move if self.max_move is None else float(self.max_move)
+        self._target = np.zeros(n)
+
+    def reset(self, rng: np.random.Generator) -> np.ndarray:
+        start = self._start if self._start is not None else self.sample_configuration(rng)
+        self._target = (
+            self._goal.copy() if self._goal is not None
+            else self.sample_move(rng, start, self._max_move)
+        )
+        return start.copy()
+
+    def reference(self, t: float) -> np.ndarray:
+        out = np.zeros((REFERENCE_ORDER + 1, self.spec.n_joints))
+        out[0] = self._target
+        return out
+
+
+@dataclass
+class ExcitationTask(Task):
+    """Open-loop torque tau_ext(t, q) = [g(q)] + offset + amplitude * cos(frequency t + phase).
+
+    Cristofaro & De Luca Example 1 (eq. 18) is ``amplitude=(1, -1), frequency=(0.5, 1)``;
+    Example 2 (eq. 19) is ``amplitude=(1, 1), frequency=(1, 2), phase=(0, -pi/2),
+    offset=(0, -1)``. Default: gravity compensation plus 5 % of the torque limit at
+    0.5 .. 1.5 rad/s. The reference holds the start configuration.
+
+    Options: ``gravity_compensation`` (True), ``amplitude``, ``frequency`` (rad/s),
+    ``phase`` (rad), ``offset`` (N m), ``start``.
+    """
+
+    gravity_compensation: bool = True
+    amplitude: list | float | None = None
+    frequency: list | float | None = None
+    phase: list | float = 0.0
+    offset: list | float = 0.0
+    start: list | None = None
+
+    def __post_init__(self) -> None:
+        self.name = "excitation"
+        n = self.spec.n_joints
+        limit = np.asarray(self.spec.torque_limit)
+        self._amplitude = (
+            _vector(self.amplitude, n, "amplitude") if self.amplitude is not None else 0.05 * limit
+        )
+        self._frequency = (
+            _vector(self.frequency, n, "frequency")
+            if self.frequency is not None
+            else np.linspace(0.5, 1.5, n)
+        )
+        self._phase = _vector(self.phase, n, "phase")
+        self._offset = _vector(self.offset, n, "offset")
+        self._start = _vector(self.start, n, "start") if self.start is not None else None
+        self._hold = np.zeros(n)
+
+    def reset(self, rng: np.random.Generator) -> np.ndarray:
+        self._hold = self._start.copy() if self._start is not None else self.sample_configuration(rng)
+        return self._hold.copy()
+
+    def reference(self, t: float) -> np.ndarray:
+        out = np.zeros((REFERENCE_ORDER + 1, self.spec.n_joints))
+        out[0] = self._hold
+        return out
+
+    def external_torque(self, t: float, q: np.ndarray) -> np.ndarray:
+        tau = self._offset + self._amplitude * np.cos(self._frequency * t + self._phase)
+        if self.gravity_compensation:
+            tau = tau + self.model.gravity(q)
+        return tau
+
+
+TASKS: dict[str, type[Task]] = {
+    "tracking": TrackingTask,
+    "regulation": RegulationTask,
+    "excitation": ExcitationTask,
+}
+
+
+def make_task(name: str, spec: RobotSpec, model: RobotModel, options: dict | None) -> Task:
+    """Instantiate a task by name with validated options."""
+    if name not in TASKS:
+        raise ValueError(f"unknown task {name!r}; valid: {sorted(TASKS)}")
+    cls = TASKS[name]
+    options = dict(options or {})
+    unknown = set(options) - set(cls.option_names())
+    if unknown:
+        raise ValueError(
+            f"unknown option(s) {sorted(unknown)} for task {name!r}; valid: {cls.option_names()}"
+        )
+    return cls(spec=spec, model=model, **options)

@@ -1,0 +1,352 @@
+"""Nominal robot model: pinocchio rigid-body dynamics of the URDF plus the elastic joints.
+
+The link dynamics are those of De Luca, Schroeder & Thuemmel (ICRA 2007):
+
+* model (1):  M(q) q'' + C(q, q') q' + g(q) + d(q') = tau_J,
+              B theta'' + tau_J = tau,
+* model (2):  M(q) q'' + S theta'' + C q' + g + d = tau_J,
+              S^T q'' + B theta'' + tau_J = tau,
+
+with the joint (spring + damper) torque tau_J = K (theta - q) + D (theta' - q').
+The state is ordered x = (theta, q, theta', q') as in the paper's eq. (3).
+
+Accelerometer maps follow eqs. (8)-(10): the specific force of a sensor, in its
+own frame, is y'_2 = T_A(q) q'' + W_A(q, q') with
+T_A = R_WS^T J_lin(q) (the linear part of the frame Jacobian in the sensor frame) and
+W_A = R_WS^T (Jdot q' - g_W): a sensor at rest reads +|g| along the upward axis.
+
+Observers and controllers get a :class:`RobotModel` from ``env.unwrapped.model`` and
+never touch the simulator; :meth:`RobotModel.perturbed` gives a copy with parameter
+errors for robustness studies.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from elastic_gym.robots.spec import AccelerometerMount, LinkFriction, RobotSpec
+from elastic_gym.robots.urdf_tools import urdf_text_for_pinocchio
+
+
+@dataclass(frozen=True)
+class ParameterScaling:
+    """Multiplicative parameter changes (1.0 = nominal).
+
+    Used for the simulated plant (``env`` kwarg ``plant_scaling``) and for model
+    copies with errors (:meth:`RobotModel.perturbed`). ``link_mass`` scales the mass
+    and rotational inertia of every link together (a uniformly denser link, centre of
+    mass unchanged); ``link_inertia`` scales only the rotational inertia. Scalars or
+    one value per joint (the links moved by that joint).
+    """
+
+    link_mass: float | tuple[float, ...] = 1.0
+    link_inertia: float | tuple[float, ...] = 1.0
+    stiffness: float | tuple[float, ...] = 1.0
+    motor_inertia: float | tuple[float, ...] = 1.0
+    damping: float | tuple[float, ...] = 1.0
+    friction: float = 1.0
+
+    @classmethod
+    def from_config(cls, config: ParameterScaling | dict | None) -> ParameterScaling:
+        if config is None:
+            return cls()
+        if isinstance(config, cls):
+            return config
+        if not isinstance(config, dict):
+            raise TypeError(f"parameter scaling must be a dict, got {type(config).__name__}")
+        allowed = set(cls.__dataclass_fields__)
+        unknown = set(config) - allowed
+        if unknown:
+            raise ValueError(
+                f"unknown parameter scaling field(s) {sorted(unknown)}; valid: {sorted(allowed)}"
+            )
+        values = {}
+        for key, value in config.items():
+            arr = np.asarray(value, dtype=float)
+            if not np.all(np.isfinite(arr)) or np.any(arr <= 0.0):
+                raise ValueError(f"parameter scaling {key!r} must be finite and > 0, got {value!r}")
+            values[key] = float(arr) if arr.ndim == 0 else tuple(arr.tolist())
+        return cls(**values)
+
+    def per_joint(self, name: str, n: int) -> np.ndarray:
+        value = np.asarray(getattr(self, name), dtype=float)
+        if value.ndim == 0:
+            return np.full(n, float(value))
+        if value.shape != (n,):
+            raise ValueError(f"parameter scaling {name!r} needs 1 or {n} values, got {value.size}")
+        return value
+
+    @property
+    def is_nominal(self) -> bool:
+        return all(np.all(np.asarray(getattr(self, f)) == 1.0) for f in self.__dataclass_fields__)
+
+
+class RobotModel:
+    """Pinocchio model of a :class:`RobotSpec` with its elastic transmission.
+
+    All arrays are float64. Methods are not thread-safe (one pinocchio ``Data``
+    per instance); use :meth:`copy` to give each user its own.
+    """
+
+    def __init__(
+        self,
+        spec: RobotSpec,
+        scaling: ParameterScaling | dict | None = None,
+        accelerometers: tuple[AccelerometerMount, ...] | None = None,
+    ) -> None:
+        self.spec = spec
+        self.scaling = ParameterScaling.from_config(scaling)
+        n = spec.n_joints
+        self.n = n
+        self.pin_model = pin.buildModelFromXML(urdf_text_for_pinocchio(spec.urdf))
+        self.pin_model.gravity.linear = np.asarray(spec.gravity, dtype=float)
+        names = tuple(self.pin_model.names[1:])
+        if names != spec.joint_names or self.pin_model.nq != n or self.pin_model.nv != n:
+            raise ValueError(
+                f"URDF joints {names} (nq={self.pin_model.nq}) do not match spec joints "
+                f"{spec.joint_names}"
+            )
+        self._apply_link_scaling()
+
+        elastic = spec.elastic
+        self.elastic = elastic
+        self.K = self._vector(spec.stiffness, "stiffness") if elastic else np.zeros(n)
+        self.B = self._vector(spec.motor_inertia, "motor_inertia") if elastic else np.zeros(n)
+        self.D = self._vector(spec.damping, "damping") if elastic else np.zeros(n)
+        self.S = (
+            np.asarray(spec.coupling, dtype=float) * self.scaling.per_joint("motor_inertia", n)
+            if spec.coupling is not None
+            else np.zeros((n, n))
+        )
+        self.has_coupling = bool(np.any(self.S != 0.0))
+        self.B_inv = np.where(self.B > 0.0, 1.0 / np.where(self.B > 0.0, self.B, 1.0), 0.0)
+        self.friction: LinkFriction | None = (
+            spec.friction.scaled(self.scaling.friction) if spec.friction is not None else None
+        )
+        self.torque_limit = np.asarray(spec.torque_limit, dtype=float)
+        self.gravity_vector = np.asarray(spec.gravity, dtype=float)
+
+        mounts = spec.accelerometers if accelerometers is None else tuple(accelerometers)
+        self.accelerometers: tuple[AccelerometerMount, ...] = tuple(
+            AccelerometerMount.from_config(m) for m in mounts
+        )
+        self.sensor_frame_ids = [self._add_sensor_frame(m) for m in self.accelerometers]
+        self.data = self.pin_model.createData()
+
+    # ------------------------------------------------------------------ setup
+    def _vector(self, values: tuple[float, ...] | None, scale_name: str) -> np.ndarray:
+        return np.asarray(values, dtype=float) * self.scaling.per_joint(scale_name, self.n)
+
+    def _apply_link_scaling(self) -> None:
+        mass = self.scaling.per_joint("link_mass", self.n)
+        inertia = self.scaling.per_joint("link_inertia", self.n)
+        for j in range(1, self.pin_model.njoints):
+            body = self.pin_model.inertias[j]
+            s_m, s_i = mass[j - 1], inertia[j - 1]
+            self.pin_model.inertias[j] = pin.Inertia(
+                body.mass * s_m, body.lever.copy(), body.inertia * (s_m * s_i)
+            )
+
+    def _add_sensor_frame(self, mount: AccelerometerMount) -> int:
+        if not self.pin_model.existBodyName(mount.link):
+            links = [f.name for f in self.pin_model.frames if f.type == pin.FrameType.BODY]
+            raise ValueError(f"accelerometer link {mount.link!r} not in the URDF; links: {links}")
+        body_id = self.pin_model.getBodyId(mount.link)
+        body = self.pin_model.frames[body_id]
+        local = pin.SE3(pin.rpy.rpyToMatrix(*mount.rpy), np.asarray(mount.position))
+        frame = pin.Frame(
+            mount.name, body.parentJoint, body_id, body.placement * local, pin.FrameType.OP_FRAME
+        )
+        return self.pin_model.addFrame(frame)
+
+    def copy(self) -> RobotModel:
+        """Independent copy (own pinocchio Data)."""
+        new = copy.copy(self)
+        new.pin_model = self.pin_model.copy()
+        new.data = new.pin_model.createData()
+        return new
+
+    def perturbed(self, scaling: ParameterScaling | dict | None = None, **kwargs) -> RobotModel:
+        """A model of the same robot with parameter errors relative to this one.
+
+        ``model.perturbed(link_mass=1.1)`` is the nominal model with +10 % link masses.
+        Scalings compose multiplicatively with the scaling this model already has.
+        """
+        extra = ParameterScaling.from_config(scaling if scaling is not None else kwargs)
+        n = self.n
+        combined = {}
+        for name in ParameterScaling.__dataclass_fields__:
+            if name == "friction":
+                combined[name] = self.scaling.friction * extra.friction
+            else:
+                combined[name] = tuple(
+                    (self.scaling.per_joint(name, n) * extra.per_joint(name, n)).tolist()
+                )
+        return RobotModel(self.spec, ParameterScaling(**combined), self.accelerometers)
+
+    # ------------------------------------------------------- rigid dynamics
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """Link inertia matrix M(q) (symmetric, CRBA)."""
+        M = pin.crba(self.pin_model, self.data, q)
+        return np.triu(M) + np.triu(M, 1).T
+
+    def coriolis_matrix(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """C(q, q') built from Christoffel symbols (M' - 2C skew-symmetric)."""
+        return pin.computeCoriolisMatrix(self.pin_model, self.data, q, dq).copy()
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """Gravity torque g(q)."""
+        return pin.computeGeneralizedGravity(self.pin_model, self.data, q).copy()
+
+    def nonlinear_effects(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """n(q, q') = C(q, q') q' + g(q)."""
+        return pin.nonLinearEffects(self.pin_model, self.data, q, dq).copy()
+
+    def link_friction(self, dq: np.ndarray) -> np.ndarray:
+        """Link-side friction d(q') (zero when the robot has none)."""
+        return self.friction.torque(dq) if self.friction is not None else np.zeros(self.n)
+
+    def rnea(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """Inverse dynamics M q'' + C q' + g (without friction)."""
+        return pin.rnea(self.pin_model, self.data, q, dq, ddq).copy()
+
+    def rnea_derivatives(
+        self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(d tau/d q, d tau/d q', M) of :meth:`rnea`."""
+        dtau_dq, dtau_dv, M = pin.computeRNEADerivatives(self.pin_model, self.data, q, dq, ddq)
+        M = np.triu(M) + np.triu(M, 1).T
+        return dtau_dq.copy(), dtau_dv.copy(), M
+
+    def aba(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Forward dynamics q'' = M^-1 (tau - C q' - g) (without friction)."""
+        return pin.aba(self.pin_model, self.data, q, dq, tau).copy()
+
+    def aba_derivatives(
+        self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(d q''/d q, d q''/d q', M^-1) of :meth:`aba`."""
+        ddq_dq, ddq_dv, Minv = pin.computeABADerivatives(self.pin_model, self.data, q, dq, tau)
+        Minv = np.triu(Minv) + np.triu(Minv, 1).T
+        return ddq_dq.copy(), ddq_dv.copy(), Minv
+
+    def rigid_acceleration(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Rigid-arm forward dynamics with friction: M q'' + C q' + g + d(q') = tau."""
+        return self.aba(q, dq, tau - self.link_friction(dq))
+
+    # ----------------------------------------------------- elastic dynamics
+    def joint_torque(
+        self, theta: np.ndarray, q: np.ndarray, dtheta: np.ndarray, dq: np.ndarray
+    ) -> np.ndarray:
+        """Spring + damper torque tau_J = K (theta - q) + D (theta' - q')."""
+        return self.K * (theta - q) + self.D * (dtheta - dq)
+
+    def elastic_accelerations(
+        self, x: np.ndarray, tau: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(theta'', q'') of model (1), or of model (2) when S != 0.
+
+        Model (2) is solved through the Schur complement
+        (M - S B^-1 S^T) q'' = tau_J - S B^-1 (tau - tau_J) - n - d,
+        theta'' = B^-1 (tau - tau_J - S^T q'').
+        """
+        n = self.n
+        theta, q, dtheta, dq = x[:n], x[n : 2 * n], x[2 * n : 3 * n], x[3 * n :]
+        tau_j = self.joint_torque(theta, q, dtheta, dq)
+        link_tau = tau_j - self.link_friction(dq)
+        if not self.has_coupling:
+            ddq = self.aba(q, dq, link_tau)
+            return self.B_inv * (tau - tau_j), ddq
+        M = self.mass_matrix(q)
+        nle = self.nonlinear_effects(q, dq)
+        SBinv = self.S * self.B_inv
+        ddq = np.linalg.solve(M - SBinv @ self.S.T, link_tau - SBinv @ (tau - tau_j) - nle)
+        return self.B_inv * (tau - tau_j - self.S.T @ ddq), ddq
+
+    def elastic_dynamics(self, x: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """State derivative x' = f(x) + G u of eq. (4) (or its model-(2) counterpart)."""
+        n = self.n
+        ddtheta, ddq = self.elastic_accelerations(x, tau)
+        return np.concatenate([x[2 * n : 3 * n], x[3 * n :], ddtheta, ddq])
+
+    def static_motor_position(self, q: np.ndarray) -> np.ndarray:
+        """Motor position holding the links at rest at q: theta = q + K^-1 g(q)."""
+        return q + self.gravity(q) / self.K
+
+    def energy(
+        self, q: np.ndarray, dq: np.ndarray, theta: np.ndarray | None = None,
+        dtheta: np.ndarray | None = None,
+    ) -> float:
+        """Total energy: link kinetic + potential, motor kinetic (+ S coupling), springs."""
+        M = self.mass_matrix(q)
+        energy = 0.5 * dq @ M @ dq + pin.computePotentialEnergy(self.pin_model, self.data, q)
+        if self.elastic and theta is not None and dtheta is not None:
+            delta = theta - q
+            energy += 0.5 * dtheta @ (self.B * dtheta) + dq @ self.S @ dtheta
+            energy += 0.5 * delta @ (self.K * delta)
+        return float(energy)
+
+    def natural_frequencies(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Undamped vibration frequencies (rad/s) of the elastic arm linearized at rest at q.
+
+        Returns ``(free, locked)``: ``free`` are the N elastic modes of the complete arm
+        (generalized eigenvalues of the stiffness [[K, -K], [-K, K + dg/dq]] over the
+        inertia [[B, S^T], [S, M(q)]], rigid-body modes dropped); ``locked`` are the
+        link-side modes with the motors held still (eigenvalues of M^-1 (K + dg/dq)).
+        """
+        n = self.n
+        M = self.mass_matrix(q)
+        dg = pin.computeGeneralizedGravityDerivatives(self.pin_model, self.data, q)
+        inertia = np.block([[np.diag(self.B), self.S.T], [self.S, M]])
+        K = np.diag(self.K)
+        stiffness = np.block([[K, -K], [-K, K + dg]])
+        free = np.sqrt(np.abs(np.linalg.eigvals(np.linalg.solve(inertia, stiffness)).real))
+        locked = np.sqrt(np.abs(np.linalg.eigvals(np.linalg.solve(M, K + dg)).real))
+        return np.sort(free)[n:], np.sort(locked)
+
+    # ---------------------------------------------------------- sensors
+    @property
+    def n_sensors(self) -> int:
+        return len(self.sensor_frame_ids)
+
+    def sensor_placements(self, q: np.ndarray) -> list[pin.SE3]:
+        """World placement of each accelerometer frame."""
+        pin.framesForwardKinematics(self.pin_model, self.data, q)
+        return [self.data.oMf[f].copy() for f in self.sensor_frame_ids]
+
+    def accelerometer_readings(
+        self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray
+    ) -> np.ndarray:
+        """Noise-free specific force of every sensor in its own frame, eq. (9) stacked.
+
+        f = R_WS^T (a_W - g_W), a_W the classical acceleration of the sensor point.
+        """
+        pin.forwardKinematics(self.pin_model, self.data, q, dq, ddq)
+        out = np.empty(3 * self.n_sensors)
+        for i, fid in enumerate(self.sensor_frame_ids):
+            acc = pin.getFrameClassicalAcceleration(
+                self.pin_model, self.data, fid, pin.ReferenceFrame.LOCAL
+            ).linear
+            R = pin.updateFramePlacement(self.pin_model, self.data, fid).rotation
+            out[3 * i : 3 * i + 3] = acc - R.T @ self.gravity_vector
+        return out
+
+    def accelerometer_maps(
+        self, q: np.ndarray, dq: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(T_A(q), W_A(q, q')) of eq. (10): readings = T_A q'' + W_A."""
+        W = self.accelerometer_readings(q, dq, np.zeros(self.n))
+        pin.computeJointJacobians(self.pin_model, self.data, q)
+        T = np.empty((3 * self.n_sensors, self.n))
+        for i, fid in enumerate(self.sensor_frame_ids):
+            J = pin.getFrameJacobian(self.pin_model, self.data, fid, pin.ReferenceFrame.LOCAL)
+            T[3 * i : 3 * i + 3] = J[:3]
+        return T, W
+
+    def with_accelerometers(self, mounts: tuple[AccelerometerMount, ...]) -> RobotModel:
+        """Same model with another set of accelerometer mounts."""
+        return RobotModel(self.spec, self.scaling, tuple(mounts))

@@ -1,0 +1,6 @@
+"""Robot descriptions (URDF + elastic parameters + sensors), see :mod:`.catalog`."""
+
+from elastic_gym.robots.catalog import ROBOTS, get_robot
+from elastic_gym.robots.spec import AccelerometerMount, LinkFriction, RobotSpec
+
+__all__ = ["ROBOTS", "AccelerometerMount", "LinkFriction", "RobotSpec", "get_robot"]

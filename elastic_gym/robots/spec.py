@@ -1,0 +1,192 @@
+"""Robot descriptions: URDF, elastic transmission parameters, sensors, limits.
+
+A :class:`RobotSpec` is pure data. The simulator (``envs``), the nominal model
+(``model``), observers and controllers all read the same spec, so the plant and
+the designer's model are built from one source of truth.
+
+Notation follows De Luca, Schroeder & Thuemmel (ICRA 2007), eqs. (1)-(2):
+``K`` joint stiffness, ``B`` motor inertia reflected through the gearbox,
+``D`` spring viscosity, ``S`` constant motor/link inertial coupling.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+URDF_DIR = Path(__file__).parent / "urdf"
+
+
+@dataclass(frozen=True)
+class AccelerometerMount:
+    """A 3-axis accelerometer rigidly attached to a link.
+
+    ``position`` (m) and ``rpy`` (rad, URDF roll-pitch-yaw) give the sensor frame
+    in the frame of ``link`` (the URDF link frame, i.e. the frame of the joint
+    that moves the link).
+    """
+
+    link: str
+    position: tuple[float, float, float]
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        for attr in ("position", "rpy"):
+            value = np.asarray(getattr(self, attr), dtype=float)
+            if value.shape != (3,) or not np.all(np.isfinite(value)):
+                raise ValueError(
+                    f"AccelerometerMount.{attr} must be 3 finite numbers, got {getattr(self, attr)!r}"
+                )
+            object.__setattr__(self, attr, tuple(float(v) for v in value))
+        if not isinstance(self.link, str) or not self.link:
+            raise ValueError(f"AccelerometerMount.link must be a link name, got {self.link!r}")
+        if not self.name:
+            object.__setattr__(self, "name", f"acc_{self.link}")
+
+    @classmethod
+    def from_config(cls, config: AccelerometerMount | dict) -> AccelerometerMount:
+        """Build from a mount or a mapping with keys ``link``, ``position``, ``rpy``, ``name``."""
+        if isinstance(config, cls):
+            return config
+        if not isinstance(config, dict):
+            raise TypeError(f"accelerometer spec must be a dict or AccelerometerMount, got {config!r}")
+        allowed = {f.name for f in fields(cls)}
+        unknown = set(config) - allowed
+        if unknown:
+            raise ValueError(
+                f"unknown accelerometer field(s) {sorted(unknown)}; valid: {sorted(allowed)}"
+            )
+        if "link" not in config or "position" not in config:
+            raise ValueError(f"accelerometer spec needs 'link' and 'position', got {config!r}")
+        return cls(**config)
+
+
+@dataclass(frozen=True)
+class LinkFriction:
+    """Link-side friction d(q') = F_v q' + Coulomb (Solsona & Puleston, Sec. 4).
+
+    The Coulomb part is asymmetric (``coulomb_pos`` for q' > 0, ``coulomb_neg`` for
+    q' < 0) and smoothed with ``tanh(q' / smoothing_velocity)``, because a sign
+    function is not integrable with an explicit physics step.
+    """
+
+    viscous: tuple[float, ...]
+    coulomb_pos: tuple[float, ...] | None = None
+    coulomb_neg: tuple[float, ...] | None = None
+    smoothing_velocity: float = 0.01
+
+    def torque(self, dq: np.ndarray) -> np.ndarray:
+        """Friction torque opposing the motion (enters the link equation with + sign)."""
+        tau = np.asarray(self.viscous) * dq
+        if self.coulomb_pos is not None:
+            s = np.tanh(dq / self.smoothing_velocity)
+            pos = np.asarray(self.coulomb_pos)
+            neg = np.asarray(self.coulomb_neg if self.coulomb_neg is not None else self.coulomb_pos)
+            tau = tau + np.where(s > 0.0, pos, neg) * s
+        return tau
+
+    def derivative(self, dq: np.ndarray) -> np.ndarray:
+        """Diagonal of d(friction)/d(q') (used by observers that linearize)."""
+        d = np.asarray(self.viscous, dtype=float) * np.ones_like(dq)
+        if self.coulomb_pos is not None:
+            eps = self.smoothing_velocity
+            s = np.tanh(dq / eps)
+            pos = np.asarray(self.coulomb_pos)
+            neg = np.asarray(self.coulomb_neg if self.coulomb_neg is not None else self.coulomb_pos)
+            d = d + np.where(s > 0.0, pos, neg) * (1.0 - s**2) / eps
+        return d
+
+    def scaled(self, factor: float) -> LinkFriction:
+        def _scale(values: tuple[float, ...] | None) -> tuple[float, ...] | None:
+            return None if values is None else tuple(factor * v for v in values)
+
+        return LinkFriction(
+            viscous=_scale(self.viscous),  # type: ignore[arg-type]
+            coulomb_pos=_scale(self.coulomb_pos),
+            coulomb_neg=_scale(self.coulomb_neg),
+            smoothing_velocity=self.smoothing_velocity,
+        )
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """Everything needed to simulate and model one arm.
+
+    Attributes:
+        name: short identifier.
+        urdf: path of the URDF file (links, inertias, kinematics).
+        joint_names: the N actuated joints, in state order.
+        elastic: elastic joints (model (1)/(2)) or rigid joints.
+        stiffness, motor_inertia, damping: diagonal K, B, D of eq. (1) (elastic only).
+        coupling: constant motor/link inertia block S of eq. (2), or None for model (1).
+        torque_limit: symmetric motor torque limit (N m), per joint.
+        friction: link-side friction model d(q, q') or None.
+        accelerometers: default accelerometer mounts.
+        workspace_low, workspace_high: box of link configurations used by the tasks
+            to sample reachable start/goal configurations (rad).
+        max_move: largest per-joint displacement of one sampled motion (rad).
+        encoder_resolution, encoder_noise_std: default position sensor quantum and
+            Gaussian noise (rad): motor encoders on elastic arms, link encoders on rigid ones.
+        camera: (target, distance, yaw, pitch) of the default render camera.
+        physics_dt: default physics step (s); control_dt: default control period (s).
+        gravity: world gravity vector (m/s^2).
+        source: where the numbers come from (shown in the README).
+    """
+
+    name: str
+    urdf: str
+    joint_names: tuple[str, ...]
+    elastic: bool
+    torque_limit: tuple[float, ...]
+    workspace_low: tuple[float, ...]
+    workspace_high: tuple[float, ...]
+    stiffness: tuple[float, ...] | None = None
+    motor_inertia: tuple[float, ...] | None = None
+    damping: tuple[float, ...] | None = None
+    coupling: tuple[tuple[float, ...], ...] | None = None
+    friction: LinkFriction | None = None
+    accelerometers: tuple[AccelerometerMount, ...] = ()
+    max_move: float = 0.8
+    encoder_resolution: float = 2.0 * np.pi / 2**20
+    encoder_noise_std: float = 0.0
+    camera: tuple[tuple[float, float, float], float, float, float] = ((0.0, 0.0, 0.0), 2.0, 0.0, -10.0)
+    physics_dt: float = 5e-4
+    control_dt: float = 1e-3
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    source: str = ""
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_names)
+
+    def __post_init__(self) -> None:
+        n = self.n_joints
+        vectors = {
+            "torque_limit": self.torque_limit,
+            "workspace_low": self.workspace_low,
+            "workspace_high": self.workspace_high,
+        }
+        if self.elastic:
+            vectors.update(
+                stiffness=self.stiffness, motor_inertia=self.motor_inertia, damping=self.damping
+            )
+        for key, value in vectors.items():
+            if value is None or len(value) != n:
+                raise ValueError(f"RobotSpec {self.name!r}: {key} must have {n} entries, got {value!r}")
+        if self.elastic and (min(self.stiffness) <= 0 or min(self.motor_inertia) <= 0):
+            raise ValueError(f"RobotSpec {self.name!r}: stiffness and motor_inertia must be > 0")
+        if self.coupling is not None:
+            S = np.asarray(self.coupling, dtype=float)
+            if S.shape != (n, n) or np.any(np.tril(S) != 0.0):
+                raise ValueError(
+                    f"RobotSpec {self.name!r}: coupling S must be strictly upper triangular {n}x{n}"
+                )
+        steps = self.control_dt / self.physics_dt
+        if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
+            raise ValueError(
+                f"RobotSpec {self.name!r}: control_dt must be an integer multiple of physics_dt"
+            )
