@@ -1,0 +1,72 @@
+"""The controller interface: ``torque = controller(obs, info)``.
+
+A controller reads only
+
+* ``obs["state"]``: the state estimate (or the truth) from an
+  :class:`~elastic_gym.observers.ObserverWrapper`, layout (theta, q, theta', q') for
+  elastic arms and (q, q') for rigid ones;
+* ``obs["reference"]`` and :func:`public_info` of ``info``: the time and the desired
+  trajectory with derivatives up to order 4 (``info["reference"]``);
+* its nominal :class:`~elastic_gym.model.RobotModel`.
+
+It never sees the simulator's ground truth; the comparison runner strips ``info``
+with :func:`public_info` before calling it.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from typing import ClassVar
+
+import numpy as np
+
+from elastic_gym.model import RobotModel
+
+PUBLIC_INFO_KEYS = ("time", "reference")
+
+
+def public_info(info: Mapping) -> dict:
+    """The part of an env ``info`` a controller may read: time and desired trajectory."""
+    return {key: info[key] for key in PUBLIC_INFO_KEYS if key in info}
+
+
+class Controller(ABC):
+    """Base class of the classical controllers.
+
+    Args:
+        model: nominal model the controller is designed on.
+        dt: control period (s).
+
+    Class attributes:
+        name: registry name.
+        applies_to: ``{"elastic"}``, ``{"rigid"}`` or both.
+    """
+
+    name: ClassVar[str] = ""
+    applies_to: ClassVar[frozenset[str]] = frozenset({"elastic", "rigid"})
+
+    def __init__(self, model: RobotModel, dt: float) -> None:
+        kind = "elastic" if model.elastic else "rigid"
+        if kind not in self.applies_to:
+            raise ValueError(
+                f"controller {self.name!r} applies to {sorted(self.applies_to)} arms, "
+                f"not to the {kind} robot {model.spec.name!r}"
+            )
+        self.model = model
+        self.dt = float(dt)
+        self.n = model.n
+        self.elastic = model.elastic
+
+    def reset(self, obs: Mapping, info: Mapping) -> None:  # noqa: B027 - optional hook
+        """Called after ``env.reset``; stateless controllers need nothing."""
+
+    @abstractmethod
+    def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
+        """Motor torque (N,) for the current observation and public info."""
+
+    # helpers
+    def split_state(self, obs: Mapping) -> tuple[np.ndarray, ...]:
+        """(theta, q, theta', q') for elastic arms, (q, q') for rigid arms."""
+        x = np.asarray(obs["state"], dtype=float)
+        return tuple(x.reshape(-1, self.n))

@@ -1,0 +1,47 @@
+"""Observers by name: ``make_observer("deluca", model, dt, **options)``."""
+
+from __future__ import annotations
+
+import importlib
+
+from elastic_gym.model import RobotModel
+from elastic_gym.observers.base import Observer
+
+# name -> (module, class, fixed options)
+OBSERVERS: dict[str, tuple[str, str, dict]] = {
+    "deluca": ("elastic_gym.observers.deluca", "DeLucaObserver", {"acceleration": "accelerometer"}),
+    "deluca-ideal": ("elastic_gym.observers.deluca", "DeLucaObserver", {"acceleration": "ideal"}),
+    "ekf": ("elastic_gym.observers.ekf", "ExtendedKalmanFilter", {}),
+    "reduced-order": ("elastic_gym.observers.reduced_order", "ReducedOrderObserver", {}),
+    "solsona-puleston": (
+        "elastic_gym.observers.solsona_puleston", "SolsonaPulestonObserver", {},
+    ),
+    "nicosia-tomei": ("elastic_gym.observers.nicosia_tomei", "NicosiaTomeiObserver", {}),
+    "finite-difference": (
+        "elastic_gym.observers.finite_difference", "FiniteDifferenceObserver", {},
+    ),
+    "true": ("elastic_gym.observers.oracle", "OracleObserver", {}),
+}
+
+
+def observer_class(name: str) -> type[Observer]:
+    if name not in OBSERVERS:
+        raise ValueError(f"unknown observer {name!r}; valid: {sorted(OBSERVERS)}")
+    module, cls, _ = OBSERVERS[name]
+    return getattr(importlib.import_module(module), cls)
+
+
+def make_observer(name: str, model: RobotModel, dt: float, **options) -> Observer:
+    """Instantiate an observer by registry name with its options."""
+    cls = observer_class(name)
+    fixed = OBSERVERS[name][2]
+    clash = set(fixed) & set(options)
+    if clash:
+        raise ValueError(f"option(s) {sorted(clash)} are fixed by the observer name {name!r}")
+    return cls(model, dt, **fixed, **options)
+
+
+def applicable_observers(elastic: bool) -> list[str]:
+    """Registry names of the observers that apply to an elastic or a rigid arm."""
+    kind = "elastic" if elastic else "rigid"
+    return [name for name in OBSERVERS if kind in observer_class(name).applies_to]
