@@ -69,11 +69,15 @@ class ParameterScaling:
             try:
                 arr = np.asarray(value, dtype=float)
             except (TypeError, ValueError):
-                raise ValueError(f"parameter scaling {key!r} must be numeric, got {value!r}") from None
+                raise ValueError(
+                    f"parameter scaling {key!r} must be numeric, got {value!r}"
+                ) from None
             may_vanish = key in ("damping", "friction")  # D >= 0 and d(q') >= 0 are physical
             if not np.all(np.isfinite(arr)) or np.any(arr < 0.0 if may_vanish else arr <= 0.0):
                 bound = ">= 0" if may_vanish else "> 0"
-                raise ValueError(f"parameter scaling {key!r} must be finite and {bound}, got {value!r}")
+                raise ValueError(
+                    f"parameter scaling {key!r} must be finite and {bound}, got {value!r}"
+                )
             values[key] = float(arr) if arr.ndim == 0 else tuple(arr.tolist())
         return cls(**values)
 

@@ -1,4 +1,4 @@
-"""Controllers: eq. (13) feedforward + full-state feedback, PD variants, rigid-arm laws, policies."""
+"""Controllers: eq. (13) feedforward + full-state feedback, PD, rigid-arm laws, policies."""
 
 from elastic_gym.controllers.base import Controller, public_info
 from elastic_gym.controllers.registry import CONTROLLERS, controller_class, make_controller

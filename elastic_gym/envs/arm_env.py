@@ -17,14 +17,15 @@ Reward (documented in the README), with e = q - q_d, dt the control period:
                + w_torsion |theta - q|^2)
 
 so that the return approximates an integral cost independent of the control rate.
-An episode whose physics breaks (non-finite state, or a velocity above
-``max_velocity``) ends with ``terminated=True``, reward ``TERMINATION_PENALTY`` and
-``info["termination_reason"]``.
+An episode whose physics breaks (non-finite state, a velocity above
+``max_velocity``, or a link position beyond the URDF joint limits) ends with
+``terminated=True``, reward ``TERMINATION_PENALTY`` and ``info["termination_reason"]``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -41,6 +42,7 @@ from elastic_gym.envs.tasks import make_task
 from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
+from elastic_gym.robots.urdf_tools import joint_limits
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
 TERMINATION_PENALTY = -1.0  # reward of the step that ends an episode on broken physics
@@ -66,7 +68,9 @@ class RewardWeights:
         allowed = {f.name for f in fields(cls)}
         unknown = set(config) - allowed
         if unknown:
-            raise ValueError(f"unknown reward weight(s) {sorted(unknown)}; valid: {sorted(allowed)}")
+            raise ValueError(
+                f"unknown reward weight(s) {sorted(unknown)}; valid: {sorted(allowed)}"
+            )
         for key, value in config.items():
             if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"reward weight {key!r} must be a number >= 0, got {value!r}")
@@ -95,7 +99,7 @@ class ArmEnv(gym.Env):
         render_mode: ``"rgb_array"`` or ``"human"``.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+    metadata: ClassVar[dict] = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
 
     def __init__(
         self,
@@ -132,6 +136,7 @@ class ArmEnv(gym.Env):
         self._check_stability()
         self.torque_limit = self._torque_limit(torque_limit)
         self.max_velocity = float(max_velocity)
+        self.joint_lower, self.joint_upper = joint_limits(spec.urdf, spec.joint_names)
         self.reward_weights = RewardWeights.from_config(reward_weights)
         self.task = make_task(task, spec, self.model, task_options)
 
@@ -198,7 +203,9 @@ class ArmEnv(gym.Env):
         if limit.ndim == 0:
             limit = np.full(self.n_joints, float(limit))
         if limit.shape != (self.n_joints,) or not np.all(np.isfinite(limit)) or np.any(limit <= 0):
-            raise ValueError(f"torque_limit must be {self.n_joints} positive numbers, got {torque_limit!r}")
+            raise ValueError(
+                f"torque_limit must be {self.n_joints} positive numbers, got {torque_limit!r}"
+            )
         return limit
 
     def _observation_space(self) -> spaces.Dict:
@@ -254,7 +261,8 @@ class ArmEnv(gym.Env):
             self._needs_reset = True
             info = {"time": self.time, "termination_reason": reason, "torque": tau.copy(),
                     "torque_saturated": saturated}
-            return self._last_obs, TERMINATION_PENALTY, True, False, info
+            last = {key: value.copy() for key, value in self._last_obs.items()}
+            return last, TERMINATION_PENALTY, True, False, info
         ddq = sim.link_acceleration(tau)
         obs = self._observe(ddq)
         reward = self._reward(tau)
@@ -290,7 +298,9 @@ class ArmEnv(gym.Env):
         given = dict(given or {})
         unknown = set(given) - allowed
         if unknown:
-            raise ValueError(f"unknown initial_state key(s) {sorted(unknown)}; valid: {sorted(allowed)}")
+            raise ValueError(
+                f"unknown initial_state key(s) {sorted(unknown)}; valid: {sorted(allowed)}"
+            )
         values = {}
         for key in given:
             arr = np.asarray(given[key], dtype=float)
@@ -318,6 +328,8 @@ class ArmEnv(gym.Env):
             return "non-finite state"
         if max(np.abs(sim.dq).max(), np.abs(sim.dtheta).max()) > self.max_velocity:
             return "velocity limit exceeded"
+        if np.any(sim.q < self.joint_lower) or np.any(sim.q > self.joint_upper):
+            return "joint limit exceeded"
         return None
 
     def _observe(self, ddq: np.ndarray) -> dict[str, np.ndarray]:

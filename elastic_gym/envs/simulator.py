@@ -15,11 +15,13 @@ PyBullet uses for the links, one substep at a time:
 * rigid joints: the motor torque acts on the link directly.
 
 Link friction d(q') (when the robot has it) is applied explicitly from the state at
-the start of each substep.
+the start of each substep. URDF joint limits are not enforced by PyBullet (they would
+act as hidden constraint forces); the env ends the episode when a limit is crossed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 
@@ -28,6 +30,7 @@ import pybullet as p
 
 from elastic_gym.model import RobotModel
 from elastic_gym.robots.spec import RobotSpec
+from elastic_gym.robots.urdf_tools import urdf_without_limits
 
 
 class ArmSimulator:
@@ -62,7 +65,7 @@ class ArmSimulator:
         p.setTimeStep(self.physics_dt, physicsClientId=c)
         p.setPhysicsEngineParameter(numSubSteps=0, physicsClientId=c)
         self.body = p.loadURDF(
-            spec.urdf,
+            urdf_without_limits(spec.urdf),
             useFixedBase=True,
             flags=p.URDF_USE_INERTIA_FROM_FILE,
             physicsClientId=c,
@@ -211,13 +214,9 @@ class ArmSimulator:
     def close(self) -> None:
         if self._connected:
             self._connected = False
-            try:
+            with contextlib.suppress(p.error):
                 p.disconnect(physicsClientId=self.client)
-            except p.error:
-                pass
 
     def __del__(self) -> None:  # pragma: no cover - best effort cleanup
-        try:
+        with contextlib.suppress(Exception):
             self.close()
-        except Exception:
-            pass

@@ -70,7 +70,9 @@ class Task:
     def sample_configuration(self, rng: np.random.Generator) -> np.ndarray:
         return rng.uniform(self.low, self.high)
 
-    def sample_move(self, rng: np.random.Generator, start: np.ndarray, max_move: float) -> np.ndarray:
+    def sample_move(
+        self, rng: np.random.Generator, start: np.ndarray, max_move: float
+    ) -> np.ndarray:
         """A reachable configuration within ``max_move`` (per joint) of ``start``."""
         step = rng.uniform(-max_move, max_move, size=start.shape)
         return np.clip(start + step, self.low, self.high)
@@ -207,7 +209,10 @@ class ExcitationTask(Task):
         self._hold = np.zeros(n)
 
     def reset(self, rng: np.random.Generator) -> np.ndarray:
-        self._hold = self._start.copy() if self._start is not None else self.sample_configuration(rng)
+        if self._start is not None:
+            self._hold = self._start.copy()
+        else:
+            self._hold = self.sample_configuration(rng)
         return self._hold.copy()
 
     def reference(self, t: float) -> np.ndarray:

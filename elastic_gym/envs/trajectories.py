@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.polynomial import polynomial as P
+from numpy.polynomial import polynomial
 
 TIMING_LAW = np.array([0, 0, 0, 0, 0, 126, -420, 540, -315, 70], dtype=float)
 MAX_ORDER = 8
@@ -21,7 +21,7 @@ MAX_ORDER = 8
 def _timing_derivatives() -> list[np.ndarray]:
     coeffs = [TIMING_LAW]
     for _ in range(MAX_ORDER):
-        coeffs.append(P.polyder(coeffs[-1]))
+        coeffs.append(polynomial.polyder(coeffs[-1]))
     return coeffs
 
 
@@ -31,7 +31,7 @@ _TIMING_DERIVATIVES = _timing_derivatives()
 def timing_law(u: np.ndarray | float, order: int = 4) -> np.ndarray:
     """s(u) and its derivatives d^k s / du^k for k = 0..order, shape (order + 1, *u.shape)."""
     u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
-    return np.stack([P.polyval(u, _TIMING_DERIVATIVES[k]) for k in range(order + 1)])
+    return np.stack([polynomial.polyval(u, _TIMING_DERIVATIVES[k]) for k in range(order + 1)])
 
 
 @dataclass(frozen=True)

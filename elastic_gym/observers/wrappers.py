@@ -28,7 +28,8 @@ class ObserverWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         observer: an :class:`Observer` or a registry name (``"deluca"``, ``"ekf"``, ...).
         initial_estimate: optional initial state estimate passed to ``observer.reset``.
         model: model the observer is designed on when ``observer`` is a name
-            (default: the env's nominal model); e.g. ``env.unwrapped.model.perturbed(link_mass=1.1)``.
+            (default: the env's nominal model), e.g.
+            ``env.unwrapped.model.perturbed(link_mass=1.1)``.
         **options: options of the named observer.
     """
 

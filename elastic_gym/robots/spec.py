@@ -38,7 +38,8 @@ class AccelerometerMount:
             value = np.asarray(getattr(self, attr), dtype=float)
             if value.shape != (3,) or not np.all(np.isfinite(value)):
                 raise ValueError(
-                    f"AccelerometerMount.{attr} must be 3 finite numbers, got {getattr(self, attr)!r}"
+                    f"AccelerometerMount.{attr} must be 3 finite numbers, "
+                    f"got {getattr(self, attr)!r}"
                 )
             object.__setattr__(self, attr, tuple(float(v) for v in value))
         if not isinstance(self.link, str) or not self.link:
@@ -52,7 +53,9 @@ class AccelerometerMount:
         if isinstance(config, cls):
             return config
         if not isinstance(config, dict):
-            raise TypeError(f"accelerometer spec must be a dict or AccelerometerMount, got {config!r}")
+            raise TypeError(
+                f"accelerometer spec must be a dict or AccelerometerMount, got {config!r}"
+            )
         allowed = {f.name for f in fields(cls)}
         unknown = set(config) - allowed
         if unknown:
@@ -152,7 +155,9 @@ class RobotSpec:
     max_move: float = 0.8
     encoder_resolution: float = 2.0 * np.pi / 2**20
     encoder_noise_std: float = 0.0
-    camera: tuple[tuple[float, float, float], float, float, float] = ((0.0, 0.0, 0.0), 2.0, 0.0, -10.0)
+    camera: tuple[tuple[float, float, float], float, float, float] = (
+        (0.0, 0.0, 0.0), 2.0, 0.0, -10.0,
+    )
     physics_dt: float = 5e-4
     control_dt: float = 1e-3
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
@@ -176,7 +181,9 @@ class RobotSpec:
             )
         for key, value in vectors.items():
             if value is None or len(value) != n:
-                raise ValueError(f"RobotSpec {self.name!r}: {key} must have {n} entries, got {value!r}")
+                raise ValueError(
+                    f"RobotSpec {self.name!r}: {key} must have {n} entries, got {value!r}"
+                )
         if self.elastic and (min(self.stiffness) <= 0 or min(self.motor_inertia) <= 0):
             raise ValueError(f"RobotSpec {self.name!r}: stiffness and motor_inertia must be > 0")
         if self.coupling is not None:

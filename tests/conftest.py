@@ -1,0 +1,27 @@
+"""Shared fixtures: every registered env id, and a quiet, noise-free env factory."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import pytest
+
+import elastic_gym
+
+ELASTIC_IDS = [i for i in elastic_gym.ENV_IDS if "Elastic" in i]
+RIGID_IDS = [i for i in elastic_gym.ENV_IDS if "Rigid" in i]
+NOISE_FREE = {"encoder": {"resolution": 0.0, "noise_std": 0.0}, "accelerometer": "ideal"}
+
+
+def make_noise_free(env_id: str, **kwargs) -> gym.Env:
+    """An env whose sensors are exact (ideal encoders and accelerometers)."""
+    return gym.make(env_id, **{**NOISE_FREE, **kwargs})
+
+
+@pytest.fixture(params=elastic_gym.ENV_IDS)
+def env_id(request) -> str:
+    return request.param
+
+
+@pytest.fixture(params=ELASTIC_IDS)
+def elastic_id(request) -> str:
+    return request.param

@@ -1,0 +1,123 @@
+"""Sensor models: accelerometer readings are the specific force of the sensor point; noise,
+bias, saturation, filtering and encoder quantization behave as configured."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pinocchio as pin
+import pytest
+from conftest import ELASTIC_IDS, make_noise_free
+
+from elastic_gym.envs.sensors import AccelerometerArray, AccelerometerConfig, Encoder
+
+
+def _record(env_id: str, steps: int = 300):
+    """Sensor-point poses from PyBullet link states, joint positions and readings."""
+    env = make_noise_free(env_id, task="excitation", task_options={"amplitude": 0.0})
+    obs, info = env.reset(seed=3)
+    u = env.unwrapped
+    mounts = u.model.accelerometers
+    poses, joints, readings = [], [], []
+    for k in range(steps):
+        frame = []
+        for m in mounts:
+            p, R = u.sim.link_pose(m.link)
+            frame.append((p + R @ np.asarray(m.position), R @ pin.rpy.rpyToMatrix(*m.rpy)))
+        poses.append(frame)
+        joints.append(u.sim.q.copy())
+        readings.append(obs["acceleration"])
+        tau = 0.01 * u.torque_limit * np.sin(np.arange(u.n_joints) + 10.0 * k * u.control_dt)
+        obs, *_ = env.step(tau)
+    env.close()
+    return u, poses, joints, np.array(readings)
+
+
+@pytest.mark.parametrize("env_id", ELASTIC_IDS)
+def test_accelerometer_equals_finite_difference_of_sensor_position(env_id):
+    u, poses, joints, readings = _record(env_id)
+    g = np.asarray(u.robot.gravity)
+    n_sensors = u.model.n_sensors
+
+    def specific_force(points, rotation, h):
+        accel = (points[2] - 2.0 * points[1] + points[0]) / h**2
+        return rotation.T @ (accel - g)
+
+    exact_err, pybullet_err, dynamic = 0.0, 0.0, 0.0
+    dt = u.control_dt
+    for k in range(3, len(joints) - 3):
+        # (a) sensor points from PyBullet's joint positions (double precision), 1 ms stencil
+        placements = [u.model.sensor_placements(joints[j]) for j in (k - 1, k, k + 1)]
+        # (b) sensor points from PyBullet's own link states (single-precision poses), 3 ms stencil
+        for i in range(n_sensors):
+            reading = readings[k][3 * i : 3 * i + 3]
+            f_exact = specific_force([p[i].translation for p in placements],
+                                     placements[1][i].rotation, dt)
+            f_pybullet = specific_force([poses[j][i][0] for j in (k - 3, k, k + 3)],
+                                        poses[k][i][1], 3 * dt)
+            exact_err = max(exact_err, np.abs(f_exact - reading).max())
+            pybullet_err = max(pybullet_err, np.abs(f_pybullet - reading).max())
+            dynamic = max(dynamic, np.abs(reading - poses[k][i][1].T @ (-g)).max())
+    assert dynamic > 0.5  # m/s^2 of real motion on top of gravity
+    assert exact_err < 0.01 * dynamic
+    assert pybullet_err < 0.06 * dynamic  # limited by PyBullet's float32 link poses
+
+
+@pytest.mark.parametrize("env_id", ELASTIC_IDS)
+def test_accelerometer_at_rest_reads_g_upwards(env_id):
+    env = make_noise_free(env_id, task="excitation", task_options={"amplitude": 0.0})
+    obs, info = env.reset(seed=1)
+    model = env.unwrapped.model
+    for i, placement in enumerate(model.sensor_placements(info["true_state"]["q"])):
+        world = placement.rotation @ obs["acceleration"][3 * i : 3 * i + 3]
+        assert np.allclose(world, [0.0, 0.0, 9.81], atol=1e-9)
+    env.close()
+
+
+def test_accelerometer_noise_bias_saturation_and_filter():
+    rng = np.random.default_rng(0)
+    dt = 1e-3
+    config = AccelerometerConfig(noise_density=2e-3, bias_std=0.05, range=20.0)
+    array = AccelerometerArray(config, n_sensors=2, sample_time=dt)
+    array.reset(rng)
+    truth = np.array([0.0, 0.0, 9.81, 1.0, -2.0, 30.0])
+    samples = np.array([array.measure(truth, rng) for _ in range(20000)])
+    assert np.allclose(samples[:, :5].std(axis=0), 2e-3 * np.sqrt(0.5 / dt), rtol=0.05)
+    assert np.allclose(samples[:, :5].mean(axis=0) - truth[:5], array.bias[:5], atol=2e-3)
+    assert np.all(samples[:, 5] == 20.0)  # saturated at the range
+    # first-order low-pass: a step settles with time constant 1 / (2 pi f_c)
+    filtered = AccelerometerConfig(noise_density=0, bias_std=0, cutoff_hz=10.0)
+    lowpass = AccelerometerArray(filtered, 1, dt)
+    lowpass.reset(rng)
+    lowpass.measure(np.zeros(3), rng)
+    tau = 1.0 / (2 * np.pi * 10.0)
+    response = [lowpass.measure(np.ones(3), rng)[0] for _ in range(round(tau / dt))]
+    assert response[-1] == pytest.approx(1 - np.exp(-1), abs=0.01)
+
+
+def test_encoder_quantization_and_noise():
+    rng = np.random.default_rng(0)
+    encoder = Encoder(resolution=7e-4, noise_std=0.0)
+    x = rng.uniform(-3, 3, size=1000)
+    y = encoder.measure(x, rng)
+    assert np.abs(y - x).max() <= 3.5e-4 + 1e-15
+    assert np.allclose(np.round(y / 7e-4) * 7e-4, y)
+    noisy = Encoder(resolution=0.0, noise_std=0.01).measure(np.zeros(20000), rng)
+    assert noisy.std() == pytest.approx(0.01, rel=0.05)
+
+
+def test_env_sensor_defaults_follow_the_papers():
+    env = gym.make("elastic_gym/TwoLinkRigid-v0")
+    assert env.unwrapped.encoder.resolution == pytest.approx(7e-4)  # Cristofaro & De Luca
+    env.close()
+    env = gym.make("elastic_gym/TwoLinkRigidFriction-v0")
+    assert env.unwrapped.encoder.noise_std == pytest.approx(0.01)  # Solsona & Puleston
+    env.close()
+
+
+def test_accelerometer_placement_can_be_configured():
+    mounts = [{"link": "link2", "position": [0.2, 0.0, 0.0]}]
+    env = make_noise_free("elastic_gym/TwoLinkElastic-v0", accelerometers=mounts)
+    obs, _ = env.reset(seed=0)
+    assert obs["acceleration"].shape == (3,)
+    env.close()
