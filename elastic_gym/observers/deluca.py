@@ -1,0 +1,272 @@
+"""De Luca, Schroeder & Thuemmel (ICRA 2007): acceleration-based observer for elastic joints.
+
+State x = (theta, q, theta', q') of eq. (3); measurements: motor position y1 = theta and
+the link acceleration, either ideal (y2 = q'', Theorems 1 and 2) or reconstructed from
+link-mounted accelerometers (eqs. (10)-(12)).
+
+Continuous-time observer, eqs. (6), (7) and (12) written as one linear system
+
+    xi' = A_obs xi + G u + L y1 + H y2,    A_obs = [A; 0] - L C,
+    G = [0; 0; B^-1; 0],   H = [0; 0; -B^-1 S^T; I]
+
+(the -B^-1 S^T block is Theorem 2's, for model (2) with constant S; ``use_coupling=False``
+drops it). The gains L come in closed form from desired poles (Remark 3,
+:mod:`elastic_gym.observers.deluca_gains`); the error obeys e' = A_obs e for ideal q''
+whatever the link dynamics (Remark 1).
+
+Discretization (exact for the assumed inter-sample signals, one augmented ``expm`` at
+construction): the torque u is held over the period (the env applies it so: zero-order
+hold is exact for u), while theta and q'' are treated as linear between the samples k
+and k+1 (first-order hold; sample k+1 is available when xi_{k+1} is computed):
+
+    xi_{k+1} = Phi xi_k + P_u u_k + P_0 m_k + P_1 m_{k+1},    m = (theta, q'').
+
+Holding theta and q'' constant instead deviates ~2 % from the continuous error dynamics
+and destabilises stiff observer-based loops (DESIGN.md, Pitfalls).
+
+Implementable observer, eq. (12): q'' = T_A^+(xi_2) (y2' - W_A(xi_2, xi_4)) (eq. (11))
+depends on the estimate at k+1 itself, so each update is a predictor-corrector:
+
+1. predictor: xi^p_{k+1} from the FOH update with q''_{k+1} replaced by q''_k;
+2. q''_{k+1} from eq. (11) at the predicted configuration (xi^p_2, xi^p_4);
+3. corrector: xi_{k+1} = xi^p_{k+1} + P_1^{q''} (q''_{k+1} - q''_k), the exact FOH update
+   with that sample (the map is linear in m_{k+1}). The q''_{k+1} so obtained is the start
+   value of the next period.
+
+T_A^+ is a damped least-squares inverse: with sigma_min the smallest singular value of
+T_A (in m, i.e. (m/s^2) per (rad/s^2)), the damping is
+lambda^2 = (1 - (sigma_min / dls_threshold)^2) dls_damping^2 below ``dls_threshold``, else 0
+(plain pseudo-inverse). ``diagnostics`` reports cond(T_A), sigma_min, the damping and the
+flag ``near_singular`` (sigma_min < dls_threshold) at every update.
+
+Initial estimate (Sec. IV, last remark): at rest, theta from the encoders, q from
+theta = q + K^-1 g(q) by fixed-point iteration (only the gravity vector is needed),
+zero velocities.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+from scipy.linalg import expm
+
+from elastic_gym.model import RobotModel
+from elastic_gym.observers.base import Observer
+from elastic_gym.observers.deluca_gains import (
+    DEFAULT_BANDWIDTH,
+    butterworth_poles,
+    deluca_gains,
+    error_matrix,
+    validate_poles,
+)
+
+ACCELERATION_SOURCES = ("ideal", "accelerometer")
+STATIC_TOLERANCE = 1e-12  # rad, fixed-point iteration of theta = q + K^-1 g(q)
+STATIC_MAX_ITERATIONS = 50
+DT_TOLERANCE = 1e-9  # relative mismatch of the update period tolerated
+
+
+def foh_discretization(
+    F: np.ndarray, E: np.ndarray, T: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact sampled system of x' = F x + E w(t), w linear between samples (first-order hold).
+
+    Returns (Phi, P0, P1) with x_{k+1} = Phi x_k + P0 w_k + P1 w_{k+1}, from one matrix
+    exponential of [[F T, E T, 0], [0, 0, I], [0, 0, 0]]. A signal held constant over
+    the period (zero-order hold) has the input matrix P0 + P1.
+    """
+    nx, nw = E.shape
+    aug = np.zeros((nx + 2 * nw, nx + 2 * nw))
+    aug[:nx, :nx] = F * T
+    aug[:nx, nx : nx + nw] = E * T
+    aug[nx : nx + nw, nx + nw :] = np.eye(nw)
+    ex = expm(aug)
+    phi, gamma0, gamma1 = ex[:nx, :nx], ex[:nx, nx : nx + nw], ex[:nx, nx + nw :]
+    return phi, gamma0 - gamma1, gamma1
+
+
+def static_link_position(model: RobotModel, theta: np.ndarray) -> np.ndarray:
+    """Link position at rest for motor position theta: solve theta = q + K^-1 g(q).
+
+    Fixed-point iteration q <- theta - K^-1 g(q), a contraction since |K^-1 dg/dq| << 1.
+    """
+    q = np.array(theta, dtype=float)
+    for _ in range(STATIC_MAX_ITERATIONS):
+        q_next = theta - model.gravity(q) / model.K
+        converged = np.max(np.abs(q_next - q)) < STATIC_TOLERANCE
+        q = q_next
+        if converged:
+            break
+    return q
+
+
+class DeLucaObserver(Observer):
+    """Acceleration-based observer of De Luca et al. (2007); see the module docstring.
+
+    Args:
+        model: nominal model; only K, B, D, S (and, for accelerometers, the kinematics
+            and sensor mounts; for the default initial estimate, g(q)) are used.
+        dt: sampling period (s).
+        acceleration: ``"ideal"`` (Theorems 1/2, q'' from ``obs["link_acceleration"]``,
+            privileged) or ``"accelerometer"`` (eq. (12), from ``obs["acceleration"]``).
+        poles: desired error eigenvalues, 4 common ones or an (N, 4) array (conjugate
+            pairs, negative real parts). Default: 4th-order Butterworth of radius
+            ``bandwidth``.
+        bandwidth: radius (rad/s) of the default Butterworth poles, scalar or per joint
+            (default 250 rad/s, Sec. V-A); only when ``poles`` is None.
+        use_coupling: include the -B^-1 S^T y2 term of Theorem 2 (model (2)).
+        dls_threshold: smallest singular value of T_A (m) below which the damped
+            least-squares inverse is damped and ``near_singular`` is set.
+        dls_damping: damping lambda (m) at an exactly singular T_A.
+    """
+
+    name = "deluca"
+    applies_to = frozenset({"elastic"})
+
+    def __init__(
+        self,
+        model: RobotModel,
+        dt: float,
+        acceleration: str = "accelerometer",
+        poles=None,
+        bandwidth: float | np.ndarray | None = None,
+        use_coupling: bool = True,
+        dls_threshold: float = 0.01,
+        dls_damping: float = 0.01,
+    ) -> None:
+        super().__init__(model, dt)
+        n = self.n
+        if acceleration not in ACCELERATION_SOURCES:
+            raise ValueError(
+                f"acceleration must be one of {ACCELERATION_SOURCES}, got {acceleration!r}"
+            )
+        if not isinstance(use_coupling, bool):
+            raise TypeError(f"use_coupling must be a bool, got {use_coupling!r}")
+        for key, value in (("dls_threshold", dls_threshold), ("dls_damping", dls_damping)):
+            if not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
+                raise ValueError(f"{key} must be a positive number, got {value!r}")
+        if poles is not None and bandwidth is not None:
+            raise ValueError("give either poles or bandwidth, not both")
+        self.acceleration = acceleration
+        self.use_coupling = use_coupling
+        self.dls_threshold = float(dls_threshold)
+        self.dls_damping = float(dls_damping)
+        # instance attribute: only the ideal variant needs the true q'' (Theorem 1)
+        self.privileged = ("link_acceleration",) if acceleration == "ideal" else ()
+        if acceleration == "accelerometer" and 3 * model.n_sensors < n:
+            raise ValueError(
+                f"acceleration='accelerometer' needs at least {n} measured directions "
+                f"(eq. (10), M >= N); robot {model.spec.name!r} has {3 * model.n_sensors}"
+            )
+        self._sensors = model.copy()
+
+        K, B, D = model.K, model.B, model.D
+        self.poles = (
+            butterworth_poles(DEFAULT_BANDWIDTH if bandwidth is None else bandwidth, n)
+            if poles is None
+            else validate_poles(poles, n)
+        )
+        self.gains = deluca_gains(self.poles, K, B, D)
+        self.A_obs = error_matrix(self.gains, K, B, D)
+
+        phi, p0, p1 = foh_discretization(self.A_obs, self._input_matrix(), self.dt)
+        self.phi = phi
+        # one matrix for xi_{k+1} = [Phi, P_u, P_0^m, P_1^m] @ (xi_k, u_k, m_k, m_{k+1})
+        self._step_matrix = np.hstack([phi, p0[:, :n] + p1[:, :n], p0[:, n:], p1[:, n:]])
+        self._ddq_input = p1[:, 2 * n :]
+        self._stack = np.zeros(self._step_matrix.shape[1])
+        self._xi = np.zeros(4 * n)
+        self._theta = np.zeros(n)
+        self._ddq = np.zeros(n)
+
+    # ------------------------------------------------------------------ design
+    def _input_matrix(self) -> np.ndarray:
+        """E = [G, L, H] of xi' = A_obs xi + E (u, y1, y2), (4N x 3N)."""
+        n, model = self.n, self.model
+        E = np.zeros((4 * n, 3 * n))
+        idx = np.arange(n)
+        E[2 * n + idx, idx] = model.B_inv  # G u
+        E[:, n : 2 * n] = np.vstack([np.diag(g) for g in self.gains])  # L y1
+        if self.use_coupling:
+            E[2 * n : 3 * n, 2 * n :] = -model.B_inv[:, None] * model.S.T  # -B^-1 S^T y2
+        E[3 * n + idx, 2 * n + idx] = 1.0  # I y2
+        return E
+
+    # ------------------------------------------------------------------ measurements
+    def _link_acceleration(self, obs: Mapping, xi: np.ndarray) -> np.ndarray:
+        """q'' sample: ideal (privileged), or eq. (11) at the estimate xi."""
+        if self.acceleration == "ideal":
+            if "link_acceleration" not in obs:
+                raise ValueError(
+                    "acceleration='ideal' needs obs['link_acceleration'] (the true q''; "
+                    "ObserverWrapper adds it for observers with privileged link_acceleration)"
+                )
+            ddq = np.asarray(obs["link_acceleration"], dtype=float)
+            if ddq.shape != (self.n,):
+                raise ValueError(f"obs['link_acceleration'] must have shape ({self.n},)")
+            return ddq
+        if "acceleration" not in obs:
+            raise ValueError("acceleration='accelerometer' needs obs['acceleration']")
+        return self._accelerometer_inverse(np.asarray(obs["acceleration"], dtype=float), xi)
+
+    def _accelerometer_inverse(self, reading: np.ndarray, xi: np.ndarray) -> np.ndarray:
+        """Eq. (11), damped least squares: q'' = T_A^+(xi_2) (y2' - W_A(xi_2, xi_4))."""
+        n = self.n
+        T, W = self._sensors.accelerometer_maps(xi[n : 2 * n], xi[3 * n :])
+        if reading.shape != W.shape:
+            raise ValueError(f"obs['acceleration'] must have shape {W.shape}, got {reading.shape}")
+        if not (np.all(np.isfinite(T)) and np.all(np.isfinite(W))):
+            return np.full(n, np.nan)  # diverged estimate: ObserverWrapper ends the episode
+        U, s, Vt = np.linalg.svd(T, full_matrices=False)
+        sigma_min = s[-1]
+        ratio = min(sigma_min / self.dls_threshold, 1.0)
+        damping2 = (1.0 - ratio**2) * self.dls_damping**2
+        self.diagnostics.update(
+            cond_TA=float(s[0] / sigma_min) if sigma_min > 0.0 else float("inf"),
+            sigma_min_TA=float(sigma_min),
+            dls_damping=float(np.sqrt(damping2)),
+            near_singular=bool(sigma_min < self.dls_threshold),
+        )
+        return Vt.T @ (s / (s**2 + damping2) * (U.T @ (reading - W)))
+
+    # ------------------------------------------------------------------ Observer API
+    def reset(self, obs: Mapping, initial_estimate: np.ndarray | None = None) -> np.ndarray:
+        theta = self.measured_position(obs)
+        xi = self.check_initial_estimate(initial_estimate)
+        if xi is None:
+            n = self.n
+            xi = np.concatenate([theta, static_link_position(self.model, theta), np.zeros(2 * n)])
+        self.diagnostics = {}
+        self._xi = xi
+        self._theta = theta
+        self._ddq = self._link_acceleration(obs, xi)
+        return xi.copy()
+
+    def update(self, obs: Mapping, torque: np.ndarray, dt: float) -> np.ndarray:
+        if abs(dt - self.dt) > DT_TOLERANCE * self.dt:
+            raise ValueError(
+                f"DeLucaObserver was discretized for dt={self.dt}, update called with dt={dt}"
+            )
+        n = self.n
+        tau = np.asarray(torque, dtype=float)
+        if tau.shape != (n,):
+            raise ValueError(f"torque must have shape ({n},), got {tau.shape}")
+        theta = self.measured_position(obs)
+        stack = self._stack
+        stack[: 4 * n] = self._xi
+        stack[4 * n : 5 * n] = tau
+        stack[5 * n : 6 * n] = self._theta
+        stack[6 * n : 7 * n] = self._ddq
+        stack[7 * n : 8 * n] = theta
+        if self.acceleration == "ideal":
+            ddq = self._link_acceleration(obs, self._xi)
+            stack[8 * n :] = ddq
+            xi = self._step_matrix @ stack
+        else:  # predictor-corrector for eq. (12)
+            stack[8 * n :] = self._ddq
+            predicted = self._step_matrix @ stack
+            ddq = self._link_acceleration(obs, predicted)
+            xi = predicted + self._ddq_input @ (ddq - self._ddq)
+        self._xi, self._theta, self._ddq = xi, theta, ddq
+        return xi.copy()
