@@ -27,6 +27,8 @@ TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 KR15 = "elastic_gym/KR15Elastic-v0"
 IIWA = "elastic_gym/IiwaElastic-v0"
 JOINTS = {TWO_LINK: 2, KR15: 3, IIWA: 7}
+# ultimate |e| bound per block (theta, q, theta', q') of eq. (12) with the env's default sensors
+ULTIMATE_BOUND = np.array([1e-5, 1.5e-4, 1e-2, 2e-2])
 IDEAL_SENSORS = {"encoder": {"resolution": 0.0}, "accelerometer": "ideal"}
 
 
@@ -235,14 +237,26 @@ def test_accelerometer_observer_is_ultimately_bounded_with_noise_and_bias(env_id
     Measured |e| after 0.2 s (seed 5), blocks (theta, q, theta', q'):
     TwoLink (3.8e-6, 3.8e-5, 2.8e-3, 5.0e-3), KR15 (3.8e-6, 5.5e-5, 2.8e-3, 7.0e-3).
     """
-    bound = np.array([1e-5, 1.5e-4, 1e-2, 2e-2])
     rec = record(env_id, 800, seed=5)
     n = rec.n
     observer = DeLucaObserver(rec.model, rec.dt, acceleration="accelerometer")
     errors = blocks(rec.states - run_observer(observer, rec, rec.states[0] - initial_error(n)), n)
     ultimate = np.abs(errors[200:]).max(axis=(0, 2))
-    assert np.all(ultimate < bound), ultimate
+    assert np.all(ultimate < ULTIMATE_BOUND), ultimate
     assert not observer.diagnostics["near_singular"]
+
+
+def test_velocity_saturation_prevents_peaking_escape_of_eq12():
+    """From a large initial error the velocity peaking enters W_A quadratically (KR15)."""
+    rec = record(KR15, 300, seed=5)
+    start = rec.states[0] - 10.0 * initial_error(rec.n)  # 0.1 rad, 3 rad/s
+    with np.errstate(all="ignore"):
+        plain = run_observer(DeLucaObserver(rec.model, rec.dt), rec, start)
+    assert not np.all(np.isfinite(plain[-1])) or np.abs(plain[-1] - rec.states[-1]).max() > 1.0
+    saturated = DeLucaObserver(rec.model, rec.dt, velocity_saturation=10.0)
+    errors = rec.states - run_observer(saturated, rec, start)
+    final = np.abs(blocks(errors, rec.n)[-50:]).max(axis=(0, 2))
+    assert np.all(final < ULTIMATE_BOUND), final
 
 
 def kr15_singular_configurations(model: RobotModel) -> dict[str, np.ndarray]:
@@ -313,6 +327,7 @@ def test_bad_options_and_inputs_raise_clear_errors():
         ({"bandwidth": -5.0}, "bandwidth"),
         ({"dls_threshold": 0.0}, "dls_threshold"),
         ({"dls_damping": float("nan")}, "dls_damping"),
+        ({"velocity_saturation": -1.0}, "velocity_saturation"),
     ]
     for options, match in bad:
         with pytest.raises(ValueError, match=match):
