@@ -1,0 +1,193 @@
+"""Full-state feedback gains on the *coupled* linearization of the arm.
+
+The gain K_P of eq. (13) (De Luca et al., ICRA 2007) is an N x 4N matrix acting on
+the state error x_d - x, x = (theta, q, theta', q'). Per-joint designs using M_ii
+were measured unstable on strongly coupled arms (DESIGN.md, Pitfalls), so the gain is
+designed on the linearization of the complete model (1)/(2) at rest at a nominal
+configuration q0 (static equilibrium theta0 = q0 + K^-1 g(q0)):
+
+    [B  S^T] [theta'']   [ D  -D] [theta']   [ K   -K     ] [theta]   [I]
+    [S  M  ] [q''    ] + [-D   D] [q'    ] + [-K   K + G  ] [q    ] = [0] tau,
+
+G = dg/dq(q0); rigid arms: M q'' + G q = tau. Link friction is left out of the design
+(it only adds damping).
+
+Designs:
+
+* ``lqr_bandwidth_gain``: LQR with Q on the link positions (J^2 w^4) and link
+  velocities (J^2 w^2), R = I, J = B + S + S^T + M(q0) the inertia of the arm moving
+  rigidly (in the coordinates J q a rigid arm would be N decoupled double integrators
+  with identical poles of magnitude w, whatever the coupling); the scalar w is found
+  by bisection so that the slowest closed-loop pole has magnitude ``omega`` (the paper:
+  "slowest frequencies of the closed-loop system around 30 rad/s"). LQR keeps the
+  elastic modes where they are but roughly doubles their damping.
+* ``lqr_gain``: LQR with user weights; ``pole_placement_gain``: MIMO pole placement
+  (``scipy.signal.place_poles``).
+* ``pd_gain``: decentralized PD on the motor block (theta, theta') or on the link block
+  (q, q') as a structured N x 4N matrix, so PD laws reuse the eq. (13) machinery.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import scipy.linalg as sla
+from scipy.optimize import brentq
+from scipy.signal import place_poles
+
+from elastic_gym.model import RobotModel
+
+BANDWIDTH_SEARCH = (0.1, 20.0)  # bracket of w / omega for the bisection
+
+
+def nominal_configuration(model: RobotModel) -> np.ndarray:
+    """Default design configuration: the middle of the robot's task workspace."""
+    spec = model.spec
+    return 0.5 * (np.asarray(spec.workspace_low) + np.asarray(spec.workspace_high))
+
+
+def rigid_inertia(model: RobotModel, q0: np.ndarray) -> np.ndarray:
+    """Inertia matrix of the arm moving rigidly (theta = q): B + S + S^T + M(q0)."""
+    return np.diag(model.B) + model.S + model.S.T + model.mass_matrix(q0)
+
+
+def linearize(model: RobotModel, q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B_u) of the arm linearized at rest at q0, state order (positions, velocities)."""
+    n = model.n
+    M = model.mass_matrix(q0)
+    G = pin.computeGeneralizedGravityDerivatives(model.pin_model, model.data, q0)
+    if model.elastic:
+        K, D = np.diag(model.K), np.diag(model.D)
+        inertia = np.block([[np.diag(model.B), model.S.T], [model.S, M]])
+        stiffness = np.block([[K, -K], [-K, K + G]])
+        damping = np.block([[D, -D], [-D, D]])
+        inputs = np.vstack([np.eye(n), np.zeros((n, n))])
+    else:
+        inertia, stiffness, damping, inputs = M, G, np.zeros((n, n)), np.eye(n)
+    m = inertia.shape[0]
+    A = np.block(
+        [
+            [np.zeros((m, m)), np.eye(m)],
+            [-np.linalg.solve(inertia, stiffness), -np.linalg.solve(inertia, damping)],
+        ]
+    )
+    Bu = np.vstack([np.zeros((m, n)), np.linalg.solve(inertia, inputs)])
+    return A, Bu
+
+
+def closed_loop_poles(A: np.ndarray, Bu: np.ndarray, gain: np.ndarray) -> np.ndarray:
+    """Eigenvalues of A - B_u K, sorted by magnitude."""
+    poles = np.linalg.eigvals(A - Bu @ gain)
+    return poles[np.argsort(np.abs(poles), kind="stable")]
+
+
+def lqr_gain(A: np.ndarray, Bu: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Continuous LQR gain K = R^-1 B^T P (``scipy.linalg.solve_continuous_are``)."""
+    P = sla.solve_continuous_are(A, Bu, Q, R)
+    return np.linalg.solve(R, Bu.T @ P)
+
+
+def _bandwidth_weights(model: RobotModel, J: np.ndarray, w: float) -> np.ndarray:
+    """Q = diag(0, J^2 w^4, 0, J^2 w^2) on (theta, q, theta', q') (rigid: (q, q'))."""
+    n = model.n
+    blocks = 4 if model.elastic else 2
+    Q = np.zeros((blocks * n, blocks * n))
+    J2 = J @ J
+    position, velocity = (blocks // 2 - 1) * n, (blocks - 1) * n
+    Q[position : position + n, position : position + n] = J2 * w**4
+    Q[velocity:, velocity:] = J2 * w**2
+    return Q
+
+
+def _check_omega(omega: float, key: str = "omega") -> None:
+    if not (isinstance(omega, (int, float)) and np.isfinite(omega) and omega > 0):
+        raise ValueError(f"{key} must be a positive number (rad/s), got {omega!r}")
+
+
+def lqr_bandwidth_gain(model: RobotModel, q0: np.ndarray, omega: float) -> np.ndarray:
+    """LQR gain whose slowest closed-loop pole has magnitude ``omega`` (see module doc)."""
+    _check_omega(omega)
+    A, Bu = linearize(model, q0)
+    J = rigid_inertia(model, q0)
+    R = np.eye(model.n)
+
+    def design(log_w: float) -> np.ndarray:
+        return lqr_gain(A, Bu, _bandwidth_weights(model, J, float(np.exp(log_w))), R)
+
+    def mismatch(log_w: float) -> float:
+        return float(np.log(np.abs(closed_loop_poles(A, Bu, design(log_w))[0]) / omega))
+
+    low, high = (np.log(omega * f) for f in BANDWIDTH_SEARCH)
+    if mismatch(low) * mismatch(high) > 0:
+        raise ValueError(
+            f"omega={omega} rad/s cannot be reached by the LQR bandwidth design of "
+            f"{model.spec.name!r}; give explicit weights, poles or gain"
+        )
+    return design(brentq(mismatch, low, high, xtol=1e-6))
+
+
+def pole_placement_gain(A: np.ndarray, Bu: np.ndarray, poles) -> np.ndarray:
+    """MIMO pole placement (``scipy.signal.place_poles``) of all 2 * (positions) poles."""
+    poles = np.asarray(poles, dtype=complex)
+    if poles.shape != (A.shape[0],):
+        raise ValueError(f"poles must be {A.shape[0]} closed-loop eigenvalues, got {poles.shape}")
+    if np.any(poles.real >= 0):
+        raise ValueError(f"poles must have negative real parts, got {poles}")
+    return place_poles(A, Bu, poles).gain_matrix
+
+
+def pd_gain(model: RobotModel, kp: np.ndarray, kd: np.ndarray, block: str) -> np.ndarray:
+    """Decentralized PD as an N x dim(x) gain acting on the ``"motor"`` or ``"link"`` block."""
+    n = model.n
+    blocks = 4 if model.elastic else 2
+    if block not in ("motor", "link"):
+        raise ValueError(f"block must be 'motor' or 'link', got {block!r}")
+    if block == "motor" and not model.elastic:
+        raise ValueError("a motor-side PD needs an elastic arm")
+    position = 0 if block == "motor" or not model.elastic else 1
+    gain = np.zeros((n, blocks * n))
+    gain[:, position * n : (position + 1) * n] = np.diag(kp)
+    velocity = position + blocks // 2
+    gain[:, velocity * n : (velocity + 1) * n] = np.diag(kd)
+    return gain
+
+
+def bandwidth_pd_gains(
+    model: RobotModel, q0: np.ndarray, omega: float, damping_ratio: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint PD gains kp = J w^2, kd = 2 zeta J w, J the diagonal of the rigid inertia.
+
+    This is the gain of each joint moving rigidly with bandwidth w; the actual poles of
+    the elastic closed loop differ (see :func:`closed_loop_poles`).
+    """
+    _check_omega(omega)
+    _check_omega(damping_ratio, "damping_ratio")
+    J = np.diag(rigid_inertia(model, q0))
+    return J * omega**2, 2.0 * damping_ratio * J * omega
+
+
+def most_stable_bandwidth(
+    model: RobotModel, q0: np.ndarray, omega: float, damping_ratio: float, block: str
+) -> float:
+    """The PD bandwidth w <= omega (log grid down to omega / 30) with the largest stability
+    margin -max Re(pole) of the nominal linearized closed loop.
+
+    Used for link-side PD on elastic arms: derivative feedback of the link velocity
+    through a visco-elastic joint is destabilizing above kd ~ (B + J)^2 D / (B J) (Routh
+    criterion of the single joint), so the rigid-arm rule w = omega is unstable there.
+    """
+    _check_omega(omega)
+    A, Bu = linearize(model, q0)
+    candidates = omega * np.geomspace(1.0, 1.0 / 30.0, 61)
+
+    def margin(w: float) -> float:
+        kp, kd = bandwidth_pd_gains(model, q0, w, damping_ratio)
+        return -float(closed_loop_poles(A, Bu, pd_gain(model, kp, kd, block)).real.max())
+
+    margins = np.array([margin(w) for w in candidates])
+    if margins.max() <= 0.0:
+        raise ValueError(
+            f"no stable {block}-side PD with damping_ratio={damping_ratio} below "
+            f"omega={omega} rad/s for {model.spec.name!r}; give kp and kd"
+        )
+    return float(candidates[int(np.argmax(margins))])

@@ -1,0 +1,115 @@
+"""Decentralized PD laws with the INVDYN feedforward: the comparisons of eq. (13).
+
+Both are eq. (13) with a structured (diagonal-block) gain, so they share INVDYN and the
+static-reference fallback with :class:`FeedforwardStateFeedback`:
+
+* :class:`MotorPD`, the "motion control law using only motor states" the paper compares
+  with (De Luca et al., Sec. V-B): tau = Kp (theta_d - theta) + Kd (theta_d' - theta')
+  + tau_d, with (theta_d, theta_d', tau_d) from INVDYN, or, with ``feedforward=False``,
+  theta_d = q_d + K^-1 g(q_d) and tau_d = g(q_d) (PD + gravity compensation).
+* :class:`LinkPD`: the same on the (estimated) link state (q, q').
+
+Gains (comparable bandwidth): each joint is tuned as if the arm moved rigidly,
+kp = J w^2, kd = 2 zeta J w with J = B + M_ii(q0), w = ``omega`` (30 rad/s, like the
+slowest poles of the state-feedback design) and zeta = 0.7. Collocated motor PD is
+stable for any positive gains; its elastic modes keep little damping (nominal
+linearization: slowest poles 24 rad/s with zeta 0.32 on the two-link arm, see
+``design["poles"]``). Link PD on elastic arms is non-collocated and unstable at that
+bandwidth; by default it uses the bandwidth <= omega with the largest stability
+margin (:func:`~elastic_gym.controllers.gain_design.most_stable_bandwidth`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from elastic_gym.controllers.gain_design import bandwidth_pd_gains, most_stable_bandwidth, pd_gain
+from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP
+from elastic_gym.controllers.state_feedback import FeedforwardStateFeedback
+from elastic_gym.model import RobotModel
+
+DEFAULT_BANDWIDTH = 30.0  # rad/s, as the slowest poles of the eq. (13) design
+
+
+def _per_joint(value, n: int, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    arr = np.broadcast_to(arr, (n,)) if arr.ndim == 0 else arr
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ValueError(f"{name} must be one or {n} numbers >= 0, got {value!r}")
+    return np.array(arr)
+
+
+class _BlockPD(FeedforwardStateFeedback):
+    """PD on one block of the state (``block``) with the eq. (13) feedforward."""
+
+    block = "motor"
+
+    def __init__(
+        self,
+        model: RobotModel,
+        dt: float,
+        omega: float | None = 30.0,
+        damping_ratio: float = 0.7,
+        kp=None,
+        kd=None,
+        feedforward: bool = True,
+        design_configuration=None,
+        fd_step: float = DEFAULT_FD_STEP,
+    ) -> None:
+        if (kp is None) != (kd is None):
+            raise ValueError("give both kp and kd, or neither (bandwidth design)")
+        self.damping_ratio = damping_ratio
+        self._kp, self._kd = kp, kd
+        self.bandwidth = omega
+        super().__init__(
+            model, dt, omega=omega, feedforward=feedforward,
+            design_configuration=design_configuration, fd_step=fd_step,
+        )
+
+    def _design(self, A, Bu, q0, omega, gain, weights, poles) -> tuple[np.ndarray, str]:
+        model, n = self.model, self.n
+        kp, kd = self._kp, self._kd
+        if kp is None:
+            if omega is None:
+                self.bandwidth = omega = self.default_bandwidth(q0)
+            kp, kd = bandwidth_pd_gains(model, q0, omega, self.damping_ratio)
+        gain = pd_gain(model, _per_joint(kp, n, "kp"), _per_joint(kd, n, "kd"), self.block)
+        return gain, f"{self.block} PD"
+
+    def default_bandwidth(self, q0: np.ndarray) -> float:
+        """Bandwidth used when ``omega`` is None."""
+        return DEFAULT_BANDWIDTH
+
+
+class MotorPD(_BlockPD):
+    """PD on the motor position and velocity + INVDYN feedforward (elastic arms).
+
+    Args: ``omega`` (rad/s) and ``damping_ratio`` of the per-joint bandwidth rule, or
+    explicit ``kp``, ``kd`` (one or N numbers); ``feedforward``, ``design_configuration``,
+    ``fd_step`` as in :class:`FeedforwardStateFeedback`.
+    """
+
+    name = "motor-pd"
+    applies_to = frozenset({"elastic"})
+    block = "motor"
+
+
+class LinkPD(_BlockPD):
+    """PD on the (estimated) link position and velocity + INVDYN feedforward.
+
+    ``omega=None`` (default) gives 30 rad/s on rigid arms and, on elastic arms, the
+    bandwidth <= 30 rad/s with the largest stability margin.
+    """
+
+    name = "link-pd"
+    block = "link"
+
+    def __init__(self, model: RobotModel, dt: float, omega: float | None = None, **options):
+        super().__init__(model, dt, omega=omega, **options)
+
+    def default_bandwidth(self, q0: np.ndarray) -> float:
+        if not self.elastic:
+            return DEFAULT_BANDWIDTH
+        return most_stable_bandwidth(
+            self.model, q0, DEFAULT_BANDWIDTH, self.damping_ratio, self.block
+        )

@@ -1,0 +1,150 @@
+"""Feedforward + full-state feedback, eq. (13) of De Luca, Schroeder & Thuemmel (ICRA 2007).
+
+    tau = K_P (x_d - xi) + tau_d,    (x_d, tau_d) = INVDYN(q_d, ..., q_d^(4))
+
+xi is the state estimate (``obs["state"]``, or the truth behind a ``TrueStateWrapper``),
+x_d and tau_d come from :class:`~elastic_gym.controllers.invdyn.InverseDynamics`, and
+K_P is a full N x 4N gain designed on the coupled linearization of the arm
+(:mod:`~elastic_gym.controllers.gain_design`). By default an LQR design places the
+slowest closed-loop poles at ``omega`` = 30 rad/s, the value of the paper's KR15
+experiment ("close to the robot natural frequency"). The same law runs on rigid arms
+(x = (q, q'), INVDYN = computed torque).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from elastic_gym.controllers.base import Controller
+from elastic_gym.controllers.gain_design import (
+    closed_loop_poles,
+    linearize,
+    lqr_bandwidth_gain,
+    lqr_gain,
+    nominal_configuration,
+    pole_placement_gain,
+)
+from elastic_gym.controllers.invdyn import (
+    DEFAULT_FD_STEP,
+    InverseDynamics,
+    info_time,
+    reference_derivatives,
+    static_reference,
+)
+from elastic_gym.model import RobotModel
+
+
+def _square(value, size: int, name: str) -> np.ndarray:
+    """A (size, size) weight from a matrix, a diagonal vector or a scalar."""
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim <= 1:
+        arr = np.diag(np.broadcast_to(arr, (size,)))
+    if arr.shape != (size, size) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"weights[{name!r}] must be a {size}x{size} matrix or {size} numbers")
+    return arr
+
+
+class FeedforwardStateFeedback(Controller):
+    """Eq. (13): tau = K_P (x_d - xi) + tau_d.
+
+    Args:
+        model: nominal model (INVDYN and the gain design use it).
+        dt: control period (s).
+        omega: slowest closed-loop pole magnitude (rad/s) of the default LQR design.
+        gain: explicit K_P (N x dim(x)); overrides the design.
+        weights: ``{"Q": ..., "R": ...}`` LQR weights (matrices or diagonals).
+        poles: all dim(x) closed-loop poles for MIMO pole placement.
+        feedback: ``False`` gives pure feedforward (K_P = 0).
+        feedforward: ``False`` replaces INVDYN by the static gravity-compensated reference
+            (x_d at rest at q_d with q_d', tau_d = g(q_d)).
+        design_configuration: configuration q0 of the linearization (default: the middle
+            of the robot's workspace).
+        fd_step: step (s) of the central difference giving tau_r'' inside INVDYN.
+
+    At most one of ``gain``, ``weights``, ``poles`` may be given.
+    ``design`` holds the configuration, method and closed-loop poles of the nominal
+    linearization.
+    """
+
+    name = "feedforward-state-feedback"
+
+    def __init__(
+        self,
+        model: RobotModel,
+        dt: float,
+        omega: float = 30.0,
+        gain=None,
+        weights: Mapping | None = None,
+        poles=None,
+        feedback: bool = True,
+        feedforward: bool = True,
+        design_configuration=None,
+        fd_step: float = DEFAULT_FD_STEP,
+    ) -> None:
+        super().__init__(model, dt)
+        for key, value in (("feedback", feedback), ("feedforward", feedforward)):
+            if not isinstance(value, bool):
+                raise TypeError(f"{key} must be True or False, got {value!r}")
+        self.dim = (4 if self.elastic else 2) * self.n
+        self.feedforward = feedforward
+        self.invdyn = InverseDynamics(model, fd_step)
+        q0 = self._configuration(design_configuration)
+        A, Bu = linearize(model, q0)
+        if feedback:
+            self.gain, method = self._design(A, Bu, q0, omega, gain, weights, poles)
+        else:
+            self.gain, method = np.zeros((self.n, self.dim)), "none (pure feedforward)"
+        self.design = {
+            "configuration": q0,
+            "method": method,
+            "poles": closed_loop_poles(A, Bu, self.gain),
+        }
+
+    # ------------------------------------------------------------ design
+    def _configuration(self, q0) -> np.ndarray:
+        if q0 is None:
+            return nominal_configuration(self.model)
+        arr = np.asarray(q0, dtype=float)
+        if arr.shape != (self.n,) or not np.all(np.isfinite(arr)):
+            raise ValueError(f"design_configuration must be {self.n} finite numbers, got {q0!r}")
+        return arr
+
+    def _design(self, A, Bu, q0, omega, gain, weights, poles) -> tuple[np.ndarray, str]:
+        given = [k for k, v in (("gain", gain), ("weights", weights), ("poles", poles))
+                 if v is not None]
+        if len(given) > 1:
+            raise ValueError(f"give at most one of gain, weights, poles; got {given}")
+        if gain is not None:
+            K = np.asarray(gain, dtype=float)
+            if K.shape != (self.n, self.dim) or not np.all(np.isfinite(K)):
+                raise ValueError(f"gain must be a finite {self.n}x{self.dim} matrix, got {K.shape}")
+            return K.copy(), "explicit gain"
+        if weights is not None:
+            if not isinstance(weights, Mapping) or set(weights) != {"Q", "R"}:
+                raise ValueError("weights must be a mapping with exactly the keys 'Q' and 'R'")
+            Q = _square(weights["Q"], self.dim, "Q")
+            R = _square(weights["R"], self.n, "R")
+            return lqr_gain(A, Bu, Q, R), "LQR (given weights)"
+        if poles is not None:
+            return pole_placement_gain(A, Bu, poles), "pole placement"
+        return lqr_bandwidth_gain(self.model, q0, omega), f"LQR, slowest pole {omega} rad/s"
+
+    # ------------------------------------------------------------ control
+    def reset(self, obs: Mapping, info: Mapping) -> None:
+        self.invdyn.reset()
+
+    def desired(self, info: Mapping) -> tuple[np.ndarray, np.ndarray]:
+        """(x_d, tau_d) at the time of ``info``: INVDYN, or the static reference."""
+        ref = reference_derivatives(info, self.n)
+        if self.feedforward:
+            return self.invdyn(info_time(info), ref)
+        return static_reference(self.model, ref)
+
+    def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
+        x = np.asarray(obs["state"], dtype=float)
+        if x.shape != (self.dim,):
+            raise ValueError(f"obs['state'] must have {self.dim} entries, got shape {x.shape}")
+        x_d, tau_d = self.desired(info)
+        return self.gain @ (x_d - x) + tau_d
