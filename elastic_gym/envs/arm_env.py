@@ -240,8 +240,9 @@ class ArmEnv(gym.Env):
         self._needs_reset = False
         self._last_torque = self._equilibrium_torque(q, theta)
         ddq = self.sim.link_acceleration(self._last_torque)
-        obs = self._observe(ddq)
-        info = self._info(ddq, self._last_torque, saturated=False)
+        reference = self.task.reference(self.time)
+        obs = self._observe(ddq, reference)
+        info = self._info(ddq, self._last_torque, False, reference)
         return obs, info
 
     def step(self, action):
@@ -264,9 +265,10 @@ class ArmEnv(gym.Env):
             last = {key: value.copy() for key, value in self._last_obs.items()}
             return last, TERMINATION_PENALTY, True, False, info
         ddq = sim.link_acceleration(tau)
-        obs = self._observe(ddq)
-        reward = self._reward(tau)
-        info = self._info(ddq, tau, saturated)
+        reference = self.task.reference(self.time)
+        obs = self._observe(ddq, reference)
+        reward = self._reward(tau, reference)
+        info = self._info(ddq, tau, saturated, reference)
         if self.render_mode == "human":
             self.render()
         return obs, reward, False, False, info
@@ -332,9 +334,8 @@ class ArmEnv(gym.Env):
             return "joint limit exceeded"
         return None
 
-    def _observe(self, ddq: np.ndarray) -> dict[str, np.ndarray]:
+    def _observe(self, ddq: np.ndarray, reference: np.ndarray) -> dict[str, np.ndarray]:
         sim, rng = self.sim, self.np_random
-        reference = self.task.reference(self.time)
         if self.robot.elastic:
             obs = {"motor_position": self.encoder.measure(sim.theta, rng)}
         else:
@@ -346,9 +347,8 @@ class ArmEnv(gym.Env):
         self._last_obs = obs
         return obs
 
-    def _reward(self, tau: np.ndarray) -> float:
+    def _reward(self, tau: np.ndarray, reference: np.ndarray) -> float:
         sim, w = self.sim, self.reward_weights
-        reference = self.task.reference(self.time)
         cost = w.track * np.sum((sim.q - reference[0]) ** 2)
         cost += w.velocity * np.sum((sim.dq - reference[1]) ** 2)
         cost += w.torque * np.sum((tau / self.torque_limit) ** 2)
@@ -356,9 +356,10 @@ class ArmEnv(gym.Env):
             cost += w.torsion * np.sum((sim.theta - sim.q) ** 2)
         return float(-self.control_dt * cost)
 
-    def _info(self, ddq: np.ndarray, tau: np.ndarray, saturated: bool) -> dict:
+    def _info(
+        self, ddq: np.ndarray, tau: np.ndarray, saturated: bool, reference: np.ndarray
+    ) -> dict:
         sim = self.sim
-        reference = self.task.reference(self.time)
         return {
             "time": self.time,
             "true_state": {

@@ -18,20 +18,24 @@ TIMING_LAW = np.array([0, 0, 0, 0, 0, 126, -420, 540, -315, 70], dtype=float)
 MAX_ORDER = 8
 
 
-def _timing_derivatives() -> list[np.ndarray]:
-    coeffs = [TIMING_LAW]
+def _timing_coefficients() -> np.ndarray:
+    """Row k: polynomial coefficients (ascending powers) of d^k s / du^k."""
+    rows = [TIMING_LAW]
     for _ in range(MAX_ORDER):
-        coeffs.append(polynomial.polyder(coeffs[-1]))
-    return coeffs
+        rows.append(np.append(polynomial.polyder(rows[-1]), 0.0))
+    return np.array(rows)
 
 
-_TIMING_DERIVATIVES = _timing_derivatives()
+_COEFFICIENTS = _timing_coefficients()
+_POWERS = np.arange(len(TIMING_LAW))
 
 
 def timing_law(u: np.ndarray | float, order: int = 4) -> np.ndarray:
     """s(u) and its derivatives d^k s / du^k for k = 0..order, shape (order + 1, *u.shape)."""
     u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
-    return np.stack([polynomial.polyval(u, _TIMING_DERIVATIVES[k]) for k in range(order + 1)])
+    if u.ndim == 0:
+        return _COEFFICIENTS[: order + 1] @ (float(u) ** _POWERS)
+    return np.tensordot(_COEFFICIENTS[: order + 1], np.power.outer(u, _POWERS), axes=([1], [-1]))
 
 
 @dataclass(frozen=True)

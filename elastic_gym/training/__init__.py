@@ -1,0 +1,21 @@
+"""RL training on the estimated state: stable-baselines3 pipeline (``elastic-gym train``)."""
+
+from elastic_gym.training.config import ALGORITHMS, TrainConfig, parse_overrides
+from elastic_gym.training.policy_env import make_policy_env, state_sources
+from elastic_gym.training.train import TrainedRun, TrainResult, evaluate_run, load_run, train
+from elastic_gym.training.wrappers import ActionRepeat, ResidualAction
+
+__all__ = [
+    "ALGORITHMS",
+    "ActionRepeat",
+    "ResidualAction",
+    "TrainConfig",
+    "TrainResult",
+    "TrainedRun",
+    "evaluate_run",
+    "load_run",
+    "make_policy_env",
+    "parse_overrides",
+    "state_sources",
+    "train",
+]

@@ -1,0 +1,153 @@
+"""Training configuration and RL-Zoo-style hyper-parameter files.
+
+Hyper-parameters live in ``hyperparams/<algo>.yaml``, one entry per env id plus a
+``default`` entry, each a mapping of the algorithm's constructor arguments and these
+keys of ours: ``n_timesteps`` (default budget, policy steps), ``n_envs``, ``decimation``
+(env steps per policy step), ``normalize`` (VecNormalize on/off). Command-line overrides
+(``key=value``) win over the file, which wins over the defaults.
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import asdict, dataclass, field, fields
+from importlib import resources
+from pathlib import Path
+
+import yaml
+
+from elastic_gym.training.policy_env import check_state_source
+
+ALGORITHMS = ("ppo", "sac", "td3")
+OWN_KEYS = {"n_timesteps", "n_envs", "decimation", "normalize"}
+ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
+
+
+def algorithm_class(algo: str):
+    """The stable-baselines3 class of an algorithm name."""
+    if algo not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm {algo!r}; valid: {list(ALGORITHMS)}")
+    import stable_baselines3
+
+    return getattr(stable_baselines3, algo.upper())
+
+
+def load_hyperparams_file(path: str | Path) -> dict:
+    """Parse a hyper-parameter YAML file; errors name the file and the problem."""
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except yaml.YAMLError as exc:
+        raise ValueError(f"invalid YAML in {path}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: top level must map env ids (or 'default') to settings")
+    for key, entry in data.items():
+        if not isinstance(entry, dict):
+            raise ValueError(f"{path}: entry {key!r} must be a mapping, got {type(entry).__name__}")
+    return data
+
+
+def shipped_hyperparams(algo: str) -> dict:
+    algorithm_class(algo)  # validates the name
+    path = resources.files("elastic_gym.training") / "hyperparams" / f"{algo}.yaml"
+    return load_hyperparams_file(str(path))
+
+
+def resolve_hyperparams(algo: str, env_id: str, overrides: dict | None = None,
+                        file: str | Path | None = None) -> dict:
+    """Merged settings for one run: file ``default`` < file[env_id] < overrides, validated."""
+    table = load_hyperparams_file(file) if file is not None else shipped_hyperparams(algo)
+    merged = {**table.get("default", {}), **table.get(env_id, {}), **(overrides or {})}
+    allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters) - {
+        "self", "env", "policy_kwargs", "seed", "tensorboard_log", "verbose", "device",
+        "_init_setup_model",
+    }
+    allowed |= OWN_KEYS | {"policy_kwargs"}
+    unknown = set(merged) - allowed
+    if unknown:
+        raise ValueError(
+            f"unknown hyper-parameter(s) {sorted(unknown)} for {algo}; valid: {sorted(allowed)}"
+        )
+    if "policy_kwargs" in merged:
+        merged["policy_kwargs"] = _policy_kwargs(merged["policy_kwargs"])
+    return merged
+
+
+def _policy_kwargs(value) -> dict:
+    if not isinstance(value, dict):
+        raise ValueError(f"policy_kwargs must be a mapping, got {value!r}")
+    kwargs = dict(value)
+    if "activation_fn" in kwargs:
+        name = kwargs["activation_fn"]
+        if name not in ACTIVATIONS:
+            raise ValueError(f"policy_kwargs.activation_fn {name!r}; valid: {sorted(ACTIVATIONS)}")
+        import torch
+
+        kwargs["activation_fn"] = getattr(torch.nn, ACTIVATIONS[name])
+    return kwargs
+
+
+def parse_overrides(items: list[str]) -> dict:
+    """``["learning_rate=1e-4", "n_envs=2"]`` -> dict, values parsed as YAML scalars."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"hyper-parameter override must look like key=value, got {item!r}")
+        try:
+            out[key] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise ValueError(f"cannot parse the value of override {item!r}") from None
+    return out
+
+
+@dataclass
+class TrainConfig:
+    """One training run.
+
+    ``state``: ``"true"``, an observer name (the policy sees its estimate), or
+    ``"sensors"`` (raw observation, ``frame_stack`` frames). ``residual``: name of the
+    classical controller the policy corrects (None: the policy outputs the torque).
+    ``total_steps``: env interactions counted by SB3 (policy steps); None takes
+    ``n_timesteps`` from the hyper-parameter file.
+    """
+
+    env_id: str = "elastic_gym/TwoLinkElastic-v0"
+    algo: str = "sac"
+    state: str = "deluca"
+    total_steps: int | None = None
+    seed: int = 0
+    out_dir: str = "runs/sac-twolink"
+    residual: str | None = None
+    residual_scale: float = 0.1
+    frame_stack: int = 4
+    env_kwargs: dict = field(default_factory=dict)
+    observer_options: dict = field(default_factory=dict)
+    hyperparams: dict = field(default_factory=dict)
+    hyperparams_file: str | None = None
+    eval_freq: int = 5000
+    eval_episodes: int = 3
+
+    def __post_init__(self) -> None:
+        algorithm_class(self.algo)
+        check_state_source(self.state)
+        for key in ("seed", "eval_freq", "eval_episodes", "frame_stack"):
+            value = getattr(self, key)
+            if not isinstance(value, int) or value < (0 if key == "seed" else 1):
+                raise ValueError(f"{key} must be a non-negative integer, got {value!r}")
+        if self.total_steps is not None and (
+            not isinstance(self.total_steps, int) or self.total_steps < 1
+        ):
+            raise ValueError(f"total_steps must be a positive integer, got {self.total_steps!r}")
+
+    @classmethod
+    def from_dict(cls, data: dict) -> TrainConfig:
+        allowed = {f.name for f in fields(cls)}
+        unknown = set(data) - allowed
+        if unknown:
+            raise ValueError(
+                f"unknown training config field(s) {sorted(unknown)}; valid: {sorted(allowed)}"
+            )
+        return cls(**data)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
