@@ -12,10 +12,11 @@ State x = (theta, q, theta', q') (4N), input u = tau held over the control perio
   accelerations through the inverse of the complete inertia [[B, S^T], [S, M(q)]],
   which for S = 0 is eq. (5): B^-1 on the motor and M^-1(q) on the link accelerations.
 * **Jacobian** F = df/dx, eq. (8), from pinocchio's RNEA derivatives: the link
-  acceleration is the implicit solution of
-  rnea(q, q', q'') - S B^-1 S^T q'' = (I + S B^-1) tau_J - S B^-1 tau - d(q'),
+  acceleration is the implicit solution of r(x, q'') = 0,
+  r = rnea(q, q', q'') - S B^-1 S^T q'' - (I + S B^-1) tau_J + S B^-1 tau + d(q'),
   so dq''/dx = -(M - S B^-1 S^T)^-1 dr/dx (implicit-function theorem; for S = 0 this
-  is the ABA derivative), and theta'' = B^-1 (tau - tau_J - S^T q'').
+  is the ABA derivative), and theta'' = B^-1 (tau - tau_J - S^T q'')
+  (:class:`ElasticLinearization`).
 * **Prediction** over T with tau held (zero-order hold, exact for the input): the mean
   by classical RK4 (``substeps`` steps per period); the covariance by the discrete
   form of eq. (15), P^- = e^{2 alpha T} Phi P Phi^T + Q_d, with Phi = expm(F T) and
@@ -37,6 +38,7 @@ with the torque of that period, so h is evaluated with the same held torque.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -47,9 +49,9 @@ from elastic_gym.observers.base import Observer
 
 DEFAULT_ALPHA = 1.0
 """Exponential data weighting alpha of eq. (15), 1/s."""
-DEFAULT_TORQUE_NOISE = (0.005, 0.02)
-"""Per-sample torque uncertainty of the (motor, link) equations as a fraction of the
-torque limit; Q = (fraction * tau_max)^2 * T (N^2 m^2 s), see :func:`default_process_noise`."""
+DEFAULT_ACCELERATION_NOISE = (0.5, 2.0)
+"""Per-sample acceleration uncertainty (rad/s^2) of the (motor, link) equations that the
+default torque-noise density Q stands for, see :func:`default_process_noise`."""
 DEFAULT_INITIAL_STD = (1e-3, 0.05, 0.5, 1.0)
 """Standard deviations (rad, rad, rad/s, rad/s) of (theta, q, theta', q') in the default P0."""
 DEFAULT_ACCELEROMETER_STD = 0.05
@@ -107,12 +109,16 @@ def default_process_noise(model: RobotModel, dt: float) -> np.ndarray:
     """Diagonal torque-noise density Q (2N x 2N, motor block first), N^2 m^2 s.
 
     A white torque of density Q held over one period T has standard deviation
-    sqrt(Q / T); the default makes that a fraction :data:`DEFAULT_TORQUE_NOISE` of the
-    motor torque limit on the motor and the link equations.
+    sqrt(Q / T). The default makes it the torque that produces the accelerations
+    :data:`DEFAULT_ACCELERATION_NOISE` through B on the motors and through the diagonal
+    of M(q) at the middle of the robot's workspace on the links, so that light distal
+    links are not swamped by a noise sized for the heavy proximal ones.
     """
-    fractions = np.repeat(np.asarray(DEFAULT_TORQUE_NOISE), model.n)
-    limits = np.tile(model.torque_limit, 2)
-    return np.diag((fractions * limits) ** 2 * dt)
+    spec = model.spec
+    q_mid = 0.5 * (np.asarray(spec.workspace_low) + np.asarray(spec.workspace_high))
+    inertia = np.concatenate([model.B, np.diag(model.mass_matrix(q_mid))])
+    accelerations = np.repeat(np.asarray(DEFAULT_ACCELERATION_NOISE), model.n)
+    return np.diag((inertia * accelerations) ** 2 * dt)
 
 
 def static_link_position(model: RobotModel, theta: np.ndarray) -> np.ndarray:
@@ -128,38 +134,60 @@ def static_link_position(model: RobotModel, theta: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------- model derivatives
-def acceleration_jacobians(
-    model: RobotModel, x: np.ndarray, tau: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Accelerations of model (1)/(2) and their derivatives, eq. (8).
+class AccelerationDerivatives(NamedTuple):
+    """Accelerations a = (theta'', q'') of model (1)/(2) and their derivatives.
 
-    Returns ``(ddtheta, ddq, dddtheta_dx, dddq_dx, inertia_inv)``: the two N x 4N
-    Jacobians with respect to x = (theta, q, theta', q') and the inverse of the
-    complete inertia [[B, S^T], [S, M(q)]] (the acceleration response to motor and
-    link torques: the input and noise matrix G of eqs. (4)-(5)).
-
-    The link acceleration solves r(x, q'') = 0 with
-    r = rnea(q, q', q'') - S B^-1 S^T q'' - (I + S B^-1) tau_J + S B^-1 tau + d(q'),
-    so dq''/dx = -(M - S B^-1 S^T)^-1 dr/dx, with drnea/dq and drnea/dq' from
-    pinocchio's RNEA derivatives at the current q''.
+    ``dx`` (2N x 4N) is da/dx, the lower half of F = df/dx in eq. (8); ``dw`` (2N x 2N)
+    is da/d(w_motor, w_link) for torques added to the motor and link equations: the
+    inverse of the complete inertia [[B, S^T], [S, M(q)]], i.e. the noise matrix G of
+    eq. (5) (blockdiag(B^-1, M^-1) for S = 0). Its first N columns are da/dtau.
     """
-    n = model.n
-    q, dq = x[n : 2 * n], x[3 * n :]
-    ddtheta, ddq = model.elastic_accelerations(x, tau)
-    drnea_dq, drnea_dv, M = model.rnea_derivatives(q, dq, ddq)
-    K, D = np.diag(model.K), np.diag(model.D)
-    dtau_j = np.hstack([K, -K, D, -D])  # d tau_J / dx
-    SBinv = model.S * model.B_inv
-    dr = -(np.eye(n) + SBinv) @ dtau_j
-    dr[:, n : 2 * n] += drnea_dq
-    dr[:, 3 * n :] += drnea_dv
-    if model.friction is not None:
-        dr[:, 3 * n :] += np.diag(model.friction.derivative(dq))
-    schur = M - SBinv @ model.S.T
-    dddq = -np.linalg.solve(schur, dr)
-    dddtheta = -model.B_inv[:, None] * (dtau_j + model.S.T @ dddq)
-    inertia = np.block([[np.diag(model.B), model.S.T], [model.S, M]])
-    return ddtheta, ddq, dddtheta, dddq, np.linalg.inv(inertia)
+
+    ddtheta: np.ndarray
+    ddq: np.ndarray
+    dx: np.ndarray
+    dw: np.ndarray
+
+
+class ElasticLinearization:
+    """Derivatives of the elastic-arm accelerations from pinocchio's RNEA derivatives.
+
+    The link acceleration solves r(x, q'') = 0 with (eliminating theta'' from model (2))
+    r = rnea(q, q', q'') - S B^-1 S^T q'' - (I + S B^-1) tau_J + S B^-1 (tau + w_m) - w_l + d(q'),
+    so by the implicit-function theorem dq''/dx = -Ms^-1 dr/dx with the Schur complement
+    Ms = M - S B^-1 S^T (for S = 0 this is the ABA derivative), dq''/dw_m = -Ms^-1 S B^-1,
+    dq''/dw_l = Ms^-1; then theta'' = B^-1 (tau + w_m - tau_J - S^T q''). Constant
+    blocks are computed once.
+    """
+
+    def __init__(self, model: RobotModel) -> None:
+        n = model.n
+        self.model = model
+        K, D = np.diag(model.K), np.diag(model.D)
+        self._dtau_j = np.hstack([K, -K, D, -D])  # d tau_J / dx
+        SBinv = model.S * model.B_inv
+        self._SBinv_ST = SBinv @ model.S.T
+        self._dr_spring = -(np.eye(n) + SBinv) @ self._dtau_j
+        self._dr_noise = np.hstack([SBinv, -np.eye(n)])  # dr / d(w_m, w_l)
+        self._dtheta_dw = np.hstack([np.diag(model.B_inv), np.zeros((n, n))])
+
+    def __call__(self, x: np.ndarray, tau: np.ndarray) -> AccelerationDerivatives:
+        model, n = self.model, self.model.n
+        q, dq = x[n : 2 * n], x[3 * n :]
+        ddtheta, ddq = model.elastic_accelerations(x, tau)
+        drnea_dq, drnea_dv, M = model.rnea_derivatives(q, dq, ddq)
+        dr = self._dr_spring.copy()
+        dr[:, n : 2 * n] += drnea_dq
+        dr[:, 3 * n :] += drnea_dv
+        if model.friction is not None:
+            dr[:, 3 * n :] += np.diag(model.friction.derivative(dq))
+        solved = -np.linalg.solve(M - self._SBinv_ST, np.hstack([dr, self._dr_noise]))
+        dq_dx, dq_dw = solved[:, : 4 * n], solved[:, 4 * n :]
+        dtheta_dx = -model.B_inv[:, None] * (self._dtau_j + model.S.T @ dq_dx)
+        dtheta_dw = self._dtheta_dw - model.B_inv[:, None] * (model.S.T @ dq_dw)
+        return AccelerationDerivatives(
+            ddtheta, ddq, np.vstack([dtheta_dx, dq_dx]), np.vstack([dtheta_dw, dq_dw])
+        )
 
 
 def accelerometer_jacobians(
@@ -247,6 +275,7 @@ class ExtendedKalmanFilter(Observer):
                 f"EKF option 'use_accelerometers': robot {model.spec.name!r} has no accelerometers"
             )
         self.use_accelerometers = use_accelerometers
+        accelerometer_std = _check_number("accelerometer_std", accelerometer_std, strict=True)
         if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
             raise ValueError(f"EKF option 'substeps' must be an integer >= 1, got {substeps!r}")
         self.substeps = substeps
@@ -282,6 +311,7 @@ class ExtendedKalmanFilter(Observer):
         self.x = np.zeros(4 * n)
         self.P = self.P0.copy()
         self._selector = np.hstack([np.eye(n), np.zeros((n, 3 * n))])  # theta = C x
+        self._derivatives = ElasticLinearization(model)
 
     def _sensor_covariance(
         self, resolution: float | None, noise_std: float | None, accelerometer_std: float
@@ -293,8 +323,7 @@ class ExtendedKalmanFilter(Observer):
         noise_std = _check_number("encoder_noise_std", noise_std)
         variances = [np.full(self.n, resolution**2 / 12.0 + noise_std**2)]
         if self.use_accelerometers:
-            std = _check_number("accelerometer_std", accelerometer_std, strict=True)
-            variances.append(np.full(3 * self.model.n_sensors, std**2))
+            variances.append(np.full(3 * self.model.n_sensors, accelerometer_std**2))
         return np.diag(np.concatenate(variances))
 
     # ----------------------------------------------------------------- interface
@@ -349,12 +378,12 @@ class ExtendedKalmanFilter(Observer):
     def linearization(self, x: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(F, G) of eqs. (4)-(8) at x: F = df/dx (4N x 4N), G the torque-noise input (4N x 2N)."""
         n = self.n
-        _, _, dddtheta, dddq, inertia_inv = acceleration_jacobians(self.model, x, tau)
+        derivatives = self._derivatives(x, tau)
         F = np.zeros((4 * n, 4 * n))
         F[: 2 * n, 2 * n :] = np.eye(2 * n)
-        F[2 * n : 3 * n] = dddtheta
-        F[3 * n :] = dddq
-        G = np.vstack([np.zeros((2 * n, 2 * n)), inertia_inv])
+        F[2 * n :] = derivatives.dx
+        G = np.zeros((4 * n, 2 * n))
+        G[2 * n :] = derivatives.dw
         return F, G
 
     def predict(self, tau: np.ndarray, dt: float) -> None:
@@ -377,10 +406,10 @@ class ExtendedKalmanFilter(Observer):
         n = self.n
         if not self.use_accelerometers:
             return x[:n].copy(), self._selector
-        _, ddq, _, dddq, _ = acceleration_jacobians(self.model, x, tau)
+        derivatives = self._derivatives(x, tau)
         q, dq = x[n : 2 * n], x[3 * n :]
-        readings, d_dq, d_dv, d_da = accelerometer_jacobians(self.model, q, dq, ddq)
-        H_acc = d_da @ dddq
+        readings, d_dq, d_dv, d_da = accelerometer_jacobians(self.model, q, dq, derivatives.ddq)
+        H_acc = d_da @ derivatives.dx[n:]
         H_acc[:, n : 2 * n] += d_dq
         H_acc[:, 3 * n :] += d_dv
         return np.concatenate([x[:n], readings]), np.vstack([self._selector, H_acc])
