@@ -22,7 +22,10 @@ and k+1 (first-order hold; sample k+1 is available when xi_{k+1} is computed):
     xi_{k+1} = Phi xi_k + P_u u_k + P_0 m_k + P_1 m_{k+1},    m = (theta, q'').
 
 Holding theta and q'' constant instead deviates ~2 % from the continuous error dynamics
-and destabilises stiff observer-based loops (DESIGN.md, Pitfalls).
+and destabilises stiff observer-based loops (DESIGN.md, Pitfalls). Under model (2) q''
+also depends on the torque, which jumps at the sample instants: the sample k (measured
+under u_{k-1}) then differs from the start value under u_k by O(S B^-1 (u_k - u_{k-1})),
+nil for model (1) and negligible for smooth torques.
 
 Implementable observer, eq. (12): q'' = T_A^+(xi_2) (y2' - W_A(xi_2, xi_4)) (eq. (11))
 depends on the estimate at k+1 itself, so each update is a predictor-corrector:
