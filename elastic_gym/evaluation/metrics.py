@@ -1,0 +1,165 @@
+"""Metrics of one run, computed from its recorded time series.
+
+Definitions (e = q - q_d the link tracking error, norms Euclidean over joints, means
+over all recorded samples t_0 = 0, ..., t_K):
+
+* ``track_rms`` = sqrt(mean_k |e_k|^2) (rad); ``track_max`` = max_k |e_k| (rad).
+  Not computed for the ``excitation`` task, whose reference is only the start pose.
+* ``overshoot_pct`` and ``settling_time`` per rest-to-rest move of the reference.
+  A move starts when q_d' leaves zero and *arrives* when q_d' is zero again; it goes
+  from the rest value q_a before it to the rest value q_b after it. Its amplitude is
+  A = max_i |q_b,i - q_a,i| (the largest joint motion), and only the joints that move
+  by at least ``MIN_AMPLITUDE`` are scored (a joint's own tiny motion would make a
+  steady offset of a few mrad look like a huge relative overshoot). Its window runs
+  from its start to the start of the next move (or the end of the run). If the run
+  starts away from the reference (max_i |q_i(0) - q_d,i(0)| >= ``MIN_AMPLITUDE``, e.g.
+  the ``regulation`` task), that step is a move from q(0) arriving at t = 0.
+
+  - overshoot: max over scored joints and the window of
+    max(0, sign(q_b,i - q_a,i) (q_i - q_b,i)) / A, in percent;
+  - settling time: time from the arrival of the reference until every scored joint
+    stays within ``SETTLING_BAND`` A of q_b for the rest of the window; ``inf`` if one
+    is outside that band at the end of the window (did not settle).
+
+  The run's value is the largest over its moves (NaN when there is no move).
+* ``torsion_max`` = max_k max_i |theta_i - q_i| (rad), elastic arms only.
+* ``torque_rms`` = sqrt(mean_k |tau_k|^2) (N m), tau the applied (clipped) motor torque,
+  including an excitation task's open-loop torque.
+* ``est_rms_<block>`` for each block of the state (theta, q, dtheta, dq for elastic
+  arms; q, dq for rigid ones) = sqrt(mean_k |xhat_block - x_block|^2) (rad or rad/s),
+  over the whole run (the initial transient included).
+* ``sim_wall_ratio`` = simulated time / wall-clock time of the episode loop (env,
+  observer and controller); > 1 is faster than real time.
+
+A run that ends early (``terminated``: divergence) keeps the metrics of the samples
+recorded until then; its status says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+MIN_AMPLITUDE = 1e-3  # rad: smaller per-joint moves are not scored for overshoot/settling
+SETTLING_BAND = 0.02  # fraction of the move amplitude
+REST_TOLERANCE = 1e-9  # |q_d'| (rad/s) below which the reference is at rest
+
+
+@dataclass
+class TimeSeries:
+    """Signals recorded at every control step of a run (row k at time k * control_dt).
+
+    ``theta`` is ``None`` for rigid arms; ``estimation_error`` = estimate - truth with
+    column blocks named by ``state_names``.
+    """
+
+    time: np.ndarray  # (K,)
+    q: np.ndarray  # (K, N)
+    q_ref: np.ndarray  # (K, N)
+    dq_ref: np.ndarray  # (K, N)
+    torque: np.ndarray  # (K, N)
+    estimation_error: np.ndarray  # (K, len(state_names) * N)
+    state_names: tuple[str, ...]
+    theta: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.time)
+
+    def truncated(self, length: int) -> TimeSeries:
+        """The first ``length`` samples."""
+        return TimeSeries(
+            self.time[:length], self.q[:length], self.q_ref[:length], self.dq_ref[:length],
+            self.torque[:length], self.estimation_error[:length], self.state_names,
+            None if self.theta is None else self.theta[:length],
+        )
+
+    def estimation_blocks(self) -> dict[str, np.ndarray]:
+        """Estimation error per state block, each (K, N)."""
+        n = self.q.shape[1]
+        blocks = self.estimation_error.reshape(len(self), len(self.state_names), n)
+        return {name: blocks[:, i] for i, name in enumerate(self.state_names)}
+
+
+@dataclass(frozen=True)
+class Move:
+    """A rest-to-rest move of the reference (sample indices into the series)."""
+
+    start: int  # first moving sample
+    arrival: int  # first sample at rest again
+    end: int  # one past the last sample of the window
+    origin: np.ndarray  # q_a
+    target: np.ndarray  # q_b
+
+
+def rms_norm(x: np.ndarray) -> float:
+    """sqrt(mean_k |x_k|^2) over the rows of x (NaN for no rows)."""
+    return float(np.sqrt(np.mean(np.sum(x**2, axis=1)))) if len(x) else float("nan")
+
+
+def find_moves(series: TimeSeries) -> list[Move]:
+    """Completed rest-to-rest moves of the reference (see module docstring)."""
+    moving = np.any(np.abs(series.dq_ref) > REST_TOLERANCE, axis=1)
+    edges = np.diff(moving.astype(np.int8))
+    starts = list(np.flatnonzero(edges == 1) + 1)
+    arrivals = list(np.flatnonzero(edges == -1) + 1)
+    if len(moving) and moving[0]:
+        starts.insert(0, 0)
+    moves = []
+    first_end = starts[0] if starts else len(series)
+    if first_end and np.max(np.abs(series.q[0] - series.q_ref[0])) >= MIN_AMPLITUDE:
+        moves.append(Move(0, 0, first_end, series.q[0].copy(), series.q_ref[0].copy()))
+    for i, (start, arrival) in enumerate(zip(starts, arrivals, strict=False)):
+        end = starts[i + 1] if i + 1 < len(starts) else len(series)
+        origin = series.q_ref[max(start - 1, 0)]
+        moves.append(Move(start, arrival, end, origin.copy(), series.q_ref[arrival].copy()))
+    return moves
+
+
+def move_response(series: TimeSeries, move: Move) -> tuple[float, float]:
+    """(overshoot in % of the amplitude, settling time in s) of one move; NaN if not scored."""
+    motion = move.target - move.origin
+    scored = np.abs(motion) >= MIN_AMPLITUDE
+    if not np.any(scored):
+        return float("nan"), float("nan")
+    amplitude = np.max(np.abs(motion))
+    deviation = series.q[move.start : move.end, scored] - move.target[scored]
+    overshoot = max(0.0, np.max(np.sign(motion[scored]) * deviation)) / amplitude * 100.0
+    after = np.abs(series.q[move.arrival : move.end, scored] - move.target[scored])
+    outside = np.any(after > SETTLING_BAND * amplitude, axis=1)
+    if not len(after) or outside[-1]:
+        return float(overshoot), float("inf")
+    inside_from = len(after) - int(np.argmax(outside[::-1])) if outside.any() else 0
+    settle_index = move.arrival + inside_from
+    return float(overshoot), float(series.time[settle_index] - series.time[move.arrival])
+
+
+def step_response(series: TimeSeries) -> tuple[float, float]:
+    """Largest overshoot (%) and settling time (s) over all completed moves."""
+    responses = [move_response(series, move) for move in find_moves(series)]
+    responses = [r for r in responses if not np.isnan(r[0])]
+    if not responses:
+        return float("nan"), float("nan")
+    overshoot, settling = np.max(np.asarray(responses), axis=0)
+    return float(overshoot), float(settling)
+
+
+def compute_metrics(series: TimeSeries, tracking: bool = True) -> dict[str, float]:
+    """All metrics of one run (see module docstring); NaN where not applicable."""
+    nan = float("nan")
+    metrics: dict[str, float] = dict.fromkeys(
+        ("track_rms", "track_max", "overshoot_pct", "settling_time"), nan
+    )
+    if tracking and len(series):
+        error = series.q - series.q_ref
+        metrics["track_rms"] = rms_norm(error)
+        metrics["track_max"] = float(np.max(np.linalg.norm(error, axis=1)))
+        metrics["overshoot_pct"], metrics["settling_time"] = step_response(series)
+    has_torsion = series.theta is not None and len(series)
+    metrics["torsion_max"] = (
+        float(np.max(np.abs(series.theta - series.q))) if has_torsion else nan
+    )
+    metrics["torque_rms"] = rms_norm(series.torque)
+    for name, block in series.estimation_blocks().items():
+        metrics[f"est_rms_{name}"] = rms_norm(block)
+    return metrics

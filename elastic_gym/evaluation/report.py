@@ -1,0 +1,121 @@
+"""Tables of a comparison: one row per run (CSV) and the seed-averaged summary (CSV + markdown).
+
+Metric columns are defined in :mod:`elastic_gym.evaluation.metrics`. The summary
+averages each metric over the seeds whose run completed (status ``ok``); its
+``status`` column reads ``ok`` or e.g. ``1/3 ok (terminated: velocity limit exceeded)``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from elastic_gym.evaluation.runner import RunResult
+
+
+@dataclass(frozen=True)
+class Column:
+    key: str
+    header: str
+    digits: int  # significant digits in the markdown table
+
+
+METRIC_COLUMNS = (
+    Column("track_rms", "track RMS [rad]", 3),
+    Column("track_max", "track max [rad]", 3),
+    Column("overshoot_pct", "overshoot [%]", 3),
+    Column("settling_time", "settling [s]", 3),
+    Column("torsion_max", "max torsion [rad]", 3),
+    Column("torque_rms", "torque RMS [Nm]", 3),
+    Column("est_rms_theta", "est. RMS theta [rad]", 2),
+    Column("est_rms_q", "est. RMS q [rad]", 2),
+    Column("est_rms_dtheta", "est. RMS theta' [rad/s]", 2),
+    Column("est_rms_dq", "est. RMS q' [rad/s]", 2),
+    Column("sim_wall_ratio", "sim/wall", 2),
+)
+METRIC_KEYS = tuple(c.key for c in METRIC_COLUMNS)
+
+
+def run_rows(results: Sequence[RunResult]) -> list[dict]:
+    """One row per run: identity labels, status, every metric (NaN where not applicable)."""
+    rows = []
+    for result in results:
+        row = {**result.spec.labels, "status": result.status}
+        row.update({key: result.metrics.get(key, math.nan) for key in METRIC_KEYS})
+        row["sim_time"] = result.metrics.get("sim_time", math.nan)
+        rows.append(row)
+    return rows
+
+
+def summary_rows(rows: Sequence[dict], identity: Sequence[str]) -> list[dict]:
+    """Rows averaged over seeds (first-seen order), metrics from completed runs only."""
+    keys = [k for k in identity if k != "seed"]
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        groups.setdefault(tuple(row[k] for k in keys), []).append(row)
+    out = []
+    for key, members in groups.items():
+        ok = [r for r in members if r["status"] == "ok"]
+        summary = dict(zip(keys, key, strict=True))
+        summary["seeds"] = len(members)
+        failures = sorted({r["status"] for r in members} - {"ok"})
+        summary["status"] = "ok" if not failures else (
+            f"{len(ok)}/{len(members)} ok ({'; '.join(failures)})"
+        )
+        for column in METRIC_KEYS:
+            values = np.array([r[column] for r in ok], dtype=float)
+            summary[column] = float(np.mean(values)) if len(values) else math.nan
+        out.append(summary)
+    return out
+
+
+def write_csv(rows: Sequence[dict], path: Path) -> Path:
+    """Write rows (dicts with the same keys) as CSV; floats in full precision."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]) if rows else [])
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def format_value(value, digits: int = 3) -> str:
+    """Markdown cell: ``digits`` significant digits, NaN as '-', inf as 'not settled'."""
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "-"
+        if math.isinf(value):
+            return "not settled"
+        return f"{value:.{digits}g}"
+    return str(value)
+
+
+def markdown_table(rows: Sequence[dict], identity: Sequence[str]) -> str:
+    """A markdown table of (summary) rows.
+
+    Identity columns whose value is the same in every row are left out of the table
+    and listed above it; metric columns that are NaN everywhere are left out.
+    """
+    if not rows:
+        return "_no runs_\n"
+    constant = [k for k in identity if k in rows[0] and len({r[k] for r in rows}) == 1]
+    labels = [k for k in rows[0] if k not in METRIC_KEYS and k not in constant]
+    metrics = [c for c in METRIC_COLUMNS
+               if any(not math.isnan(r.get(c.key, math.nan)) for r in rows)]
+    headers = labels + [c.header for c in metrics]
+    lines = []
+    if constant:
+        lines.append(", ".join(f"{k}: {rows[0][k]}" for k in constant) + "\n")
+    lines.append("| " + " | ".join(headers) + " |")
+    aligns = ["---"] * len(labels) + ["---:"] * len(metrics)
+    lines.append("|" + "|".join(aligns) + "|")
+    for row in rows:
+        cells = [format_value(row[k]) for k in labels]
+        cells += [format_value(row[c.key], c.digits) for c in metrics]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,555 @@
+"""Comparison scenarios: the grid of runs, from a dict, a YAML file or a shipped preset.
+
+A scenario is the product
+
+    envs x (values of each robustness axis) x model errors x seeds x controllers x state sources
+
+written in YAML as::
+
+    name: my-study
+    description: free text
+    duration: 4.0                       # simulated seconds per run
+    seeds: [0, 1]                       # env reset seeds (task sampling and sensor noise)
+    envs:
+      - TwoLinkElastic-v0               # an id (the "elastic_gym/" prefix is optional), or
+      - id: elastic_gym/KR15Elastic-v0
+        label: kr15-5deg
+        kwargs: {task: tracking, task_options: {waypoints: [[0.1, 0.2, -0.3]]}}
+        reset_options: {initial_state: {q: [0, 0.2, -0.3]}}
+    axes:                               # robustness axes: each value is a set of env kwargs
+      plant:                            # (deep-merged into every env entry's kwargs)
+        - {label: nominal}
+        - {label: mass+30%, plant_scaling: {link_mass: 1.3}}
+      encoder:
+        - {}
+        - {encoder: {resolution: 1.0e-3}}
+    model_errors:                       # error of the controller's and observer's model:
+      - {}                              # env.unwrapped.model.perturbed(**values)
+      - {label: K-10%, stiffness: 0.9}
+    controllers:
+      - feedforward-state-feedback      # a registry name, or
+      - name: motor-pd
+        label: motor-only
+        options: {}                     # constructor options
+        sources: [finite-difference]    # pair only with these state-source labels
+      - name: my-pd                     # a class not in the registry ("module:Class")
+        class: mypackage.control:MyPD
+    state_sources:
+      - true                            # the truth (oracle); YAML's bare `true` is accepted
+      - deluca                          # an observer registry name, or
+      - name: ekf
+        label: ekf-acc
+        options: {use_accelerometers: true}
+        initial_estimate: [...]         # full state vector, overrides the observer's own
+
+Loading validates structure, types and registry names and raises
+:class:`ScenarioError` (a ``ValueError``) naming the offending field, e.g.
+``controllers[1].name``. Whether the module behind a registered name is available,
+and whether an observer or controller applies to an env's arm (elastic or rigid), is
+decided when the runs are planned (:func:`elastic_gym.evaluation.runner.plan_runs`):
+inapplicable combinations are skipped, not errors.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import yaml
+
+import elastic_gym  # noqa: F401 - registers the env ids
+from elastic_gym.controllers.registry import CONTROLLERS
+from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
+from elastic_gym.model import ParameterScaling
+from elastic_gym.observers.registry import OBSERVERS
+
+PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
+DEFAULT_PRESET = "default"
+ENV_NAMESPACE = "elastic_gym/"
+TRUE_STATE = "true"
+IDENTITY_COLUMNS = ("env", "model_error", "controller", "source", "seed")
+
+TOP_LEVEL_KEYS = (
+    "name", "description", "duration", "seeds", "envs", "axes", "model_errors",
+    "controllers", "state_sources",
+)
+ENV_KEYS = ("id", "label", "kwargs", "reset_options")
+CONTROLLER_KEYS = ("name", "label", "options", "sources", "class")
+SOURCE_KEYS = ("name", "label", "options", "initial_estimate", "class")
+
+
+class ScenarioError(ValueError):
+    """Invalid scenario; the message starts with the path of the offending field."""
+
+    def __init__(self, path: str, message: str) -> None:
+        super().__init__(f"{path}: {message}")
+        self.path = path
+
+
+# ---------------------------------------------------------------------------- entries
+@dataclass(frozen=True)
+class EnvEntry:
+    """One env of the grid: gym id, constructor kwargs and ``reset`` options."""
+
+    id: str
+    label: str
+    kwargs: dict = field(default_factory=dict)
+    reset_options: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ControllerEntry:
+    """A controller by registry name (or explicit class) with its options.
+
+    ``cls`` (a :class:`~elastic_gym.controllers.Controller` subclass or a
+    ``"module:Class"`` string) bypasses the registry; ``sources`` restricts the state
+    sources (by label) this controller is paired with (``None``: all).
+    """
+
+    name: str
+    label: str
+    options: dict = field(default_factory=dict)
+    sources: tuple[str, ...] | None = None
+    cls: type | str | None = None
+
+
+@dataclass(frozen=True)
+class SourceEntry:
+    """A state source: ``"true"`` (the oracle) or an observer with options.
+
+    ``initial_estimate`` (full state vector) is passed to ``observer.reset``.
+    """
+
+    name: str
+    label: str
+    options: dict = field(default_factory=dict)
+    initial_estimate: tuple[float, ...] | None = None
+    cls: type | str | None = None
+
+
+@dataclass(frozen=True)
+class Variation:
+    """One value of an axis: env kwargs (robustness axes) or scaling factors (model errors)."""
+
+    label: str
+    values: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated comparison grid; build it with :meth:`from_dict` or the loaders below."""
+
+    name: str
+    envs: tuple[EnvEntry, ...]
+    controllers: tuple[ControllerEntry, ...]
+    state_sources: tuple[SourceEntry, ...]
+    duration: float = 3.0
+    seeds: tuple[int, ...] = (0,)
+    axes: tuple[tuple[str, tuple[Variation, ...]], ...] = ()
+    model_errors: tuple[Variation, ...] = (Variation("exact"),)
+    description: str = ""
+
+    @classmethod
+    def from_dict(cls, data: Mapping, name: str | None = None) -> Scenario:
+        """Validate a mapping (parsed YAML, or Python objects) into a scenario."""
+        return _parse(data, name)
+
+    def with_overrides(self, *, seeds: Sequence[int] | None = None,
+                       duration: float | None = None) -> Scenario:
+        """A copy with other seeds and/or duration (validated like the YAML fields)."""
+        changes: dict[str, Any] = {}
+        if seeds is not None:
+            changes["seeds"] = _seeds(list(seeds), "seeds")
+        if duration is not None:
+            changes["duration"] = _positive(duration, "duration")
+        return replace(self, **changes)
+
+    @property
+    def axis_names(self) -> tuple[str, ...]:
+        return tuple(name for name, _ in self.axes)
+
+    @property
+    def identity_columns(self) -> tuple[str, ...]:
+        """Columns that identify a run: env, the axes, model error, controller, source, seed."""
+        return (IDENTITY_COLUMNS[0], *self.axis_names, *IDENTITY_COLUMNS[1:])
+
+    def to_dict(self) -> dict:
+        """Plain-data form (YAML-serialisable; classes as ``"module:Class"``)."""
+        return _plain({
+            "name": self.name,
+            "description": self.description,
+            "duration": self.duration,
+            "seeds": list(self.seeds),
+            "envs": [
+                {"id": e.id, "label": e.label, "kwargs": e.kwargs,
+                 "reset_options": e.reset_options}
+                for e in self.envs
+            ],
+            "axes": {name: [{"label": v.label, **v.values} for v in values]
+                     for name, values in self.axes},
+            "model_errors": [{"label": v.label, **v.values} for v in self.model_errors],
+            "controllers": [
+                _without_none({"name": c.name, "label": c.label, "options": c.options,
+                               "sources": list(c.sources) if c.sources else None,
+                               "class": _class_path(c.cls)})
+                for c in self.controllers
+            ],
+            "state_sources": [
+                _without_none({"name": s.name, "label": s.label, "options": s.options,
+                               "initial_estimate": list(s.initial_estimate)
+                               if s.initial_estimate is not None else None,
+                               "class": _class_path(s.cls)})
+                for s in self.state_sources
+            ],
+        })
+
+
+# ---------------------------------------------------------------------------- loaders
+def list_presets() -> list[str]:
+    """Names of the presets shipped in ``elastic_gym/presets``."""
+    return sorted(path.stem for path in PRESET_DIR.glob("*.yaml"))
+
+
+def preset_path(name: str) -> Path:
+    if name not in list_presets():
+        raise ValueError(f"unknown preset {name!r}; valid: {list_presets()}")
+    return PRESET_DIR / f"{name}.yaml"
+
+
+def load_preset(name: str = DEFAULT_PRESET) -> Scenario:
+    """A shipped preset by name (``elastic-gym compare --preset NAME``)."""
+    return load_scenario(preset_path(name), name=name)
+
+
+def load_scenario(path: str | Path, name: str | None = None) -> Scenario:
+    """A scenario from a YAML file; the name defaults to the file's ``name`` field or stem."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"scenario file {str(path)!r} does not exist")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ScenarioError(str(path), f"invalid YAML: {exc}") from None
+    if not isinstance(data, Mapping):
+        raise ScenarioError(str(path), "the file must contain a mapping of scenario fields")
+    return _parse(data, name or data.get("name") or path.stem)
+
+
+def resolve_class(cls: type | str, path: str) -> type:
+    """A class given directly or as ``"module:Class"``."""
+    if isinstance(cls, type):
+        return cls
+    module, _, attr = cls.partition(":")
+    try:
+        return getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as exc:
+        raise ScenarioError(path, f"cannot import class {cls!r}: {exc}") from None
+
+
+# ---------------------------------------------------------------------------- parsing
+def _parse(data: Mapping, name: str | None) -> Scenario:
+    if not isinstance(data, Mapping):
+        raise ScenarioError("scenario", f"must be a mapping, got {type(data).__name__}")
+    _check_keys(data, TOP_LEVEL_KEYS, "scenario")
+    for key in ("envs", "controllers", "state_sources"):
+        if key not in data:
+            raise ScenarioError(key, "is required")
+    scenario_name = name or data.get("name") or "scenario"
+    if not isinstance(scenario_name, str):
+        raise ScenarioError("name", f"must be a string, got {scenario_name!r}")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise ScenarioError("description", "must be a string")
+    envs = tuple(_env(item, f"envs[{i}]") for i, item in enumerate(_list(data["envs"], "envs")))
+    sources = tuple(
+        _source(item, f"state_sources[{i}]")
+        for i, item in enumerate(_list(data["state_sources"], "state_sources"))
+    )
+    _unique_labels([s.label for s in sources], "state_sources")
+    controllers = tuple(
+        _controller(item, f"controllers[{i}]", {s.label for s in sources})
+        for i, item in enumerate(_list(data["controllers"], "controllers"))
+    )
+    _unique_labels([c.label for c in controllers], "controllers")
+    _unique_labels([e.label for e in envs], "envs")
+    axes = _axes(data.get("axes", {}), envs)
+    errors = tuple(
+        _model_error(item, f"model_errors[{i}]")
+        for i, item in enumerate(_list(data.get("model_errors", [{}]), "model_errors"))
+    )
+    _unique_labels([v.label for v in errors], "model_errors")
+    return Scenario(
+        name=scenario_name,
+        description=description,
+        duration=_positive(data.get("duration", 3.0), "duration"),
+        seeds=_seeds(data.get("seeds", [0]), "seeds"),
+        envs=envs,
+        axes=axes,
+        model_errors=errors,
+        controllers=controllers,
+        state_sources=sources,
+    )
+
+
+def _env(item: Any, path: str) -> EnvEntry:
+    if isinstance(item, str):
+        item = {"id": item}
+    item = _mapping(item, path)
+    _check_keys(item, ENV_KEYS, path)
+    if "id" not in item:
+        raise ScenarioError(f"{path}.id", "is required")
+    env_id = _env_id(item["id"], f"{path}.id")
+    kwargs = _mapping(item.get("kwargs", {}), f"{path}.kwargs")
+    _check_env_kwargs(env_id, kwargs, f"{path}.kwargs")
+    label = _label(item.get("label", env_id.removeprefix(ENV_NAMESPACE).removesuffix("-v0")),
+                   f"{path}.label")
+    reset_options = _mapping(item.get("reset_options", {}), f"{path}.reset_options")
+    return EnvEntry(env_id, label, dict(kwargs), dict(reset_options))
+
+
+def _env_id(value: Any, path: str) -> str:
+    if not isinstance(value, str):
+        raise ScenarioError(path, f"must be an env id string, got {value!r}")
+    env_id = value if "/" in value else ENV_NAMESPACE + value
+    if env_id not in gym.registry:
+        valid = sorted(k for k in gym.registry if k.startswith(ENV_NAMESPACE))
+        raise ScenarioError(path, f"unknown env id {value!r}; valid: {valid}")
+    return env_id
+
+
+def env_parameters(env_id: str) -> set[str]:
+    """Constructor keyword names of a registered env (following ``**kwargs`` up the MRO)."""
+    entry = gym.spec(env_id).entry_point
+    if isinstance(entry, str):
+        module, _, attr = entry.partition(":")
+        entry = getattr(importlib.import_module(module), attr)
+    names: set[str] = set()
+    for klass in entry.__mro__ if isinstance(entry, type) else ():
+        if "__init__" not in vars(klass):
+            continue
+        params = inspect.signature(klass.__init__).parameters.values()
+        names |= {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        if not any(p.kind is p.VAR_KEYWORD for p in params):
+            break
+    names.discard("self")
+    return names
+
+
+def _check_env_kwargs(env_id: str, kwargs: Mapping, path: str) -> None:
+    unknown = set(kwargs) - env_parameters(env_id)
+    if unknown:
+        raise ScenarioError(
+            path, f"unknown env kwarg(s) {sorted(unknown)} for {env_id}; "
+            f"valid: {sorted(env_parameters(env_id))}"
+        )
+
+
+def _controller(item: Any, path: str, source_labels: set[str]) -> ControllerEntry:
+    if isinstance(item, str):
+        item = {"name": item}
+    item = _mapping(item, path)
+    _check_keys(item, CONTROLLER_KEYS, path)
+    name = _name(item, path)
+    cls = _class_field(item.get("class"), f"{path}.class")
+    valid = sorted({*CONTROLLERS, *BUILTIN_CONTROLLERS})
+    if cls is None and name not in valid:
+        raise ScenarioError(f"{path}.name", f"unknown controller {name!r}; valid: {valid}")
+    sources = item.get("sources")
+    if sources is not None:
+        sources = tuple(_label(s, f"{path}.sources[{i}]")
+                        for i, s in enumerate(_list(sources, f"{path}.sources")))
+        missing = sorted(set(sources) - source_labels)
+        if missing:
+            raise ScenarioError(f"{path}.sources", f"unknown state source label(s) {missing}; "
+                                f"valid: {sorted(source_labels)}")
+    return ControllerEntry(
+        name=name,
+        label=_label(item.get("label", name), f"{path}.label"),
+        options=dict(_mapping(item.get("options", {}), f"{path}.options")),
+        sources=sources,
+        cls=cls,
+    )
+
+
+def _source(item: Any, path: str) -> SourceEntry:
+    if item is True or isinstance(item, str):
+        item = {"name": TRUE_STATE if item is True else item}
+    item = _mapping(item, path)
+    _check_keys(item, SOURCE_KEYS, path)
+    name = _name(item, path)
+    cls = _class_field(item.get("class"), f"{path}.class")
+    if cls is None and name not in OBSERVERS:
+        raise ScenarioError(f"{path}.name",
+                            f"unknown state source {name!r}; valid: {sorted(OBSERVERS)}")
+    estimate = item.get("initial_estimate")
+    if estimate is not None:
+        estimate = tuple(_number(v, f"{path}.initial_estimate[{i}]")
+                         for i, v in enumerate(_list(estimate, f"{path}.initial_estimate")))
+    return SourceEntry(
+        name=name,
+        label=_label(item.get("label", name), f"{path}.label"),
+        options=dict(_mapping(item.get("options", {}), f"{path}.options")),
+        initial_estimate=estimate,
+        cls=cls,
+    )
+
+
+def _axes(data: Any, envs: tuple[EnvEntry, ...]) -> tuple[tuple[str, tuple[Variation, ...]], ...]:
+    axes = _mapping(data, "axes")
+    out = []
+    for axis, items in axes.items():
+        path = f"axes.{axis}"
+        if not isinstance(axis, str) or not axis.isidentifier() or axis in IDENTITY_COLUMNS:
+            raise ScenarioError(path, f"axis names must be identifiers other than "
+                                f"{list(IDENTITY_COLUMNS)}, got {axis!r}")
+        values = []
+        for i, item in enumerate(_list(items, path)):
+            item_path = f"{path}[{i}]"
+            values.append(_variation(item, item_path, "nominal"))
+            for env in envs:
+                _check_env_kwargs(env.id, values[-1].values, item_path)
+        _unique_labels([v.label for v in values], path)
+        out.append((axis, tuple(values)))
+    return tuple(out)
+
+
+def _model_error(item: Any, path: str) -> Variation:
+    variation = _variation(item, path, "exact")
+    try:
+        ParameterScaling.from_config(dict(variation.values))
+    except (TypeError, ValueError) as exc:
+        raise ScenarioError(path, str(exc)) from None
+    return variation
+
+
+def _variation(item: Any, path: str, empty_label: str) -> Variation:
+    values = dict(_mapping(item, path))
+    label = values.pop("label", None)
+    if label is None:
+        label = format_values(values) or empty_label
+    return Variation(_label(label, f"{path}.label"), values)
+
+
+# ---------------------------------------------------------------------------- helpers
+def format_values(values: Mapping, prefix: str = "") -> str:
+    """Compact label of (nested) values: ``plant_scaling.link_mass=1.3,task=tracking``."""
+    parts = []
+    for key, value in values.items():
+        if isinstance(value, Mapping):
+            parts.append(format_values(value, f"{prefix}{key}."))
+        else:
+            parts.append(f"{prefix}{key}={value}")
+    return ",".join(p for p in parts if p)
+
+
+def merge(base: Mapping, override: Mapping) -> dict:
+    """Recursive dict merge: mappings are merged, anything else is replaced."""
+    out = dict(base)
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _plain(value: Any) -> Any:
+    """Nested lists/dicts/numbers/strings only (tuples and arrays as lists, others as str)."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if hasattr(value, "tolist"):  # numpy arrays and scalars
+        return _plain(value.tolist())
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return str(value)
+
+
+def _class_path(cls: type | str | None) -> str | None:
+    if cls is None or isinstance(cls, str):
+        return cls
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def _without_none(data: dict) -> dict:
+    return {k: v for k, v in data.items() if v is not None}
+
+
+def _check_keys(data: Mapping, allowed: Sequence[str], path: str) -> None:
+    unknown = [k for k in data if k not in allowed]
+    if unknown:
+        raise ScenarioError(f"{path}.{unknown[0]}" if path != "scenario" else str(unknown[0]),
+                            f"unknown field; valid: {list(allowed)}")
+
+
+def _mapping(value: Any, path: str) -> Mapping:
+    if not isinstance(value, Mapping):
+        raise ScenarioError(path, f"must be a mapping, got {type(value).__name__}")
+    return value
+
+
+def _list(value: Any, path: str) -> list:
+    if not isinstance(value, (list, tuple)) or not value:
+        raise ScenarioError(path, f"must be a non-empty list, got {value!r}")
+    return list(value)
+
+
+def _name(item: Mapping, path: str) -> str:
+    if "name" not in item:
+        raise ScenarioError(f"{path}.name", "is required")
+    name = item["name"]
+    if name is True:
+        return TRUE_STATE
+    if not isinstance(name, str) or not name:
+        raise ScenarioError(f"{path}.name", f"must be a non-empty string, got {name!r}")
+    return name
+
+
+def _class_field(value: Any, path: str) -> type | str | None:
+    if value is None or isinstance(value, type):
+        return value
+    if not isinstance(value, str) or ":" not in value:
+        raise ScenarioError(path, f"must be a class or a 'module:Class' string, got {value!r}")
+    return value
+
+
+def _label(value: Any, path: str) -> str:
+    if value is True:
+        return TRUE_STATE
+    if not isinstance(value, (str, int, float)) or isinstance(value, bool) or value == "":
+        raise ScenarioError(path, f"must be a non-empty string, got {value!r}")
+    return str(value)
+
+
+def _unique_labels(labels: list[str], path: str) -> None:
+    duplicates = sorted({x for x in labels if labels.count(x) > 1})
+    if duplicates:
+        raise ScenarioError(path, f"duplicate label(s) {duplicates}; give each entry a 'label'")
+
+
+def _number(value: Any, path: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ScenarioError(path, f"must be a number, got {value!r}")
+    return float(value)
+
+
+def _positive(value: Any, path: str) -> float:
+    number = _number(value, path)
+    if not number > 0 or number == float("inf"):
+        raise ScenarioError(path, f"must be a finite number > 0, got {value!r}")
+    return number
+
+
+def _seeds(value: Any, path: str) -> tuple[int, ...]:
+    single = isinstance(value, int) and not isinstance(value, bool)
+    items = [value] if single else _list(value, path)
+    for i, seed in enumerate(items):
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ScenarioError(f"{path}[{i}]", f"must be an integer >= 0, got {seed!r}")
+    return tuple(items)
