@@ -47,11 +47,11 @@ def test_dynamics_jacobian_matches_finite_differences(model):
     np.testing.assert_allclose(F, F_fd, rtol=0, atol=1e-6 * np.abs(F_fd).max())
     B_fd = central_difference(lambda u: model.elastic_dynamics(x, u), tau)
     np.testing.assert_allclose(G[:, : model.n], B_fd, rtol=0, atol=1e-6 * np.abs(B_fd).max())
-    if not model.has_coupling:  # eq. (5): B^-1 on the motor, M^-1 on the link accelerations
-        n = model.n
-        np.testing.assert_allclose(G[2 * n : 3 * n, :n], np.diag(model.B_inv), atol=1e-12)
-        M_inv = np.linalg.inv(model.mass_matrix(x[n : 2 * n]))
-        np.testing.assert_allclose(G[3 * n :, n:], M_inv, rtol=1e-9, atol=1e-12)
+    # noise matrix: inverse of [[B, S^T], [S, M]], eq. (5) blockdiag(B^-1, M^-1) when S = 0
+    n = model.n
+    inertia = np.block([[np.diag(model.B), model.S.T], [model.S, model.mass_matrix(x[n : 2 * n])]])
+    np.testing.assert_allclose(G[2 * n :] @ inertia, np.eye(2 * n), atol=1e-9)
+    assert np.all(G[: 2 * n] == 0.0)
 
 
 def test_measurement_jacobian_matches_finite_differences(model):
