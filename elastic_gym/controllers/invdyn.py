@@ -59,6 +59,7 @@ from elastic_gym.model import RobotModel
 
 REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 DEFAULT_FD_STEP = 1e-4
+TIME_TOLERANCE = 1e-9  # s; calls closer in time than this count as the same instant
 
 
 def reference_derivatives(info: Mapping, n: int) -> np.ndarray:
@@ -165,10 +166,12 @@ class TorsionFilter:
         v, dv, ddv = u / K, du / K, ddu / K  # the static torsion and its derivatives
         if self._time is None:
             self.delta = self._particular(v, dv, ddv, 0.0)  # quasi-static start, exact at rest
-        elif t < self._time:
+        elif t < self._time - TIME_TOLERANCE:
             raise ValueError(f"controller time went back from {self._time} to {t}; call reset()")
-        elif t > self._time:
+        elif t > self._time + TIME_TOLERANCE:
             self._advance(t - self._time, v, dv)
+        else:  # same instant (up to rounding): no time to integrate over
+            t = self._time
         self._time, self._v, self._dv = t, v, dv
         viscous = self.viscous
         self.delta = delta = np.where(viscous, self.delta, v)
