@@ -217,14 +217,15 @@ def test_eq13_tracks_with_true_state_and_feedforward_alone_follows(env_id):
             feedback=feedback,
         )
         results[feedback] = rms(simulate(env, controller, 1000)["error"])
-    assert results[True] < 1e-3  # measured 6e-5 (two-link), 3e-5 (KR15)
-    assert results[False] < 2e-3  # measured 6e-4, 1.4e-4: open loop, marginally damped
+    assert results[True] < 1e-3  # measured 1.2e-4 (two-link), 6e-5 (KR15)
+    assert results[False] < 2e-3  # measured 3.9e-4, 1.7e-4: open loop, marginally damped
     assert results[True] < 0.5 * results[False]
 
 
 def test_full_state_feedback_beats_motor_pd_under_link_mass_error():
     """+30 % link masses in the plant, a 0.1 rad step of both joints (regulation): eq. (13)
-    (true state) settles without overshoot or ringing; motor PD overshoots by tens of %."""
+    (true state) settles with a few % overshoot and no ringing; motor PD overshoots by
+    tens of % (overshoot relative to the settled value: both keep a static error)."""
     start, goal = np.array([-1.2, 0.5]), np.array([-1.1, 0.6])
     metrics = {}
     for name in ("feedforward-state-feedback", "motor-pd"):
@@ -239,7 +240,7 @@ def test_full_state_feedback_beats_motor_pd_under_link_mass_error():
         ringing = np.ptp(q[300:], axis=0)  # peak-to-peak after 0.3 s
         metrics[name] = (overshoot.max(), ringing.max())
     (sf_over, sf_ring), (pd_over, pd_ring) = metrics.values()
-    assert sf_over < 0.03 and pd_over > 0.2  # measured: 0.2 % vs 35 %
+    assert sf_over < 0.05 and pd_over > 0.25  # measured: 2.1 % vs 43 %
     assert sf_ring < 0.05 * pd_ring
 
 
@@ -332,25 +333,37 @@ def test_policy_controller_scaling_residual_and_recurrent_state():
     )
 
 
-def test_policy_controller_vecnormalize_pickle(tmp_path):
+def test_policy_controller_with_saved_sb3_model_and_vecnormalize(tmp_path):
+    """A saved SB3 model (path + algorithm) and a pickled VecNormalize: the policy sees the
+    normalized observation and its [-1, 1] action becomes a torque within the limits."""
+    sb3 = pytest.importorskip("stable_baselines3")
     vec_env = pytest.importorskip("stable_baselines3.common.vec_env")
     env = vec_env.DummyVecEnv([lambda: TrueStateWrapper(make_noise_free(TWO_LINK))])
     normalizer = vec_env.VecNormalize(env, norm_reward=False)
     normalizer.obs_rms["state"].mean = np.full(8, 1.0)
     normalizer.obs_rms["state"].var = np.full(8, 4.0)
-    path = tmp_path / "vecnormalize.pkl"
-    normalizer.save(path)
-    env.close()
-    with open(path, "rb") as handle:
-        assert isinstance(pickle.load(handle), vec_env.VecNormalize)
-    seen = []
-    controller = PolicyController(
-        model_of("two_link_elastic"), 1e-3, lambda o: seen.append(o) or np.zeros(2),
-        normalization=str(path),
+    stats_path, model_path = tmp_path / "vecnormalize.pkl", tmp_path / "ppo.zip"
+    normalizer.save(stats_path)
+    sb3.PPO("MultiInputPolicy", normalizer, n_steps=8, batch_size=8, seed=0, device="cpu").save(
+        model_path
     )
+    env.close()
+    with open(stats_path, "rb") as handle:
+        assert isinstance(pickle.load(handle), vec_env.VecNormalize)
+    model = model_of("two_link_elastic")
     obs, info = elastic_obs()
-    controller(obs, info)
+    seen = []
+    recorder = PolicyController(
+        model, 1e-3, lambda o: seen.append(o) or np.zeros(2), normalization=str(stats_path)
+    )
+    recorder(obs, info)
     np.testing.assert_allclose(seen[0]["state"], (obs["state"] - 1.0) / 2.0, rtol=1e-6)
+    learned = PolicyController(
+        model, 1e-3, str(model_path), algorithm="PPO", normalization=str(stats_path)
+    )
+    learned.reset(obs, info)
+    torque = learned(obs, info)
+    assert torque.shape == (2,) and np.all(np.abs(torque) <= model.torque_limit)
 
 
 # ---------------------------------------------------------------------- bad input
