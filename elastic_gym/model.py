@@ -286,6 +286,26 @@ class RobotModel:
         """Motor position holding the links at rest at q: theta = q + K^-1 g(q)."""
         return q + self.gravity(q) / self.K
 
+    def static_link_position(
+        self, theta: np.ndarray, initial: np.ndarray | None = None,
+        tolerance: float = 1e-12, max_iterations: int = 50,
+    ) -> np.ndarray:
+        """Link position of the arm at rest for motor position theta.
+
+        Solves theta = q + K^-1 g(q) (the inverse of :meth:`static_motor_position`) by the
+        fixed-point iteration q <- theta - K^-1 g(q), a contraction since |K^-1 dg/dq| << 1.
+        This is how an observer initialises q from the motor encoders with only the gravity
+        vector known (De Luca et al., end of Sec. IV).
+        """
+        theta = np.asarray(theta, dtype=float)
+        q = theta.copy() if initial is None else np.array(initial, dtype=float)
+        for _ in range(max_iterations):
+            q_next = theta - self.gravity(q) / self.K
+            if np.max(np.abs(q_next - q)) < tolerance:
+                return q_next
+            q = q_next
+        return q
+
     def energy(
         self, q: np.ndarray, dq: np.ndarray, theta: np.ndarray | None = None,
         dtheta: np.ndarray | None = None,

@@ -71,8 +71,6 @@ from elastic_gym.observers.deluca_gains import (
 )
 
 ACCELERATION_SOURCES = ("ideal", "accelerometer")
-STATIC_TOLERANCE = 1e-12  # rad, fixed-point iteration of theta = q + K^-1 g(q)
-STATIC_MAX_ITERATIONS = 50
 DT_TOLERANCE = 1e-9  # relative mismatch of the update period tolerated
 
 
@@ -93,21 +91,6 @@ def foh_discretization(
     ex = expm(aug)
     phi, gamma0, gamma1 = ex[:nx, :nx], ex[:nx, nx : nx + nw], ex[:nx, nx + nw :]
     return phi, gamma0 - gamma1, gamma1
-
-
-def static_link_position(model: RobotModel, theta: np.ndarray) -> np.ndarray:
-    """Link position at rest for motor position theta: solve theta = q + K^-1 g(q).
-
-    Fixed-point iteration q <- theta - K^-1 g(q), a contraction since |K^-1 dg/dq| << 1.
-    """
-    q = np.array(theta, dtype=float)
-    for _ in range(STATIC_MAX_ITERATIONS):
-        q_next = theta - model.gravity(q) / model.K
-        converged = np.max(np.abs(q_next - q)) < STATIC_TOLERANCE
-        q = q_next
-        if converged:
-            break
-    return q
 
 
 class DeLucaObserver(Observer):
@@ -259,7 +242,7 @@ class DeLucaObserver(Observer):
         xi = self.check_initial_estimate(initial_estimate)
         if xi is None:
             n = self.n
-            xi = np.concatenate([theta, static_link_position(self.model, theta), np.zeros(2 * n)])
+            xi = np.concatenate([theta, self.model.static_link_position(theta), np.zeros(2 * n)])
         self.diagnostics = {}
         self._xi = xi
         self._theta = theta

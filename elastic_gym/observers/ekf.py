@@ -57,8 +57,6 @@ DEFAULT_INITIAL_STD = (1e-3, 0.05, 0.5, 1.0)
 DEFAULT_ACCELEROMETER_STD = 0.05
 """Accelerometer standard deviation (m/s^2) per axis and sample: white noise of the env's
 default MEMS part (1.5e-3 m/s^2/sqrt(Hz) at 1 kHz, 0.034 m/s^2) plus its 0.02 m/s^2 bias."""
-STATIC_TOLERANCE = 1e-12
-STATIC_MAX_ITERATIONS = 50
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -119,18 +117,6 @@ def default_process_noise(model: RobotModel, dt: float) -> np.ndarray:
     inertia = np.concatenate([model.B, np.diag(model.mass_matrix(q_mid))])
     accelerations = np.repeat(np.asarray(DEFAULT_ACCELERATION_NOISE), model.n)
     return np.diag((inertia * accelerations) ** 2 * dt)
-
-
-def static_link_position(model: RobotModel, theta: np.ndarray) -> np.ndarray:
-    """Link position at rest for motor position theta: the fixed point of
-    q = theta - K^-1 g(q) (a contraction since |K^-1 dg/dq| << 1)."""
-    q = theta.copy()
-    for _ in range(STATIC_MAX_ITERATIONS):
-        q_next = theta - model.gravity(q) / model.K
-        if np.max(np.abs(q_next - q)) < STATIC_TOLERANCE:
-            return q_next
-        q = q_next
-    return q
 
 
 # ----------------------------------------------------------------- model derivatives
@@ -333,7 +319,7 @@ class ExtendedKalmanFilter(Observer):
         x0 = self.check_initial_estimate(initial_estimate)
         if x0 is None:
             theta = self.measured_position(obs)
-            q = static_link_position(self.model, theta)
+            q = self.model.static_link_position(theta)
             x0 = np.concatenate([theta, q, np.zeros(2 * self.n)])
         self.x = x0
         self.P = self.P0.copy()

@@ -17,8 +17,6 @@ import numpy as np
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import Observer
 
-STATIC_ITERATIONS = 3
-
 
 class FiniteDifferenceObserver(Observer):
     """Filtered finite differences; see the module docstring."""
@@ -35,11 +33,10 @@ class FiniteDifferenceObserver(Observer):
         self._q_static = np.zeros(self.n)
 
     def _static_link_position(self, theta: np.ndarray) -> np.ndarray:
-        q = self._q_static
-        for _ in range(STATIC_ITERATIONS):
-            q = theta - self.model.gravity(q) / self.model.K
-        self._q_static = q
-        return q
+        self._q_static = self.model.static_link_position(
+            theta, initial=self._q_static, tolerance=1e-10
+        )
+        return self._q_static
 
     def _estimate(self, position: np.ndarray) -> np.ndarray:
         if not self.elastic:
