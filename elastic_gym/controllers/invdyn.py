@@ -19,9 +19,10 @@ theta_d = q_d + delta.
 * D > 0 (visco-elastic joints, ref. [19] of the paper): K delta + D delta' = tau_J(t)
   is a stable first-order internal dynamics (time constant D/K, a few ms), not an
   algebraic relation. :class:`TorsionFilter` integrates it inside the controller
-  exactly: over each control period tau_J is the cubic Hermite interpolant of its
-  values and exact derivatives at both ends, for which the ODE has a closed-form
-  solution (particular polynomial solution + decaying exponential). It starts at the
+  with an exact discretization: over each control period tau_J is the cubic Hermite
+  interpolant of its values and exact derivatives at both ends, for which the ODE has
+  a closed-form solution (particular polynomial solution + decaying exponential); the
+  only approximation is the O(h^4) interpolation of tau_J. It starts at the
   quasi-static torsion (at rest: delta = K^-1 tau_J, the equilibrium the env resets
   to). Then delta' = D^-1 (tau_J - K delta) and delta'' = D^-1 (tau_J' - K delta')
   follow exactly from the ODE, so model (1) with D > 0 needs only tau_r and tau_r'.
@@ -31,12 +32,13 @@ exactly from :meth:`RobotModel.rnea_derivatives` (plus the friction slope).
 Pinocchio's Python API has no second-order RNEA derivatives, so tau_r'' is the central
 difference (tau_r'(t + h) - tau_r'(t - h)) / 2h of that exact first derivative along
 the Taylor expansion of the reference to order 4; the error is O(h^2) (it misses
-q_d^(5), q_d^(6) terms) with h = ``fd_step`` (default 1e-4 s, error ~1e-8 relative).
+q_d^(5), q_d^(6) terms) with h = ``fd_step`` (default 1e-4 s; relative error 4e-7
+measured on a 0.6 s KR15 motion).
 tau_r'' is only computed when it is used (D = 0 joints, or S != 0).
 
 Coupling S (model (2), constant, strictly upper triangular). tau_J = tau_r + S q_d''
 + S delta''. The torsion inside the S term is taken from a first filter driven by
-tau_r alone (the model-(1) torsion delta0), a second filter driven by
+tau_r alone (the torsion delta0 of the uncoupled model (1)), a second filter driven by
 tau_J = tau_r + S (q_d'' + delta0'') then gives delta. The difference
 S (delta'' - delta0'') involves S (K + D s)^-1 S, which vanishes when S^2 = 0
 (structurally): exact for the KR15 (only S23, joint 3 has no coupling term) and for
@@ -196,7 +198,8 @@ class InverseDynamics:
         self.rigid_torque = RigidTorque(model, fd_step)
         if model.elastic:
             self.filter = TorsionFilter(model.K, model.D)
-            self.coupling_filter = (
+            # torsion of the uncoupled model (1), used inside the S theta_d'' term
+            self.uncoupled_filter = (
                 TorsionFilter(model.K, model.D) if model.has_coupling else None
             )
             self.needs_second = model.has_coupling or bool(np.any(model.D == 0.0))
@@ -204,8 +207,8 @@ class InverseDynamics:
     def reset(self) -> None:
         if self.model.elastic:
             self.filter.reset()
-            if self.coupling_filter is not None:
-                self.coupling_filter.reset()
+            if self.uncoupled_filter is not None:
+                self.uncoupled_filter.reset()
 
     def __call__(self, t: float, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         model, rt = self.model, self.rigid_torque
@@ -214,15 +217,15 @@ class InverseDynamics:
             return np.concatenate([ref[0], ref[1]]), tau_r
         dtau_r = rt.first_derivative(ref)
         ddtau_r = rt.second_derivative(ref) if self.needs_second else np.zeros(self.n)
-        if self.coupling_filter is None:
+        if self.uncoupled_filter is None:
             tau_j = tau_r
             delta, d1, d2, _ = self.filter.update(t, tau_r, dtau_r, ddtau_r)
         else:
             S = model.S
-            _, _, c2, c3 = self.coupling_filter.update(t, tau_r, dtau_r, ddtau_r)
+            _, _, c2, c3 = self.uncoupled_filter.update(t, tau_r, dtau_r, ddtau_r)
             tau_j = tau_r + S @ (ref[2] + c2)
             dtau_j = dtau_r + S @ (ref[3] + c3)
-            ddtau_j = ddtau_r + S @ ref[4]
+            ddtau_j = ddtau_r + S @ ref[4]  # S delta0 neglected (used only if D = 0)
             delta, d1, d2, _ = self.filter.update(t, tau_j, dtau_j, ddtau_j)
         ddtheta = ref[2] + d2
         x_d = np.concatenate([ref[0] + delta, ref[0], ref[1] + d1, ref[1]])

@@ -48,7 +48,7 @@ class _BlockPD(FeedforwardStateFeedback):
         self,
         model: RobotModel,
         dt: float,
-        omega: float | None = 30.0,
+        omega: float | None = DEFAULT_BANDWIDTH,
         damping_ratio: float = 0.7,
         kp=None,
         kd=None,
