@@ -9,6 +9,7 @@ keys of ours: ``n_timesteps`` (default budget, policy steps), ``n_envs``, ``deci
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 from dataclasses import asdict, dataclass, field, fields
 from importlib import resources
@@ -94,9 +95,13 @@ def parse_overrides(items: list[str]) -> dict:
         if not sep or not key:
             raise ValueError(f"hyper-parameter override must look like key=value, got {item!r}")
         try:
-            out[key] = yaml.safe_load(value)
+            parsed = yaml.safe_load(value)
         except yaml.YAMLError:
             raise ValueError(f"cannot parse the value of override {item!r}") from None
+        if isinstance(parsed, str):  # YAML 1.1 reads "1e-4" as a string
+            with contextlib.suppress(ValueError):
+                parsed = float(parsed)
+        out[key] = parsed
     return out
 
 
