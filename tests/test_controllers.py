@@ -410,6 +410,8 @@ def test_bad_calls_and_robot_kinds():
         controller(obs, {"reference": info["reference"]})
     with pytest.raises(ValueError, match="state"):
         controller({"state": np.zeros(3)}, info)
+    with pytest.raises(ValueError, match="TrueStateWrapper"):
+        controller({"motor_position": np.zeros(2)}, info)
     controller(obs, {**info, "time": 1.0})
     with pytest.raises(ValueError, match="went back"):
         controller(obs, info)

@@ -78,6 +78,18 @@ def reference_derivatives(info: Mapping, n: int) -> np.ndarray:
     return ref
 
 
+def state_vector(obs: Mapping, dim: int) -> np.ndarray:
+    """``obs["state"]`` (from an ObserverWrapper / TrueStateWrapper) as a checked vector."""
+    if not isinstance(obs, Mapping) or "state" not in obs:
+        raise ValueError(
+            "controller needs obs['state']: wrap the env in ObserverWrapper or TrueStateWrapper"
+        )
+    x = np.asarray(obs["state"], dtype=float)
+    if x.shape != (dim,):
+        raise ValueError(f"obs['state'] must have {dim} entries, got shape {x.shape}")
+    return x
+
+
 def info_time(info: Mapping) -> float:
     """``info["time"]`` as a float, with a clear error when missing."""
     if not isinstance(info, Mapping) or "time" not in info:

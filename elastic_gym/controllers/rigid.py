@@ -34,7 +34,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from elastic_gym.controllers.base import Controller
-from elastic_gym.controllers.invdyn import reference_derivatives
+from elastic_gym.controllers.invdyn import reference_derivatives, state_vector
 from elastic_gym.model import RobotModel
 
 CRISTOFARO_LAMBDA = 0.5
@@ -63,9 +63,7 @@ class _RigidTracking(Controller):
     applies_to = frozenset({"rigid"})
 
     def signals(self, obs: Mapping, info: Mapping) -> tuple[np.ndarray, ...]:
-        x = np.asarray(obs["state"], dtype=float)
-        if x.shape != (2 * self.n,):
-            raise ValueError(f"obs['state'] must have {2 * self.n} entries, got shape {x.shape}")
+        x = state_vector(obs, 2 * self.n)
         ref = reference_derivatives(info, self.n)
         return x[: self.n], x[self.n :], ref[0], ref[1], ref[2]
 

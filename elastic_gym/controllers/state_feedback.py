@@ -31,6 +31,7 @@ from elastic_gym.controllers.invdyn import (
     InverseDynamics,
     info_time,
     reference_derivatives,
+    state_vector,
     static_reference,
 )
 from elastic_gym.model import RobotModel
@@ -143,8 +144,6 @@ class FeedforwardStateFeedback(Controller):
         return static_reference(self.model, ref)
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        x = np.asarray(obs["state"], dtype=float)
-        if x.shape != (self.dim,):
-            raise ValueError(f"obs['state'] must have {self.dim} entries, got shape {x.shape}")
+        x = state_vector(obs, self.dim)
         x_d, tau_d = self.desired(info)
         return self.gain @ (x_d - x) + tau_d
