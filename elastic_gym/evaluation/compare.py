@@ -19,7 +19,6 @@ from pathlib import Path
 
 import yaml
 from rich.console import Console
-from rich.markdown import Markdown
 
 from elastic_gym.evaluation.plots import plot_results
 from elastic_gym.evaluation.report import markdown_table, run_rows, summary_rows, write_csv
@@ -64,7 +63,7 @@ def compare(
         console: where to print the summary table (default: stdout; silence it with
             ``Console(quiet=True)``).
     """
-    console = console or Console(width=None if Console().is_terminal else 200)
+    console = console or Console()
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / scenario.name
     runs, skipped = plan_runs(scenario)
     if not runs:
@@ -85,6 +84,6 @@ def compare(
     files += [out / "summary.md", out / "scenario.yaml"]
     if plots:
         files += plot_results(results, out / "plots")
-    console.print(Markdown(markdown))
+    console.print(markdown, soft_wrap=True, markup=False)  # long lines are not cut
     console.print(f"written to {out}/")
     return Comparison(scenario, results, skipped, rows, summary, markdown, out, files)

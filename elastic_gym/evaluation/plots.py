@@ -42,7 +42,7 @@ def plot_scenario(results: Sequence[RunResult], title: str, path: Path) -> Path:
     """One figure with a line per run of ``results`` (see module docstring)."""
     fig = Figure(figsize=(9.0, 10.0), layout="constrained")
     axes = fig.subplots(len(PANELS), 1, sharex=True)
-    for result in results:
+    for index, result in enumerate(results):
         series = result.series
         stride = max(1, len(series) // MAX_POINTS)
         t = series.time[::stride]
@@ -55,7 +55,7 @@ def plot_scenario(results: Sequence[RunResult], title: str, path: Path) -> Path:
                 if not np.any(values > 0):
                     continue
                 values = np.where(values > 0, values, np.nan)
-            ax.plot(t, values, label=label, linewidth=1.0)
+            ax.plot(t, values, label=label, linewidth=1.0, color=f"C{index % 10}")
     for ax, (ylabel, scale) in zip(axes, PANELS, strict=True):
         ax.set_ylabel(ylabel)
         ax.set_yscale(scale)

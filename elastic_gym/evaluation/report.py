@@ -42,12 +42,14 @@ METRIC_KEYS = tuple(c.key for c in METRIC_COLUMNS)
 
 
 def run_rows(results: Sequence[RunResult]) -> list[dict]:
-    """One row per run: identity labels, status, every metric (NaN where not applicable)."""
+    """One row per run: identity labels, status, every metric (NaN where not applicable),
+    simulated time and ``max_<key>`` of the observer diagnostics."""
     rows = []
     for result in results:
         row = {**result.spec.labels, "status": result.status}
         row.update({key: result.metrics.get(key, math.nan) for key in METRIC_KEYS})
         row["sim_time"] = result.metrics.get("sim_time", math.nan)
+        row.update({f"max_{key}": value for key, value in result.diagnostics.items()})
         rows.append(row)
     return rows
 
@@ -75,10 +77,11 @@ def summary_rows(rows: Sequence[dict], identity: Sequence[str]) -> list[dict]:
 
 
 def write_csv(rows: Sequence[dict], path: Path) -> Path:
-    """Write rows (dicts with the same keys) as CSV; floats in full precision."""
+    """Write rows as CSV (columns: union of the keys, first-seen order; floats in full)."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    fields = list(dict.fromkeys(key for row in rows for key in row))
     with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(rows[0]) if rows else [])
+        writer = csv.DictWriter(handle, fieldnames=fields, restval="")
         writer.writeheader()
         writer.writerows(rows)
     return path
@@ -103,19 +106,25 @@ def markdown_table(rows: Sequence[dict], identity: Sequence[str]) -> str:
     """
     if not rows:
         return "_no runs_\n"
-    constant = [k for k in identity if k in rows[0] and len({r[k] for r in rows}) == 1]
+    constant = [k for k in (*identity, "seeds")
+                if k in rows[0] and len({r[k] for r in rows}) == 1]
     labels = [k for k in rows[0] if k not in METRIC_KEYS and k not in constant]
     metrics = [c for c in METRIC_COLUMNS
                if any(not math.isnan(r.get(c.key, math.nan)) for r in rows)]
     headers = labels + [c.header for c in metrics]
-    lines = []
-    if constant:
-        lines.append(", ".join(f"{k}: {rows[0][k]}" for k in constant) + "\n")
-    lines.append("| " + " | ".join(headers) + " |")
-    aligns = ["---"] * len(labels) + ["---:"] * len(metrics)
-    lines.append("|" + "|".join(aligns) + "|")
-    for row in rows:
-        cells = [format_value(row[k]) for k in labels]
-        cells += [format_value(row[c.key], c.digits) for c in metrics]
-        lines.append("| " + " | ".join(cells) + " |")
+    body = [[format_value(row[k]) for k in labels]
+            + [format_value(row[c.key], c.digits) for c in metrics] for row in rows]
+    widths = [max(len(text) for text in column) for column in zip(headers, *body, strict=True)]
+    numeric = [False] * len(labels) + [True] * len(metrics)
+
+    def line(cells: list[str]) -> str:
+        padded = [c.rjust(w) if n else c.ljust(w)
+                  for c, w, n in zip(cells, widths, numeric, strict=True)]
+        return "| " + " | ".join(padded) + " |"
+
+    lines = [", ".join(f"{k}: {rows[0][k]}" for k in constant) + "\n"] if constant else []
+    lines.append(line(headers))
+    lines.append("|" + "|".join(("-" * (w + 1) + ":") if n else "-" * (w + 2)
+                                for w, n in zip(widths, numeric, strict=True)) + "|")
+    lines += [line(cells) for cells in body]
     return "\n".join(lines) + "\n"

@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gymnasium as gym
 import numpy as np
@@ -81,13 +81,18 @@ class RunSpec:
 
 @dataclass
 class RunResult:
-    """Outcome of one run: status (``"ok"``, ``"terminated: ..."``, ``"failed: ..."``)."""
+    """Outcome of one run: status (``"ok"``, ``"terminated: ..."``, ``"failed: ..."``).
+
+    ``diagnostics``: the largest value over the run of each numeric entry of the
+    observer's ``diagnostics`` (e.g. ``jumps`` of the hybrid gain, ``cond_TA``).
+    """
 
     spec: RunSpec
     status: str
     metrics: dict
     series: TimeSeries
     wall_time: float
+    diagnostics: dict = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -190,6 +195,12 @@ class _Recorder:
         self.theta = np.zeros((size, n)) if elastic else None
         self.error = np.zeros((size, state_dim))
         self.length = 0
+        self.diagnostics: dict[str, float] = {}
+
+    def _track_diagnostics(self, diagnostics: dict) -> None:
+        for key, value in diagnostics.items():
+            if isinstance(value, (bool, int, float, np.number)):
+                self.diagnostics[key] = max(float(value), self.diagnostics.get(key, -np.inf))
 
     def record(self, info: dict) -> None:
         k = self.length
@@ -202,6 +213,7 @@ class _Recorder:
         self.error[k] = info["estimation_error"]
         if self.theta is not None:
             self.theta[k] = truth["theta"]
+        self._track_diagnostics(info.get("observer_diagnostics", {}))
         self.length = k + 1
 
     def series(self, state_names: tuple[str, ...]) -> TimeSeries:
@@ -263,7 +275,7 @@ def run_episode(spec: RunSpec) -> RunResult:
     metrics = compute_metrics(series, tracking=base.task.name != "excitation")
     metrics["sim_time"] = float(series.time[-1])
     metrics["sim_wall_ratio"] = metrics["sim_time"] / wall if wall > 0 else float("nan")
-    return RunResult(spec, status, metrics, series, wall)
+    return RunResult(spec, status, metrics, series, wall, recorder.diagnostics)
 
 
 # ---------------------------------------------------------------------------- execution
