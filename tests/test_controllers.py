@@ -376,6 +376,7 @@ def test_policy_controller_with_saved_sb3_model_and_vecnormalize(tmp_path):
         ("feedforward-state-feedback", {"poles": [-1.0, -2.0]}, ValueError),
         ("feedforward-state-feedback", {"omega": -3.0}, ValueError),
         ("feedforward-state-feedback", {"feedback": "yes"}, TypeError),
+        ("feedforward-state-feedback", {"feedback": False, "poles": [-1.0] * 8}, ValueError),
         ("feedforward-state-feedback", {"design_configuration": [0.0]}, ValueError),
         ("feedforward-state-feedback", {"fd_step": 0.0}, ValueError),
         ("motor-pd", {"kp": [1.0, 2.0]}, ValueError),

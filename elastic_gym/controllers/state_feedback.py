@@ -95,6 +95,8 @@ class FeedforwardStateFeedback(Controller):
         A, Bu = linearize(model, q0)
         if feedback:
             self.gain, method = self._design(A, Bu, q0, omega, gain, weights, poles)
+        elif gain is not None or weights is not None or poles is not None:
+            raise ValueError("feedback=False (pure feedforward) takes no gain, weights or poles")
         else:
             self.gain, method = np.zeros((self.n, self.dim)), "none (pure feedforward)"
         self.design = {
