@@ -200,6 +200,21 @@ def test_shipped_preset_parses_and_plans(name):
     assert runs, f"preset {name} has no applicable run"
 
 
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ({"controllers": [{"name": "x", "class": int}]},
+         r"^controllers\[0\]\.class: .*int.* not a subclass of Controller"),
+        ({"state_sources": [{"name": "x", "class": "no_such_module:Observer"}]},
+         r"^state_sources\[0\]\.class: cannot import class 'no_such_module:Observer'"),
+    ],
+)
+def test_explicit_classes_are_checked_when_planning(entry, message):
+    scenario = Scenario.from_dict(rigid_scenario(**entry))
+    with pytest.raises(ScenarioError, match=message):
+        plan_runs(scenario)
+
+
 def test_plan_skips_inapplicable_and_merges_axes():
     scenario = Scenario.from_dict(rigid_scenario(
         state_sources=[True, "deluca"],

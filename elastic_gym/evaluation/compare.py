@@ -7,6 +7,11 @@ Python API::
     result = compare(load_preset("default"), output_dir="compare_out/default")
     result.summary  # list of dict rows, averaged over seeds
 
+Workers are started with the ``spawn`` method: a script that calls :func:`compare`
+with more than one worker needs the usual ``if __name__ == "__main__":`` guard, and
+controller/observer classes given directly are pickled by reference (define them at
+module level).
+
 Output folder (default ``./compare_out/<scenario name>``): ``runs.csv`` (one row per
 run), ``summary.csv`` and ``summary.md`` (averaged over seeds), ``scenario.yaml``
 (the resolved grid) and ``plots/<scenario>.png``.
@@ -69,8 +74,9 @@ def compare(
     if not runs:
         raise ValueError(f"scenario {scenario.name!r} has no applicable run "
                          f"({len(skipped)} combinations skipped: {skipped[:3]})")
-    console.print(f"[bold]{scenario.name}[/bold]: {len(runs)} runs"
-                  + (f", {len(skipped)} inapplicable combinations skipped" if skipped else ""))
+    skipped_note = _skipped_note(skipped)
+    console.print(f"[bold]{scenario.name}[/bold]: {len(runs)} runs")
+    console.print(skipped_note, markup=False, end="")
     results = execute(runs, workers=workers, backend=backend, progress=progress)
 
     identity = scenario.identity_columns
@@ -79,7 +85,9 @@ def compare(
     markdown = markdown_table(summary, identity)
     out.mkdir(parents=True, exist_ok=True)
     files = [write_csv(rows, out / "runs.csv"), write_csv(summary, out / "summary.csv")]
-    (out / "summary.md").write_text(f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}")
+    (out / "summary.md").write_text(
+        f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}\n{skipped_note}"
+    )
     (out / "scenario.yaml").write_text(yaml.safe_dump(scenario.to_dict(), sort_keys=False))
     files += [out / "summary.md", out / "scenario.yaml"]
     if plots:
@@ -87,3 +95,11 @@ def compare(
     console.print(markdown, soft_wrap=True, markup=False)  # long lines are not cut
     console.print(f"written to {out}/")
     return Comparison(scenario, results, skipped, rows, summary, markdown, out, files)
+
+
+def _skipped_note(skipped: list[SkippedRun]) -> str:
+    """One line per reason: how many combinations were skipped because they do not apply."""
+    counts: dict[str, int] = {}
+    for run in skipped:
+        counts[run.reason] = counts.get(run.reason, 0) + 1
+    return "".join(f"skipped {n} runs: {reason}\n" for reason, n in counts.items())

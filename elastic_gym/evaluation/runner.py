@@ -113,26 +113,23 @@ def is_elastic(env_id: str, env_kwargs: dict) -> bool:
     return spec.elastic
 
 
-def _controller_cls(entry: ControllerEntry, path: str) -> type[Controller]:
+def _entry_class(entry: ControllerEntry | SourceEntry, path: str, base: type,
+                 lookup: Callable[[str], type]) -> type:
+    """The class of a controller/observer entry: explicit ``class`` or registry name."""
     if entry.cls is not None:
-        return resolve_class(entry.cls, f"{path}.class")
-    if entry.name in BUILTIN_CONTROLLERS:
-        return BUILTIN_CONTROLLERS[entry.name]
+        cls = resolve_class(entry.cls, f"{path}.class")
+        if not issubclass(cls, base):
+            raise ScenarioError(f"{path}.class", f"{cls!r} is not a subclass of {base.__name__}")
+        return cls
     try:
-        return controller_class(entry.name)
+        return lookup(entry.name)
     except ImportError as exc:
-        raise ScenarioError(f"{path}.name", f"controller {entry.name!r} is registered but not "
-                            f"available in this installation ({exc})") from None
+        raise ScenarioError(f"{path}.name", f"{base.__name__.lower()} {entry.name!r} is "
+                            f"registered but not available in this installation ({exc})") from None
 
 
-def _observer_cls(entry: SourceEntry, path: str) -> type[Observer]:
-    if entry.cls is not None:
-        return resolve_class(entry.cls, f"{path}.class")
-    try:
-        return observer_class(entry.name)
-    except ImportError as exc:
-        raise ScenarioError(f"{path}.name", f"observer {entry.name!r} is registered but not "
-                            f"available in this installation ({exc})") from None
+def _controller_lookup(name: str) -> type[Controller]:
+    return BUILTIN_CONTROLLERS.get(name) or controller_class(name)
 
 
 def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
@@ -141,14 +138,14 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
     Raises :class:`ScenarioError` naming the field when a controller or observer module
     is not available (registry names are checked when the scenario is loaded).
     """
-    controllers = [(c, _controller_cls(c, f"controllers[{i}]"))
+    controllers = [(c, _entry_class(c, f"controllers[{i}]", Controller, _controller_lookup))
                    for i, c in enumerate(scenario.controllers)]
-    sources = [(s, _observer_cls(s, f"state_sources[{i}]"))
+    sources = [(s, _entry_class(s, f"state_sources[{i}]", Observer, observer_class))
                for i, s in enumerate(scenario.state_sources)]
     axis_values = itertools.product(*(values for _, values in scenario.axes))
     runs: list[RunSpec] = []
     skipped: list[SkippedRun] = []
-    for env, variations in itertools.product(scenario.envs, list(axis_values)):
+    for env, variations in itertools.product(scenario.envs, axis_values):
         kwargs = env.kwargs
         for variation in variations:
             kwargs = merge(kwargs, variation.values)
