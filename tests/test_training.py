@@ -143,3 +143,41 @@ def test_raw_sensor_policy_env_stacks_frames():
     obs, _ = env.reset(seed=0)
     assert obs.shape == (4 * (2 + 6 + 4),)  # motor position, 2 accelerometers, reference
     env.close()
+
+
+def test_trained_run_as_comparison_controller_matches_the_policy_env(tmp_path):
+    """The "trained-policy" controller behind an ObserverWrapper reproduces the training
+    stack (same flattening, normalization and decimation): same episode return."""
+    import gymnasium as gym
+
+    from elastic_gym.controllers import make_controller, public_info
+    from elastic_gym.observers import ObserverWrapper
+
+    config = TrainConfig(algo="sac", state="deluca", total_steps=100, out_dir=str(tmp_path / "p"),
+                         env_kwargs=SHORT_EPISODES, eval_freq=10**9,
+                         hyperparams={"learning_starts": 50, "batch_size": 32,
+                                      "policy_kwargs": {"net_arch": [32, 32]}})
+    train(config, progress_bar=False)
+    run = load_run(config.out_dir)
+
+    env = ObserverWrapper(gym.make(config.env_id, **SHORT_EPISODES), "deluca")
+    controller = make_controller("trained-policy", env.unwrapped.model, 1e-3, run=config.out_dir)
+    assert controller.decimation == 10 and controller.state_source == "deluca"
+    obs, info = env.reset(seed=4)
+    controller.reset(obs, public_info(info))
+    comparison_return, done = 0.0, False
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(controller(obs, public_info(info)))
+        comparison_return += reward
+        done = terminated or truncated
+    env.close()
+
+    policy_env = make_policy_env(config.env_id, "deluca", SHORT_EPISODES, decimation=10)
+    obs, _ = policy_env.reset(seed=4)
+    training_return, done = 0.0, False
+    while not done:
+        obs, reward, terminated, truncated, _ = policy_env.step(run.act(obs))
+        training_return += reward
+        done = terminated or truncated
+    policy_env.close()
+    assert comparison_return == pytest.approx(training_return, rel=1e-6)

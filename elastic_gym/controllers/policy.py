@@ -75,6 +75,8 @@ class PolicyController(Controller):
         torque_limit: N limits (default: the model's).
         residual, residual_options, residual_scale: residual mode.
         deterministic: passed to ``predict``.
+        decimation: the policy acts every ``decimation`` calls and its action is held in
+            between (the residual base controller still runs at every call).
     """
 
     name = "policy"
@@ -93,8 +95,12 @@ class PolicyController(Controller):
         residual_options: Mapping | None = None,
         residual_scale: float = 0.1,
         deterministic: bool = True,
+        decimation: int = 1,
     ) -> None:
         super().__init__(model, dt)
+        if not isinstance(decimation, int) or decimation < 1:
+            raise ValueError(f"decimation must be an integer >= 1, got {decimation!r}")
+        self.decimation = decimation
         if isinstance(policy, (str, os.PathLike)):
             if algorithm is None:
                 raise ValueError("a policy path needs 'algorithm' (e.g. 'PPO' or 'SAC')")
@@ -123,6 +129,8 @@ class PolicyController(Controller):
         self.residual_scale = float(residual_scale)
         self._state = None
         self._episode_start = np.ones(1, dtype=bool)
+        self._calls = 0
+        self._held = np.zeros(self.n)
 
     def _limit(self, torque_limit) -> np.ndarray:
         if torque_limit is None:
@@ -149,6 +157,7 @@ class PolicyController(Controller):
     def reset(self, obs: Mapping, info: Mapping) -> None:
         self._state = None
         self._episode_start = np.ones(1, dtype=bool)
+        self._calls = 0
         if self.residual is not None:
             self.residual.reset(obs, info)
 
@@ -171,7 +180,10 @@ class PolicyController(Controller):
         return action.reshape(self.n)
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        action = self.action(obs, info)
+        if self._calls % self.decimation == 0:  # the policy acts at 1 / (decimation dt)
+            self._held = self.action(obs, info)
+        self._calls += 1
+        action = self._held
         if self.residual is not None:
             correction = self.residual_scale * self.torque_limit * np.clip(action, -1.0, 1.0)
             return self.residual(obs, info) + correction

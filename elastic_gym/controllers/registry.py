@@ -17,6 +17,8 @@ CONTROLLERS: dict[str, tuple[str, str]] = {
     "cristofaro-tracking": ("elastic_gym.controllers.rigid", "CristofaroTrackingController"),
     "feedback-linearization": ("elastic_gym.controllers.rigid", "FeedbackLinearizingController"),
     "policy": ("elastic_gym.controllers.policy", "PolicyController"),
+    # a folder written by ``elastic-gym train`` (lazy import: training sits above controllers)
+    "trained-policy": ("elastic_gym.training.policy_controller", "TrainedPolicyController"),
 }
 
 
