@@ -23,6 +23,12 @@ over all recorded samples t_0 = 0, ..., t_K):
 
   The run's value is the largest over its moves (NaN when there is no move).
 * ``torsion_max`` = max_k max_i |theta_i - q_i| (rad), elastic arms only.
+* ``torsion_osc`` = residual oscillation of the joint torsion after the moves (elastic
+  arms): the standard deviation over time of theta_i - q_i from ``RESIDUAL_DELAY`` after a
+  move's arrival to the end of its window (the static, gravity-loaded torsion is its
+  mean, not an oscillation; the delay leaves out the transient of the move itself), the
+  largest over joints and moves (rad). This is what De Luca et al. compare in Figs. 5-6
+  ("damping"): full-state feedback damps the link vibration that motor-only control leaves.
 * ``torque_rms`` = sqrt(mean_k |tau_k|^2) (N m), tau the applied (clipped) motor torque,
   including an excitation task's open-loop torque.
 * ``est_rms_<block>`` for each block of the state (theta, q, dtheta, dq for elastic
@@ -44,6 +50,7 @@ import numpy as np
 MIN_AMPLITUDE = 1e-3  # rad: smaller per-joint moves are not scored for overshoot/settling
 SETTLING_BAND = 0.02  # fraction of the move amplitude
 REST_TOLERANCE = 1e-9  # |q_d'| (rad/s) below which the reference is at rest
+RESIDUAL_DELAY = 0.1  # s after a move's arrival from which torsion oscillation is residual
 
 
 @dataclass
@@ -144,6 +151,15 @@ def step_response(series: TimeSeries) -> tuple[float, float]:
     return float(overshoot), float(settling)
 
 
+def residual_torsion(series: TimeSeries) -> float:
+    """Largest standard deviation of theta - q after a move's arrival (see module docstring)."""
+    torsion = series.theta - series.q
+    delay = np.searchsorted(series.time, series.time[0] + RESIDUAL_DELAY)
+    windows = [torsion[m.arrival + delay : m.end] for m in find_moves(series)
+               if m.end - m.arrival - delay > 1]
+    return max((float(np.max(np.std(w, axis=0))) for w in windows), default=float("nan"))
+
+
 def compute_metrics(series: TimeSeries, tracking: bool = True) -> dict[str, float]:
     """All metrics of one run (see module docstring); NaN where not applicable."""
     nan = float("nan")
@@ -159,6 +175,7 @@ def compute_metrics(series: TimeSeries, tracking: bool = True) -> dict[str, floa
     metrics["torsion_max"] = (
         float(np.max(np.abs(series.theta - series.q))) if has_torsion else nan
     )
+    metrics["torsion_osc"] = residual_torsion(series) if has_torsion and tracking else nan
     metrics["torque_rms"] = rms_norm(series.torque)
     for name, block in series.estimation_blocks().items():
         metrics[f"est_rms_{name}"] = rms_norm(block)

@@ -31,6 +31,7 @@ METRIC_COLUMNS = (
     Column("overshoot_pct", "overshoot [%]", 3),
     Column("settling_time", "settling [s]", 3),
     Column("torsion_max", "max torsion [rad]", 3),
+    Column("torsion_osc", "torsion osc. [rad]", 3),
     Column("torque_rms", "torque RMS [Nm]", 3),
     Column("est_rms_theta", "est. RMS theta [rad]", 2),
     Column("est_rms_q", "est. RMS q [rad]", 2),
