@@ -12,8 +12,8 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from elastic_gym.evaluation.runner import BACKENDS
 from elastic_gym.evaluation.scenario import DEFAULT_PRESET, list_presets
+from elastic_gym.parallel import BACKENDS
 
 
 def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:

@@ -8,26 +8,20 @@ the observer and the controller are built on the env's nominal model
 error — and the controller sees only the observation ``{"state", "reference"}`` and
 :func:`~elastic_gym.controllers.public_info` of ``info``, never the truth.
 
-:func:`execute` runs the episodes in worker processes
-(``concurrent.futures.ProcessPoolExecutor`` with the ``spawn`` start method; every
-env is created inside its worker) or on Ray (``backend="ray"``, the same job
-function), with a progress bar.
+:func:`execute` runs the episodes with :func:`elastic_gym.parallel.run_jobs`: spawned
+worker processes (every env is created inside its worker) or Ray (``backend="ray"``,
+the same job function), with a progress bar.
 """
 
 from __future__ import annotations
 
 import itertools
-import multiprocessing
-import os
 import time
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import gymnasium as gym
 import numpy as np
-from rich.progress import Progress
 
 import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.controllers.base import Controller, public_info
@@ -45,13 +39,10 @@ from elastic_gym.evaluation.scenario import (
 from elastic_gym.observers.base import Observer
 from elastic_gym.observers.registry import make_observer, observer_class
 from elastic_gym.observers.wrappers import ObserverWrapper
+from elastic_gym.parallel import run_jobs
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import RobotSpec
 
-BACKENDS = ("process", "ray")
-# One worker per core: BLAS threads in every worker oversubscribe the cores (measured on
-# 2 loaded cores: scipy.linalg.expm of a 16 x 16 matrix 12 ms instead of 0.04 ms).
-SINGLE_THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 UNLIMITED_STEPS = 2**62  # the run length is set by the scenario's duration, not TimeLimit
 STATUS_OK = "ok"
 
@@ -276,102 +267,16 @@ def run_episode(spec: RunSpec) -> RunResult:
 
 
 # ---------------------------------------------------------------------------- execution
-def default_workers(n_runs: int) -> int:
-    return max(1, min(n_runs, os.cpu_count() or 1))
-
-
 def execute(
     runs: Sequence[RunSpec],
     workers: int | None = None,
     backend: str = "process",
     progress: bool = True,
 ) -> list[RunResult]:
-    """Run all episodes, in parallel; results in the order of ``runs``.
+    """Run all episodes in parallel (:func:`elastic_gym.parallel.run_jobs`), in order.
 
     ``workers=1`` with the process backend runs in this process (no pool, and the BLAS
-    threading of this process: set ``OPENBLAS_NUM_THREADS=1`` for small matrices). With
-    ``backend="ray"`` a local Ray runtime with ``workers`` CPUs is started unless
-    ``ray.init`` was already called (then the existing cluster is used).
+    threading of this process: set ``OPENBLAS_NUM_THREADS=1`` for small matrices).
     """
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; valid: {list(BACKENDS)}")
-    if workers is not None and (not isinstance(workers, int) or workers < 1):
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
-    workers = workers or default_workers(len(runs))
-    results: dict[int, RunResult] = {}
-    with Progress(disable=not progress, transient=False) as bar:
-        task = bar.add_task("runs", total=len(runs))
-
-        def collect(result: RunResult) -> None:
-            results[result.spec.index] = result
-            bar.advance(task)
-
-        if backend == "ray":
-            _execute_ray(runs, workers, collect)
-        elif workers == 1:
-            for spec in runs:
-                try:
-                    result = run_episode(spec)
-                except Exception as exc:
-                    raise _run_error(spec, exc) from exc
-                collect(result)
-        else:
-            _execute_processes(runs, workers, collect)
-    return [results[spec.index] for spec in runs]
-
-
-def _run_error(spec: RunSpec, exc: Exception) -> RuntimeError:
-    return RuntimeError(f"run {spec.labels} could not run: {type(exc).__name__}: {exc}")
-
-
-@contextmanager
-def _worker_environment() -> Iterator[None]:
-    """Single-threaded BLAS in the worker processes spawned inside this block."""
-    saved = {key: os.environ.get(key) for key in SINGLE_THREAD_ENV}
-    os.environ.update(SINGLE_THREAD_ENV)
-    try:
-        yield
-    finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
-
-
-def _execute_processes(runs: Sequence[RunSpec], workers: int,
-                       collect: Callable[[RunResult], None]) -> None:
-    context = multiprocessing.get_context("spawn")
-    with _worker_environment(), ProcessPoolExecutor(max_workers=workers,
-                                                    mp_context=context) as pool:
-        futures: dict[Future, RunSpec] = {pool.submit(run_episode, spec): spec for spec in runs}
-        for future in as_completed(futures):
-            try:
-                collect(future.result())
-            except Exception as exc:
-                for other in futures:
-                    other.cancel()
-                raise _run_error(futures[future], exc) from exc
-
-
-def _execute_ray(runs: Sequence[RunSpec], workers: int,
-                 collect: Callable[[RunResult], None]) -> None:
-    try:
-        import ray
-    except ImportError:
-        raise ImportError("backend 'ray' needs the optional extra: pip install "
-                          "'elastic-gym[ray]'") from None
-    if not ray.is_initialized():
-        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
-                 runtime_env={"env_vars": SINGLE_THREAD_ENV})
-    job = ray.remote(num_cpus=1)(run_episode)
-    pending = {job.remote(spec): spec for spec in runs}
-    while pending:
-        done, _ = ray.wait(list(pending), num_returns=1)
-        spec = pending.pop(done[0])
-        try:
-            collect(ray.get(done[0]))
-        except Exception as exc:
-            for ref in pending:
-                ray.cancel(ref)
-            raise _run_error(spec, exc) from exc
+    return run_jobs(run_episode, runs, workers=workers, backend=backend, progress=progress,
+                    label="runs", describe=lambda spec: f"run {spec.labels}")
