@@ -1,7 +1,9 @@
 """The ``elastic-gym`` console script (argparse subcommands).
 
 ``elastic-gym compare`` runs a comparison grid (the built-in default, a shipped
-``--preset`` or a ``--config`` YAML file) and prints its table. A subcommand is a
+``--preset`` or a ``--config`` YAML file) and prints its table; ``--policy RUN`` adds
+trained policies as controllers. ``elastic-gym train`` trains a stable-baselines3
+policy on the estimated (or true, or raw-sensor) state. A subcommand is a
 function ``add_<name>_parser(subcommands)`` that adds its parser and sets
 ``handler`` (a function ``args -> exit code``); :func:`build_parser` lists them.
 """
@@ -38,6 +40,8 @@ def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
                         help="override the scenario's seeds")
     parser.add_argument("--duration", type=float, metavar="SECONDS",
                         help="override the simulated time per run")
+    parser.add_argument("--policy", nargs="+", metavar="RUN", default=[],
+                        help="training run folder(s) (elastic-gym train) to compare as controllers")
     parser.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run_compare)
@@ -51,6 +55,8 @@ def run_compare(args: argparse.Namespace) -> int:
         return 0
     scenario = load_scenario(args.config) if args.config else load_preset(args.preset)
     scenario = scenario.with_overrides(seeds=args.seeds, duration=args.duration)
+    for run in args.policy:
+        scenario = with_trained_policy(scenario, run)
     compare(
         scenario, output_dir=args.output, workers=args.workers, backend=args.backend,
         progress=not args.no_progress, plots=not args.no_plots,
@@ -58,13 +64,146 @@ def run_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def with_trained_policy(scenario, run_dir: str):
+    """The scenario with a ``trained-policy`` controller for a run folder, paired with the
+    state source it was trained on (added to the scenario if missing)."""
+    import dataclasses
+    from pathlib import Path
+
+    import yaml
+
+    from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry
+    from elastic_gym.training.config import TrainConfig
+    from elastic_gym.training.policy_env import SENSORS
+
+    config_file = Path(run_dir) / "config.yaml"
+    if not config_file.exists():
+        raise ValueError(f"--policy {run_dir}: not a training run folder (no config.yaml)")
+    config = TrainConfig.from_dict(yaml.safe_load(config_file.read_text()))
+    if config.state == SENSORS:
+        raise ValueError(f"--policy {run_dir}: trained on raw sensors; comparisons need a "
+                         "policy trained on 'true' or an observer state")
+    other_envs = sorted({e.id for e in scenario.envs} - {config.env_id})
+    if other_envs:
+        raise ValueError(f"--policy {run_dir}: trained on {config.env_id}, but the scenario "
+                         f"also has {other_envs}")
+    sources = list(scenario.state_sources)
+    source = next((s for s in sources if s.name == config.state
+                   and s.options == config.observer_options), None)
+    if source is None:
+        source = SourceEntry(config.state, f"{config.state}-policy", dict(config.observer_options))
+        sources.append(source)
+    controller = ControllerEntry("trained-policy", f"policy:{Path(run_dir).name}",
+                                 {"run": str(Path(run_dir).resolve())}, (source.label,))
+    return dataclasses.replace(scenario, controllers=(*scenario.controllers, controller),
+                               state_sources=tuple(sources))
+
+
+def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
+    from elastic_gym.training.config import ALGORITHMS
+    from elastic_gym.training.policy_env import state_sources
+
+    parser = subcommands.add_parser(
+        "train",
+        help="train an RL policy (stable-baselines3) on the estimated or true state",
+        description="Train PPO/SAC/TD3 with RL-Zoo-style hyper-parameters (shipped per env id, "
+        "overridable), VecNormalize, evaluation callback, TensorBoard logs. The run folder "
+        "plugs into 'elastic-gym compare --policy RUN'.",
+    )
+    parser.add_argument("--env", default="elastic_gym/TwoLinkElastic-v0", help="env id")
+    parser.add_argument("--algo", default="sac", choices=ALGORITHMS)
+    parser.add_argument("--state", default="deluca", choices=state_sources(),
+                        help="what the policy sees: an observer's estimate, 'true', or raw "
+                        "'sensors' (frame-stacked)")
+    parser.add_argument("--steps", type=int, help="policy steps (default: n_timesteps of the "
+                        "hyper-parameter file)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0], metavar="SEED")
+    parser.add_argument("--out", metavar="DIR", help="run folder (default: runs/<algo>-<env>-"
+                        "<state>; one sub-folder per seed when several)")
+    parser.add_argument("--residual", metavar="CONTROLLER",
+                        help="residual policy on top of this controller (e.g. "
+                        "feedforward-state-feedback)")
+    parser.add_argument("--residual-scale", type=float, default=0.1,
+                        help="bound of the residual torque as a fraction of the torque limit")
+    parser.add_argument("--frame-stack", type=int, default=4, help="frames for 'sensors'")
+    parser.add_argument("--env-kwargs", default="{}", metavar="YAML",
+                        help="env kwargs as a YAML mapping, e.g. '{task: regulation}'")
+    parser.add_argument("--observer-options", default="{}", metavar="YAML")
+    parser.add_argument("--hyperparams", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="override hyper-parameters, e.g. learning_rate=1e-4 n_envs=2")
+    parser.add_argument("--hyperparams-file", metavar="YAML")
+    parser.add_argument("--eval-freq", type=int, default=5000, help="policy steps between evals")
+    parser.add_argument("--eval-episodes", type=int, default=3)
+    parser.add_argument("--backend", choices=BACKENDS, default="process",
+                        help="for several seeds: local processes (default) or Ray")
+    parser.add_argument("--workers", type=int, help="parallel runs (default: one per CPU)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=run_train)
+
+
+def _yaml_mapping(text: str, option: str) -> dict:
+    import yaml
+
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{option}: invalid YAML: {exc}") from None
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ValueError(f"{option}: must be a YAML mapping, got {text!r}")
+    return value
+
+
+def run_train(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from elastic_gym.training import TrainConfig, parse_overrides, train, train_many
+
+    name = args.env.split("/")[-1]
+    base = args.out or f"runs/{args.algo}-{name}-{args.state}" + (
+        f"-residual-{args.residual}" if args.residual else "")
+    configs = [
+        TrainConfig(
+            env_id=args.env, algo=args.algo, state=args.state, total_steps=args.steps, seed=seed,
+            out_dir=base if len(args.seeds) == 1 else f"{base}/seed{seed}",
+            residual=args.residual, residual_scale=args.residual_scale,
+            frame_stack=args.frame_stack,
+            env_kwargs=_yaml_mapping(args.env_kwargs, "--env-kwargs"),
+            observer_options=_yaml_mapping(args.observer_options, "--observer-options"),
+            hyperparams=parse_overrides(args.hyperparams),
+            hyperparams_file=args.hyperparams_file,
+            eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
+        )
+        for seed in args.seeds
+    ]
+    if len(configs) == 1:
+        results = [train(configs[0], progress_bar=not args.no_progress)]
+    else:
+        results = train_many(configs, workers=args.workers, backend=args.backend,
+                             progress=not args.no_progress)
+    table = Table(title=f"{args.algo} on {args.env} ({args.state} state)")
+    table.add_column("run", overflow="fold")
+    for column in ("seed", "policy steps", "env steps", "wall time [s]", "eval return"):
+        table.add_column(column)
+    for config, result in zip(configs, results, strict=True):
+        table.add_row(result.out_dir, str(config.seed), str(result.policy_steps),
+                      str(result.env_steps), f"{result.wall_time:.0f}",
+                      f"{result.mean_eval_return:.4g}")
+    Console().print(table)
+    print(f"compare with: elastic-gym compare --policy {' '.join(r.out_dir for r in results)}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastic-gym",
-        description="Elastic-joint robot arms: compare observers and controllers.",
+        description="Elastic-joint robot arms: compare observers, controllers and RL policies.",
     )
     subcommands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     add_compare_parser(subcommands)
+    add_train_parser(subcommands)
     return parser
 
 

@@ -181,3 +181,46 @@ def test_trained_run_as_comparison_controller_matches_the_policy_env(tmp_path):
         done = terminated or truncated
     policy_env.close()
     assert comparison_return == pytest.approx(training_return, rel=1e-6)
+
+
+def test_cli_trains_two_seeds_on_ray_and_compares_the_policy(tmp_path, capsys):
+    """`elastic-gym train --seeds 0 1 --backend ray` runs both jobs on a local Ray instance and
+    gathers them in one table; `elastic-gym compare --policy RUN` adds the policy's rows."""
+    ray = pytest.importorskip("ray", reason="the 'ray' extra is not installed")
+    from elastic_gym.cli import main
+
+    out = tmp_path / "runs"
+    try:
+        code = main(["train", "--steps", "40", "--seeds", "0", "1", "--backend", "ray",
+                     "--workers", "2", "--out", str(out), "--env-kwargs",
+                     "{max_episode_steps: 100}", "--hyperparams", "learning_starts=20",
+                     "batch_size=16", "--eval-freq", "1000000", "--no-progress"])
+    finally:
+        ray.shutdown()
+    assert code == 0
+    printed = capsys.readouterr().out
+    for seed in (0, 1):
+        assert (out / f"seed{seed}" / "model.zip").exists()
+        assert (out / f"seed{seed}" / "vecnormalize.pkl").exists()
+    assert "policy steps" in printed and printed.count("seed") >= 2
+
+    code = main(["compare", "--policy", str(out / "seed0"), "--seeds", "0", "--duration", "0.2",
+                 "--workers", "1", "--output", str(tmp_path / "cmp"), "--no-plots",
+                 "--no-progress"])
+    assert code == 0
+    summary = (tmp_path / "cmp" / "summary.md").read_text()
+    assert "policy:seed0" in summary and "eq13-state-feedback" in summary
+
+
+def test_cli_rejects_bad_training_input(tmp_path, capsys):
+    from elastic_gym.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--env-kwargs", "[1, 2", "--out", str(tmp_path)])
+    assert exit_info.value.code == 2
+    assert "--env-kwargs" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["train", "--algo", "a2c"])  # argparse lists the valid choices
+    with pytest.raises(SystemExit) as exit_info:
+        main(["compare", "--policy", str(tmp_path)])
+    assert "not a training run folder" in capsys.readouterr().err

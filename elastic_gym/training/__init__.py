@@ -2,7 +2,14 @@
 
 from elastic_gym.training.config import ALGORITHMS, TrainConfig, parse_overrides
 from elastic_gym.training.policy_env import make_policy_env, state_sources
-from elastic_gym.training.train import TrainedRun, TrainResult, evaluate_run, load_run, train
+from elastic_gym.training.train import (
+    TrainedRun,
+    TrainResult,
+    evaluate_run,
+    load_run,
+    train,
+    train_many,
+)
 from elastic_gym.training.wrappers import ActionRepeat, ResidualAction
 
 __all__ = [
@@ -18,4 +25,5 @@ __all__ = [
     "parse_overrides",
     "state_sources",
     "train",
+    "train_many",
 ]

@@ -168,3 +168,17 @@ def evaluate_run(run: TrainedRun, n_episodes: int = 3, seed: int = 123) -> float
         returns.append(total)
     env.close()
     return float(np.mean(returns))
+
+
+def _train_job(config: TrainConfig) -> TrainResult:
+    return train(config, progress_bar=False)
+
+
+def train_many(configs: list[TrainConfig], workers: int | None = None, backend: str = "process",
+               progress: bool = True) -> list[TrainResult]:
+    """Several runs (e.g. seeds) in parallel on local processes or Ray; results in order."""
+    from elastic_gym.parallel import run_jobs
+
+    return run_jobs(_train_job, configs, workers=workers, backend=backend, progress=progress,
+                    label="training runs",
+                    describe=lambda c: f"training run {c.out_dir} (seed {c.seed})")
