@@ -121,3 +121,23 @@ def test_accelerometer_placement_can_be_configured():
     obs, _ = env.reset(seed=0)
     assert obs["acceleration"].shape == (3,)
     env.close()
+
+
+def test_sensor_delay_shifts_the_measurements_not_the_reference():
+    delayed = make_noise_free("elastic_gym/TwoLinkElastic-v0", sensor_delay=3)
+    direct = make_noise_free("elastic_gym/TwoLinkElastic-v0")
+    obs_d, _ = delayed.reset(seed=0)
+    obs, _ = direct.reset(seed=0)
+    history = [obs]
+    assert np.array_equal(obs_d["motor_position"], obs["motor_position"])
+    torque = np.array([5.0, -3.0])
+    for _ in range(10):
+        obs_d, *_ = delayed.step(torque)
+        obs, *_ = direct.step(torque)
+        history.append(obs)
+        past = history[max(len(history) - 1 - 3, 0)]
+        for key in ("motor_position", "acceleration"):
+            assert np.array_equal(obs_d[key], past[key])
+        assert np.array_equal(obs_d["reference"], obs["reference"])
+    with pytest.raises(ValueError, match="sensor_delay"):
+        make_noise_free("elastic_gym/TwoLinkElastic-v0", sensor_delay=-1)

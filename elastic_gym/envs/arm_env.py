@@ -24,6 +24,7 @@ An episode whose physics breaks (non-finite state, a velocity above
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, fields
 from typing import ClassVar
 
@@ -96,6 +97,8 @@ class ArmEnv(gym.Env):
         torque_limit: override of the motor torque limits (N m).
         reward_weights: see :class:`RewardWeights`.
         max_velocity: |q'| or |theta'| above this ends the episode (rad/s).
+        sensor_delay: measurement delay in control periods (encoders and accelerometers;
+            the reference is not delayed).
         render_mode: ``"rgb_array"`` or ``"human"``.
     """
 
@@ -115,6 +118,7 @@ class ArmEnv(gym.Env):
         torque_limit: list | None = None,
         reward_weights: dict | RewardWeights | None = None,
         max_velocity: float = 100.0,
+        sensor_delay: int = 0,
         render_mode: str | None = None,
     ) -> None:
         spec = robot if isinstance(robot, RobotSpec) else get_robot(robot)
@@ -136,6 +140,11 @@ class ArmEnv(gym.Env):
         self._check_stability()
         self.torque_limit = self._torque_limit(torque_limit)
         self.max_velocity = float(max_velocity)
+        if not isinstance(sensor_delay, int) or isinstance(sensor_delay, bool) or sensor_delay < 0:
+            raise ValueError(f"sensor_delay must be an integer >= 0 (control periods), "
+                             f"got {sensor_delay!r}")
+        self.sensor_delay = sensor_delay
+        self._sensor_queue: deque[dict[str, np.ndarray]] = deque(maxlen=sensor_delay + 1)
         self.joint_lower, self.joint_upper = joint_limits(spec.urdf, spec.joint_names)
         self.reward_weights = RewardWeights.from_config(reward_weights)
         self.task = make_task(task, spec, self.model, task_options)
@@ -236,6 +245,7 @@ class ArmEnv(gym.Env):
         q, dq, theta, dtheta = self._initial_state(q0, options.get("initial_state"))
         self.sim.reset_state(q, dq, theta, dtheta)
         self.accelerometer_array.reset(self.np_random)
+        self._sensor_queue.clear()
         self.time = 0.0
         self._needs_reset = False
         self._last_torque = self._equilibrium_torque(q, theta)
@@ -343,6 +353,10 @@ class ArmEnv(gym.Env):
         if self.model.n_sensors:
             force = self.plant_model.accelerometer_readings(sim.q, sim.dq, ddq)
             obs["acceleration"] = self.accelerometer_array.measure(force, rng)
+        self._sensor_queue.append(obs)
+        while len(self._sensor_queue) <= self.sensor_delay:  # at reset: the first reading
+            self._sensor_queue.appendleft(obs)
+        obs = {key: value.copy() for key, value in self._sensor_queue[0].items()}
         obs["reference"] = np.concatenate([reference[0], reference[1]])
         self._last_obs = obs
         return obs
