@@ -145,6 +145,10 @@ class RobotModel:
         )
         self.sensor_frame_ids = [self._add_sensor_frame(m) for m in self.accelerometers]
         self.data = self.pin_model.createData()
+        SBinv = self.S * self.B_inv
+        self._SBinv, self._SBinvST = SBinv, SBinv @ self.S.T  # model (2) constants
+        self._lower = np.tril_indices(n, -1)
+        self._symmetric_outputs = self._pinocchio_fills_lower_triangles()
 
     # ------------------------------------------------------------------ setup
     def _vector(self, values: tuple[float, ...] | None, scale_name: str) -> np.ndarray:
@@ -171,6 +175,21 @@ class RobotModel:
             mount.name, body.parentJoint, body_id, body.placement * local, pin.FrameType.OP_FRAME
         )
         return self.pin_model.addFrame(frame)
+
+    def _pinocchio_fills_lower_triangles(self) -> bool:
+        """Whether crba/RNEA/ABA derivatives return full symmetric matrices (recent pinocchio)
+        or only their upper triangles (older releases), checked once at a generic q."""
+        q = np.linspace(0.3, 0.9, self.n)
+        M = pin.crba(self.pin_model, self.data, q)
+        Minv = pin.computeABADerivatives(self.pin_model, self.data, q, q, q)[2]
+        return bool(np.array_equal(M, M.T) and np.array_equal(Minv, Minv.T))
+
+    def _symmetric(self, matrix: np.ndarray) -> np.ndarray:
+        """A copy of a pinocchio symmetric-matrix output with its lower triangle filled."""
+        matrix = matrix.copy()
+        if not self._symmetric_outputs:
+            matrix[self._lower] = matrix.T[self._lower]
+        return matrix
 
     def copy(self) -> RobotModel:
         """Independent copy (own pinocchio Data)."""
@@ -200,8 +219,7 @@ class RobotModel:
     # ------------------------------------------------------- rigid dynamics
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         """Link inertia matrix M(q) (symmetric, CRBA)."""
-        M = pin.crba(self.pin_model, self.data, q)
-        return np.triu(M) + np.triu(M, 1).T
+        return self._symmetric(pin.crba(self.pin_model, self.data, q))
 
     def coriolis_matrix(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """C(q, q') built from Christoffel symbols (M' - 2C skew-symmetric)."""
@@ -228,8 +246,7 @@ class RobotModel:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(d tau/d q, d tau/d q', M) of :meth:`rnea`."""
         dtau_dq, dtau_dv, M = pin.computeRNEADerivatives(self.pin_model, self.data, q, dq, ddq)
-        M = np.triu(M) + np.triu(M, 1).T
-        return dtau_dq.copy(), dtau_dv.copy(), M
+        return dtau_dq.copy(), dtau_dv.copy(), self._symmetric(M)
 
     def aba(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Forward dynamics q'' = M^-1 (tau - C q' - g) (without friction)."""
@@ -240,8 +257,7 @@ class RobotModel:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(d q''/d q, d q''/d q', M^-1) of :meth:`aba`."""
         ddq_dq, ddq_dv, Minv = pin.computeABADerivatives(self.pin_model, self.data, q, dq, tau)
-        Minv = np.triu(Minv) + np.triu(Minv, 1).T
-        return ddq_dq.copy(), ddq_dv.copy(), Minv
+        return ddq_dq.copy(), ddq_dv.copy(), self._symmetric(Minv)
 
     def rigid_acceleration(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Rigid-arm forward dynamics with friction: M q'' + C q' + g + d(q') = tau."""
@@ -270,10 +286,9 @@ class RobotModel:
         if not self.has_coupling:
             ddq = self.aba(q, dq, link_tau)
             return self.B_inv * (tau - tau_j), ddq
-        M = self.mass_matrix(q)
-        nle = self.nonlinear_effects(q, dq)
-        SBinv = self.S * self.B_inv
-        ddq = np.linalg.solve(M - SBinv @ self.S.T, link_tau - SBinv @ (tau - tau_j) - nle)
+        schur = self.mass_matrix(q) - self._SBinvST
+        nle = pin.nonLinearEffects(self.pin_model, self.data, q, dq)
+        ddq = np.linalg.solve(schur, link_tau - self._SBinv @ (tau - tau_j) - nle)
         return self.B_inv * (tau - tau_j - self.S.T @ ddq), ddq
 
     def elastic_dynamics(self, x: np.ndarray, tau: np.ndarray) -> np.ndarray:

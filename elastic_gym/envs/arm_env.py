@@ -146,6 +146,8 @@ class ArmEnv(gym.Env):
         self.sensor_delay = sensor_delay
         self._sensor_queue: deque[dict[str, np.ndarray]] = deque(maxlen=sensor_delay + 1)
         self.joint_lower, self.joint_upper = joint_limits(spec.urdf, spec.joint_names)
+        limits = np.concatenate([self.joint_lower, self.joint_upper])
+        self._limited = bool(np.isfinite(limits).any())
         self.reward_weights = RewardWeights.from_config(reward_weights)
         self.task = make_task(task, spec, self.model, task_options)
 
@@ -335,12 +337,12 @@ class ArmEnv(gym.Env):
 
     def _termination_reason(self) -> str | None:
         sim = self.sim
-        state = np.concatenate([sim.q, sim.dq, sim.theta, sim.dtheta])
-        if not np.all(np.isfinite(state)):
+        speed = max(np.abs(sim.dq).max(), np.abs(sim.dtheta).max())
+        if not np.isfinite(speed + sim.q.sum() + sim.theta.sum()):
             return "non-finite state"
-        if max(np.abs(sim.dq).max(), np.abs(sim.dtheta).max()) > self.max_velocity:
+        if speed > self.max_velocity:
             return "velocity limit exceeded"
-        if np.any(sim.q < self.joint_lower) or np.any(sim.q > self.joint_upper):
+        if self._limited and (np.any(sim.q < self.joint_lower) or np.any(sim.q > self.joint_upper)):
             return "joint limit exceeded"
         return None
 
@@ -363,11 +365,13 @@ class ArmEnv(gym.Env):
 
     def _reward(self, tau: np.ndarray, reference: np.ndarray) -> float:
         sim, w = self.sim, self.reward_weights
-        cost = w.track * np.sum((sim.q - reference[0]) ** 2)
-        cost += w.velocity * np.sum((sim.dq - reference[1]) ** 2)
-        cost += w.torque * np.sum((tau / self.torque_limit) ** 2)
+        error, velocity_error = sim.q - reference[0], sim.dq - reference[1]
+        scaled = tau / self.torque_limit
+        cost = w.track * (error @ error) + w.velocity * (velocity_error @ velocity_error)
+        cost += w.torque * (scaled @ scaled)
         if w.torsion:
-            cost += w.torsion * np.sum((sim.theta - sim.q) ** 2)
+            torsion = sim.theta - sim.q
+            cost += w.torsion * (torsion @ torsion)
         return float(-self.control_dt * cost)
 
     def _info(

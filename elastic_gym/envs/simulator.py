@@ -85,6 +85,7 @@ class ArmSimulator:
         self.theta = np.zeros(self.n)
         self.dtheta = np.zeros(self.n)
         self.last_link_torque = np.zeros(self.n)
+        self._zeros = np.zeros(self.n)
 
     # ------------------------------------------------------------------ setup
     def _configure_dynamics(self, name_to_index: dict[str, int]) -> None:
@@ -147,36 +148,41 @@ class ArmSimulator:
 
     def _read_links(self) -> None:
         states = p.getJointStates(self.body, self.joint_indices, physicsClientId=self.client)
-        self.q = np.fromiter((s[0] for s in states), float, self.n)
-        self.dq = np.fromiter((s[1] for s in states), float, self.n)
+        self.q = np.array([s[0] for s in states])
+        self.dq = np.array([s[1] for s in states])
 
     # ------------------------------------------------------------------ stepping
     def link_torque(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(torque applied to the PyBullet joints, motor acceleration) for motor torque tau."""
         plant = self.plant
-        friction = plant.link_friction(self.dq) if plant.friction is not None else 0.0
         if not self.spec.elastic:
-            return tau - friction, np.zeros(self.n)
-        tau_j = plant.joint_torque(self.theta, self.q, self.dtheta, self.dq)
-        if not plant.has_coupling:
-            return tau_j - friction, plant.B_inv * (tau - tau_j)
-        ddtheta, _ = plant.elastic_accelerations(self.state, tau)
-        return tau_j - friction - plant.S @ ddtheta, ddtheta
+            link_tau, ddtheta = tau, self._zeros
+        else:
+            tau_j = plant.K * (self.theta - self.q) + plant.D * (self.dtheta - self.dq)
+            if plant.has_coupling:
+                ddtheta, _ = plant.elastic_accelerations(self.state, tau)
+                link_tau = tau_j - plant.S @ ddtheta
+            else:
+                link_tau, ddtheta = tau_j, plant.B_inv * (tau - tau_j)
+        if plant.friction is not None:
+            link_tau = link_tau - plant.friction.torque(self.dq)
+        return link_tau, ddtheta
 
     def step(self, tau: np.ndarray, n_substeps: int) -> None:
         """Advance ``n_substeps`` physics steps holding the motor torque ``tau``."""
-        c, body, dt = self.client, self.body, self.physics_dt
+        c, body, dt, joints = self.client, self.body, self.physics_dt, self.joint_indices
+        elastic = self.spec.elastic
         for _ in range(n_substeps):
             link_tau, ddtheta = self.link_torque(tau)
             p.setJointMotorControlArray(
-                body, self.joint_indices, p.TORQUE_CONTROL, forces=link_tau, physicsClientId=c
+                body, joints, p.TORQUE_CONTROL, forces=link_tau.tolist(), physicsClientId=c
             )
             p.stepSimulation(physicsClientId=c)
-            if self.spec.elastic:
+            if elastic:
                 self.dtheta = self.dtheta + dt * ddtheta
                 self.theta = self.theta + dt * self.dtheta
             self._read_links()
-            if not self.spec.elastic:
+            if not elastic:
                 self.theta, self.dtheta = self.q, self.dq
             self.last_link_torque = link_tau
 

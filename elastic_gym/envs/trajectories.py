@@ -63,18 +63,18 @@ class RestToRestPath:
         if order > MAX_ORDER:
             raise ValueError(f"order must be <= {MAX_ORDER}")
         n_segments = len(self.waypoints) - 1
-        index = min(int(max(t, 0.0) // self.segment_time), n_segments - 1) if n_segments else 0
-        start = self.waypoints[index]
-        out = np.zeros((order + 1, self.waypoints.shape[1]))
         if n_segments == 0:
-            out[0] = start
+            out = np.zeros((order + 1, self.waypoints.shape[1]))
+            out[0] = self.waypoints[0]
             return out
-        delta = self.waypoints[index + 1] - start
+        index = min(int(max(t, 0.0) // self.segment_time), n_segments - 1)
+        start = self.waypoints[index]
         u = (t - index * self.segment_time - self.dwell_time) / self.move_time
-        s = timing_law(u, order)
-        scale = self.move_time ** -np.arange(order + 1)
-        if u <= 0.0 or u >= 1.0:
-            s[1:] = 0.0  # at rest (derivatives above 4 of the law do not vanish at the ends)
-        out[:] = np.outer(s * scale, delta)
+        if u <= 0.0 or u >= 1.0:  # at rest (derivatives above 4 of the law do not vanish there)
+            out = np.zeros((order + 1, self.waypoints.shape[1]))
+            out[0] = start if u <= 0.0 else self.waypoints[index + 1]
+            return out
+        s = (_COEFFICIENTS[: order + 1] @ (u**_POWERS)) * self.move_time ** -_POWERS[: order + 1]
+        out = s[:, None] * (self.waypoints[index + 1] - start)
         out[0] += start
         return out
