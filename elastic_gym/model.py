@@ -369,14 +369,14 @@ class RobotModel:
 
         f = R_WS^T (a_W - g_W), a_W the classical acceleration of the sensor point.
         """
-        pin.forwardKinematics(self.pin_model, self.data, q, dq, ddq)
+        model, data = self.pin_model, self.data
+        pin.forwardKinematics(model, data, q, dq, ddq)
+        pin.updateFramePlacements(model, data)
         out = np.empty(3 * self.n_sensors)
+        local = pin.ReferenceFrame.LOCAL
         for i, fid in enumerate(self.sensor_frame_ids):
-            acc = pin.getFrameClassicalAcceleration(
-                self.pin_model, self.data, fid, pin.ReferenceFrame.LOCAL
-            ).linear
-            R = pin.updateFramePlacement(self.pin_model, self.data, fid).rotation
-            out[3 * i : 3 * i + 3] = acc - R.T @ self.gravity_vector
+            acc = pin.getFrameClassicalAcceleration(model, data, fid, local).linear
+            out[3 * i : 3 * i + 3] = acc - data.oMf[fid].rotation.T @ self.gravity_vector
         return out
 
     def accelerometer_maps(
