@@ -1,0 +1,33 @@
+"""The README's Python snippets and the examples run as documented."""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+from pathlib import Path
+
+from rich.console import Console
+
+from elastic_gym.evaluation import compare
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_readme_python_snippets_run():
+    text = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
+    assert blocks
+    for block in blocks:
+        exec(compile(block, "README.md", "exec"), {"__name__": "readme"})
+
+
+def test_custom_controller_and_observer_example(tmp_path):
+    path = ROOT / "examples" / "custom_controller_and_observer.py"
+    spec = importlib.util.spec_from_file_location("custom_example", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    result = compare(module.scenario(duration=0.3), output_dir=tmp_path, workers=1,
+                     progress=False, plots=False, console=Console(quiet=True))
+    labels = {(row["controller"], row["source"]) for row in result.rows}
+    assert ("torsion-damping", "static") in labels
+    assert all(row["status"] == "ok" for row in result.rows)
