@@ -31,3 +31,18 @@ def test_custom_controller_and_observer_example(tmp_path):
     labels = {(row["controller"], row["source"]) for row in result.rows}
     assert ("torsion-damping", "static") in labels
     assert all(row["status"] == "ok" for row in result.rows)
+
+
+def test_readme_scenario_yaml_is_valid():
+    import yaml
+
+    from elastic_gym.evaluation import Scenario
+    from elastic_gym.evaluation.runner import plan_runs
+
+    text = (ROOT / "README.md").read_text()
+    blocks = [b for b in re.findall(r"```yaml\n(.*?)```", text, flags=re.DOTALL)
+              if "state_sources" in b]
+    assert blocks
+    for block in blocks:
+        runs, _ = plan_runs(Scenario.from_dict(yaml.safe_load(block)))
+        assert runs
