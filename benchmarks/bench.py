@@ -1,0 +1,386 @@
+"""Benchmarks of elastic-gym: cost ratios measured in one run on this machine.
+
+    python benchmarks/bench.py            # all tables (a few minutes on 2 cores)
+    python benchmarks/bench.py --quick    # the same tables with short blocks (~1 min)
+    python benchmarks/bench.py --profile  # + where the time of the closed loop goes (cProfile)
+
+Tables (BLAS single-threaded: "one core"; see ``timing.py`` for the method):
+
+1. env step (sensors, task, reward, info, through ``gym.make``'s wrappers) / a bare
+   PyBullet loop doing the same physics work (:class:`BarePyBullet`), per env id
+   (target <= 2.5x);
+2. observer update / env step, for every observer that applies to each arm
+   (N = 2, 3, 7; target for De Luca <= 0.3x at N = 7);
+3. closed loop (env + observer + eq. (13) controller of De Luca et al.) simulated time /
+   wall time at 1 kHz, with the split of a step (target >= 50x real time for the 7-DOF
+   arm, higher for 2 links); rigid arms use the Cristofaro-De Luca reduced-order observer;
+4. vectorized throughput: ``gymnasium.make_vec`` and SB3 ``SubprocVecEnv`` steps/s with
+   1 and 2 workers, relative to one env stepped in this process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import functools
+import math
+import os
+import pstats
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pybullet as p
+from timing import ensure_single_thread_blas, interleaved_best, print_table, seconds_per_call
+
+import elastic_gym
+from elastic_gym.controllers.base import public_info
+from elastic_gym.controllers.registry import make_controller
+from elastic_gym.envs.simulator import ArmSimulator
+from elastic_gym.observers import ObserverWrapper
+from elastic_gym.observers.registry import applicable_observers, make_observer
+from elastic_gym.training.wrappers import ActionRepeat
+
+UNLIMITED_STEPS = 2**62  # benchmark episodes never reach the TimeLimit
+PROBE_AMPLITUDE = 0.02  # sinusoidal torque around the static equilibrium, x torque limit
+PROBE_FREQUENCY = 2.0  # Hz
+CONTROLLER = "feedforward-state-feedback"  # eq. (13)
+LOOP_OBSERVER = {"elastic": "deluca", "rigid": "reduced-order"}
+TARGET_ENV_RATIO = 2.5
+TARGET_DELUCA_RATIO = 0.3
+TARGET_REALTIME = 50.0
+VEC_ENV_KWARGS = {"task": "excitation"}  # gravity compensation + small cosine: never ends
+DECIMATION = 10  # action repeat of the RL-style rows of table 4
+
+
+@dataclass(frozen=True)
+class Scale:
+    """Block length (steps), number of interleaved repeats, vectorized steps."""
+
+    block: int
+    repeats: int
+    vec_steps: int
+
+
+FULL = Scale(block=500, repeats=7, vec_steps=3000)
+QUICK = Scale(block=150, repeats=3, vec_steps=500)
+
+
+def make_env(env_id: str, **kwargs) -> gym.Env:
+    return gym.make(env_id, max_episode_steps=UNLIMITED_STEPS, **kwargs)
+
+
+def kind(env: gym.Env) -> str:
+    return "elastic" if env.unwrapped.robot.elastic else "rigid"
+
+
+def probe_actions(env: gym.Env, equilibrium_torque: np.ndarray, steps: int) -> np.ndarray:
+    """(steps, N) motor torques: the static equilibrium plus a small sinusoid per joint."""
+    u = env.unwrapped
+    t = np.arange(steps)[:, None] * u.control_dt
+    phase = np.arange(u.n_joints)
+    wave = np.sin(2.0 * np.pi * PROBE_FREQUENCY * t + phase)
+    return equilibrium_torque + PROBE_AMPLITUDE * u.torque_limit * wave
+
+
+def checked_step(env: gym.Env, action: np.ndarray) -> tuple:
+    """``env.step`` that refuses to let a benchmark episode end unnoticed."""
+    result = env.step(action)
+    if result[2] or result[3]:
+        raise RuntimeError(f"{env.spec.id} ended during the benchmark: "
+                           f"{result[4].get('termination_reason')}")
+    return result
+
+
+class BarePyBullet:
+    """The env's physics work in a bare PyBullet loop.
+
+    The same URDF loaded the same way (an :class:`ArmSimulator`: limits removed, fixed
+    base, inertia from the file, damping zeroed, default motors disabled), started in
+    the env's state, with the same number of physics substeps per control period; each
+    substep is setJointMotorControlArray(TORQUE) + stepSimulation + getJointStates.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        u = env.unwrapped
+        self.sim = ArmSimulator(u.robot, u.plant_model, u.physics_dt)
+        self.sim.reset_state(u.sim.q, u.sim.dq, u.sim.theta, u.sim.dtheta)
+        self.n_substeps = u.n_substeps
+
+    def step(self, torque: np.ndarray) -> None:
+        sim = self.sim
+        body, joints, client = sim.body, sim.joint_indices, sim.client
+        for _ in range(self.n_substeps):
+            p.setJointMotorControlArray(body, joints, p.TORQUE_CONTROL, forces=torque,
+                                        physicsClientId=client)
+            p.stepSimulation(physicsClientId=client)
+            p.getJointStates(body, joints, physicsClientId=client)
+
+    def close(self) -> None:
+        self.sim.close()
+
+
+def blocks_of(actions: np.ndarray, block: int):
+    """Consecutive blocks of ``block`` actions, as argument tuples."""
+    for start in range(0, len(actions), block):
+        yield [(a,) for a in actions[start : start + block]]
+
+
+# ---------------------------------------------------------------------------- table 1
+def env_step_costs(env_id: str, scale: Scale) -> dict[str, float]:
+    """Best seconds per control period of the env and of the bare PyBullet loop."""
+    env = make_env(env_id)
+    _, info = env.reset(seed=0)
+    bare = BarePyBullet(env)
+    actions = probe_actions(env, info["torque"], scale.block * scale.repeats)
+    env_blocks, bare_blocks = blocks_of(actions, scale.block), blocks_of(actions, scale.block)
+    step = functools.partial(checked_step, env)
+    costs = interleaved_best({
+        "env": lambda: seconds_per_call(step, next(env_blocks)),
+        "bare": lambda: seconds_per_call(bare.step, next(bare_blocks)),
+    }, scale.repeats)
+    env.close()
+    bare.close()
+    return costs
+
+
+# ---------------------------------------------------------------------------- table 2
+def record_measurements(env_id: str, steps: int) -> tuple[dict, list[tuple], float]:
+    """(first measurement, [(measurement, applied torque, dt)], dt) of a probe episode.
+
+    A measurement is the sensor observation plus the privileged items some observers
+    declare (true q'', true state), as :class:`ObserverWrapper` would pass them.
+    """
+    env = make_env(env_id)
+    obs, info = env.reset(seed=0)
+
+    def measurement(obs: dict, info: dict) -> dict:
+        return {**obs, "link_acceleration": info["true_state"]["ddq"],
+                "true_state": info["true_state"]}
+
+    first = measurement(obs, info)
+    dt = env.unwrapped.control_dt
+    updates = []
+    for action in probe_actions(env, info["torque"], steps):
+        obs, _, _, _, info = checked_step(env, action)
+        updates.append((measurement(obs, info), info["torque"], dt))
+    env.close()
+    return first, updates, dt
+
+
+def observer_update_costs(env_id: str, scale: Scale) -> tuple[int, dict[str, float]]:
+    """(N, best seconds per ``update`` of every observer applicable to the arm)."""
+    first, updates, dt = record_measurements(env_id, scale.block)
+    env = make_env(env_id)
+    n = env.unwrapped.n_joints
+    observers = {name: make_observer(name, env.unwrapped.model, dt)
+                 for name in applicable_observers(kind(env) == "elastic")}
+    env.close()
+
+    def block(observer) -> float:
+        observer.reset(first)
+        return seconds_per_call(observer.update, updates)
+
+    return n, interleaved_best({name: functools.partial(block, obs)
+                                for name, obs in observers.items()}, scale.repeats)
+
+
+# ---------------------------------------------------------------------------- table 3
+class ClosedLoop:
+    """Env + observer wrapper + eq. (13) controller; records the controller's share."""
+
+    def __init__(self, env_id: str, block: int) -> None:
+        env = make_env(env_id)
+        self.observer = LOOP_OBSERVER[kind(env)]
+        self.env = ObserverWrapper(env, self.observer)
+        u = env.unwrapped
+        self.controller = make_controller(CONTROLLER, u.model, u.control_dt)
+        self.block_steps = block
+        self.obs, info = self.env.reset(seed=0)
+        self.info = public_info(info)
+        self.controller.reset(self.obs, self.info)
+        self.best = math.inf
+        self.best_controller = math.nan
+
+    def block(self) -> float:
+        """Seconds per closed-loop step over one block (controller time kept aside)."""
+        controller_time = 0.0
+        start = time.perf_counter()
+        for _ in range(self.block_steps):
+            tick = time.perf_counter()
+            action = self.controller(self.obs, self.info)
+            controller_time += time.perf_counter() - tick
+            self.obs, _, _, _, info = checked_step(self.env, action)
+            self.info = public_info(info)
+        total = (time.perf_counter() - start) / self.block_steps
+        if total < self.best:
+            self.best, self.best_controller = total, controller_time / self.block_steps
+        return total
+
+    def close(self) -> None:
+        self.env.close()
+
+
+# ---------------------------------------------------------------------------- table 4
+def _time_vector_env(vec, n_envs: int, n_joints: int, steps: int, gymnasium_api: bool,
+                     repeat: int) -> float:
+    """Env steps per second (all workers together) of a vectorized env whose every
+    ``step`` runs ``repeat`` env steps per worker."""
+    actions = np.zeros((n_envs, n_joints))
+    if gymnasium_api:
+        vec.reset(seed=0)
+    else:
+        vec.seed(0)
+        vec.reset()
+    for _ in range(20):  # warm-up: workers started, first-step checks done
+        vec.step(actions)
+    start = time.perf_counter()
+    for _ in range(steps):
+        vec.step(actions)
+    elapsed = time.perf_counter() - start
+    vec.close()
+    return n_envs * repeat * steps / elapsed
+
+
+def repeated_env(env_id: str, repeat: int) -> gym.Env:
+    """Env whose step holds the action for ``repeat`` control periods (RL decimation)."""
+    return ActionRepeat(gym.make(env_id, **VEC_ENV_KWARGS), repeat)
+
+
+def vector_throughput(env_id: str, steps: int) -> list[tuple[str, int, int, float]]:
+    """(method, workers, action repeat, env steps/s) of one in-process env and of the
+    vectorized envs (repeat > 1: ``ActionRepeat`` inside the workers)."""
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    env = make_env(env_id, **VEC_ENV_KWARGS)
+    n = env.unwrapped.n_joints
+    env.reset(seed=0)
+    zero = np.zeros(n)
+    single = 1.0 / seconds_per_call(functools.partial(checked_step, env), [(zero,)] * steps)
+    env.close()
+    rows = [("one env, this process", 1, 1, single)]
+    makers: list[tuple[str, int, int, Callable[[], object], bool]] = [
+        ("gymnasium.make_vec sync", 1, 1,
+         lambda: gym.make_vec(env_id, 1, vectorization_mode="sync", **VEC_ENV_KWARGS), True),
+    ]
+    for workers, repeat in ((1, 1), (2, 1), (2, DECIMATION)):
+        factory = functools.partial(repeated_env, env_id, repeat)
+        makers.append(("gymnasium.make_vec async", workers, repeat, functools.partial(
+            gym.vector.AsyncVectorEnv, [factory] * workers), True))
+        makers.append(("SB3 SubprocVecEnv", workers, repeat,
+                       functools.partial(SubprocVecEnv, [factory] * workers), False))
+    for method, workers, repeat, make, gymnasium_api in makers:
+        rows.append((method, workers, repeat, _time_vector_env(
+            make(), workers, n, steps // repeat, gymnasium_api, repeat)))
+    return rows
+
+
+# ---------------------------------------------------------------------------- profile
+def _label(key: tuple[str, int, str]) -> str:
+    file, line, name = key
+    if file == "~":
+        return name
+    return f"{Path(file).parent.name}/{Path(file).name}:{line}({name})"
+
+
+def profile_closed_loop(env_id: str, steps: int, top: int) -> tuple[list[tuple], float]:
+    """Top functions by own time of a closed-loop run under cProfile, and the profiled
+    seconds per step (cProfile inflates Python-heavy code; compare with table 3)."""
+    loop = ClosedLoop(env_id, steps)
+    loop.block()  # warm-up
+    profiler = cProfile.Profile()
+    profiler.enable()
+    per_step = loop.block()
+    profiler.disable()
+    loop.close()
+    stats = pstats.Stats(profiler).stats
+    total = sum(entry[2] for entry in stats.values())
+    ranked = sorted(stats.items(), key=lambda item: item[1][2], reverse=True)[:top]
+    rows = [(_label(key), f"{100 * tt / total:.1f}", f"{nc / steps:.0f}",
+             f"{100 * ct / total:.1f}") for key, (_, nc, tt, ct, _) in ranked]
+    return rows, per_step
+
+
+# ---------------------------------------------------------------------------- main
+def fmt(value: float, digits: int = 3) -> str:
+    return f"{value:.{digits}g}"
+
+
+def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool) -> None:
+    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    print(f"{os.cpu_count()} CPUs, load average {load} (other processes slow the timings; "
+          "each value is the best of interleaved blocks)\n")
+    env_costs = {}
+    rows = []
+    for env_id in env_ids:
+        costs = env_step_costs(env_id, scale)
+        env_costs[env_id] = costs["env"]
+        ratio = costs["env"] / costs["bare"]
+        rows.append((env_id, fmt(1e6 * costs["env"]), fmt(1e6 * costs["bare"]), fmt(ratio),
+                     "yes" if ratio <= TARGET_ENV_RATIO else "no"))
+    print_table(f"1. env step / bare PyBullet (target <= {TARGET_ENV_RATIO}x)",
+                ("env id", "env step [us]", "bare PyBullet [us]", "ratio", "target met"), rows)
+
+    rows = []
+    for env_id in env_ids:
+        n, costs = observer_update_costs(env_id, scale)
+        for name, cost in costs.items():
+            ratio = cost / env_costs[env_id]
+            target = (("yes" if ratio <= TARGET_DELUCA_RATIO else "no")
+                      if name == "deluca" and "Iiwa" in env_id else "")
+            rows.append((env_id, n, name, fmt(1e6 * cost), fmt(ratio), target))
+    print_table(f"2. observer update / env step (target De Luca <= {TARGET_DELUCA_RATIO}x "
+                "at N = 7)", ("env id", "N", "observer", "update [us]", "ratio",
+                              "target met"), rows)
+
+    rows = []
+    for env_id in env_ids:
+        loop = ClosedLoop(env_id, scale.block)
+        interleaved_best({"loop": loop.block}, scale.repeats)
+        loop.close()
+        env_part = env_costs[env_id]
+        observer_part = loop.best - loop.best_controller - env_part
+        realtime = loop.env.unwrapped.control_dt / loop.best
+        rows.append((env_id, loop.observer, fmt(1e6 * loop.best), fmt(realtime),
+                     f"{100 * env_part / loop.best:.0f}",
+                     f"{100 * observer_part / loop.best:.0f}",
+                     f"{100 * loop.best_controller / loop.best:.0f}",
+                     "yes" if realtime >= TARGET_REALTIME else "no"))
+    print_table(f"3. closed loop at 1 kHz, simulated / wall time (target >= {TARGET_REALTIME:g}x;"
+                " split of a step in %)",
+                ("env id", "observer", "step [us]", "x real time", "env", "observer+wrapper",
+                 "eq. (13) controller", "target met"), rows)
+
+    rows = vector_throughput(vec_id, scale.vec_steps)
+    single = rows[0][3]
+    print_table(f"4. vectorized throughput, {vec_id} ({VEC_ENV_KWARGS})",
+                ("method", "workers", "action repeat", "env steps/s", "vs one env"),
+                [(m, w, r, f"{s:.0f}", fmt(s / single)) for m, w, r, s in rows])
+
+    if profile:
+        for env_id in env_ids:
+            top, per_step = profile_closed_loop(env_id, scale.block, top=15)
+            print_table(f"profile (cProfile), closed loop of table 3, {env_id}: "
+                        f"{fmt(1e6 * per_step)} us/step under the profiler",
+                        ("function", "own time %", "calls/step", "incl. callees %"), top)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="short blocks (about a minute)")
+    parser.add_argument("--profile", action="store_true", help="cProfile the closed loop")
+    parser.add_argument("--ids", nargs="+", default=list(elastic_gym.ENV_IDS),
+                        help="env ids (default: all)")
+    parser.add_argument("--vec-id", default="elastic_gym/TwoLinkElastic-v0",
+                        help="env id of the vectorized throughput table")
+    args = parser.parse_args(argv)
+    ensure_single_thread_blas()
+    run(args.ids, QUICK if args.quick else FULL, args.vec_id, args.profile)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
