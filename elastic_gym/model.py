@@ -30,6 +30,7 @@ import pinocchio as pin
 
 from elastic_gym.robots.spec import AccelerometerMount, LinkFriction, RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_text_for_pinocchio
+from elastic_gym.validation import checked_fields
 
 
 @dataclass(frozen=True)
@@ -52,18 +53,11 @@ class ParameterScaling:
 
     @classmethod
     def from_config(cls, config: ParameterScaling | dict | None) -> ParameterScaling:
+        config = checked_fields(cls, config, "parameter scaling")
         if config is None:
             return cls()
         if isinstance(config, cls):
             return config
-        if not isinstance(config, dict):
-            raise TypeError(f"parameter scaling must be a dict, got {type(config).__name__}")
-        allowed = set(cls.__dataclass_fields__)
-        unknown = set(config) - allowed
-        if unknown:
-            raise ValueError(
-                f"unknown parameter scaling field(s) {sorted(unknown)}; valid: {sorted(allowed)}"
-            )
         values = {}
         for key, value in config.items():
             try:

@@ -22,6 +22,7 @@ from typing import ClassVar
 import numpy as np
 
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import check_applies
 
 PUBLIC_INFO_KEYS = ("time", "reference")
 
@@ -47,12 +48,7 @@ class Controller(ABC):
     applies_to: ClassVar[frozenset[str]] = frozenset({"elastic", "rigid"})
 
     def __init__(self, model: RobotModel, dt: float) -> None:
-        kind = "elastic" if model.elastic else "rigid"
-        if kind not in self.applies_to:
-            raise ValueError(
-                f"controller {self.name!r} applies to {sorted(self.applies_to)} arms, "
-                f"not to the {kind} robot {model.spec.name!r}"
-            )
+        check_applies("controller", self.name, self.applies_to, model)
         self.model = model
         self.dt = float(dt)
         self.n = model.n

@@ -25,7 +25,7 @@ An episode whose physics breaks (non-finite state, a velocity above
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import ClassVar
 
 import gymnasium as gym
@@ -44,6 +44,7 @@ from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
 from elastic_gym.robots.urdf_tools import joint_limits
+from elastic_gym.validation import checked_fields
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
 TERMINATION_PENALTY = -1.0  # reward of the step that ends an episode on broken physics
@@ -60,18 +61,11 @@ class RewardWeights:
 
     @classmethod
     def from_config(cls, config) -> RewardWeights:
+        config = checked_fields(cls, config, "reward weight")
         if config is None:
             return cls()
         if isinstance(config, cls):
             return config
-        if not isinstance(config, dict):
-            raise TypeError(f"reward_weights must be a dict, got {type(config).__name__}")
-        allowed = {f.name for f in fields(cls)}
-        unknown = set(config) - allowed
-        if unknown:
-            raise ValueError(
-                f"unknown reward weight(s) {sorted(unknown)}; valid: {sorted(allowed)}"
-            )
         for key, value in config.items():
             if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"reward weight {key!r} must be a number >= 0, got {value!r}")

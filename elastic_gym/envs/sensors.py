@@ -6,26 +6,21 @@ Only these reach the observation. Noise is drawn from the environment's
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
+
+from elastic_gym.validation import checked_fields
 
 GRAVITY = 9.81
 
 
 def _from_config(cls, config, what: str):
     """Build a frozen sensor config from None, an instance or a dict; unknown keys are errors."""
+    config = checked_fields(cls, config, what)
     if config is None:
         return cls()
-    if isinstance(config, cls):
-        return config
-    if not isinstance(config, dict):
-        raise TypeError(f"{what} config must be a dict, got {type(config).__name__}")
-    allowed = {f.name for f in fields(cls)}
-    unknown = set(config) - allowed
-    if unknown:
-        raise ValueError(f"unknown {what} field(s) {sorted(unknown)}; valid: {sorted(allowed)}")
-    return cls(**config)
+    return config if isinstance(config, cls) else cls(**config)
 
 
 def _check_nonnegative(owner: str, **values: float | None) -> None:

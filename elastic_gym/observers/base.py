@@ -24,6 +24,7 @@ from typing import ClassVar
 import numpy as np
 
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import check_applies
 
 ELASTIC_STATE = ("theta", "q", "dtheta", "dq")
 RIGID_STATE = ("q", "dq")
@@ -50,12 +51,7 @@ class Observer(ABC):
     def __init__(self, model: RobotModel, dt: float) -> None:
         if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
             raise ValueError(f"observer dt must be a positive number, got {dt!r}")
-        kind = "elastic" if model.elastic else "rigid"
-        if kind not in self.applies_to:
-            raise ValueError(
-                f"observer {self.name!r} applies to {sorted(self.applies_to)} arms, "
-                f"not to the {kind} robot {model.spec.name!r}"
-            )
+        check_applies("observer", self.name, self.applies_to, model)
         self.model = model
         self.dt = float(dt)
         self.n = model.n

@@ -1,0 +1,37 @@
+"""Validation helpers shared by every configurable part (clear errors naming the field)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import fields
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+def checked_fields(cls: type[T], config: Any, what: str) -> dict | T | None:
+    """Validate the keys of a mapping against the fields of dataclass ``cls``.
+
+    Returns ``None`` for ``None``, the object itself for an instance of ``cls``, and the
+    mapping as a dict otherwise. Raises ``TypeError`` for anything else and
+    ``ValueError`` listing unknown and valid field names.
+    """
+    if config is None or isinstance(config, cls):
+        return config
+    if not isinstance(config, Mapping):
+        raise TypeError(f"{what} must be a mapping, got {type(config).__name__}")
+    allowed = {f.name for f in fields(cls)}
+    unknown = set(config) - allowed
+    if unknown:
+        raise ValueError(f"unknown {what} field(s) {sorted(unknown)}; valid: {sorted(allowed)}")
+    return dict(config)
+
+
+def check_applies(kind: str, name: str, applies_to: frozenset[str], model) -> None:
+    """Refuse an observer/controller built for elastic arms on a rigid robot and vice versa."""
+    arm = "elastic" if model.elastic else "rigid"
+    if arm not in applies_to:
+        raise ValueError(
+            f"{kind} {name!r} applies to {sorted(applies_to)} arms, "
+            f"not to the {arm} robot {model.spec.name!r}"
+        )
