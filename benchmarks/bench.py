@@ -1,14 +1,14 @@
 """Benchmarks of elastic-gym: cost ratios measured in one run on this machine.
 
-    python benchmarks/bench.py            # all tables (a few minutes on 2 cores)
-    python benchmarks/bench.py --quick    # the same tables with short blocks (~1 min)
+    python benchmarks/bench.py            # all tables (about a minute on 2 cores)
+    python benchmarks/bench.py --quick    # the same tables with short blocks (~15 s)
     python benchmarks/bench.py --profile  # + where the time of the closed loop goes (cProfile)
 
 Tables (BLAS single-threaded: "one core"; see ``timing.py`` for the method):
 
-1. env step (sensors, task, reward, info, through ``gym.make``'s wrappers) / a bare
-   PyBullet loop doing the same physics work (:class:`BarePyBullet`), per env id
-   (target <= 2.5x);
+1. env step (sensors, task, reward, info, through ``gym.make``'s wrappers; ``excitation``
+   task, see ``ENV_KWARGS``) / a bare PyBullet loop doing the same physics work
+   (:class:`BarePyBullet`), per env id (target <= 2.5x);
 2. observer update / env step, for every observer that applies to each arm
    (N = 2, 3, 7; target for De Luca <= 0.3x at N = 7);
 3. closed loop (env + observer + eq. (13) controller of De Luca et al.) simulated time /
@@ -45,14 +45,16 @@ from elastic_gym.observers.registry import applicable_observers, make_observer
 from elastic_gym.training.wrappers import ActionRepeat
 
 UNLIMITED_STEPS = 2**62  # benchmark episodes never reach the TimeLimit
-PROBE_AMPLITUDE = 0.02  # sinusoidal torque around the static equilibrium, x torque limit
-PROBE_FREQUENCY = 2.0  # Hz
 CONTROLLER = "feedforward-state-feedback"  # eq. (13)
 LOOP_OBSERVER = {"elastic": "deluca", "rigid": "reduced-order"}
 TARGET_ENV_RATIO = 2.5
 TARGET_DELUCA_RATIO = 0.3
 TARGET_REALTIME = 50.0
-VEC_ENV_KWARGS = {"task": "excitation"}  # gravity compensation + small cosine: never ends
+# Tables 1, 2, 4: the env applies the gravity torque g(q) by itself and the action is zero:
+# the arm stays at rest for ever (the cost of a step does not depend on the motion). Moving
+# open loop, the light iiwa wrist reaches a joint limit within a second even at 0.5 % of
+# the torque limits.
+ENV_KWARGS = {"task": "excitation", "task_options": {"amplitude": 0.0}}
 DECIMATION = 10  # action repeat of the RL-style rows of table 4
 
 
@@ -75,15 +77,6 @@ def make_env(env_id: str, **kwargs) -> gym.Env:
 
 def kind(env: gym.Env) -> str:
     return "elastic" if env.unwrapped.robot.elastic else "rigid"
-
-
-def probe_actions(env: gym.Env, equilibrium_torque: np.ndarray, steps: int) -> np.ndarray:
-    """(steps, N) motor torques: the static equilibrium plus a small sinusoid per joint."""
-    u = env.unwrapped
-    t = np.arange(steps)[:, None] * u.control_dt
-    phase = np.arange(u.n_joints)
-    wave = np.sin(2.0 * np.pi * PROBE_FREQUENCY * t + phase)
-    return equilibrium_torque + PROBE_AMPLITUDE * u.torque_limit * wave
 
 
 def checked_step(env: gym.Env, action: np.ndarray) -> tuple:
@@ -113,8 +106,9 @@ class BarePyBullet:
     def step(self, torque: np.ndarray) -> None:
         sim = self.sim
         body, joints, client = sim.body, sim.joint_indices, sim.client
+        forces = torque.tolist()  # PyBullet converts a list faster than an array
         for _ in range(self.n_substeps):
-            p.setJointMotorControlArray(body, joints, p.TORQUE_CONTROL, forces=torque,
+            p.setJointMotorControlArray(body, joints, p.TORQUE_CONTROL, forces=forces,
                                         physicsClientId=client)
             p.stepSimulation(physicsClientId=client)
             p.getJointStates(body, joints, physicsClientId=client)
@@ -132,11 +126,12 @@ def blocks_of(actions: np.ndarray, block: int):
 # ---------------------------------------------------------------------------- table 1
 def env_step_costs(env_id: str, scale: Scale) -> dict[str, float]:
     """Best seconds per control period of the env and of the bare PyBullet loop."""
-    env = make_env(env_id)
+    env = make_env(env_id, **ENV_KWARGS)
     _, info = env.reset(seed=0)
     bare = BarePyBullet(env)
-    actions = probe_actions(env, info["torque"], scale.block * scale.repeats)
-    env_blocks, bare_blocks = blocks_of(actions, scale.block), blocks_of(actions, scale.block)
+    steps = scale.block * scale.repeats
+    env_blocks = blocks_of(np.zeros((steps, env.unwrapped.n_joints)), scale.block)
+    bare_blocks = blocks_of(np.tile(info["torque"], (steps, 1)), scale.block)  # at rest too
     step = functools.partial(checked_step, env)
     costs = interleaved_best({
         "env": lambda: seconds_per_call(step, next(env_blocks)),
@@ -154,7 +149,7 @@ def record_measurements(env_id: str, steps: int) -> tuple[dict, list[tuple], flo
     A measurement is the sensor observation plus the privileged items some observers
     declare (true q'', true state), as :class:`ObserverWrapper` would pass them.
     """
-    env = make_env(env_id)
+    env = make_env(env_id, **ENV_KWARGS)
     obs, info = env.reset(seed=0)
 
     def measurement(obs: dict, info: dict) -> dict:
@@ -164,8 +159,8 @@ def record_measurements(env_id: str, steps: int) -> tuple[dict, list[tuple], flo
     first = measurement(obs, info)
     dt = env.unwrapped.control_dt
     updates = []
-    for action in probe_actions(env, info["torque"], steps):
-        obs, _, _, _, info = checked_step(env, action)
+    for _ in range(steps):
+        obs, _, _, _, info = checked_step(env, np.zeros(env.unwrapped.n_joints))
         updates.append((measurement(obs, info), info["torque"], dt))
     env.close()
     return first, updates, dt
@@ -247,7 +242,7 @@ def _time_vector_env(vec, n_envs: int, n_joints: int, steps: int, gymnasium_api:
 
 def repeated_env(env_id: str, repeat: int) -> gym.Env:
     """Env whose step holds the action for ``repeat`` control periods (RL decimation)."""
-    return ActionRepeat(gym.make(env_id, **VEC_ENV_KWARGS), repeat)
+    return ActionRepeat(gym.make(env_id, **ENV_KWARGS), repeat)
 
 
 def vector_throughput(env_id: str, steps: int) -> list[tuple[str, int, int, float]]:
@@ -255,7 +250,7 @@ def vector_throughput(env_id: str, steps: int) -> list[tuple[str, int, int, floa
     vectorized envs (repeat > 1: ``ActionRepeat`` inside the workers)."""
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
-    env = make_env(env_id, **VEC_ENV_KWARGS)
+    env = make_env(env_id, **ENV_KWARGS)
     n = env.unwrapped.n_joints
     env.reset(seed=0)
     zero = np.zeros(n)
@@ -264,7 +259,7 @@ def vector_throughput(env_id: str, steps: int) -> list[tuple[str, int, int, floa
     rows = [("one env, this process", 1, 1, single)]
     makers: list[tuple[str, int, int, Callable[[], object], bool]] = [
         ("gymnasium.make_vec sync", 1, 1,
-         lambda: gym.make_vec(env_id, 1, vectorization_mode="sync", **VEC_ENV_KWARGS), True),
+         lambda: gym.make_vec(env_id, 1, vectorization_mode="sync", **ENV_KWARGS), True),
     ]
     for workers, repeat in ((1, 1), (2, 1), (2, DECIMATION)):
         factory = functools.partial(repeated_env, env_id, repeat)
@@ -351,12 +346,12 @@ def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool) -> None:
                      "yes" if realtime >= TARGET_REALTIME else "no"))
     print_table(f"3. closed loop at 1 kHz, simulated / wall time (target >= {TARGET_REALTIME:g}x;"
                 " split of a step in %)",
-                ("env id", "observer", "step [us]", "x real time", "env", "observer+wrapper",
-                 "eq. (13) controller", "target met"), rows)
+                ("env id", "observer", "step [us]", "x real time", "env (table 1)",
+                 "observer+wrapper", "eq. (13) controller", "target met"), rows)
 
     rows = vector_throughput(vec_id, scale.vec_steps)
     single = rows[0][3]
-    print_table(f"4. vectorized throughput, {vec_id} ({VEC_ENV_KWARGS})",
+    print_table(f"4. vectorized throughput, {vec_id}",
                 ("method", "workers", "action repeat", "env steps/s", "vs one env"),
                 [(m, w, r, f"{s:.0f}", fmt(s / single)) for m, w, r, s in rows])
 

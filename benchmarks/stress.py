@@ -1,6 +1,6 @@
 """Stress test of elastic-gym: many random-action episodes on every env id and wrapper.
 
-    python benchmarks/stress.py                      # 100 episodes per (id, wrapper): 3000
+    python benchmarks/stress.py       # 100 episodes of <= 500 steps per (id, wrapper): 3000
     python benchmarks/stress.py --episodes 20 --steps 500 --ids elastic_gym/KR15Elastic-v0
     python benchmarks/stress.py --wrappers raw deluca ekf --workers 2
 
@@ -13,8 +13,9 @@ levels held 10-300 ms), and runs to truncation (``--steps``) or termination.
 Counted: crashes (an exception from ``reset``/``step``; target 0), steps of episodes
 that had not terminated with a non-finite number anywhere in the observation, reward
 or ``info`` (target 0), and terminations by reason (the env's documented way to end
-an episode whose physics broke, e.g. a joint limit crossed). Exit code 1 if a crash or
-a non-finite value occurred.
+an episode whose physics broke, e.g. a joint limit crossed; a diverging observer ends
+its episode through ``ObserverWrapper`` with "non-finite state estimate"). Exit code 1
+if a crash or a non-finite value occurred.
 """
 
 from __future__ import annotations
@@ -188,8 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=100,
                         help="episodes per (env id, wrapper) (default 100)")
-    parser.add_argument("--steps", type=int, default=200,
-                        help="episode length: max_episode_steps (default 200)")
+    parser.add_argument("--steps", type=int, default=500,
+                        help="episode length: max_episode_steps (default 500)")
     parser.add_argument("--ids", nargs="+", default=list(elastic_gym.ENV_IDS),
                         help="env ids (default: all)")
     parser.add_argument("--wrappers", nargs="+",
