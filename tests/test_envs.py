@@ -151,3 +151,25 @@ def test_regulation_and_excitation_tasks():
     expected = model.gravity(q_before) + np.array([1.0, -1.0])
     assert np.allclose(info["torque"], expected, atol=1e-9)
     env.close()
+
+
+def test_pickled_env_continues_bit_for_bit(env_id):
+    import copy
+    import pickle
+
+    env = gym.make(env_id, accelerometer={"cutoff_hz": 50.0}, sensor_delay=2)
+    env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    limit = env.unwrapped.torque_limit
+    for _ in range(20):
+        env.step(0.02 * limit * rng.uniform(-1, 1, limit.shape))
+    clones = [pickle.loads(pickle.dumps(env)), copy.deepcopy(env)]
+    assert all(c.unwrapped.sim.client != env.unwrapped.sim.client for c in clones)
+    for _ in range(30):
+        action = 0.02 * limit * rng.uniform(-1, 1, limit.shape)
+        expected = _flatten(list(env.step(action)[:2]))
+        for clone in clones:
+            assert np.array_equal(_flatten(list(clone.step(action)[:2])), expected)
+    for clone in clones:
+        clone.close()
+    env.close()

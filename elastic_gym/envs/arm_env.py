@@ -115,6 +115,7 @@ class ArmEnv(gym.Env):
         sensor_delay: int = 0,
         render_mode: str | None = None,
     ) -> None:
+        self._init_kwargs = {k: v for k, v in locals().items() if k not in ("self", "__class__")}
         spec = robot if isinstance(robot, RobotSpec) else get_robot(robot)
         self.robot = spec
         n = spec.n_joints
@@ -287,6 +288,45 @@ class ArmEnv(gym.Env):
     def close(self) -> None:
         if getattr(self, "sim", None) is not None:
             self.sim.close()
+
+    # ------------------------------------------------------------------ pickling
+    def __getstate__(self) -> dict:
+        """Constructor arguments + the episode state (a PyBullet client cannot be pickled).
+
+        Unpickling builds an independent env with its own client, in the same state: it
+        continues bit for bit like the original (deep copies work the same way).
+        """
+        episode = None
+        if not self._needs_reset:
+            sim = self.sim
+            episode = {
+                "sim": (sim.q, sim.dq, sim.theta, sim.dtheta),
+                "time": self.time,
+                "last_torque": self._last_torque,
+                "last_obs": self._last_obs,
+                "rng": self.np_random.bit_generator.state,
+                "accelerometer": (self.accelerometer_array.bias, self.accelerometer_array.filtered),
+                "sensor_queue": list(self._sensor_queue),
+                "task": {k: v for k, v in vars(self.task).items() if k not in ("spec", "model")},
+            }
+        return {"init": self._init_kwargs, "spec": getattr(self, "spec", None), "episode": episode}
+
+    def __setstate__(self, state: dict) -> None:
+        type(self).__init__(self, **state["init"])
+        self.spec = state["spec"]
+        episode = state["episode"]
+        if episode is None:
+            return
+        self.sim.reset_state(*episode["sim"])
+        self.time = episode["time"]
+        self._last_torque = episode["last_torque"]
+        self._last_obs = episode["last_obs"]
+        self._np_random = np.random.Generator(np.random.PCG64())
+        self._np_random.bit_generator.state = episode["rng"]
+        self.accelerometer_array.bias, self.accelerometer_array.filtered = episode["accelerometer"]
+        self._sensor_queue.extend(episode["sensor_queue"])
+        vars(self.task).update(episode["task"])
+        self._needs_reset = False
 
     # ------------------------------------------------------------------ internals
     def _validate_action(self, action) -> np.ndarray:

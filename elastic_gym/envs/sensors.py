@@ -121,21 +121,21 @@ class AccelerometerArray:
             else 0.0
         )
         self.bias = np.zeros(self.size)
-        self._filtered: np.ndarray | None = None
+        self.filtered: np.ndarray | None = None
 
     def reset(self, rng: np.random.Generator) -> None:
         self.bias = self.config.bias_std * rng.standard_normal(self.size)
-        self._filtered = None
+        self.filtered = None
 
     def measure(self, specific_force: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         y = specific_force + self.bias
         if self.sample_std > 0.0:
             y = y + self.sample_std * rng.standard_normal(self.size)
         if self.alpha > 0.0:
-            self._filtered = y if self._filtered is None else (
-                self.alpha * self._filtered + (1.0 - self.alpha) * y
+            self.filtered = y if self.filtered is None else (
+                self.alpha * self.filtered + (1.0 - self.alpha) * y
             )
-            y = self._filtered
+            y = self.filtered
         limit = self.config.range
         y = np.clip(y, -limit, limit)
         if self.config.resolution:
