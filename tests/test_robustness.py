@@ -5,6 +5,7 @@ last test checks that those tests exist)."""
 
 from __future__ import annotations
 
+import copy
 import functools
 import re
 from pathlib import Path
@@ -57,6 +58,12 @@ class Driver:
         self.records: list[tuple] = [(obs, info)]
         self.done = False
         self.offset = np.zeros_like(self.limit)
+
+    def driving(self, env: gym.Env) -> Driver:
+        """A copy of this driver (history and random stream included) stepping ``env``."""
+        other = copy.copy(self)
+        other.env, other.rng, other.records = env, copy.deepcopy(self.rng), list(self.records)
+        return other
 
     def step(self) -> None:
         if len(self.records) % HOLD_STEPS == 1:
@@ -181,25 +188,22 @@ def test_subproc_vec_env_with_env_factories_matches_envs_in_this_process():
     vec.close()
 
 
-def test_a_pickled_live_env_is_an_independent_copy():
-    """ArmEnv pickles its constructor arguments and episode state, not the PyBullet client:
-    the clone has its own client and stepping it leaves the original untouched."""
-    env_id = "elastic_gym/TwoLinkElastic-v0"
-    reference, original = Driver(make(env_id), seed=0), Driver(make(env_id), seed=0)
+@pytest.mark.parametrize(("env_id", "wrapper"), CASES)
+def test_a_pickled_live_env_is_an_independent_copy(env_id, wrapper):
+    """A live env, observer included, pickles its constructor arguments and episode state,
+    not the PyBullet client: the clone continues bit for bit like an untouched twin, and
+    stepping it leaves the original alone (so vector envs may also be given live envs)."""
+    twin, original = Driver(make(env_id, wrapper), seed=0), Driver(make(env_id, wrapper), seed=0)
     for _ in range(10):
-        reference.step()
+        twin.step()
         original.step()
-    clone = cloudpickle.loads(cloudpickle.dumps(original.env))
-    try:
+    clone = original.driving(cloudpickle.loads(cloudpickle.dumps(original.env)))
+    for driver in (clone, original, twin):
         for _ in range(10):
-            clone.step(np.zeros(2))
-        reference.step()
-        original.step()
-        assert leaves(original.records) == leaves(reference.records)
-    finally:  # the clone shares the original's client: close both before anything reuses it
-        clone.close()
-        original.env.close()
-        reference.env.close()
+            driver.step()
+        driver.env.close()
+    assert leaves(original.records) == leaves(twin.records)
+    assert leaves(clone.records) == leaves(twin.records)
 
 
 # ---------------------------------------------------------------------------- bad input
