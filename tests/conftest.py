@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
-import gymnasium as gym
-import pytest
+import os
 
-import elastic_gym
+# Small matrices: OpenBLAS threads competing for 2 cores make expm/solve 100x slower.
+# Set before numpy is imported (pytest-xdist workers inherit it).
+for _key in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_key, "1")
+
+import gymnasium as gym  # noqa: E402
+import pytest  # noqa: E402
+
+import elastic_gym  # noqa: E402
 
 ELASTIC_IDS = [i for i in elastic_gym.ENV_IDS if "Elastic" in i]
 RIGID_IDS = [i for i in elastic_gym.ENV_IDS if "Rigid" in i]

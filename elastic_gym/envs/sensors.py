@@ -137,7 +137,7 @@ class AccelerometerArray:
             )
             y = self.filtered
         limit = self.config.range
-        y = np.clip(y, -limit, limit)
+        y = np.minimum(np.maximum(y, -limit), limit)
         if self.config.resolution:
             y = np.round(y / self.config.resolution) * self.config.resolution
         return np.array(y, dtype=float)

@@ -81,25 +81,29 @@ class LinkFriction:
     coulomb_neg: tuple[float, ...] | None = None
     smoothing_velocity: float = 0.01
 
+    def __post_init__(self) -> None:
+        # arrays once: torque() is called at every physics step
+        pos = self.coulomb_pos
+        neg = self.coulomb_neg if self.coulomb_neg is not None else pos
+        object.__setattr__(self, "_viscous", np.asarray(self.viscous, dtype=float))
+        object.__setattr__(self, "_pos", None if pos is None else np.asarray(pos, dtype=float))
+        object.__setattr__(self, "_neg", None if neg is None else np.asarray(neg, dtype=float))
+
     def torque(self, dq: np.ndarray) -> np.ndarray:
         """Friction torque opposing the motion (enters the link equation with + sign)."""
-        tau = np.asarray(self.viscous) * dq
-        if self.coulomb_pos is not None:
+        tau = self._viscous * dq
+        if self._pos is not None:
             s = np.tanh(dq / self.smoothing_velocity)
-            pos = np.asarray(self.coulomb_pos)
-            neg = np.asarray(self.coulomb_neg if self.coulomb_neg is not None else self.coulomb_pos)
-            tau = tau + np.where(s > 0.0, pos, neg) * s
+            tau = tau + np.where(s > 0.0, self._pos, self._neg) * s
         return tau
 
     def derivative(self, dq: np.ndarray) -> np.ndarray:
         """Diagonal of d(friction)/d(q') (used by observers that linearize)."""
-        d = np.asarray(self.viscous, dtype=float) * np.ones_like(dq)
-        if self.coulomb_pos is not None:
+        d = self._viscous * np.ones_like(dq)
+        if self._pos is not None:
             eps = self.smoothing_velocity
             s = np.tanh(dq / eps)
-            pos = np.asarray(self.coulomb_pos)
-            neg = np.asarray(self.coulomb_neg if self.coulomb_neg is not None else self.coulomb_pos)
-            d = d + np.where(s > 0.0, pos, neg) * (1.0 - s**2) / eps
+            d = d + np.where(s > 0.0, self._pos, self._neg) * (1.0 - s**2) / eps
         return d
 
     def scaled(self, factor: float) -> LinkFriction:
