@@ -6,6 +6,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from elastic_gym.envs.arm_env import TERMINATION_PENALTY
 from elastic_gym.observers import ObserverWrapper
 
 
@@ -76,6 +77,7 @@ def test_step_before_reset():
         ({"torque_limit": [1.0]}, ValueError, "torque_limit"),
         ({"reward_weights": {"speed": 1.0}}, ValueError, "speed"),
         ({"render_mode": "ascii"}, ValueError, "render_mode"),
+        ({"termination_penalty": float("nan")}, ValueError, "termination_penalty"),
     ],
 )
 def test_bad_env_kwargs(kwargs, error, match):
@@ -100,8 +102,9 @@ def test_unknown_observer_lists_the_valid_ones(env):
 def test_non_finite_physics_terminates_with_a_reason():
     env = gym.make("elastic_gym/TwoLinkRigid-v0")
     env.reset(seed=0, options={"initial_state": {"q": [0.0, 0.0], "dq": [1e300, 1e300]}})
-    obs, _, terminated, _, info = env.step(np.zeros(2))
+    obs, reward, terminated, _, info = env.step(np.zeros(2))
     assert terminated and info["termination_reason"] == "non-finite state"
+    assert reward == TERMINATION_PENALTY  # worse than any finite episode return of a bad policy
     assert all(np.all(np.isfinite(v)) for v in obs.values())
     with pytest.raises(RuntimeError, match="reset"):
         env.step(np.zeros(2))
