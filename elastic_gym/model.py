@@ -142,6 +142,7 @@ class RobotModel:
         SBinv = self.S * self.B_inv
         self._SBinv, self._SBinvST = SBinv, SBinv @ self.S.T  # model (2) constants
         self._lower = np.tril_indices(n, -1)
+        self._zero_acceleration = np.zeros(n)
         self._symmetric_outputs = self._pinocchio_fills_lower_triangles()
 
     # ------------------------------------------------------------------ setup
@@ -363,8 +364,12 @@ class RobotModel:
 
         f = R_WS^T (a_W - g_W), a_W the classical acceleration of the sensor point.
         """
+        pin.forwardKinematics(self.pin_model, self.data, q, dq, ddq)
+        return self._specific_forces()
+
+    def _specific_forces(self) -> np.ndarray:
+        """Readings from the kinematics already in ``data`` (q, q', q'')."""
         model, data = self.pin_model, self.data
-        pin.forwardKinematics(model, data, q, dq, ddq)
         pin.updateFramePlacements(model, data)
         out = np.empty(3 * self.n_sensors)
         local = pin.ReferenceFrame.LOCAL
@@ -376,13 +381,19 @@ class RobotModel:
     def accelerometer_maps(
         self, q: np.ndarray, dq: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(T_A(q), W_A(q, q')) of eq. (10): readings = T_A q'' + W_A."""
-        W = self.accelerometer_readings(q, dq, np.zeros(self.n))
-        pin.computeJointJacobians(self.pin_model, self.data, q)
+        """(T_A(q), W_A(q, q')) of eq. (10): readings = T_A q'' + W_A.
+
+        One forward-kinematics pass (q, q', q'' = 0) gives W_A and the joint Jacobians,
+        whose linear rows in the sensor frames stack into T_A.
+        """
+        model, data = self.pin_model, self.data
+        pin.forwardKinematics(model, data, q, dq, self._zero_acceleration)
+        W = self._specific_forces()
+        pin.computeJointJacobians(model, data)  # from the placements just computed
         T = np.empty((3 * self.n_sensors, self.n))
+        local = pin.ReferenceFrame.LOCAL
         for i, fid in enumerate(self.sensor_frame_ids):
-            J = pin.getFrameJacobian(self.pin_model, self.data, fid, pin.ReferenceFrame.LOCAL)
-            T[3 * i : 3 * i + 3] = J[:3]
+            T[3 * i : 3 * i + 3] = pin.getFrameJacobian(model, data, fid, local)[:3]
         return T, W
 
     def with_accelerometers(self, mounts: tuple[AccelerometerMount, ...]) -> RobotModel:
