@@ -224,3 +224,19 @@ def test_cli_rejects_bad_training_input(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["compare", "--policy", str(tmp_path)])
     assert "not a training run folder" in capsys.readouterr().err
+
+
+def test_run_folder_freezes_its_hyperparameters(tmp_path):
+    """config.yaml holds the hyper-parameters used, so a later change of the shipped file
+    cannot change how a saved policy is rebuilt (e.g. its decimation)."""
+    import yaml
+
+    config = TrainConfig(algo="sac", state="true", total_steps=30, out_dir=str(tmp_path / "f"),
+                         env_kwargs=SHORT_EPISODES, eval_freq=10**9,
+                         hyperparams={"learning_starts": 10, "batch_size": 8, "decimation": 5})
+    train(config, progress_bar=False)
+    saved = yaml.safe_load((tmp_path / "f" / "config.yaml").read_text())
+    assert saved["hyperparams_file"] is None
+    assert saved["hyperparams"]["decimation"] == 5
+    assert saved["hyperparams"]["gamma"] == resolve_hyperparams("sac", config.env_id)["gamma"]
+    assert load_run(tmp_path / "f").decimation == 5

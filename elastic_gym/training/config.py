@@ -53,11 +53,17 @@ def shipped_hyperparams(algo: str) -> dict:
     return load_hyperparams_file(str(path))
 
 
+def merged_hyperparams(algo: str, env_id: str, overrides: dict | None = None,
+                       file: str | Path | None = None) -> dict:
+    """Plain merged settings: file ``default`` < file[env_id] < overrides (YAML-serialisable)."""
+    table = load_hyperparams_file(file) if file is not None else shipped_hyperparams(algo)
+    return {**table.get("default", {}), **table.get(env_id, {}), **(overrides or {})}
+
+
 def resolve_hyperparams(algo: str, env_id: str, overrides: dict | None = None,
                         file: str | Path | None = None) -> dict:
-    """Merged settings for one run: file ``default`` < file[env_id] < overrides, validated."""
-    table = load_hyperparams_file(file) if file is not None else shipped_hyperparams(algo)
-    merged = {**table.get("default", {}), **table.get(env_id, {}), **(overrides or {})}
+    """Merged settings for one run (:func:`merged_hyperparams`), validated, ready for SB3."""
+    merged = merged_hyperparams(algo, env_id, overrides, file)
     allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters) - {
         "self", "env", "policy_kwargs", "seed", "tensorboard_log", "verbose", "device",
         "_init_setup_model",

@@ -9,6 +9,7 @@ TensorBoard logs and a progress bar. A run folder holds::
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import pickle
@@ -19,7 +20,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from elastic_gym.training.config import TrainConfig, algorithm_class, resolve_hyperparams
+from elastic_gym.training.config import (
+    TrainConfig,
+    algorithm_class,
+    merged_hyperparams,
+    resolve_hyperparams,
+)
 from elastic_gym.training.policy_env import SENSORS, make_policy_env
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.yaml")
@@ -103,7 +109,10 @@ def train(config: TrainConfig, progress_bar: bool = True, verbose: int = 0) -> T
 
     model.save(out / "model.zip")
     venv.save(str(out / "vecnormalize.pkl"))
-    (out / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+    # the run folder is self-contained: the hyper-parameters used, not a pointer to a file
+    frozen = dataclasses.replace(config, hyperparams_file=None, hyperparams=merged_hyperparams(
+        config.algo, config.env_id, config.hyperparams, config.hyperparams_file))
+    (out / "config.yaml").write_text(yaml.safe_dump(frozen.to_dict(), sort_keys=False))
     decimation = int(settings.get("decimation", 1))
     mean_eval = float(np.mean(callback.evaluations_results[-1])) if callback.evaluations_results \
         else float("nan")
