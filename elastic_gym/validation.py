@@ -6,6 +6,8 @@ from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any, TypeVar
 
+import numpy as np
+
 T = TypeVar("T")
 
 
@@ -35,3 +37,25 @@ def check_applies(kind: str, name: str, applies_to: frozenset[str], model) -> No
             f"{kind} {name!r} applies to {sorted(applies_to)} arms, "
             f"not to the {arm} robot {model.spec.name!r}"
         )
+
+
+def per_joint_values(value: Any, n: int, name: str, minimum: float | None = None,
+                     strict: bool = False) -> np.ndarray:
+    """A scalar or N finite numbers as an (N,) float array, optionally bounded below.
+
+    ``minimum`` with ``strict`` means every value > minimum, else >= minimum. The error
+    names the option (``name``) and shows what was given.
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        arr = np.full(n + 1, np.nan)  # reported below
+    if arr.ndim == 0:
+        arr = np.full(n, float(arr))
+    ok = arr.shape == (n,) and bool(np.all(np.isfinite(arr)))
+    if ok and minimum is not None:
+        ok = bool(np.all(arr > minimum) if strict else np.all(arr >= minimum))
+    if not ok:
+        bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
+        raise ValueError(f"{name} must be one or {n} finite numbers{bound}, got {value!r}")
+    return arr.copy()

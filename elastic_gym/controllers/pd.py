@@ -27,16 +27,9 @@ from elastic_gym.controllers.gain_design import bandwidth_pd_gains, most_stable_
 from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP
 from elastic_gym.controllers.state_feedback import FeedforwardStateFeedback
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import per_joint_values
 
 DEFAULT_BANDWIDTH = 30.0  # rad/s, as the slowest poles of the eq. (13) design
-
-
-def _per_joint(value, n: int, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    arr = np.broadcast_to(arr, (n,)) if arr.ndim == 0 else arr
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise ValueError(f"{name} must be one or {n} numbers >= 0, got {value!r}")
-    return np.array(arr)
 
 
 class _BlockPD(FeedforwardStateFeedback):
@@ -73,7 +66,8 @@ class _BlockPD(FeedforwardStateFeedback):
             if omega is None:
                 self.bandwidth = omega = self.default_bandwidth(q0)
             kp, kd = bandwidth_pd_gains(model, q0, omega, self.damping_ratio)
-        gain = pd_gain(model, _per_joint(kp, n, "kp"), _per_joint(kd, n, "kd"), self.block)
+        kp, kd = per_joint_values(kp, n, "kp", 0.0), per_joint_values(kd, n, "kd", 0.0)
+        gain = pd_gain(model, kp, kd, self.block)
         return gain, f"{self.block} PD"
 
     def default_bandwidth(self, q0: np.ndarray) -> float:

@@ -31,6 +31,7 @@ import numpy as np
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.registry import make_controller
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import per_joint_values
 
 
 def load_sb3_model(path: str | os.PathLike, algorithm: str | type):
@@ -135,11 +136,7 @@ class PolicyController(Controller):
     def _limit(self, torque_limit) -> np.ndarray:
         if torque_limit is None:
             return self.model.torque_limit.copy()
-        limit = np.asarray(torque_limit, dtype=float)
-        limit = np.full(self.n, float(limit)) if limit.ndim == 0 else limit
-        if limit.shape != (self.n,) or not np.all(np.isfinite(limit)) or np.any(limit <= 0):
-            raise ValueError(f"torque_limit must be 1 or {self.n} numbers > 0, got {torque_limit}")
-        return limit.copy()
+        return per_joint_values(torque_limit, self.n, "torque_limit", 0.0, strict=True)
 
     def _base_controller(self, residual, options) -> Controller | None:
         if residual is None:

@@ -44,7 +44,7 @@ from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
 from elastic_gym.robots.urdf_tools import joint_limits
-from elastic_gym.validation import checked_fields
+from elastic_gym.validation import checked_fields, per_joint_values
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
 # Reward of the step that ends an episode on broken physics: the return of an arm held
@@ -214,14 +214,7 @@ class ArmEnv(gym.Env):
     def _torque_limit(self, torque_limit) -> np.ndarray:
         if torque_limit is None:
             return np.asarray(self.robot.torque_limit, dtype=float)
-        limit = np.asarray(torque_limit, dtype=float)
-        if limit.ndim == 0:
-            limit = np.full(self.n_joints, float(limit))
-        if limit.shape != (self.n_joints,) or not np.all(np.isfinite(limit)) or np.any(limit <= 0):
-            raise ValueError(
-                f"torque_limit must be {self.n_joints} positive numbers, got {torque_limit!r}"
-            )
-        return limit
+        return per_joint_values(torque_limit, self.n_joints, "torque_limit", 0.0, strict=True)
 
     def _observation_space(self) -> spaces.Dict:
         n = self.n_joints

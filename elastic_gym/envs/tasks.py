@@ -18,17 +18,13 @@ import numpy as np
 from elastic_gym.envs.trajectories import RestToRestPath
 from elastic_gym.model import RobotModel
 from elastic_gym.robots.spec import RobotSpec
+from elastic_gym.validation import per_joint_values
 
 REFERENCE_ORDER = 4
 
 
 def _vector(value, n: int, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        arr = np.full(n, float(arr))
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"task option {name!r} must be {n} finite numbers, got {value!r}")
-    return arr
+    return per_joint_values(value, n, f"task option {name!r}")
 
 
 def _configs(value, n: int, name: str) -> np.ndarray:

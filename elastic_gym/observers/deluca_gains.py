@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from elastic_gym.validation import per_joint_values
+
 POLES_PER_JOINT = 4
 DEFAULT_BANDWIDTH = 250.0  # rad/s, the value found best on the KR15/2 (Sec. V-A)
 
@@ -31,13 +33,7 @@ def butterworth_poles(bandwidth: float | np.ndarray, n_joints: int) -> np.ndarra
     eigenvalues with angular frequencies around 250 rad/s", Sec. V-A).
     ``bandwidth`` is a scalar or one value per joint.
     """
-    radius = np.asarray(bandwidth, dtype=float)
-    if radius.ndim == 0:
-        radius = np.full(n_joints, float(radius))
-    if radius.shape != (n_joints,) or not np.all(np.isfinite(radius)) or np.any(radius <= 0):
-        raise ValueError(
-            f"bandwidth must be a positive number or {n_joints} positive numbers, got {bandwidth!r}"
-        )
+    radius = per_joint_values(bandwidth, n_joints, "bandwidth", 0.0, strict=True)
     j = np.arange(POLES_PER_JOINT)
     pattern = np.exp(1j * (np.pi / 2 + (2 * j + 1) * np.pi / (2 * POLES_PER_JOINT)))
     return radius[:, None] * pattern[None, :]
