@@ -46,6 +46,7 @@ from scipy.linalg import cho_factor, cho_solve, expm
 
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import Observer
+from elastic_gym.observers.integration import rk4
 
 DEFAULT_ALPHA = 1.0
 """Exponential data weighting alpha of eq. (15), 1/s."""
@@ -351,15 +352,8 @@ class ExtendedKalmanFilter(Observer):
         return y
 
     def _rk4(self, x: np.ndarray, tau: np.ndarray, dt: float) -> np.ndarray:
-        f = self.model.elastic_dynamics
-        h = dt / self.substeps
-        for _ in range(self.substeps):
-            k1 = f(x, tau)
-            k2 = f(x + 0.5 * h * k1, tau)
-            k3 = f(x + 0.5 * h * k2, tau)
-            k4 = f(x + h * k3, tau)
-            x = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        return x
+        dynamics = self.model.elastic_dynamics
+        return rk4(lambda t, z: dynamics(z, tau), x, dt, self.substeps)
 
     def linearization(self, x: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(F, G) of eqs. (4)-(8) at x: F = df/dx (4N x 4N), G the torque-noise input (4N x 2N)."""

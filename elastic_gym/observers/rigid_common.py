@@ -36,6 +36,7 @@ from scipy.stats import qmc
 
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import Observer
+from elastic_gym.observers.integration import rk4
 
 ASCENT_TOLERANCE = 1e-10
 SAMPLING_SEED = 0
@@ -92,19 +93,8 @@ def rk4_period(
     ``y_end`` (t = dt), a first-order hold of the measurement; the torque is held
     (it is constant over the period in the plant too).
     """
-    h = dt / substeps
     slope = (y_end - y_start) / dt
-    for i in range(substeps):
-        t0 = i * h
-        y0 = y_start + slope * t0
-        ym = y0 + slope * (0.5 * h)
-        y1 = y0 + slope * h
-        k1 = rhs(x, y0, torque)
-        k2 = rhs(x + 0.5 * h * k1, ym, torque)
-        k3 = rhs(x + 0.5 * h * k2, ym, torque)
-        k4 = rhs(x + h * k3, y1, torque)
-        x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-    return x
+    return rk4(lambda t, z: rhs(z, y_start + slope * t, torque), x, dt, substeps)
 
 
 # ---------------------------------------------------------------- model bounds
