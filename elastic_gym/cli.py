@@ -70,16 +70,11 @@ def with_trained_policy(scenario, run_dir: str):
     import dataclasses
     from pathlib import Path
 
-    import yaml
-
     from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry
-    from elastic_gym.training.config import TrainConfig
     from elastic_gym.training.policy_env import SENSORS
+    from elastic_gym.training.train import read_run_config
 
-    config_file = Path(run_dir) / "config.yaml"
-    if not config_file.exists():
-        raise ValueError(f"--policy {run_dir}: not a training run folder (no config.yaml)")
-    config = TrainConfig.from_dict(yaml.safe_load(config_file.read_text()))
+    config = read_run_config(run_dir)
     if config.state == SENSORS:
         raise ValueError(f"--policy {run_dir}: trained on raw sensors; comparisons need a "
                          "policy trained on 'true' or an observer state")

@@ -146,13 +146,19 @@ class TrainedRun:
         return np.asarray(action, dtype=float)
 
 
-def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
-    """Load a run folder written by :func:`train` (``best=True``: the EvalCallback's best model)."""
+def read_run_config(run_dir: str | Path) -> TrainConfig:
+    """The configuration of a run folder written by :func:`train` (checks the folder)."""
     folder = Path(run_dir)
     missing = [name for name in RUN_FILES if not (folder / name).exists()]
     if missing:
         raise ValueError(f"{folder} is not a training run folder: missing {missing}")
-    config = TrainConfig.from_dict(yaml.safe_load((folder / "config.yaml").read_text()))
+    return TrainConfig.from_dict(yaml.safe_load((folder / "config.yaml").read_text()))
+
+
+def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
+    """Load a run folder written by :func:`train` (``best=True``: the EvalCallback's best model)."""
+    folder = Path(run_dir)
+    config = read_run_config(folder)
     settings, _ = split_settings(config)
     model_path = folder / ("best_model.zip" if best and (folder / "best_model.zip").exists()
                            else "model.zip")
