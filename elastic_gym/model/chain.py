@@ -1,0 +1,462 @@
+"""Batched kinematics and dynamics of a chain of revolute joints: N arms in one call.
+
+:class:`SerialChain` evaluates for N configurations at once what
+:class:`~elastic_gym.model.RobotModel` evaluates with pinocchio for one, from the same
+pinocchio model (joint placements, axes, link inertias, accelerometer frames):
+
+* accelerometer readings, the specific force of each sensor in its own frame
+  f = R_WS^T (a_W - g_W) with a_W the classical acceleration of the sensor point
+  (De Luca, Schroeder & Thuemmel, ICRA 2007, eq. (9));
+* the accelerometer maps of eq. (10), readings = T_A(q) q'' + W_A(q, q');
+* the link inertia matrix M(q) and the bias n(q, q') = C(q, q') q' + g(q) of the link
+  equation of models (1)/(2), and the forward dynamics (M + M_a) q'' = tau - n for a
+  constant added inertia M_a (M_a = -S B^-1 S^T gives the Schur complement of model (2)).
+
+Algorithms (world-frame vectors, joints in index order, parent before child):
+
+* forward recursion of the rigid-body kinematics: R_j = R_p R_Pj Rot(a_j, q_j),
+  p_j = p_p + R_p t_Pj, z_j = R_j a_j, omega_j = omega_p + z_j q'_j,
+  alpha_j = alpha_p + z_j q''_j + omega_p x z_j q'_j,
+  a_j = a_p + alpha_p x r_j + omega_p x (omega_p x r_j), r_j = p_j - p_p, with the base at
+  rest (a_0 = -g_W for Newton-Euler: the gravity trick);
+* recursive Newton-Euler (Luh, Walker & Paul 1980) for n(q, q');
+* M(q) = sum_b J_vb^T m_b J_vb + J_wb^T I_b J_wb with the centre-of-mass Jacobians
+  J_vb[:, k] = z_k x (c_b - p_k), J_wb[:, k] = z_k for the joints k moving link b;
+* T_A[:, k] = R_WS^T (z_k x (p_S - p_k)), W_A = the reading at q'' = 0;
+* a Cholesky solve for the forward dynamics (M + M_a is symmetric positive definite).
+
+The loops over arms are compiled with numba. Each arm's result depends only on its own
+inputs, computed by the same operations in the same order whatever N: arm i of a batch
+is bit-identical to the same arm evaluated alone. ``tests/test_chain.py`` checks every
+quantity against pinocchio to 1e-12 (relative) on every robot of the catalog.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+from numba import njit
+
+# ---------------------------------------------------------------------------- kernels
+# Every kernel takes the chain's constant arrays (see SerialChain) and batched inputs
+# with a leading arm axis; small helpers are inlined by LLVM.
+
+
+@njit(cache=True)
+def _cross(a, b, out):
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@njit(cache=True)
+def _matvec(A, x, out):
+    for i in range(3):
+        out[i] = A[i, 0] * x[0] + A[i, 1] * x[1] + A[i, 2] * x[2]
+
+
+@njit(cache=True)
+def _matmul(A, B, out):
+    for i in range(3):
+        for k in range(3):
+            out[i, k] = A[i, 0] * B[0, k] + A[i, 1] * B[1, k] + A[i, 2] * B[2, k]
+
+
+@njit(cache=True)
+def _point_acceleration(acc, alpha, omega, r, out, tmp, tmp2):
+    """Classical acceleration of a point at offset r: a + alpha x r + omega x (omega x r)."""
+    _cross(alpha, r, tmp)
+    _cross(omega, r, tmp2)
+    for i in range(3):
+        out[i] = acc[i] + tmp[i]
+    _cross(omega, tmp2, tmp)
+    for i in range(3):
+        out[i] += tmp[i]
+
+
+def _layout(n: int, n_sensors: int) -> tuple[int, int]:
+    """Sizes of the flat parameter array and of the scratch buffer of a chain."""
+    params = n * (9 + 3 + 3 + 1 + 3 + 9) + 6 + n_sensors * 12
+    work = 9 + 9 + 3 * 5 + 9 + n * (9 + 3 * 5) + n * (3 + 9 + 3 * 3) + 9 + n + n * n + 2 * n
+    return params, work
+
+
+@njit(cache=True)
+def _unpack(fp, ip):
+    """Views of the chain's constants packed by :class:`SerialChain` (see ``_pack``)."""
+    n, n_s = ip[0], ip[1]
+    parent, s_joint = ip[2 : 2 + n], ip[2 + n : 2 + n + n_s]
+    o = 0
+    rot_p = fp[o : o + 9 * n].reshape((n, 3, 3))
+    o += 9 * n
+    trans_p = fp[o : o + 3 * n].reshape((n, 3))
+    o += 3 * n
+    axis = fp[o : o + 3 * n].reshape((n, 3))
+    o += 3 * n
+    mass = fp[o : o + n]
+    o += n
+    com = fp[o : o + 3 * n].reshape((n, 3))
+    o += 3 * n
+    inertia = fp[o : o + 9 * n].reshape((n, 3, 3))
+    o += 9 * n
+    gravity, minus_gravity = fp[o : o + 3], fp[o + 3 : o + 6]
+    o += 6
+    s_rot = fp[o : o + 9 * n_s].reshape((n_s, 3, 3))
+    o += 9 * n_s
+    s_trans = fp[o : o + 3 * n_s].reshape((n_s, 3))
+    chain = (parent, rot_p, trans_p, axis)
+    return chain, (mass, com, inertia), (s_joint, s_rot, s_trans), gravity, minus_gravity
+
+
+@njit(cache=True)
+def _workspace(n, w):
+    """Scratch views of the flat buffer w, reused for every arm (no allocation per call)."""
+    o = 0
+    small_mats = w[o : o + 18].reshape((2, 3, 3))
+    o += 18
+    vecs = w[o : o + 15].reshape((5, 3))
+    o += 15
+    eye = w[o : o + 9].reshape((3, 3))
+    o += 9
+    for i in range(3):
+        for k in range(3):
+            eye[i, k] = 1.0 if i == k else 0.0
+    vecs[4, :] = 0.0
+    small = (small_mats[0], small_mats[1], vecs[0], vecs[1], vecs[2], eye, vecs[4])
+    R = w[o : o + 9 * n].reshape((n, 3, 3))
+    o += 9 * n
+    lv = w[o : o + 15 * n].reshape((5, n, 3))
+    o += 15 * n
+    links = (R, lv[0], lv[1], lv[2], lv[3], lv[4])
+    com_w = w[o : o + 3 * n].reshape((n, 3))
+    o += 3 * n
+    inertia_w = w[o : o + 9 * n].reshape((n, 3, 3))
+    o += 9 * n
+    bv = w[o : o + 9 * n].reshape((3, n, 3))
+    o += 9 * n
+    tv = w[o : o + 9].reshape((3, 3))
+    o += 9
+    zero_n = w[o : o + n]
+    zero_n[:] = 0.0
+    o += n
+    M = w[o : o + n * n].reshape((n, n))
+    o += n * n
+    h, rhs = w[o : o + n], w[o + n : o + 2 * n]
+    bodies = (com_w, inertia_w, bv[0], bv[1], bv[2], tv[0], tv[1], tv[2], zero_n)
+    return small, links, bodies, (M, h, rhs)
+
+
+@njit(cache=True)
+def _forward_kinematics(q, dq, ddq, base_acc, parent, rot_p, trans_p, axis, links, small):
+    """World rotation R, origin p, axis z, angular velocity omega and acceleration alpha,
+    origin acceleration acc of every joint frame (``links``), for one arm."""
+    n = q.shape[0]
+    R, p, z, omega, alpha, acc = links
+    rod, tmp, v1, v2, v3, eye, zero = small
+    for j in range(n):
+        lam = parent[j]
+        if lam < 0:
+            R_l, p_l, w_l, al_l, ac_l = eye, zero, zero, zero, base_acc
+        else:
+            R_l, p_l, w_l, al_l, ac_l = R[lam], p[lam], omega[lam], alpha[lam], acc[lam]
+        c = np.cos(q[j])
+        s = np.sin(q[j])
+        v = 1.0 - c
+        x, y, w = axis[j, 0], axis[j, 1], axis[j, 2]
+        rod[0, 0] = c + x * x * v
+        rod[0, 1] = x * y * v - w * s
+        rod[0, 2] = x * w * v + y * s
+        rod[1, 0] = y * x * v + w * s
+        rod[1, 1] = c + y * y * v
+        rod[1, 2] = y * w * v - x * s
+        rod[2, 0] = w * x * v - y * s
+        rod[2, 1] = w * y * v + x * s
+        rod[2, 2] = c + w * w * v
+        _matmul(R_l, rot_p[j], tmp)
+        _matvec(tmp, axis[j], z[j])
+        _matmul(tmp, rod, R[j])
+        _matvec(R_l, trans_p[j], v1)  # r_j = p_j - p_lam
+        for i in range(3):
+            p[j, i] = p_l[i] + v1[i]
+            omega[j, i] = w_l[i] + z[j, i] * dq[j]
+            v2[i] = z[j, i] * dq[j]
+        _cross(w_l, v2, v3)
+        for i in range(3):
+            alpha[j, i] = al_l[i] + z[j, i] * ddq[j] + v3[i]
+        _point_acceleration(ac_l, al_l, w_l, v1, acc[j], v2, v3)
+
+
+@njit(cache=True)
+def _sensor_reading(i, s_joint, s_rot, s_trans, gravity, links, small, out, row):
+    """Specific force of sensor i in its frame into out[row: row + 3]; returns its joint.
+
+    Leaves R_WS in small[1] and the sensor offset from its joint origin in small[2].
+    """
+    R, p, z, omega, alpha, acc = links
+    rod, R_s, r_s, a_s, t1, eye, zero = small
+    j = s_joint[i]
+    _matmul(R[j], s_rot[i], R_s)
+    _matvec(R[j], s_trans[i], r_s)
+    _point_acceleration(acc[j], alpha[j], omega[j], r_s, a_s, t1, rod[0])
+    for c in range(3):
+        out[row + c] = (R_s[0, c] * (a_s[0] - gravity[0]) + R_s[1, c] * (a_s[1] - gravity[1])
+                        + R_s[2, c] * (a_s[2] - gravity[2]))
+    return j
+
+
+@njit(cache=True)
+def _specific_forces_kernel(q, dq, ddq, fp, ip, w, out):
+    N, n = q.shape
+    chain, _, sensors, gravity, _ = _unpack(fp, ip)
+    small, links, _, _ = _workspace(n, w)
+    zero = small[6]
+    for k in range(N):
+        _forward_kinematics(q[k], dq[k], ddq[k], zero, *chain, links, small)
+        for i in range(sensors[0].shape[0]):
+            _sensor_reading(i, *sensors, gravity, links, small, out[k], 3 * i)
+
+
+@njit(cache=True)
+def _accelerometer_maps_kernel(q, dq, fp, ip, w, T, W):
+    N, n = q.shape
+    chain, _, sensors, gravity, _ = _unpack(fp, ip)
+    parent = chain[0]
+    small, links, bodies, _ = _workspace(n, w)
+    R, p, z, omega, alpha, acc = links
+    R_s, r_s, t1, t2 = small[1], small[2], bodies[5], bodies[6]
+    zero, zero_n = small[6], bodies[8]
+    for k in range(N):
+        _forward_kinematics(q[k], dq[k], zero_n, zero, *chain, links, small)
+        for i in range(sensors[0].shape[0]):
+            j = _sensor_reading(i, *sensors, gravity, links, small, W[k], 3 * i)
+            for c in range(3):
+                for m in range(n):
+                    T[k, 3 * i + c, m] = 0.0
+            m = j
+            while m >= 0:  # the joints moving the sensor's link: z_m x (p_S - p_m)
+                for c in range(3):
+                    t1[c] = p[j, c] + r_s[c] - p[m, c]
+                _cross(z[m], t1, t2)
+                for c in range(3):
+                    T[k, 3 * i + c, m] = R_s[0, c] * t2[0] + R_s[1, c] * t2[1] + R_s[2, c] * t2[2]
+                m = parent[m]
+
+
+@njit(cache=True)
+def _mass_and_bias_arm(q, dq, base_acc, chain, mass, com, inertia, M, h, links, small, bodies):
+    """M(q) and n(q, q') of one arm (Newton-Euler with a_0 = -g_W, composite Jacobians)."""
+    n = q.shape[0]
+    R, p, z, omega, alpha, acc = links
+    com_w, inertia_w, force, moment, Jv, r, t1, t2, zero_n = bodies
+    tmp, a_c, Iw = small[1], small[2], small[3]
+    parent = chain[0]
+    _forward_kinematics(q, dq, zero_n, base_acc, *chain, links, small)
+    for b in range(n):
+        _matvec(R[b], com[b], r)  # c_b - p_b
+        for c in range(3):
+            com_w[b, c] = p[b, c] + r[c]
+        _matmul(R[b], inertia[b], tmp)
+        for a in range(3):
+            for c in range(3):
+                inertia_w[b, a, c] = (tmp[a, 0] * R[b, c, 0] + tmp[a, 1] * R[b, c, 1]
+                                      + tmp[a, 2] * R[b, c, 2])
+        _point_acceleration(acc[b], alpha[b], omega[b], r, a_c, t1, t2)
+        for c in range(3):
+            force[b, c] = mass[b] * a_c[c]
+        _matvec(inertia_w[b], omega[b], Iw)
+        _cross(omega[b], Iw, t1)
+        _matvec(inertia_w[b], alpha[b], t2)
+        _cross(r, force[b], Iw)
+        for c in range(3):
+            moment[b, c] = t2[c] + t1[c] + Iw[c]  # about p_b
+    for b in range(n - 1, -1, -1):  # children (higher index) have been added to moment[b]
+        h[b] = z[b, 0] * moment[b, 0] + z[b, 1] * moment[b, 1] + z[b, 2] * moment[b, 2]
+        lam = parent[b]
+        if lam >= 0:
+            for c in range(3):
+                r[c] = p[b, c] - p[lam, c]
+            _cross(r, force[b], t1)
+            for c in range(3):
+                force[lam, c] += force[b, c]
+                moment[lam, c] += moment[b, c] + t1[c]
+    for a in range(n):  # M = sum_b J_vb^T m_b J_vb + J_wb^T I_b J_wb
+        for c in range(n):
+            M[a, c] = 0.0
+    for b in range(n):
+        m = b
+        while m >= 0:
+            for c in range(3):
+                r[c] = com_w[b, c] - p[m, c]
+            _cross(z[m], r, Jv[m])
+            m = parent[m]
+        a = b
+        while a >= 0:
+            _matvec(inertia_w[b], z[a], t1)
+            c = a
+            while c >= 0:
+                value = mass[b] * (Jv[a, 0] * Jv[c, 0] + Jv[a, 1] * Jv[c, 1] + Jv[a, 2] * Jv[c, 2])
+                value += z[c, 0] * t1[0] + z[c, 1] * t1[1] + z[c, 2] * t1[2]
+                M[a, c] += value
+                if c != a:
+                    M[c, a] += value
+                c = parent[c]
+            a = parent[a]
+
+
+@njit(cache=True)
+def _mass_and_bias_kernel(q, dq, fp, ip, w, M, h):
+    N, n = q.shape
+    chain, bodies_p, _, _, minus_gravity = _unpack(fp, ip)
+    small, links, bodies, _ = _workspace(n, w)
+    for k in range(N):
+        _mass_and_bias_arm(q[k], dq[k], minus_gravity, chain, *bodies_p, M[k], h[k], links,
+                           small, bodies)
+
+
+@njit(cache=True)
+def _cholesky_solve(A, b, out):
+    """Solve A x = b for a symmetric positive definite A (A is overwritten by its factor)."""
+    n = b.shape[0]
+    for j in range(n):
+        d = A[j, j]
+        for k in range(j):
+            d -= A[j, k] * A[j, k]
+        d = np.sqrt(d)
+        A[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= A[i, k] * A[j, k]
+            A[i, j] = s / d
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= A[i, k] * out[k]
+        out[i] = s / A[i, i]
+    for i in range(n - 1, -1, -1):
+        s = out[i]
+        for k in range(i + 1, n):
+            s -= A[k, i] * out[k]
+        out[i] = s / A[i, i]
+
+
+@njit(cache=True)
+def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
+    N, n = q.shape
+    chain, bodies_p, _, _, minus_gravity = _unpack(fp, ip)
+    small, links, bodies, (M, h, rhs) = _workspace(n, w)
+    for k in range(N):
+        _mass_and_bias_arm(q[k], dq[k], minus_gravity, chain, *bodies_p, M, h, links, small,
+                           bodies)
+        for a in range(n):
+            rhs[a] = tau[k, a] - h[a]
+            for c in range(n):
+                M[a, c] += added_inertia[a, c]
+        _cholesky_solve(M, rhs, out[k])
+
+
+# ---------------------------------------------------------------------------- the chain
+
+
+def _batch(x: np.ndarray, n: int, name: str) -> np.ndarray:
+    arr = np.ascontiguousarray(x, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != n:
+        raise ValueError(f"{name} must have shape (N, {n}), got {arr.shape}")
+    return arr
+
+
+class SerialChain:
+    """Batched kinematics and dynamics of a pinocchio model of revolute joints.
+
+    Args:
+        pin_model: the pinocchio model (revolute joints, one DoF each, parents before
+            children), with its link inertias (any parameter scaling already applied).
+        sensor_frames: ids of the accelerometer frames in ``pin_model``.
+
+    All methods take arrays with a leading arm axis, (N, n) for joint vectors. Not
+    thread-safe (one scratch buffer per chain); give each thread its own chain.
+    """
+
+    def __init__(self, pin_model: pin.Model, sensor_frames: list[int] | tuple[int, ...] = ()):
+        n = pin_model.nv
+        if pin_model.nq != n or pin_model.njoints != n + 1:
+            raise ValueError("SerialChain needs one revolute joint per degree of freedom")
+        self.n = n
+        joints = range(1, n + 1)
+        parent = [pin_model.parents[j] - 1 for j in joints]
+        axes = []
+        for j in joints:
+            joint = pin_model.joints[j]
+            data = joint.createData()
+            joint.calc(data, np.zeros(n))
+            motion = np.asarray(data.S).ravel()
+            if joint.nq != 1 or np.any(motion[:3] != 0.0):
+                raise ValueError(f"joint {pin_model.names[j]!r} is not revolute")
+            axes.append(motion[3:])
+        bodies = [pin_model.inertias[j] for j in joints]
+        frames = [pin_model.frames[f] for f in sensor_frames]
+        self.n_sensors = len(frames)
+        gravity = np.array(pin_model.gravity.linear, dtype=float)
+        pieces = [
+            [pin_model.jointPlacements[j].rotation for j in joints],
+            [pin_model.jointPlacements[j].translation for j in joints],
+            axes,
+            [body.mass for body in bodies],
+            [body.lever for body in bodies],
+            [body.inertia for body in bodies],
+            gravity, -gravity,
+            [f.placement.rotation for f in frames],
+            [f.placement.translation for f in frames],
+        ]
+        self._params = np.concatenate([np.asarray(x, dtype=float).ravel() for x in pieces])
+        self._ints = np.array(
+            [n, self.n_sensors, *parent, *(f.parentJoint - 1 for f in frames)], dtype=np.int64
+        )
+        size, work = _layout(n, self.n_sensors)
+        assert self._params.size == size
+        self._work = np.empty(work)
+        self._no_inertia = np.zeros((n, n))
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in vars(self).items() if k != "_work"}
+
+    def __setstate__(self, state: dict) -> None:
+        vars(self).update(state)
+        self._work = np.empty(_layout(self.n, self.n_sensors)[1])
+
+    def specific_forces(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """(N, 3 n_sensors) noise-free accelerometer readings, eq. (9) stacked."""
+        n = self.n
+        q, dq, ddq = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(ddq, n, "ddq")
+        out = np.empty((len(q), 3 * self.n_sensors))
+        _specific_forces_kernel(q, dq, ddq, self._params, self._ints, self._work, out)
+        return out
+
+    def accelerometer_maps(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(T_A (N, 3 n_sensors, n), W_A (N, 3 n_sensors)) of eq. (10)."""
+        n = self.n
+        q, dq = _batch(q, n, "q"), _batch(dq, n, "dq")
+        T = np.empty((len(q), 3 * self.n_sensors, n))
+        W = np.empty((len(q), 3 * self.n_sensors))
+        _accelerometer_maps_kernel(q, dq, self._params, self._ints, self._work, T, W)
+        return T, W
+
+    def mass_and_bias(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(M(q) (N, n, n), n(q, q') = C q' + g (N, n))."""
+        n = self.n
+        q, dq = _batch(q, n, "q"), _batch(dq, n, "dq")
+        M = np.empty((len(q), n, n))
+        h = np.empty((len(q), n))
+        _mass_and_bias_kernel(q, dq, self._params, self._ints, self._work, M, h)
+        return M, h
+
+    def forward_dynamics(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
+                         added_inertia: np.ndarray | None = None) -> np.ndarray:
+        """q'' solving (M(q) + M_a) q'' + n(q, q') = tau, (N, n); M_a constant (n, n)."""
+        n = self.n
+        q, dq, tau = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(tau, n, "tau")
+        extra = self._no_inertia if added_inertia is None else np.ascontiguousarray(
+            added_inertia, dtype=np.float64)
+        out = np.empty((len(q), n))
+        _forward_dynamics_kernel(q, dq, tau, extra, self._params, self._ints, self._work, out)
+        return out
