@@ -12,27 +12,27 @@ from gymnasium.envs.registration import register, registry
 
 __version__ = "0.1.0"
 
-EPISODE_STEPS = 3000  # 3 s at the default 1 kHz control rate
-
+# id -> (joint kind, robot). Episodes end after the env kwarg ``episode_time`` (3 s by
+# default) of simulated time, whatever the control period, so no TimeLimit is registered.
 ENVIRONMENTS = {
-    "TwoLinkElastic-v0": ("elastic_gym.envs:ElasticArmEnv", "two_link_elastic"),
-    "KR15Elastic-v0": ("elastic_gym.envs:ElasticArmEnv", "kr15_elastic"),
-    "IiwaElastic-v0": ("elastic_gym.envs:ElasticArmEnv", "iiwa_elastic"),
-    "TwoLinkRigid-v0": ("elastic_gym.envs:RigidArmEnv", "two_link_rigid"),
-    "TwoLinkRigidFriction-v0": ("elastic_gym.envs:RigidArmEnv", "two_link_friction"),
+    "TwoLinkElastic-v0": ("Elastic", "two_link_elastic"),
+    "KR15Elastic-v0": ("Elastic", "kr15_elastic"),
+    "IiwaElastic-v0": ("Elastic", "iiwa_elastic"),
+    "TwoLinkRigid-v0": ("Rigid", "two_link_rigid"),
+    "TwoLinkRigidFriction-v0": ("Rigid", "two_link_friction"),
 }
 
 
 def _register_all() -> None:
-    for name, (entry_point, robot) in ENVIRONMENTS.items():
+    for name, (kind, robot) in ENVIRONMENTS.items():
         env_id = f"elastic_gym/{name}"
         if env_id in registry:
             continue
         register(
             id=env_id,
-            entry_point=entry_point,
+            entry_point=f"elastic_gym.envs:{kind}ArmEnv",
+            vector_entry_point=f"elastic_gym.envs:{kind}ArmVectorEnv",
             kwargs={"robot": robot},
-            max_episode_steps=EPISODE_STEPS,
         )
 
 

@@ -51,16 +51,20 @@ class EncoderConfig:
 
 
 class Encoder:
-    """Quantized, optionally noisy position measurement: round((x + n) / r) * r."""
+    """Quantized, optionally noisy position measurement: round((x + n) / r) * r.
+
+    Positions have a leading arm axis (N, n); arm i draws its noise from ``rngs[i]``.
+    """
 
     def __init__(self, resolution: float, noise_std: float) -> None:
         self.resolution = float(resolution)
         self.noise_std = float(noise_std)
 
-    def measure(self, position: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def measure(self, position: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
         y = position
         if self.noise_std > 0.0:
-            y = y + self.noise_std * rng.standard_normal(position.shape)
+            n = position.shape[1]
+            y = y + self.noise_std * np.array([rng.standard_normal(n) for rng in rngs])
         if self.resolution > 0.0:
             y = np.round(y / self.resolution) * self.resolution
         return np.array(y, dtype=float)
@@ -109,9 +113,14 @@ class AccelerometerConfig:
 
 
 class AccelerometerArray:
-    """Applies the error model of :class:`AccelerometerConfig` to true specific forces."""
+    """Applies the error model of :class:`AccelerometerConfig` to true specific forces.
 
-    def __init__(self, config: AccelerometerConfig, n_sensors: int, sample_time: float) -> None:
+    Readings have a leading arm axis (N, 3 n_sensors); each arm has its own bias and
+    filter state and draws from its own generator.
+    """
+
+    def __init__(self, config: AccelerometerConfig, n_sensors: int, sample_time: float,
+                 n_arms: int = 1) -> None:
         self.config = config
         self.size = 3 * n_sensors
         self.sample_std = config.noise_density * np.sqrt(0.5 / sample_time)
@@ -120,22 +129,27 @@ class AccelerometerArray:
             if config.cutoff_hz is not None
             else 0.0
         )
-        self.bias = np.zeros(self.size)
-        self.filtered: np.ndarray | None = None
+        self.bias = np.zeros((n_arms, self.size))
+        self.filtered = np.zeros((n_arms, self.size))
+        self.fresh = np.ones(n_arms, dtype=bool)  # the filter starts at the first reading
 
-    def reset(self, rng: np.random.Generator) -> None:
-        self.bias = self.config.bias_std * rng.standard_normal(self.size)
-        self.filtered = None
+    def reset(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> None:
+        """New bias for the given arms (drawn from their generators), filters restarted."""
+        for i in arms:
+            self.bias[i] = self.config.bias_std * rngs[i].standard_normal(self.size)
+        self.fresh[arms] = True
 
-    def measure(self, specific_force: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        y = specific_force + self.bias
+    def measure(self, specific_force: np.ndarray, rngs: list[np.random.Generator],
+                arms: slice | np.ndarray = slice(None)) -> np.ndarray:
+        """Readings of the arms ``arms`` (rows of ``specific_force``; ``rngs`` are theirs)."""
+        y = specific_force + self.bias[arms]
         if self.sample_std > 0.0:
-            y = y + self.sample_std * rng.standard_normal(self.size)
+            y = y + self.sample_std * np.array([rng.standard_normal(self.size) for rng in rngs])
         if self.alpha > 0.0:
-            self.filtered = y if self.filtered is None else (
-                self.alpha * self.filtered + (1.0 - self.alpha) * y
-            )
-            y = self.filtered
+            fresh = self.fresh[arms][:, None]
+            y = np.where(fresh, y, self.alpha * self.filtered[arms] + (1.0 - self.alpha) * y)
+            self.filtered[arms] = y
+            self.fresh[arms] = False
         limit = self.config.range
         y = np.minimum(np.maximum(y, -limit), limit)
         if self.config.resolution:

@@ -1,17 +1,22 @@
-"""PyBullet plant with elastic transmissions integrated next to each physics step.
+"""PyBullet plant of N arms with elastic transmissions integrated next to each physics step.
 
-Links are simulated by PyBullet (``p.DIRECT``, one client per simulator, fixed base,
-``URDF_USE_INERTIA_FROM_FILE``, default velocity motors disabled, every
-PyBullet-added damping set to zero, pure torque control). The motor side of the
-elastic joints is integrated in numpy with the same semi-implicit Euler scheme
-PyBullet uses for the links, one substep at a time:
+All arms of a simulator live in one PyBullet client (``p.DIRECT``, fixed bases spaced
+``ARM_SPACING`` apart so that they never touch, ``URDF_USE_INERTIA_FROM_FILE``, default
+velocity motors disabled, every PyBullet-added damping set to zero, pure torque control).
+Each arm's trajectory is bit-identical to the same arm alone in its own client (PyBullet
+integrates the bodies independently; checked by ``tests/test_batch.py``), so a single env
+is simply the case N = 1.
+
+The motor side of the elastic joints is integrated in numpy, for all arms at once, with
+the same semi-implicit Euler scheme PyBullet uses for the links, one substep at a time:
 
 * model (1): tau_J = K (theta - q) + D (theta' - q') is applied to the link joint,
   theta'' = B^-1 (tau - tau_J);
-* model (2) (constant S): the coupled accelerations are solved with the plant's
-  pinocchio model, (M - S B^-1 S^T) q'' = tau_J - S B^-1 (tau - tau_J) - n - d,
+* model (2) (constant S): the coupled accelerations are solved with the plant's model,
+  (M - S B^-1 S^T) q'' = tau_J - S B^-1 (tau - tau_J) - n - d,
   theta'' = B^-1 (tau - tau_J - S^T q''), and tau_link = tau_J - S theta'' is applied
-  to PyBullet, which then produces that q'' (DESIGN.md, option (b));
+  to PyBullet, which then produces that q'' (the rotors' inertial coupling without
+  modelling the rotors as bodies);
 * rigid joints: the motor torque acts on the link directly.
 
 Link friction d(q') (when the robot has it) is applied explicitly from the state at
@@ -23,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import socket
 import sys
 
 import numpy as np
@@ -32,27 +38,73 @@ from elastic_gym.model import RobotModel
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_without_limits
 
+ARM_SPACING = 8.0  # m between the bases of neighbouring arms (well beyond any arm's reach)
+X11_TIMEOUT = 1.0  # s to reach the X server before the PyBullet GUI is started
+
+
+def rowwise_matvec(A: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(A @ x_k for each row x_k of X), summed in a fixed order: bit-identical per row
+    whatever the number of rows (a BLAS call may change its summation with the shape)."""
+    out = X[:, :1] * A[:, 0]
+    for j in range(1, A.shape[1]):
+        out = out + X[:, j : j + 1] * A[:, j]
+    return out
+
+
+def check_display() -> None:
+    """Raise RuntimeError unless an X server answers at $DISPLAY (Linux).
+
+    ``p.connect(p.GUI)`` without a reachable X server terminates the whole process,
+    so the GUI is only started after a successful connection to the display.
+    """
+    if not sys.platform.startswith("linux"):
+        return
+    display = os.environ.get("DISPLAY")
+    if not display:
+        raise RuntimeError("render_mode='human' needs a display (DISPLAY is not set)")
+    host, _, rest = display.rpartition(":")
+    number = rest.split(".")[0]
+    if not number.isdigit():
+        raise RuntimeError(f"render_mode='human': cannot parse DISPLAY={display!r}")
+    try:
+        if host in ("", "unix"):
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+                sock.settimeout(X11_TIMEOUT)
+                sock.connect(f"/tmp/.X11-unix/X{number}")
+        else:
+            socket.create_connection((host, 6000 + int(number)), timeout=X11_TIMEOUT).close()
+    except OSError as exc:
+        raise RuntimeError(
+            f"render_mode='human' needs a display: no X server answers at DISPLAY={display!r} "
+            f"({exc})"
+        ) from None
+
 
 class ArmSimulator:
-    """One PyBullet client holding one arm, plus the numpy motor state.
+    """One PyBullet client holding ``n_arms`` copies of an arm, plus their motor states.
 
     Args:
         spec: the robot.
-        plant: the exact pinocchio model of the simulated plant (same URDF and the
-            same parameter scaling); used for model (2) and for the true q''.
+        plant: the exact model of the simulated plant (same URDF and the same parameter
+            scaling); its :class:`~elastic_gym.model.SerialChain` gives model (2)'s q''
+            and the true q''.
         physics_dt: physics step (s).
+        n_arms: number of arms.
         gui: connect with ``p.GUI`` instead of ``p.DIRECT`` (render_mode="human").
+
+    State arrays have a leading arm axis: ``q``, ``dq``, ``theta``, ``dtheta`` (N, n).
     """
 
-    def __init__(self, spec: RobotSpec, plant: RobotModel, physics_dt: float, gui: bool = False):
+    def __init__(self, spec: RobotSpec, plant: RobotModel, physics_dt: float, n_arms: int = 1,
+                 gui: bool = False):
         self.spec = spec
         self.plant = plant
-        self.n = spec.n_joints
+        self.chain = plant.chain
+        self.n = n = spec.n_joints
+        self.n_arms = n_arms
         self.physics_dt = float(physics_dt)
         if gui:
-            if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
-                # p.connect(p.GUI) without an X server terminates the whole process.
-                raise RuntimeError("render_mode='human' needs a display (DISPLAY is not set)")
+            check_display()
             self.client = p.connect(p.GUI)
             if self.client < 0:
                 raise RuntimeError("render_mode='human' needs a display for the PyBullet GUI")
@@ -64,35 +116,48 @@ class ArmSimulator:
         p.setGravity(*spec.gravity, physicsClientId=c)
         p.setTimeStep(self.physics_dt, physicsClientId=c)
         p.setPhysicsEngineParameter(numSubSteps=0, physicsClientId=c)
-        self.body = p.loadURDF(
-            urdf_without_limits(spec.urdf),
-            useFixedBase=True,
-            flags=p.URDF_USE_INERTIA_FROM_FILE,
-            physicsClientId=c,
-        )
+        urdf = urdf_without_limits(spec.urdf)
+        self.base_positions = self._grid(n_arms)
+        self.bodies = [
+            p.loadURDF(urdf, basePosition=base.tolist(), useFixedBase=True,
+                       flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
+            for base in self.base_positions
+        ]
+        first = self.bodies[0]
         name_to_index = {
-            p.getJointInfo(self.body, j, physicsClientId=c)[1].decode(): j
-            for j in range(p.getNumJoints(self.body, physicsClientId=c))
+            p.getJointInfo(first, j, physicsClientId=c)[1].decode(): j
+            for j in range(p.getNumJoints(first, physicsClientId=c))
         }
         missing = [name for name in spec.joint_names if name not in name_to_index]
         if missing:
             raise ValueError(f"joints {missing} not found in {spec.urdf}")
         self.joint_indices = [name_to_index[name] for name in spec.joint_names]
-        self._configure_dynamics(name_to_index)
+        for body in self.bodies:
+            self._configure_dynamics(body)
 
-        self.q = np.zeros(self.n)
-        self.dq = np.zeros(self.n)
-        self.theta = np.zeros(self.n)
-        self.dtheta = np.zeros(self.n)
-        self.last_link_torque = np.zeros(self.n)
-        self._zeros = np.zeros(self.n)
+        shape = (n_arms, n)
+        self.q, self.dq = np.zeros(shape), np.zeros(shape)
+        self.theta, self.dtheta = np.zeros(shape), np.zeros(shape)
+        elastic = spec.elastic
+        self._SBinv = plant.S * plant.B_inv if plant.has_coupling else None
+        self._schur_inertia = -self._SBinv @ plant.S.T if plant.has_coupling else None
+        self._ST = plant.S.T.copy()
+        self._elastic = elastic
+
+    @staticmethod
+    def _grid(n_arms: int) -> np.ndarray:
+        """Base positions of the arms: a square grid in the horizontal plane."""
+        side = int(np.ceil(np.sqrt(n_arms)))
+        index = np.arange(n_arms)
+        return np.stack([ARM_SPACING * (index % side), ARM_SPACING * (index // side),
+                         np.zeros(n_arms)], axis=1)
 
     # ------------------------------------------------------------------ setup
-    def _configure_dynamics(self, name_to_index: dict[str, int]) -> None:
+    def _configure_dynamics(self, body: int) -> None:
         """Zero all damping, disable default motors, apply the plant's link scaling."""
-        c, body = self.client, self.body
+        c = self.client
         n_links = p.getNumJoints(body, physicsClientId=c)
-        owner = self._owning_joint(n_links)
+        owner = self._owning_joint(body, n_links)
         mass_scale = self.plant.scaling.per_joint("link_mass", self.n)
         inertia_scale = self.plant.scaling.per_joint("link_inertia", self.n)
         for link in range(-1, n_links):
@@ -115,9 +180,9 @@ class ArmSimulator:
                 body, j, p.VELOCITY_CONTROL, targetVelocity=0.0, force=0.0, physicsClientId=c
             )
 
-    def _owning_joint(self, n_links: int) -> dict[int, int]:
+    def _owning_joint(self, body: int, n_links: int) -> dict[int, int]:
         """Map each PyBullet link to the actuated joint that moves it (fixed children inherit)."""
-        c, body = self.client, self.body
+        c = self.client
         actuated = {idx: k for k, idx in enumerate(self.joint_indices)}
         owner: dict[int, int] = {}
         for link in range(n_links):
@@ -131,91 +196,101 @@ class ArmSimulator:
     # ------------------------------------------------------------------ state
     @property
     def state(self) -> np.ndarray:
-        """x = (theta, q, theta', q') (rigid arms: theta = q)."""
-        return np.concatenate([self.theta, self.q, self.dtheta, self.dq])
+        """x = (theta, q, theta', q') per arm, (N, 4n) (rigid arms: theta = q)."""
+        return np.concatenate([self.theta, self.q, self.dtheta, self.dq], axis=1)
 
-    def reset_state(
-        self, q: np.ndarray, dq: np.ndarray, theta: np.ndarray, dtheta: np.ndarray
-    ) -> None:
+    def reset_state(self, arms: np.ndarray, q: np.ndarray, dq: np.ndarray, theta: np.ndarray,
+                    dtheta: np.ndarray) -> None:
+        """Set the state of the given arms (rows of q, dq, theta, dtheta, in ``arms`` order)."""
         c = self.client
-        for k, j in enumerate(self.joint_indices):
-            p.resetJointState(self.body, j, float(q[k]), float(dq[k]), physicsClientId=c)
-        self.q, self.dq = np.array(q, dtype=float), np.array(dq, dtype=float)
-        if self.spec.elastic:
-            self.theta, self.dtheta = np.array(theta, dtype=float), np.array(dtheta, dtype=float)
+        for row, arm in enumerate(arms):
+            body = self.bodies[arm]
+            for k, j in enumerate(self.joint_indices):
+                p.resetJointState(body, j, float(q[row, k]), float(dq[row, k]),
+                                  physicsClientId=c)
+        self.q[arms], self.dq[arms] = q, dq
+        if self._elastic:
+            self.theta[arms], self.dtheta[arms] = theta, dtheta
         else:
-            self.theta, self.dtheta = self.q, self.dq
+            self.theta[arms], self.dtheta[arms] = q, dq
 
     def _read_links(self) -> None:
-        states = p.getJointStates(self.body, self.joint_indices, physicsClientId=self.client)
-        self.q = np.array([s[0] for s in states])
-        self.dq = np.array([s[1] for s in states])
+        c, joints = self.client, self.joint_indices
+        states = [p.getJointStates(body, joints, physicsClientId=c) for body in self.bodies]
+        self.q = np.array([[s[0] for s in arm] for arm in states])
+        self.dq = np.array([[s[1] for s in arm] for arm in states])
 
     # ------------------------------------------------------------------ stepping
-    def link_torque(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(torque applied to the PyBullet joints, motor acceleration) for motor torque tau."""
+    def accelerations(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(link torque applied to PyBullet, theta'', q'' or None) under motor torque tau.
+
+        q'' is computed only where it is needed for the link torque (model (2)).
+        """
         plant = self.plant
-        if not self.spec.elastic:
-            link_tau, ddtheta = tau, self._zeros
-        else:
-            tau_j = plant.K * (self.theta - self.q) + plant.D * (self.dtheta - self.dq)
-            if plant.has_coupling:
-                ddtheta, _ = plant.elastic_accelerations(self.state, tau)
-                link_tau = tau_j - plant.S @ ddtheta
-            else:
-                link_tau, ddtheta = tau_j, plant.B_inv * (tau - tau_j)
-        if plant.friction is not None:
-            link_tau = link_tau - plant.friction.torque(self.dq)
-        return link_tau, ddtheta
+        friction = plant.friction.torque(self.dq) if plant.friction is not None else None
+        if not self._elastic:
+            link_tau = tau if friction is None else tau - friction
+            return link_tau, None, None
+        tau_j = plant.K * (self.theta - self.q) + plant.D * (self.dtheta - self.dq)
+        link_side = tau_j if friction is None else tau_j - friction
+        if self._SBinv is None:
+            return link_side, plant.B_inv * (tau - tau_j), None
+        rhs = link_side - rowwise_matvec(self._SBinv, tau - tau_j)
+        ddq = self.chain.forward_dynamics(self.q, self.dq, rhs, self._schur_inertia)
+        ddtheta = plant.B_inv * (tau - tau_j - rowwise_matvec(self._ST, ddq))
+        return link_side - rowwise_matvec(plant.S, ddtheta), ddtheta, ddq
 
     def step(self, tau: np.ndarray, n_substeps: int) -> None:
-        """Advance ``n_substeps`` physics steps holding the motor torque ``tau``."""
-        c, body, dt, joints = self.client, self.body, self.physics_dt, self.joint_indices
-        elastic = self.spec.elastic
+        """Advance ``n_substeps`` physics steps holding the motor torques ``tau`` (N, n)."""
+        c, dt, joints, bodies = self.client, self.physics_dt, self.joint_indices, self.bodies
+        control, set_torques = p.TORQUE_CONTROL, p.setJointMotorControlArray
         for _ in range(n_substeps):
-            link_tau, ddtheta = self.link_torque(tau)
-            p.setJointMotorControlArray(
-                body, joints, p.TORQUE_CONTROL, forces=link_tau.tolist(), physicsClientId=c
-            )
+            link_tau, ddtheta, _ = self.accelerations(tau)
+            for body, forces in zip(bodies, link_tau.tolist(), strict=True):
+                set_torques(body, joints, control, forces=forces, physicsClientId=c)
             p.stepSimulation(physicsClientId=c)
-            if elastic:
+            if self._elastic:
                 self.dtheta = self.dtheta + dt * ddtheta
                 self.theta = self.theta + dt * self.dtheta
             self._read_links()
-            if not elastic:
+            if not self._elastic:
                 self.theta, self.dtheta = self.q, self.dq
-            self.last_link_torque = link_tau
 
     def link_acceleration(self, tau: np.ndarray) -> np.ndarray:
-        """True q'' at the current state under motor torque tau (plant model, exact)."""
-        plant = self.plant
-        if not self.spec.elastic:
-            return plant.rigid_acceleration(self.q, self.dq, tau)
-        return plant.elastic_accelerations(self.state, tau)[1]
+        """True q'' (N, n) at the current state under motor torques tau (plant model, exact)."""
+        link_tau, _, ddq = self.accelerations(tau)
+        if ddq is not None:
+            return ddq
+        return self.chain.forward_dynamics(self.q, self.dq, link_tau)
 
-    def link_pose(self, link_name: str) -> tuple[np.ndarray, np.ndarray]:
-        """World position and rotation matrix of a URDF link frame, from PyBullet."""
-        c = self.client
-        for j in range(p.getNumJoints(self.body, physicsClientId=c)):
-            if p.getJointInfo(self.body, j, physicsClientId=c)[12].decode() == link_name:
-                state = p.getLinkState(self.body, j, computeForwardKinematics=1, physicsClientId=c)
+    def link_pose(self, link_name: str, arm: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """Position (relative to the arm's base) and rotation of a URDF link frame, from PyBullet."""
+        c, body = self.client, self.bodies[arm]
+        for j in range(p.getNumJoints(body, physicsClientId=c)):
+            if p.getJointInfo(body, j, physicsClientId=c)[12].decode() == link_name:
+                state = p.getLinkState(body, j, computeForwardKinematics=1, physicsClientId=c)
                 rot = np.asarray(p.getMatrixFromQuaternion(state[5])).reshape(3, 3)
-                return np.asarray(state[4]), rot
+                return np.asarray(state[4]) - self.base_positions[arm], rot
         raise ValueError(f"link {link_name!r} not in the URDF")
 
     # ------------------------------------------------------------------ rendering
-    def render(self, width: int = 480, height: int = 360) -> np.ndarray:
-        """RGB image (H, W, 3) from the offscreen tiny renderer."""
+    def render(self, arm: int = 0, width: int = 480, height: int = 360) -> np.ndarray:
+        """RGB image (H, W, 3) of one arm from the offscreen tiny renderer."""
         target, distance, yaw, pitch = self.spec.camera
         c = self.client
         view = p.computeViewMatrixFromYawPitchRoll(
-            target, distance, yaw, pitch, 0.0, 2, physicsClientId=c
+            (np.asarray(target) + self.base_positions[arm]).tolist(), distance, yaw, pitch, 0.0,
+            2, physicsClientId=c,
         )
         proj = p.computeProjectionMatrixFOV(60.0, width / height, 0.05, 50.0, physicsClientId=c)
         _, _, rgba, _, _ = p.getCameraImage(
             width, height, view, proj, renderer=p.ER_TINY_RENDERER, physicsClientId=c
         )
         return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
 
     def close(self) -> None:
         if self._connected:

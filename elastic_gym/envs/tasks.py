@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from elastic_gym.envs.trajectories import RestToRestPath
+from elastic_gym.envs.trajectories import RestToRestPath, rest_to_rest
 from elastic_gym.model import RobotModel
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.validation import per_joint_values
@@ -36,23 +36,33 @@ def _configs(value, n: int, name: str) -> np.ndarray:
 
 @dataclass
 class Task:
-    """Base class: a reference trajectory, an optional external torque, a start configuration."""
+    """Base class: reference trajectories, an optional external torque, start configurations.
+
+    A task serves ``n_arms`` arms at once (arrays with a leading arm axis); arm i samples
+    its episode from its own generator, so each arm's episode is the one a single arm
+    with the same generator would get.
+    """
 
     spec: RobotSpec
     model: RobotModel
+    n_arms: int = field(default=1, kw_only=True)
     name: str = field(default="", init=False)
 
-    def reset(self, rng: np.random.Generator) -> np.ndarray:
-        """Sample the episode; return the initial link configuration (at rest)."""
+    def reset(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
+        """Sample the episodes of ``arms``; return their initial link configurations
+        (len(arms), N), at rest. ``rngs`` holds the generators of all arms."""
+        return np.array([self.reset_arm(i, rngs[i]) for i in arms]).reshape(-1, self.spec.n_joints)
+
+    def reset_arm(self, arm: int, rng: np.random.Generator) -> np.ndarray:
         raise NotImplementedError
 
-    def reference(self, t: float) -> np.ndarray:
-        """(REFERENCE_ORDER + 1, N) array: q_d and its time derivatives at time t."""
+    def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
+        """(len(arms), REFERENCE_ORDER + 1, N): q_d and its derivatives, arm k at time t[k]."""
         raise NotImplementedError
 
-    def external_torque(self, t: float, q: np.ndarray) -> np.ndarray:
-        """Open-loop torque added to the action (zero except for ``excitation``)."""
-        return np.zeros(self.spec.n_joints)
+    def external_torque(self, t: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+        """Open-loop torque (n_arms, N) added to the action; None when there is none."""
+        return None
 
     # helpers
     @property
@@ -73,9 +83,16 @@ class Task:
         step = rng.uniform(-max_move, max_move, size=start.shape)
         return np.clip(start + step, self.low, self.high)
 
+    def held(self, configurations: np.ndarray, arms: slice | np.ndarray) -> np.ndarray:
+        """A constant reference at the given configurations (derivatives zero)."""
+        rows = configurations[arms]
+        out = np.zeros((len(rows), REFERENCE_ORDER + 1, self.spec.n_joints))
+        out[:, 0] = rows
+        return out
+
     @classmethod
     def option_names(cls) -> list[str]:
-        return [f.name for f in fields(cls) if f.init and f.name not in ("spec", "model")]
+        return [f.name for f in fields(cls) if f.init and f.name not in ("spec", "model", "n_arms")]
 
 
 @dataclass
@@ -114,9 +131,13 @@ class TrackingTask(Task):
         if self.move_time <= 0:
             raise ValueError("task option 'move_time' must be > 0")
         self._max_move = self.spec.max_move if self.max_move is None else float(self.max_move)
-        self.path = RestToRestPath(np.zeros((1, n)), self.move_time, self.dwell_time)
+        if self._given is not None:
+            n_points = len(self._given) + (self._start is not None)
+        else:
+            n_points = self.n_moves + 1
+        self.paths = np.zeros((self.n_arms, n_points, n))  # the waypoints of every arm
 
-    def reset(self, rng: np.random.Generator) -> np.ndarray:
+    def reset_arm(self, arm: int, rng: np.random.Generator) -> np.ndarray:
         if self._given is not None:
             points = self._given
             if self._start is not None:
@@ -127,11 +148,20 @@ class TrackingTask(Task):
             for _ in range(self.n_moves):
                 points.append(self.sample_move(rng, points[-1], self._max_move))
             points = np.asarray(points)
-        self.path = RestToRestPath(points, self.move_time, self.dwell_time)
+        self.paths[arm] = points
         return points[0].copy()
 
-    def reference(self, t: float) -> np.ndarray:
-        return self.path.evaluate(t, REFERENCE_ORDER)
+    @property
+    def duration(self) -> float:
+        """Time (s) of the last waypoint."""
+        return (self.paths.shape[1] - 1) * (self.move_time + self.dwell_time)
+
+    def path(self, arm: int = 0) -> RestToRestPath:
+        """The motion of one arm."""
+        return RestToRestPath(self.paths[arm].copy(), self.move_time, self.dwell_time)
+
+    def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
+        return rest_to_rest(t, self.paths[arms], self.move_time, self.dwell_time, REFERENCE_ORDER)
 
 
 @dataclass
@@ -151,20 +181,17 @@ class RegulationTask(Task):
         self._goal = _vector(self.goal, n, "goal") if self.goal is not None else None
         self._start = _vector(self.start, n, "start") if self.start is not None else None
         self._max_move = self.spec.max_move if self.max_move is None else float(self.max_move)
-        self._target = np.zeros(n)
+        self.targets = np.zeros((self.n_arms, n))
 
-    def reset(self, rng: np.random.Generator) -> np.ndarray:
+    def reset_arm(self, arm: int, rng: np.random.Generator) -> np.ndarray:
         start = self._start if self._start is not None else self.sample_configuration(rng)
-        self._target = (
-            self._goal.copy() if self._goal is not None
-            else self.sample_move(rng, start, self._max_move)
+        self.targets[arm] = (
+            self._goal if self._goal is not None else self.sample_move(rng, start, self._max_move)
         )
         return start.copy()
 
-    def reference(self, t: float) -> np.ndarray:
-        out = np.zeros((REFERENCE_ORDER + 1, self.spec.n_joints))
-        out[0] = self._target
-        return out
+    def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
+        return self.held(self.targets, arms)
 
 
 @dataclass
@@ -190,6 +217,9 @@ class ExcitationTask(Task):
     def __post_init__(self) -> None:
         self.name = "excitation"
         n = self.spec.n_joints
+        if not isinstance(self.gravity_compensation, bool):
+            raise ValueError("task option 'gravity_compensation' must be true or false, "
+                             f"got {self.gravity_compensation!r}")
         limit = np.asarray(self.spec.torque_limit)
         self._amplitude = (
             _vector(self.amplitude, n, "amplitude") if self.amplitude is not None else 0.05 * limit
@@ -202,24 +232,19 @@ class ExcitationTask(Task):
         self._phase = _vector(self.phase, n, "phase")
         self._offset = _vector(self.offset, n, "offset")
         self._start = _vector(self.start, n, "start") if self.start is not None else None
-        self._hold = np.zeros(n)
+        self.holds = np.zeros((self.n_arms, n))
 
-    def reset(self, rng: np.random.Generator) -> np.ndarray:
-        if self._start is not None:
-            self._hold = self._start.copy()
-        else:
-            self._hold = self.sample_configuration(rng)
-        return self._hold.copy()
+    def reset_arm(self, arm: int, rng: np.random.Generator) -> np.ndarray:
+        self.holds[arm] = self._start if self._start is not None else self.sample_configuration(rng)
+        return self.holds[arm].copy()
 
-    def reference(self, t: float) -> np.ndarray:
-        out = np.zeros((REFERENCE_ORDER + 1, self.spec.n_joints))
-        out[0] = self._hold
-        return out
+    def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
+        return self.held(self.holds, arms)
 
-    def external_torque(self, t: float, q: np.ndarray) -> np.ndarray:
-        tau = self._offset + self._amplitude * np.cos(self._frequency * t + self._phase)
+    def external_torque(self, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+        tau = self._offset + self._amplitude * np.cos(self._frequency * t[:, None] + self._phase)
         if self.gravity_compensation:
-            tau = tau + self.model.gravity(q)
+            tau = tau + self.model.chain.gravity(q)
         return tau
 
 
@@ -230,8 +255,9 @@ TASKS: dict[str, type[Task]] = {
 }
 
 
-def make_task(name: str, spec: RobotSpec, model: RobotModel, options: dict | None) -> Task:
-    """Instantiate a task by name with validated options."""
+def make_task(name: str, spec: RobotSpec, model: RobotModel, options: dict | None,
+              n_arms: int = 1) -> Task:
+    """Instantiate a task for ``n_arms`` arms by name with validated options."""
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; valid: {sorted(TASKS)}")
     cls = TASKS[name]
@@ -241,4 +267,4 @@ def make_task(name: str, spec: RobotSpec, model: RobotModel, options: dict | Non
         raise ValueError(
             f"unknown option(s) {sorted(unknown)} for task {name!r}; valid: {cls.option_names()}"
         )
-    return cls(spec=spec, model=model, **options)
+    return cls(spec=spec, model=model, n_arms=n_arms, **options)

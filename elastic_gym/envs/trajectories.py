@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.polynomial import polynomial
 
 TIMING_LAW = np.array([0, 0, 0, 0, 0, 126, -420, 540, -315, 70], dtype=float)
@@ -38,13 +39,61 @@ def timing_law(u: np.ndarray | float, order: int = 4) -> np.ndarray:
     return np.tensordot(_COEFFICIENTS[: order + 1], np.power.outer(u, _POWERS), axes=([1], [-1]))
 
 
+@njit(cache=True)
+def _rest_to_rest_kernel(t, waypoints, move_time, dwell_time, coefficients, out):
+    """Per arm: the reference and its derivatives (see :func:`rest_to_rest`)."""
+    N, n_points, n = waypoints.shape
+    n_rows = out.shape[1]
+    segment = move_time + dwell_time
+    n_segments = n_points - 1
+    powers = np.empty(coefficients.shape[1])
+    for k in range(N):
+        out[k, :, :] = 0.0
+        if n_segments == 0:
+            out[k, 0, :] = waypoints[k, 0]
+            continue
+        index = min(int(max(t[k], 0.0) // segment), n_segments - 1)
+        u = (t[k] - index * segment - dwell_time) / move_time
+        if u <= 0.0 or u >= 1.0:  # at rest (derivatives above 4 of the law do not vanish there)
+            out[k, 0, :] = waypoints[k, index] if u <= 0.0 else waypoints[k, index + 1]
+            continue
+        powers[0] = 1.0
+        for p in range(1, powers.shape[0]):
+            powers[p] = powers[p - 1] * u
+        scale = 1.0
+        for r in range(n_rows):
+            s = 0.0
+            for p in range(powers.shape[0]):
+                s += coefficients[r, p] * powers[p]
+            s *= scale
+            scale /= move_time
+            for j in range(n):
+                out[k, r, j] = s * (waypoints[k, index + 1, j] - waypoints[k, index, j])
+        for j in range(n):
+            out[k, 0, j] += waypoints[k, index, j]
+
+
+def rest_to_rest(t: np.ndarray, waypoints: np.ndarray, move_time: float, dwell_time: float,
+                 order: int = 4) -> np.ndarray:
+    """Reference derivatives of N piecewise rest-to-rest motions, (N, order + 1, n).
+
+    Arm k moves through ``waypoints[k]`` (n_points, n): segment i goes from waypoint i
+    to i + 1 in ``move_time`` seconds after a ``dwell_time`` pause; after the last
+    waypoint the reference stays there. Rows: q_d, q_d', ..., q_d^(order) at ``t[k]``.
+    """
+    if order > MAX_ORDER:
+        raise ValueError(f"order must be <= {MAX_ORDER}")
+    t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+    waypoints = np.ascontiguousarray(waypoints, dtype=np.float64)
+    out = np.empty((len(t), order + 1, waypoints.shape[2]))
+    _rest_to_rest_kernel(t, waypoints, float(move_time), float(dwell_time),
+                         _COEFFICIENTS[: order + 1], out)
+    return out
+
+
 @dataclass(frozen=True)
 class RestToRestPath:
-    """Piecewise rest-to-rest motion through ``waypoints``.
-
-    Segment i moves from waypoint i to i + 1 in ``move_time`` seconds after a
-    ``dwell_time`` pause; after the last waypoint the reference stays there.
-    """
+    """One piecewise rest-to-rest motion through ``waypoints`` (see :func:`rest_to_rest`)."""
 
     waypoints: np.ndarray  # (n_points, N)
     move_time: float
@@ -60,21 +109,5 @@ class RestToRestPath:
 
     def evaluate(self, t: float, order: int = 4) -> np.ndarray:
         """Reference derivatives (order + 1, N): rows q_d, q_d', ..., q_d^(order)."""
-        if order > MAX_ORDER:
-            raise ValueError(f"order must be <= {MAX_ORDER}")
-        n_segments = len(self.waypoints) - 1
-        if n_segments == 0:
-            out = np.zeros((order + 1, self.waypoints.shape[1]))
-            out[0] = self.waypoints[0]
-            return out
-        index = min(int(max(t, 0.0) // self.segment_time), n_segments - 1)
-        start = self.waypoints[index]
-        u = (t - index * self.segment_time - self.dwell_time) / self.move_time
-        if u <= 0.0 or u >= 1.0:  # at rest (derivatives above 4 of the law do not vanish there)
-            out = np.zeros((order + 1, self.waypoints.shape[1]))
-            out[0] = start if u <= 0.0 else self.waypoints[index + 1]
-            return out
-        s = (_COEFFICIENTS[: order + 1] @ (u**_POWERS)) * self.move_time ** -_POWERS[: order + 1]
-        out = s[:, None] * (self.waypoints[index + 1] - start)
-        out[0] += start
-        return out
+        return rest_to_rest(np.array([t]), np.asarray(self.waypoints)[None], self.move_time,
+                            self.dwell_time, order)[0]

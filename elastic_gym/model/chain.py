@@ -450,6 +450,10 @@ class SerialChain:
         _mass_and_bias_kernel(q, dq, self._params, self._ints, self._work, M, h)
         return M, h
 
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """g(q) (N, n)."""
+        return self.mass_and_bias(q, np.zeros_like(q))[1]
+
     def forward_dynamics(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
                          added_inertia: np.ndarray | None = None) -> np.ndarray:
         """q'' solving (M(q) + M_a) q'' + n(q, q') = tau, (N, n); M_a constant (n, n)."""

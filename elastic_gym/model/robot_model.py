@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from elastic_gym.model.chain import SerialChain
 from elastic_gym.robots.spec import AccelerometerMount, LinkFriction, RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_text_for_pinocchio
 from elastic_gym.validation import checked_fields
@@ -144,6 +145,7 @@ class RobotModel:
         self._lower = np.tril_indices(n, -1)
         self._zero_acceleration = np.zeros(n)
         self._symmetric_outputs = self._pinocchio_fills_lower_triangles()
+        self._chain: SerialChain | None = None
 
     # ------------------------------------------------------------------ setup
     def _vector(self, values: tuple[float, ...] | None, scale_name: str) -> np.ndarray:
@@ -191,7 +193,15 @@ class RobotModel:
         new = copy.copy(self)
         new.pin_model = self.pin_model.copy()
         new.data = new.pin_model.createData()
+        new._chain = None
         return new
+
+    @property
+    def chain(self) -> SerialChain:
+        """The same model for N arms at once (:class:`SerialChain`), built on first use."""
+        if self._chain is None:
+            self._chain = SerialChain(self.pin_model, self.sensor_frame_ids)
+        return self._chain
 
     def perturbed(self, scaling: ParameterScaling | dict | None = None, **kwargs) -> RobotModel:
         """A model of the same robot with parameter errors relative to this one.

@@ -1,0 +1,554 @@
+"""N arms of one robot in one PyBullet world: the simulation core of every env.
+
+:class:`ArmBatch` holds everything an episode needs, for N arms at once, in arrays with a
+leading arm axis: the simulator (:mod:`elastic_gym.envs.simulator`), the sensors
+(:mod:`elastic_gym.envs.sensors`), the task and its reference
+(:mod:`elastic_gym.envs.tasks`), the reward, the termination checks and the info.
+:class:`~elastic_gym.envs.arm_env.ArmEnv` is its N = 1 case and
+:class:`~elastic_gym.envs.vector_env.ArmVectorEnv` exposes all N arms as a Gymnasium
+vector env; there is no second copy of the physics.
+
+Exactness: arm i draws every random number (task sampling, encoder noise, accelerometer
+bias and noise) from its own generator ``rngs[i]``, and every computation on it depends
+only on its own rows, with the same operations in the same order whatever N. So arm i of
+a batch whose generator is seeded with s + i is bit for bit the single env reset with
+seed s + i under the same actions (``tests/test_batch.py``).
+
+Observation of one arm (a ``spaces.Dict``, float64), only what a real arm measures:
+
+* elastic arms: ``motor_position`` (N, quantized motor encoders), ``acceleration``
+  (3 per accelerometer: specific force in the sensor frame, gravity included),
+  ``reference`` (q_d, q_d');
+* rigid arms: ``link_position`` (N, link encoders), ``reference``.
+
+Info of one arm (the same keys at every step, terminal steps included): ``time``,
+``true_state`` (``q``, ``dq``, ``theta``, ``dtheta``, ``ddq``, ``x``), ``torque`` (the
+applied, clipped motor torque), ``torque_saturated``, ``reference`` (``q`` .. ``d4q``),
+``termination_reason`` (None while the episode runs).
+
+Reward, with e = q - q_d and dt the control period:
+
+    r = -dt * (w_track |e|^2 + w_velocity |q' - q_d'|^2 + w_torque |tau / tau_max|^2
+               + w_torsion |theta - q|^2)
+
+An episode whose physics breaks (non-finite state, a velocity above ``max_velocity``,
+or a link position beyond the URDF joint limits) ends with ``terminated=True``, reward
+``termination_penalty`` and ``info["termination_reason"]``; the observation is the final
+one (the last finite one when the state is no longer finite). An episode is truncated
+after ``episode_time`` simulated seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from gymnasium import spaces
+
+from elastic_gym.envs.sensors import (
+    AccelerometerArray,
+    AccelerometerConfig,
+    Encoder,
+    EncoderConfig,
+)
+from elastic_gym.envs.simulator import ArmSimulator
+from elastic_gym.envs.tasks import make_task
+from elastic_gym.model import ParameterScaling, RobotModel
+from elastic_gym.robots.catalog import get_robot
+from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
+from elastic_gym.robots.urdf_tools import joint_limits
+from elastic_gym.validation import checked_fields, per_joint_values
+
+STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
+# Reward of the step that ends an episode on broken physics: the return of an arm held
+# 1.8 rad off its reference for a whole 3 s episode, so that crashing is never cheaper for
+# an RL agent than a bad trajectory (the per-step reward is a negative cost).
+TERMINATION_PENALTY = -10.0
+EPISODE_TIME = 3.0  # s
+MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
+MAX_SENSOR_DELAY = 1.0  # s
+MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
+REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
+STATE_KEYS = ("q", "dq", "theta", "dtheta")
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Weights of the quadratic reward (see module docstring)."""
+
+    track: float = 1.0
+    velocity: float = 0.01
+    torque: float = 1e-3
+    torsion: float = 0.0
+
+    @classmethod
+    def from_config(cls, config) -> RewardWeights:
+        config = checked_fields(cls, config, "reward weight")
+        if config is None:
+            return cls()
+        if isinstance(config, cls):
+            return config
+        for key, value in config.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                np.isfinite(value) and value >= 0
+            ):
+                raise ValueError(f"reward weight {key!r} must be a number >= 0, got {value!r}")
+        return cls(**config)
+
+
+def _positive_number(value, name: str, allow_none: bool = False) -> float | None:
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+        np.isfinite(value) and value > 0
+    ):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return float(value)
+
+
+class ArmBatch:
+    """N arms of a robot of the catalog: simulation, sensors, task, reward, termination.
+
+    Args:
+        robot: robot name (``elastic_gym.robots.catalog.ROBOTS``) or a ``RobotSpec``.
+        n_arms: number of arms (N).
+        task: ``"tracking"``, ``"regulation"`` or ``"excitation"``.
+        task_options: options of the task (see ``elastic_gym.envs.tasks``).
+        physics_dt: physics step (s), default from the robot; must keep
+            ``physics_dt * omega_max <= 0.2`` for the stiffest joint mode.
+        control_dt: control period (s), an integer multiple of ``physics_dt`` (default 1 ms).
+        encoder: ``{"resolution": rad, "noise_std": rad}``.
+        accelerometer: error model, see ``AccelerometerConfig`` (``"ideal"`` for none).
+        accelerometers: list of mounts ``{"link", "position", "rpy", "name"}`` replacing
+            the robot's default sensor placement.
+        plant_scaling: parameter changes of the *simulated* robot relative to the nominal
+            model (``ParameterScaling`` fields, e.g. ``{"link_mass": 1.3}``).
+        torque_limit: override of the motor torque limits (N m).
+        reward_weights: see :class:`RewardWeights`.
+        max_velocity: |q'| or |theta'| above this ends the episode (rad/s).
+        sensor_delay: measurement delay in control periods (encoders and accelerometers;
+            the reference is not delayed).
+        termination_penalty: reward of the step that ends an episode on broken physics.
+        episode_time: simulated seconds after which an episode is truncated (None: never).
+        gui: show the PyBullet GUI (render_mode="human").
+    """
+
+    KWARGS: ClassVar[tuple[str, ...]] = (
+        "task", "task_options", "physics_dt", "control_dt", "encoder", "accelerometer",
+        "accelerometers", "plant_scaling", "torque_limit", "reward_weights", "max_velocity",
+        "sensor_delay", "termination_penalty", "episode_time",
+    )
+
+    def __init__(
+        self,
+        robot: str | RobotSpec,
+        n_arms: int = 1,
+        task: str = "tracking",
+        task_options: dict | None = None,
+        physics_dt: float | None = None,
+        control_dt: float | None = None,
+        encoder: dict | EncoderConfig | None = None,
+        accelerometer: dict | AccelerometerConfig | str | None = None,
+        accelerometers: list | None = None,
+        plant_scaling: dict | ParameterScaling | None = None,
+        torque_limit: list | float | None = None,
+        reward_weights: dict | RewardWeights | None = None,
+        max_velocity: float = 100.0,
+        sensor_delay: int = 0,
+        termination_penalty: float = TERMINATION_PENALTY,
+        episode_time: float | None = EPISODE_TIME,
+        gui: bool = False,
+    ) -> None:
+        self.init_kwargs = {k: v for k, v in locals().items() if k not in ("self", "__class__")}
+        if isinstance(n_arms, bool) or not isinstance(n_arms, (int, np.integer)) or n_arms < 1:
+            raise ValueError(f"the number of arms must be an integer >= 1, got {n_arms!r}")
+        spec = robot if isinstance(robot, RobotSpec) else get_robot(robot)
+        self.robot = spec
+        self.n_arms = N = int(n_arms)
+        self.n_joints = n = spec.n_joints
+        self.physics_dt, self.control_dt, self.n_substeps = self._timing(physics_dt, control_dt)
+        mounts = spec.accelerometers if accelerometers is None else tuple(
+            AccelerometerMount.from_config(m) for m in accelerometers
+        )
+        self._check_scaling(plant_scaling)
+        self.model = RobotModel(spec, accelerometers=mounts)
+        self.plant_model = RobotModel(spec, plant_scaling, mounts)
+        self._check_stability()
+        self.torque_limit = self._torque_limit(torque_limit)
+        self.max_velocity = _positive_number(max_velocity, "max_velocity")
+        penalty = termination_penalty
+        if isinstance(penalty, bool) or not isinstance(penalty, (int, float)) or not np.isfinite(
+            penalty
+        ):
+            raise ValueError(f"termination_penalty must be a finite number, got {penalty!r}")
+        self.termination_penalty = float(penalty)
+        self.sensor_delay = self._sensor_delay(sensor_delay)
+        episode = _positive_number(episode_time, "episode_time", allow_none=True)
+        self.episode_time = episode
+        self.max_steps = None if episode is None else max(1, round(episode / self.control_dt))
+        self.joint_lower, self.joint_upper = joint_limits(spec.urdf, spec.joint_names)
+        limits = np.concatenate([self.joint_lower, self.joint_upper])
+        self._limited = bool(np.isfinite(limits).any())
+        self.reward_weights = RewardWeights.from_config(reward_weights)
+        self.task = make_task(task, spec, self.model, task_options, n_arms=N)
+
+        encoder_cfg = EncoderConfig.from_config(encoder)
+        self.encoder = Encoder(
+            spec.encoder_resolution if encoder_cfg.resolution is None else encoder_cfg.resolution,
+            spec.encoder_noise_std if encoder_cfg.noise_std is None else encoder_cfg.noise_std,
+        )
+        if isinstance(accelerometer, str) and accelerometer != "ideal":
+            raise ValueError(
+                f"accelerometer must be 'ideal', a mapping of AccelerometerConfig fields or None, "
+                f"got the string {accelerometer!r}"
+            )
+        accel_cfg = (
+            AccelerometerConfig.ideal() if accelerometer == "ideal"
+            else AccelerometerConfig.from_config(accelerometer)
+        )
+        self.accelerometer_array = AccelerometerArray(
+            accel_cfg, self.model.n_sensors, self.control_dt, N
+        )
+        self.single_observation_space = self._observation_space()
+        self.single_action_space = spaces.Box(-self.torque_limit, self.torque_limit,
+                                              dtype=np.float64)
+
+        self.sim = ArmSimulator(spec, self.plant_model, self.physics_dt, N, gui=gui)
+        self.rngs = [np.random.default_rng() for _ in range(N)]
+        self.steps = np.zeros(N, dtype=np.int64)
+        self.running = np.zeros(N, dtype=bool)  # an episode is under way (reset, not ended)
+        self.torque = np.zeros((N, n))
+        self.saturated = np.zeros(N, dtype=bool)
+        self.ddq = np.zeros((N, n))
+        self.reference = np.zeros((N, len(REFERENCE_KEYS), n))
+        self.reasons = np.full(N, None, dtype=object)
+        self.obs = {key: np.zeros((N, *space.shape))
+                    for key, space in self.single_observation_space.items()}
+        self._measured = {key: np.zeros((self.sensor_delay + 1, *value.shape))
+                          for key, value in self.obs.items() if key != "reference"}
+        self._slot = 0  # slot of the newest reading in the delay line
+
+    # ------------------------------------------------------------------ setup
+    def _timing(self, physics_dt, control_dt) -> tuple[float, float, int]:
+        physics = self.robot.physics_dt if physics_dt is None else physics_dt
+        control = self.robot.control_dt if control_dt is None else control_dt
+        for key, value in (("physics_dt", physics), ("control_dt", control)):
+            _positive_number(value, key)
+        if physics > 1e-3 + 1e-15:
+            raise ValueError(f"physics_dt must be <= 1 ms, got {physics}")
+        if control > MAX_CONTROL_DT:
+            raise ValueError(f"control_dt must be <= {MAX_CONTROL_DT} s, got {control}")
+        ratio = control / physics
+        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+            raise ValueError(
+                f"control_dt ({control}) must be an integer multiple of physics_dt ({physics})"
+            )
+        return float(physics), float(control), round(ratio)
+
+    def _sensor_delay(self, delay) -> int:
+        if isinstance(delay, bool) or not isinstance(delay, (int, np.integer)) or delay < 0:
+            raise ValueError(f"sensor_delay must be an integer >= 0 (control periods), "
+                             f"got {delay!r}")
+        if delay * self.control_dt > MAX_SENSOR_DELAY:
+            raise ValueError(f"sensor_delay of {delay} control periods is more than "
+                             f"{MAX_SENSOR_DELAY} s")
+        return int(delay)
+
+    def _check_scaling(self, plant_scaling) -> None:
+        """Refuse scaling a part the robot does not have (it would silently do nothing)."""
+        scaling = ParameterScaling.from_config(plant_scaling)
+        spec = self.robot
+        absent = {"stiffness": not spec.elastic, "motor_inertia": not spec.elastic,
+                  "damping": not spec.elastic, "friction": spec.friction is None}
+        for key, missing in absent.items():
+            if missing and np.any(np.asarray(getattr(scaling, key)) != 1.0):
+                raise ValueError(
+                    f"plant_scaling {key!r}: robot {spec.name!r} has no "
+                    f"{'elastic joints' if key != 'friction' else 'link friction'} to scale"
+                )
+
+    def _check_stability(self) -> None:
+        if not self.robot.elastic:
+            return
+        q = 0.5 * (np.asarray(self.robot.workspace_low) + np.asarray(self.robot.workspace_high))
+        omega = self.plant_model.natural_frequencies(q)[0].max()
+        if self.physics_dt * omega > STABILITY_LIMIT:
+            raise ValueError(
+                f"physics_dt={self.physics_dt} too coarse for the stiffest joint mode "
+                f"({omega:.0f} rad/s): need physics_dt * omega <= {STABILITY_LIMIT}"
+            )
+
+    def _torque_limit(self, torque_limit) -> np.ndarray:
+        if torque_limit is None:
+            return np.asarray(self.robot.torque_limit, dtype=float)
+        return per_joint_values(torque_limit, self.n_joints, "torque_limit", 0.0, strict=True)
+
+    def _observation_space(self) -> spaces.Dict:
+        n = self.n_joints
+        inf = np.full(n, np.inf)
+        entries = {self.position_key: spaces.Box(-inf, inf, dtype=np.float64)}
+        if self.model.n_sensors:
+            r = np.full(3 * self.model.n_sensors, self.accelerometer_array.config.range)
+            entries["acceleration"] = spaces.Box(-r, r, dtype=np.float64)
+        entries["reference"] = spaces.Box(-np.full(2 * n, np.inf), np.full(2 * n, np.inf),
+                                          dtype=np.float64)
+        return spaces.Dict(entries)
+
+    def limit_episode(self, steps: int) -> None:
+        """Truncate episodes after ``steps`` control periods (instead of ``episode_time``)."""
+        self.max_steps = int(steps)
+        self.episode_time = self.max_steps * self.control_dt
+
+    @property
+    def position_key(self) -> str:
+        return "motor_position" if self.robot.elastic else "link_position"
+
+    @property
+    def time(self) -> np.ndarray:
+        """Simulated time of each arm's episode (s)."""
+        return self.steps * self.control_dt
+
+    # ------------------------------------------------------------------ episodes
+    def reset_arms(self, arms: np.ndarray, options: dict | None = None) -> None:
+        """Start new episodes for ``arms`` (indices) at rest, or at ``options["initial_state"]``.
+
+        ``options["initial_state"]`` may give ``q`` and ``dq`` (and ``theta``, ``dtheta``
+        for elastic arms; default: static equilibrium theta = q + K^-1 g(q)). The arms
+        draw their episode from ``self.rngs``.
+        """
+        self._check_open()
+        arms = np.asarray(arms, dtype=np.int64)
+        options = dict(options or {})
+        unknown = set(options) - {"initial_state"}
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: ['initial_state']")
+        given = self._initial_state_options(options.get("initial_state"))
+        q0 = self.task.reset(arms, self.rngs)
+        q, dq, theta, dtheta = self._initial_state(q0, given)
+        self.sim.reset_state(arms, q, dq, theta, dtheta)
+        self.accelerometer_array.reset(arms, self.rngs)
+        self.steps[arms] = 0
+        self.running[arms] = True
+        self.reasons[arms] = None
+        self.saturated[arms] = False
+        self.torque[arms] = self._equilibrium_torque(q, theta)
+        self.ddq[arms] = self.sim.link_acceleration(self.torque)[arms]
+        self.reference[arms] = self.task.reference(self.time[arms], arms)
+        self._observe(arms, first=True)
+
+    def step(self, actions: np.ndarray, stepping: np.ndarray | None = None) -> tuple:
+        """Advance every arm one control period under motor torques ``actions`` (N, n).
+
+        ``stepping`` (bool (N,), default all): the arms whose episode advances; the others
+        (about to be reset) are driven with zero torque and take no measurement, so their
+        generators are untouched. Returns ``(reward, terminated, truncated)`` (N,) of the
+        stepping arms (zero/False elsewhere); observations and info are in ``self.obs``
+        and :meth:`info`.
+        """
+        self._check_open()
+        N = self.n_arms
+        stepping = np.ones(N, dtype=bool) if stepping is None else stepping
+        sim = self.sim
+        command = np.where(stepping[:, None], actions, 0.0)
+        external = self.task.external_torque(self.time, sim.q)
+        if external is not None:
+            command = command + np.where(stepping[:, None], external, 0.0)
+        tau = np.minimum(np.maximum(command, -self.torque_limit), self.torque_limit)
+        self.saturated = np.any(tau != command, axis=1)
+        sim.step(tau, self.n_substeps)
+        self.steps += stepping
+        self.torque = tau
+        self.ddq = sim.link_acceleration(tau)
+        self.reference = self.task.reference(self.time)
+        reasons = self._termination_reasons()
+        terminated = (reasons != None) & stepping  # noqa: E711 - elementwise test
+        self.reasons = np.where(stepping, reasons, None)
+        self._slot = (self._slot + 1) % (self.sensor_delay + 1)
+        self._observe(np.flatnonzero(stepping), first=False)
+        reward = np.where(terminated, self.termination_penalty, self._reward())
+        reward = np.where(stepping, reward, 0.0)
+        truncated = np.zeros(N, dtype=bool) if self.max_steps is None else (
+            (self.steps >= self.max_steps) & stepping & ~terminated
+        )
+        self.running &= ~(terminated | truncated)
+        return reward, terminated, truncated
+
+    def _initial_state_options(self, given: dict | None) -> dict[str, np.ndarray]:
+        n = self.n_joints
+        allowed = STATE_KEYS if self.robot.elastic else STATE_KEYS[:2]
+        if given is None:
+            return {}
+        if not isinstance(given, dict):
+            raise ValueError(f"initial_state must be a mapping with keys {list(allowed)}")
+        unknown = set(given) - set(allowed)
+        if unknown:
+            raise ValueError(
+                f"unknown initial_state key(s) {sorted(unknown)}; valid: {sorted(allowed)}"
+            )
+        values = {}
+        for key, value in given.items():
+            bound = self.max_velocity if key.startswith("d") else MAX_ANGLE
+            try:
+                arr = np.asarray(value, dtype=float)
+            except (TypeError, ValueError):
+                arr = np.full(n + 1, np.nan)
+            if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(np.abs(arr) > bound):
+                raise ValueError(f"initial_state[{key!r}] must be {n} finite numbers with "
+                                 f"magnitude <= {bound:g}, got {value!r}")
+            if key == "q" and (np.any(arr < self.joint_lower) or np.any(arr > self.joint_upper)):
+                raise ValueError(f"initial_state['q'] = {arr} is outside the joint limits "
+                                 f"[{self.joint_lower}, {self.joint_upper}]")
+            values[key] = arr
+        return values
+
+    def _initial_state(self, q0: np.ndarray, given: dict[str, np.ndarray]):
+        q = np.broadcast_to(given["q"], q0.shape).copy() if "q" in given else q0
+        dq = np.broadcast_to(given.get("dq", np.zeros(self.n_joints)), q.shape).copy()
+        if not self.robot.elastic:
+            return q, dq, q, dq
+        if "theta" in given:
+            theta = np.broadcast_to(given["theta"], q.shape).copy()
+        else:  # static equilibrium theta = q + K^-1 g(q)
+            theta = q + self.plant_model.chain.gravity(q) / self.plant_model.K
+        dtheta = np.broadcast_to(given["dtheta"], q.shape).copy() if "dtheta" in given else dq
+        return q, dq, theta, dtheta.copy()
+
+    def _equilibrium_torque(self, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """Motor torque that keeps a static state static (used for the reset reading)."""
+        if self.robot.elastic:
+            return self.plant_model.K * (theta - q)
+        return self.plant_model.chain.gravity(q)
+
+    def _termination_reasons(self) -> np.ndarray:
+        sim = self.sim
+        speed = np.maximum(np.abs(sim.dq).max(axis=1), np.abs(sim.dtheta).max(axis=1))
+        reasons = np.full(self.n_arms, None, dtype=object)
+        if self._limited:
+            reasons[np.any(sim.q < self.joint_lower, axis=1)
+                    | np.any(sim.q > self.joint_upper, axis=1)] = "joint limit exceeded"
+        reasons[speed > self.max_velocity] = "velocity limit exceeded"
+        finite = np.isfinite(speed + sim.q.sum(axis=1) + sim.theta.sum(axis=1))
+        reasons[~finite] = "non-finite state"
+        return reasons
+
+    def _observe(self, arms: np.ndarray, first: bool) -> None:
+        """Measure the arms ``arms`` (their generators draw the noise), through the delay line.
+
+        ``first``: the first reading of an episode fills the whole delay line; otherwise the
+        reading goes to the newest slot (advanced by :meth:`step`).
+        """
+        if not len(arms):
+            return
+        sim = self.sim
+        rngs = [self.rngs[i] for i in arms]
+        position = sim.theta if self.robot.elastic else sim.q
+        readings = {self.position_key: self.encoder.measure(position[arms], rngs)}
+        if self.model.n_sensors:
+            force = self.plant_model.chain.specific_forces(sim.q[arms], sim.dq[arms],
+                                                           self.ddq[arms])
+            readings["acceleration"] = self.accelerometer_array.measure(force, rngs, arms)
+        oldest = (self._slot + 1) % (self.sensor_delay + 1)
+        for key, value in readings.items():
+            line = self._measured[key]
+            if first:
+                line[:, arms] = value
+            else:
+                line[self._slot, arms] = value
+            delayed = line[oldest, arms]
+            keep = ~np.isfinite(delayed).all(axis=1)  # a broken state keeps the last reading
+            self.obs[key][arms] = np.where(keep[:, None], self.obs[key][arms], delayed)
+        self.obs["reference"][arms] = self.reference[arms, :2].reshape(len(arms), -1)
+
+    def _reward(self) -> np.ndarray:
+        sim, w = self.sim, self.reward_weights
+        error = sim.q - self.reference[:, 0]
+        velocity_error = sim.dq - self.reference[:, 1]
+        scaled = self.torque / self.torque_limit
+        cost = w.track * np.sum(error * error, axis=1)
+        cost += w.velocity * np.sum(velocity_error * velocity_error, axis=1)
+        cost += w.torque * np.sum(scaled * scaled, axis=1)
+        if w.torsion:
+            torsion = sim.theta - sim.q
+            cost += w.torsion * np.sum(torsion * torsion, axis=1)
+        return -self.control_dt * cost
+
+    # ------------------------------------------------------------------ outputs
+    def observation(self, arms: slice | np.ndarray = slice(None)) -> dict[str, np.ndarray]:
+        """Copies of the current observations of ``arms``."""
+        return {key: value[arms].copy() for key, value in self.obs.items()}
+
+    def info(self, arms: slice | np.ndarray = slice(None)) -> dict:
+        """The info of ``arms`` (see the module docstring), arrays with a leading arm axis."""
+        sim = self.sim
+        state = {"q": sim.q[arms].copy(), "dq": sim.dq[arms].copy(),
+                 "theta": sim.theta[arms].copy(), "dtheta": sim.dtheta[arms].copy(),
+                 "ddq": self.ddq[arms].copy()}
+        state["x"] = np.concatenate([state["theta"], state["q"], state["dtheta"], state["dq"]],
+                                    axis=-1)
+        reference = self.reference[arms]
+        return {
+            "time": self.time[arms],
+            "true_state": state,
+            "torque": self.torque[arms].copy(),
+            "torque_saturated": self.saturated[arms].copy(),
+            "reference": {key: reference[..., k, :].copy() for k, key in
+                          enumerate(REFERENCE_KEYS)},
+            "termination_reason": self.reasons[arms].copy(),
+        }
+
+    def reference_preview(self, offsets: np.ndarray) -> np.ndarray:
+        """q_d .. q_d^(4) of every arm at its time + each offset (s): (N, H, 5, n).
+
+        The reference is the planner's trajectory, known in advance (not a measurement).
+        """
+        offsets = np.asarray(offsets, dtype=float).reshape(-1)
+        time = self.time
+        return np.stack([self.task.reference(time + h) for h in offsets], axis=1)
+
+    def render(self, arm: int = 0) -> np.ndarray:
+        self._check_open()
+        return self.sim.render(arm)
+
+    # ------------------------------------------------------------------ lifetime
+    def _check_open(self) -> None:
+        if not self.sim.connected:
+            raise RuntimeError("the env is closed: its PyBullet client is gone; make a new env")
+
+    @property
+    def closed(self) -> bool:
+        return not self.sim.connected
+
+    def close(self) -> None:
+        self.sim.close()
+
+    def __getstate__(self) -> dict:
+        """Constructor arguments + the state of every arm (a PyBullet client cannot be
+        pickled). Unpickling builds an independent batch with its own client in the same
+        state: it continues bit for bit like the original."""
+        if self.closed:
+            raise RuntimeError("cannot pickle a closed env")
+        sim = self.sim
+        episode = {
+            "sim": (sim.q, sim.dq, sim.theta, sim.dtheta),
+            "arrays": {key: getattr(self, key) for key in (
+                "steps", "running", "torque", "saturated", "ddq", "reference", "reasons", "obs",
+                "_measured", "_slot")},
+            "rngs": [rng.bit_generator.state for rng in self.rngs],
+            "accelerometer": (self.accelerometer_array.bias, self.accelerometer_array.filtered,
+                              self.accelerometer_array.fresh),
+            "task": {k: v for k, v in vars(self.task).items() if k not in ("spec", "model")},
+        }
+        return {"init": self.init_kwargs, "episode": episode}
+
+    def __setstate__(self, state: dict) -> None:
+        type(self).__init__(self, **state["init"])
+        episode = state["episode"]
+        self.sim.reset_state(np.arange(self.n_arms), *episode["sim"])
+        for key, value in episode["arrays"].items():
+            setattr(self, key, value)
+        for rng, rng_state in zip(self.rngs, episode["rngs"], strict=True):
+            rng.bit_generator.state = rng_state
+        acc = self.accelerometer_array
+        acc.bias, acc.filtered, acc.fresh = episode["accelerometer"]
+        vars(self.task).update(episode["task"])

@@ -1,0 +1,218 @@
+"""Many arms in one PyBullet world as a native Gymnasium vector env.
+
+``gym.make_vec("elastic_gym/<Id>", num_envs=N, vectorization_mode="vector_entry_point")``
+returns an :class:`ArmVectorEnv`: N arms of the id's robot in one PyBullet client, driven
+by the same :class:`~elastic_gym.envs.batch.ArmBatch` as the single env (whose module
+docstring documents observations, info, reward and termination), with every quantity
+batched along a leading arm axis.
+
+* Seeds: ``reset(seed=s)`` seeds arm i with s + i (a list gives one seed per arm), so arm
+  i is bit for bit the single env reset with seed s + i under the same actions, across
+  autoresets too (an autoreset continues the arm's generator, as ``env.reset()`` does).
+* Autoreset (``metadata["autoreset_mode"]``, kwarg ``autoreset_mode``): ``NEXT_STEP``
+  (Gymnasium's default: the step after an episode ends resets that arm, ignores its
+  action, and returns reward 0), ``SAME_STEP`` (the arm is reset in the step that ends
+  its episode; ``info["final_obs"]`` and ``info["final_info"]`` hold the terminal
+  observation and info), or ``DISABLED`` (``reset(options={"reset_mask": mask})``).
+* Info: the single env's keys with a leading arm axis, each with a boolean mask
+  ``info["_key"]`` (Gymnasium's convention); ``termination_reason`` is masked where an
+  arm has one.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from elastic_gym.envs.arm_env import validated_actions
+from elastic_gym.envs.batch import ArmBatch
+from elastic_gym.robots.spec import RobotSpec
+
+
+def masked_info(info: dict, mask: np.ndarray) -> dict:
+    """Gymnasium's vector info layout: every key gets a boolean mask ``_key``."""
+    out = {}
+    for key, value in info.items():
+        out[key] = masked_info(value, mask) if isinstance(value, dict) else value
+        out[f"_{key}"] = mask.copy()
+    if "termination_reason" in info:
+        out["_termination_reason"] = mask & (info["termination_reason"] != None)  # noqa: E711
+    return out
+
+
+class ArmVectorEnv(VectorEnv):
+    """N arms of a robot of the catalog in one PyBullet client.
+
+    Args:
+        robot: robot name or a ``RobotSpec``.
+        num_envs: number of arms N.
+        autoreset_mode: an ``AutoresetMode`` (or its value); default ``NEXT_STEP``.
+        max_episode_steps: optional limit in control periods (``gym.make_vec`` passes the
+            id's limit); ``episode_time`` (s) is the env's own limit.
+        render_mode: ``"rgb_array"`` (one image per arm) or None.
+        **kwargs: the options of :class:`~elastic_gym.envs.batch.ArmBatch`.
+    """
+
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"],
+                                "autoreset_mode": AutoresetMode.NEXT_STEP}
+    kind: ClassVar[str | None] = None
+
+    def __init__(self, robot: str | RobotSpec, num_envs: int = 1,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 max_episode_steps: int | None = None, render_mode: str | None = None,
+                 **kwargs) -> None:
+        unknown = set(kwargs) - set(ArmBatch.KWARGS)
+        if unknown:
+            raise TypeError(f"{type(self).__name__}.__init__() got an unexpected keyword "
+                            f"argument {sorted(unknown)[0]!r}; valid: {sorted(ArmBatch.KWARGS)}")
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            raise ValueError(f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}, "
+                             f"got {autoreset_mode!r}") from None
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode {render_mode!r} not supported; valid: {self.metadata['render_modes']}"
+            )
+        if max_episode_steps is not None and (
+            isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, int)
+            or max_episode_steps < 1
+        ):
+            raise ValueError(f"max_episode_steps must be an integer >= 1, got {max_episode_steps!r}")
+        self.batch = batch = ArmBatch(robot, num_envs, **kwargs)
+        if max_episode_steps is not None:
+            batch.limit_episode(max_episode_steps)
+        kind = "elastic" if batch.robot.elastic else "rigid"
+        if self.kind is not None and kind != self.kind:
+            batch.close()
+            raise ValueError(f"robot {batch.robot.name!r} has {kind} joints")
+        self.num_envs = batch.n_arms
+        self.render_mode = render_mode
+        self.autoreset_mode = mode
+        self.metadata = {**self.metadata, "autoreset_mode": mode,
+                         "render_fps": round(1.0 / batch.control_dt),
+                         "physics_dt": batch.physics_dt, "control_dt": batch.control_dt,
+                         "robot": batch.robot.name, "task": batch.task.name}
+        self.single_observation_space = batch.single_observation_space
+        self.single_action_space = batch.single_action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)
+        self._all = np.ones(self.num_envs, dtype=bool)
+
+    @property
+    def model(self):
+        """Nominal RobotModel (what observers and controllers use)."""
+        return self.batch.model
+
+    @property
+    def control_dt(self) -> float:
+        return self.batch.control_dt
+
+    @property
+    def torque_limit(self) -> np.ndarray:
+        return self.batch.torque_limit
+
+    @property
+    def n_joints(self) -> int:
+        return self.batch.n_joints
+
+    # ------------------------------------------------------------------ API
+    def reset(self, *, seed: int | list | None = None, options: dict | None = None):
+        """Reset every arm (or those of ``options["reset_mask"]``); arm i seeded with s + i."""
+        batch = self.batch
+        batch._check_open()
+        options = dict(options or {})
+        mask = options.pop("reset_mask", None)
+        if mask is None:
+            mask = self._all
+        else:
+            mask = np.asarray(mask)
+            if mask.dtype != np.bool_ or mask.shape != (self.num_envs,):
+                raise ValueError(f"reset_mask must be a bool array of shape ({self.num_envs},)")
+        seeds = self._seeds(seed)
+        arms = np.flatnonzero(mask)
+        if isinstance(seed, int):
+            super().reset(seed=seed)
+        for i in arms:
+            if seeds[i] is not None:  # else the arm's generator continues, as env.reset() does
+                batch.rngs[i] = seeding.np_random(seeds[i])[0]
+        batch.reset_arms(arms, options)
+        self._autoreset[arms] = False
+        return batch.observation(), masked_info(batch.info(), mask)
+
+    def _seeds(self, seed) -> list:
+        N = self.num_envs
+        if seed is None:
+            return [None] * N
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            return [int(seed) + i for i in range(N)]
+        seeds = list(seed)
+        if len(seeds) != N:
+            raise ValueError(f"give one seed or {N} seeds, got {len(seeds)}")
+        return seeds
+
+    def step(self, actions):
+        batch = self.batch
+        batch._check_open()
+        tau = validated_actions(actions, self.num_envs, batch.n_joints)
+        mode = self.autoreset_mode
+        if mode is AutoresetMode.DISABLED and not batch.running.all():
+            raise RuntimeError("autoreset is disabled: reset the arms whose episode has ended "
+                               "(reset(options={'reset_mask': ...})) before stepping them")
+        if mode is not AutoresetMode.DISABLED and not (batch.running | self._autoreset).all():
+            raise RuntimeError("call reset() before step()")
+        stepping = ~self._autoreset
+        reward, terminated, truncated = batch.step(tau, stepping)
+        done = terminated | truncated
+        if mode is AutoresetMode.NEXT_STEP:
+            resetting = np.flatnonzero(self._autoreset)
+            if len(resetting):
+                batch.reset_arms(resetting)
+            self._autoreset = done
+            return (batch.observation(), reward, terminated, truncated,
+                    masked_info(batch.info(), self._all))
+        if mode is AutoresetMode.SAME_STEP and done.any():
+            ended = np.flatnonzero(done)
+            final = batch.observation()
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            for i in ended:
+                final_obs[i] = {key: value[i] for key, value in final.items()}
+            final_info = masked_info(batch.info(), done)
+            batch.reset_arms(ended)
+            info = masked_info(batch.info(), self._all)
+            info.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info,
+                        _final_info=done.copy())
+            return batch.observation(), reward, terminated, truncated, info
+        return (batch.observation(), reward, terminated, truncated,
+                masked_info(batch.info(), self._all))
+
+    def render(self):
+        if self.render_mode == "rgb_array":
+            return tuple(self.batch.render(i) for i in range(self.num_envs))
+        return None
+
+    def close_extras(self, **kwargs) -> None:
+        self.batch.close()
+
+
+class ElasticArmVectorEnv(ArmVectorEnv):
+    """N arms with elastic joints (the vector twin of ElasticArmEnv)."""
+
+    kind = "elastic"
+
+    def __init__(self, robot: str | RobotSpec = "two_link_elastic", **kwargs) -> None:
+        super().__init__(robot, **kwargs)
+
+
+class RigidArmVectorEnv(ArmVectorEnv):
+    """N arms with rigid joints (the vector twin of RigidArmEnv)."""
+
+    kind = "rigid"
+
+    def __init__(self, robot: str | RobotSpec = "two_link_rigid", **kwargs) -> None:
+        super().__init__(robot, **kwargs)
