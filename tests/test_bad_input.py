@@ -6,7 +6,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from elastic_gym.envs.arm_env import TERMINATION_PENALTY
+from elastic_gym.envs.batch import TERMINATION_PENALTY
 from elastic_gym.observers import ObserverWrapper
 
 
@@ -100,12 +100,17 @@ def test_unknown_observer_lists_the_valid_ones(env):
 
 
 def test_non_finite_physics_terminates_with_a_reason():
-    env = gym.make("elastic_gym/TwoLinkRigid-v0")
-    env.reset(seed=0, options={"initial_state": {"q": [0.0, 0.0], "dq": [1e300, 1e300]}})
+    env = gym.make("elastic_gym/TwoLinkRigid-v0", max_velocity=1e300)
+    first, first_info = env.reset(seed=0, options={
+        "initial_state": {"q": [0.0, 0.0], "dq": [1e300, 1e300]}})
     obs, reward, terminated, _, info = env.step(np.zeros(2))
     assert terminated and info["termination_reason"] == "non-finite state"
     assert reward == TERMINATION_PENALTY  # worse than any finite episode return of a bad policy
-    assert all(np.all(np.isfinite(v)) for v in obs.values())
+    # the last finite observation, the same info keys as every step (the truth is not finite)
+    assert all(np.array_equal(obs[k], first[k]) for k in obs)
+    assert set(info) == set(first_info) and set(info["true_state"]) == set(
+        first_info["true_state"])
+    assert not np.all(np.isfinite(info["true_state"]["x"]))
     with pytest.raises(RuntimeError, match="reset"):
         env.step(np.zeros(2))
     env.close()

@@ -252,7 +252,7 @@ def cristofaro_example3(observer: str | None) -> np.ndarray:
     env = gym.make(
         RIGID, task_options={"start": start, "waypoints": [target], "move_time": 8.0,
                              "dwell_time": 0.0},
-        max_episode_steps=9000,
+        episode_time=None,
     )
     if observer is None:
         env = TrueStateWrapper(env)

@@ -21,7 +21,24 @@ def test_every_documented_id_is_registered():
     assert {i.split("/")[1] for i in elastic_gym.ENV_IDS} == expected
     for env_id in elastic_gym.ENV_IDS:
         assert env_id in gym.registry
-        assert gym.spec(env_id).max_episode_steps == elastic_gym.EPISODE_STEPS
+        spec = gym.spec(env_id)
+        assert spec.vector_entry_point is not None
+        assert spec.max_episode_steps is None  # the env truncates itself after episode_time
+
+
+@pytest.mark.parametrize("control_dt", [1e-3, 2e-3])
+def test_episode_length_is_simulated_time_and_video_plays_in_real_time(control_dt):
+    env = gym.make("elastic_gym/TwoLinkRigid-v0", task="excitation", episode_time=0.5,
+                   control_dt=control_dt)
+    env.reset(seed=0)
+    assert env.metadata["render_fps"] * control_dt == pytest.approx(1.0)
+    steps, truncated = 0, False
+    while not truncated:
+        _, _, terminated, truncated, info = env.step(np.zeros(2))
+        assert not terminated
+        steps += 1
+    assert steps == round(0.5 / control_dt) and info["time"] == pytest.approx(0.5)
+    env.close()
 
 
 @pytest.mark.filterwarnings("ignore::UserWarning")
@@ -123,8 +140,10 @@ def test_tracking_reference_is_c4_rest_to_rest():
     env = gym.make("elastic_gym/TwoLinkElastic-v0", task_options={"move_time": 0.8})
     env.reset(seed=3)
     task = env.unwrapped.task
-    times = np.linspace(0.0, task.path.duration, 4001)
-    ref = np.array([task.reference(t) for t in times])  # (T, 5, N)
+    times = np.linspace(0.0, task.duration, 4001)
+    ref = task.reference(times, np.zeros(len(times), dtype=int))  # (T, 5, N)
+    path = task.path(0)
+    assert np.array_equal(ref[1234], path.evaluate(times[1234]))
     # derivatives are consistent: integrate each derivative and compare with the one below
     dt = times[1] - times[0]
     for k in range(4):
@@ -147,7 +166,7 @@ def test_regulation_and_excitation_tasks():
     obs, info = env.reset(seed=0)
     _, _, _, _, info = env.step(np.zeros(2))
     model = env.unwrapped.model
-    q_before = env.unwrapped.task.reference(0.0)[0]
+    q_before = env.unwrapped.task.reference(np.zeros(1))[0, 0]
     expected = model.gravity(q_before) + np.array([1.0, -1.0])
     assert np.allclose(info["torque"], expected, atol=1e-9)
     env.close()

@@ -52,7 +52,7 @@ def record(env_id: str, steps: int, seed: int = 0, task_options: dict | None = N
     n = JOINTS[env_id]
     options = {"phase": [-np.pi / 2] * n, **(task_options or {})}  # torque starts smoothly
     env = gym.make(env_id, task="excitation", task_options=options,
-                   max_episode_steps=steps + 1, **env_kwargs)
+                   episode_time=None, **env_kwargs)
     base = env.unwrapped
 
     def measurement(obs, info):

@@ -114,7 +114,7 @@ def run_from_wrong_estimate(env_id: str, steps: int, seed: int = 0, **options):
     spec = get_robot(gym.spec(env_id).kwargs["robot"])
     start = 0.5 * (np.asarray(spec.workspace_low) + np.asarray(spec.workspace_high))
     env = gym.make(env_id, task="excitation",
-                   task_options={"start": start.tolist()}, max_episode_steps=steps + 1)
+                   task_options={"start": start.tolist()}, episode_time=None)
     base = env.unwrapped
     n = base.model.n
     truth = np.concatenate([base.plant_model.static_motor_position(start), start, np.zeros(2 * n)])

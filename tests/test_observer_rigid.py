@@ -52,7 +52,7 @@ class Rollout:
 def rollout(env_id, steps, observers, initial_state, velocity_estimate=None, driver=None,
             **env_kwargs) -> Rollout:
     """Run several observers on one episode (same samples and torques for all)."""
-    env = gym.make(env_id, max_episode_steps=steps + 1, **env_kwargs)
+    env = gym.make(env_id, episode_time=None, **env_kwargs)
     obs, info = env.reset(seed=0, options={"initial_state": initial_state})
     model = env.unwrapped.model
     built = {key: make_observer(name, model, DT, **opts) for key, (name, opts) in observers.items()}

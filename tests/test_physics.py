@@ -29,24 +29,37 @@ ROBOTS = ["two_link_elastic", "kr15_elastic", "iiwa_elastic", "two_link_rigid", 
 @pytest.mark.parametrize("robot", ROBOTS)
 @pytest.mark.parametrize("scaling", [None, {"link_mass": 1.3, "stiffness": 0.8}])
 def test_pybullet_accelerations_equal_pinocchio(robot, scaling):
+    """Three arms in one world, random states: PyBullet's q'' (one physics step) and the
+    simulator's own q'' (the batched chain) equal pinocchio's model (1)/(2) forward dynamics."""
     spec = get_robot(robot)
+    if scaling and not spec.elastic:
+        scaling = {"link_mass": 1.3}
     plant = RobotModel(spec, scaling)
-    sim = ArmSimulator(spec, plant, spec.physics_dt)
+    arms = np.arange(3)
+    sim = ArmSimulator(spec, plant, spec.physics_dt, n_arms=len(arms))
     rng = np.random.default_rng(0)
     n = spec.n_joints
-    worst = 0.0
-    for _ in range(5):
-        q = rng.uniform(spec.workspace_low, spec.workspace_high)
-        theta = q + 0.01 * rng.standard_normal(n)
-        dq, dtheta = rng.standard_normal(n), rng.standard_normal(n)
-        sim.reset_state(q, dq, theta, dtheta)
-        tau = 0.05 * np.asarray(spec.torque_limit) * rng.uniform(-1, 1, n)
-        expected = sim.link_acceleration(tau)  # model (1)/(2) with pinocchio ABA / CRBA
+    worst = worst_chain = 0.0
+    for _ in range(3):
+        q = rng.uniform(spec.workspace_low, spec.workspace_high, (3, n))
+        theta = q + 0.01 * rng.standard_normal((3, n))
+        dq, dtheta = rng.standard_normal((3, n)), rng.standard_normal((3, n))
+        sim.reset_state(arms, q, dq, theta, dtheta)
+        tau = 0.05 * np.asarray(spec.torque_limit) * rng.uniform(-1, 1, (3, n))
+        if spec.elastic:
+            x = np.concatenate([theta, q, dtheta, dq], axis=1)
+            expected = np.array([plant.elastic_accelerations(x[i], tau[i])[1] for i in arms])
+        else:
+            expected = np.array([plant.rigid_acceleration(q[i], dq[i], tau[i]) for i in arms])
+        chain = sim.link_acceleration(tau)
         sim.step(tau, 1)
         measured = (sim.dq - dq) / spec.physics_dt
-        worst = max(worst, np.abs(measured - expected).max() / np.abs(expected).max())
+        scale = np.abs(expected).max()
+        worst = max(worst, np.abs(measured - expected).max() / scale)
+        worst_chain = max(worst_chain, np.abs(chain - expected).max() / scale)
     sim.close()
     assert worst < 1e-6
+    assert worst_chain < 1e-12
 
 
 def _open_loop(env_id: str, physics_dt: float | None, duration: float = 0.5):

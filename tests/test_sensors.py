@@ -25,7 +25,7 @@ def _record(env_id: str, steps: int = 300):
             p, R = u.sim.link_pose(m.link)
             frame.append((p + R @ np.asarray(m.position), R @ pin.rpy.rpyToMatrix(*m.rpy)))
         poses.append(frame)
-        joints.append(u.sim.q.copy())
+        joints.append(u.sim.q[0].copy())
         readings.append(obs["acceleration"])
         tau = 0.01 * u.torque_limit * np.sin(np.arange(u.n_joints) + 10.0 * k * u.control_dt)
         obs, *_ = env.step(tau)
@@ -78,31 +78,35 @@ def test_accelerometer_noise_bias_saturation_and_filter():
     rng = np.random.default_rng(0)
     dt = 1e-3
     config = AccelerometerConfig(noise_density=2e-3, bias_std=0.05, range=20.0)
-    array = AccelerometerArray(config, n_sensors=2, sample_time=dt)
-    array.reset(rng)
-    truth = np.array([0.0, 0.0, 9.81, 1.0, -2.0, 30.0])
-    samples = np.array([array.measure(truth, rng) for _ in range(20000)])
-    assert np.allclose(samples[:, :5].std(axis=0), 2e-3 * np.sqrt(0.5 / dt), rtol=0.05)
-    assert np.allclose(samples[:, :5].mean(axis=0) - truth[:5], array.bias[:5], atol=2e-3)
-    assert np.all(samples[:, 5] == 20.0)  # saturated at the range
+    rngs = [np.random.default_rng(1), np.random.default_rng(2)]  # two arms
+    arms = np.arange(2)
+    array = AccelerometerArray(config, n_sensors=2, sample_time=dt, n_arms=2)
+    array.reset(arms, rngs)
+    assert not np.array_equal(array.bias[0], array.bias[1])  # one bias per arm
+    truth = np.array([[0.0, 0.0, 9.81, 1.0, -2.0, 30.0]] * 2)
+    samples = np.array([array.measure(truth, rngs) for _ in range(20000)])  # (T, arm, axis)
+    assert np.allclose(samples[:, :, :5].std(axis=0), 2e-3 * np.sqrt(0.5 / dt), rtol=0.05)
+    assert np.allclose(samples[:, :, :5].mean(axis=0) - truth[:, :5], array.bias[:, :5],
+                       atol=2e-3)
+    assert np.all(samples[:, :, 5] == 20.0)  # saturated at the range
     # first-order low-pass: a step settles with time constant 1 / (2 pi f_c)
     filtered = AccelerometerConfig(noise_density=0, bias_std=0, cutoff_hz=10.0)
     lowpass = AccelerometerArray(filtered, 1, dt)
-    lowpass.reset(rng)
-    lowpass.measure(np.zeros(3), rng)
+    lowpass.reset(arms[:1], [rng])
+    lowpass.measure(np.zeros((1, 3)), [rng])
     tau = 1.0 / (2 * np.pi * 10.0)
-    response = [lowpass.measure(np.ones(3), rng)[0] for _ in range(round(tau / dt))]
+    response = [lowpass.measure(np.ones((1, 3)), [rng])[0, 0] for _ in range(round(tau / dt))]
     assert response[-1] == pytest.approx(1 - np.exp(-1), abs=0.01)
 
 
 def test_encoder_quantization_and_noise():
     rng = np.random.default_rng(0)
     encoder = Encoder(resolution=7e-4, noise_std=0.0)
-    x = rng.uniform(-3, 3, size=1000)
-    y = encoder.measure(x, rng)
+    x = rng.uniform(-3, 3, size=(1, 1000))
+    y = encoder.measure(x, [rng])
     assert np.abs(y - x).max() <= 3.5e-4 + 1e-15
     assert np.allclose(np.round(y / 7e-4) * 7e-4, y)
-    noisy = Encoder(resolution=0.0, noise_std=0.01).measure(np.zeros(20000), rng)
+    noisy = Encoder(resolution=0.0, noise_std=0.01).measure(np.zeros((1, 20000)), [rng])
     assert noisy.std() == pytest.approx(0.01, rel=0.05)
 
 

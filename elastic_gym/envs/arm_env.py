@@ -14,7 +14,7 @@ from typing import ClassVar
 import gymnasium as gym
 import numpy as np
 
-from elastic_gym.envs.batch import ArmBatch
+from elastic_gym.envs.batch import ArmBatch, with_batch_options
 from elastic_gym.robots.spec import RobotSpec
 
 ARM = np.array([0])
@@ -69,11 +69,8 @@ class ArmEnv(gym.Env):
     metadata: ClassVar[dict] = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
     kind: ClassVar[str | None] = None  # "elastic" / "rigid" for the subclasses
 
+    @with_batch_options
     def __init__(self, robot: str | RobotSpec, render_mode: str | None = None, **kwargs) -> None:
-        unknown = set(kwargs) - set(ArmBatch.KWARGS)
-        if unknown:
-            raise TypeError(f"{type(self).__name__}.__init__() got an unexpected keyword "
-                            f"argument {sorted(unknown)[0]!r}; valid: {sorted(ArmBatch.KWARGS)}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode {render_mode!r} not supported; valid: {self.metadata['render_modes']}"

@@ -40,6 +40,8 @@ after ``episode_time`` simulated seconds.
 
 from __future__ import annotations
 
+import functools
+import inspect
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -95,6 +97,28 @@ class RewardWeights:
             ):
                 raise ValueError(f"reward weight {key!r} must be a number >= 0, got {value!r}")
         return cls(**config)
+
+
+def with_batch_options(init):
+    """Give an env ``__init__(self, ..., **kwargs)`` that forwards ``kwargs`` to
+    :class:`ArmBatch` the signature it really accepts (``inspect.signature``, ``help``,
+    keyword validation by the comparison runner), and refuse unknown keywords."""
+    own = inspect.signature(init)
+    batch = [p for name, p in inspect.signature(ArmBatch.__init__).parameters.items()
+             if name in ArmBatch.KWARGS]
+    fixed = [p for p in own.parameters.values() if p.kind is not p.VAR_KEYWORD]
+    signature = own.replace(parameters=[*fixed, *(p.replace(kind=p.KEYWORD_ONLY) for p in batch)])
+
+    @functools.wraps(init)
+    def checked(self, *args, **kwargs):
+        unknown = set(kwargs) - set(own.parameters) - set(ArmBatch.KWARGS)
+        if unknown:
+            raise TypeError(f"{type(self).__name__}() got an unexpected keyword argument "
+                            f"{sorted(unknown)[0]!r}; valid: {sorted(ArmBatch.KWARGS)}")
+        init(self, *args, **kwargs)
+
+    checked.__signature__ = signature
+    return checked
 
 
 def _positive_number(value, name: str, allow_none: bool = False) -> float | None:

@@ -29,7 +29,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from elastic_gym.envs.arm_env import validated_actions
-from elastic_gym.envs.batch import ArmBatch
+from elastic_gym.envs.batch import ArmBatch, with_batch_options
 from elastic_gym.robots.spec import RobotSpec
 
 
@@ -61,14 +61,11 @@ class ArmVectorEnv(VectorEnv):
                                 "autoreset_mode": AutoresetMode.NEXT_STEP}
     kind: ClassVar[str | None] = None
 
+    @with_batch_options
     def __init__(self, robot: str | RobotSpec, num_envs: int = 1,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  max_episode_steps: int | None = None, render_mode: str | None = None,
                  **kwargs) -> None:
-        unknown = set(kwargs) - set(ArmBatch.KWARGS)
-        if unknown:
-            raise TypeError(f"{type(self).__name__}.__init__() got an unexpected keyword "
-                            f"argument {sorted(unknown)[0]!r}; valid: {sorted(ArmBatch.KWARGS)}")
         try:
             mode = AutoresetMode(autoreset_mode)
         except ValueError:

@@ -233,7 +233,7 @@ def run_episode(spec: RunSpec) -> RunResult:
     ``"terminated: <reason>"`` (the env's or the wrapper's termination) or
     ``"failed: <error>"`` (a numerical error raised inside the loop).
     """
-    env = gym.make(spec.env_id, max_episode_steps=UNLIMITED_STEPS, **spec.env_kwargs)
+    env = gym.make(spec.env_id, **{**spec.env_kwargs, "episode_time": None})
     try:
         wrapped, controller = _wrap(env, spec)
         base = env.unwrapped
