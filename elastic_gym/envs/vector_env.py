@@ -166,13 +166,13 @@ class ArmVectorEnv(VectorEnv):
         stepping = ~self._autoreset
         reward, terminated, truncated = batch.step(tau, stepping)
         done = terminated | truncated
+        pending = np.flatnonzero(self._autoreset)
+        if len(pending):  # NEXT_STEP resets (and episodes ended by a wrapper)
+            batch.reset_arms(pending)
         if mode is AutoresetMode.NEXT_STEP:
-            resetting = np.flatnonzero(self._autoreset)
-            if len(resetting):
-                batch.reset_arms(resetting)
             self._autoreset = done
-            return (batch.observation(), reward, terminated, truncated,
-                    masked_info(batch.info(), self._all))
+        else:
+            self._autoreset[:] = False
         if mode is AutoresetMode.SAME_STEP and done.any():
             ended = np.flatnonzero(done)
             final = batch.observation()
@@ -187,6 +187,13 @@ class ArmVectorEnv(VectorEnv):
             return batch.observation(), reward, terminated, truncated, info
         return (batch.observation(), reward, terminated, truncated,
                 masked_info(batch.info(), self._all))
+
+    def end_episodes(self, arms: np.ndarray) -> None:
+        """End the episodes of ``arms`` now (a wrapper terminated them, e.g. on a diverged
+        state estimate): they are reset like any ended episode (autoreset or reset_mask)."""
+        self.batch.running[arms] = False
+        if self.autoreset_mode is not AutoresetMode.DISABLED:
+            self._autoreset[arms] = True  # reset (not stepped) at the next step
 
     def render(self):
         if self.render_mode == "rgb_array":

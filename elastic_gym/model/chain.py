@@ -217,29 +217,76 @@ def _specific_forces_kernel(q, dq, ddq, fp, ip, w, out):
 
 
 @njit(cache=True)
-def _accelerometer_maps_kernel(q, dq, fp, ip, w, T, W):
-    N, n = q.shape
-    chain, _, sensors, gravity, _ = _unpack(fp, ip)
+def _maps_arm(q, dq, chain, sensors, gravity, links, small, bodies, T, W):
+    """T_A and W_A of eq. (10) for one arm (rows of all sensors)."""
+    n = q.shape[0]
     parent = chain[0]
-    small, links, bodies, _ = _workspace(n, w)
     R, p, z, omega, alpha, acc = links
     R_s, r_s, t1, t2 = small[1], small[2], bodies[5], bodies[6]
     zero, zero_n = small[6], bodies[8]
-    for k in range(N):
-        _forward_kinematics(q[k], dq[k], zero_n, zero, *chain, links, small)
-        for i in range(sensors[0].shape[0]):
-            j = _sensor_reading(i, *sensors, gravity, links, small, W[k], 3 * i)
+    _forward_kinematics(q, dq, zero_n, zero, *chain, links, small)
+    for i in range(sensors[0].shape[0]):
+        j = _sensor_reading(i, *sensors, gravity, links, small, W, 3 * i)
+        for c in range(3):
+            for m in range(n):
+                T[3 * i + c, m] = 0.0
+        m = j
+        while m >= 0:  # the joints moving the sensor's link: z_m x (p_S - p_m)
             for c in range(3):
-                for m in range(n):
-                    T[k, 3 * i + c, m] = 0.0
-            m = j
-            while m >= 0:  # the joints moving the sensor's link: z_m x (p_S - p_m)
-                for c in range(3):
-                    t1[c] = p[j, c] + r_s[c] - p[m, c]
-                _cross(z[m], t1, t2)
-                for c in range(3):
-                    T[k, 3 * i + c, m] = R_s[0, c] * t2[0] + R_s[1, c] * t2[1] + R_s[2, c] * t2[2]
-                m = parent[m]
+                t1[c] = p[j, c] + r_s[c] - p[m, c]
+            _cross(z[m], t1, t2)
+            for c in range(3):
+                T[3 * i + c, m] = R_s[0, c] * t2[0] + R_s[1, c] * t2[1] + R_s[2, c] * t2[2]
+            m = parent[m]
+
+
+@njit(cache=True)
+def _accelerometer_maps_kernel(q, dq, fp, ip, w, T, W):
+    N, n = q.shape
+    chain, _, sensors, gravity, _ = _unpack(fp, ip)
+    small, links, bodies, _ = _workspace(n, w)
+    for k in range(N):
+        _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T[k], W[k])
+
+
+@njit(cache=True)
+def _acceleration_from_readings_kernel(q, dq, readings, threshold, damping, fp, ip, w, ddq,
+                                       diagnostics):
+    N, n = q.shape
+    m = readings.shape[1]
+    chain, _, sensors, gravity, _ = _unpack(fp, ip)
+    small, links, bodies, _ = _workspace(n, w)
+    T = np.empty((m, n))
+    W = np.empty(m)
+    residual = np.empty(m)
+    for k in range(N):
+        _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T, W)
+        finite = True
+        for i in range(m):
+            residual[i] = readings[k, i] - W[i]
+            for c in range(n):
+                finite = finite and np.isfinite(T[i, c])
+            finite = finite and np.isfinite(residual[i])
+        if not finite:  # a diverged estimate: no inverse
+            ddq[k, :] = np.nan
+            diagnostics[k, :] = np.nan
+            continue
+        U, s, Vt = np.linalg.svd(T, full_matrices=False)
+        sigma_min = s[n - 1]
+        ratio = min(sigma_min / threshold, 1.0)
+        damping2 = (1.0 - ratio * ratio) * damping * damping
+        for c in range(n):
+            ddq[k, c] = 0.0
+        for r in range(n):
+            y = 0.0
+            for i in range(m):
+                y += U[i, r] * residual[i]
+            y *= s[r] / (s[r] * s[r] + damping2)
+            for c in range(n):
+                ddq[k, c] += Vt[r, c] * y
+        diagnostics[k, 0] = s[0]
+        diagnostics[k, 1] = sigma_min
+        diagnostics[k, 2] = np.sqrt(damping2)
 
 
 @njit(cache=True)
@@ -440,6 +487,30 @@ class SerialChain:
         W = np.empty((len(q), 3 * self.n_sensors))
         _accelerometer_maps_kernel(q, dq, self._params, self._ints, self._work, T, W)
         return T, W
+
+    def acceleration_from_readings(
+        self, q: np.ndarray, dq: np.ndarray, readings: np.ndarray, threshold: float,
+        damping: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """q'' = T_A^+(q) (readings - W_A(q, q')) of De Luca et al. (2007), eq. (11), per arm.
+
+        T_A^+ is the damped least-squares inverse V diag(s / (s^2 + lambda^2)) U^T of the SVD
+        T_A = U diag(s) V^T, with lambda^2 = (1 - (s_min / threshold)^2) damping^2 when the
+        smallest singular value s_min is below ``threshold`` and 0 otherwise (the plain
+        pseudo-inverse). Returns (q'' (N, n), (s_max, s_min, lambda) (N, 3)); rows whose
+        maps are not finite are NaN.
+        """
+        n = self.n
+        q, dq = _batch(q, n, "q"), _batch(dq, n, "dq")
+        readings = np.ascontiguousarray(readings, dtype=np.float64)
+        if readings.shape != (len(q), 3 * self.n_sensors):
+            raise ValueError(f"readings must have shape ({len(q)}, {3 * self.n_sensors}), "
+                             f"got {readings.shape}")
+        ddq = np.empty((len(q), n))
+        diagnostics = np.empty((len(q), 3))
+        _acceleration_from_readings_kernel(q, dq, readings, float(threshold), float(damping),
+                                           self._params, self._ints, self._work, ddq, diagnostics)
+        return ddq, diagnostics
 
     def mass_and_bias(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(M(q) (N, n, n), n(q, q') = C q' + g (N, n))."""

@@ -315,16 +315,23 @@ class RobotModel:
         Solves theta = q + K^-1 g(q) (the inverse of :meth:`static_motor_position`) by the
         fixed-point iteration q <- theta - K^-1 g(q), a contraction since |K^-1 dg/dq| << 1.
         This is how an observer initialises q from the motor encoders with only the gravity
-        vector known (De Luca et al., end of Sec. IV).
+        vector known (De Luca et al., end of Sec. IV). ``theta`` (and ``initial``) may also
+        be (N, n) arrays of several arms; each row iterates until its own convergence, so a
+        row's result does not depend on the others.
         """
         theta = np.asarray(theta, dtype=float)
-        q = theta.copy() if initial is None else np.array(initial, dtype=float)
+        single = theta.ndim == 1
+        theta = np.atleast_2d(theta)
+        q = theta.copy() if initial is None else np.array(np.broadcast_to(initial, theta.shape))
+        active = np.arange(len(theta))
         for _ in range(max_iterations):
-            q_next = theta - self.gravity(q) / self.K
-            if np.max(np.abs(q_next - q)) < tolerance:
-                return q_next
-            q = q_next
-        return q
+            q_next = theta[active] - self.chain.gravity(q[active]) / self.K
+            converged = np.max(np.abs(q_next - q[active]), axis=1) < tolerance
+            q[active] = q_next
+            active = active[~converged]
+            if not len(active):
+                break
+        return q[0] if single else q
 
     def energy(
         self, q: np.ndarray, dq: np.ndarray, theta: np.ndarray | None = None,

@@ -13,6 +13,11 @@ Non-implementable observers (the oracle, and Theorem 1 with the *ideal* link
 acceleration) declare the ground-truth items they need in ``privileged``; the
 :class:`~elastic_gym.observers.wrappers.ObserverWrapper` adds exactly those to the
 observation they receive, and nothing else.
+
+:class:`BatchedObserver` subclasses estimate N arms at once (``reset_arms`` /
+``update_arms`` on observations with a leading arm axis, used by the vector wrappers of
+:mod:`elastic_gym.observers.vector`); their single-arm ``reset`` / ``update`` are the
+case N = 1 of the same code.
 """
 
 from __future__ import annotations
@@ -97,3 +102,86 @@ class Observer(ABC):
                 f"got shape {x.shape}"
             )
         return x.copy()
+
+
+ARM0 = np.array([0])
+
+
+def as_batch(obs: Mapping) -> dict:
+    """A single-arm observation as a batch of one arm (nested mappings included)."""
+    return {key: as_batch(value) if isinstance(value, Mapping) else np.asarray(value)[None]
+            for key, value in obs.items()}
+
+
+class BatchedObserver(Observer):
+    """An observer whose state holds N arms: ``reset_arms`` and ``update_arms``.
+
+    ``obs`` arguments are batched observations (arrays with a leading arm axis of length
+    N, the number of arms); ``arm_diagnostics`` holds one value per arm for each entry of
+    ``diagnostics``. ``reset`` and ``update`` run the same code with N = 1.
+    """
+
+    def __init__(self, model: RobotModel, dt: float) -> None:
+        super().__init__(model, dt)
+        self.arm_diagnostics: dict[str, np.ndarray] = {}
+
+    @abstractmethod
+    def reset_arms(self, obs: Mapping[str, np.ndarray], arms: np.ndarray,
+                   initial_estimate: np.ndarray | None = None) -> np.ndarray:
+        """Initialise the arms ``arms`` (rows of ``obs``); return their estimates.
+
+        The number of arms is that of ``obs``; ``initial_estimate`` is one state vector
+        (for every reset arm) or one row per reset arm.
+        """
+
+    @abstractmethod
+    def update_arms(self, obs: Mapping[str, np.ndarray], torque: np.ndarray, dt: float,
+                    arms: np.ndarray | None = None) -> np.ndarray:
+        """Estimates (N, dim) after one period; only ``arms`` (default all) are advanced."""
+
+    def reset(self, obs: Mapping[str, np.ndarray], initial_estimate: np.ndarray | None = None
+              ) -> np.ndarray:
+        estimate = self.reset_arms(as_batch(obs), ARM0, initial_estimate)[0]
+        self.diagnostics = {key: value[0].item() for key, value in self.arm_diagnostics.items()}
+        return estimate
+
+    def update(self, obs: Mapping[str, np.ndarray], torque: np.ndarray, dt: float) -> np.ndarray:
+        tau = np.asarray(torque, dtype=float)
+        if tau.shape != (self.n,):
+            raise ValueError(f"torque must have shape ({self.n},), got {tau.shape}")
+        estimate = self.update_arms(as_batch(obs), tau[None], dt)[0]
+        self.diagnostics = {key: value[0].item() for key, value in self.arm_diagnostics.items()}
+        return estimate
+
+    # helpers for subclasses
+    def initial_rows(self, initial_estimate: np.ndarray | None, count: int) -> np.ndarray | None:
+        """``initial_estimate`` checked and broadcast to ``count`` rows (or None)."""
+        if initial_estimate is None:
+            return None
+        x = np.asarray(initial_estimate, dtype=float)
+        if x.ndim == 1:
+            x = self.check_initial_estimate(x)[None]
+        if x.shape not in ((1, self.state_dim), (count, self.state_dim)) or not np.all(
+            np.isfinite(x)
+        ):
+            raise ValueError(f"initial_estimate must be {self.state_dim} finite numbers "
+                             f"{self.state_names} (or one row per arm), got shape {x.shape}")
+        return np.broadcast_to(x, (count, self.state_dim)).copy()
+
+    def measured_positions(self, obs: Mapping, arms: np.ndarray | slice) -> np.ndarray:
+        """Encoder readings of ``arms``, (len(arms), N)."""
+        key = "motor_position" if self.elastic else "link_position"
+        return np.asarray(obs[key], dtype=float)[arms]
+
+    def checked_torque(self, torque: np.ndarray, n_arms: int) -> np.ndarray:
+        tau = np.asarray(torque, dtype=float)
+        if tau.shape != (n_arms, self.n):
+            raise ValueError(f"torque must have shape ({n_arms}, {self.n}), got {tau.shape}")
+        return tau
+
+
+def arm_count(obs: Mapping) -> int:
+    """The number of arms of a batched observation."""
+    for value in obs.values():
+        return arm_count(value) if isinstance(value, Mapping) else len(value)
+    raise ValueError("empty observation")

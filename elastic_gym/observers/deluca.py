@@ -54,19 +54,21 @@ paper's observer exactly.
 Initial estimate (Sec. IV, last remark): at rest, theta from the encoders, q from
 theta = q + K^-1 g(q) by fixed-point iteration (only the gravity vector is needed),
 zero velocities.
+
+Batches: the state holds N arms (``reset_arms`` / ``update_arms``); the FOH update of all
+arms is one matrix product and eq. (11) one compiled loop over the arms
+(:meth:`~elastic_gym.model.SerialChain.acceleration_from_readings`).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.linalg.lapack import dgesdd
 
 from elastic_gym.model import RobotModel
-from elastic_gym.observers.base import Observer
+from elastic_gym.observers.base import BatchedObserver, arm_count
 from elastic_gym.observers.deluca_gains import (
     DEFAULT_BANDWIDTH,
     butterworth_poles,
@@ -78,6 +80,7 @@ from elastic_gym.observers.deluca_gains import (
 ACCELERATION_SOURCES = ("ideal", "accelerometer")
 DEFAULT_VELOCITY_SATURATION = 50.0  # rad/s, see "Peaking" above
 DT_TOLERANCE = 1e-9  # relative mismatch of the update period tolerated
+MAX_POLE_STEP = 10.0  # largest |lambda| dt: faster poles overflow the matrix exponential
 
 
 def foh_discretization(
@@ -99,7 +102,7 @@ def foh_discretization(
     return phi, gamma0 - gamma1, gamma1
 
 
-class DeLucaObserver(Observer):
+class DeLucaObserver(BatchedObserver):
     """Acceleration-based observer of De Luca et al. (2007); see the module docstring.
 
     Args:
@@ -145,10 +148,14 @@ class DeLucaObserver(Observer):
         if not isinstance(use_coupling, bool):
             raise TypeError(f"use_coupling must be a bool, got {use_coupling!r}")
         for key, value in (("dls_threshold", dls_threshold), ("dls_damping", dls_damping)):
-            if not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                np.isfinite(value) and value > 0
+            ):
                 raise ValueError(f"{key} must be a positive number, got {value!r}")
-        if velocity_saturation is not None and not (
-            isinstance(velocity_saturation, (int, float)) and velocity_saturation > 0
+        if velocity_saturation is not None and (
+            isinstance(velocity_saturation, bool)
+            or not isinstance(velocity_saturation, (int, float))
+            or not (np.isfinite(velocity_saturation) and velocity_saturation > 0)
         ):
             raise ValueError(
                 "velocity_saturation must be a positive number or None, "
@@ -168,7 +175,7 @@ class DeLucaObserver(Observer):
                 f"acceleration='accelerometer' needs at least {n} measured directions "
                 f"(eq. (10), M >= N); robot {model.spec.name!r} has {3 * model.n_sensors}"
             )
-        self._sensors = model.copy()
+        self._sensors = model.copy().chain  # own scratch buffer
 
         K, B, D = model.K, model.B, model.D
         self.poles = (
@@ -178,16 +185,27 @@ class DeLucaObserver(Observer):
         )
         self.gains = deluca_gains(self.poles, K, B, D)
         self.A_obs = error_matrix(self.gains, K, B, D)
+        if self.dt * np.abs(self.poles).max() > MAX_POLE_STEP:
+            raise ValueError(
+                f"poles up to {np.abs(self.poles).max():.3g} rad/s are too fast for the "
+                f"sampling period {self.dt} s (|lambda| dt must be <= {MAX_POLE_STEP})"
+            )
 
         phi, p0, p1 = foh_discretization(self.A_obs, self._input_matrix(), self.dt)
         self.phi = phi
-        # one matrix for xi_{k+1} = [Phi, P_u, P_0^m, P_1^m] @ (xi_k, u_k, m_k, m_{k+1})
-        self._step_matrix = np.hstack([phi, p0[:, :n] + p1[:, :n], p0[:, n:], p1[:, n:]])
-        self._ddq_input = p1[:, 2 * n :]
-        self._stack = np.zeros(self._step_matrix.shape[1])
-        self._xi = np.zeros(4 * n)
-        self._theta = np.zeros(n)
-        self._ddq = np.zeros(n)
+        # one matrix for xi_{k+1} = [Phi, P_u, P_0^m, P_1^m] @ (xi_k, u_k, m_k, m_{k+1}),
+        # stored transposed for row-stacked arms: xi_{k+1}^T = stack^T @ step^T
+        self._step_rows = np.hstack([phi, p0[:, :n] + p1[:, :n], p0[:, n:], p1[:, n:]]).T.copy()
+        self._ddq_rows = p1[:, 2 * n :].T.copy()
+        self._allocate(1)
+
+    def _allocate(self, n_arms: int) -> None:
+        n = self.n
+        self._stack = np.zeros((n_arms, self._step_rows.shape[0]))
+        self._xi = np.zeros((n_arms, 4 * n))
+        self._theta = np.zeros((n_arms, n))
+        self._ddq = np.zeros((n_arms, n))
+        self.arm_diagnostics = {}
 
     # ------------------------------------------------------------------ design
     def _input_matrix(self) -> np.ndarray:
@@ -203,8 +221,9 @@ class DeLucaObserver(Observer):
         return E
 
     # ------------------------------------------------------------------ measurements
-    def _link_acceleration(self, obs: Mapping, xi: np.ndarray) -> np.ndarray:
-        """q'' sample: ideal (privileged), or eq. (11) at the estimate xi."""
+    def _link_acceleration(self, obs: Mapping, xi: np.ndarray, arms) -> np.ndarray:
+        """q'' samples of ``arms``: ideal (privileged), or eq. (11) at the estimates xi."""
+        n = self.n
         if self.acceleration == "ideal":
             if "link_acceleration" not in obs:
                 raise ValueError(
@@ -212,73 +231,76 @@ class DeLucaObserver(Observer):
                     "ObserverWrapper adds it for observers with privileged link_acceleration)"
                 )
             ddq = np.asarray(obs["link_acceleration"], dtype=float)
-            if ddq.shape != (self.n,):
-                raise ValueError(f"obs['link_acceleration'] must have shape ({self.n},)")
-            return ddq
+            if ddq.shape[1:] != (n,):
+                raise ValueError(f"obs['link_acceleration'] must have shape ({n},) per arm")
+            return ddq[arms]
         if "acceleration" not in obs:
             raise ValueError("acceleration='accelerometer' needs obs['acceleration']")
-        return self._accelerometer_inverse(np.asarray(obs["acceleration"], dtype=float), xi)
-
-    def _accelerometer_inverse(self, reading: np.ndarray, xi: np.ndarray) -> np.ndarray:
-        """Eq. (11), damped least squares: q'' = T_A^+(xi_2) (y2' - W_A(xi_2, xi_4))."""
-        n = self.n
-        dq = xi[3 * n :]
+        reading = np.asarray(obs["acceleration"], dtype=float)[arms]
+        if reading.shape[1:] != (3 * self.model.n_sensors,):
+            raise ValueError(f"obs['acceleration'] must have shape "
+                             f"({3 * self.model.n_sensors},) per arm, got {reading.shape[1:]}")
+        dq = xi[:, 3 * n :]
         if self.velocity_saturation is not None:
             dq = np.clip(dq, -self.velocity_saturation, self.velocity_saturation)
-        T, W = self._sensors.accelerometer_maps(xi[n : 2 * n], dq)
-        if reading.shape != W.shape:
-            raise ValueError(f"obs['acceleration'] must have shape {W.shape}, got {reading.shape}")
-        if not math.isfinite(T.sum() + W.sum()):
-            return np.full(n, np.nan)  # diverged estimate: ObserverWrapper ends the episode
-        U, s, Vt, _ = dgesdd(T, compute_uv=1, full_matrices=0)  # LAPACK: less overhead
-        sigma_min = s[-1]
-        ratio = min(sigma_min / self.dls_threshold, 1.0)
-        damping2 = (1.0 - ratio**2) * self.dls_damping**2
-        self.diagnostics.update(
-            cond_TA=float(s[0] / sigma_min) if sigma_min > 0.0 else float("inf"),
-            sigma_min_TA=float(sigma_min),
-            dls_damping=float(np.sqrt(damping2)),
-            near_singular=bool(sigma_min < self.dls_threshold),
-        )
-        return Vt.T @ (s / (s**2 + damping2) * (U.T @ (reading - W)))
+        ddq, singular = self._sensors.acceleration_from_readings(
+            xi[:, n : 2 * n], dq, reading, self.dls_threshold, self.dls_damping)
+        sigma_max, sigma_min, damping = singular.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cond = np.where(sigma_min > 0.0, sigma_max / sigma_min, np.inf)
+        self._record(arms, cond_TA=cond, sigma_min_TA=sigma_min, dls_damping=damping,
+                     near_singular=sigma_min < self.dls_threshold)
+        return ddq
+
+    def _record(self, arms, **values: np.ndarray) -> None:
+        """Per-arm diagnostics (eq. (11)'s conditioning) of the arms just updated."""
+        N = len(self._xi)
+        for key, value in values.items():
+            column = self.arm_diagnostics.get(key)
+            if column is None or len(column) != N:
+                column = np.zeros(N, dtype=value.dtype)
+                self.arm_diagnostics[key] = column
+            column[arms] = value
 
     # ------------------------------------------------------------------ Observer API
-    def reset(self, obs: Mapping, initial_estimate: np.ndarray | None = None) -> np.ndarray:
-        theta = self.measured_position(obs)
-        xi = self.check_initial_estimate(initial_estimate)
+    def reset_arms(self, obs: Mapping, arms: np.ndarray, initial_estimate=None) -> np.ndarray:
+        n_arms = arm_count(obs)
+        if len(self._xi) != n_arms:
+            self._allocate(n_arms)
+        theta = self.measured_positions(obs, arms)
+        xi = self.initial_rows(initial_estimate, len(arms))
         if xi is None:
-            n = self.n
-            xi = np.concatenate([theta, self.model.static_link_position(theta), np.zeros(2 * n)])
-        self.diagnostics = {}
-        self._xi = xi
-        self._theta = theta
-        self._ddq = self._link_acceleration(obs, xi)
+            q = self.model.static_link_position(theta)
+            xi = np.concatenate([theta, q, np.zeros((len(arms), 2 * self.n))], axis=1)
+        self._xi[arms] = xi
+        self._theta[arms] = theta
+        self._ddq[arms] = self._link_acceleration(obs, xi, arms)
         return xi.copy()
 
-    def update(self, obs: Mapping, torque: np.ndarray, dt: float) -> np.ndarray:
+    def update_arms(self, obs: Mapping, torque: np.ndarray, dt: float,
+                    arms: np.ndarray | None = None) -> np.ndarray:
         if abs(dt - self.dt) > DT_TOLERANCE * self.dt:
             raise ValueError(
                 f"DeLucaObserver was discretized for dt={self.dt}, update called with dt={dt}"
             )
         n = self.n
-        tau = np.asarray(torque, dtype=float)
-        if tau.shape != (n,):
-            raise ValueError(f"torque must have shape ({n},), got {tau.shape}")
-        theta = self.measured_position(obs)
-        stack = self._stack
-        stack[: 4 * n] = self._xi
-        stack[4 * n : 5 * n] = tau
-        stack[5 * n : 6 * n] = self._theta
-        stack[6 * n : 7 * n] = self._ddq
-        stack[7 * n : 8 * n] = theta
+        tau = self.checked_torque(torque, len(self._xi))
+        arms = slice(None) if arms is None else arms
+        theta = self.measured_positions(obs, arms)
+        stack = self._stack[arms]
+        stack[:, : 4 * n] = self._xi[arms]
+        stack[:, 4 * n : 5 * n] = tau[arms]
+        stack[:, 5 * n : 6 * n] = self._theta[arms]
+        stack[:, 6 * n : 7 * n] = self._ddq[arms]
+        stack[:, 7 * n : 8 * n] = theta
         if self.acceleration == "ideal":
-            ddq = self._link_acceleration(obs, self._xi)
-            stack[8 * n :] = ddq
-            xi = self._step_matrix @ stack
+            ddq = self._link_acceleration(obs, self._xi[arms], arms)
+            stack[:, 8 * n :] = ddq
+            xi = stack @ self._step_rows
         else:  # predictor-corrector for eq. (12)
-            stack[8 * n :] = self._ddq
-            predicted = self._step_matrix @ stack
-            ddq = self._link_acceleration(obs, predicted)
-            xi = predicted + self._ddq_input @ (ddq - self._ddq)
-        self._xi, self._theta, self._ddq = xi, theta, ddq
-        return xi.copy()
+            stack[:, 8 * n :] = self._ddq[arms]
+            predicted = stack @ self._step_rows
+            ddq = self._link_acceleration(obs, predicted, arms)
+            xi = predicted + (ddq - self._ddq[arms]) @ self._ddq_rows
+        self._xi[arms], self._theta[arms], self._ddq[arms] = xi, theta, ddq
+        return self._xi.copy()

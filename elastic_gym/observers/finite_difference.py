@@ -15,47 +15,56 @@ from collections.abc import Mapping
 import numpy as np
 
 from elastic_gym.model import RobotModel
-from elastic_gym.observers.base import Observer
+from elastic_gym.observers.base import BatchedObserver, arm_count
 
 
-class FiniteDifferenceObserver(Observer):
+class FiniteDifferenceObserver(BatchedObserver):
     """Filtered finite differences; see the module docstring."""
 
     name = "finite-difference"
 
     def __init__(self, model: RobotModel, dt: float, cutoff_hz: float = 30.0) -> None:
         super().__init__(model, dt)
-        if not (isinstance(cutoff_hz, (int, float)) and cutoff_hz > 0):
-            raise ValueError(f"cutoff_hz must be > 0, got {cutoff_hz!r}")
+        if isinstance(cutoff_hz, bool) or not isinstance(cutoff_hz, (int, float)) or not (
+            np.isfinite(cutoff_hz) and cutoff_hz > 0
+        ):
+            raise ValueError(f"cutoff_hz must be a positive number, got {cutoff_hz!r}")
         self.cutoff_hz = float(cutoff_hz)
-        self._previous = np.zeros(self.n)
-        self._velocity = np.zeros(self.n)
-        self._q_static = np.zeros(self.n)
+        self._allocate(1)
 
-    def _static_link_position(self, theta: np.ndarray) -> np.ndarray:
-        self._q_static = self.model.static_link_position(
-            theta, initial=self._q_static, tolerance=1e-10
-        )
-        return self._q_static
+    def _allocate(self, n_arms: int) -> None:
+        shape = (n_arms, self.n)
+        self._previous, self._velocity, self._q_static = (np.zeros(shape) for _ in range(3))
 
-    def _estimate(self, position: np.ndarray) -> np.ndarray:
+    def _estimate(self, position: np.ndarray, arms) -> np.ndarray:
+        velocity = self._velocity[arms]
         if not self.elastic:
-            return np.concatenate([position, self._velocity])
-        q = self._static_link_position(position)
-        return np.concatenate([position, q, self._velocity, self._velocity])
+            return np.concatenate([position, velocity], axis=1)
+        q = self.model.static_link_position(position, initial=self._q_static[arms],
+                                            tolerance=1e-10)
+        self._q_static[arms] = q
+        return np.concatenate([position, q, velocity, velocity], axis=1)
 
-    def reset(self, obs: Mapping, initial_estimate: np.ndarray | None = None) -> np.ndarray:
-        position = self.measured_position(obs)
-        x0 = self.check_initial_estimate(initial_estimate)
-        self._previous = position.copy()
-        self._q_static = position.copy()
-        self._velocity = np.zeros(self.n) if x0 is None else x0[-self.n :].copy()
-        return self._estimate(position)
+    def reset_arms(self, obs: Mapping, arms: np.ndarray, initial_estimate=None) -> np.ndarray:
+        n_arms = arm_count(obs)
+        if len(self._previous) != n_arms:
+            self._allocate(n_arms)
+        position = self.measured_positions(obs, arms)
+        x0 = self.initial_rows(initial_estimate, len(arms))
+        self._previous[arms] = position
+        self._q_static[arms] = position
+        self._velocity[arms] = 0.0 if x0 is None else x0[:, -self.n :]
+        return self._estimate(position, arms)
 
-    def update(self, obs: Mapping, torque: np.ndarray, dt: float) -> np.ndarray:
-        position = self.measured_position(obs)
-        raw = (position - self._previous) / dt
+    def update_arms(self, obs: Mapping, torque: np.ndarray, dt: float,
+                    arms: np.ndarray | None = None) -> np.ndarray:
+        arms = slice(None) if arms is None else arms
+        position = self.measured_positions(obs, arms)
+        raw = (position - self._previous[arms]) / dt
         a = np.exp(-2.0 * np.pi * self.cutoff_hz * dt)
-        self._velocity = a * self._velocity + (1.0 - a) * raw
-        self._previous = position
-        return self._estimate(position)
+        self._velocity[arms] = a * self._velocity[arms] + (1.0 - a) * raw
+        self._previous[arms] = position
+        estimate = self._estimate(position, arms)
+        out = np.zeros((len(self._previous), self.state_dim))
+        out[arms] = estimate
+        return out

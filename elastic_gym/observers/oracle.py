@@ -6,23 +6,24 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from elastic_gym.observers.base import Observer
+from elastic_gym.observers.base import BatchedObserver
 
 
-class OracleObserver(Observer):
+class OracleObserver(BatchedObserver):
     """Returns the ground truth the env puts in ``info["true_state"]``."""
 
     name = "true"
     privileged = ("true_state",)
 
-    def _truth(self, obs: Mapping) -> np.ndarray:
+    def _truth(self, obs: Mapping, arms) -> np.ndarray:
         truth = obs["true_state"]
         if self.elastic:
-            return np.array(truth["x"], dtype=float)
-        return np.concatenate([truth["q"], truth["dq"]])
+            return np.array(truth["x"], dtype=float)[arms]
+        return np.concatenate([truth["q"], truth["dq"]], axis=-1)[arms]
 
-    def reset(self, obs: Mapping, initial_estimate: np.ndarray | None = None) -> np.ndarray:
-        return self._truth(obs)
+    def reset_arms(self, obs: Mapping, arms: np.ndarray, initial_estimate=None) -> np.ndarray:
+        return self._truth(obs, arms)
 
-    def update(self, obs: Mapping, torque: np.ndarray, dt: float) -> np.ndarray:
-        return self._truth(obs)
+    def update_arms(self, obs: Mapping, torque: np.ndarray, dt: float,
+                    arms: np.ndarray | None = None) -> np.ndarray:
+        return self._truth(obs, slice(None))
