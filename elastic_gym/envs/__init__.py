@@ -1,6 +1,7 @@
 """Environments: PyBullet simulator, sensors, tasks and the Gymnasium env classes."""
 
-from elastic_gym.envs.arm_env import ArmEnv, ElasticArmEnv, RewardWeights, RigidArmEnv
+from elastic_gym.envs.arm_env import ArmEnv, ElasticArmEnv, RigidArmEnv
+from elastic_gym.envs.reward import RewardConfig
 from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
 
 __all__ = [
@@ -8,6 +9,6 @@ __all__ = [
     "ArmEnv",
     "ElasticArmEnv",
     "EncoderConfig",
-    "RewardWeights",
+    "RewardConfig",
     "RigidArmEnv",
 ]

@@ -11,27 +11,23 @@ No link position and no velocity of an elastic arm is ever observed; the ground
 truth is in ``info["true_state"]``. Action: motor torque (N m), clipped to the torque
 limits (``info["torque_saturated"]``).
 
-Reward (documented in the README), with e = q - q_d, dt the control period:
-
-    r = -dt * (w_track |e|^2 + w_velocity |q' - q_d'|^2 + w_torque |tau / tau_max|^2
-               + w_torsion |theta - q|^2)
-
-so that the return approximates an integral cost independent of the control rate.
-An episode whose physics breaks (non-finite state, a velocity above
-``max_velocity``, or a link position beyond the URDF joint limits) ends with
-``terminated=True``, reward ``TERMINATION_PENALTY`` and ``info["termination_reason"]``.
+Reward: :mod:`elastic_gym.envs.reward` (bounded tracking kernels, torque and torque-rate
+penalties, every step >= 0). An episode whose physics breaks (non-finite state, a
+velocity above ``max_velocity``, or a link position beyond the URDF joint limits) ends
+with ``terminated=True``, the reward's (negative) termination reward and
+``info["termination_reason"]``.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 from typing import ClassVar
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from elastic_gym.envs.reward import RewardConfig, total_reward
 from elastic_gym.envs.sensors import (
     AccelerometerArray,
     AccelerometerConfig,
@@ -44,35 +40,9 @@ from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
 from elastic_gym.robots.urdf_tools import joint_limits
-from elastic_gym.validation import checked_fields, per_joint_values
+from elastic_gym.validation import per_joint_values
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
-# Reward of the step that ends an episode on broken physics: the return of an arm held
-# 1.8 rad off its reference for a whole 3 s episode, so that crashing is never cheaper for
-# an RL agent than a bad trajectory (the per-step reward is a negative cost).
-TERMINATION_PENALTY = -10.0
-
-
-@dataclass(frozen=True)
-class RewardWeights:
-    """Weights of the quadratic reward (see module docstring)."""
-
-    track: float = 1.0
-    velocity: float = 0.01
-    torque: float = 1e-3
-    torsion: float = 0.0
-
-    @classmethod
-    def from_config(cls, config) -> RewardWeights:
-        config = checked_fields(cls, config, "reward weight")
-        if config is None:
-            return cls()
-        if isinstance(config, cls):
-            return config
-        for key, value in config.items():
-            if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-                raise ValueError(f"reward weight {key!r} must be a number >= 0, got {value!r}")
-        return cls(**config)
 
 
 class ArmEnv(gym.Env):
@@ -92,11 +62,11 @@ class ArmEnv(gym.Env):
         plant_scaling: parameter changes of the *simulated* robot relative to the nominal
             model (``ParameterScaling`` fields, e.g. ``{"link_mass": 1.3}``).
         torque_limit: override of the motor torque limits (N m).
-        reward_weights: see :class:`RewardWeights`.
+        reward: weights and scales of the reward, see
+            :class:`~elastic_gym.envs.reward.RewardConfig` (also the termination reward).
         max_velocity: |q'| or |theta'| above this ends the episode (rad/s).
         sensor_delay: measurement delay in control periods (encoders and accelerometers;
             the reference is not delayed).
-        termination_penalty: reward of the step that ends an episode on broken physics.
         render_mode: ``"rgb_array"`` or ``"human"``.
     """
 
@@ -114,10 +84,9 @@ class ArmEnv(gym.Env):
         accelerometers: list | None = None,
         plant_scaling: dict | ParameterScaling | None = None,
         torque_limit: list | None = None,
-        reward_weights: dict | RewardWeights | None = None,
+        reward: dict | RewardConfig | None = None,
         max_velocity: float = 100.0,
         sensor_delay: int = 0,
-        termination_penalty: float = TERMINATION_PENALTY,
         render_mode: str | None = None,
     ) -> None:
         self._init_kwargs = {k: v for k, v in locals().items() if k not in ("self", "__class__")}
@@ -140,10 +109,6 @@ class ArmEnv(gym.Env):
         self._check_stability()
         self.torque_limit = self._torque_limit(torque_limit)
         self.max_velocity = float(max_velocity)
-        penalty = termination_penalty
-        if not isinstance(penalty, (int, float)) or not np.isfinite(penalty):
-            raise ValueError(f"termination_penalty must be a finite number, got {penalty!r}")
-        self.termination_penalty = float(penalty)
         if not isinstance(sensor_delay, int) or isinstance(sensor_delay, bool) or sensor_delay < 0:
             raise ValueError(f"sensor_delay must be an integer >= 0 (control periods), "
                              f"got {sensor_delay!r}")
@@ -152,7 +117,7 @@ class ArmEnv(gym.Env):
         self.joint_lower, self.joint_upper = joint_limits(spec.urdf, spec.joint_names)
         limits = np.concatenate([self.joint_lower, self.joint_upper])
         self._limited = bool(np.isfinite(limits).any())
-        self.reward_weights = RewardWeights.from_config(reward_weights)
+        self.reward_config = RewardConfig.from_config(reward)
         self.task = make_task(task, spec, self.model, task_options)
 
         encoder_cfg = EncoderConfig.from_config(encoder)
@@ -264,7 +229,7 @@ class ArmEnv(gym.Env):
         saturated = bool(np.any(tau != command))
         sim.step(tau, self.n_substeps)
         self.time += self.control_dt
-        self._last_torque = tau
+        previous_torque, self._last_torque = self._last_torque, tau
 
         reason = self._termination_reason()
         if reason is not None:
@@ -272,11 +237,11 @@ class ArmEnv(gym.Env):
             info = {"time": self.time, "termination_reason": reason, "torque": tau.copy(),
                     "torque_saturated": saturated}
             last = {key: value.copy() for key, value in self._last_obs.items()}
-            return last, self.termination_penalty, True, False, info
+            return last, self.reward_config.termination_reward, True, False, info
         ddq = sim.link_acceleration(tau)
         reference = self.task.reference(self.time)
         obs = self._observe(ddq, reference)
-        reward = self._reward(tau, reference)
+        reward = self._reward(tau, previous_torque, reference)
         info = self._info(ddq, tau, saturated, reference)
         if self.render_mode == "human":
             self.render()
@@ -399,16 +364,11 @@ class ArmEnv(gym.Env):
         self._last_obs = obs
         return obs
 
-    def _reward(self, tau: np.ndarray, reference: np.ndarray) -> float:
-        sim, w = self.sim, self.reward_weights
-        error, velocity_error = sim.q - reference[0], sim.dq - reference[1]
-        scaled = tau / self.torque_limit
-        cost = w.track * (error @ error) + w.velocity * (velocity_error @ velocity_error)
-        cost += w.torque * (scaled @ scaled)
-        if w.torsion:
-            torsion = sim.theta - sim.q
-            cost += w.torsion * (torsion @ torsion)
-        return float(-self.control_dt * cost)
+    def _reward(self, tau: np.ndarray, previous: np.ndarray, reference: np.ndarray) -> float:
+        sim = self.sim
+        arm = (sim.q - reference[0], sim.dq - reference[1], tau, previous, self.torque_limit,
+               sim.theta - sim.q)
+        return float(total_reward(self.reward_config, self.control_dt, *(a[None] for a in arm))[0])
 
     def _info(
         self, ddq: np.ndarray, tau: np.ndarray, saturated: bool, reference: np.ndarray
