@@ -6,8 +6,9 @@ with the reset options, the perturbed model of each model error, and every
 controller and observer that runs on it (a trained policy is loaded). What fails
 raises :class:`~elastic_gym.evaluation.scenario.ScenarioError` with the field path
 (``envs[0].reset_options: ...``, ``controllers[2].options: ...``) before any compute
-is spent. Errors of the closed loop itself are not setup errors: they are left to
-the runs, which report them in their status.
+is spent. Errors of the closed loop itself (a controller's ``reset`` or call, an
+observer's update) are not setup errors: they are left to the runs, which report
+them in their status.
 
 The estimate: a few closed-loop steps of each (env, controller, state source)
 combination measure its cost per step; with the measured setup time it gives the
@@ -148,12 +149,12 @@ def _sample(env: gym.Env, spec: RunSpec, paths: tuple[str, str]) -> float:
         raise _error(f"{controller_path}.options", exc) from None
     try:
         obs, info = wrapped.reset(seed=spec.seed, options=spec.reset_options or None)
-        controller.reset(obs, public_info(info))
     except Exception as exc:
         raise _error(source_path, exc) from None
     setup = time.perf_counter() - start
     durations = []
     with np.errstate(all="ignore"), contextlib.suppress(Exception):  # the runs report these
+        controller.reset(obs, public_info(info))
         for _ in range(SAMPLE_STEPS):
             tick = time.perf_counter()
             obs, _, terminated, _, info = wrapped.step(controller(obs, public_info(info)))

@@ -83,7 +83,8 @@ def summary_rows(rows: Sequence[dict], identity: Sequence[str]) -> list[dict]:
             summary[column] = float(np.mean(values)) if len(values) else math.nan
         for column in METRIC_KEYS:
             values = np.array([r[column] for r in ok], dtype=float)
-            spread = float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
+            with np.errstate(invalid="ignore"):  # inf (did not settle) has no spread: NaN
+                spread = float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
             summary[column + SPREAD_SUFFIX] = spread
         out.append(summary)
     return out

@@ -144,18 +144,20 @@ def train(config: TrainConfig, progress_bar: bool = True, verbose: int = 0,
     out = Path(config.out_dir)
     check_run_folder(out, overwrite)
     settings, algo_kwargs = split_settings(config)
-    existed = out.is_dir()
+    created = [folder for folder in (out, *out.parents) if not folder.exists()]
     if overwrite:
         clear_run(out, keep_folder=True)
     out.mkdir(parents=True, exist_ok=True)
     try:
         with single_threaded():
             return _train(config, settings, algo_kwargs, out, progress_bar, verbose)
-    except KeyboardInterrupt as exc:
-        clear_run(out, keep_folder=existed)
-        raise Interrupted.of(exc, f"removed the unfinished run {out}") from None
-    except BaseException:
-        clear_run(out, keep_folder=existed)
+    except BaseException as exc:
+        clear_run(out, keep_folder=True)
+        for folder in created:  # deepest first; only the folders this call made, if empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        if isinstance(exc, KeyboardInterrupt):
+            raise Interrupted.of(exc, f"removed the unfinished run {out}") from None
         raise
 
 
@@ -326,6 +328,8 @@ def train_many(configs: list[TrainConfig], workers: int | None = None, backend: 
     from elastic_gym.parallel import Interrupted, for_each_result
 
     check_configs(configs, overwrite)
+    created = {folder for c in configs for folder in (Path(c.out_dir), *Path(c.out_dir).parents)
+               if not folder.exists()}
     results: dict[int, TrainResult] = {}
     try:
         for_each_result(functools.partial(train, progress_bar=False, overwrite=overwrite),
@@ -336,7 +340,10 @@ def train_many(configs: list[TrainConfig], workers: int | None = None, backend: 
         finished = [c.out_dir for c in configs if (Path(c.out_dir) / FINISHED).exists()]
         unfinished = [c.out_dir for c in configs if c.out_dir not in finished]
         for folder in unfinished:
-            clear_run(folder)
+            clear_run(folder, keep_folder=True)
+        for folder in sorted(created, key=lambda f: len(f.parts), reverse=True):
+            with contextlib.suppress(OSError):  # the folders this call made, if left empty
+                folder.rmdir()
         detail = (f"kept the finished run(s) {finished or 'none'}; removed the unfinished "
                   f"run(s) {unfinished}")
         if isinstance(exc, KeyboardInterrupt):
