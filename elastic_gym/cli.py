@@ -15,7 +15,7 @@ import sys
 from collections.abc import Sequence
 
 from elastic_gym.evaluation.scenario import DEFAULT_PRESET, list_presets
-from elastic_gym.parallel import BACKENDS
+from elastic_gym.parallel import BACKENDS, Interrupted, interrupts_raised
 
 
 def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
@@ -33,6 +33,8 @@ def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
     source.add_argument("--list-presets", action="store_true", help="list presets and exit")
     parser.add_argument("--output", metavar="DIR",
                         help="output folder (default: ./compare_out/<scenario name>)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the files of an earlier comparison in the output folder")
     parser.add_argument("--workers", type=int, help="parallel workers (default: one per CPU)")
     parser.add_argument("--backend", choices=BACKENDS, default="process",
                         help="local processes (default) or Ray")
@@ -59,7 +61,7 @@ def run_compare(args: argparse.Namespace) -> int:
         scenario = with_trained_policy(scenario, run)
     compare(
         scenario, output_dir=args.output, workers=args.workers, backend=args.backend,
-        progress=not args.no_progress, plots=not args.no_plots,
+        progress=not args.no_progress, plots=not args.no_plots, overwrite=args.overwrite,
     )
     return 0
 
@@ -105,7 +107,8 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
         "overridable), VecNormalize, evaluation callback, TensorBoard logs. The run folder "
         "plugs into 'elastic-gym compare --policy RUN'.",
     )
-    parser.add_argument("--env", default="elastic_gym/TwoLinkElastic-v0", help="env id")
+    parser.add_argument("--env", default="elastic_gym/TwoLinkElastic-v0",
+                        help="env id (the elastic_gym/ prefix is optional)")
     parser.add_argument("--algo", default="sac", choices=ALGORITHMS)
     parser.add_argument("--state", default="deluca", choices=state_sources(),
                         help="what the policy sees: an observer's estimate, 'true', or raw "
@@ -115,6 +118,8 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], metavar="SEED")
     parser.add_argument("--out", metavar="DIR", help="run folder (default: runs/<algo>-<env>-"
                         "<state>; one sub-folder per seed when several)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an earlier run in the run folder")
     parser.add_argument("--residual", metavar="CONTROLLER",
                         help="residual policy on top of this controller (e.g. "
                         "feedforward-state-feedback)")
@@ -155,10 +160,15 @@ def run_train(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from elastic_gym.training import TrainConfig, parse_overrides, train, train_many
+    from elastic_gym.training.train import check_run_folder
 
+    duplicates = sorted({s for s in args.seeds if args.seeds.count(s) > 1})
+    if duplicates:
+        raise ValueError(f"--seeds: duplicate seed(s) {duplicates}")
     name = args.env.split("/")[-1]
     base = args.out or f"runs/{args.algo}-{name}-{args.state}" + (
         f"-residual-{args.residual}" if args.residual else "")
+    check_run_folder(base, args.overwrite)
     configs = [
         TrainConfig(
             env_id=args.env, algo=args.algo, state=args.state, total_steps=args.steps, seed=seed,
@@ -174,11 +184,12 @@ def run_train(args: argparse.Namespace) -> int:
         for seed in args.seeds
     ]
     if len(configs) == 1:
-        results = [train(configs[0], progress_bar=not args.no_progress)]
+        results = [train(configs[0], progress_bar=not args.no_progress,
+                         overwrite=args.overwrite)]
     else:
         results = train_many(configs, workers=args.workers, backend=args.backend,
-                             progress=not args.no_progress)
-    table = Table(title=f"{args.algo} on {args.env} ({args.state} state)")
+                             progress=not args.no_progress, overwrite=args.overwrite)
+    table = Table(title=f"{args.algo} on {configs[0].env_id} ({args.state} state)")
     table.add_column("run", overflow="fold")
     for column in ("seed", "policy steps", "env steps", "wall time [s]", "eval return"):
         table.add_column(column)
@@ -202,14 +213,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+USAGE_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError,
+                PermissionError)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the console script; returns the exit code."""
+    """Entry point of the console script; returns the exit code.
+
+    2: invalid input (nothing was run); 1: a job could not run (a worker died); 130 / 143:
+    interrupted by SIGINT / SIGTERM (the message says what was kept on disk).
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
+    prefix = f"elastic-gym {args.command}"
     try:
-        return args.handler(args)
-    except (ValueError, FileNotFoundError) as exc:
-        parser.exit(2, f"elastic-gym {args.command}: error: {exc}\n")
+        with interrupts_raised():
+            return args.handler(args)
+    except KeyboardInterrupt as exc:
+        interrupted = exc if isinstance(exc, Interrupted) else Interrupted.of(exc, "")
+        sys.stderr.write(f"{prefix}: {interrupted}\n")
+        return interrupted.exit_code
+    except USAGE_ERRORS as exc:
+        parser.exit(2, f"{prefix}: error: {exc}\n")
+    except RuntimeError as exc:
+        sys.stderr.write(f"{prefix}: error: {exc}\n")
+        return 1
 
 
 if __name__ == "__main__":

@@ -1,27 +1,170 @@
 """Run independent jobs in parallel: local worker processes or a Ray cluster, one code path.
 
 Used by the comparison runner (one job = one episode) and by multi-seed training (one
-job = one training run). Workers run single-threaded BLAS: on small matrices, OpenBLAS
-threads competing for 2 cores made ``scipy.linalg.expm`` of a 16 x 16 matrix 300 x slower.
+job = one training run). :func:`for_each_result` hands every result to the caller as
+soon as it arrives (so that it can be written to disk at once and dropped);
+:func:`run_jobs` collects them in order.
+
+Threads: workers run single-threaded BLAS and torch (:func:`single_threaded`). On small
+matrices, OpenBLAS threads competing for 2 cores made ``scipy.linalg.expm`` of a 16 x 16
+matrix 300 x slower, and 150 SAC steps took 95 s with 2 torch threads against 1.4 s
+with 1 on a loaded 2-core machine.
+
+Interruption: while jobs run, SIGINT (Ctrl-C) and SIGTERM raise :class:`Interrupted`
+(a ``KeyboardInterrupt``) in the main thread. Queued jobs are cancelled, the worker
+processes are terminated (none survives the call; Ray is shut down if this call
+started it), and the exception propagates; the results delivered before it stay with
+the caller. Workers ignore SIGINT: a Ctrl-C in a terminal reaches the whole process
+group, and the parent alone decides what to stop.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
+import sys
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any
 
 from rich.progress import Progress
+from threadpoolctl import threadpool_limits
 
 BACKENDS = ("process", "ray")
 SINGLE_THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+STOP_TIMEOUT = 5.0  # s a terminated worker gets before it is killed
+RAY_POLL = 0.5  # s between checks for signals while waiting on Ray
+RAY_IN_FLIGHT = 4  # Ray tasks submitted per worker; the rest wait here (cancelled for free)
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived while jobs ran; ``exit_code`` is 128 + the signal number.
+
+    ``detail`` says what was kept (set by the caller that cleaned up).
+    """
+
+    def __init__(self, signum: int, detail: str = "") -> None:
+        self.signum = signum
+        self.signal_name = signal.Signals(signum).name
+        self.detail = detail
+        super().__init__(f"interrupted by {self.signal_name}" + (f": {detail}" if detail else ""))
+
+    @classmethod
+    def of(cls, exc: KeyboardInterrupt, detail: str) -> Interrupted:
+        """``exc`` (a plain Ctrl-C counts as SIGINT) with the detail of what was kept."""
+        return cls(getattr(exc, "signum", signal.SIGINT), detail)
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+
+_handlers_depth = 0
+_raised = False
+
+
+def _raise_interrupted(signum: int, frame: object) -> None:
+    global _raised
+    if _raised:  # the cleanup of the first signal is not interrupted by a second one
+        return
+    _raised = True
+    raise Interrupted(signum)
+
+
+@contextmanager
+def interrupts_raised() -> Iterator[None]:
+    """Inside this block SIGINT and SIGTERM raise :class:`Interrupted` in the main thread.
+
+    Only the first signal raises (later ones are ignored until the outermost block ends,
+    so cleanup runs to its end). Outside the main thread this does nothing. The previous
+    handlers are restored at the end.
+    """
+    global _handlers_depth, _raised
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {}
+    if _handlers_depth == 0:
+        _raised = False
+        previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+        _install_handlers()
+    _handlers_depth += 1
+    try:
+        yield
+    finally:
+        _handlers_depth -= 1
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _install_handlers() -> None:
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, _raise_interrupted)
 
 
 def default_workers(n_jobs: int) -> int:
     return max(1, min(n_jobs, os.cpu_count() or 1))
+
+
+def resolve_workers(workers: int | None, n_jobs: int, backend: str) -> int:
+    """The number of workers for ``n_jobs`` jobs (default: one per CPU); checks the
+    arguments (``ValueError``)."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; valid: {list(BACKENDS)}")
+    if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool)
+                                or workers < 1):
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    return workers or default_workers(n_jobs)
+
+
+def for_each_result(
+    function: Callable[[Any], Any],
+    jobs: Sequence[Any],
+    on_result: Callable[[int, Any], None],
+    workers: int | None = None,
+    backend: str = "process",
+    progress: bool = True,
+    label: str = "jobs",
+    describe: Callable[[Any], str] = repr,
+) -> None:
+    """Compute ``function(job)`` for every job in parallel and call ``on_result(index,
+    result)`` in this process as each one completes (in completion order).
+
+    ``backend="process"``: spawned worker processes (``workers=1``: in this process).
+    ``backend="ray"``: a local Ray runtime with ``workers`` CPUs is started unless
+    ``ray.init`` was already called (then the existing cluster is used). A job that
+    raises cancels the others and raises ``RuntimeError`` naming it (``describe``);
+    SIGINT/SIGTERM raise :class:`Interrupted` after stopping every worker (see the
+    module docstring). ``function`` and the jobs must be picklable (module-level
+    function, plain data).
+    """
+    workers = resolve_workers(workers, len(jobs), backend)
+    with interrupts_raised(), Progress(disable=not progress, transient=False) as bar:
+        task = bar.add_task(label, total=len(jobs))
+
+        def deliver(index: int, result: Any) -> None:
+            on_result(index, result)
+            bar.advance(task)
+
+        def failure(index: int, exc: Exception) -> RuntimeError:
+            return RuntimeError(f"{describe(jobs[index])} could not run: "
+                                f"{type(exc).__name__}: {exc}")
+
+        if backend == "ray":
+            _run_ray(function, jobs, workers, deliver, failure)
+        elif workers == 1:
+            with single_threaded():
+                for index, job in enumerate(jobs):
+                    try:
+                        result = function(job)
+                    except Exception as exc:
+                        raise failure(index, exc) from exc
+                    deliver(index, result)
+        else:
+            _run_processes(function, jobs, workers, deliver, failure)
 
 
 def run_jobs(
@@ -33,52 +176,29 @@ def run_jobs(
     label: str = "jobs",
     describe: Callable[[Any], str] = repr,
 ) -> list[Any]:
-    """``[function(job) for job in jobs]`` computed in parallel, in the order of ``jobs``.
-
-    ``backend="process"``: spawned worker processes (``workers=1``: in this process).
-    ``backend="ray"``: a local Ray runtime with ``workers`` CPUs is started unless
-    ``ray.init`` was already called (then the existing cluster is used). The first
-    failing job cancels the others and raises ``RuntimeError`` naming it (``describe``).
-    ``function`` and the jobs must be picklable (module-level function, plain data).
-    """
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; valid: {list(BACKENDS)}")
-    if workers is not None and (not isinstance(workers, int) or workers < 1):
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
-    workers = workers or default_workers(len(jobs))
+    """``[function(job) for job in jobs]`` computed in parallel (:func:`for_each_result`)."""
     results: dict[int, Any] = {}
-    with Progress(disable=not progress, transient=False) as bar:
-        task = bar.add_task(label, total=len(jobs))
-
-        def collect(index: int, result: Any) -> None:
-            results[index] = result
-            bar.advance(task)
-
-        def failure(index: int, exc: Exception) -> RuntimeError:
-            return RuntimeError(f"{describe(jobs[index])} could not run: "
-                                f"{type(exc).__name__}: {exc}")
-
-        if backend == "ray":
-            _run_ray(function, jobs, workers, collect, failure)
-        elif workers == 1:
-            for index, job in enumerate(jobs):
-                try:
-                    collect(index, function(job))
-                except Exception as exc:
-                    raise failure(index, exc) from exc
-        else:
-            _run_processes(function, jobs, workers, collect, failure)
+    for_each_result(function, jobs, results.__setitem__, workers=workers, backend=backend,
+                    progress=progress, label=label, describe=describe)
     return [results[i] for i in range(len(jobs))]
 
 
 @contextmanager
-def single_thread_blas() -> Iterator[None]:
-    """Single-threaded BLAS in the worker processes spawned inside this block."""
+def single_threaded() -> Iterator[None]:
+    """Single-threaded BLAS/OpenMP (and torch, if imported) in this process, and in the
+    worker processes spawned inside this block (through the environment)."""
     saved = {key: os.environ.get(key) for key in SINGLE_THREAD_ENV}
     os.environ.update(SINGLE_THREAD_ENV)
+    torch = sys.modules.get("torch")
+    torch_threads = torch.get_num_threads() if torch is not None else None
     try:
-        yield
+        with threadpool_limits(limits=1):
+            if torch is not None:
+                torch.set_num_threads(1)
+            yield
     finally:
+        if torch is not None:
+            torch.set_num_threads(torch_threads)
         for key, value in saved.items():
             if value is None:
                 os.environ.pop(key, None)
@@ -86,38 +206,80 @@ def single_thread_blas() -> Iterator[None]:
                 os.environ[key] = value
 
 
-def _run_processes(function, jobs, workers, collect, failure) -> None:
+def _call(function: Callable[[Any], Any], job: Any) -> Any:
+    return function(job)
+
+
+def _worker_init() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run_processes(function, jobs, workers, deliver, failure) -> None:
     context = multiprocessing.get_context("spawn")
-    with single_thread_blas(), ProcessPoolExecutor(max_workers=workers,
-                                                   mp_context=context) as pool:
-        futures: dict[Future, int] = {pool.submit(function, job): i for i, job in enumerate(jobs)}
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                               initializer=_worker_init)
+    try:
+        with single_threaded():  # the workers are spawned by the first submissions
+            futures: dict[Future, int] = {pool.submit(function, job): i
+                                          for i, job in enumerate(jobs)}
         for future in as_completed(futures):
             index = futures[future]
             try:
-                collect(index, future.result())
+                result = future.result()
             except Exception as exc:
-                for other in futures:
-                    other.cancel()
                 raise failure(index, exc) from exc
+            deliver(index, result)
+    except BaseException:
+        _stop(pool)
+        raise
+    pool.shutdown()
 
 
-def _run_ray(function, jobs, workers, collect, failure) -> None:
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """Cancel the queued jobs and end the worker processes now (terminate, then kill)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(STOP_TIMEOUT)
+        if process.is_alive():
+            process.kill()
+            process.join()
+
+
+def _run_ray(function, jobs, workers, deliver, failure) -> None:
     try:
         import ray
     except ImportError:
         raise ImportError("backend 'ray' needs the optional extra: pip install "
                           "'elastic-gym[ray]'") from None
-    if not ray.is_initialized():
+    started = not ray.is_initialized()
+    if started:
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
                  runtime_env={"env_vars": SINGLE_THREAD_ENV})
-    remote = ray.remote(num_cpus=1)(function)
-    pending = {remote.remote(job): i for i, job in enumerate(jobs)}
-    while pending:
-        done, _ = ray.wait(list(pending), num_returns=1)
-        index = pending.pop(done[0])
-        try:
-            collect(index, ray.get(done[0]))
-        except Exception as exc:
-            for ref in pending:
-                ray.cancel(ref)
-            raise failure(index, exc) from exc
+        if _handlers_depth and threading.current_thread() is threading.main_thread():
+            _install_handlers()  # ray.init installs a SIGTERM handler of its own
+    remote = ray.remote(num_cpus=1)(_call)  # _call: ray.remote takes plain functions only
+    queue = iter(enumerate(jobs))
+    pending: dict = {}
+    try:
+        while True:
+            while len(pending) < RAY_IN_FLIGHT * workers and (item := next(queue, None)):
+                pending[remote.remote(function, item[1])] = item[0]
+            if not pending:
+                break
+            done, _ = ray.wait(list(pending), num_returns=1, timeout=RAY_POLL)
+            for ref in done:
+                index = pending.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except Exception as exc:
+                    raise failure(index, exc) from exc
+                deliver(index, result)
+    except BaseException:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        if started:
+            ray.shutdown()
+        raise

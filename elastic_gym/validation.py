@@ -9,6 +9,21 @@ from typing import Any, TypeVar
 import numpy as np
 
 T = TypeVar("T")
+ENV_NAMESPACE = "elastic_gym/"
+
+
+def registered_env_id(value: Any) -> str:
+    """A registered Gymnasium env id; a bare name (``TwoLinkElastic-v0``) is looked up in
+    the ``elastic_gym/`` namespace. ``ValueError`` lists the package's ids otherwise."""
+    from gymnasium import registry
+
+    if not isinstance(value, str):
+        raise ValueError(f"env id must be a string, got {value!r}")
+    env_id = value if "/" in value else ENV_NAMESPACE + value
+    if env_id not in registry:
+        valid = sorted(k for k in registry if k.startswith(ENV_NAMESPACE))
+        raise ValueError(f"unknown env id {value!r}; valid: {valid}")
+    return env_id
 
 
 def checked_fields(cls: type[T], config: Any, what: str) -> dict | T | None:

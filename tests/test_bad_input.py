@@ -6,7 +6,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from elastic_gym.envs.batch import TERMINATION_PENALTY
+from elastic_gym.envs.reward import RewardConfig
 from elastic_gym.observers import ObserverWrapper
 
 
@@ -75,9 +75,10 @@ def test_step_before_reset():
         ({"physics_dt": 2e-3}, ValueError, "physics_dt"),
         ({"control_dt": 7.5e-4}, ValueError, "control_dt"),
         ({"torque_limit": [1.0]}, ValueError, "torque_limit"),
-        ({"reward_weights": {"speed": 1.0}}, ValueError, "speed"),
+        ({"reward": {"speed": 1.0}}, ValueError, "speed"),
+        ({"reward": {"sigmas": [1e-3, -1.0]}}, ValueError, "sigmas"),
         ({"render_mode": "ascii"}, ValueError, "render_mode"),
-        ({"termination_penalty": float("nan")}, ValueError, "termination_penalty"),
+        ({"reward": {"termination": float("nan")}}, ValueError, "termination"),
     ],
 )
 def test_bad_env_kwargs(kwargs, error, match):
@@ -105,7 +106,7 @@ def test_non_finite_physics_terminates_with_a_reason():
         "initial_state": {"q": [0.0, 0.0], "dq": [1e300, 1e300]}})
     obs, reward, terminated, _, info = env.step(np.zeros(2))
     assert terminated and info["termination_reason"] == "non-finite state"
-    assert reward == TERMINATION_PENALTY  # worse than any finite episode return of a bad policy
+    assert reward == RewardConfig().termination_reward < 0  # every other step pays >= 0
     # the last finite observation, the same info keys as every step (the truth is not finite)
     assert all(np.array_equal(obs[k], first[k]) for k in obs)
     assert set(info) == set(first_info) and set(info["true_state"]) == set(

@@ -28,9 +28,9 @@ def test_custom_controller_and_observer_example(tmp_path):
     spec.loader.exec_module(module)
     result = compare(module.scenario(duration=0.3), output_dir=tmp_path, workers=1,
                      progress=False, plots=False, console=Console(quiet=True))
-    labels = {(row["controller"], row["source"]) for row in result.rows}
+    labels = {(row["controller"], row["source"]) for row in result.runs.to_dict("records")}
     assert ("torsion-damping", "static") in labels
-    assert all(row["status"] == "ok" for row in result.rows)
+    assert all(row["status"] == "ok" for row in result.runs.to_dict("records"))
 
 
 def test_readme_scenario_yaml_is_valid():

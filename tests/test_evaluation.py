@@ -259,12 +259,29 @@ def test_diverging_run_is_reported_not_raised():
     assert stable.ok and stable.metrics["sim_time"] == pytest.approx(1.0)
 
 
-def test_bad_controller_option_raises_with_the_run():
-    scenario = Scenario.from_dict(rigid_scenario(
-        controllers=[{"name": "pd", "class": GravityPD, "options": {"gain": 1.0}}],
-    ))
-    with pytest.raises(RuntimeError, match=r"'controller': 'pd'.*TypeError.*gain"):
-        execute(plan_runs(scenario)[0], workers=1, progress=False)
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ({"controllers": [{"name": "pd", "class": GravityPD, "options": {"gain": 1.0}}]},
+         r"^controllers\[0\]\.options\.gain: unexpected option; valid: \['kp', 'kd'\]"),
+        ({"controllers": [{"name": "pd", "class": GravityPD, "options": {1: 2.0}}]},
+         r"^controllers\[0\]\.options\.1: unexpected option"),
+        ({"controllers": ["motor-pd", {"name": "feedforward-state-feedback",
+                                       "options": {"omegaa": 30.0}}],
+          "envs": ["TwoLinkElastic-v0"]},
+         r"^controllers\[1\]\.options\.omegaa: unexpected option; valid: \[.*'omega'"),
+        ({"controllers": ["trained-policy"]},
+         r"^controllers\[0\]\.options: .*missing a required argument: 'run'"),
+        ({"state_sources": [{"name": "deluca", "options": {"acceleration": "ideal"}}]},
+         r"^state_sources\[0\]\.options\.acceleration: fixed to 'accelerometer' by the name"),
+        ({"state_sources": [{"name": "ekf", "options": {"alpa": 1.0}}]},
+         r"^state_sources\[0\]\.options\.alpa: unexpected option; valid: \['alpha'"),
+    ],
+)
+def test_options_are_bound_to_the_constructor_before_any_run(entry, message):
+    scenario = Scenario.from_dict(rigid_scenario(**entry))
+    with pytest.raises(ScenarioError, match=message):
+        plan_runs(scenario)
 
 
 def test_compare_in_worker_processes_writes_tables_and_plots(tmp_path):
@@ -275,7 +292,7 @@ def test_compare_in_worker_processes_writes_tables_and_plots(tmp_path):
         duration=0.4,
     ))
     result = compare(scenario, output_dir=tmp_path, workers=2, progress=False, console=QUIET)
-    assert [r.status for r in result.results] == ["ok", "ok"]
+    assert list(result.runs["status"]) == ["ok", "ok"]
     with (tmp_path / "runs.csv").open() as handle:
         rows = list(csv.DictReader(handle))
     assert [row["source"] for row in rows] == ["true", "finite-difference"]

@@ -29,7 +29,7 @@ def kr15_step_rows(tmp_path_factory):
     )
     result = compare(scenario, output_dir=tmp_path_factory.mktemp("kr15"), workers=2,
                      progress=False, plots=False, console=Console(quiet=True))
-    return {(r["plant"], r["controller"], r["source"]): r for r in result.rows}
+    return {(r["plant"], r["controller"], r["source"]): r for r in result.runs.to_dict("records")}
 
 
 @pytest.mark.parametrize("plant", ["nominal", "link-mass+30%"])

@@ -240,3 +240,96 @@ def test_run_folder_freezes_its_hyperparameters(tmp_path):
     assert saved["hyperparams"]["decimation"] == 5
     assert saved["hyperparams"]["gamma"] == resolve_hyperparams("sac", config.env_id)["gamma"]
     assert load_run(tmp_path / "f").decimation == 5
+
+
+def tiny_config(out, **changes) -> TrainConfig:
+    """A SAC run of a few policy steps on the true state (seconds)."""
+    settings = {"algo": "sac", "state": "true", "total_steps": 30, "out_dir": str(out),
+                "env_kwargs": SHORT_EPISODES, "eval_freq": 10**9,
+                "hyperparams": {"learning_starts": 10, "batch_size": 8}}
+    return TrainConfig(**{**settings, **changes})
+
+
+def test_train_refuses_an_earlier_run_unless_overwrite_which_clears_it(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    stale = run / "best_model.zip"  # from a run whose config was different
+    stale.write_bytes(b"stale")
+    (run / "notes.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match=r"holds an earlier run \(best_model\.zip\)"):
+        train(tiny_config(run), progress_bar=False)
+    assert stale.read_bytes() == b"stale" and sorted(p.name for p in run.iterdir()) == [
+        "best_model.zip", "notes.txt"]
+    train(tiny_config(run), progress_bar=False, overwrite=True)
+    assert not stale.exists()  # no evaluation ran, so no best model of this run either
+    assert (run / "model.zip").exists() and (run / "notes.txt").read_text() == "mine"
+
+
+def test_failed_training_removes_what_it_wrote(tmp_path, monkeypatch):
+    from stable_baselines3 import SAC
+
+    learn = SAC.learn
+
+    def diverging(self, *args, **kwargs):
+        learn(self, *args, **kwargs)  # writes tb/ and evaluations
+        raise RuntimeError("loss is NaN")
+
+    monkeypatch.setattr(SAC, "learn", diverging)
+    run = tmp_path / "runs" / "bad"
+    with pytest.raises(RuntimeError, match="loss is NaN"):
+        train(tiny_config(run, eval_freq=10), progress_bar=False)
+    assert sorted(tmp_path.iterdir()) == []  # nor the folders made for it
+    with pytest.raises(ValueError, match="torque_limit"):
+        train(tiny_config(run, env_kwargs={"torque_limit": -1.0}), progress_bar=False)
+    assert not run.exists()
+
+
+def test_runs_that_would_share_a_folder_are_refused(tmp_path, capsys):
+    from elastic_gym.cli import main
+    from elastic_gym.training import train_many
+
+    with pytest.raises(ValueError, match=r"several runs would write to .* \(seeds \[0\]\)"):
+        train_many([tiny_config(tmp_path / "a"), tiny_config(tmp_path / "a")], workers=1)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--seeds", "0", "0", "--out", str(tmp_path / "b")])
+    assert exit_info.value.code == 2
+    assert "--seeds: duplicate seed(s) [0]" in capsys.readouterr().err
+    assert sorted(tmp_path.iterdir()) == []
+
+
+def test_bare_env_id_is_looked_up_in_the_package_namespace():
+    assert TrainConfig(env_id="TwoLinkRigid-v0").env_id == "elastic_gym/TwoLinkRigid-v0"
+    with pytest.raises(ValueError, match=r"unknown env id 'TwoLink-v0'; valid: \['elastic_gym/"):
+        TrainConfig(env_id="TwoLink-v0")
+
+
+def test_training_is_single_threaded_and_restores_the_thread_count(tmp_path, monkeypatch):
+    """150 SAC steps took 95 s with 2 torch threads against 1.4 s with 1 on a loaded
+    2-core machine: a single run pins torch and BLAS to one thread, like the workers."""
+    from stable_baselines3 import SAC
+    from threadpoolctl import threadpool_info
+
+    seen = []
+    learn = SAC.learn
+
+    def spy(self, *args, **kwargs):
+        blas = {pool["num_threads"] for pool in threadpool_info()}
+        seen.append((torch.get_num_threads(), blas))
+        return learn(self, *args, **kwargs)
+
+    monkeypatch.setattr(SAC, "learn", spy)
+    torch.set_num_threads(2)
+    train(tiny_config(tmp_path / "run"), progress_bar=False)
+    assert seen == [(1, {1})]
+    assert torch.get_num_threads() == 2
+
+
+def test_corrupted_run_folder_is_named(tmp_path):
+    train(tiny_config(tmp_path / "run"), progress_bar=False)
+    (tmp_path / "run" / "vecnormalize.pkl").write_bytes(b"garbage")
+    with pytest.raises(ValueError, match=r"vecnormalize\.pkl cannot be loaded: UnpicklingError"):
+        load_run(tmp_path / "run")
+    (tmp_path / "run" / "config.yaml").write_text("algo: ppo\nlearning_rate: 3\n")
+    with pytest.raises(ValueError, match=r"config\.yaml is not a valid run configuration: "
+                                         r"unknown training config field\(s\) \['learning_rate'\]"):
+        load_run(tmp_path / "run")

@@ -1,7 +1,8 @@
 """Environments: PyBullet simulator of N arms, sensors, tasks, the single and vector envs."""
 
 from elastic_gym.envs.arm_env import ArmEnv, ElasticArmEnv, RigidArmEnv
-from elastic_gym.envs.batch import ArmBatch, RewardWeights
+from elastic_gym.envs.batch import ArmBatch
+from elastic_gym.envs.reward import RewardConfig
 from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
 from elastic_gym.envs.vector_env import ArmVectorEnv, ElasticArmVectorEnv, RigidArmVectorEnv
 
@@ -13,7 +14,7 @@ __all__ = [
     "ElasticArmEnv",
     "ElasticArmVectorEnv",
     "EncoderConfig",
-    "RewardWeights",
+    "RewardConfig",
     "RigidArmEnv",
     "RigidArmVectorEnv",
 ]

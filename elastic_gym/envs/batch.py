@@ -26,28 +26,25 @@ Info of one arm (the same keys at every step, terminal steps included): ``time``
 applied, clipped motor torque), ``torque_saturated``, ``reference`` (``q`` .. ``d4q``),
 ``termination_reason`` (None while the episode runs).
 
-Reward, with e = q - q_d and dt the control period:
-
-    r = -dt * (w_track |e|^2 + w_velocity |q' - q_d'|^2 + w_torque |tau / tau_max|^2
-               + w_torsion |theta - q|^2)
-
-An episode whose physics breaks (non-finite state, a velocity above ``max_velocity``,
-or a link position beyond the URDF joint limits) ends with ``terminated=True``, reward
-``termination_penalty`` and ``info["termination_reason"]``; the observation is the final
-one (the last finite one when the state is no longer finite). An episode is truncated
-after ``episode_time`` simulated seconds.
+Reward: :mod:`elastic_gym.envs.reward` (bounded multi-scale tracking kernels, torque and
+torque-rate penalties; every step pays >= 0). An episode whose physics breaks (non-finite
+state, a velocity above ``max_velocity``, or a link position beyond the URDF joint
+limits) ends with ``terminated=True``, the reward's (negative) termination reward and
+``info["termination_reason"]``; the observation is the final one (the last finite one
+when the state is no longer finite). An episode is truncated after ``episode_time``
+simulated seconds.
 """
 
 from __future__ import annotations
 
 import functools
 import inspect
-from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 from gymnasium import spaces
 
+from elastic_gym.envs.reward import RewardConfig, total_reward
 from elastic_gym.envs.sensors import (
     AccelerometerArray,
     AccelerometerConfig,
@@ -60,43 +57,15 @@ from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
 from elastic_gym.robots.urdf_tools import joint_limits
-from elastic_gym.validation import checked_fields, per_joint_values
+from elastic_gym.validation import per_joint_values
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
-# Reward of the step that ends an episode on broken physics: the return of an arm held
-# 1.8 rad off its reference for a whole 3 s episode, so that crashing is never cheaper for
-# an RL agent than a bad trajectory (the per-step reward is a negative cost).
-TERMINATION_PENALTY = -10.0
 EPISODE_TIME = 3.0  # s
 MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
 MAX_SENSOR_DELAY = 1.0  # s
 MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
 REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 STATE_KEYS = ("q", "dq", "theta", "dtheta")
-
-
-@dataclass(frozen=True)
-class RewardWeights:
-    """Weights of the quadratic reward (see module docstring)."""
-
-    track: float = 1.0
-    velocity: float = 0.01
-    torque: float = 1e-3
-    torsion: float = 0.0
-
-    @classmethod
-    def from_config(cls, config) -> RewardWeights:
-        config = checked_fields(cls, config, "reward weight")
-        if config is None:
-            return cls()
-        if isinstance(config, cls):
-            return config
-        for key, value in config.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-                np.isfinite(value) and value >= 0
-            ):
-                raise ValueError(f"reward weight {key!r} must be a number >= 0, got {value!r}")
-        return cls(**config)
 
 
 def with_batch_options(init):
@@ -149,19 +118,19 @@ class ArmBatch:
         plant_scaling: parameter changes of the *simulated* robot relative to the nominal
             model (``ParameterScaling`` fields, e.g. ``{"link_mass": 1.3}``).
         torque_limit: override of the motor torque limits (N m).
-        reward_weights: see :class:`RewardWeights`.
+        reward: weights and scales of the reward, see
+            :class:`~elastic_gym.envs.reward.RewardConfig` (also the termination reward).
         max_velocity: |q'| or |theta'| above this ends the episode (rad/s).
         sensor_delay: measurement delay in control periods (encoders and accelerometers;
             the reference is not delayed).
-        termination_penalty: reward of the step that ends an episode on broken physics.
         episode_time: simulated seconds after which an episode is truncated (None: never).
         gui: show the PyBullet GUI (render_mode="human").
     """
 
     KWARGS: ClassVar[tuple[str, ...]] = (
         "task", "task_options", "physics_dt", "control_dt", "encoder", "accelerometer",
-        "accelerometers", "plant_scaling", "torque_limit", "reward_weights", "max_velocity",
-        "sensor_delay", "termination_penalty", "episode_time",
+        "accelerometers", "plant_scaling", "torque_limit", "reward", "max_velocity",
+        "sensor_delay", "episode_time",
     )
 
     def __init__(
@@ -177,10 +146,9 @@ class ArmBatch:
         accelerometers: list | None = None,
         plant_scaling: dict | ParameterScaling | None = None,
         torque_limit: list | float | None = None,
-        reward_weights: dict | RewardWeights | None = None,
+        reward: dict | RewardConfig | None = None,
         max_velocity: float = 100.0,
         sensor_delay: int = 0,
-        termination_penalty: float = TERMINATION_PENALTY,
         episode_time: float | None = EPISODE_TIME,
         gui: bool = False,
     ) -> None:
@@ -201,12 +169,6 @@ class ArmBatch:
         self._check_stability()
         self.torque_limit = self._torque_limit(torque_limit)
         self.max_velocity = _positive_number(max_velocity, "max_velocity")
-        penalty = termination_penalty
-        if isinstance(penalty, bool) or not isinstance(penalty, (int, float)) or not np.isfinite(
-            penalty
-        ):
-            raise ValueError(f"termination_penalty must be a finite number, got {penalty!r}")
-        self.termination_penalty = float(penalty)
         self.sensor_delay = self._sensor_delay(sensor_delay)
         episode = _positive_number(episode_time, "episode_time", allow_none=True)
         self.episode_time = episode
@@ -214,7 +176,7 @@ class ArmBatch:
         self.joint_lower, self.joint_upper = joint_limits(spec.urdf, spec.joint_names)
         limits = np.concatenate([self.joint_lower, self.joint_upper])
         self._limited = bool(np.isfinite(limits).any())
-        self.reward_weights = RewardWeights.from_config(reward_weights)
+        self.reward_config = RewardConfig.from_config(reward)
         self.task = make_task(task, spec, self.model, task_options, n_arms=N)
 
         encoder_cfg = EncoderConfig.from_config(encoder)
@@ -243,6 +205,7 @@ class ArmBatch:
         self.steps = np.zeros(N, dtype=np.int64)
         self.running = np.zeros(N, dtype=bool)  # an episode is under way (reset, not ended)
         self.torque = np.zeros((N, n))
+        self.previous_torque = np.zeros((N, n))
         self.saturated = np.zeros(N, dtype=bool)
         self.ddq = np.zeros((N, n))
         self.reference = np.zeros((N, len(REFERENCE_KEYS), n))
@@ -357,6 +320,7 @@ class ArmBatch:
         self.reasons[arms] = None
         self.saturated[arms] = False
         self.torque[arms] = self._equilibrium_torque(q, theta)
+        self.previous_torque[arms] = self.torque[arms]
         self.ddq[arms] = self.sim.link_acceleration(self.torque)[arms]
         self.reference[arms] = self.task.reference(self.time[arms], arms)
         self._observe(arms, first=True)
@@ -382,7 +346,7 @@ class ArmBatch:
         self.saturated = np.any(tau != command, axis=1)
         sim.step(tau, self.n_substeps)
         self.steps += stepping
-        self.torque = tau
+        self.previous_torque, self.torque = self.torque, tau
         self.ddq = sim.link_acceleration(tau)
         self.reference = self.task.reference(self.time)
         reasons = self._termination_reasons()
@@ -390,7 +354,7 @@ class ArmBatch:
         self.reasons = np.where(stepping, reasons, None)
         self._slot = (self._slot + 1) % (self.sensor_delay + 1)
         self._observe(np.flatnonzero(stepping), first=False)
-        reward = np.where(terminated, self.termination_penalty, self._reward())
+        reward = np.where(terminated, self.reward_config.termination_reward, self._reward())
         reward = np.where(stepping, reward, 0.0)
         truncated = np.zeros(N, dtype=bool) if self.max_steps is None else (
             (self.steps >= self.max_steps) & stepping & ~terminated
@@ -485,17 +449,10 @@ class ArmBatch:
         self.obs["reference"][arms] = self.reference[arms, :2].reshape(len(arms), -1)
 
     def _reward(self) -> np.ndarray:
-        sim, w = self.sim, self.reward_weights
-        error = sim.q - self.reference[:, 0]
-        velocity_error = sim.dq - self.reference[:, 1]
-        scaled = self.torque / self.torque_limit
-        cost = w.track * np.sum(error * error, axis=1)
-        cost += w.velocity * np.sum(velocity_error * velocity_error, axis=1)
-        cost += w.torque * np.sum(scaled * scaled, axis=1)
-        if w.torsion:
-            torsion = sim.theta - sim.q
-            cost += w.torsion * np.sum(torsion * torsion, axis=1)
-        return -self.control_dt * cost
+        sim = self.sim
+        return total_reward(self.reward_config, self.control_dt, sim.q - self.reference[:, 0],
+                            sim.dq - self.reference[:, 1], self.torque, self.previous_torque,
+                            self.torque_limit, sim.theta - sim.q)
 
     # ------------------------------------------------------------------ outputs
     def observation(self, arms: slice | np.ndarray = slice(None)) -> dict[str, np.ndarray]:
@@ -556,8 +513,8 @@ class ArmBatch:
         episode = {
             "sim": (sim.q, sim.dq, sim.theta, sim.dtheta),
             "arrays": {key: getattr(self, key) for key in (
-                "steps", "running", "torque", "saturated", "ddq", "reference", "reasons", "obs",
-                "_measured", "_slot")},
+                "steps", "running", "torque", "previous_torque", "saturated", "ddq", "reference",
+                "reasons", "obs", "_measured", "_slot")},
             "rngs": [rng.bit_generator.state for rng in self.rngs],
             "accelerometer": (self.accelerometer_array.bias, self.accelerometer_array.filtered,
                               self.accelerometer_array.fresh),

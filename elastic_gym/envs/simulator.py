@@ -264,7 +264,7 @@ class ArmSimulator:
         return self.chain.forward_dynamics(self.q, self.dq, link_tau)
 
     def link_pose(self, link_name: str, arm: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """Position (relative to the arm's base) and rotation of a URDF link frame, from PyBullet."""
+        """Position (from the arm's base) and rotation of a URDF link frame, from PyBullet."""
         c, body = self.client, self.bodies[arm]
         for j in range(p.getNumJoints(body, physicsClientId=c)):
             if p.getJointInfo(body, j, physicsClientId=c)[12].decode() == link_name:

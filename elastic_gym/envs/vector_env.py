@@ -79,7 +79,8 @@ class ArmVectorEnv(VectorEnv):
             isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, int)
             or max_episode_steps < 1
         ):
-            raise ValueError(f"max_episode_steps must be an integer >= 1, got {max_episode_steps!r}")
+            raise ValueError(
+                f"max_episode_steps must be an integer >= 1, got {max_episode_steps!r}")
         self.batch = batch = ArmBatch(robot, num_envs, **kwargs)
         if max_episode_steps is not None:
             batch.limit_episode(max_episode_steps)

@@ -1,47 +1,85 @@
-"""The comparison: plan the grid, run it in parallel, write tables and plots, print the summary.
+"""The comparison: plan the grid, check it, run it in parallel, write tables and plots.
 
 Python API::
 
     from elastic_gym.evaluation import compare, load_preset
 
     result = compare(load_preset("default"), output_dir="compare_out/default")
-    result.summary  # list of dict rows, averaged over seeds
+    result.summary  # mean and spread over seeds: a pandas DataFrame (list of dicts without pandas)
 
 Workers are started with the ``spawn`` method: a script that calls :func:`compare`
 with more than one worker needs the usual ``if __name__ == "__main__":`` guard, and
 controller/observer classes given directly are pickled by reference (define them at
 module level).
 
+Before the first run, everything that can fail without running is checked (the
+output folder, figure file names, every env, axis value, reset option, controller and
+observer built once: :mod:`~elastic_gym.evaluation.preflight`), and the run count and
+an estimate of the wall time are printed.
+
 Output folder (default ``./compare_out/<scenario name>``): ``runs.csv`` (one row per
-run), ``summary.csv`` and ``summary.md`` (averaged over seeds), ``scenario.yaml``
-(the resolved grid) and ``plots/<scenario>.png``.
+run, written as each run finishes), ``summary.csv`` and ``summary.md`` (over seeds),
+``scenario.yaml`` (the resolved grid, written first) and ``plots/<group>.png`` (one
+figure per env x axis values x model error, written as soon as its runs are done;
+the time series of the runs are not kept in memory after that). A folder holding an
+earlier comparison's files is refused unless ``overwrite`` (which removes those
+files first). A run that fails is a row with status ``failed: <Type>: <message>``.
+On SIGINT/SIGTERM the queued runs are cancelled, the workers ended, the tables of the
+finished runs written, and :class:`~elastic_gym.parallel.Interrupted` raised.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import yaml
 from rich.console import Console
 
+from elastic_gym.evaluation.output import (
+    PLOT_DIR,
+    RunsCsv,
+    check_output_folder,
+    clear_results,
+)
 from elastic_gym.evaluation.plots import plot_results
-from elastic_gym.evaluation.report import markdown_table, run_rows, summary_rows, write_csv
-from elastic_gym.evaluation.runner import RunResult, SkippedRun, execute, plan_runs
+from elastic_gym.evaluation.preflight import check_plot_names, preflight
+from elastic_gym.evaluation.report import (
+    as_table,
+    markdown_table,
+    run_row,
+    summary_rows,
+    write_csv,
+)
+from elastic_gym.evaluation.runner import (
+    RunResult,
+    RunSpec,
+    SkippedRun,
+    describe_run,
+    plan_runs,
+    run_episode,
+)
 from elastic_gym.evaluation.scenario import Scenario
+from elastic_gym.parallel import Interrupted, for_each_result, resolve_workers
 
 DEFAULT_OUTPUT_ROOT = Path("compare_out")
 
 
 @dataclass
 class Comparison:
-    """Everything a comparison produced."""
+    """Everything a comparison produced.
+
+    ``runs`` (one row per run) and ``summary`` (per scenario, controller and source: the
+    mean of each metric over the seeds and its spread ``<metric>_std``) are pandas
+    ``DataFrame`` objects when pandas is installed, lists of row dicts otherwise.
+    """
 
     scenario: Scenario
-    results: list[RunResult]
+    runs: Any
+    summary: Any
     skipped: list[SkippedRun]
-    rows: list[dict]
-    summary: list[dict]
     markdown: str
     output_dir: Path
     files: list[Path] = field(default_factory=list)
@@ -54,6 +92,7 @@ def compare(
     backend: str = "process",
     progress: bool = True,
     plots: bool = True,
+    overwrite: bool = False,
     console: Console | None = None,
 ) -> Comparison:
     """Run every applicable run of ``scenario`` and write the tables (and plots).
@@ -65,8 +104,13 @@ def compare(
         backend: ``"process"`` (local processes) or ``"ray"``.
         progress: show a progress bar.
         plots: write the PNG figures.
+        overwrite: replace the files of an earlier comparison in ``output_dir``.
         console: where to print the summary table (default: stdout; silence it with
             ``Console(quiet=True)``).
+
+    Raises (before any run, changing nothing): ``ScenarioError`` naming the field that
+    cannot work, ``NotADirectoryError`` / ``PermissionError`` / ``FileExistsError`` for
+    the output folder, ``ValueError`` for the other arguments.
     """
     console = console or Console()
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / scenario.name
@@ -74,27 +118,82 @@ def compare(
     if not runs:
         raise ValueError(f"scenario {scenario.name!r} has no applicable run "
                          f"({len(skipped)} combinations skipped: {skipped[:3]})")
+    n_workers = resolve_workers(workers, len(runs), backend)
+    check_output_folder(out, overwrite)
+    if plots:
+        check_plot_names(scenario, runs)
+    estimate = preflight(scenario, runs, n_workers)
     skipped_note = _skipped_note(skipped)
-    console.print(f"[bold]{scenario.name}[/bold]: {len(runs)} runs")
+    console.print(f"[bold]{scenario.name}[/bold]: {len(runs)} runs on {n_workers} "
+                  f"{'worker' if n_workers == 1 else 'workers'}, {estimate}")
     console.print(skipped_note, markup=False, end="")
-    results = execute(runs, workers=workers, backend=backend, progress=progress)
 
+    if overwrite:
+        clear_results(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scenario.yaml").write_text(yaml.safe_dump(scenario.to_dict(), sort_keys=False))
+    sink = _Sink(out, runs, plots)
+    try:
+        for_each_result(run_episode, runs, sink.add, workers=n_workers, backend=backend,
+                        progress=progress, label="runs", describe=describe_run)
+    except BaseException as exc:
+        rows = sink.csv.finish()
+        kept = f"kept the {len(rows)} finished of {len(runs)} runs in {out}/"
+        _write_tables(scenario, out, rows, skipped_note + f"\nInterrupted: {kept}.\n")
+        if isinstance(exc, KeyboardInterrupt):
+            raise Interrupted.of(exc, kept) from None
+        if isinstance(exc, Exception):
+            raise RuntimeError(f"{exc}; {kept}") from exc
+        raise
+    rows = sink.csv.finish()
+    summary, markdown = _write_tables(scenario, out, rows, skipped_note)
+    files = [out / "runs.csv", out / "summary.csv", out / "summary.md", out / "scenario.yaml",
+             *sink.plots]
+    console.print(markdown, soft_wrap=True, markup=False)  # long lines are not cut
+    failed = [row["status"] for row in rows if row["status"].startswith("failed")]
+    if failed:
+        console.print(f"{len(failed)} of {len(rows)} runs failed (status column of runs.csv), "
+                      f"e.g. {failed[0]}", markup=False)
+    console.print(f"written to {out}/")
+    return Comparison(scenario, as_table(rows), as_table(summary), skipped, markdown, out, files)
+
+
+class _Sink:
+    """Receives each result as it arrives: writes its row, plots its group once all of
+    the group's runs are in (in run order), and drops the time series."""
+
+    def __init__(self, out: Path, runs: list[RunSpec], plots: bool) -> None:
+        self.csv = RunsCsv(out / "runs.csv")
+        self.plot_dir = out / PLOT_DIR if plots else None
+        self.remaining = Counter(spec.group for spec in runs)
+        self.waiting: dict[tuple, list[RunResult]] = {}
+        self.plots: list[Path] = []
+
+    def add(self, index: int, result: RunResult) -> None:
+        self.csv.add(index, run_row(result))
+        if self.plot_dir is None:
+            return
+        group = result.spec.group
+        members = self.waiting.setdefault(group, [])
+        if result.series is not None:
+            members.append(result)
+        self.remaining[group] -= 1
+        if self.remaining[group] == 0:
+            members = sorted(self.waiting.pop(group), key=lambda r: r.spec.index)
+            if members:
+                self.plots += plot_results(members, self.plot_dir)
+
+
+def _write_tables(scenario: Scenario, out: Path, rows: list[dict],
+                  note: str) -> tuple[list[dict], str]:
     identity = scenario.identity_columns
-    rows = run_rows(results)
     summary = summary_rows(rows, identity)
     markdown = markdown_table(summary, identity)
-    out.mkdir(parents=True, exist_ok=True)
-    files = [write_csv(rows, out / "runs.csv"), write_csv(summary, out / "summary.csv")]
+    write_csv(summary, out / "summary.csv")
     (out / "summary.md").write_text(
-        f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}\n{skipped_note}"
+        f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}\n{note}"
     )
-    (out / "scenario.yaml").write_text(yaml.safe_dump(scenario.to_dict(), sort_keys=False))
-    files += [out / "summary.md", out / "scenario.yaml"]
-    if plots:
-        files += plot_results(results, out / "plots")
-    console.print(markdown, soft_wrap=True, markup=False)  # long lines are not cut
-    console.print(f"written to {out}/")
-    return Comparison(scenario, results, skipped, rows, summary, markdown, out, files)
+    return summary, markdown
 
 
 def _skipped_note(skipped: list[SkippedRun]) -> str:

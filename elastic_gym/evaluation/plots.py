@@ -9,13 +9,13 @@ source has none), and the applied torque |tau|. Uses matplotlib's Agg canvas thr
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
+from elastic_gym.evaluation.output import plot_file_name
 from elastic_gym.evaluation.runner import RunResult
 
 MAX_POINTS = 3000  # samples per line after decimation
@@ -78,6 +78,5 @@ def plot_results(results: Sequence[RunResult], directory: Path) -> list[Path]:
         seed = members[0].spec.labels["seed"]
         runs = [r for r in members if r.spec.labels["seed"] == seed]
         title = " | ".join(str(g) for g in group) + f" | seed {seed}"
-        name = re.sub(r"[^A-Za-z0-9.+-]+", "_", "__".join(str(g) for g in group)).strip("_")
-        paths.append(plot_scenario(runs, title, directory / f"{name}.png"))
+        paths.append(plot_scenario(runs, title, directory / plot_file_name(group)))
     return paths

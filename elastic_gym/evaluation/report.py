@@ -1,8 +1,12 @@
 """Tables of a comparison: one row per run (CSV) and the seed-averaged summary (CSV + markdown).
 
 Metric columns are defined in :mod:`elastic_gym.evaluation.metrics`. The summary
-averages each metric over the seeds whose run completed (status ``ok``); its
-``status`` column reads ``ok`` or e.g. ``1/3 ok (terminated: velocity limit exceeded)``.
+gives, for each metric, the mean over the seeds whose run completed (status ``ok``)
+and its spread ``<metric>_std``, the sample standard deviation over those seeds (NaN
+with fewer than two); its ``status`` column reads ``ok`` or e.g.
+``1/3 ok (terminated: velocity limit exceeded)``. The markdown table shows the means.
+:func:`as_table` gives a pandas ``DataFrame`` when pandas is installed (the ``tables``
+extra), the list of row dicts otherwise.
 """
 
 from __future__ import annotations
@@ -40,19 +44,23 @@ METRIC_COLUMNS = (
     Column("sim_wall_ratio", "sim/wall", 2),
 )
 METRIC_KEYS = tuple(c.key for c in METRIC_COLUMNS)
+SPREAD_SUFFIX = "_std"
+
+
+def run_row(result: RunResult) -> dict:
+    """The row of a run: identity labels, status, every metric (NaN where not applicable
+    or when the run failed before its first sample), simulated time and ``max_<key>``
+    of the observer diagnostics."""
+    row = {**result.spec.labels, "status": result.status}
+    row.update({key: result.metrics.get(key, math.nan) for key in METRIC_KEYS})
+    row["sim_time"] = result.metrics.get("sim_time", math.nan)
+    row.update({f"max_{key}": value for key, value in result.diagnostics.items()})
+    return row
 
 
 def run_rows(results: Sequence[RunResult]) -> list[dict]:
-    """One row per run: identity labels, status, every metric (NaN where not applicable),
-    simulated time and ``max_<key>`` of the observer diagnostics."""
-    rows = []
-    for result in results:
-        row = {**result.spec.labels, "status": result.status}
-        row.update({key: result.metrics.get(key, math.nan) for key in METRIC_KEYS})
-        row["sim_time"] = result.metrics.get("sim_time", math.nan)
-        row.update({f"max_{key}": value for key, value in result.diagnostics.items()})
-        rows.append(row)
-    return rows
+    """One row per run (:func:`run_row`)."""
+    return [run_row(result) for result in results]
 
 
 def summary_rows(rows: Sequence[dict], identity: Sequence[str]) -> list[dict]:
@@ -73,8 +81,22 @@ def summary_rows(rows: Sequence[dict], identity: Sequence[str]) -> list[dict]:
         for column in METRIC_KEYS:
             values = np.array([r[column] for r in ok], dtype=float)
             summary[column] = float(np.mean(values)) if len(values) else math.nan
+        for column in METRIC_KEYS:
+            values = np.array([r[column] for r in ok], dtype=float)
+            with np.errstate(invalid="ignore"):  # inf (did not settle) has no spread: NaN
+                spread = float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
+            summary[column + SPREAD_SUFFIX] = spread
         out.append(summary)
     return out
+
+
+def as_table(rows: Sequence[dict]):
+    """A pandas ``DataFrame`` of the rows when pandas is installed, else the list of rows."""
+    try:
+        import pandas
+    except ImportError:
+        return list(rows)
+    return pandas.DataFrame(list(rows))
 
 
 def write_csv(rows: Sequence[dict], path: Path) -> Path:
@@ -109,7 +131,8 @@ def markdown_table(rows: Sequence[dict], identity: Sequence[str]) -> str:
         return "_no runs_\n"
     constant = [k for k in (*identity, "seeds")
                 if k in rows[0] and len({r[k] for r in rows}) == 1]
-    labels = [k for k in rows[0] if k not in METRIC_KEYS and k not in constant]
+    labels = [k for k in rows[0] if k not in METRIC_KEYS and k not in constant
+              and not (k.endswith(SPREAD_SUFFIX) and k[: -len(SPREAD_SUFFIX)] in METRIC_KEYS)]
     metrics = [c for c in METRIC_COLUMNS
                if any(not math.isnan(r.get(c.key, math.nan)) for r in rows)]
     headers = labels + [c.header for c in metrics]

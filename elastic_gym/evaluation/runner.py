@@ -15,6 +15,8 @@ the same job function), with a progress bar.
 
 from __future__ import annotations
 
+import contextlib
+import inspect
 import itertools
 import time
 from collections.abc import Callable, Sequence
@@ -37,13 +39,12 @@ from elastic_gym.evaluation.scenario import (
     resolve_class,
 )
 from elastic_gym.observers.base import Observer
-from elastic_gym.observers.registry import make_observer, observer_class
+from elastic_gym.observers.registry import OBSERVERS, make_observer, observer_class
 from elastic_gym.observers.wrappers import ObserverWrapper
 from elastic_gym.parallel import run_jobs
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import RobotSpec
 
-UNLIMITED_STEPS = 2**62  # the run length is set by the scenario's duration, not TimeLimit
 STATUS_OK = "ok"
 
 
@@ -81,7 +82,7 @@ class RunResult:
     spec: RunSpec
     status: str
     metrics: dict
-    series: TimeSeries
+    series: TimeSeries | None  # None when the run failed before its first sample
     wall_time: float
     diagnostics: dict = field(default_factory=dict)
 
@@ -123,16 +124,49 @@ def _controller_lookup(name: str) -> type[Controller]:
     return BUILTIN_CONTROLLERS.get(name) or controller_class(name)
 
 
+def check_options(cls: type, options: dict, path: str, fixed: dict | None = None) -> None:
+    """Bind ``options`` to the constructor ``cls(model, dt, **fixed, **options)`` without
+    calling it: unknown, duplicate or missing options raise :class:`ScenarioError` with
+    the field path, e.g. ``controllers[1].options.omegaa: unexpected option``."""
+    fixed = fixed or {}
+    for key in options:
+        if key in fixed:
+            raise ScenarioError(f"{path}.options.{key}", f"fixed to {fixed[key]!r} by the name")
+    try:
+        signature = inspect.signature(cls)
+    except (TypeError, ValueError):  # no introspectable signature: checked when built
+        return
+    parameters = list(signature.parameters.values())[2:]  # after (model, dt)
+    if not any(p.kind is p.VAR_KEYWORD for p in parameters):
+        valid = [p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+                 and p.name not in fixed]
+        for key in options:
+            if key not in valid:
+                raise ScenarioError(f"{path}.options.{key}", f"unexpected option; valid: {valid}")
+    try:
+        signature.bind(None, None, **fixed, **options)
+    except TypeError as exc:
+        raise ScenarioError(f"{path}.options",
+                            f"{cls.__name__}(model, dt, **options): {exc}") from None
+
+
 def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
     """All runs of the grid, and the combinations skipped because they do not apply.
 
     Raises :class:`ScenarioError` naming the field when a controller or observer module
-    is not available (registry names are checked when the scenario is loaded).
+    is not available (registry names are checked when the scenario is loaded) or when
+    its options do not fit its constructor (:func:`check_options`).
     """
-    controllers = [(c, _entry_class(c, f"controllers[{i}]", Controller, _controller_lookup))
-                   for i, c in enumerate(scenario.controllers)]
-    sources = [(s, _entry_class(s, f"state_sources[{i}]", Observer, observer_class))
-               for i, s in enumerate(scenario.state_sources)]
+    controllers, sources = [], []
+    for i, entry in enumerate(scenario.controllers):
+        cls = _entry_class(entry, f"controllers[{i}]", Controller, _controller_lookup)
+        check_options(cls, entry.options, f"controllers[{i}]")
+        controllers.append((entry, cls))
+    for i, entry in enumerate(scenario.state_sources):
+        cls = _entry_class(entry, f"state_sources[{i}]", Observer, observer_class)
+        fixed = OBSERVERS[entry.name][2] if entry.cls is None else {}
+        check_options(cls, entry.options, f"state_sources[{i}]", fixed)
+        sources.append((entry, cls))
     axis_values = itertools.product(*(values for _, values in scenario.axes))
     runs: list[RunSpec] = []
     skipped: list[SkippedRun] = []
@@ -209,61 +243,97 @@ class _Recorder:
                           state_names, self.theta).truncated(self.length)
 
 
-def _wrap(env: gym.Env, spec: RunSpec) -> tuple[ObserverWrapper, Controller]:
-    """The observer wrapper and the controller of a run, on the (perturbed) nominal model."""
-    base = env.unwrapped
-    model = base.model.perturbed(**spec.model_error) if spec.model_error else base.model
-    source = spec.source
+def run_model(env: gym.Env, spec: RunSpec):
+    """The nominal model of the run's controller and observer (with its model error)."""
+    model = env.unwrapped.model
+    return model.perturbed(**spec.model_error) if spec.model_error else model
+
+
+def build_observer(env: gym.Env, spec: RunSpec, model) -> ObserverWrapper:
+    """The run's state source on ``model``, wrapped around ``env``."""
+    source, dt = spec.source, env.unwrapped.control_dt
     observer = (
-        make_observer(source.name, model.copy(), base.control_dt, **source.options)
+        make_observer(source.name, model.copy(), dt, **source.options)
         if source.cls is None
-        else spec.observer_cls(model.copy(), base.control_dt, **source.options)
+        else spec.observer_cls(model.copy(), dt, **source.options)
     )
-    estimate = (None if spec.source.initial_estimate is None
-                else np.asarray(spec.source.initial_estimate, dtype=float))
-    wrapped = ObserverWrapper(env, observer, initial_estimate=estimate)
-    controller = spec.controller_cls(model.copy(), base.control_dt, **spec.controller.options)
-    return wrapped, controller
+    estimate = (None if source.initial_estimate is None
+                else np.asarray(source.initial_estimate, dtype=float))
+    return ObserverWrapper(env, observer, initial_estimate=estimate)
+
+
+def build_controller(env: gym.Env, spec: RunSpec, model) -> Controller:
+    """The run's controller on ``model``."""
+    return spec.controller_cls(model.copy(), env.unwrapped.control_dt, **spec.controller.options)
 
 
 def run_episode(spec: RunSpec) -> RunResult:
     """Run one episode of ``spec.duration`` seconds and compute its metrics.
 
-    Setup errors (bad options) raise; an episode that diverges ends early with status
-    ``"terminated: <reason>"`` (the env's or the wrapper's termination) or
-    ``"failed: <error>"`` (a numerical error raised inside the loop).
+    Never raises for what happens inside the run: an episode that diverges ends early
+    with status ``"terminated: <reason>"`` (the env's or the wrapper's termination); any
+    exception (in the setup, or in a user's controller or observer during the loop)
+    gives status ``"failed: <Type>: <message>"`` with the metrics of the samples recorded
+    until then (none, ``series=None``, when the setup failed).
     """
-    env = gym.make(spec.env_id, **{**spec.env_kwargs, "episode_time": None})
+    env = recorder = None
+    wall = 0.0
     try:
-        wrapped, controller = _wrap(env, spec)
+        env = gym.make(spec.env_id, **{**spec.env_kwargs, "episode_time": None})
+        model = run_model(env, spec)
+        wrapped = build_observer(env, spec, model)
+        controller = build_controller(env, spec, model)
         base = env.unwrapped
         steps = round(spec.duration / base.control_dt)
         recorder = _Recorder(steps, base.n_joints, wrapped.observer.state_dim, base.robot.elastic)
-        status = STATUS_OK
+        names, tracking = wrapped.state_names, base.task.name != "excitation"
         start = time.perf_counter()
-        with np.errstate(all="ignore"):
-            obs, info = wrapped.reset(seed=spec.seed, options=spec.reset_options or None)
-            controller.reset(obs, public_info(info))
-            recorder.record(info)
-            for _ in range(steps):
-                try:
-                    action = controller(obs, public_info(info))
-                    obs, _, terminated, _, info = wrapped.step(action)
-                except (ValueError, ArithmeticError) as exc:
-                    status = f"failed: {type(exc).__name__}: {exc}"
-                    break
-                if terminated:
-                    status = f"terminated: {info.get('termination_reason') or 'terminated'}"
-                    break
-                recorder.record(info)
-        wall = time.perf_counter() - start
+        try:
+            status = _simulate(wrapped, controller, recorder, spec, steps)
+        finally:
+            wall = time.perf_counter() - start
+    except Exception as exc:
+        status = failed_status(exc)
     finally:
-        env.close()
-    series = recorder.series(wrapped.state_names)
-    metrics = compute_metrics(series, tracking=base.task.name != "excitation")
+        if env is not None:
+            with contextlib.suppress(Exception):
+                env.close()
+    if recorder is None or recorder.length == 0:
+        return RunResult(spec, status, {}, None, wall)
+    series = recorder.series(names)
+    try:
+        metrics = compute_metrics(series, tracking=tracking)
+    except Exception as exc:
+        return RunResult(spec, failed_status(exc, "metrics: "), {}, series, wall)
     metrics["sim_time"] = float(series.time[-1])
     metrics["sim_wall_ratio"] = metrics["sim_time"] / wall if wall > 0 else float("nan")
     return RunResult(spec, status, metrics, series, wall, recorder.diagnostics)
+
+
+def failed_status(exc: BaseException, where: str = "") -> str:
+    """``"failed: <Type>: <message>"`` on one line."""
+    message = " ".join(str(exc).split())
+    return f"failed: {where}{type(exc).__name__}: {message}"
+
+
+def _simulate(wrapped: ObserverWrapper, controller: Controller, recorder: _Recorder,
+              spec: RunSpec, steps: int) -> str:
+    """The closed loop; returns the status. Exceptions of the reset propagate, those of
+    the loop end it with a ``failed`` status (the samples recorded so far are kept)."""
+    with np.errstate(all="ignore"):
+        obs, info = wrapped.reset(seed=spec.seed, options=spec.reset_options or None)
+        controller.reset(obs, public_info(info))
+        recorder.record(info)
+        for _ in range(steps):
+            try:
+                action = controller(obs, public_info(info))
+                obs, _, terminated, _, info = wrapped.step(action)
+            except Exception as exc:
+                return failed_status(exc)
+            if terminated:
+                return f"terminated: {info.get('termination_reason') or 'terminated'}"
+            recorder.record(info)
+    return STATUS_OK
 
 
 # ---------------------------------------------------------------------------- execution
@@ -275,8 +345,13 @@ def execute(
 ) -> list[RunResult]:
     """Run all episodes in parallel (:func:`elastic_gym.parallel.run_jobs`), in order.
 
-    ``workers=1`` with the process backend runs in this process (no pool, and the BLAS
-    threading of this process: set ``OPENBLAS_NUM_THREADS=1`` for small matrices).
+    ``workers=1`` with the process backend runs in this process (single-threaded BLAS
+    meanwhile). Every result stays in memory with its time series; :func:`compare
+    <elastic_gym.evaluation.compare>` streams them to disk instead.
     """
     return run_jobs(run_episode, runs, workers=workers, backend=backend, progress=progress,
-                    label="runs", describe=lambda spec: f"run {spec.labels}")
+                    label="runs", describe=describe_run)
+
+
+def describe_run(spec: RunSpec) -> str:
+    return f"run {spec.labels}"

@@ -65,12 +65,13 @@ import yaml
 import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.controllers.registry import CONTROLLERS
 from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
+from elastic_gym.evaluation.output import folder_name_problem
 from elastic_gym.model import ParameterScaling
 from elastic_gym.observers.registry import OBSERVERS
+from elastic_gym.validation import ENV_NAMESPACE, registered_env_id
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
 DEFAULT_PRESET = "default"
-ENV_NAMESPACE = "elastic_gym/"
 TRUE_STATE = "true"
 IDENTITY_COLUMNS = ("env", "model_error", "controller", "source", "seed")
 
@@ -262,6 +263,10 @@ def _parse(data: Mapping, name: str | None) -> Scenario:
     scenario_name = name or data.get("name") or "scenario"
     if not isinstance(scenario_name, str):
         raise ScenarioError("name", f"must be a string, got {scenario_name!r}")
+    problem = folder_name_problem(scenario_name)
+    if problem:
+        raise ScenarioError("name", f"{problem} (it names the output folder "
+                            "compare_out/<name>)")
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ScenarioError("description", "must be a string")
@@ -313,13 +318,10 @@ def _env(item: Any, path: str) -> EnvEntry:
 
 
 def _env_id(value: Any, path: str) -> str:
-    if not isinstance(value, str):
-        raise ScenarioError(path, f"must be an env id string, got {value!r}")
-    env_id = value if "/" in value else ENV_NAMESPACE + value
-    if env_id not in gym.registry:
-        valid = sorted(k for k in gym.registry if k.startswith(ENV_NAMESPACE))
-        raise ScenarioError(path, f"unknown env id {value!r}; valid: {valid}")
-    return env_id
+    try:
+        return registered_env_id(value)
+    except ValueError as exc:
+        raise ScenarioError(path, str(exc)) from None
 
 
 def env_parameters(env_id: str) -> set[str]:
@@ -347,6 +349,11 @@ def _check_env_kwargs(env_id: str, kwargs: Mapping, path: str) -> None:
             path, f"unknown env kwarg(s) {sorted(unknown)} for {env_id}; "
             f"valid: {sorted(env_parameters(env_id))}"
         )
+    if "plant_scaling" in kwargs:
+        try:
+            ParameterScaling.from_config(kwargs["plant_scaling"])
+        except (TypeError, ValueError) as exc:
+            raise ScenarioError(f"{path}.plant_scaling", str(exc)) from None
 
 
 def _controller(item: Any, path: str, source_labels: set[str]) -> ControllerEntry:
@@ -552,4 +559,8 @@ def _seeds(value: Any, path: str) -> tuple[int, ...]:
     for i, seed in enumerate(items):
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             raise ScenarioError(f"{path}[{i}]", f"must be an integer >= 0, got {seed!r}")
+    duplicates = sorted({seed for seed in items if items.count(seed) > 1})
+    if duplicates:
+        raise ScenarioError(path, f"duplicate seed(s) {duplicates}: a seed repeated would "
+                            "count the same run twice in the means over seeds")
     return tuple(items)

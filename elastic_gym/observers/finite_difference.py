@@ -28,7 +28,7 @@ class FiniteDifferenceObserver(BatchedObserver):
         if isinstance(cutoff_hz, bool) or not isinstance(cutoff_hz, (int, float)) or not (
             np.isfinite(cutoff_hz) and cutoff_hz > 0
         ):
-            raise ValueError(f"cutoff_hz must be a positive number, got {cutoff_hz!r}")
+            raise ValueError(f"cutoff_hz must be > 0 (a finite number), got {cutoff_hz!r}")
         self.cutoff_hz = float(cutoff_hz)
         self._allocate(1)
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import yaml
 
 from elastic_gym.training.policy_env import check_state_source
+from elastic_gym.validation import registered_env_id
 
 ALGORITHMS = ("ppo", "sac", "td3")
 OWN_KEYS = {"n_timesteps", "n_envs", "decimation", "normalize"}
@@ -115,9 +116,11 @@ def parse_overrides(items: list[str]) -> dict:
 class TrainConfig:
     """One training run.
 
-    ``state``: ``"true"``, an observer name (the policy sees its estimate), or
-    ``"sensors"`` (raw observation, ``frame_stack`` frames). ``residual``: name of the
-    classical controller the policy corrects (None: the policy outputs the torque).
+    ``env_id``: a registered id; a bare name (``TwoLinkElastic-v0``) means
+    ``elastic_gym/TwoLinkElastic-v0``. ``state``: ``"true"``, an observer name (the
+    policy sees its estimate), or ``"sensors"`` (raw observation, ``frame_stack`` frames).
+    ``residual``: name of the classical controller the policy corrects (None: the policy
+    outputs the torque).
     ``total_steps``: env interactions counted by SB3 (policy steps); None takes
     ``n_timesteps`` from the hyper-parameter file.
     """
@@ -139,6 +142,7 @@ class TrainConfig:
     eval_episodes: int = 3
 
     def __post_init__(self) -> None:
+        self.env_id = registered_env_id(self.env_id)
         algorithm_class(self.algo)
         check_state_source(self.state)
         for key in ("seed", "eval_freq", "eval_episodes", "frame_stack"):

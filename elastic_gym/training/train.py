@@ -5,14 +5,25 @@ statistics are saved beside the model, an ``EvalCallback`` saving the best model
 TensorBoard logs and a progress bar. A run folder holds::
 
     model.zip  vecnormalize.pkl  best_model.zip  config.yaml  summary.json  tb/  evaluations.npz
+
+``summary.json`` is written last: a folder with it holds a finished run. A folder that
+already holds a run is refused unless ``overwrite`` (which first removes the files of
+that run, and only those: a stale ``best_model.zip`` would otherwise load with the new
+config); a run that fails or is interrupted removes what it wrote. Training runs with
+single-threaded torch and BLAS (:func:`elastic_gym.parallel.single_threaded`).
+
+``model.zip`` and ``vecnormalize.pkl`` are pickles: loading a run folder runs code
+from it, so load only run folders from trusted sources.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import json
 import pickle
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +39,9 @@ from elastic_gym.training.config import (
 )
 from elastic_gym.training.policy_env import SENSORS, make_policy_env
 
-RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.yaml")
+RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.yaml")  # needed to load a run
+RUN_OUTPUTS = (*RUN_FILES, "best_model.zip", "summary.json", "evaluations.npz", "tb")
+FINISHED = "summary.json"
 
 
 @dataclass(frozen=True)
@@ -74,41 +87,119 @@ def split_settings(config: TrainConfig) -> tuple[dict, dict]:
     return ours, merged
 
 
-def train(config: TrainConfig, progress_bar: bool = True, verbose: int = 0) -> TrainResult:
-    """Train one policy; write the run folder; return what happened."""
+def earlier_run(folder: Path) -> list[str]:
+    """Files of an earlier training run in ``folder`` or in its ``seed*`` sub-folders."""
+    found = []
+    for directory in (folder, *sorted(folder.glob("seed*"))):
+        found += [str((directory / name).relative_to(folder)) for name in RUN_OUTPUTS
+                  if (directory / name).exists()]
+    return found
+
+
+def check_run_folder(folder: str | Path, overwrite: bool = False) -> None:
+    """Raise if ``folder`` cannot receive a run (changes nothing): ``NotADirectoryError``
+    if it is a file, ``FileExistsError`` if it holds an earlier run and not ``overwrite``."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise NotADirectoryError(f"run folder {str(folder)!r} is a file")
+    earlier = earlier_run(folder) if folder.is_dir() else []
+    if earlier and not overwrite:
+        shown = ", ".join(earlier[:4]) + (", ..." if len(earlier) > 4 else "")
+        raise FileExistsError(
+            f"run folder {str(folder)!r} holds an earlier run ({shown}); choose another "
+            "--out, or replace it with --overwrite (overwrite=True)"
+        )
+
+
+def clear_run(folder: str | Path, keep_folder: bool = False) -> None:
+    """Remove the files of a run (and of ``seed*`` sub-runs) from ``folder``, and the
+    folders left empty (``folder`` itself too unless ``keep_folder``); nothing else."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return
+    for directory in (*sorted(folder.glob("seed*")), folder):
+        if not directory.is_dir():
+            continue
+        for name in RUN_OUTPUTS:
+            path = directory / name
+            if path.is_dir():
+                shutil.rmtree(path)
+            elif path.exists():
+                path.unlink()
+        if not any(directory.iterdir()) and not (keep_folder and directory == folder):
+            with contextlib.suppress(OSError):  # e.g. the current directory
+                directory.rmdir()
+
+
+def train(config: TrainConfig, progress_bar: bool = True, verbose: int = 0,
+          overwrite: bool = False) -> TrainResult:
+    """Train one policy; write the run folder; return what happened.
+
+    Raises before training if the folder holds an earlier run (unless ``overwrite``)
+    or the config is invalid; removes what it wrote if training fails or is
+    interrupted (then :class:`~elastic_gym.parallel.Interrupted` says so).
+    """
+    from elastic_gym.parallel import Interrupted, single_threaded
+
+    out = Path(config.out_dir)
+    check_run_folder(out, overwrite)
+    settings, algo_kwargs = split_settings(config)
+    created = [folder for folder in (out, *out.parents) if not folder.exists()]
+    if overwrite:
+        clear_run(out, keep_folder=True)
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        with single_threaded():
+            return _train(config, settings, algo_kwargs, out, progress_bar, verbose)
+    except BaseException as exc:
+        clear_run(out, keep_folder=True)
+        for folder in created:  # deepest first; only the folders this call made, if empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        if isinstance(exc, KeyboardInterrupt):
+            raise Interrupted.of(exc, f"removed the unfinished run {out}") from None
+        raise
+
+
+def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
+           progress_bar: bool, verbose: int) -> TrainResult:
     from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.vec_env import VecNormalize
 
-    settings, algo_kwargs = split_settings(config)
     total = config.total_steps or int(settings.get("n_timesteps", 100_000))
     n_envs = int(settings.get("n_envs", 1))
-    out = Path(config.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-
     venv = _vec_env(config, settings, n_envs, config.seed)
-    eval_env = _vec_env(config, settings, 1, config.seed + 10_000)
-    normalize = bool(settings.get("normalize", True))
-    gamma = float(algo_kwargs.get("gamma", 0.99))
-    venv = VecNormalize(venv, norm_obs=normalize, norm_reward=normalize, gamma=gamma)
-    eval_env = VecNormalize(eval_env, training=False, norm_obs=normalize, norm_reward=False)
+    try:
+        eval_env = _vec_env(config, settings, 1, config.seed + 10_000)
+    except BaseException:
+        venv.close()
+        raise
+    try:
+        normalize = bool(settings.get("normalize", True))
+        gamma = float(algo_kwargs.get("gamma", 0.99))
+        venv = VecNormalize(venv, norm_obs=normalize, norm_reward=normalize, gamma=gamma)
+        eval_env = VecNormalize(eval_env, training=False, norm_obs=normalize, norm_reward=False)
 
-    policy = algo_kwargs.pop("policy", "MlpPolicy")
-    model = algorithm_class(config.algo)(
-        policy, venv, seed=config.seed, tensorboard_log=str(out / "tb"), verbose=verbose,
-        device="cpu", **algo_kwargs,
-    )
-    callback = EvalCallback(
-        eval_env, n_eval_episodes=config.eval_episodes,
-        eval_freq=max(config.eval_freq // n_envs, 1), best_model_save_path=str(out),
-        log_path=str(out), deterministic=True, verbose=verbose,
-    )
-    start = time.perf_counter()
-    model.learn(total_timesteps=total, callback=callback, progress_bar=progress_bar,
-                tb_log_name=config.algo)
-    wall = time.perf_counter() - start
+        policy = algo_kwargs.pop("policy", "MlpPolicy")
+        model = algorithm_class(config.algo)(
+            policy, venv, seed=config.seed, tensorboard_log=str(out / "tb"), verbose=verbose,
+            device="cpu", **algo_kwargs,
+        )
+        callback = EvalCallback(
+            eval_env, n_eval_episodes=config.eval_episodes,
+            eval_freq=max(config.eval_freq // n_envs, 1), best_model_save_path=str(out),
+            log_path=str(out), deterministic=True, verbose=verbose,
+        )
+        start = time.perf_counter()
+        model.learn(total_timesteps=total, callback=callback, progress_bar=progress_bar,
+                    tb_log_name=config.algo)
+        wall = time.perf_counter() - start
 
-    model.save(out / "model.zip")
-    venv.save(str(out / "vecnormalize.pkl"))
+        model.save(out / "model.zip")
+        venv.save(str(out / "vecnormalize.pkl"))
+    finally:
+        venv.close()
+        eval_env.close()
     # the run folder is self-contained: the hyper-parameters used, not a pointer to a file
     frozen = dataclasses.replace(config, hyperparams_file=None, hyperparams=merged_hyperparams(
         config.algo, config.env_id, config.hyperparams, config.hyperparams_file))
@@ -118,9 +209,7 @@ def train(config: TrainConfig, progress_bar: bool = True, verbose: int = 0) -> T
         else float("nan")
     result = TrainResult(str(out), model.num_timesteps, model.num_timesteps * decimation, wall,
                          mean_eval)
-    (out / "summary.json").write_text(json.dumps(result.__dict__, indent=2))
-    venv.close()
-    eval_env.close()
+    (out / FINISHED).write_text(json.dumps(result.__dict__, indent=2))
     return result
 
 
@@ -149,23 +238,46 @@ class TrainedRun:
 def read_run_config(run_dir: str | Path) -> TrainConfig:
     """The configuration of a run folder written by :func:`train` (checks the folder)."""
     folder = Path(run_dir)
-    missing = [name for name in RUN_FILES if not (folder / name).exists()]
+    if not folder.is_dir():
+        raise ValueError(f"{folder} is not a training run folder: no such folder")
+    missing = [name for name in RUN_FILES if not (folder / name).is_file()]
     if missing:
         raise ValueError(f"{folder} is not a training run folder: missing {missing}")
-    return TrainConfig.from_dict(yaml.safe_load((folder / "config.yaml").read_text()))
+    path = folder / "config.yaml"
+    try:
+        data = yaml.safe_load(path.read_text())
+        if not isinstance(data, dict):
+            raise ValueError(f"must hold a mapping, got {type(data).__name__}")
+        return TrainConfig.from_dict(data)
+    except (yaml.YAMLError, TypeError, ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path} is not a valid run configuration: "
+                         f"{' '.join(str(exc).split())}") from None
 
 
 def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
-    """Load a run folder written by :func:`train` (``best=True``: the EvalCallback's best model)."""
+    """Load a run folder written by :func:`train` (``best=True``: the EvalCallback's best model).
+
+    Unpickles ``model.zip`` and ``vecnormalize.pkl``: load only trusted run folders. A
+    missing or corrupted file raises ``ValueError`` naming it.
+    """
     folder = Path(run_dir)
     config = read_run_config(folder)
     settings, _ = split_settings(config)
     model_path = folder / ("best_model.zip" if best and (folder / "best_model.zip").exists()
                            else "model.zip")
-    model = algorithm_class(config.algo).load(str(model_path), device="cpu")
-    with open(folder / "vecnormalize.pkl", "rb") as handle:
-        normalizer = pickle.load(handle)
-    normalizer.training = False
+    try:
+        model = algorithm_class(config.algo).load(str(model_path), device="cpu")
+    except Exception as exc:
+        raise ValueError(f"{model_path} cannot be loaded as a {config.algo} model: "
+                         f"{type(exc).__name__}: {exc}") from None
+    normalizer_path = folder / "vecnormalize.pkl"
+    try:
+        with open(normalizer_path, "rb") as handle:
+            normalizer = pickle.load(handle)
+        normalizer.training = False
+    except Exception as exc:
+        raise ValueError(f"{normalizer_path} cannot be loaded: {type(exc).__name__}: "
+                         f"{exc}") from None
     return TrainedRun(model, normalizer, config, settings)
 
 
@@ -185,15 +297,58 @@ def evaluate_run(run: TrainedRun, n_episodes: int = 3, seed: int = 123) -> float
     return float(np.mean(returns))
 
 
-def _train_job(config: TrainConfig) -> TrainResult:
-    return train(config, progress_bar=False)
+def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
+    """Everything that can be checked before the first training run: distinct run
+    folders (``--seeds 0 0``), free run folders, valid hyper-parameters, and the policy
+    env of each distinct setting built once (bad env kwargs or observer options)."""
+    folders = [str(Path(c.out_dir)) for c in configs]
+    repeated = sorted({f for f in folders if folders.count(f) > 1})
+    if repeated:
+        seeds = sorted({c.seed for c in configs if str(Path(c.out_dir)) in repeated})
+        raise ValueError(f"several runs would write to {repeated} (seeds {seeds}): give each "
+                         "run its own seed and folder")
+    built = set()
+    for config in configs:
+        check_run_folder(config.out_dir, overwrite)
+        settings, _ = split_settings(config)
+        setting = dataclasses.replace(config, seed=0, out_dir="").to_dict()
+        if repr(setting) not in built:
+            built.add(repr(setting))
+            env_factory(config, settings)().close()
 
 
 def train_many(configs: list[TrainConfig], workers: int | None = None, backend: str = "process",
-               progress: bool = True) -> list[TrainResult]:
-    """Several runs (e.g. seeds) in parallel on local processes or Ray; results in order."""
-    from elastic_gym.parallel import run_jobs
+               progress: bool = True, overwrite: bool = False) -> list[TrainResult]:
+    """Several runs (e.g. seeds) in parallel on local processes or Ray; results in order.
 
-    return run_jobs(_train_job, configs, workers=workers, backend=backend, progress=progress,
-                    label="training runs",
-                    describe=lambda c: f"training run {c.out_dir} (seed {c.seed})")
+    Checks every run before the first (:func:`check_configs`). If a run fails or the
+    process is interrupted (SIGINT/SIGTERM), the other runs are stopped, the finished
+    runs are kept, the unfinished ones removed, and the exception says which is which.
+    """
+    from elastic_gym.parallel import Interrupted, for_each_result
+
+    check_configs(configs, overwrite)
+    created = {folder for c in configs for folder in (Path(c.out_dir), *Path(c.out_dir).parents)
+               if not folder.exists()}
+    results: dict[int, TrainResult] = {}
+    try:
+        for_each_result(functools.partial(train, progress_bar=False, overwrite=overwrite),
+                        configs, results.__setitem__, workers=workers, backend=backend,
+                        progress=progress, label="training runs",
+                        describe=lambda c: f"training run {c.out_dir} (seed {c.seed})")
+    except BaseException as exc:
+        finished = [c.out_dir for c in configs if (Path(c.out_dir) / FINISHED).exists()]
+        unfinished = [c.out_dir for c in configs if c.out_dir not in finished]
+        for folder in unfinished:
+            clear_run(folder, keep_folder=True)
+        for folder in sorted(created, key=lambda f: len(f.parts), reverse=True):
+            with contextlib.suppress(OSError):  # the folders this call made, if left empty
+                folder.rmdir()
+        detail = (f"kept the finished run(s) {finished or 'none'}; removed the unfinished "
+                  f"run(s) {unfinished}")
+        if isinstance(exc, KeyboardInterrupt):
+            raise Interrupted.of(exc, detail) from None
+        if isinstance(exc, Exception):
+            raise RuntimeError(f"{exc}; {detail}") from exc
+        raise
+    return [results[i] for i in range(len(configs))]

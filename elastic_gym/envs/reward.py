@@ -1,0 +1,183 @@
+"""The tracking reward of the arm envs, on arrays with a leading arm axis.
+
+Every input has shape ``(N, n)`` (N arms, n joints): the link tracking error
+e = q - q_d, its rate e' = q' - q_d', the applied motor torque tau, the torque of the
+previous control period, the torque limits and the torsion theta - q (zeros for rigid
+arms). The reward of one control period of length dt is, per arm,
+
+    r = dt * ( w_track    * mean_{joints, sigmas} exp(-(e / sigma)^2)
+             + w_velocity * mean_{joints, sigmas} exp(-(e' / sigma_v)^2)
+             - w_torque   * mean_joints (tau / tau_max)^2
+             - w_rate     * mean_joints min(1, (tau' / tau'_max)^2)
+             - w_torsion  * mean_joints min(1, ((theta - q) / torsion_scale)^2)
+             + (w_torque + w_rate + w_torsion) )
+
+with tau' = (tau - tau_prev) / dt and tau'_max = tau_max / rate_time.
+
+* Tracking ranks precision over many decades: the kernels' widths sigma are one per
+  decade (1e-5 ... 1 rad by default), so the tracking term is a smooth, bounded version
+  of -log10 |e| (each decade of error removed adds about w_track / len(sigmas)); a
+  single quadratic or a single kernel saturates outside one decade.
+* Every penalty is bounded in [0, w] (the torque is clipped to its limit, the rate and
+  torsion terms saturate), and the constant w_torque + w_rate + w_torsion is added, so
+  every step pays r >= 0. The default torque weight (0.01) is below the value of one
+  decade of tracking (1/6): cutting torque can never buy back tracking.
+* The termination reward (an episode whose physics breaks) is
+  ``-termination * (w_track + w_velocity + w_torque + w_rate + w_torsion)``: the best
+  reward of ``termination`` seconds taken away, on top of the (non-negative) rewards the
+  remaining steps would have paid, so ending an episode never pays.
+* The return approximates the time integral of the bracket, independent of the control
+  rate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from elastic_gym.validation import checked_fields
+
+DEFAULT_SIGMAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # rad, one kernel per decade
+DEFAULT_VELOCITY_SIGMAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)  # rad/s
+TERM_NAMES = ("track", "velocity", "torque", "rate", "torsion", "offset")
+_WEIGHTS = ("track", "velocity", "torque", "rate", "torsion")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Weights and scales of the tracking reward (module docstring).
+
+    Attributes:
+        track: weight of the tracking kernels (reward per second of perfect tracking).
+        sigmas: kernel widths of the link error (rad), each > 0.
+        velocity: weight of the velocity-error kernels.
+        velocity_sigmas: kernel widths of the velocity error (rad/s).
+        torque: weight of the normalized squared torque.
+        rate: weight of the torque-rate (action-rate) penalty.
+        rate_time: the rate penalty saturates at tau' = tau_max / rate_time (s).
+        torsion: weight of the torsion penalty (0 by default: a loaded elastic joint
+            must twist).
+        torsion_scale: torsion (rad) at which that penalty saturates.
+        termination: seconds of the best reward lost when the physics breaks.
+    """
+
+    track: float = 1.0
+    sigmas: tuple[float, ...] = DEFAULT_SIGMAS
+    velocity: float = 0.0
+    velocity_sigmas: tuple[float, ...] = DEFAULT_VELOCITY_SIGMAS
+    torque: float = 0.01
+    rate: float = 0.05
+    rate_time: float = 0.002
+    torsion: float = 0.0
+    torsion_scale: float = 0.05
+    termination: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in (*_WEIGHTS, "termination"):
+            value = getattr(self, name)
+            if not _is_number(value) or value < 0:
+                raise ValueError(f"reward {name!r} must be a finite number >= 0, got {value!r}")
+        for name in ("rate_time", "torsion_scale"):
+            value = getattr(self, name)
+            if not _is_number(value) or value <= 0:
+                raise ValueError(f"reward {name!r} must be a finite number > 0, got {value!r}")
+        for name in ("sigmas", "velocity_sigmas"):
+            value = getattr(self, name)
+            if (not isinstance(value, (tuple, list)) or not value
+                    or not all(_is_number(s) and s > 0 for s in value)):
+                raise ValueError(f"reward {name!r} must be a non-empty list of numbers > 0, "
+                                 f"got {value!r}")
+            object.__setattr__(self, name, tuple(float(s) for s in value))
+
+    @classmethod
+    def from_config(cls, config: dict | RewardConfig | None) -> RewardConfig:
+        """A config from a mapping of field names (unknown keys: ``ValueError``)."""
+        config = checked_fields(cls, config, "reward")
+        if config is None:
+            return cls()
+        if isinstance(config, cls):
+            return config
+        return cls(**config)
+
+    @property
+    def penalty_bound(self) -> float:
+        """Largest penalty per second (added back as a constant so that r >= 0)."""
+        return self.torque + self.rate + self.torsion
+
+    @property
+    def max_rate(self) -> float:
+        """Largest reward per second (perfect tracking, no torque, no torsion)."""
+        return self.track + self.velocity + self.penalty_bound
+
+    @property
+    def termination_reward(self) -> float:
+        """Reward of the step that ends an episode on broken physics (< 0)."""
+        return -self.termination * self.max_rate
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def _is_number(value) -> bool:
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and math.isfinite(value))
+
+
+def _kernel_mean(x: np.ndarray, sigmas: tuple[float, ...]) -> np.ndarray:
+    """mean over joints and widths of exp(-(x / sigma)^2); x (N, n) -> (N,)."""
+    scaled = x[..., None] / np.asarray(sigmas)
+    return np.exp(-scaled * scaled).mean(axis=(-2, -1))
+
+
+def _arms(name: str, value) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 2:
+        raise ValueError(f"reward input {name!r} must have shape (arms, joints), got {arr.shape}")
+    return arr
+
+
+def reward_terms(config: RewardConfig, dt: float, error, error_rate, torque, previous_torque,
+                 torque_limit, torsion) -> dict[str, np.ndarray]:
+    """Each term of the reward (already multiplied by ``dt``), every entry of shape (N,).
+
+    Args:
+        config: weights and scales.
+        dt: control period (s).
+        error, error_rate: e = q - q_d and e' = q' - q_d', shape (N, n).
+        torque, previous_torque: applied motor torque now and one period earlier (N, n).
+        torque_limit: tau_max, shape (n,) or (N, n), > 0.
+        torsion: theta - q, shape (N, n) (zeros for rigid arms).
+
+    The keys are :data:`TERM_NAMES`; their sum is :func:`total_reward`.
+    """
+    error = _arms("error", error)
+    shape = error.shape
+    inputs = {"error_rate": error_rate, "torque": torque, "previous_torque": previous_torque,
+              "torsion": torsion}
+    error_rate, torque, previous_torque, torsion = (_arms(k, v) for k, v in inputs.items())
+    for name, arr in zip(inputs, (error_rate, torque, previous_torque, torsion), strict=True):
+        if arr.shape != shape:
+            raise ValueError(f"reward input {name!r} has shape {arr.shape}, error has {shape}")
+    limit = np.broadcast_to(np.asarray(torque_limit, dtype=float), shape)
+    arms = np.ones(shape[0])
+    rate = (torque - previous_torque) * config.rate_time / (dt * limit)
+    relative_torque = np.minimum(np.abs(torque / limit), 1.0)
+    return {
+        "track": dt * config.track * _kernel_mean(error, config.sigmas),
+        "velocity": dt * config.velocity * _kernel_mean(error_rate, config.velocity_sigmas),
+        "torque": -dt * config.torque * (relative_torque**2).mean(axis=-1),
+        "rate": -dt * config.rate * np.minimum(rate * rate, 1.0).mean(axis=-1),
+        "torsion": -dt * config.torsion * np.minimum(
+            (torsion / config.torsion_scale) ** 2, 1.0).mean(axis=-1),
+        "offset": dt * config.penalty_bound * arms,
+    }
+
+
+def total_reward(config: RewardConfig, dt: float, error, error_rate, torque, previous_torque,
+           torque_limit, torsion) -> np.ndarray:
+    """The reward of one control period per arm, shape (N,), each value in [0, dt * max_rate]."""
+    terms = reward_terms(config, dt, error, error_rate, torque, previous_torque, torque_limit,
+                         torsion)
+    return sum(terms.values())

@@ -1,0 +1,187 @@
+"""Checks of a comparison before its first run, and an estimate of its duration.
+
+:func:`preflight` builds, in this process and once each, what the runs will build:
+every env of the grid with its kwargs and with each robustness-axis value, its reset
+with the reset options, the perturbed model of each model error, and every
+controller and observer that runs on it (a trained policy is loaded). What fails
+raises :class:`~elastic_gym.evaluation.scenario.ScenarioError` with the field path
+(``envs[0].reset_options: ...``, ``controllers[2].options: ...``) before any compute
+is spent. Errors of the closed loop itself (a controller's ``reset`` or call, an
+observer's update) are not setup errors: they are left to the runs, which report
+them in their status.
+
+The estimate: a few closed-loop steps of each (env, controller, state source)
+combination measure its cost per step; with the measured setup time it gives the
+expected wall time of every run, summed and shared among the workers.
+
+:func:`check_plot_names` refuses labels that would give a figure file name longer
+than a file system allows, or two figures the same file name (one would overwrite
+the other).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+
+from elastic_gym.controllers.base import public_info
+from elastic_gym.evaluation.output import MAX_NAME_BYTES, plot_file_name
+from elastic_gym.evaluation.runner import (
+    RunSpec,
+    build_controller,
+    build_observer,
+    run_model,
+)
+from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError, merge
+from elastic_gym.parallel import single_threaded
+
+SAMPLE_STEPS = 20  # closed-loop steps timed per (env, controller, source) combination
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Expected wall time of a comparison (s) on ``workers`` workers."""
+
+    seconds: float
+    workers: int
+
+    def __str__(self) -> str:
+        if self.seconds < 90:
+            return f"about {self.seconds:.0f} s"
+        if self.seconds < 5400:
+            return f"about {self.seconds / 60:.0f} min"
+        return f"about {self.seconds / 3600:.1f} h"
+
+
+def _error(path: str, exc: Exception) -> ScenarioError:
+    return ScenarioError(path, f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+
+
+def _make_env(entry_id: str, kwargs: dict, path: str) -> gym.Env:
+    try:
+        return gym.make(entry_id, **kwargs)
+    except Exception as exc:
+        raise _error(path, exc) from None
+
+
+def preflight(scenario: Scenario, runs: Sequence[RunSpec], workers: int) -> Estimate:
+    """Build everything the runs need once (see the module docstring); raise
+    :class:`ScenarioError` on the first failure; return the estimated wall time."""
+    controller_index = {c.label: i for i, c in enumerate(scenario.controllers)}
+    source_index = {s.label: i for i, s in enumerate(scenario.state_sources)}
+    error_index = {v.label: i for i, v in enumerate(scenario.model_errors)}
+    combos: dict[tuple, RunSpec] = {}
+    for spec in runs:
+        combos.setdefault((spec.labels["env"], spec.labels["controller"],
+                           spec.labels["source"]), spec)
+    cost: dict[tuple, float] = {}
+    with single_threaded():
+        for i, entry in enumerate(scenario.envs):
+            if not any(key[0] == entry.label for key in combos):
+                continue
+            path = f"envs[{i}]"
+            start = time.perf_counter()
+            env = _make_env(entry.id, entry.kwargs, f"{path}.kwargs")
+            make_time = time.perf_counter() - start
+            try:
+                _check_reset(env, entry.reset_options, scenario.seeds[0], path)
+                _check_axes(scenario, entry, path)
+                _check_model_errors(env, scenario, error_index)
+                for key, spec in combos.items():
+                    if key[0] != entry.label:
+                        continue
+                    paths = (f"controllers[{controller_index[key[1]]}]",
+                             f"state_sources[{source_index[key[2]]}]")
+                    cost[key] = make_time + _sample(env, spec, paths)
+            finally:
+                env.close()
+    total = sum(cost[(s.labels["env"], s.labels["controller"], s.labels["source"])]
+                for s in runs)
+    return Estimate(total / min(workers, len(runs)), workers)
+
+
+def _check_reset(env: gym.Env, options: dict, seed: int, path: str) -> None:
+    try:
+        env.reset(seed=seed, options=options or None)
+    except Exception as exc:
+        raise _error(f"{path}.reset_options" if options else path, exc) from None
+
+
+def _check_axes(scenario: Scenario, entry, path: str) -> None:
+    for axis, values in scenario.axes:
+        for j, variation in enumerate(values):
+            if not variation.values:
+                continue
+            env = _make_env(entry.id, merge(entry.kwargs, variation.values),
+                            f"axes.{axis}[{j}] (on {path})")
+            env.close()
+
+
+def _check_model_errors(env: gym.Env, scenario: Scenario, error_index: dict) -> None:
+    model = env.unwrapped.model
+    for variation in scenario.model_errors:
+        if variation.values:
+            try:
+                model.perturbed(**variation.values)
+            except Exception as exc:
+                raise _error(f"model_errors[{error_index[variation.label]}]", exc) from None
+
+
+def _sample(env: gym.Env, spec: RunSpec, paths: tuple[str, str]) -> float:
+    """Build the run's observer and controller on ``env`` (errors name their field) and
+    time a few closed-loop steps; returns the expected wall time of such a run (s)
+    without the env construction."""
+    controller_path, source_path = paths
+    start = time.perf_counter()
+    model = run_model(env, spec)
+    try:
+        wrapped = build_observer(env, spec, model)
+    except Exception as exc:
+        raise _error(f"{source_path}.options", exc) from None
+    try:
+        controller = build_controller(env, spec, model)
+    except Exception as exc:
+        raise _error(f"{controller_path}.options", exc) from None
+    try:
+        obs, info = wrapped.reset(seed=spec.seed, options=spec.reset_options or None)
+    except Exception as exc:
+        raise _error(source_path, exc) from None
+    setup = time.perf_counter() - start
+    durations = []
+    with np.errstate(all="ignore"), contextlib.suppress(Exception):  # the runs report these
+        controller.reset(obs, public_info(info))
+        for _ in range(SAMPLE_STEPS):
+            tick = time.perf_counter()
+            obs, _, terminated, _, info = wrapped.step(controller(obs, public_info(info)))
+            durations.append(time.perf_counter() - tick)
+            if terminated:
+                break
+    step = float(np.median(durations)) if durations else 0.0
+    return setup + step * round(spec.duration / env.unwrapped.control_dt)
+
+
+def check_plot_names(scenario: Scenario, runs: Sequence[RunSpec]) -> None:
+    """Refuse labels whose figure file names are too long or coincide (see module doc)."""
+    columns = [IDENTITY_COLUMNS[0], *scenario.axis_names, IDENTITY_COLUMNS[1]]
+    fields = ["envs", *(f"axes.{name}" for name in scenario.axis_names), "model_errors"]
+    seen: dict[str, tuple] = {}
+    for group in dict.fromkeys(spec.group for spec in runs):
+        name = plot_file_name(group)
+        if len(name.encode()) > MAX_NAME_BYTES:
+            longest = max(range(len(group)), key=lambda k: len(str(group[k])))
+            raise ScenarioError(
+                fields[longest], f"the labels {list(group)} give a figure file name of "
+                f"{len(name.encode())} bytes (the limit is {MAX_NAME_BYTES}): shorten the "
+                f"{columns[longest]} label {group[longest]!r}")
+        other = seen.setdefault(name, group)
+        if other != group:
+            differ = next(k for k in range(len(group)) if group[k] != other[k])
+            raise ScenarioError(
+                fields[differ], f"the {columns[differ]} labels {other[differ]!r} and "
+                f"{group[differ]!r} give the same figure file name {name!r} (only letters, "
+                "digits, '.', '+' and '-' are kept): make them differ in those")

@@ -1,0 +1,156 @@
+"""SIGINT / SIGTERM during `elastic-gym compare --workers 2` and `elastic-gym train --seeds ...`:
+the command stops within seconds, keeps the finished runs on disk, ends its worker
+processes (none is left behind) and exits with 128 + the signal number."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+SLEEPY_CONTROLLER = '''
+import time
+
+import numpy as np
+
+from elastic_gym.controllers.base import Controller
+
+
+class Sleepy(Controller):
+    """Zero action (the excitation task drives the arm), ``delay`` s of wall time per step."""
+
+    name = "sleepy"
+
+    def __init__(self, model, dt, delay):
+        super().__init__(model, dt)
+        self.delay = delay
+
+    def __call__(self, obs, info):
+        time.sleep(self.delay)
+        return np.zeros(self.n)
+'''
+N_RUNS = 8  # 4 seeds x (a fast controller, and one taking 20 s per run)
+STOP_TIME = 4.0  # s: the slow runs in flight would keep a worker busy far longer
+
+
+def children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def wait_for(condition, process: subprocess.Popen, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if process.poll() is not None:
+            out, err = process.communicate()
+            pytest.fail(f"the command ended first ({process.returncode}): {out}\n{err}")
+        if time.monotonic() > deadline:
+            process.kill()
+            pytest.fail("timed out waiting for the first finished run")
+        time.sleep(0.05)
+
+
+def data_rows(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    with path.open() as handle:
+        return list(csv.DictReader(handle))
+
+
+def start(args: list[str], tmp_path: Path) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
+    return subprocess.Popen([sys.executable, "-m", "elastic_gym.cli", *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def stop(process: subprocess.Popen, signum: int) -> tuple[list[int], float, str]:
+    """Send ``signum``; return the worker ids seen before, the time to exit and stderr."""
+    workers = children(process.pid)
+    process.send_signal(signum)
+    sent = time.monotonic()
+    _, err = process.communicate(timeout=60)
+    return workers, time.monotonic() - sent, err
+
+
+def assert_no_survivor(workers: list[int]) -> None:
+    deadline = time.monotonic() + 5.0
+    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not [pid for pid in workers if alive(pid)]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_interrupted_compare_keeps_finished_runs_and_ends_its_workers(tmp_path, signum):
+    (tmp_path / "sleepy_controller.py").write_text(SLEEPY_CONTROLLER)
+    config = tmp_path / "slow.yaml"
+    config.write_text(yaml.safe_dump({
+        "name": "slow", "duration": 0.4, "seeds": list(range(N_RUNS // 2)),
+        "envs": [{"id": "TwoLinkRigid-v0", "kwargs": {"task": "excitation"}}],
+        "controllers": [
+            {"name": "fast", "class": "sleepy_controller:Sleepy", "options": {"delay": 0.0}},
+            {"name": "slow", "class": "sleepy_controller:Sleepy", "options": {"delay": 0.05}},
+        ],
+        "state_sources": ["finite-difference"],
+    }))
+    out = tmp_path / "out"
+    process = start(["compare", "--config", str(config), "--output", str(out), "--workers", "2",
+                     "--no-progress", "--no-plots"], tmp_path)
+    wait_for(lambda: data_rows(out / "runs.csv"), process, timeout=180)
+    workers, elapsed, err = stop(process, signum)
+
+    assert process.returncode == 128 + signum, err
+    assert elapsed < STOP_TIME
+    rows = data_rows(out / "runs.csv")
+    assert 1 <= len(rows) < N_RUNS and {row["status"] for row in rows} == {"ok"}
+    assert {row["controller"] for row in rows} == {"fast"}
+    name = signal.Signals(signum).name
+    assert f"interrupted by {name}: kept the {len(rows)} finished of {N_RUNS} runs" in err
+    assert "Interrupted: kept" in (out / "summary.md").read_text()
+    assert len(data_rows(out / "summary.csv")) == 1
+    assert len(workers) >= 2  # the two workers (and multiprocessing's resource tracker)
+    assert_no_survivor(workers)
+
+
+def test_interrupted_multi_seed_training_keeps_finished_runs_and_ends_its_workers(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "runs"
+    process = start(["train", "--state", "true", "--steps", "60", "--seeds", "0", "1", "2",
+                     "--workers", "2", "--out", str(out), "--env-kwargs",
+                     "{max_episode_steps: 100}", "--hyperparams", "learning_starts=20",
+                     "batch_size=16", "--eval-freq", "1000000", "--no-progress"], tmp_path)
+    wait_for(lambda: list(out.glob("seed*/summary.json")), process, timeout=300)
+    workers, elapsed, err = stop(process, signal.SIGINT)
+
+    assert process.returncode == 130, err
+    assert elapsed < 10.0
+    assert "interrupted by SIGINT: kept the finished run(s)" in err
+    finished = sorted(p.parent.name for p in out.glob("seed*/summary.json"))
+    assert finished and "seed2" not in finished
+    for folder in out.iterdir():  # an unfinished run leaves nothing behind
+        assert folder.name in finished, sorted(p.name for p in folder.iterdir())
+        assert (folder / "model.zip").exists() and str(folder) in err
+    assert_no_survivor(workers)
