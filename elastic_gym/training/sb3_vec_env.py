@@ -89,7 +89,7 @@ class SB3VecEnv(VecEnv):
         self.env.close()
 
     # ------------------------------------------------------------------ attributes
-    def _indices(self, indices: None | int | Iterable[int]) -> Sequence[int]:
+    def _indices(self, indices: int | Iterable[int] | None) -> Sequence[int]:
         if indices is None:
             return range(self.num_envs)
         return [indices] if isinstance(indices, int) else list(indices)
