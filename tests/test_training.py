@@ -14,8 +14,8 @@ from elastic_gym.training import (
     parse_overrides,
     train,
 )
-from elastic_gym.training.config import algorithm_class, resolve_hyperparams
-from elastic_gym.training.train import TrainedRun, env_factory, split_settings
+from elastic_gym.training.config import resolve_hyperparams
+from elastic_gym.training.train import env_factory, evaluate_policy, split_settings
 
 SHORT_EPISODES = {"max_episode_steps": 200}
 
@@ -62,26 +62,27 @@ def test_short_run_saves_reloads_and_acts_the_same(tmp_path, algo, hyperparams):
     assert first.normalizer.obs_rms.count > 1  # statistics were saved, not defaults
 
 
-def test_training_improves_regulation(tmp_path):
-    """SAC learns to hold the elastic arm at a goal with torque actions: the trained
-    policy's link error is less than half the untrained policy's (which lets the arm fall)
-    and its return is higher."""
-    hyperparams = {"learning_starts": 200, "batch_size": 64, "decimation": 20,
-                   "learning_rate": 1e-3, "gamma": 0.95, "policy_kwargs": {"net_arch": [64, 64]}}
-    env_kwargs = {"max_episode_steps": 400, "task": "regulation", "accelerometer": "ideal"}
-    config = TrainConfig(algo="sac", state="true", total_steps=2500, out_dir=str(tmp_path / "r"),
-                         env_kwargs=env_kwargs, hyperparams=hyperparams, eval_freq=10**9)
+def test_ppo_learns_to_hold_the_arm_against_gravity(tmp_path):
+    """PPO with motor-offset actions (no model term) learns the offset that cancels the
+    gravity sag of the elastic arm held at a configuration: after 1000 policy steps its
+    link error is below 30 % of the zero-offset policy's (the PD alone sags ~8 mrad)."""
+    env_kwargs = {"max_episode_steps": 100, "task": "regulation", "accelerometer": "ideal",
+                  "task_options": {"start": [-1.0, 0.5], "goal": [-1.0, 0.5]}}
+    hyperparams = {"n_envs": 1, "n_steps": 100, "batch_size": 50, "n_epochs": 10,
+                   "learning_rate": 3e-3, "gamma": 0.9, "decimation": 10,
+                   "policy_kwargs": {"net_arch": [32, 32], "log_std_init": -1.0}}
+    config = TrainConfig(algo="ppo", state="true", total_steps=1000, out_dir=str(tmp_path / "r"),
+                         env_kwargs=env_kwargs, hyperparams=hyperparams, eval_freq=10**9,
+                         action={"kind": "motor-offset"})
     train(config, progress_bar=False)
-    trained = evaluate_run(load_run(config.out_dir), n_episodes=4)
-
-    settings, algo_kwargs = split_settings(config)
-    from stable_baselines3.common.env_util import make_vec_env
-
-    fresh = algorithm_class("sac")("MlpPolicy", make_vec_env(env_factory(config, settings), 1),
-                                   seed=0, device="cpu", **algo_kwargs)
-    untrained = evaluate_run(TrainedRun(fresh, None, config, settings), n_episodes=4)
-    assert trained.rms < 0.5 * untrained.rms
-    assert trained.mean_return > untrained.mean_return
+    trained = evaluate_run(load_run(config.out_dir), n_episodes=2)
+    settings, _ = split_settings(config)
+    env = env_factory(config, settings)()
+    zero = evaluate_policy(env, lambda obs: np.zeros(2), trained.seeds)
+    env.close()
+    assert zero.rms > 5e-3
+    assert trained.rms < 0.3 * zero.rms
+    assert trained.mean_return > zero.mean_return
 
 
 def test_residual_policy_env_starts_from_the_classical_controller():
