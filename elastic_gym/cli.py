@@ -120,10 +120,16 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
                         "<state>; one sub-folder per seed when several)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an earlier run in the run folder")
+    parser.add_argument("--action", choices=("torque", "motor-offset", "residual"),
+                        help="action parameterization (default: the hyper-parameter file's)")
+    parser.add_argument("--action-options", default="{}", metavar="YAML",
+                        help="ActionConfig fields, e.g. '{offset_scale: 0.05, bandwidth: 60}'")
+    parser.add_argument("--observation", default="{}", metavar="YAML",
+                        help="ObservationConfig fields, e.g. '{preview: [0.02, 0.05]}'")
     parser.add_argument("--residual", metavar="CONTROLLER",
                         help="residual policy on top of this controller (e.g. "
-                        "feedforward-state-feedback)")
-    parser.add_argument("--residual-scale", type=float, default=0.1,
+                        "feedforward-state-feedback); same as --action residual")
+    parser.add_argument("--residual-scale", type=float,
                         help="bound of the residual torque as a fraction of the torque limit")
     parser.add_argument("--frame-stack", type=int, default=4, help="frames for 'sensors'")
     parser.add_argument("--env-kwargs", default="{}", metavar="YAML",
@@ -155,6 +161,18 @@ def _yaml_mapping(text: str, option: str) -> dict:
     return value
 
 
+def _action_fields(args: argparse.Namespace) -> dict:
+    """ActionConfig fields from --action, --action-options, --residual, --residual-scale."""
+    fields = _yaml_mapping(args.action_options, "--action-options")
+    if args.action is not None:
+        fields["kind"] = args.action
+    if args.residual is not None:
+        fields.update(kind="residual", residual=args.residual)
+    if args.residual_scale is not None:
+        fields["residual_scale"] = args.residual_scale
+    return fields
+
+
 def run_train(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
@@ -173,7 +191,8 @@ def run_train(args: argparse.Namespace) -> int:
         TrainConfig(
             env_id=args.env, algo=args.algo, state=args.state, total_steps=args.steps, seed=seed,
             out_dir=base if len(args.seeds) == 1 else f"{base}/seed{seed}",
-            residual=args.residual, residual_scale=args.residual_scale,
+            action=_action_fields(args),
+            observation=_yaml_mapping(args.observation, "--observation"),
             frame_stack=args.frame_stack,
             env_kwargs=_yaml_mapping(args.env_kwargs, "--env-kwargs"),
             observer_options=_yaml_mapping(args.observer_options, "--observer-options"),

@@ -90,6 +90,9 @@ class RewardConfig:
                 raise ValueError(f"reward {name!r} must be a non-empty list of numbers > 0, "
                                  f"got {value!r}")
             object.__setattr__(self, name, tuple(float(s) for s in value))
+        # 1/sigma as arrays, computed once (not dataclass fields)
+        object.__setattr__(self, "_inverse_sigmas", 1.0 / np.array(self.sigmas))
+        object.__setattr__(self, "_inverse_velocity_sigmas", 1.0 / np.array(self.velocity_sigmas))
 
     @classmethod
     def from_config(cls, config: dict | RewardConfig | None) -> RewardConfig:
@@ -125,17 +128,36 @@ def _is_number(value) -> bool:
             and math.isfinite(value))
 
 
-def _kernel_mean(x: np.ndarray, sigmas: tuple[float, ...]) -> np.ndarray:
+def _kernel_mean(x: np.ndarray, inverse_sigmas: np.ndarray) -> np.ndarray:
     """mean over joints and widths of exp(-(x / sigma)^2); x (N, n) -> (N,)."""
-    scaled = x[..., None] / np.asarray(sigmas)
-    return np.exp(-scaled * scaled).mean(axis=(-2, -1))
+    scaled = x[..., None] * inverse_sigmas
+    return np.exp(-scaled * scaled).sum(axis=(1, 2)) * (1.0 / (x.shape[1] * len(inverse_sigmas)))
 
 
-def _arms(name: str, value) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim != 2:
-        raise ValueError(f"reward input {name!r} must have shape (arms, joints), got {arr.shape}")
-    return arr
+def _saturated_mean(x: np.ndarray) -> np.ndarray:
+    """mean over joints of min(1, x^2); x (N, n) -> (N,)."""
+    return np.minimum(x * x, 1.0).sum(axis=1) * (1.0 / x.shape[1])
+
+
+def _checked(error, error_rate, torque, previous_torque, torque_limit, torsion):
+    arrays = {"error": error, "error_rate": error_rate, "torque": torque,
+              "previous_torque": previous_torque, "torsion": torsion}
+    out = {}
+    for name, value in arrays.items():
+        arr = np.asarray(value, dtype=float)
+        if arr.ndim != 2:
+            raise ValueError(f"reward input {name!r} must have shape (arms, joints), "
+                             f"got {arr.shape}")
+        if out and arr.shape != out["error"].shape:
+            raise ValueError(f"reward input {name!r} has shape {arr.shape}, error has "
+                             f"{out['error'].shape}")
+        out[name] = arr
+    limit = np.asarray(torque_limit, dtype=float)
+    if limit.shape not in (arr.shape, arr.shape[1:]):
+        raise ValueError(f"reward input 'torque_limit' must have shape {arr.shape[1:]} or "
+                         f"{arr.shape}, got {limit.shape}")
+    return out["error"], out["error_rate"], out["torque"], out["previous_torque"], limit, \
+        out["torsion"]
 
 
 def reward_terms(config: RewardConfig, dt: float, error, error_rate, torque, previous_torque,
@@ -152,32 +174,35 @@ def reward_terms(config: RewardConfig, dt: float, error, error_rate, torque, pre
 
     The keys are :data:`TERM_NAMES`; their sum is :func:`total_reward`.
     """
-    error = _arms("error", error)
-    shape = error.shape
-    inputs = {"error_rate": error_rate, "torque": torque, "previous_torque": previous_torque,
-              "torsion": torsion}
-    error_rate, torque, previous_torque, torsion = (_arms(k, v) for k, v in inputs.items())
-    for name, arr in zip(inputs, (error_rate, torque, previous_torque, torsion), strict=True):
-        if arr.shape != shape:
-            raise ValueError(f"reward input {name!r} has shape {arr.shape}, error has {shape}")
-    limit = np.broadcast_to(np.asarray(torque_limit, dtype=float), shape)
-    arms = np.ones(shape[0])
-    rate = (torque - previous_torque) * config.rate_time / (dt * limit)
-    relative_torque = np.minimum(np.abs(torque / limit), 1.0)
+    e, de, tau, previous, limit, torsion = _checked(error, error_rate, torque, previous_torque,
+                                                    torque_limit, torsion)
+    c = config
     return {
-        "track": dt * config.track * _kernel_mean(error, config.sigmas),
-        "velocity": dt * config.velocity * _kernel_mean(error_rate, config.velocity_sigmas),
-        "torque": -dt * config.torque * (relative_torque**2).mean(axis=-1),
-        "rate": -dt * config.rate * np.minimum(rate * rate, 1.0).mean(axis=-1),
-        "torsion": -dt * config.torsion * np.minimum(
-            (torsion / config.torsion_scale) ** 2, 1.0).mean(axis=-1),
-        "offset": dt * config.penalty_bound * arms,
+        "track": dt * c.track * _kernel_mean(e, c._inverse_sigmas),
+        "velocity": dt * c.velocity * _kernel_mean(de, c._inverse_velocity_sigmas),
+        "torque": -dt * c.torque * _saturated_mean(tau / limit),
+        "rate": -dt * c.rate * _saturated_mean((tau - previous) * (c.rate_time / dt) / limit),
+        "torsion": -dt * c.torsion * _saturated_mean(torsion / c.torsion_scale),
+        "offset": np.full(len(e), dt * c.penalty_bound),  # keeps r >= 0
     }
 
 
 def total_reward(config: RewardConfig, dt: float, error, error_rate, torque, previous_torque,
-           torque_limit, torsion) -> np.ndarray:
-    """The reward of one control period per arm, shape (N,), each value in [0, dt * max_rate]."""
-    terms = reward_terms(config, dt, error, error_rate, torque, previous_torque, torque_limit,
-                         torsion)
-    return sum(terms.values())
+                 torque_limit, torsion) -> np.ndarray:
+    """The reward of one control period per arm, shape (N,), each value in [0, dt * max_rate].
+
+    Equal to the sum of :func:`reward_terms`; terms of weight zero are not computed.
+    """
+    e, de, tau, previous, limit, torsion = _checked(error, error_rate, torque, previous_torque,
+                                                    torque_limit, torsion)
+    c = config
+    bracket = c.track * _kernel_mean(e, c._inverse_sigmas) + c.penalty_bound
+    if c.velocity:
+        bracket += c.velocity * _kernel_mean(de, c._inverse_velocity_sigmas)
+    if c.torque:
+        bracket -= c.torque * _saturated_mean(tau / limit)
+    if c.rate:
+        bracket -= c.rate * _saturated_mean((tau - previous) * (c.rate_time / dt) / limit)
+    if c.torsion:
+        bracket -= c.torsion * _saturated_mean(torsion / c.torsion_scale)
+    return dt * bracket

@@ -1,6 +1,8 @@
 """RL training on the estimated state: stable-baselines3 pipeline (``elastic-gym train``)."""
 
+from elastic_gym.training.actions import ActionConfig, ActionMap
 from elastic_gym.training.config import ALGORITHMS, TrainConfig, parse_overrides
+from elastic_gym.training.observation import ObservationBuilder, ObservationConfig
 from elastic_gym.training.policy_env import make_policy_env, state_sources
 from elastic_gym.training.train import (
     TrainedRun,
@@ -10,12 +12,17 @@ from elastic_gym.training.train import (
     train,
     train_many,
 )
-from elastic_gym.training.wrappers import ActionRepeat, ResidualAction
+from elastic_gym.training.wrappers import ActionRepeat, PolicyAction, PolicyObservation
 
 __all__ = [
     "ALGORITHMS",
+    "ActionConfig",
+    "ActionMap",
     "ActionRepeat",
-    "ResidualAction",
+    "ObservationBuilder",
+    "ObservationConfig",
+    "PolicyAction",
+    "PolicyObservation",
     "TrainConfig",
     "TrainResult",
     "TrainedRun",

@@ -3,8 +3,11 @@
 Hyper-parameters live in ``hyperparams/<algo>.yaml``, one entry per env id plus a
 ``default`` entry, each a mapping of the algorithm's constructor arguments and these
 keys of ours: ``n_timesteps`` (default budget, policy steps), ``n_envs``, ``decimation``
-(env steps per policy step), ``normalize`` (VecNormalize on/off). Command-line overrides
-(``key=value``) win over the file, which wins over the defaults.
+(env steps per policy step), ``normalize`` (VecNormalize on/off), ``action`` (fields of
+:class:`~elastic_gym.training.actions.ActionConfig`) and ``observation`` (fields of
+:class:`~elastic_gym.training.observation.ObservationConfig`). Command-line overrides
+(``key=value``) win over the file, which wins over the defaults; a run's own ``action`` /
+``observation`` fields win over the file's.
 """
 
 from __future__ import annotations
@@ -17,11 +20,13 @@ from pathlib import Path
 
 import yaml
 
+from elastic_gym.training.actions import ActionConfig
+from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import check_state_source
 from elastic_gym.validation import registered_env_id
 
 ALGORITHMS = ("ppo", "sac", "td3")
-OWN_KEYS = {"n_timesteps", "n_envs", "decimation", "normalize"}
+OWN_KEYS = {"n_timesteps", "n_envs", "decimation", "normalize", "action", "observation"}
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 
 
@@ -119,9 +124,10 @@ class TrainConfig:
     ``env_id``: a registered id; a bare name (``TwoLinkElastic-v0``) means
     ``elastic_gym/TwoLinkElastic-v0``. ``state``: ``"true"``, an observer name (the
     policy sees its estimate), or ``"sensors"`` (raw observation, ``frame_stack`` frames).
-    ``residual``: name of the classical controller the policy corrects (None: the policy
-    outputs the torque).
-    ``total_steps``: env interactions counted by SB3 (policy steps); None takes
+    ``action`` / ``observation``: fields of :class:`ActionConfig` /
+    :class:`ObservationConfig` that override the hyper-parameter file's (e.g.
+    ``{"kind": "residual", "residual": "feedforward-state-feedback"}`` for a residual
+    policy). ``total_steps``: env interactions counted by SB3 (policy steps); None takes
     ``n_timesteps`` from the hyper-parameter file.
     """
 
@@ -131,8 +137,8 @@ class TrainConfig:
     total_steps: int | None = None
     seed: int = 0
     out_dir: str = "runs/sac-twolink"
-    residual: str | None = None
-    residual_scale: float = 0.1
+    action: dict = field(default_factory=dict)
+    observation: dict = field(default_factory=dict)
     frame_stack: int = 4
     env_kwargs: dict = field(default_factory=dict)
     observer_options: dict = field(default_factory=dict)
@@ -149,6 +155,11 @@ class TrainConfig:
             value = getattr(self, key)
             if not isinstance(value, int) or value < (0 if key == "seed" else 1):
                 raise ValueError(f"{key} must be a non-negative integer, got {value!r}")
+        for key in ("action", "observation"):
+            if not isinstance(getattr(self, key), dict):
+                raise ValueError(f"{key} must be a mapping of its fields, got "
+                                 f"{getattr(self, key)!r}")
+        self.policy_configs({})
         if self.total_steps is not None and (
             not isinstance(self.total_steps, int) or self.total_steps < 1
         ):
@@ -163,6 +174,13 @@ class TrainConfig:
                 f"unknown training config field(s) {sorted(unknown)}; valid: {sorted(allowed)}"
             )
         return cls(**data)
+
+    def policy_configs(self, settings: dict) -> tuple[ActionConfig, ObservationConfig]:
+        """The action and observation configs: ``settings`` (resolved hyper-parameters)
+        overridden field by field by the run's own."""
+        action = {**settings.get("action", {}), **self.action}
+        observation = {**settings.get("observation", {}), **self.observation}
+        return ActionConfig.from_config(action), ObservationConfig.from_config(observation)
 
     def to_dict(self) -> dict:
         return asdict(self)

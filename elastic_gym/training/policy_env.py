@@ -1,24 +1,28 @@
-"""The env a policy is trained on: sensors or a state source, residual, decimation, flattening.
+"""The env a policy is trained on: state source, action parameterization, decimation,
+observation features.
 
 Stack (bottom to top)::
 
     gym.make(env_id)                      1 kHz loop, sensors only
     ObserverWrapper / TrueStateWrapper    state source: an observer name or "true"
-                                          ("sensors": raw observation, frame-stacked)
-    ResidualAction                        optional: tau = controller + bounded correction
+                                          ("sensors": the raw observation)
+    PolicyAction                          a in [-1, 1]^n -> torque at 1 kHz (torque,
+                                          motor-offset PD or residual)
     ActionRepeat(decimation)              policy rate = 1 kHz / decimation
-    FlattenObservation (+ frame stack)    Box observation for SB3 MlpPolicy
-    RescaleAction(-1, 1)                  normalized actions (not needed with residual)
+    PolicyObservation                     flat features (error, reference, torsion, ...)
+    (FrameStackObservation + Flatten)     raw sensors: the last frames
 """
 
 from __future__ import annotations
 
 import gymnasium as gym
-from gymnasium.wrappers import FlattenObservation, FrameStackObservation, RescaleAction
+from gymnasium.wrappers import FlattenObservation, FrameStackObservation
 
 import elastic_gym  # noqa: F401  (registers the env ids in worker processes)
 from elastic_gym.observers import OBSERVERS, ObserverWrapper
-from elastic_gym.training.wrappers import ActionRepeat, ResidualAction
+from elastic_gym.training.actions import ActionConfig
+from elastic_gym.training.observation import ObservationConfig
+from elastic_gym.training.wrappers import ActionRepeat, PolicyAction, PolicyObservation
 
 SENSORS = "sensors"
 
@@ -39,9 +43,8 @@ def make_policy_env(
     env_kwargs: dict | None = None,
     observer_options: dict | None = None,
     decimation: int = 1,
-    residual: str | None = None,
-    residual_scale: float = 0.1,
-    residual_options: dict | None = None,
+    action: ActionConfig | dict | None = None,
+    observation: ObservationConfig | dict | None = None,
     frame_stack: int = 1,
 ) -> gym.Env:
     """Build the wrapper stack of the module docstring."""
@@ -51,15 +54,10 @@ def make_policy_env(
         env = ObserverWrapper(env, state, **(observer_options or {}))
     elif observer_options:
         raise ValueError("observer_options given but the state source is raw 'sensors'")
-    if residual is not None:
-        if state == SENSORS:
-            raise ValueError("a residual policy needs a state source for its base controller")
-        env = ResidualAction(env, residual, residual_scale, **(residual_options or {}))
+    env = PolicyAction(env, action)
     if decimation > 1:
         env = ActionRepeat(env, decimation)
-    env = FlattenObservation(env)
+    env = PolicyObservation(env, observation)
     if frame_stack > 1:
         env = FlattenObservation(FrameStackObservation(env, frame_stack))
-    if residual is None:
-        env = RescaleAction(env, -1.0, 1.0)
     return env

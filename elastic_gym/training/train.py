@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from elastic_gym.training.config import (
+    OWN_KEYS,
     TrainConfig,
     algorithm_class,
     merged_hyperparams,
@@ -55,6 +56,7 @@ class TrainResult:
 
 def env_factory(config: TrainConfig, settings: dict):
     """A picklable constructor of the policy env of a config (for vec envs and workers)."""
+    action, observation = config.policy_configs(settings)
     return functools.partial(
         make_policy_env,
         config.env_id,
@@ -62,8 +64,8 @@ def env_factory(config: TrainConfig, settings: dict):
         env_kwargs=config.env_kwargs,
         observer_options=config.observer_options,
         decimation=int(settings.get("decimation", 1)),
-        residual=config.residual,
-        residual_scale=config.residual_scale,
+        action=action,
+        observation=observation,
         frame_stack=config.frame_stack if config.state == SENSORS else 1,
     )
 
@@ -78,12 +80,35 @@ def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int):
     )
 
 
+def zero_action_head(model) -> None:
+    """Make the policy's mean action exactly zero at the start (Residual Policy Learning):
+    the last layer of the actor's mean head gets zero weights and bias. PPO's
+    ``log_std_init`` (hyper-parameter) sets the initial exploration around it."""
+    import torch
+
+    policy = model.policy
+    if hasattr(policy, "action_net"):  # PPO / A2C
+        heads = [policy.action_net]
+    elif hasattr(policy.actor, "mu"):  # SAC: Linear; TD3: Sequential(..., Linear, Tanh)
+        mu = policy.actor.mu
+        heads = [mu] if isinstance(mu, torch.nn.Linear) else [
+            m for m in mu if isinstance(m, torch.nn.Linear)][-1:]
+        if hasattr(model, "actor_target"):
+            target = model.actor_target.mu
+            heads += [m for m in target if isinstance(m, torch.nn.Linear)][-1:]
+    else:  # pragma: no cover - every algorithm of ALGORITHMS is handled above
+        raise TypeError(f"cannot find the action head of {type(policy).__name__}")
+    with torch.no_grad():
+        for head in heads:
+            head.weight.zero_()
+            head.bias.zero_()
+
+
 def split_settings(config: TrainConfig) -> tuple[dict, dict]:
     """(our settings, algorithm kwargs) resolved from the hyper-parameter file + overrides."""
     merged = resolve_hyperparams(config.algo, config.env_id, config.hyperparams,
                                  config.hyperparams_file)
-    ours = {k: merged.pop(k) for k in ("n_timesteps", "n_envs", "decimation", "normalize")
-            if k in merged}
+    ours = {k: merged.pop(k) for k in OWN_KEYS if k in merged}
     return ours, merged
 
 
@@ -185,6 +210,8 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
             policy, venv, seed=config.seed, tensorboard_log=str(out / "tb"), verbose=verbose,
             device="cpu", **algo_kwargs,
         )
+        if config.policy_configs(settings)[0].kind == "residual":
+            zero_action_head(model)
         callback = EvalCallback(
             eval_env, n_eval_episodes=config.eval_episodes,
             eval_freq=max(config.eval_freq // n_envs, 1), best_model_save_path=str(out),
@@ -281,20 +308,55 @@ def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
     return TrainedRun(model, normalizer, config, settings)
 
 
-def evaluate_run(run: TrainedRun, n_episodes: int = 3, seed: int = 123) -> float:
-    """Mean undiscounted return of the deterministic policy on fresh episodes."""
-    env = env_factory(run.config, run.settings)()
-    returns = []
-    for episode in range(n_episodes):
-        obs, _ = env.reset(seed=seed + episode)
-        done, total = False, 0.0
+@dataclass(frozen=True)
+class Evaluation:
+    """Deterministic policy on fresh episodes: per-episode return and link tracking RMS
+    (rad, over the policy steps), and the fraction of policy steps with an action at its
+    bound on some joint (bang-bang actions)."""
+
+    seeds: tuple[int, ...]
+    returns: tuple[float, ...]
+    tracking_rms: tuple[float, ...]
+    saturated_actions: tuple[float, ...]
+
+    @property
+    def mean_return(self) -> float:
+        return float(np.mean(self.returns))
+
+    @property
+    def rms(self) -> float:
+        """Tracking RMS over all episodes' samples (equal lengths: the RMS of the RMS)."""
+        return float(np.sqrt(np.mean(np.square(self.tracking_rms))))
+
+
+def evaluate_policy(env, act, seeds) -> Evaluation:
+    """Run ``act(obs) -> action`` deterministically on one episode per seed of ``env``."""
+    returns, rms, saturated = [], [], []
+    for seed in seeds:
+        obs, _ = env.reset(seed=int(seed))
+        done, total, errors, at_bound = False, 0.0, [], 0
         while not done:
-            obs, reward, terminated, truncated, _ = env.step(run.act(obs))
+            action = act(obs)
+            at_bound += bool(np.any(np.abs(action) >= 1.0 - 1e-6))
+            obs, reward, terminated, truncated, info = env.step(action)
             total += float(reward)
             done = terminated or truncated
+            if "true_state" in info:
+                errors.append(info["true_state"]["q"] - info["reference"]["q"])
         returns.append(total)
-    env.close()
-    return float(np.mean(returns))
+        rms.append(float(np.sqrt(np.mean(np.square(errors)))) if errors else float("inf"))
+        saturated.append(at_bound / max(len(errors), 1))
+    return Evaluation(tuple(int(s) for s in seeds), tuple(returns), tuple(rms), tuple(saturated))
+
+
+def evaluate_run(run: TrainedRun, n_episodes: int = 3, seed: int = 123) -> Evaluation:
+    """The deterministic policy of a run on ``n_episodes`` fresh episodes (seeds
+    ``seed``, ``seed + 1``, ...)."""
+    env = env_factory(run.config, run.settings)()
+    try:
+        return evaluate_policy(env, run.act, range(seed, seed + n_episodes))
+    finally:
+        env.close()
 
 
 def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:

@@ -1,11 +1,19 @@
-"""Wrappers that adapt the control stack to an RL policy.
+"""Single-env wrapper shells around the policy-side logic (``actions``, ``observation``).
 
-* :class:`ActionRepeat` (decimation): the policy acts at a lower rate than the 1 kHz
-  loop; the action is held for ``k`` env steps and the rewards are summed. It sits
-  *above* the observer wrapper, so the observer still sees every sample (DESIGN.md).
-* :class:`ResidualAction`: the policy adds a bounded correction to a classical
-  controller's torque, tau = controller(obs, info) + scale * tau_max * a, a in [-1, 1]^N —
-  the usual way RL is made to work on stiff arms. The controller runs at every env step.
+Stack, bottom to top (``make_policy_env``)::
+
+    env -> ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation
+
+* :class:`PolicyAction`: the policy's action in [-1, 1]^n becomes a motor torque at
+  every control period (1 kHz) through :class:`~elastic_gym.training.actions.ActionMap`
+  (torque, motor-position offsets through a motor PD, or a residual on a classical
+  controller, which runs at every period).
+* :class:`ActionRepeat` (decimation): the policy acts at a lower rate than the control
+  loop; the action is held for ``k`` periods and the rewards are summed. It sits above
+  the observer, so the observer still sees every sample.
+* :class:`PolicyObservation`: the flat feature vector of
+  :class:`~elastic_gym.training.observation.ObservationBuilder`, with the last action and
+  a preview of the reference.
 """
 
 from __future__ import annotations
@@ -14,7 +22,107 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from elastic_gym.controllers import Controller, make_controller, public_info
+from elastic_gym.controllers import make_controller, public_info
+from elastic_gym.training.actions import ActionConfig, ActionMap
+from elastic_gym.training.observation import (
+    ObservationBuilder,
+    ObservationConfig,
+    ObservationInputs,
+)
+
+REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
+
+
+def reference_rows(info: dict) -> np.ndarray:
+    """``info["reference"]`` as a (5, n) array: q_d .. q_d^(4)."""
+    reference = info["reference"]
+    return np.array([reference[key] for key in REFERENCE_KEYS], dtype=float)
+
+
+def reference_preview(env: gym.Env, time: float, horizons: tuple[float, ...]) -> np.ndarray:
+    """q_d at ``time + h`` for each horizon, (H, n): the task's reference is known ahead."""
+    task = env.unwrapped.task
+    return np.array([task.reference(time + h)[0] for h in horizons])
+
+
+def check_action(action, n: int) -> np.ndarray:
+    """A finite (n,) array, or a clear error (nothing is stepped)."""
+    arr = np.asarray(action)
+    if arr.dtype.kind not in "fiu":
+        raise TypeError(f"action must be a real numeric array, got dtype {arr.dtype}")
+    if arr.shape != (n,):
+        raise ValueError(f"action must have shape ({n},), got {arr.shape}")
+    arr = arr.astype(np.float64)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"action must be finite, got {arr}")
+    return arr
+
+
+class PolicyAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Actions in [-1, 1]^n -> motor torque at every control period (module docstring).
+
+    Args:
+        env: an elastic_gym env below an ``ObserverWrapper`` (or raw sensors for the
+            ``torque`` and ``motor-offset`` kinds).
+        action: an :class:`ActionConfig` or its fields.
+
+    ``info["base_torque"]`` holds the residual's base torque (zeros for other kinds).
+    """
+
+    def __init__(self, env: gym.Env, action: ActionConfig | dict | None = None) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, action=action)
+        gym.Wrapper.__init__(self, env)
+        base = env.unwrapped
+        self.action_config = ActionConfig.from_config(action)
+        self.map = ActionMap(self.action_config, base.model)
+        self.n = base.n_joints
+        self.dt = base.control_dt
+        self.sensors = "state" not in env.observation_space.spaces
+        self.controller = None
+        if self.action_config.kind == "residual":
+            if self.sensors:
+                raise ValueError("a residual policy needs a state source for its base controller")
+            self.controller = make_controller(self.action_config.residual, base.model, self.dt,
+                                              **self.action_config.residual_options)
+        self.action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
+        self._obs = self._info = None
+        self._previous_motor = None
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        if self.controller is not None:
+            self.controller.reset(obs, public_info(info))
+        self._obs, self._info = obs, info
+        self._previous_motor = None
+        info["base_torque"] = np.zeros(self.n)
+        return obs, info
+
+    def _motor_state(self) -> tuple[np.ndarray, np.ndarray]:
+        n, obs = self.n, self._obs
+        if not self.sensors:
+            state = obs["state"]
+            return state[:n], state[2 * n:3 * n]
+        theta = obs["motor_position"]  # backward difference of the encoder
+        previous = theta if self._previous_motor is None else self._previous_motor
+        return theta, (theta - previous) / self.dt
+
+    def step(self, action):
+        a = check_action(action, self.n)
+        base = np.zeros(self.n)
+        if self.controller is not None:
+            base = self.controller(self._obs, public_info(self._info))
+        theta = dtheta = None
+        if self.map.needs_motor_state:
+            theta, dtheta = self._motor_state()
+        torque = self.map.torque(a[None], None if theta is None else theta[None],
+                                 None if dtheta is None else dtheta[None],
+                                 reference_rows(self._info)[None], base[None])[0]
+        if self.sensors:
+            self._previous_motor = self._obs["motor_position"]
+        obs, reward, terminated, truncated, info = self.env.step(torque)
+        info["base_torque"] = base
+        self._obs, self._info = obs, info
+        return obs, reward, terminated, truncated, info
 
 
 class ActionRepeat(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -37,45 +145,57 @@ class ActionRepeat(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return obs, total, terminated, truncated, info
 
 
-class ResidualAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
-    """tau = controller(obs, public_info) + scale * tau_max * action, action in [-1, 1]^N.
+class PolicyObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """The policy's flat observation (module docstring of ``observation``).
 
     Args:
-        env: an env whose observation the controller understands (an ``ObserverWrapper``
-            or ``TrueStateWrapper`` for the state-feedback controllers).
-        controller: a :class:`Controller` or a registry name (built on the env's nominal
-            model at the env's control period).
-        scale: bound of the correction as a fraction of the torque limit.
+        env: a stack with a :class:`PolicyAction` below (its action kind decides whether
+            the base torque is available).
+        observation: an :class:`ObservationConfig` or its fields.
     """
 
-    def __init__(self, env: gym.Env, controller: Controller | str, scale: float = 0.1,
-                 **controller_options) -> None:
-        gym.utils.RecordConstructorArgs.__init__(
-            self, controller=controller, scale=scale, _disable_deepcopy=True, **controller_options
-        )
+    def __init__(self, env: gym.Env, observation: ObservationConfig | dict | None = None) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, observation=observation)
         gym.Wrapper.__init__(self, env)
-        if not (isinstance(scale, (int, float)) and 0.0 < scale <= 1.0):
-            raise ValueError(f"residual scale must be in (0, 1], got {scale!r}")
         base = env.unwrapped
-        if isinstance(controller, str):
-            controller = make_controller(controller, base.model, base.control_dt,
-                                         **controller_options)
-        self.controller = controller
-        self.bound = scale * base.torque_limit
-        n = base.n_joints
-        self.action_space = spaces.Box(-np.ones(n), np.ones(n), dtype=np.float64)
-        self._obs = None
-        self._info = None
+        action_config = env.get_wrapper_attr("action_config")
+        self.sensors = "state" not in env.observation_space.spaces
+        accelerations = env.observation_space.spaces.get("acceleration")
+        self.builder = ObservationBuilder(
+            ObservationConfig.from_config(observation), base.n_joints, base.robot.elastic,
+            self.sensors, action_config.kind == "residual", base.torque_limit,
+            0 if accelerations is None else accelerations.shape[0],
+        )
+        self.n = base.n_joints
+        self.observation_space = spaces.Box(-np.inf, np.inf, (self.builder.size,),
+                                            dtype=np.float32)
+        self._last_action = np.zeros(self.n)
+        self._vector = np.zeros(self.builder.size, dtype=np.float32)
+
+    def _observation(self, obs: dict, info: dict) -> np.ndarray:
+        if "reference" not in info:  # the step that ended the episode on broken physics
+            return self._vector.copy()
+        config = self.builder.config
+        preview = None
+        if "preview" in self.builder.features:
+            preview = reference_preview(self.env, info["time"], config.preview)[None]
+        inputs = ObservationInputs(
+            reference=reference_rows(info)[None], last_action=self._last_action[None],
+            state=obs["state"][None] if "state" in obs else None,
+            motor_position=obs["motor_position"][None] if "motor_position" in obs else None,
+            acceleration=obs["acceleration"][None] if "acceleration" in obs else None,
+            preview=preview, base_torque=info["base_torque"][None],
+        )
+        self._vector = self.builder.build(inputs)[0]
+        return self._vector.copy()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
-        self.controller.reset(obs, public_info(info))
-        self._obs, self._info = obs, info
-        return obs, info
+        self._last_action = np.zeros(self.n)
+        return self._observation(obs, info), info
 
     def step(self, action):
-        correction = np.clip(np.asarray(action, dtype=float), -1.0, 1.0) * self.bound
-        torque = self.controller(self._obs, public_info(self._info)) + correction
-        obs, reward, terminated, truncated, info = self.env.step(torque)
-        self._obs, self._info = obs, info
-        return obs, reward, terminated, truncated, info
+        a = check_action(action, self.n)
+        obs, reward, terminated, truncated, info = self.env.step(a)
+        self._last_action = np.clip(a, -1.0, 1.0)
+        return self._observation(obs, info), reward, terminated, truncated, info

@@ -1,0 +1,156 @@
+"""What a policy's action means: torque, motor-position offsets through a motor PD, or a
+residual torque on a classical controller. Pure logic on arrays with a leading arm axis.
+
+The policy outputs a in [-1, 1]^n, held for ``decimation`` control periods; the map
+below turns it into a motor torque at every control period (1 kHz), from the state
+(estimated or true) and the reference of that period:
+
+* ``torque``: tau = tau_max * a.
+* ``motor-offset`` (the position-target interface of legged-robot RL, e.g. legged_gym):
+  a constant-gain motor PD at the control rate tracks q_d + offset,
+
+      tau = kp (q_d + offset_scale * a - theta) + kd (q_d' - theta') [+ g(q_d)],
+
+  with the reference velocity in the D term. Without ``gravity_compensation`` there is
+  no model term in the policy path (the policy learns the static deflection
+  K^-1 g and the dynamics as offsets). The gains are constants: explicit ``kp``, ``kd``,
+  or a bandwidth rule kp = J w^2, kd = 2 zeta J w with J the diagonal of the rigid
+  inertia at the middle of the workspace (a design-time choice, like a drive's gains).
+  The motor velocity theta' comes from the state source, or, on raw sensors, from the
+  backward difference of the motor encoder.
+* ``residual`` (Residual Policy Learning, Silver et al. 2018): tau = tau_base +
+  residual_scale * tau_max * a, tau_base from a classical controller (e.g. eq. (13)) at
+  the control rate; the policy's output starts at zero (zeroed mean head, small initial
+  standard deviation, see :func:`elastic_gym.training.train`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from elastic_gym.controllers.gain_design import bandwidth_pd_gains, nominal_configuration
+from elastic_gym.model import RobotModel
+from elastic_gym.validation import checked_fields, per_joint_values
+
+KINDS = ("torque", "motor-offset", "residual")
+
+
+@dataclass(frozen=True)
+class ActionConfig:
+    """How actions in [-1, 1]^n become torques (module docstring).
+
+    Attributes:
+        kind: ``"torque"``, ``"motor-offset"`` or ``"residual"``.
+        offset_scale: motor-offset range (rad) at |a| = 1.
+        bandwidth, damping_ratio: motor PD gains by the bandwidth rule (rad/s, -).
+        kp, kd: explicit motor PD gains (one or n numbers), replacing the rule.
+        gravity_compensation: add g(q_d) of the nominal model (a model term).
+        residual: name of the base controller (registry of ``elastic_gym.controllers``).
+        residual_options: options of the base controller.
+        residual_scale: bound of the residual torque as a fraction of tau_max.
+    """
+
+    kind: str = "torque"
+    offset_scale: float = 0.05
+    bandwidth: float = 60.0
+    damping_ratio: float = 0.7
+    kp: float | list | None = None
+    kd: float | list | None = None
+    gravity_compensation: bool = False
+    residual: str | None = None
+    residual_options: dict = field(default_factory=dict)
+    residual_scale: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"unknown action kind {self.kind!r}; valid: {list(KINDS)}")
+        for name in ("offset_scale", "bandwidth", "damping_ratio", "residual_scale"):
+            value = getattr(self, name)
+            if (not isinstance(value, (int, float)) or isinstance(value, bool)
+                    or not math.isfinite(value) or value <= 0):
+                raise ValueError(f"action {name!r} must be a finite number > 0, got {value!r}")
+        if self.residual_scale > 1:
+            raise ValueError(f"action 'residual_scale' must be in (0, 1], got "
+                             f"{self.residual_scale!r}")
+        if (self.kp is None) != (self.kd is None):
+            raise ValueError("give both action 'kp' and 'kd', or neither (bandwidth rule)")
+        if not isinstance(self.gravity_compensation, bool):
+            raise ValueError("action 'gravity_compensation' must be true or false")
+        if (self.kind == "residual") != (self.residual is not None):
+            raise ValueError("action kind 'residual' needs 'residual' (a controller name), "
+                             "and only it takes one")
+        if not isinstance(self.residual_options, dict):
+            raise ValueError("action 'residual_options' must be a mapping")
+
+    @classmethod
+    def from_config(cls, config: dict | ActionConfig | None) -> ActionConfig:
+        """A config from a mapping of field names (unknown keys: ``ValueError``)."""
+        config = checked_fields(cls, config, "action")
+        if config is None:
+            return cls()
+        if isinstance(config, cls):
+            return config
+        return cls(**config)
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @property
+    def model_free(self) -> bool:
+        """True when no model term is in the policy's path (pure RL)."""
+        return self.kind != "residual" and not self.gravity_compensation
+
+
+class ActionMap:
+    """tau = map(a, state, reference[, base torque]) for N arms (module docstring).
+
+    Args:
+        config: the parameterization.
+        model: nominal model (torque limits, PD gain rule, gravity compensation).
+    """
+
+    def __init__(self, config: ActionConfig, model: RobotModel) -> None:
+        self.config = config
+        self.model = model
+        self.n = model.n
+        self.torque_limit = np.asarray(model.torque_limit, dtype=float)
+        self.kp = self.kd = np.zeros(self.n)
+        if config.kind == "motor-offset":
+            if not model.elastic:
+                raise ValueError("action kind 'motor-offset' needs an elastic arm (motor "
+                                 "positions); use 'torque' or 'residual' on rigid arms")
+            if config.kp is None:
+                self.kp, self.kd = bandwidth_pd_gains(model, nominal_configuration(model),
+                                                      config.bandwidth, config.damping_ratio)
+            else:
+                self.kp = per_joint_values(config.kp, self.n, "action 'kp'", 0.0, strict=True)
+                self.kd = per_joint_values(config.kd, self.n, "action 'kd'", 0.0)
+
+    @property
+    def needs_motor_state(self) -> bool:
+        return self.config.kind == "motor-offset"
+
+    def torque(self, action: np.ndarray, motor_position: np.ndarray | None = None,
+               motor_velocity: np.ndarray | None = None, reference: np.ndarray | None = None,
+               base_torque: np.ndarray | None = None) -> np.ndarray:
+        """Motor torque (N, n) for actions (N, n) in [-1, 1] (clipped).
+
+        ``motor_position``, ``motor_velocity`` (N, n) and ``reference`` (N, >= 2, n) rows
+        q_d, q_d', ... are needed by ``motor-offset``; ``base_torque`` (N, n) by
+        ``residual``.
+        """
+        a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+        kind = self.config.kind
+        if kind == "torque":
+            return self.torque_limit * a
+        if kind == "residual":
+            return base_torque + self.config.residual_scale * self.torque_limit * a
+        q_d, dq_d = reference[:, 0], reference[:, 1]
+        target = q_d + self.config.offset_scale * a
+        tau = self.kp * (target - motor_position) + self.kd * (dq_d - motor_velocity)
+        if self.config.gravity_compensation:
+            tau = tau + np.array([self.model.gravity(q) for q in q_d])
+        return tau

@@ -1,0 +1,220 @@
+"""What a policy sees: a flat vector of scaled features, built on arrays with a leading
+arm axis (N arms).
+
+Features (``ObservationConfig.features``, in this order when selected), n joints:
+
+=================  ========  ==========================================================
+name               size      value
+=================  ========  ==========================================================
+``error``          n         (q - q_d) / error_scale                         (state)
+``error_rate``     n         (q' - q_d') / error_rate_scale                  (state)
+``reference``      k n       q_d, q_d', ..., q_d^(k-1), row j divided by 10^(j-1) for
+                             j >= 2 (k = reference_order + 1)
+``preview``        h n       (q_d(t + h_i) - q_d(t)) / preview_scale, horizons h_i (s)
+``torsion``        n         (theta - q) / torsion_scale                (elastic state)
+``torsion_rate``   n         (theta' - q') / torsion_rate_scale         (elastic state)
+``motor_error``    n         (theta_measured - q_d) / torsion_scale    (raw sensors)
+``acceleration``   3 m       accelerometer readings / 9.81             (raw sensors)
+``last_action``    n         the previous policy action, in [-1, 1]
+``base_torque``    n         the residual's base torque / tau_max          (residual)
+=================  ========  ==========================================================
+
+"state" features read the state source (an observer's estimate or the truth, layout
+(theta, q, theta', q') or (q, q') for rigid arms); "raw sensors" ones the sensor
+observation. The reference and its preview are known in advance (the task defines
+them), so they are no measurement. ``VecNormalize`` may normalize further.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from elastic_gym.validation import checked_fields
+
+FEATURES = ("error", "error_rate", "reference", "preview", "torsion", "torsion_rate",
+            "motor_error", "acceleration", "last_action", "base_torque")
+STATE_FEATURES = frozenset({"error", "error_rate", "torsion", "torsion_rate"})
+ELASTIC_FEATURES = frozenset({"torsion", "torsion_rate", "motor_error"})
+SENSOR_FEATURES = frozenset({"motor_error", "acceleration"})
+GRAVITY = 9.81
+_SCALES = ("error_scale", "error_rate_scale", "torsion_scale", "torsion_rate_scale",
+           "preview_scale")
+
+
+@dataclass(frozen=True)
+class ObservationConfig:
+    """Which features the policy sees and their scales (module docstring).
+
+    ``features=None`` selects the defaults of :func:`default_features` for the state
+    source and action kind.
+    """
+
+    features: tuple[str, ...] | None = None
+    reference_order: int = 2
+    preview: tuple[float, ...] = ()
+    error_scale: float = 0.01
+    error_rate_scale: float = 0.1
+    torsion_scale: float = 0.05
+    torsion_rate_scale: float = 1.0
+    preview_scale: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.features is not None:
+            if not isinstance(self.features, (list, tuple)) or not self.features:
+                raise ValueError(f"observation 'features' must be a non-empty list, "
+                                 f"got {self.features!r}")
+            unknown = [f for f in self.features if f not in FEATURES]
+            if unknown:
+                raise ValueError(f"unknown observation feature(s) {unknown}; valid: "
+                                 f"{list(FEATURES)}")
+            if len(set(self.features)) != len(self.features):
+                raise ValueError(f"observation features repeat: {list(self.features)}")
+            ordered = tuple(f for f in FEATURES if f in self.features)
+            object.__setattr__(self, "features", ordered)
+        order = self.reference_order
+        if not isinstance(order, int) or isinstance(order, bool) or not 0 <= order <= 4:
+            raise ValueError(f"observation 'reference_order' must be 0 .. 4, got {order!r}")
+        if not isinstance(self.preview, (list, tuple)) or not all(
+                _positive(h) for h in self.preview):
+            raise ValueError(f"observation 'preview' must be a list of horizons > 0 (s), "
+                             f"got {self.preview!r}")
+        object.__setattr__(self, "preview", tuple(float(h) for h in self.preview))
+        for name in _SCALES:
+            if not _positive(getattr(self, name)):
+                raise ValueError(f"observation {name!r} must be a finite number > 0, "
+                                 f"got {getattr(self, name)!r}")
+
+    @classmethod
+    def from_config(cls, config: dict | ObservationConfig | None) -> ObservationConfig:
+        """A config from a mapping of field names (unknown keys: ``ValueError``)."""
+        config = checked_fields(cls, config, "observation")
+        if config is None:
+            return cls()
+        if isinstance(config, cls):
+            return config
+        return cls(**config)
+
+    def to_dict(self) -> dict:
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["features"] = None if self.features is None else list(self.features)
+        out["preview"] = list(self.preview)
+        return out
+
+
+def _positive(value) -> bool:
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and math.isfinite(value) and value > 0)
+
+
+def default_features(sensors: bool, elastic: bool, residual: bool,
+                     preview: bool) -> tuple[str, ...]:
+    """The default selection: tracking error and rate, reference (and preview), torsion,
+    last action (state sources); motor error and accelerations instead of the state
+    features on raw sensors; the base torque for residual policies."""
+    chosen = {"reference", "last_action"}
+    if sensors:
+        chosen |= {"motor_error", "acceleration"} if elastic else {"motor_error"}
+    else:
+        chosen |= {"error", "error_rate"} | ({"torsion"} if elastic else set())
+    if residual:
+        chosen.add("base_torque")
+    if preview:
+        chosen.add("preview")
+    return tuple(f for f in FEATURES if f in chosen)
+
+
+@dataclass
+class ObservationInputs:
+    """What the features are computed from, every array with a leading arm axis N.
+
+    ``state`` (N, 4n | 2n) for state sources, ``motor_position`` (N, n) and
+    ``acceleration`` (N, 3m) for raw sensors; ``reference`` (N, 5, n) rows q_d .. q_d^(4);
+    ``preview`` (N, H, n) q_d at the preview horizons; ``last_action`` (N, n);
+    ``base_torque`` (N, n).
+    """
+
+    reference: np.ndarray
+    last_action: np.ndarray
+    state: np.ndarray | None = None
+    motor_position: np.ndarray | None = None
+    acceleration: np.ndarray | None = None
+    preview: np.ndarray | None = None
+    base_torque: np.ndarray | None = None
+
+
+class ObservationBuilder:
+    """Flat policy observations (N, size) from :class:`ObservationInputs`.
+
+    Args:
+        config: the features and scales.
+        n: joints. ``elastic``: elastic arm. ``sensors``: the policy sees raw sensors
+            instead of a state. ``n_accelerations``: accelerometer channels (3 m).
+        residual: residual policy (``base_torque`` available).
+        torque_limit: tau_max (n,), scales the base torque.
+    """
+
+    def __init__(self, config: ObservationConfig, n: int, elastic: bool, sensors: bool,
+                 residual: bool, torque_limit: np.ndarray, n_accelerations: int = 0) -> None:
+        self.config = config
+        self.n, self.elastic, self.sensors = n, elastic, sensors
+        self.torque_limit = np.asarray(torque_limit, dtype=float)
+        self.features = config.features or default_features(sensors, elastic, residual,
+                                                             bool(config.preview))
+        problems = []
+        for name in self.features:
+            if name in STATE_FEATURES and sensors:
+                problems.append(f"{name!r} needs a state source, not raw sensors")
+            if name in SENSOR_FEATURES and not sensors:
+                problems.append(f"{name!r} needs raw sensors")
+            if name in ELASTIC_FEATURES and not elastic:
+                problems.append(f"{name!r} needs an elastic arm")
+            if name == "base_torque" and not residual:
+                problems.append("'base_torque' needs a residual action")
+            if name == "preview" and not config.preview:
+                problems.append("'preview' needs preview horizons")
+            if name == "acceleration" and not n_accelerations:
+                problems.append("'acceleration' needs accelerometers")
+        if problems:
+            raise ValueError("observation features: " + "; ".join(problems))
+        sizes = {"reference": (config.reference_order + 1) * n,
+                 "preview": len(config.preview) * n, "acceleration": n_accelerations}
+        self.sizes = {name: sizes.get(name, n) for name in self.features}
+        self.size = sum(self.sizes.values())
+        self._reference_scale = 10.0 ** np.maximum(np.arange(config.reference_order + 1) - 1, 0)
+
+    def build(self, inputs: ObservationInputs) -> np.ndarray:
+        """Observations (N, size), float32."""
+        return np.concatenate([self._feature(name, inputs) for name in self.features],
+                              axis=-1).astype(np.float32)
+
+    def _feature(self, name: str, x: ObservationInputs) -> np.ndarray:
+        c, n = self.config, self.n
+        ref = x.reference
+        if name == "reference":
+            rows = ref[:, : c.reference_order + 1] / self._reference_scale[:, None]
+            return rows.reshape(len(ref), -1)
+        if name == "preview":
+            return ((x.preview - ref[:, None, 0]) / c.preview_scale).reshape(len(ref), -1)
+        if name == "last_action":
+            return x.last_action
+        if name == "base_torque":
+            return x.base_torque / self.torque_limit
+        if name == "motor_error":
+            return (x.motor_position - ref[:, 0]) / c.torsion_scale
+        if name == "acceleration":
+            return x.acceleration / GRAVITY
+        s = x.state
+        if self.elastic:
+            theta, q, dtheta, dq = (s[:, i * n:(i + 1) * n] for i in range(4))
+        else:
+            q, dq = s[:, :n], s[:, n:]
+        if name == "error":
+            return (q - ref[:, 0]) / c.error_scale
+        if name == "error_rate":
+            return (dq - ref[:, 1]) / c.error_rate_scale
+        if name == "torsion":
+            return (theta - q) / c.torsion_scale
+        return (dtheta - dq) / c.torsion_rate_scale  # torsion_rate
