@@ -77,7 +77,7 @@ def test_features_equal_their_definitions():
         "error": (truth["q"] - ref[0]) / c.error_scale,
         "error_rate": (truth["dq"] - ref[1]) / c.error_rate_scale,
         "reference": np.concatenate([ref[0], ref[1], ref[2] / 10, ref[3] / 100]),
-        "preview": np.concatenate([task.reference(info["time"] + h)[0] - ref[0]
+        "preview": np.concatenate([task.reference(np.array([info["time"] + h]))[0, 0] - ref[0]
                                    for h in c.preview]) / c.preview_scale,
         "torsion": (truth["theta"] - truth["q"]) / c.torsion_scale,
         "torsion_rate": (truth["dtheta"] - truth["dq"]) / c.torsion_rate_scale,

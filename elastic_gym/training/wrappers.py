@@ -39,10 +39,9 @@ def reference_rows(info: dict) -> np.ndarray:
     return np.array([reference[key] for key in REFERENCE_KEYS], dtype=float)
 
 
-def reference_preview(env: gym.Env, time: float, horizons: tuple[float, ...]) -> np.ndarray:
-    """q_d at ``time + h`` for each horizon, (H, n): the task's reference is known ahead."""
-    task = env.unwrapped.task
-    return np.array([task.reference(time + h)[0] for h in horizons])
+def reference_preview(env: gym.Env, horizons: tuple[float, ...]) -> np.ndarray:
+    """q_d at the env's time + h for each horizon, (H, n): the reference is known ahead."""
+    return env.unwrapped.reference_preview(horizons)[:, 0]
 
 
 def check_action(action, n: int) -> np.ndarray:
@@ -178,7 +177,7 @@ class PolicyObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         config = self.builder.config
         preview = None
         if "preview" in self.builder.features:
-            preview = reference_preview(self.env, info["time"], config.preview)[None]
+            preview = reference_preview(self.env, config.preview)[None]
         inputs = ObservationInputs(
             reference=reference_rows(info)[None], last_action=self._last_action[None],
             state=obs["state"][None] if "state" in obs else None,
