@@ -15,7 +15,13 @@ Tables (BLAS single-threaded: "one core"; see ``timing.py`` for the method):
    wall time at 1 kHz, with the split of a step (target >= 50x real time for the 7-DOF
    arm, higher for 2 links); rigid arms use the Cristofaro-De Luca reduced-order observer;
 4. vectorized throughput: ``gymnasium.make_vec`` and SB3 ``SubprocVecEnv`` steps/s with
-   1 and 2 workers, relative to one env stepped in this process.
+   1 and 2 workers, relative to one env stepped in this process;
+5. batched arms (``batched.py``): the vector env of N arms in one PyBullet world / a bare
+   N-arm PyBullet loop per arm-step (target <= 2x at N = 64), its throughput / one env
+   (target >= 3x), the batched closed loop with the vector De Luca observer, and PPO
+   policy steps/s on a batch vs ``SubprocVecEnv``.
+
+``--tables 1 5`` runs only some tables.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import batched
 import gymnasium as gym
 import numpy as np
 import pybullet as p
@@ -44,7 +51,6 @@ from elastic_gym.observers import ObserverWrapper
 from elastic_gym.observers.registry import applicable_observers, make_observer
 from elastic_gym.training.wrappers import ActionRepeat
 
-UNLIMITED_STEPS = 2**62  # benchmark episodes never reach the TimeLimit
 CONTROLLER = "feedforward-state-feedback"  # eq. (13)
 LOOP_OBSERVER = {"elastic": "deluca", "rigid": "reduced-order"}
 TARGET_ENV_RATIO = 2.5
@@ -54,7 +60,7 @@ TARGET_REALTIME = 50.0
 # the arm stays at rest for ever (the cost of a step does not depend on the motion). Moving
 # open loop, the light iiwa wrist reaches a joint limit within a second even at 0.5 % of
 # the torque limits.
-ENV_KWARGS = {"task": "excitation", "task_options": {"amplitude": 0.0}}
+ENV_KWARGS = {"task": "excitation", "task_options": {"amplitude": 0.0}, "episode_time": None}
 DECIMATION = 10  # action repeat of the RL-style rows of table 4
 VEC_BLOCKS = 3  # table 4 keeps the best of this many blocks
 
@@ -66,14 +72,18 @@ class Scale:
     block: int
     repeats: int
     vec_steps: int
+    ppo_steps: int
 
 
-FULL = Scale(block=500, repeats=7, vec_steps=3000)
-QUICK = Scale(block=150, repeats=3, vec_steps=500)
+FULL = Scale(block=500, repeats=7, vec_steps=3000, ppo_steps=8192)
+QUICK = Scale(block=150, repeats=3, vec_steps=500, ppo_steps=2048)
+BATCH_SIZES = (1, 8, 64, 256)
+BATCH_ARMS = 64  # throughput, closed loop and PPO rows
 
 
 def make_env(env_id: str, **kwargs) -> gym.Env:
-    return gym.make(env_id, max_episode_steps=UNLIMITED_STEPS, **kwargs)
+    """An env whose episodes never end by time (benchmark blocks are long)."""
+    return gym.make(env_id, **{"episode_time": None, **kwargs})
 
 
 def kind(env: gym.Env) -> str:
@@ -101,12 +111,12 @@ class BarePyBullet:
     def __init__(self, env: gym.Env) -> None:
         u = env.unwrapped
         self.sim = ArmSimulator(u.robot, u.plant_model, u.physics_dt)
-        self.sim.reset_state(u.sim.q, u.sim.dq, u.sim.theta, u.sim.dtheta)
+        self.sim.reset_state(np.array([0]), u.sim.q, u.sim.dq, u.sim.theta, u.sim.dtheta)
         self.n_substeps = u.n_substeps
 
     def step(self, torque: np.ndarray) -> None:
         sim = self.sim
-        body, joints, client = sim.body, sim.joint_indices, sim.client
+        body, joints, client = sim.bodies[0], sim.joint_indices, sim.client
         forces = torque.tolist()  # PyBullet converts a list faster than an array
         for _ in range(self.n_substeps):
             p.setJointMotorControlArray(body, joints, p.TORQUE_CONTROL, forces=forces,
@@ -307,10 +317,7 @@ def fmt(value: float, digits: int = 3) -> str:
     return f"{value:.{digits}g}"
 
 
-def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool) -> None:
-    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-    print(f"{os.cpu_count()} CPUs, load average {load} (other processes slow the timings; "
-          "each value is the best of interleaved blocks)\n")
+def table_env(env_ids: list[str], scale: Scale) -> dict[str, float]:
     env_costs = {}
     rows = []
     for env_id in env_ids:
@@ -321,7 +328,10 @@ def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool) -> None:
                      "yes" if ratio <= TARGET_ENV_RATIO else "no"))
     print_table(f"1. env step / bare PyBullet (target <= {TARGET_ENV_RATIO}x)",
                 ("env id", "env step [us]", "bare PyBullet [us]", "ratio", "target met"), rows)
+    return env_costs
 
+
+def table_observers(env_ids: list[str], scale: Scale, env_costs: dict[str, float]) -> None:
     rows = []
     for env_id in env_ids:
         n, costs = observer_update_costs(env_id, scale)
@@ -334,6 +344,8 @@ def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool) -> None:
                 "at N = 7)", ("env id", "N", "observer", "update [us]", "ratio",
                               "target met"), rows)
 
+
+def table_closed_loop(env_ids: list[str], scale: Scale, env_costs: dict[str, float]) -> None:
     rows = []
     for env_id in env_ids:
         loop = ClosedLoop(env_id, scale.block)
@@ -352,12 +364,60 @@ def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool) -> None:
                 ("env id", "observer", "step [us]", "x real time", "env (table 1)",
                  "observer+wrapper", "eq. (13) controller", "target met"), rows)
 
+
+def table_vector(vec_id: str, scale: Scale) -> None:
     rows = vector_throughput(vec_id, scale.vec_steps)
     single = rows[0][3]
     print_table(f"4. vectorized throughput, {vec_id}",
                 ("method", "workers", "action repeat", "env steps/s", "vs one env"),
                 [(m, w, r, f"{s:.0f}", fmt(s / single)) for m, w, r, s in rows])
 
+
+def table_batched(env_ids: list[str], vec_id: str, scale: Scale) -> None:
+    rows = []
+    for env_id in env_ids:
+        for n_arms, batch_us, bare_us, ratio in batched.batch_costs(
+                env_id, BATCH_SIZES, scale.block * 4, scale.repeats):
+            target = ("yes" if ratio <= batched.TARGET_BATCH_RATIO else "no") if (
+                n_arms == BATCH_ARMS and env_id == vec_id) else ""
+            rows.append((env_id, n_arms, fmt(batch_us), fmt(bare_us), fmt(ratio), target))
+    print_table(f"5a. batched env / bare N-arm PyBullet loop, per arm-step (target <= "
+                f"{batched.TARGET_BATCH_RATIO:g}x at N = {BATCH_ARMS}, {vec_id})",
+                ("env id", "arms N", "batched env [us]", "bare PyBullet [us]", "ratio",
+                 "target met"), rows)
+    costs = batched.throughput_and_loop(vec_id, BATCH_ARMS, scale.block, scale.repeats)
+    gain = costs["single"] / costs["batch"]
+    print_table(f"5b. {vec_id}, {BATCH_ARMS} arms in one world vs one env, per arm-step",
+                ("loop", "one env [us]", f"batch of {BATCH_ARMS} [us]", "speed-up",
+                 "target met"),
+                [("env step", fmt(1e6 * costs["single"]), fmt(1e6 * costs["batch"]), fmt(gain),
+                  "yes" if gain >= batched.TARGET_THROUGHPUT else "no"),
+                 ("env + De Luca observer", fmt(1e6 * costs["single+deluca"]),
+                  fmt(1e6 * costs["batch+deluca"]),
+                  fmt(costs["single+deluca"] / costs["batch+deluca"]), "")])
+    workers = os.cpu_count() or 1
+    rates = batched.ppo_policy_steps_per_second(vec_id, BATCH_ARMS, workers, scale.ppo_steps)
+    first = next(iter(rates.values()))
+    print_table(f"5c. PPO end to end, {vec_id} (true state, action repeat "
+                f"{batched.PPO_DECIMATION}, rollout {batched.PPO_ROLLOUT} policy steps)",
+                ("env", "policy steps/s", "vs batched"),
+                [(label, f"{rate:.0f}", fmt(rate / first)) for label, rate in rates.items()])
+
+
+def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool,
+        tables: set[int]) -> None:
+    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    print(f"{os.cpu_count()} CPUs, load average {load} (other processes slow the timings; "
+          "each value is the best of interleaved blocks)\n")
+    env_costs = table_env(env_ids, scale) if tables & {1, 2, 3} else {}
+    if 2 in tables:
+        table_observers(env_ids, scale, env_costs)
+    if 3 in tables:
+        table_closed_loop(env_ids, scale, env_costs)
+    if 4 in tables:
+        table_vector(vec_id, scale)
+    if 5 in tables:
+        table_batched(env_ids, vec_id, scale)
     if profile:
         for env_id in env_ids:
             top, per_step = profile_closed_loop(env_id, scale.block, top=15)
@@ -373,10 +433,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ids", nargs="+", default=list(elastic_gym.ENV_IDS),
                         help="env ids (default: all)")
     parser.add_argument("--vec-id", default="elastic_gym/TwoLinkElastic-v0",
-                        help="env id of the vectorized throughput table")
+                        help="env id of the vectorized throughput and batch rows")
+    parser.add_argument("--tables", nargs="+", type=int, default=[1, 2, 3, 4, 5],
+                        choices=[1, 2, 3, 4, 5], help="tables to run (default: all)")
     args = parser.parse_args(argv)
     ensure_single_thread_blas()
-    run(args.ids, QUICK if args.quick else FULL, args.vec_id, args.profile)
+    run(args.ids, QUICK if args.quick else FULL, args.vec_id, args.profile, set(args.tables))
     return 0
 
 
