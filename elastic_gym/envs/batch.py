@@ -178,6 +178,10 @@ class ArmBatch:
         self._limited = bool(np.isfinite(limits).any())
         self.reward_config = RewardConfig.from_config(reward)
         self.task = make_task(task, spec, self.model, task_options, n_arms=N)
+        for name, points in self.task.configured_points().items():
+            if np.any(points < self.joint_lower) or np.any(points > self.joint_upper):
+                raise ValueError(f"task option {name!r} = {points.tolist()} is outside the "
+                                 f"joint limits [{self.joint_lower}, {self.joint_upper}]")
 
         encoder_cfg = EncoderConfig.from_config(encoder)
         self.encoder = Encoder(

@@ -23,12 +23,17 @@ def _from_config(cls, config, what: str):
     return config if isinstance(config, cls) else cls(**config)
 
 
-def _check_nonnegative(owner: str, **values: float | None) -> None:
-    for key, value in values.items():
-        if value is None:
-            continue
-        if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-            raise ValueError(f"{owner}.{key} must be a finite number >= 0, got {value!r}")
+def _check_range(owner: str, key: str, value, low: float, high: float,
+                 zero: bool = True, none: bool = True) -> None:
+    """``value`` in [low, high] (or 0 / None where allowed): limits beyond which a sensor
+    setting would overflow the observation or mean nothing physical."""
+    if value is None and none:
+        return
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if number and (value == 0 and zero or low <= value <= high):
+        return
+    allowed = f"{'0 or ' if zero else ''}a number in [{low:g}, {high:g}]"
+    raise ValueError(f"{owner}.{key} must be {allowed}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -43,7 +48,8 @@ class EncoderConfig:
     noise_std: float | None = None
 
     def __post_init__(self) -> None:
-        _check_nonnegative("encoder", resolution=self.resolution, noise_std=self.noise_std)
+        _check_range("encoder", "resolution", self.resolution, 1e-12, 1.0)
+        _check_range("encoder", "noise_std", self.noise_std, 1e-12, 1.0)
 
     @classmethod
     def from_config(cls, config) -> EncoderConfig:
@@ -91,16 +97,12 @@ class AccelerometerConfig:
     resolution: float | None = None
 
     def __post_init__(self) -> None:
-        _check_nonnegative(
-            "accelerometer", noise_density=self.noise_density, bias_std=self.bias_std,
-            resolution=self.resolution,
-        )
-        if not isinstance(self.range, (int, float)) or not self.range > 0:
-            raise ValueError(f"accelerometer.range must be > 0, got {self.range!r}")
-        if self.cutoff_hz is not None and (
-            not isinstance(self.cutoff_hz, (int, float)) or not self.cutoff_hz > 0
-        ):
-            raise ValueError(f"accelerometer.cutoff_hz must be > 0 or None, got {self.cutoff_hz!r}")
+        _check_range("accelerometer", "noise_density", self.noise_density, 1e-12, 10.0,
+                     none=False)
+        _check_range("accelerometer", "bias_std", self.bias_std, 1e-12, 100.0, none=False)
+        _check_range("accelerometer", "resolution", self.resolution, 1e-9, 100.0)
+        _check_range("accelerometer", "range", self.range, 1e-3, 1e9, zero=False, none=False)
+        _check_range("accelerometer", "cutoff_hz", self.cutoff_hz, 1e-3, 1e6, zero=False)
 
     @classmethod
     def from_config(cls, config) -> AccelerometerConfig:

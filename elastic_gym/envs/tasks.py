@@ -27,6 +27,16 @@ def _vector(value, n: int, name: str) -> np.ndarray:
     return per_joint_values(value, n, f"task option {name!r}")
 
 
+def _max_move(value, spec: RobotSpec) -> float:
+    if value is None:
+        return spec.max_move
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+        np.isfinite(value) and value > 0
+    ):
+        raise ValueError(f"task option 'max_move' must be a number > 0, got {value!r}")
+    return float(value)
+
+
 def _configs(value, n: int, name: str) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
     if arr.ndim != 2 or arr.shape[1] != n or len(arr) < 1 or not np.all(np.isfinite(arr)):
@@ -63,6 +73,13 @@ class Task:
     def external_torque(self, t: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """Open-loop torque (n_arms, N) added to the action; None when there is none."""
         return None
+
+    def configured_points(self) -> dict[str, np.ndarray]:
+        """The configurations given as options (start, goal, waypoints), by option name."""
+        names = ("start", "goal", "waypoints")
+        values = {name: getattr(self, f"_{name if name != 'waypoints' else 'given'}", None)
+                  for name in names}
+        return {name: np.atleast_2d(v) for name, v in values.items() if v is not None}
 
     # helpers
     @property
@@ -122,15 +139,19 @@ class TrackingTask(Task):
             self._start = _vector(self.start, n, "start")
         else:
             self._start = None
-        if not (isinstance(self.n_moves, int) and self.n_moves >= 1):
+        if isinstance(self.n_moves, bool) or not (
+            isinstance(self.n_moves, int) and self.n_moves >= 1
+        ):
             raise ValueError(f"task option 'n_moves' must be an integer >= 1, got {self.n_moves!r}")
         for key in ("move_time", "dwell_time"):
             value = getattr(self, key)
-            if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                np.isfinite(value) and value >= 0
+            ):
                 raise ValueError(f"task option {key!r} must be a number >= 0, got {value!r}")
         if self.move_time <= 0:
             raise ValueError("task option 'move_time' must be > 0")
-        self._max_move = self.spec.max_move if self.max_move is None else float(self.max_move)
+        self._max_move = _max_move(self.max_move, self.spec)
         if self._given is not None:
             n_points = len(self._given) + (self._start is not None)
         else:
@@ -180,7 +201,7 @@ class RegulationTask(Task):
         n = self.spec.n_joints
         self._goal = _vector(self.goal, n, "goal") if self.goal is not None else None
         self._start = _vector(self.start, n, "start") if self.start is not None else None
-        self._max_move = self.spec.max_move if self.max_move is None else float(self.max_move)
+        self._max_move = _max_move(self.max_move, self.spec)
         self.targets = np.zeros((self.n_arms, n))
 
     def reset_arm(self, arm: int, rng: np.random.Generator) -> np.ndarray:
