@@ -30,7 +30,7 @@ def _check_range(owner: str, key: str, value, low: float, high: float,
     if value is None and none:
         return
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if number and (value == 0 and zero or low <= value <= high):
+    if number and ((value == 0 and zero) or low <= value <= high):
         return
     allowed = f"{'0 or ' if zero else ''}a number in [{low:g}, {high:g}]"
     raise ValueError(f"{owner}.{key} must be {allowed}, got {value!r}")
