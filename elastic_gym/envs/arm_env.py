@@ -42,14 +42,6 @@ def _from_batch(name: str, doc: str) -> property:
     return property(lambda self: getattr(self.batch, name), doc=doc)
 
 
-def first_row(value):
-    """The entry of arm 0 of a batched info value (nested dicts of arrays)."""
-    if isinstance(value, dict):
-        return {key: first_row(item) for key, item in value.items()}
-    item = value[0]
-    return item.item() if isinstance(item, np.generic) else item
-
-
 class ArmEnv(gym.Env):
     """An arm of the catalog in PyBullet with sensors, a task and a nominal model.
 
@@ -123,7 +115,7 @@ class ArmEnv(gym.Env):
         super().reset(seed=seed)
         self.batch.rngs[0] = self.np_random
         self.batch.reset_arms(ARM, options)
-        return self.batch.observation(0), first_row(self.batch.info(ARM))
+        return self.batch.observation(0), self.batch.info(0)
 
     def step(self, action):
         batch = self.batch
@@ -132,7 +124,7 @@ class ArmEnv(gym.Env):
         if not batch.running[0]:
             raise RuntimeError("call reset() before step() (and after an episode has ended)")
         reward, terminated, truncated = batch.step(tau)
-        obs, info = batch.observation(0), first_row(batch.info(ARM))
+        obs, info = batch.observation(0), batch.info(0)
         if self.render_mode == "human":
             self.render()
         return obs, float(reward[0]), bool(terminated[0]), bool(truncated[0]), info

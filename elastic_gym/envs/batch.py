@@ -214,6 +214,12 @@ class ArmBatch:
         self.ddq = np.zeros((N, n))
         self.reference = np.zeros((N, len(REFERENCE_KEYS), n))
         self.reasons = np.full(N, None, dtype=object)
+        self._no_reasons = np.full(N, None, dtype=object)  # never written to
+        self._no_arm = np.zeros(N, dtype=bool)
+        self._all = np.ones(N, dtype=bool)
+        self._arms = np.arange(N)
+        self._minus_limit = -self.torque_limit
+        self._time = np.zeros(N)
         self.obs = {key: np.zeros((N, *space.shape))
                     for key, space in self.single_observation_space.items()}
         self._measured = {key: np.zeros((self.sensor_delay + 1, *value.shape))
@@ -298,7 +304,7 @@ class ArmBatch:
     @property
     def time(self) -> np.ndarray:
         """Simulated time of each arm's episode (s)."""
-        return self.steps * self.control_dt
+        return self._time
 
     # ------------------------------------------------------------------ episodes
     def reset_arms(self, arms: np.ndarray, options: dict | None = None) -> None:
@@ -320,6 +326,7 @@ class ArmBatch:
         self.sim.reset_state(arms, q, dq, theta, dtheta)
         self.accelerometer_array.reset(arms, self.rngs)
         self.steps[arms] = 0
+        self._time = self.steps * self.control_dt
         self.running[arms] = True
         self.reasons[arms] = None
         self.saturated[arms] = False
@@ -340,29 +347,37 @@ class ArmBatch:
         """
         self._check_open()
         N = self.n_arms
-        stepping = np.ones(N, dtype=bool) if stepping is None else stepping
+        every = stepping is None or bool(stepping.all())
+        stepping = self._all if stepping is None else stepping
         sim = self.sim
-        command = np.where(stepping[:, None], actions, 0.0)
-        external = self.task.external_torque(self.time, sim.q)
+        command = actions if every else np.where(stepping[:, None], actions, 0.0)
+        external = self.task.external_torque(self._time, sim.q)
         if external is not None:
-            command = command + np.where(stepping[:, None], external, 0.0)
-        tau = np.minimum(np.maximum(command, -self.torque_limit), self.torque_limit)
-        self.saturated = np.any(tau != command, axis=1)
+            command = command + (external if every else np.where(stepping[:, None], external, 0.0))
+        tau = np.minimum(np.maximum(command, self._minus_limit), self.torque_limit)
+        self.saturated = (tau != command).any(axis=1)
         sim.step(tau, self.n_substeps)
         self.steps += stepping
+        self._time = self.steps * self.control_dt
         self.previous_torque, self.torque = self.torque, tau
         self.ddq = sim.link_acceleration(tau)
-        self.reference = self.task.reference(self.time)
+        self.reference = self.task.reference(self._time)
         reasons = self._termination_reasons()
-        terminated = (reasons != None) & stepping  # noqa: E711 - elementwise test
-        self.reasons = np.where(stepping, reasons, None)
         self._slot = (self._slot + 1) % (self.sensor_delay + 1)
-        self._observe(np.flatnonzero(stepping), first=False)
-        reward = np.where(terminated, self.reward_config.termination_reward, self._reward())
-        reward = np.where(stepping, reward, 0.0)
-        truncated = np.zeros(N, dtype=bool) if self.max_steps is None else (
-            (self.steps >= self.max_steps) & stepping & ~terminated
-        )
+        self._observe(self._arms if every else np.flatnonzero(stepping), first=False)
+        reward = self._reward()
+        truncated = self._no_arm if self.max_steps is None else self.steps >= self.max_steps
+        if reasons is None:  # the common case: no arm broke its physics
+            self.reasons = self._no_reasons
+            terminated = self._no_arm
+        else:
+            terminated = (reasons != None) & stepping  # noqa: E711 - elementwise test
+            self.reasons = np.where(stepping, reasons, None)
+            reward = np.where(terminated, self.reward_config.termination_reward, reward)
+            truncated = truncated & ~terminated
+        if not every:
+            reward = np.where(stepping, reward, 0.0)
+            truncated = truncated & stepping
         self.running &= ~(terminated | truncated)
         return reward, terminated, truncated
 
@@ -412,15 +427,18 @@ class ArmBatch:
             return self.plant_model.K * (theta - q)
         return self.plant_model.chain.gravity(q)
 
-    def _termination_reasons(self) -> np.ndarray:
+    def _termination_reasons(self) -> np.ndarray | None:
+        """Why each arm's physics broke (None entries where it did not), or None if no arm's."""
         sim = self.sim
         speed = np.maximum(np.abs(sim.dq).max(axis=1), np.abs(sim.dtheta).max(axis=1))
-        reasons = np.full(self.n_arms, None, dtype=object)
-        if self._limited:
-            reasons[np.any(sim.q < self.joint_lower, axis=1)
-                    | np.any(sim.q > self.joint_upper, axis=1)] = "joint limit exceeded"
-        reasons[speed > self.max_velocity] = "velocity limit exceeded"
         finite = np.isfinite(speed + sim.q.sum(axis=1) + sim.theta.sum(axis=1))
+        outside = ((sim.q < self.joint_lower) | (sim.q > self.joint_upper)).any(axis=1) if (
+            self._limited) else self._no_arm
+        if finite.all() and speed.max() <= self.max_velocity and not outside.any():
+            return None
+        reasons = np.full(self.n_arms, None, dtype=object)
+        reasons[outside] = "joint limit exceeded"
+        reasons[speed > self.max_velocity] = "velocity limit exceeded"
         reasons[~finite] = "non-finite state"
         return reasons
 
@@ -440,16 +458,20 @@ class ArmBatch:
             force = self.plant_model.chain.specific_forces(sim.q[arms], sim.dq[arms],
                                                            self.ddq[arms])
             readings["acceleration"] = self.accelerometer_array.measure(force, rngs, arms)
-        oldest = (self._slot + 1) % (self.sensor_delay + 1)
+        delay = self.sensor_delay
+        oldest = (self._slot + 1) % (delay + 1)
         for key, value in readings.items():
-            line = self._measured[key]
-            if first:
-                line[:, arms] = value
-            else:
-                line[self._slot, arms] = value
-            delayed = line[oldest, arms]
-            keep = ~np.isfinite(delayed).all(axis=1)  # a broken state keeps the last reading
-            self.obs[key][arms] = np.where(keep[:, None], self.obs[key][arms], delayed)
+            if delay:
+                line = self._measured[key]
+                if first:
+                    line[:, arms] = value
+                else:
+                    line[self._slot, arms] = value
+                value = line[oldest, arms]
+            if not np.isfinite(value).all():  # a broken state keeps the last reading
+                keep = ~np.isfinite(value).all(axis=1)
+                value = np.where(keep[:, None], self.obs[key][arms], value)
+            self.obs[key][arms] = value
         self.obs["reference"][arms] = self.reference[arms, :2].reshape(len(arms), -1)
 
     def _reward(self) -> np.ndarray:
@@ -459,13 +481,15 @@ class ArmBatch:
                             self.torque_limit, sim.theta - sim.q)
 
     # ------------------------------------------------------------------ outputs
-    def observation(self, arms: slice | np.ndarray = slice(None)) -> dict[str, np.ndarray]:
-        """Copies of the current observations of ``arms``."""
+    def observation(self, arms: int | slice | np.ndarray = slice(None)) -> dict[str, np.ndarray]:
+        """Copies of the current observations of ``arms`` (an int: one arm, no arm axis)."""
         return {key: value[arms].copy() for key, value in self.obs.items()}
 
-    def info(self, arms: slice | np.ndarray = slice(None)) -> dict:
-        """The info of ``arms`` (see the module docstring), arrays with a leading arm axis."""
+    def info(self, arms: int | slice | np.ndarray = slice(None)) -> dict:
+        """The info of ``arms`` (see the module docstring): arrays with a leading arm axis,
+        or plain values of one arm when ``arms`` is an int."""
         sim = self.sim
+        one = isinstance(arms, (int, np.integer))
         state = {"q": sim.q[arms].copy(), "dq": sim.dq[arms].copy(),
                  "theta": sim.theta[arms].copy(), "dtheta": sim.dtheta[arms].copy(),
                  "ddq": self.ddq[arms].copy()}
@@ -473,13 +497,13 @@ class ArmBatch:
                                     axis=-1)
         reference = self.reference[arms]
         return {
-            "time": self.time[arms],
+            "time": float(self._time[arms]) if one else self._time[arms].copy(),
             "true_state": state,
             "torque": self.torque[arms].copy(),
-            "torque_saturated": self.saturated[arms].copy(),
+            "torque_saturated": bool(self.saturated[arms]) if one else self.saturated[arms].copy(),
             "reference": {key: reference[..., k, :].copy() for k, key in
                           enumerate(REFERENCE_KEYS)},
-            "termination_reason": self.reasons[arms].copy(),
+            "termination_reason": self.reasons[arms] if one else self.reasons[arms].copy(),
         }
 
     def reference_preview(self, offsets: np.ndarray) -> np.ndarray:
@@ -517,8 +541,8 @@ class ArmBatch:
         episode = {
             "sim": (sim.q, sim.dq, sim.theta, sim.dtheta),
             "arrays": {key: getattr(self, key) for key in (
-                "steps", "running", "torque", "previous_torque", "saturated", "ddq", "reference",
-                "reasons", "obs", "_measured", "_slot")},
+                "steps", "_time", "running", "torque", "previous_torque", "saturated", "ddq",
+                "reference", "reasons", "obs", "_measured", "_slot")},
             "rngs": [rng.bit_generator.state for rng in self.rngs],
             "accelerometer": (self.accelerometer_array.bias, self.accelerometer_array.filtered,
                               self.accelerometer_array.fresh),
