@@ -215,10 +215,11 @@ class ArmSimulator:
             self.theta[arms], self.dtheta[arms] = q, dq
 
     def _read_links(self) -> None:
-        c, joints = self.client, self.joint_indices
-        states = [p.getJointStates(body, joints, physicsClientId=c) for body in self.bodies]
-        self.q = np.array([[s[0] for s in arm] for arm in states])
-        self.dq = np.array([[s[1] for s in arm] for arm in states])
+        c, joints, get = self.client, self.joint_indices, p.getJointStates
+        flat = [value for body in self.bodies for joint in get(body, joints, physicsClientId=c)
+                for value in joint[:2]]
+        states = np.array(flat).reshape(self.n_arms, self.n, 2)
+        self.q, self.dq = states[:, :, 0].copy(), states[:, :, 1].copy()
 
     # ------------------------------------------------------------------ stepping
     def accelerations(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
