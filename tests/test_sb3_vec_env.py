@@ -68,3 +68,38 @@ def test_ppo_trains_on_batched_arms_with_decimation():
     model.learn(256)
     assert model.num_timesteps == 256
     venv.close()
+
+
+def _batch_factory(n: int):
+    return SB3VecEnv(_vector(n))
+
+
+def test_batches_in_worker_processes_equal_the_batches_in_this_process():
+    import functools
+
+    from elastic_gym.training.sb3_vec_env import ProcessBatches
+
+    workers = ProcessBatches([functools.partial(_batch_factory, 2),
+                              functools.partial(_batch_factory, 1)])
+    local = [_batch_factory(2), _batch_factory(1)]
+    assert workers.num_envs == 3
+    workers.seed(7)
+    obs = workers.reset()
+    for k, venv in enumerate(local):
+        venv.seed(7 + 2 * k)
+    expected = np.concatenate([venv.reset() for venv in local])
+    assert np.array_equal(obs, expected)
+    actions = np.tile([[0.5, -0.5]], (3, 1))
+    for _ in range(25):
+        workers.step_async(actions)
+        obs, rewards, dones, infos = workers.step_wait()
+        parts = []
+        for venv, rows in zip(local, (slice(0, 2), slice(2, 3)), strict=True):
+            venv.step_async(actions[rows])
+            parts.append(venv.step_wait())
+        assert np.array_equal(obs, np.concatenate([part[0] for part in parts]))
+        assert np.array_equal(dones, np.concatenate([part[2] for part in parts]))
+    assert "terminal_observation" in infos[2] or not dones[2]
+    workers.close()
+    for venv in local:
+        venv.close()

@@ -7,6 +7,8 @@ from a termination. :class:`SB3VecEnv` gets there from a vector env with autores
 ``DISABLED``: after each step it resets the arms whose episode ended
 (``reset(options={"reset_mask": ended})``), the other arms go on untouched. Put
 ``VecNormalize`` / ``VecMonitor`` on top as with any SB3 ``VecEnv``.
+:class:`ProcessBatches` runs several such batches in worker processes (one per core) as
+one ``VecEnv``.
 """
 
 from __future__ import annotations
@@ -108,6 +110,121 @@ class SB3VecEnv(VecEnv):
 
     def env_is_wrapped(self, wrapper_class: type, indices=None) -> list[bool]:
         return [False for _ in self._indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [None for _ in range(self.num_envs)]
+
+
+def _batch_worker(remote, parent_remote, factory) -> None:
+    """Serve one :class:`SB3VecEnv` (a batch of arms) in a worker process."""
+    parent_remote.close()
+    venv = factory.var()
+    try:
+        while True:
+            command, data = remote.recv()
+            if command == "step":
+                venv.step_async(data)
+                remote.send(venv.step_wait())
+            elif command == "reset":
+                venv._seeds = data
+                remote.send((venv.reset(), venv.reset_infos))
+            elif command == "spaces":
+                remote.send((venv.num_envs, venv.observation_space, venv.action_space))
+            elif command == "get_attr":
+                remote.send(venv.get_attr(data, [0])[0])
+            elif command == "close":
+                venv.close()
+                remote.send(None)
+                break
+    except (EOFError, KeyboardInterrupt):
+        venv.close()
+
+
+def _concatenate(parts: list) -> Any:
+    if isinstance(parts[0], dict):
+        return {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
+    return np.concatenate(parts)
+
+
+class ProcessBatches(VecEnv):
+    """Several batches of arms, one per worker process, as one SB3 ``VecEnv``.
+
+    For machines with more cores than one batch can use: each factory builds an
+    :class:`SB3VecEnv` (a PyBullet world of arms) inside its own process; the arms of all
+    batches are concatenated in order. Factories must be picklable (cloudpickle).
+    """
+
+    def __init__(self, factories: list) -> None:
+        import multiprocessing
+
+        from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper
+
+        context = multiprocessing.get_context("spawn")
+        self.remotes, self.processes = [], []
+        for factory in factories:
+            remote, work_remote = context.Pipe()
+            process = context.Process(target=_batch_worker, daemon=True,
+                                      args=(work_remote, remote, CloudpickleWrapper(factory)))
+            process.start()
+            work_remote.close()
+            self.remotes.append(remote)
+            self.processes.append(process)
+        sizes = []
+        for remote in self.remotes:
+            remote.send(("spaces", None))
+            size, observation_space, action_space = remote.recv()
+            sizes.append(size)
+        self.bounds = np.cumsum([0, *sizes])
+        self.render_mode = None
+        self.closed = False
+        super().__init__(int(self.bounds[-1]), observation_space, action_space)
+
+    def _parts(self, values) -> list:
+        return [values[a:b] for a, b in zip(self.bounds[:-1], self.bounds[1:], strict=True)]
+
+    def reset(self):
+        for remote, seeds in zip(self.remotes, self._parts(self._seeds), strict=True):
+            remote.send(("reset", list(seeds)))
+        results = [remote.recv() for remote in self.remotes]
+        self._reset_seeds()
+        self.reset_infos = [info for _, infos in results for info in infos]
+        return _concatenate([obs for obs, _ in results])
+
+    def step_async(self, actions: np.ndarray) -> None:
+        for remote, part in zip(self.remotes, self._parts(np.asarray(actions)), strict=True):
+            remote.send(("step", part))
+
+    def step_wait(self):
+        results = [remote.recv() for remote in self.remotes]
+        obs, rewards, dones, infos = zip(*results, strict=True)
+        return (_concatenate(list(obs)), np.concatenate(rewards), np.concatenate(dones),
+                [info for part in infos for info in part])
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        for remote in self.remotes:
+            remote.send(("close", None))
+            remote.recv()
+        for process in self.processes:
+            process.join()
+        self.closed = True
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        if attr_name == "render_mode":
+            return [None for _ in self._get_indices(indices)]
+        self.remotes[0].send(("get_attr", attr_name))
+        value = self.remotes[0].recv()
+        return [value for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        raise NotImplementedError("ProcessBatches does not set attributes in its workers")
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs):
+        raise NotImplementedError("ProcessBatches does not call methods in its workers")
+
+    def env_is_wrapped(self, wrapper_class: type, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
 
     def get_images(self) -> Sequence[np.ndarray | None]:
         return [None for _ in range(self.num_envs)]
