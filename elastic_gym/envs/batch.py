@@ -346,7 +346,6 @@ class ArmBatch:
         and :meth:`info`.
         """
         self._check_open()
-        N = self.n_arms
         every = stepping is None or bool(stepping.all())
         stepping = self._all if stepping is None else stepping
         sim = self.sim
