@@ -171,3 +171,27 @@ def test_pickled_vector_env_continues_bit_for_bit():
         assert np.array_equal(expected[1], got[1])
     clone.close()
     envs.close()
+
+
+def test_arms_of_a_large_batch_equal_single_envs():
+    """64 arms: numpy may pick other loops for longer arrays; each arm must not notice."""
+    env_id, kwargs = "elastic_gym/KR15Elastic-v0", {"sensor_delay": 1}
+    envs = gym.make_vec(env_id, num_envs=64, vectorization_mode="vector_entry_point", **kwargs)
+    envs.reset(seed=100)
+    arms = (0, 37, 63)
+    singles = {i: gym.make(env_id, **kwargs) for i in arms}
+    for i, env in singles.items():
+        env.reset(seed=100 + i)
+    rng = np.random.default_rng(5)
+    limit = envs.unwrapped.torque_limit
+    for _ in range(40):
+        actions = 0.1 * limit * rng.uniform(-1, 1, (64, 3))
+        obs, reward, *_, info = envs.step(actions)
+        for i, env in singles.items():
+            single_obs, single_reward, *_, single_info = env.step(actions[i])
+            assert np.array_equal(_flat(_arm(obs, i)), _flat(single_obs))
+            assert reward[i] == single_reward
+            assert np.array_equal(_flat(_arm(info, i)), _flat(single_info))
+    envs.close()
+    for env in singles.values():
+        env.close()
