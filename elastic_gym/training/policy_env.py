@@ -1,7 +1,9 @@
 """The env a policy is trained on: state source, action parameterization, decimation,
 observation features.
 
-Stack (bottom to top)::
+Stack (bottom to top; :func:`make_policy_vec_env` builds the same stack on N arms of one
+PyBullet world with the twins of :mod:`elastic_gym.training.vector` and
+:mod:`elastic_gym.observers.vector`)::
 
     gym.make(env_id)                      1 kHz loop, sensors only
     ObserverWrapper / TrueStateWrapper    state source: an observer name or "true"
@@ -16,10 +18,12 @@ Stack (bottom to top)::
 from __future__ import annotations
 
 import gymnasium as gym
+from gymnasium.vector import AutoresetMode
 from gymnasium.wrappers import FlattenObservation, FrameStackObservation
 
 import elastic_gym  # noqa: F401  (registers the env ids in worker processes)
-from elastic_gym.observers import OBSERVERS, ObserverWrapper
+from elastic_gym.observers import OBSERVERS, ObserverWrapper, vector
+from elastic_gym.training import vector as policy_vector
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.wrappers import ActionRepeat, PolicyAction, PolicyObservation
@@ -61,3 +65,33 @@ def make_policy_env(
     if frame_stack > 1:
         env = FlattenObservation(FrameStackObservation(env, frame_stack))
     return env
+
+
+def make_policy_vec_env(
+    env_id: str,
+    n_arms: int,
+    state: str = "true",
+    env_kwargs: dict | None = None,
+    observer_options: dict | None = None,
+    decimation: int = 1,
+    action: ActionConfig | dict | None = None,
+    observation: ObservationConfig | dict | None = None,
+    frame_stack: int = 1,
+    autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
+) -> gym.vector.VectorEnv:
+    """The stack of :func:`make_policy_env` on ``n_arms`` arms in one PyBullet world.
+
+    Autoreset is ``DISABLED`` by default: :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`
+    resets the arms whose episode ended.
+    """
+    check_state_source(state)
+    envs = gym.make_vec(env_id, num_envs=n_arms, vectorization_mode="vector_entry_point",
+                        autoreset_mode=autoreset_mode, **(env_kwargs or {}))
+    if state != SENSORS:
+        envs = vector.ObserverWrapper(envs, state, **(observer_options or {}))
+    elif observer_options:
+        raise ValueError("observer_options given but the state source is raw 'sensors'")
+    envs = policy_vector.PolicyAction(envs, action)
+    if decimation > 1:
+        envs = policy_vector.ActionRepeat(envs, decimation)
+    return policy_vector.PolicyObservation(envs, observation, frame_stack)

@@ -1,9 +1,219 @@
-"""Vector-env twins of the policy wrappers of :mod:`elastic_gym.training.wrappers`."""
+"""Vector-env twins of the policy wrappers of :mod:`elastic_gym.training.wrappers`.
+
+The same logic (:class:`~elastic_gym.training.actions.ActionMap`,
+:class:`~elastic_gym.training.observation.ObservationBuilder`) on all the arms of a vector
+env (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``) at once. Resets of
+some arms — autoresets, or ``reset(options={"reset_mask": ...})`` as
+:class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv` does — restart their controllers,
+last actions and frame stacks only.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import gymnasium as gym
 import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+from elastic_gym.controllers import make_controller, public_info
+from elastic_gym.training.actions import ActionConfig, ActionMap
+from elastic_gym.training.observation import (
+    ObservationBuilder,
+    ObservationConfig,
+    ObservationInputs,
+)
+from elastic_gym.training.wrappers import REFERENCE_KEYS
+
+
+def reference_rows(info: Mapping) -> np.ndarray:
+    """``info["reference"]`` of every arm as an (N, 5, n) array: q_d .. q_d^(4)."""
+    reference = info["reference"]
+    return np.stack([reference[key] for key in REFERENCE_KEYS], axis=1).astype(float)
+
+
+def arm_view(batched: Mapping, i: int) -> dict:
+    """Arm i of a batched observation or info (the ``_key`` masks dropped)."""
+    return {key: arm_view(value, i) if isinstance(value, Mapping) else value[i]
+            for key, value in batched.items() if not key.startswith("_")}
+
+
+def wrapper_attribute(env: gym.vector.VectorEnv, name: str):
+    """An attribute of the first wrapper down the stack that has it."""
+    while True:
+        if name in vars(env):
+            return vars(env)[name]
+        if not hasattr(env, "env"):
+            raise AttributeError(f"no wrapper of {env} has {name!r}")
+        env = env.env
+
+
+def checked_actions(actions, n_arms: int, n: int) -> np.ndarray:
+    """Finite (N, n) actions, or a clear error (nothing is stepped)."""
+    arr = np.asarray(actions)
+    if arr.dtype.kind not in "fiu":
+        raise TypeError(f"actions must be a real numeric array, got dtype {arr.dtype}")
+    if arr.shape != (n_arms, n):
+        raise ValueError(f"actions must have shape ({n_arms}, {n}), got {arr.shape}")
+    arr = arr.astype(np.float64)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError("actions must be finite")
+    return arr
+
+
+class _ArmResets(gym.vector.VectorWrapper):
+    """Tracks which arms the env restarts: at ``reset`` (mask) and by autoreset."""
+
+    def __init__(self, env: gym.vector.VectorEnv) -> None:
+        super().__init__(env)
+        self._ended = np.zeros(self.num_envs, dtype=bool)
+
+    def _reset_arms(self, options: dict | None) -> np.ndarray:
+        mask = (options or {}).get("reset_mask")
+        arms = np.arange(self.num_envs) if mask is None else np.flatnonzero(mask)
+        self._ended[arms] = False
+        return arms
+
+    def _restarted(self, terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
+        """Arms the env reset during the step just taken (NEXT_STEP autoreset)."""
+        mode = self.env.metadata.get("autoreset_mode")
+        restarted = np.flatnonzero(self._ended) if mode is AutoresetMode.NEXT_STEP else (
+            np.zeros(0, dtype=np.int64))
+        self._ended = terminated | truncated
+        return restarted
+
+
+class PolicyAction(_ArmResets):
+    """Actions in [-1, 1]^n of every arm -> motor torques at every control period.
+
+    The twin of :class:`elastic_gym.training.wrappers.PolicyAction`; a residual's base
+    controller runs one copy per arm. ``info["base_torque"]`` is (N, n).
+    """
+
+    def __init__(self, env: gym.vector.VectorEnv, action: ActionConfig | dict | None = None
+                 ) -> None:
+        super().__init__(env)
+        batch = env.unwrapped.batch
+        self.action_config = ActionConfig.from_config(action)
+        self.map = ActionMap(self.action_config, batch.model)
+        self.n, self.dt = batch.n_joints, batch.control_dt
+        self.sensors = "state" not in env.single_observation_space.spaces
+        self.controllers = []
+        if self.action_config.kind == "residual":
+            if self.sensors:
+                raise ValueError("a residual policy needs a state source for its base controller")
+            self.controllers = [
+                make_controller(self.action_config.residual, batch.model, self.dt,
+                                **self.action_config.residual_options)
+                for _ in range(self.num_envs)]
+        self.single_action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._obs = self._info = None
+        self._previous_motor = np.zeros((self.num_envs, self.n))
+        self._base = np.zeros((self.num_envs, self.n))
+
+    def _restart(self, arms, obs: Mapping, info: Mapping) -> None:
+        for i in arms:
+            if self.controllers:
+                self.controllers[i].reset(arm_view(obs, i), public_info(arm_view(info, i)))
+            if self.sensors:
+                self._previous_motor[i] = obs["motor_position"][i]
+
+    def reset(self, *, seed=None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        arms = self._reset_arms(options)
+        self._restart(arms, obs, info)
+        self._obs, self._info = obs, info
+        self._base[arms] = 0.0
+        info["base_torque"] = self._base.copy()
+        return obs, info
+
+    def step(self, actions):
+        a = checked_actions(actions, self.num_envs, self.n)
+        obs, info, n = self._obs, self._info, self.n
+        if self.controllers:
+            self._base = np.array([controller(arm_view(obs, i), public_info(arm_view(info, i)))
+                                   for i, controller in enumerate(self.controllers)])
+        theta = dtheta = None
+        if self.map.needs_motor_state:
+            if self.sensors:  # backward difference of the encoders
+                theta = obs["motor_position"]
+                dtheta = (theta - self._previous_motor) / self.dt
+                self._previous_motor = theta.copy()
+            else:
+                theta, dtheta = obs["state"][:, :n], obs["state"][:, 2 * n : 3 * n]
+        torque = self.map.torque(a, theta, dtheta, reference_rows(info), self._base)
+        obs, reward, terminated, truncated, info = self.env.step(torque)
+        self._restart(self._restarted(terminated, truncated), obs, info)
+        info["base_torque"] = self._base.copy()
+        self._obs, self._info = obs, info
+        return obs, reward, terminated, truncated, info
+
+
+class PolicyObservation(_ArmResets):
+    """The policy's flat observation of every arm, (N, size) float32; ``frame_stack`` > 1
+    concatenates each arm's last frames (oldest first, the first frame repeated after a
+    reset), the vector twin of ``FrameStackObservation`` + ``FlattenObservation``."""
+
+    def __init__(self, env: gym.vector.VectorEnv,
+                 observation: ObservationConfig | dict | None = None,
+                 frame_stack: int = 1) -> None:
+        super().__init__(env)
+        batch = env.unwrapped.batch
+        action_config = wrapper_attribute(env, "action_config")
+        self.sensors = "state" not in env.single_observation_space.spaces
+        accelerations = env.single_observation_space.spaces.get("acceleration")
+        self.builder = ObservationBuilder(
+            ObservationConfig.from_config(observation), batch.n_joints, batch.robot.elastic,
+            self.sensors, action_config.kind == "residual", batch.torque_limit,
+            0 if accelerations is None else accelerations.shape[0],
+        )
+        if isinstance(frame_stack, bool) or not isinstance(frame_stack, int) or frame_stack < 1:
+            raise ValueError(f"frame_stack must be an integer >= 1, got {frame_stack!r}")
+        self.frame_stack = frame_stack
+        self.n = batch.n_joints
+        size = self.builder.size * frame_stack
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._last_action = np.zeros((self.num_envs, self.n))
+        self._frames = np.zeros((self.num_envs, frame_stack, self.builder.size), np.float32)
+
+    def _features(self, obs: Mapping, info: Mapping) -> np.ndarray:
+        preview = None
+        if "preview" in self.builder.features:
+            preview = self.env.unwrapped.batch.reference_preview(
+                self.builder.config.preview)[:, :, 0]
+        inputs = ObservationInputs(
+            reference=reference_rows(info), last_action=self._last_action,
+            state=obs.get("state"), motor_position=obs.get("motor_position"),
+            acceleration=obs.get("acceleration"), preview=preview,
+            base_torque=info["base_torque"],
+        )
+        return self.builder.build(inputs)
+
+    def _observation(self, features: np.ndarray, restarted) -> np.ndarray:
+        self._frames[:, :-1] = self._frames[:, 1:]
+        self._frames[:, -1] = features
+        self._frames[restarted] = features[restarted, None]
+        return self._frames.reshape(self.num_envs, -1).copy()
+
+    def reset(self, *, seed=None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        arms = self._reset_arms(options)  # a masked reset leaves the other arms' frames
+        self._last_action[arms] = 0.0
+        self._frames[arms] = self._features(obs, info)[arms, None]
+        return self._frames.reshape(self.num_envs, -1).copy(), info
+
+    def step(self, actions):
+        a = checked_actions(actions, self.num_envs, self.n)
+        obs, reward, terminated, truncated, info = self.env.step(a)
+        self._last_action = np.clip(a, -1.0, 1.0)
+        restarted = self._restarted(terminated, truncated)
+        self._last_action[restarted] = 0.0
+        return (self._observation(self._features(obs, info), restarted), reward, terminated,
+                truncated, info)
 
 
 class ActionRepeat(gym.vector.VectorWrapper):
