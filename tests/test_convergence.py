@@ -80,7 +80,7 @@ def test_presets_use_the_comparison_step_and_bad_steps_are_refused():
     data = nominal_eq13().to_dict()
     assert Scenario.from_dict({**data, "physics_dt": None}).physics_dt is None  # robot default
     for bad in (0.0, 2e-3, "fine"):
-        with pytest.raises(ScenarioError, match="^physics_dt:"):
+        with pytest.raises(ScenarioError, match=r"^physics_dt:"):
             Scenario.from_dict({**data, "physics_dt": bad})
     with pytest.raises(ValueError, match="refinement"):
         check_convergence(nominal_eq13(), refinement=1)

@@ -170,9 +170,9 @@ def test_curves_are_written_per_context_and_metric(tmp_path):
     s = Scenario.from_dict(scenario({"mass": MASS}))
     rows = synthetic_rows({"nominal": [1.0, 1.1], "mass=1.3": [1.5, None], "mass=0.8": [1, 1]})
     paths = plot_all_curves(sweep_curves(s, rows), tmp_path)
-    assert sorted(p.name for p in paths) == ["track_exact__est_rms_dq_steady.png",
-                                            "track_exact__est_rms_q_steady.png",
-                                            "track_exact__track_rms.png"]
+    assert sorted(p.name for p in paths) == ["track_exact_est_rms_dq_steady.png",
+                                            "track_exact_est_rms_q_steady.png",
+                                            "track_exact_track_rms.png"]
     assert all(p.read_bytes()[:4] == b"\x89PNG" for p in paths)
 
 
@@ -185,10 +185,13 @@ def real_sweep(tmp_path_factory):
          "delay": {"parameter": "sensor_delay", "nominal": 0, "values": [2]}},
         state_sources=[True, "deluca", "ekf"], physics_dt=2.5e-4, duration=0.5,
     ))
-    result = compare(s, output_dir=out, workers=2, progress=False, console=QUIET)
+    compare(s, output_dir=out, workers=2, progress=False, console=QUIET)
     with (out / "margins.csv").open() as handle:
         margins = list(csv.DictReader(handle))
-    rows = {(r["sweep"], r["source"]): r for r in result.rows}
+    with (out / "runs.csv").open() as handle:
+        rows = {(r["sweep"], r["source"]): {k: float(v) if k.startswith(("track", "est")) else v
+                                            for k, v in r.items()}
+                for r in csv.DictReader(handle)}
     return out, rows, {(m["criterion"], m["source"], m["sweep"]): m for m in margins}
 
 
@@ -223,8 +226,8 @@ def test_measurement_delay_breaks_the_observer_based_loops(real_sweep):
     markdown = (out / "margins.md").read_text()
     assert "| eq13 | deluca | <1.3 | <2 |" in markdown
     assert sorted(p.name for p in (out / "curves").glob("*.png")) == [
-        "track_exact__est_rms_dq_steady.png", "track_exact__est_rms_q_steady.png",
-        "track_exact__track_rms.png"]
+        "track_exact_est_rms_dq_steady.png", "track_exact_est_rms_q_steady.png",
+        "track_exact_track_rms.png"]
 
 
 def test_cli_quick_runs_a_thinned_sweep(tmp_path, capsys):
