@@ -118,7 +118,7 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--env", default="elastic_gym/TwoLinkElastic-v0",
                         help="env id (the elastic_gym/ prefix is optional)")
-    parser.add_argument("--algo", default="sac", choices=ALGORITHMS)
+    parser.add_argument("--algo", default="ppo", choices=ALGORITHMS)
     parser.add_argument("--state", default="deluca", choices=state_sources(),
                         help="what the policy sees: an observer's estimate, 'true', or raw "
                         "'sensors' (frame-stacked)")
