@@ -42,6 +42,12 @@ def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
                         help="override the scenario's seeds")
     parser.add_argument("--duration", type=float, metavar="SECONDS",
                         help="override the simulated time per run")
+    parser.add_argument("--quick", action="store_true",
+                        help="a fast look at the grid: first seed only, at most 0.5 s per run, "
+                        "sweeps thinned to their extreme magnitudes (--seeds/--duration apply "
+                        "after it)")
+    parser.add_argument("--physics-dt", type=float, metavar="SECONDS",
+                        help="override the scenario's physics step (default 1/16 ms)")
     parser.add_argument("--policy", nargs="+", metavar="RUN", default=[],
                         help="training run folder(s) (elastic-gym train) to compare as controllers")
     parser.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
@@ -56,7 +62,10 @@ def run_compare(args: argparse.Namespace) -> int:
         print("\n".join(list_presets()))
         return 0
     scenario = load_scenario(args.config) if args.config else load_preset(args.preset)
-    scenario = scenario.with_overrides(seeds=args.seeds, duration=args.duration)
+    if args.quick:
+        scenario = scenario.quick()
+    scenario = scenario.with_overrides(seeds=args.seeds, duration=args.duration,
+                                       physics_dt=args.physics_dt)
     for run in args.policy:
         scenario = with_trained_policy(scenario, run)
     compare(
@@ -109,7 +118,7 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--env", default="elastic_gym/TwoLinkElastic-v0",
                         help="env id (the elastic_gym/ prefix is optional)")
-    parser.add_argument("--algo", default="sac", choices=ALGORITHMS)
+    parser.add_argument("--algo", default="ppo", choices=ALGORITHMS)
     parser.add_argument("--state", default="deluca", choices=state_sources(),
                         help="what the policy sees: an observer's estimate, 'true', or raw "
                         "'sensors' (frame-stacked)")

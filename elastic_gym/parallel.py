@@ -135,7 +135,10 @@ def for_each_result(
 
     ``backend="process"``: spawned worker processes (``workers=1``: in this process).
     ``backend="ray"``: a local Ray runtime with ``workers`` CPUs is started unless
-    ``ray.init`` was already called (then the existing cluster is used). A job that
+    ``ray.init`` was already called, or the environment variable ``RAY_ADDRESS`` names a
+    running cluster (``ray start --head`` on one machine, ``ray start --address=HEAD:6379``
+    on the others, then ``RAY_ADDRESS=HEAD:6379``): then that cluster is used, with as
+    many jobs in flight as it has CPUs. A job that
     raises cancels the others and raises ``RuntimeError`` naming it (``describe``);
     SIGINT/SIGTERM raise :class:`Interrupted` after stopping every worker (see the
     module docstring). ``function`` and the jobs must be picklable (module-level
@@ -255,11 +258,15 @@ def _run_ray(function, jobs, workers, deliver, failure) -> None:
         raise ImportError("backend 'ray' needs the optional extra: pip install "
                           "'elastic-gym[ray]'") from None
     started = not ray.is_initialized()
-    if started:
+    if started and os.environ.get("RAY_ADDRESS"):  # an existing cluster (its own CPUs)
+        ray.init(address=os.environ["RAY_ADDRESS"], log_to_driver=False,
+                 runtime_env={"env_vars": SINGLE_THREAD_ENV})
+        workers = max(1, int(ray.cluster_resources().get("CPU", workers)))
+    elif started:
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
                  runtime_env={"env_vars": SINGLE_THREAD_ENV})
-        if _handlers_depth and threading.current_thread() is threading.main_thread():
-            _install_handlers()  # ray.init installs a SIGTERM handler of its own
+    if started and _handlers_depth and threading.current_thread() is threading.main_thread():
+        _install_handlers()  # ray.init installs a SIGTERM handler of its own
     remote = ray.remote(num_cpus=1)(_call)  # _call: ray.remote takes plain functions only
     queue = iter(enumerate(jobs))
     pending: dict = {}

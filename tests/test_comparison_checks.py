@@ -225,7 +225,8 @@ def test_missing_or_corrupted_policy_folder_is_found_before_the_first_run(tmp_pa
         run(missing, tmp_path / "out")
     broken = tmp_path / "broken"
     broken.mkdir()
-    config = TrainConfig(env_id="TwoLinkRigid-v0", state="finite-difference", out_dir="x")
+    config = TrainConfig(env_id="TwoLinkRigid-v0", algo="sac", state="finite-difference",
+                         out_dir="x")
     (broken / "config.yaml").write_text(yaml.safe_dump(config.to_dict()))
     (broken / "model.zip").write_bytes(b"not a zip archive")
     (broken / "vecnormalize.pkl").write_bytes(b"not a pickle")

@@ -27,6 +27,7 @@ from elastic_gym.evaluation import (
     plan_runs,
 )
 from elastic_gym.evaluation.metrics import SETTLING_BAND, find_moves
+from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT
 
 DT = 1e-3
 QUIET = Console(quiet=True)
@@ -226,7 +227,8 @@ def test_plan_skips_inapplicable_and_merges_axes():
     assert len(runs) == 2 * 2 * 2 and len(skipped) == 8  # deluca is for elastic arms
     assert all("deluca" in s.reason and "elastic" in s.reason for s in skipped)
     heavy = [r for r in runs if r.labels["plant"] == "heavy"]
-    assert heavy[0].env_kwargs == {"task": "regulation", "plant_scaling": {"link_mass": 1.1}}
+    assert heavy[0].env_kwargs == {"physics_dt": COMPARISON_PHYSICS_DT, "task": "regulation",
+                                   "plant_scaling": {"link_mass": 1.1}}
     assert {r.labels["model_error"] for r in runs} == {"exact", "link_mass=1.2"}
     assert scenario.identity_columns == ("env", "plant", "model_error", "controller", "source",
                                          "seed")

@@ -133,12 +133,21 @@ def test_bad_hyperparameters(tmp_path):
 
 
 def test_shipped_hyperparameters_are_valid():
-    import elastic_gym
+    """Every algorithm's settings resolve for every id, and their action parameterization
+    applies to its robot (motor offsets only on elastic arms)."""
+    import gymnasium as gym
 
-    for algo in ("ppo", "sac", "td3"):
-        for env_id in elastic_gym.ENV_IDS:
+    import elastic_gym
+    from elastic_gym.training import ActionMap
+
+    for env_id in elastic_gym.ENV_IDS:
+        env = gym.make(env_id)
+        for algo in ("ppo", "sac", "td3"):
             settings = resolve_hyperparams(algo, env_id)
             assert settings["n_timesteps"] > 0 and settings["decimation"] >= 1
+            action, _ = TrainConfig(env_id=env_id, algo=algo).policy_configs(settings)
+            ActionMap(action, env.unwrapped.model)
+        env.close()
 
 
 def test_raw_sensor_policy_env_stacks_frames():
@@ -203,8 +212,8 @@ def test_cli_trains_two_seeds_on_ray_and_compares_the_policy(tmp_path, capsys):
 
     out = tmp_path / "runs"
     try:
-        code = main(["train", "--steps", "40", "--seeds", "0", "1", "--backend", "ray",
-                     "--workers", "2", "--out", str(out), "--env-kwargs",
+        code = main(["train", "--algo", "sac", "--steps", "40", "--seeds", "0", "1",
+                     "--backend", "ray", "--workers", "2", "--out", str(out), "--env-kwargs",
                      "{max_episode_steps: 100}", "--hyperparams", "learning_starts=20",
                      "batch_size=16", "--eval-freq", "1000000", "--no-progress"])
     finally:

@@ -12,6 +12,7 @@ CONTROLLERS: dict[str, tuple[str, str]] = {
     "feedforward-state-feedback": (
         "elastic_gym.controllers.state_feedback", "FeedforwardStateFeedback",
     ),
+    "integral-state-feedback": ("elastic_gym.controllers.integral", "IntegralStateFeedback"),
     "motor-pd": ("elastic_gym.controllers.pd", "MotorPD"),
     "link-pd": ("elastic_gym.controllers.pd", "LinkPD"),
     "cristofaro-tracking": ("elastic_gym.controllers.rigid", "CristofaroTrackingController"),

@@ -26,6 +26,11 @@ earlier comparison's files is refused unless ``overwrite`` (which removes those
 files first). A run that fails is a row with status ``failed: <Type>: <message>``.
 On SIGINT/SIGTERM the queued runs are cancelled, the workers ended, the tables of the
 finished runs written, and :class:`~elastic_gym.parallel.Interrupted` raised.
+
+A scenario with ``sweeps`` plots the time series of its nominal runs only (the sweeps
+are summarized by their curves), and adds ``margins.csv`` / ``margins.md``
+(:mod:`~elastic_gym.evaluation.margins`) and ``curves/<context>__<metric>.png``
+(:mod:`~elastic_gym.evaluation.curves`), written when all runs are done.
 """
 
 from __future__ import annotations
@@ -38,7 +43,10 @@ from typing import Any
 import yaml
 from rich.console import Console
 
+from elastic_gym.evaluation.curves import plot_all_curves
+from elastic_gym.evaluation.margins import margin_rows, write_margins
 from elastic_gym.evaluation.output import (
+    CURVE_DIR,
     PLOT_DIR,
     RunsCsv,
     check_output_folder,
@@ -61,7 +69,8 @@ from elastic_gym.evaluation.runner import (
     plan_runs,
     run_episode,
 )
-from elastic_gym.evaluation.scenario import Scenario
+from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
+from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
 from elastic_gym.parallel import Interrupted, for_each_result, resolve_workers
 
 DEFAULT_OUTPUT_ROOT = Path("compare_out")
@@ -149,11 +158,18 @@ def compare(
     summary, markdown = _write_tables(scenario, out, rows, skipped_note)
     files = [out / "runs.csv", out / "summary.csv", out / "summary.md", out / "scenario.yaml",
              *sink.plots]
+    if scenario.sweeps:
+        curves = sweep_curves(scenario, rows)
+        files += write_margins(margin_rows(curves), context_columns(scenario), out, scenario.name)
+        if plots:
+            files += plot_all_curves(curves, out / CURVE_DIR)
     console.print(markdown, soft_wrap=True, markup=False)  # long lines are not cut
     failed = [row["status"] for row in rows if row["status"].startswith("failed")]
     if failed:
         console.print(f"{len(failed)} of {len(rows)} runs failed (status column of runs.csv), "
                       f"e.g. {failed[0]}", markup=False)
+    if scenario.sweeps:
+        console.print(f"robustness margins: {out / 'margins.md'}", markup=False)
     console.print(f"written to {out}/")
     return Comparison(scenario, as_table(rows), as_table(summary), skipped, markdown, out, files)
 
@@ -171,8 +187,8 @@ class _Sink:
 
     def add(self, index: int, result: RunResult) -> None:
         self.csv.add(index, run_row(result))
-        if self.plot_dir is None:
-            return
+        if self.plot_dir is None or result.spec.labels.get(SWEEP_AXIS, NOMINAL) != NOMINAL:
+            return  # a sweep's runs are summarized by its curves
         group = result.spec.group
         members = self.waiting.setdefault(group, [])
         if result.series is not None:

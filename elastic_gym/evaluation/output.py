@@ -1,7 +1,8 @@
 """The output folder of a comparison: checked before the first run, filled as runs finish.
 
 A comparison writes ``runs.csv``, ``summary.csv``, ``summary.md``, ``scenario.yaml``
-and ``plots/*.png`` in its folder, and nothing elsewhere. Before any run,
+and ``plots/*.png`` (a sweep: also ``margins.csv``, ``margins.md`` and ``curves/*.png``)
+in its folder, and nothing elsewhere. Before any run,
 :func:`check_output_folder` refuses a folder that is a file, that cannot be written,
 or that holds the results of an earlier comparison (old figures would stay beside the
 new ones) unless ``overwrite`` is given; :func:`clear_results` then removes those
@@ -17,8 +18,11 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
-RESULT_FILES = ("runs.csv", "summary.csv", "summary.md", "scenario.yaml")
+RESULT_FILES = ("runs.csv", "summary.csv", "summary.md", "scenario.yaml", "margins.csv",
+                "margins.md")
 PLOT_DIR = "plots"
+CURVE_DIR = "curves"
+FIGURE_DIRS = (PLOT_DIR, CURVE_DIR)
 MAX_NAME_BYTES = 255  # longest file name on common file systems (ext4, APFS, NTFS)
 
 
@@ -44,9 +48,9 @@ def folder_name_problem(name: str) -> str | None:
 def earlier_results(folder: Path) -> list[str]:
     """Files of an earlier comparison in ``folder`` (relative names)."""
     found = [name for name in RESULT_FILES if (folder / name).exists()]
-    plots = folder / PLOT_DIR
-    if plots.is_dir():
-        found += sorted(f"{PLOT_DIR}/{p.name}" for p in plots.glob("*.png"))
+    for figures in FIGURE_DIRS:
+        if (folder / figures).is_dir():
+            found += sorted(f"{figures}/{p.name}" for p in (folder / figures).glob("*.png"))
     return found
 
 
@@ -84,9 +88,9 @@ def clear_results(folder: Path) -> None:
     """Remove the files a comparison writes (and nothing else) from ``folder``."""
     for name in earlier_results(folder):
         (folder / name).unlink()
-    plots = folder / PLOT_DIR
-    if plots.is_dir() and not any(plots.iterdir()):
-        plots.rmdir()
+    for figures in FIGURE_DIRS:
+        if (folder / figures).is_dir() and not any((folder / figures).iterdir()):
+            (folder / figures).rmdir()
 
 
 class RunsCsv:

@@ -37,7 +37,7 @@ from elastic_gym.evaluation.runner import (
     build_observer,
     run_model,
 )
-from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError, merge
+from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError
 from elastic_gym.parallel import single_threaded
 
 SAMPLE_STEPS = 20  # closed-loop steps timed per (env, controller, source) combination
@@ -86,7 +86,7 @@ def preflight(scenario: Scenario, runs: Sequence[RunSpec], workers: int) -> Esti
                 continue
             path = f"envs[{i}]"
             start = time.perf_counter()
-            env = _make_env(entry.id, entry.kwargs, f"{path}.kwargs")
+            env = _make_env(entry.id, scenario.env_kwargs(entry), f"{path}.kwargs")
             make_time = time.perf_counter() - start
             try:
                 _check_reset(env, entry.reset_options, scenario.seeds[0], path)
@@ -117,7 +117,7 @@ def _check_axes(scenario: Scenario, entry, path: str) -> None:
         for j, variation in enumerate(values):
             if not variation.values:
                 continue
-            env = _make_env(entry.id, merge(entry.kwargs, variation.values),
+            env = _make_env(entry.id, scenario.env_kwargs(entry, (variation,)),
                             f"axes.{axis}[{j}] (on {path})")
             env.close()
 

@@ -35,7 +35,6 @@ from elastic_gym.evaluation.scenario import (
     Scenario,
     ScenarioError,
     SourceEntry,
-    merge,
     resolve_class,
 )
 from elastic_gym.observers.base import Observer
@@ -98,11 +97,15 @@ class SkippedRun:
 
 
 # ---------------------------------------------------------------------------- planning
+def env_robot(env_id: str, env_kwargs: dict) -> RobotSpec:
+    """The robot of an env id with kwargs (from the registry, without building the env)."""
+    robot = env_kwargs.get("robot", gym.spec(env_id).kwargs.get("robot"))
+    return robot if isinstance(robot, RobotSpec) else get_robot(robot)
+
+
 def is_elastic(env_id: str, env_kwargs: dict) -> bool:
     """Whether the env's robot has elastic joints (from its spec, without building the env)."""
-    robot = env_kwargs.get("robot", gym.spec(env_id).kwargs.get("robot"))
-    spec = robot if isinstance(robot, RobotSpec) else get_robot(robot)
-    return spec.elastic
+    return env_robot(env_id, env_kwargs).elastic
 
 
 def _entry_class(entry: ControllerEntry | SourceEntry, path: str, base: type,
@@ -171,9 +174,7 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
     runs: list[RunSpec] = []
     skipped: list[SkippedRun] = []
     for env, variations in itertools.product(scenario.envs, axis_values):
-        kwargs = env.kwargs
-        for variation in variations:
-            kwargs = merge(kwargs, variation.values)
+        kwargs = scenario.env_kwargs(env, variations)
         kind = "elastic" if is_elastic(env.id, kwargs) else "rigid"
         base_labels = {"env": env.label}
         base_labels.update({name: v.label for (name, _), v in zip(scenario.axes, variations,

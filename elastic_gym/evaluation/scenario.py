@@ -9,6 +9,8 @@ written in YAML as::
     name: my-study
     description: free text
     duration: 4.0                       # simulated seconds per run
+    physics_dt: 6.25e-5                 # physics step of every env (default 1/16 ms; null:
+                                        # each robot's own default), see below
     seeds: [0, 1]                       # env reset seeds (task sampling and sensor noise)
     envs:
       - TwoLinkElastic-v0               # an id (the "elastic_gym/" prefix is optional), or
@@ -23,6 +25,16 @@ written in YAML as::
       encoder:
         - {}
         - {encoder: {resolution: 1.0e-3}}
+      mass:                             # an axis generated from magnitudes of one parameter
+        parameter: plant_scaling.link_mass    # dotted path into the env kwargs
+        values: [1.1, 1.3]              # or range: [1.0, 1.5] with num: 6 (log: true: geometric)
+    sweeps:                             # one-at-a-time sweeps (curves and margins): the runs of
+      link_mass:                        # the grid above are the nominal runs, and each sweep
+        parameter: plant_scaling.link_mass    # adds runs that change only its parameter
+        nominal: 1.0                    # the magnitude the nominal runs have
+        range: [1.0, 2.0]
+        num: 6
+      delay: {parameter: sensor_delay, nominal: 0, values: [1, 2, 3, 5]}
     model_errors:                       # error of the controller's and observer's model:
       - {}                              # env.unwrapped.model.perturbed(**values)
       - {label: K-10%, stiffness: 0.9}
@@ -42,6 +54,24 @@ written in YAML as::
         options: {use_accelerometers: true}
         initial_estimate: [...]         # full state vector, overrides the observer's own
 
+Axes combine as a product. ``sweeps`` do not: they become one more axis named
+``sweep`` whose values are ``nominal`` (the runs as given) and ``<name>=<magnitude>``
+for each magnitude of each sweep (a magnitude equal to the sweep's ``nominal`` is the
+nominal run itself, run once for all sweeps), so N sweeps of k magnitudes cost
+1 + N k runs per loop instead of k^N. :mod:`~elastic_gym.evaluation.curves` and
+:mod:`~elastic_gym.evaluation.margins` turn them into metric-versus-magnitude curves
+and robustness margins.
+
+Physics step. PyBullet integrates the links with first-order semi-implicit Euler and
+the elastic transmissions are integrated the same way, so a closed loop's tracking
+error carries an O(physics_dt) integration error. Measured on eq. (13) with the true
+state tracking a nominal TwoLinkElastic motion: 9.1e-5 rad RMS at the robots' default
+0.5 ms step, 4.8e-5 / 3.1e-5 / 2.6e-5 at 0.25 / 0.125 / 0.0625 ms. Comparisons
+therefore default to ``COMPARISON_PHYSICS_DT`` = 1/16 ms, where the reported metrics
+agree within 20 % with those at 1/8 of that step
+(:mod:`~elastic_gym.evaluation.convergence` checks a scenario). An env entry's or
+axis value's own ``physics_dt`` kwarg takes precedence.
+
 Loading validates structure, types and registry names and raises
 :class:`ScenarioError` (a ``ValueError``) naming the offending field, e.g.
 ``controllers[1].name``. Whether the module behind a registered name is available,
@@ -54,12 +84,14 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import yaml
 
 import elastic_gym  # noqa: F401 - registers the env ids
@@ -74,11 +106,17 @@ PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
 DEFAULT_PRESET = "default"
 TRUE_STATE = "true"
 IDENTITY_COLUMNS = ("env", "model_error", "controller", "source", "seed")
+SWEEP_AXIS = "sweep"
+QUICK_DURATION = 0.5  # s, Scenario.quick()
+NOMINAL = "nominal"
+COMPARISON_PHYSICS_DT = 1.0 / 16000.0  # s; see the module docstring
+MAX_PHYSICS_DT = 1e-3  # s, the envs' own bound
 
 TOP_LEVEL_KEYS = (
-    "name", "description", "duration", "seeds", "envs", "axes", "model_errors",
-    "controllers", "state_sources",
+    "name", "description", "duration", "physics_dt", "seeds", "envs", "axes", "sweeps",
+    "model_errors", "controllers", "state_sources",
 )
+SWEEP_KEYS = ("parameter", "values", "range", "num", "log", "nominal")
 ENV_KEYS = ("id", "label", "kwargs", "reset_options")
 CONTROLLER_KEYS = ("name", "label", "options", "sources", "class")
 SOURCE_KEYS = ("name", "label", "options", "initial_estimate", "class")
@@ -142,6 +180,40 @@ class Variation:
 
 
 @dataclass(frozen=True)
+class Sweep:
+    """Magnitudes of one parameter: ``parameter`` is a dotted path into the env kwargs
+    (``plant_scaling.link_mass``, ``encoder.noise_std``, ``sensor_delay``)."""
+
+    name: str
+    parameter: str
+    values: tuple[float, ...]
+    nominal: float | None = None
+    log: bool = False
+
+    def label(self, value: float) -> str:
+        """Label of a magnitude in the ``sweep`` axis; ``"nominal"`` for the nominal one."""
+        return NOMINAL if value == self.nominal else f"{self.name}={value:g}"
+
+    def kwargs(self, value: float) -> dict:
+        """The env kwargs that set the parameter to ``value``."""
+        out: Any = value
+        for key in reversed(self.parameter.split(".")):
+            out = {key: out}
+        return out
+
+    def variations(self) -> tuple[Variation, ...]:
+        """The values of the ``sweep`` axis this sweep adds (not the nominal)."""
+        return tuple(Variation(self.label(v), self.kwargs(v)) for v in self.values
+                     if v != self.nominal)
+
+    def magnitude(self, label: str) -> float | None:
+        """The magnitude of a ``sweep`` axis label of this sweep (None if not one)."""
+        if label == NOMINAL:
+            return self.nominal
+        return next((v for v in self.values if self.label(v) == label), None)
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A validated comparison grid; build it with :meth:`from_dict` or the loaders below."""
 
@@ -154,6 +226,8 @@ class Scenario:
     axes: tuple[tuple[str, tuple[Variation, ...]], ...] = ()
     model_errors: tuple[Variation, ...] = (Variation("exact"),)
     description: str = ""
+    physics_dt: float | None = COMPARISON_PHYSICS_DT
+    sweeps: tuple[Sweep, ...] = ()
 
     @classmethod
     def from_dict(cls, data: Mapping, name: str | None = None) -> Scenario:
@@ -161,14 +235,35 @@ class Scenario:
         return _parse(data, name)
 
     def with_overrides(self, *, seeds: Sequence[int] | None = None,
-                       duration: float | None = None) -> Scenario:
-        """A copy with other seeds and/or duration (validated like the YAML fields)."""
+                       duration: float | None = None,
+                       physics_dt: float | None = None) -> Scenario:
+        """A copy with other seeds, duration and/or physics step (validated like the YAML
+        fields)."""
         changes: dict[str, Any] = {}
         if seeds is not None:
             changes["seeds"] = _seeds(list(seeds), "seeds")
         if duration is not None:
             changes["duration"] = _positive(duration, "duration")
+        if physics_dt is not None:
+            changes["physics_dt"] = _physics_dt(physics_dt, "physics_dt")
         return replace(self, **changes)
+
+    def quick(self) -> Scenario:
+        """A fast look at the same grid: the first seed, at most ``QUICK_DURATION`` s per
+        run, and each sweep thinned to its smallest and largest magnitude."""
+        sweeps = tuple(replace(w, values=tuple(sorted({min(w.values), max(w.values)})))
+                       for w in self.sweeps)
+        return replace(self, seeds=self.seeds[:1], duration=min(self.duration, QUICK_DURATION),
+                       sweeps=sweeps, axes=with_sweep_axis(self.axes, sweeps))
+
+    def env_kwargs(self, env: EnvEntry, variations: Sequence[Variation] = ()) -> dict:
+        """Kwargs of ``env`` under axis values ``variations``: the scenario's physics step,
+        then the entry's kwargs, then each variation, deep-merged in that order."""
+        kwargs = {} if self.physics_dt is None else {"physics_dt": self.physics_dt}
+        kwargs = merge(kwargs, env.kwargs)
+        for variation in variations:
+            kwargs = merge(kwargs, variation.values)
+        return kwargs
 
     @property
     def axis_names(self) -> tuple[str, ...]:
@@ -185,6 +280,7 @@ class Scenario:
             "name": self.name,
             "description": self.description,
             "duration": self.duration,
+            "physics_dt": self.physics_dt,
             "seeds": list(self.seeds),
             "envs": [
                 {"id": e.id, "label": e.label, "kwargs": e.kwargs,
@@ -192,7 +288,10 @@ class Scenario:
                 for e in self.envs
             ],
             "axes": {name: [{"label": v.label, **v.values} for v in values]
-                     for name, values in self.axes},
+                     for name, values in self.axes if not (self.sweeps and name == SWEEP_AXIS)},
+            "sweeps": {w.name: _without_none({"parameter": w.parameter, "values": list(w.values),
+                                              "nominal": w.nominal, "log": w.log})
+                       for w in self.sweeps},
             "model_errors": [{"label": v.label, **v.values} for v in self.model_errors],
             "controllers": [
                 _without_none({"name": c.name, "label": c.label, "options": c.options,
@@ -283,6 +382,7 @@ def _parse(data: Mapping, name: str | None) -> Scenario:
     _unique_labels([c.label for c in controllers], "controllers")
     _unique_labels([e.label for e in envs], "envs")
     axes = _axes(data.get("axes", {}), envs)
+    sweeps = _sweeps(data.get("sweeps", {}), envs)
     errors = tuple(
         _model_error(item, f"model_errors[{i}]")
         for i, item in enumerate(_list(data.get("model_errors", [{}]), "model_errors"))
@@ -292,9 +392,11 @@ def _parse(data: Mapping, name: str | None) -> Scenario:
         name=scenario_name,
         description=description,
         duration=_positive(data.get("duration", 3.0), "duration"),
+        physics_dt=_physics_dt(data.get("physics_dt", COMPARISON_PHYSICS_DT), "physics_dt"),
         seeds=_seeds(data.get("seeds", [0]), "seeds"),
         envs=envs,
-        axes=axes,
+        axes=with_sweep_axis(axes, sweeps),
+        sweeps=sweeps,
         model_errors=errors,
         controllers=controllers,
         state_sources=sources,
@@ -406,23 +508,91 @@ def _source(item: Any, path: str) -> SourceEntry:
     )
 
 
+def _axis_name(name: Any, path: str) -> str:
+    reserved = [*IDENTITY_COLUMNS, SWEEP_AXIS]
+    if not isinstance(name, str) or not name.isidentifier() or name in reserved:
+        raise ScenarioError(path, f"names must be identifiers other than {reserved}, got {name!r}")
+    return name
+
+
 def _axes(data: Any, envs: tuple[EnvEntry, ...]) -> tuple[tuple[str, tuple[Variation, ...]], ...]:
     axes = _mapping(data, "axes")
     out = []
     for axis, items in axes.items():
-        path = f"axes.{axis}"
-        if not isinstance(axis, str) or not axis.isidentifier() or axis in IDENTITY_COLUMNS:
-            raise ScenarioError(path, f"axis names must be identifiers other than "
-                                f"{list(IDENTITY_COLUMNS)}, got {axis!r}")
-        values = []
-        for i, item in enumerate(_list(items, path)):
-            item_path = f"{path}[{i}]"
-            values.append(_variation(item, item_path, "nominal"))
-            for env in envs:
-                _check_env_kwargs(env.id, values[-1].values, item_path)
+        path = f"axes.{_axis_name(axis, f'axes.{axis}')}"
+        if isinstance(items, Mapping):  # generated from the magnitudes of one parameter
+            values = [Variation(f"{axis}={v:g}", w.kwargs(v))
+                      for w in [_sweep(axis, items, path, envs, nominal_required=False)]
+                      for v in w.values]
+        else:
+            values = [_variation(item, f"{path}[{i}]", NOMINAL)
+                      for i, item in enumerate(_list(items, path))]
+            for i, value in enumerate(values):
+                for env in envs:
+                    _check_env_kwargs(env.id, value.values, f"{path}[{i}]")
         _unique_labels([v.label for v in values], path)
         out.append((axis, tuple(values)))
     return tuple(out)
+
+
+def _sweeps(data: Any, envs: tuple[EnvEntry, ...]) -> tuple[Sweep, ...]:
+    return tuple(_sweep(name, item, f"sweeps.{_axis_name(name, f'sweeps.{name}')}", envs)
+                 for name, item in _mapping(data, "sweeps").items())
+
+
+def _sweep(name: str, data: Any, path: str, envs: tuple[EnvEntry, ...],
+           nominal_required: bool = True) -> Sweep:
+    """One parameter's magnitudes: ``values``, or ``range`` + ``num`` (``log``: geometric)."""
+    data = _mapping(data, path)
+    _check_keys(data, SWEEP_KEYS, path)
+    parameter = data.get("parameter")
+    keys = parameter.split(".") if isinstance(parameter, str) else []
+    if not keys or not all(k.isidentifier() for k in keys):
+        raise ScenarioError(f"{path}.parameter", "must be a dotted path into the env kwargs, "
+                            f"e.g. 'plant_scaling.link_mass', got {parameter!r}")
+    log = data.get("log", False)
+    if not isinstance(log, bool):
+        raise ScenarioError(f"{path}.log", f"must be true or false, got {log!r}")
+    if ("values" in data) == ("range" in data):
+        raise ScenarioError(path, "give either 'values' or 'range' (with 'num')")
+    if "values" in data:
+        if "num" in data:
+            raise ScenarioError(f"{path}.num", "goes with 'range', not with 'values'")
+        values = [_number(v, f"{path}.values[{i}]")
+                  for i, v in enumerate(_list(data["values"], f"{path}.values"))]
+        values = [int(v) if isinstance(raw, int) else v  # integer parameters stay integers
+                  for v, raw in zip(values, data["values"], strict=True)]
+    else:
+        values = _range(data, path, log)
+    for i, v in enumerate(values):
+        if not math.isfinite(v) or (log and v <= 0):
+            raise ScenarioError(f"{path}.values[{i}]", f"must be finite{' and > 0' if log else ''}"
+                                f", got {v!r}")
+    _unique_labels([f"{v:g}" for v in values], f"{path}.values")
+    nominal = data.get("nominal")
+    if nominal is None and nominal_required:
+        raise ScenarioError(f"{path}.nominal", "is required: the magnitude of the nominal runs")
+    if nominal is not None:
+        nominal = _number(nominal, f"{path}.nominal")
+    sweep = Sweep(name, parameter, tuple(values), nominal, log)
+    for variation in sweep.variations():
+        for env in envs:
+            _check_env_kwargs(env.id, variation.values, f"{path}.parameter")
+    return sweep
+
+
+def _range(data: Mapping, path: str, log: bool) -> list[float]:
+    bounds = _list(data["range"], f"{path}.range")
+    if len(bounds) != 2:
+        raise ScenarioError(f"{path}.range", f"must be [low, high], got {bounds!r}")
+    low, high = (_number(b, f"{path}.range[{i}]") for i, b in enumerate(bounds))
+    num = data.get("num")
+    if isinstance(num, bool) or not isinstance(num, int) or num < 2:
+        raise ScenarioError(f"{path}.num", f"must be an integer >= 2 with 'range', got {num!r}")
+    if log and not (low > 0 and high > 0):
+        raise ScenarioError(f"{path}.range", f"log: true needs bounds > 0, got {bounds!r}")
+    points = np.geomspace(low, high, num) if log else np.linspace(low, high, num)
+    return [float(f"{v:.12g}") for v in points]  # 1.2000000000000002 -> 1.2
 
 
 def _model_error(item: Any, path: str) -> Variation:
@@ -440,6 +610,14 @@ def _variation(item: Any, path: str, empty_label: str) -> Variation:
     if label is None:
         label = format_values(values) or empty_label
     return Variation(_label(label, f"{path}.label"), values)
+
+
+def with_sweep_axis(axes: tuple, sweeps: tuple[Sweep, ...]) -> tuple:
+    """``axes`` (without a ``sweep`` axis) plus the ``sweep`` axis of ``sweeps``, if any."""
+    axes = tuple((name, values) for name, values in axes if name != SWEEP_AXIS)
+    if not sweeps:
+        return axes
+    return (*axes, (SWEEP_AXIS, (Variation(NOMINAL), *(v for w in sweeps for v in w.variations()))))
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -550,6 +728,16 @@ def _positive(value: Any, path: str) -> float:
     number = _number(value, path)
     if not number > 0 or number == float("inf"):
         raise ScenarioError(path, f"must be a finite number > 0, got {value!r}")
+    return number
+
+
+def _physics_dt(value: Any, path: str) -> float | None:
+    """A physics step in (0, 1 ms], or None (each env's own default)."""
+    if value is None:
+        return None
+    number = _positive(value, path)
+    if number > MAX_PHYSICS_DT:
+        raise ScenarioError(path, f"must be <= {MAX_PHYSICS_DT} s, got {value!r}")
     return number
 
 

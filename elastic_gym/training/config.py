@@ -132,11 +132,11 @@ class TrainConfig:
     """
 
     env_id: str = "elastic_gym/TwoLinkElastic-v0"
-    algo: str = "sac"
+    algo: str = "ppo"
     state: str = "deluca"
     total_steps: int | None = None
     seed: int = 0
-    out_dir: str = "runs/sac-twolink"
+    out_dir: str = "runs/ppo-twolink"
     action: dict = field(default_factory=dict)
     observation: dict = field(default_factory=dict)
     frame_stack: int = 4

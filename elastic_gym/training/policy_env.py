@@ -53,7 +53,22 @@ def make_policy_env(
 ) -> gym.Env:
     """Build the wrapper stack of the module docstring."""
     check_state_source(state)
-    env = gym.make(env_id, **(env_kwargs or {}))
+    return wrap_policy_env(gym.make(env_id, **(env_kwargs or {})), state, observer_options,
+                           decimation, action, observation, frame_stack)
+
+
+def wrap_policy_env(
+    env: gym.Env,
+    state: str = "true",
+    observer_options: dict | None = None,
+    decimation: int = 1,
+    action: ActionConfig | dict | None = None,
+    observation: ObservationConfig | dict | None = None,
+    frame_stack: int = 1,
+) -> gym.Env:
+    """The wrapper stack of the module docstring around an env made by the caller (e.g.
+    RL Zoo's ``env_wrapper`` hyper-parameter)."""
+    check_state_source(state)
     if state != SENSORS:
         env = ObserverWrapper(env, state, **(observer_options or {}))
     elif observer_options:

@@ -1,0 +1,114 @@
+"""Convergence of a comparison's metrics in the physics step.
+
+The simulator integrates links and elastic transmissions with first-order semi-implicit
+Euler, so every metric carries an O(physics_dt) integration error. A metric m computed
+at the physics step h is called *converged* when
+
+    |m(h) - m(h / r)| <= tolerance * |m(h / r)| + floor(metric)
+
+with the refinement r = 8 and tolerance = 0.2 by default (within 20 % of the value at
+1/8 of the step). ``floor`` is an absolute resolution below which differences carry no
+information: overshoot below ``OVERSHOOT_FLOOR`` % of a move, and settling times within
+one control period (they are measured on the control grid). Two infinite settling times
+(not settled in either run) agree; an infinite and a finite one do not.
+
+:func:`check_convergence` runs each planned run of a scenario at its own physics step
+and at 1/r of it (same seed, so the same task and the same sensor noise samples) and
+returns one row per run and metric. ``benchmarks/convergence.py`` does this for a
+shipped preset from the command line.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+
+from elastic_gym.evaluation.report import METRIC_KEYS
+from elastic_gym.evaluation.runner import RunResult, RunSpec, env_robot, execute, plan_runs
+from elastic_gym.evaluation.scenario import Scenario
+
+REFINEMENT = 8
+TOLERANCE = 0.2
+OVERSHOOT_FLOOR = 0.01  # % of the move amplitude
+CONVERGENCE_METRICS = tuple(k for k in METRIC_KEYS if k != "sim_wall_ratio")  # physics only
+
+
+def run_physics_dt(spec: RunSpec) -> float:
+    """The physics step a run uses: its ``physics_dt`` kwarg or the env's default."""
+    if "physics_dt" in spec.env_kwargs:
+        return float(spec.env_kwargs["physics_dt"])
+    return float(env_robot(spec.env_id, spec.env_kwargs).physics_dt)
+
+
+def refined(spec: RunSpec, refinement: int = REFINEMENT) -> RunSpec:
+    """The same run with the physics step divided by ``refinement``."""
+    kwargs = {**spec.env_kwargs, "physics_dt": run_physics_dt(spec) / refinement}
+    return replace(spec, env_kwargs=kwargs)
+
+
+def metric_floor(metric: str, control_dt: float) -> float:
+    """Absolute resolution of a metric (see the module docstring)."""
+    if metric == "overshoot_pct":
+        return OVERSHOOT_FLOOR
+    if metric == "settling_time":
+        return control_dt
+    return 0.0
+
+
+def converged(coarse: float, fine: float, floor: float, tolerance: float = TOLERANCE) -> bool:
+    """Whether ``coarse`` agrees with ``fine`` (see the module docstring); NaN == NaN."""
+    if math.isnan(coarse) or math.isnan(fine):
+        return math.isnan(coarse) and math.isnan(fine)
+    if math.isinf(coarse) or math.isinf(fine):
+        return coarse == fine
+    return abs(coarse - fine) <= tolerance * abs(fine) + floor
+
+
+def compare_results(coarse: Sequence[RunResult], fine: Sequence[RunResult],
+                    tolerance: float = TOLERANCE,
+                    metrics: Sequence[str] = CONVERGENCE_METRICS) -> list[dict]:
+    """One row per run and metric: labels, both values, relative difference, verdict."""
+    rows = []
+    for a, b in zip(coarse, fine, strict=True):
+        control_dt = float(a.series.time[1] - a.series.time[0]) if len(a.series) > 1 else 0.0
+        for metric in metrics:
+            m_a = a.metrics.get(metric, math.nan)
+            m_b = b.metrics.get(metric, math.nan)
+            if math.isnan(m_a) and math.isnan(m_b):
+                continue  # not applicable to this run
+            finite = math.isfinite(m_a) and math.isfinite(m_b) and m_b != 0.0
+            rows.append({
+                **a.spec.labels,
+                "status": a.status if a.status == b.status else f"{a.status} / {b.status}",
+                "metric": metric,
+                "physics_dt": run_physics_dt(a.spec),
+                "value": m_a,
+                "refined": m_b,
+                "relative_difference": abs(m_a - m_b) / abs(m_b) if finite else math.nan,
+                "converged": a.status == b.status and converged(
+                    m_a, m_b, metric_floor(metric, control_dt), tolerance),
+            })
+    return rows
+
+
+def check_convergence(
+    scenario: Scenario,
+    refinement: int = REFINEMENT,
+    tolerance: float = TOLERANCE,
+    workers: int | None = None,
+    backend: str = "process",
+    progress: bool = True,
+) -> list[dict]:
+    """Run every run of ``scenario`` at its physics step and at 1/``refinement`` of it.
+
+    Returns :func:`compare_results` rows; ``all(row["converged"] for row in rows)`` is
+    the verdict for the whole grid.
+    """
+    if not isinstance(refinement, int) or refinement < 2:
+        raise ValueError(f"refinement must be an integer >= 2, got {refinement!r}")
+    runs, _ = plan_runs(scenario)
+    coarse = execute(runs, workers=workers, backend=backend, progress=progress)
+    fine = execute([refined(spec, refinement) for spec in runs], workers=workers,
+                   backend=backend, progress=progress)
+    return compare_results(coarse, fine, tolerance)
