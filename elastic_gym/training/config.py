@@ -2,8 +2,10 @@
 
 Hyper-parameters live in ``hyperparams/<algo>.yaml``, one entry per env id plus a
 ``default`` entry, each a mapping of the algorithm's constructor arguments and these
-keys of ours: ``n_timesteps`` (default budget, policy steps), ``n_envs``, ``decimation``
-(env steps per policy step), ``normalize`` (VecNormalize on/off), ``action`` (fields of
+keys of ours: ``n_timesteps`` (default budget, policy steps), ``n_envs`` (arms; more
+than one share a PyBullet world), ``batches`` (worker processes the arms are split
+over, one PyBullet world each), ``decimation`` (env steps per policy step),
+``normalize`` (VecNormalize on/off), ``action`` (fields of
 :class:`~elastic_gym.training.actions.ActionConfig`) and ``observation`` (fields of
 :class:`~elastic_gym.training.observation.ObservationConfig`). Command-line overrides
 (``key=value``) win over the file, which wins over the defaults; a run's own ``action`` /
@@ -26,7 +28,8 @@ from elastic_gym.training.policy_env import check_state_source
 from elastic_gym.validation import registered_env_id
 
 ALGORITHMS = ("ppo", "sac", "td3")
-OWN_KEYS = {"n_timesteps", "n_envs", "decimation", "normalize", "action", "observation"}
+OWN_KEYS = {"n_timesteps", "n_envs", "batches", "decimation", "normalize", "action",
+            "observation"}
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 
 

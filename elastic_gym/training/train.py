@@ -1,8 +1,12 @@
 """Train stable-baselines3 policies on the estimated (or true, or raw-sensor) state.
 
-Vectorized envs (``SubprocVecEnv`` when ``n_envs > 1``), ``VecNormalize`` whose
-statistics are saved beside the model, an ``EvalCallback`` saving the best model,
-TensorBoard logs and a progress bar. A run folder holds::
+Vectorized envs: with ``n_envs > 1`` the arms share one PyBullet world (the batched
+env, :func:`~elastic_gym.training.policy_env.make_policy_vec_env`, through
+:class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`), or ``batches`` such worlds in
+worker processes (:class:`~elastic_gym.training.sb3_vec_env.ProcessBatches`, one per
+core); ``VecNormalize`` whose statistics are saved beside the model, an ``EvalCallback``
+(its episodes run as arms of one batch) saving the best model, TensorBoard logs and a
+progress bar. A run folder holds::
 
     model.zip  vecnormalize.pkl  best_model.zip  config.yaml  summary.json  tb/  evaluations.npz
 
@@ -70,14 +74,37 @@ def env_factory(config: TrainConfig, settings: dict):
     )
 
 
-def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int):
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+def vec_env_factory(config: TrainConfig, settings: dict, n_arms: int):
+    """A picklable constructor of ``n_arms`` arms of the policy env in one PyBullet world."""
+    from elastic_gym.training.policy_env import make_policy_vec_env
+    from elastic_gym.training.sb3_vec_env import SB3VecEnv
 
-    return make_vec_env(
-        env_factory(config, settings), n_envs=n_envs, seed=seed,
-        vec_env_cls=SubprocVecEnv if n_envs > 1 else DummyVecEnv,
+    action, observation = config.policy_configs(settings)
+    stack = functools.partial(
+        make_policy_vec_env, config.env_id, n_arms, state=config.state,
+        env_kwargs=config.env_kwargs, observer_options=config.observer_options,
+        decimation=int(settings.get("decimation", 1)), action=action, observation=observation,
+        frame_stack=config.frame_stack if config.state == SENSORS else 1,
     )
+    return lambda: SB3VecEnv(stack())
+
+
+def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int, batches: int = 1):
+    """One env (n_envs = 1), a batch of n_envs arms, or ``batches`` batches in processes."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from elastic_gym.training.sb3_vec_env import ProcessBatches
+
+    if n_envs == 1:
+        return make_vec_env(env_factory(config, settings), n_envs=1, seed=seed,
+                            vec_env_cls=DummyVecEnv)
+    if batches < 1 or n_envs % batches:
+        raise ValueError(f"batches ({batches}) must divide n_envs ({n_envs})")
+    factory = vec_env_factory(config, settings, n_envs // batches)
+    venv = factory() if batches == 1 else ProcessBatches([factory] * batches)
+    venv.seed(seed)
+    return venv
 
 
 def zero_action_head(model) -> None:
@@ -193,9 +220,9 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
 
     total = config.total_steps or int(settings.get("n_timesteps", 100_000))
     n_envs = int(settings.get("n_envs", 1))
-    venv = _vec_env(config, settings, n_envs, config.seed)
+    venv = _vec_env(config, settings, n_envs, config.seed, int(settings.get("batches", 1)))
     try:
-        eval_env = _vec_env(config, settings, 1, config.seed + 10_000)
+        eval_env = _vec_env(config, settings, config.eval_episodes, config.seed + 10_000)
     except BaseException:
         venv.close()
         raise
