@@ -37,6 +37,7 @@ def test_convergence_criterion(coarse, fine, floor, expected):
 def test_floors():
     assert metric_floor("overshoot_pct", 1e-3) == OVERSHOOT_FLOOR
     assert metric_floor("settling_time", 1e-3) == 1e-3
+    assert metric_floor("torsion_osc", 1e-3) == pytest.approx(5.99e-6, rel=1e-3)
     assert metric_floor("track_rms", 1e-3) == 0.0
 
 

@@ -136,7 +136,7 @@ def synthetic_rows(values: dict[str, list], nominal=1e-4) -> list[dict]:
                 "source": "deluca", "seed": seed,
                 "status": "ok" if value is not None else "terminated: velocity limit exceeded",
                 "track_rms": nominal * value if value is not None else 1.0,
-                "est_rms_q_steady": 1e-5, "est_rms_dq_steady": 1e-3,
+                "est_rms_q": 1e-5, "est_rms_dq": 1e-3,
             })
     return rows
 
@@ -170,8 +170,8 @@ def test_curves_are_written_per_context_and_metric(tmp_path):
     s = Scenario.from_dict(scenario({"mass": MASS}))
     rows = synthetic_rows({"nominal": [1.0, 1.1], "mass=1.3": [1.5, None], "mass=0.8": [1, 1]})
     paths = plot_all_curves(sweep_curves(s, rows), tmp_path)
-    assert sorted(p.name for p in paths) == ["track_exact_est_rms_dq_steady.png",
-                                            "track_exact_est_rms_q_steady.png",
+    assert sorted(p.name for p in paths) == ["track_exact_est_rms_dq.png",
+                                            "track_exact_est_rms_q.png",
                                             "track_exact_track_rms.png"]
     assert all(p.read_bytes()[:4] == b"\x89PNG" for p in paths)
 
@@ -207,8 +207,8 @@ def test_de_luca_estimate_ignores_link_masses_the_ekf_does_not(real_sweep):
     # Theorem 1: the observer error dynamics do not depend on the link parameters (the
     # steady error is unchanged, measured ratio 0.97); the EKF predicts with the link
     # model, so +30 % mass biases its velocity estimate (measured 28x)
-    ratio = {source: rows[("link_mass=1.3", source)]["est_rms_dq_steady"]
-             / rows[("nominal", source)]["est_rms_dq_steady"] for source in ("deluca", "ekf")}
+    ratio = {source: rows[("link_mass=1.3", source)]["est_rms_dq"]
+             / rows[("nominal", source)]["est_rms_dq"] for source in ("deluca", "ekf")}
     assert ratio["deluca"] < 1.3 and ratio["ekf"] > 5.0
     assert margins[("estimation", "deluca", "link_mass")]["upper_failure"] == ""
     assert margins[("estimation", "ekf", "link_mass")]["upper_failure"].startswith("est_rms_")
@@ -226,7 +226,7 @@ def test_measurement_delay_breaks_the_observer_based_loops(real_sweep):
     markdown = (out / "margins.md").read_text()
     assert "| eq13 | deluca | <1.3 | <2 |" in markdown
     assert sorted(p.name for p in (out / "curves").glob("*.png")) == [
-        "track_exact_est_rms_dq_steady.png", "track_exact_est_rms_q_steady.png",
+        "track_exact_est_rms_dq.png", "track_exact_est_rms_q.png",
         "track_exact_track_rms.png"]
 
 

@@ -8,9 +8,12 @@ at the physics step h is called *converged* when
 
 with the refinement r = 8 and tolerance = 0.2 by default (within 20 % of the value at
 1/8 of the step). ``floor`` is an absolute resolution below which differences carry no
-information: overshoot below ``OVERSHOOT_FLOOR`` % of a move, and settling times within
-one control period (they are measured on the control grid). Two infinite settling times
-(not settled in either run) agree; an infinite and a finite one do not.
+information: overshoot below ``OVERSHOOT_FLOOR`` % of a move, settling times within
+one control period (they are measured on the control grid), and residual torsion
+oscillations within one count of the default motor encoders (2 pi / 2^20 rad: no
+sensor of the arm resolves less; measured values at rest are ~1e-6 to 1e-5 rad). Two
+infinite settling times (not settled in either run) agree; an infinite and a finite one
+do not.
 
 :func:`check_convergence` runs each planned run of a scenario at its own physics step
 and at 1/r of it (same seed, so the same task and the same sensor noise samples) and
@@ -31,6 +34,7 @@ from elastic_gym.evaluation.scenario import Scenario
 REFINEMENT = 8
 TOLERANCE = 0.2
 OVERSHOOT_FLOOR = 0.01  # % of the move amplitude
+TORSION_FLOOR = 2.0 * math.pi / 2**20  # rad, one count of the default motor encoders
 CONVERGENCE_METRICS = tuple(k for k in METRIC_KEYS if k != "sim_wall_ratio")  # physics only
 
 
@@ -53,6 +57,8 @@ def metric_floor(metric: str, control_dt: float) -> float:
         return OVERSHOOT_FLOOR
     if metric == "settling_time":
         return control_dt
+    if metric == "torsion_osc":
+        return TORSION_FLOOR
     return 0.0
 
 

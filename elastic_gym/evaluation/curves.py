@@ -7,7 +7,7 @@ nominal runs at the sweep's nominal magnitude (on a log axis a nominal of 0 is d
 as a dotted horizontal line instead), and an ``x`` at the top of the panel where a
 loop is unstable (a seed's run ended early, see
 :mod:`~elastic_gym.evaluation.sweeps`); its line is broken there. Metrics:
-``track_rms`` for every loop, ``est_rms_q_steady`` and ``est_rms_dq_steady`` (after the
+``track_rms`` for every loop, ``est_rms_q`` and ``est_rms_dq`` (after the
 observer's initial transient) for the loops whose state comes from an observer. The
 legend sits outside the panels.
 """
@@ -29,8 +29,8 @@ from elastic_gym.evaluation.sweeps import SweepCurve
 
 CURVE_METRICS = (
     ("track_rms", "link tracking RMS [rad]", False),
-    ("est_rms_q_steady", "link position estimation RMS, steady [rad]", True),
-    ("est_rms_dq_steady", "link velocity estimation RMS, steady [rad/s]", True),
+    ("est_rms_q", "link position estimation RMS, steady [rad]", True),
+    ("est_rms_dq", "link velocity estimation RMS, steady [rad/s]", True),
 )
 COLUMNS = 3
 LINE_STYLES = ("-", "--", ":", "-.")

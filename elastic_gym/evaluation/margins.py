@@ -11,7 +11,7 @@ Two criteria:
 
 * ``tracking``: the link tracking RMS (``track_rms``), for every loop;
 * ``estimation``: the steady estimation RMS of both the link position and the link
-  velocity (``est_rms_q_steady`` and ``est_rms_dq_steady``, after the observer's initial
+  velocity (``est_rms_q`` and ``est_rms_dq``, after the observer's initial
   transient, see :mod:`~elastic_gym.evaluation.metrics`), for the loops whose state
   comes from an observer.
 
@@ -32,7 +32,7 @@ from elastic_gym.evaluation.sweeps import SweepCurve, SweepPoint
 FACTOR = 2.0
 CRITERIA = {
     "tracking": ("track_rms",),
-    "estimation": ("est_rms_q_steady", "est_rms_dq_steady"),
+    "estimation": ("est_rms_q", "est_rms_dq"),
 }
 
 

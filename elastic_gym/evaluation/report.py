@@ -41,8 +41,6 @@ METRIC_COLUMNS = (
     Column("est_rms_q", "est. RMS q [rad]", 2),
     Column("est_rms_dtheta", "est. RMS theta' [rad/s]", 2),
     Column("est_rms_dq", "est. RMS q' [rad/s]", 2),
-    Column("est_rms_q_steady", "est. RMS q steady [rad]", 2),
-    Column("est_rms_dq_steady", "est. RMS q' steady [rad/s]", 2),
     Column("sim_wall_ratio", "sim/wall", 2),
 )
 METRIC_KEYS = tuple(c.key for c in METRIC_COLUMNS)
