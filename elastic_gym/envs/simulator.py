@@ -33,6 +33,7 @@ import sys
 
 import numpy as np
 import pybullet as p
+from numba import njit
 
 from elastic_gym.model import RobotModel
 from elastic_gym.robots.spec import RobotSpec
@@ -40,6 +41,42 @@ from elastic_gym.robots.urdf_tools import urdf_without_limits
 
 ARM_SPACING = 8.0  # m between the bases of neighbouring arms (well beyond any arm's reach)
 X11_TIMEOUT = 1.0  # s to reach the X server before the PyBullet GUI is started
+
+
+@njit(cache=True)
+def _transmission_kernel(theta, dtheta, q, dq, tau, K, D, B_inv, viscous, coulomb_pos,
+                         coulomb_neg, smoothing, elastic, link, tau_j, ddtheta):
+    """Per arm and joint: tau_J = K (theta - q) + D (theta' - q'), the link torque
+    tau_J - d(q') (rigid: tau - d(q')) and theta'' = B^-1 (tau - tau_J) of model (1);
+    d(q') = F_v q' + c tanh(q' / smoothing), c = coulomb_pos or coulomb_neg by the sign."""
+    N, n = q.shape
+    has_friction = viscous.shape[0] > 0
+    has_coulomb = coulomb_pos.shape[0] > 0
+    for k in range(N):
+        for j in range(n):
+            friction = 0.0
+            if has_friction:
+                friction = viscous[j] * dq[k, j]
+                if has_coulomb:
+                    s = np.tanh(dq[k, j] / smoothing)
+                    friction += (coulomb_pos[j] if s > 0.0 else coulomb_neg[j]) * s
+            if elastic:
+                torque = K[j] * (theta[k, j] - q[k, j]) + D[j] * (dtheta[k, j] - dq[k, j])
+                tau_j[k, j] = torque
+                link[k, j] = torque - friction
+                ddtheta[k, j] = B_inv[j] * (tau[k, j] - torque)
+            else:
+                link[k, j] = tau[k, j] - friction
+
+
+@njit(cache=True)
+def _integrate_motors(theta, dtheta, ddtheta, dt):
+    """Semi-implicit Euler of the motor side, in place: theta' += dt theta'', theta += dt theta'."""
+    N, n = theta.shape
+    for k in range(N):
+        for j in range(n):
+            dtheta[k, j] = dtheta[k, j] + dt * ddtheta[k, j]
+            theta[k, j] = theta[k, j] + dt * dtheta[k, j]
 
 
 def rowwise_matvec(A: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -139,6 +176,13 @@ class ArmSimulator:
         self.q, self.dq = np.zeros(shape), np.zeros(shape)
         self.theta, self.dtheta = np.zeros(shape), np.zeros(shape)
         elastic = spec.elastic
+        friction = plant.friction
+        empty = np.zeros(0)
+        self._friction = (empty, empty, empty, 1.0) if friction is None else (
+            friction._viscous * np.ones(n),
+            empty if friction._pos is None else friction._pos * np.ones(n),
+            empty if friction._neg is None else friction._neg * np.ones(n),
+            float(friction.smoothing_velocity))
         self._SBinv = plant.S * plant.B_inv if plant.has_coupling else None
         self._schur_inertia = -self._SBinv @ plant.S.T if plant.has_coupling else None
         self._ST = plant.S.T.copy()
@@ -228,31 +272,31 @@ class ArmSimulator:
         q'' is computed only where it is needed for the link torque (model (2)).
         """
         plant = self.plant
-        friction = plant.friction.torque(self.dq) if plant.friction is not None else None
+        shape = self.q.shape
+        link, tau_j, ddtheta = np.empty(shape), np.empty(shape), np.empty(shape)
+        _transmission_kernel(self.theta, self.dtheta, self.q, self.dq, tau, plant.K, plant.D,
+                             plant.B_inv, *self._friction, self._elastic, link, tau_j, ddtheta)
         if not self._elastic:
-            link_tau = tau if friction is None else tau - friction
-            return link_tau, None, None
-        tau_j = plant.K * (self.theta - self.q) + plant.D * (self.dtheta - self.dq)
-        link_side = tau_j if friction is None else tau_j - friction
+            return link, None, None
         if self._SBinv is None:
-            return link_side, plant.B_inv * (tau - tau_j), None
-        rhs = link_side - rowwise_matvec(self._SBinv, tau - tau_j)
+            return link, ddtheta, None
+        rhs = link - rowwise_matvec(self._SBinv, tau - tau_j)
         ddq = self.chain.forward_dynamics(self.q, self.dq, rhs, self._schur_inertia)
         ddtheta = plant.B_inv * (tau - tau_j - rowwise_matvec(self._ST, ddq))
-        return link_side - rowwise_matvec(plant.S, ddtheta), ddtheta, ddq
+        return link - rowwise_matvec(plant.S, ddtheta), ddtheta, ddq
 
     def step(self, tau: np.ndarray, n_substeps: int) -> None:
         """Advance ``n_substeps`` physics steps holding the motor torques ``tau`` (N, n)."""
         c, dt, joints, bodies = self.client, self.physics_dt, self.joint_indices, self.bodies
         control, set_torques = p.TORQUE_CONTROL, p.setJointMotorControlArray
+        tau = np.ascontiguousarray(tau, dtype=np.float64)
         for _ in range(n_substeps):
             link_tau, ddtheta, _ = self.accelerations(tau)
             for body, forces in zip(bodies, link_tau.tolist(), strict=True):
                 set_torques(body, joints, control, forces=forces, physicsClientId=c)
             p.stepSimulation(physicsClientId=c)
             if self._elastic:
-                self.dtheta = self.dtheta + dt * ddtheta
-                self.theta = self.theta + dt * self.dtheta
+                _integrate_motors(self.theta, self.dtheta, ddtheta, dt)
             self._read_links()
             if not self._elastic:
                 self.theta, self.dtheta = self.q, self.dq
