@@ -3,7 +3,10 @@
 Timings are ratios measured in one run on one machine. Every quantity is timed in
 blocks, the blocks of the quantities being compared run in turn (interleaved), and the
 best block of each is kept: on a shared machine, load from other processes only ever
-adds time, so the best block is the closest to the cost of the code itself.
+adds time, so the best block is the closest to the cost of the code itself. Work done in
+this process is timed in CPU time of the process (``time.process_time``: the time spent
+waiting for a core busy with other processes is not counted); work spread over worker
+processes is timed in wall time.
 """
 
 from __future__ import annotations
@@ -34,12 +37,14 @@ def ensure_single_thread_blas() -> None:
     os.execve(sys.executable, [sys.executable, *sys.argv], {**os.environ, **SINGLE_THREAD_ENV})
 
 
-def seconds_per_call(function: Callable[..., object], arguments: Sequence[tuple]) -> float:
-    """Mean wall time (s) of ``function(*args)`` over the argument tuples."""
-    start = time.perf_counter()
+def seconds_per_call(function: Callable[..., object], arguments: Sequence[tuple],
+                     clock: Callable[[], float] = time.process_time) -> float:
+    """Mean time (s) of ``function(*args)`` over the argument tuples: CPU time of this
+    process by default, ``clock=time.perf_counter`` for wall time (worker processes)."""
+    start = clock()
     for args in arguments:
         function(*args)
-    return (time.perf_counter() - start) / len(arguments)
+    return (clock() - start) / len(arguments)
 
 
 def interleaved_best(blocks: Mapping[str, Callable[[], float]], repeats: int) -> dict[str, float]:

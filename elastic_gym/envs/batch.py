@@ -43,8 +43,9 @@ from typing import ClassVar
 
 import numpy as np
 from gymnasium import spaces
+from numba import njit
 
-from elastic_gym.envs.reward import RewardConfig, total_reward
+from elastic_gym.envs.reward import RewardConfig, batch_reward
 from elastic_gym.envs.sensors import (
     AccelerometerArray,
     AccelerometerConfig,
@@ -66,6 +67,32 @@ MAX_SENSOR_DELAY = 1.0  # s
 MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
 REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 STATE_KEYS = ("q", "dq", "theta", "dtheta")
+
+
+REASONS = np.array([None, "joint limit exceeded", "velocity limit exceeded", "non-finite state"],
+                   dtype=object)
+
+
+@njit(cache=True)
+def _break_codes(q, dq, theta, dtheta, lower, upper, max_velocity, codes):
+    """Per arm: 0 (the physics holds), 1 (a joint limit crossed), 2 (|q'| or |theta'| above
+    max_velocity), 3 (a non-finite state), the most severe one; returns whether any arm
+    broke."""
+    broken = False
+    for k in range(q.shape[0]):
+        code = 0
+        for j in range(q.shape[1]):
+            values = (q[k, j], dq[k, j], theta[k, j], dtheta[k, j])
+            if not (np.isfinite(values[0]) and np.isfinite(values[1])
+                    and np.isfinite(values[2]) and np.isfinite(values[3])):
+                code = 3
+            elif abs(values[1]) > max_velocity or abs(values[3]) > max_velocity:
+                code = max(code, 2)
+            elif values[0] < lower[j] or values[0] > upper[j]:
+                code = max(code, 1)
+        codes[k] = code
+        broken = broken or code > 0
+    return broken
 
 
 def with_batch_options(init):
@@ -174,8 +201,6 @@ class ArmBatch:
         self.episode_time = episode
         self.max_steps = None if episode is None else max(1, round(episode / self.control_dt))
         self.joint_lower, self.joint_upper = joint_limits(spec.urdf, spec.joint_names)
-        limits = np.concatenate([self.joint_lower, self.joint_upper])
-        self._limited = bool(np.isfinite(limits).any())
         self.reward_config = RewardConfig.from_config(reward)
         self.task = make_task(task, spec, self.model, task_options, n_arms=N)
         for name, points in self.task.configured_points().items():
@@ -216,6 +241,7 @@ class ArmBatch:
         self.reasons = np.full(N, None, dtype=object)
         self._no_reasons = np.full(N, None, dtype=object)  # never written to
         self._no_arm = np.zeros(N, dtype=bool)
+        self._codes = np.zeros(N, dtype=np.int64)
         self._all = np.ones(N, dtype=bool)
         self._arms = np.arange(N)
         self._minus_limit = -self.torque_limit
@@ -363,7 +389,8 @@ class ArmBatch:
         self.reference = self.task.reference(self._time)
         reasons = self._termination_reasons()
         self._slot = (self._slot + 1) % (self.sensor_delay + 1)
-        self._observe(self._arms if every else np.flatnonzero(stepping), first=False)
+        self._observe(self._arms if every else np.flatnonzero(stepping), first=False,
+                      finite=reasons is None)
         reward = self._reward()
         truncated = self._no_arm if self.max_steps is None else self.steps >= self.max_steps
         if reasons is None:  # the common case: no arm broke its physics
@@ -429,23 +456,17 @@ class ArmBatch:
     def _termination_reasons(self) -> np.ndarray | None:
         """Why each arm's physics broke (None entries where it did not), or None if no arm's."""
         sim = self.sim
-        speed = np.maximum(np.abs(sim.dq).max(axis=1), np.abs(sim.dtheta).max(axis=1))
-        finite = np.isfinite(speed + sim.q.sum(axis=1) + sim.theta.sum(axis=1))
-        outside = ((sim.q < self.joint_lower) | (sim.q > self.joint_upper)).any(axis=1) if (
-            self._limited) else self._no_arm
-        if finite.all() and speed.max() <= self.max_velocity and not outside.any():
+        if not _break_codes(sim.q, sim.dq, sim.theta, sim.dtheta, self.joint_lower,
+                            self.joint_upper, self.max_velocity, self._codes):
             return None
-        reasons = np.full(self.n_arms, None, dtype=object)
-        reasons[outside] = "joint limit exceeded"
-        reasons[speed > self.max_velocity] = "velocity limit exceeded"
-        reasons[~finite] = "non-finite state"
-        return reasons
+        return REASONS[self._codes]
 
-    def _observe(self, arms: np.ndarray, first: bool) -> None:
+    def _observe(self, arms: np.ndarray, first: bool, finite: bool = True) -> None:
         """Measure the arms ``arms`` (their generators draw the noise), through the delay line.
 
         ``first``: the first reading of an episode fills the whole delay line; otherwise the
-        reading goes to the newest slot (advanced by :meth:`step`).
+        reading goes to the newest slot (advanced by :meth:`step`). ``finite``: every arm's
+        state is known to be finite (no need to look for readings to hold).
         """
         if not len(arms):
             return
@@ -467,15 +488,15 @@ class ArmBatch:
                 else:
                     line[self._slot, arms] = value
                 value = line[oldest, arms]
-            if not np.isfinite(value).all():  # a broken state keeps the last reading
-                keep = ~np.isfinite(value).all(axis=1)
+            if not finite and not np.isfinite(value).all():  # a broken state keeps the last
+                keep = ~np.isfinite(value).all(axis=1)  # reading
                 value = np.where(keep[:, None], self.obs[key][arms], value)
             self.obs[key][arms] = value
         self.obs["reference"][arms] = self.reference[arms, :2].reshape(len(arms), -1)
 
     def _reward(self) -> np.ndarray:
         sim = self.sim
-        return total_reward(self.reward_config, self.control_dt, sim.q - self.reference[:, 0],
+        return batch_reward(self.reward_config, self.control_dt, sim.q - self.reference[:, 0],
                             sim.dq - self.reference[:, 1], self.torque, self.previous_torque,
                             self.torque_limit, sim.theta - sim.q)
 

@@ -36,6 +36,7 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
+from numba import njit
 
 from elastic_gym.validation import checked_fields
 
@@ -191,18 +192,68 @@ def total_reward(config: RewardConfig, dt: float, error, error_rate, torque, pre
                  torque_limit, torsion) -> np.ndarray:
     """The reward of one control period per arm, shape (N,), each value in [0, dt * max_rate].
 
-    Equal to the sum of :func:`reward_terms`; terms of weight zero are not computed.
+    Equal to the sum of :func:`reward_terms` (to rounding); terms of weight zero are not
+    computed. Inputs as in :func:`reward_terms`.
     """
-    e, de, tau, previous, limit, torsion = _checked(error, error_rate, torque, previous_torque,
-                                                    torque_limit, torsion)
+    arrays = _checked(error, error_rate, torque, previous_torque, torque_limit, torsion)
+    return batch_reward(config, dt, *arrays)
+
+
+def batch_reward(config: RewardConfig, dt: float, error: np.ndarray, error_rate: np.ndarray,
+                 torque: np.ndarray, previous_torque: np.ndarray, torque_limit: np.ndarray,
+                 torsion: np.ndarray) -> np.ndarray:
+    """:func:`total_reward` without the input checks (float64 arrays of the right shapes):
+    one compiled loop over the arms, the hot path of the envs."""
     c = config
-    bracket = c.track * _kernel_mean(e, c._inverse_sigmas) + c.penalty_bound
-    if c.velocity:
-        bracket += c.velocity * _kernel_mean(de, c._inverse_velocity_sigmas)
-    if c.torque:
-        bracket -= c.torque * _saturated_mean(tau / limit)
-    if c.rate:
-        bracket -= c.rate * _saturated_mean((tau - previous) * (c.rate_time / dt) / limit)
-    if c.torsion:
-        bracket -= c.torsion * _saturated_mean(torsion / c.torsion_scale)
-    return dt * bracket
+    limit = np.broadcast_to(torque_limit, error.shape)
+    weights = np.array([c.track, c.velocity, c.torque, c.rate, c.torsion, c.penalty_bound])
+    out = np.empty(len(error))
+    _reward_kernel(error, error_rate, torque, previous_torque, limit, torsion,
+                   c._inverse_sigmas, c._inverse_velocity_sigmas, weights,
+                   c.rate_time / dt, c.torsion_scale, dt, out)
+    return out
+
+
+@njit(cache=True)
+def _kernel_sum(x, inverse_sigmas):
+    """sum over joints and widths of exp(-(x / sigma)^2) for one arm."""
+    total = 0.0
+    for j in range(x.shape[0]):
+        for s in range(inverse_sigmas.shape[0]):
+            scaled = x[j] * inverse_sigmas[s]
+            total += np.exp(-scaled * scaled)
+    return total
+
+
+@njit(cache=True)
+def _saturated_sum(x, y, scale, divisor):
+    """sum over joints of min(1, ((x - y) scale / divisor)^2) for one arm."""
+    total = 0.0
+    for j in range(x.shape[0]):
+        value = (x[j] - y[j]) * scale / divisor[j]
+        total += min(value * value, 1.0)
+    return total
+
+
+@njit(cache=True)
+def _reward_kernel(e, de, tau, previous, limit, torsion, inverse_sigmas,
+                   inverse_velocity_sigmas, weights, rate_factor, torsion_scale, dt, out):
+    """The module docstring's reward for each arm (weights: track, velocity, torque, rate,
+    torsion, penalty bound)."""
+    N, n = e.shape
+    zero = np.zeros(n)
+    ones = np.ones(n) * torsion_scale
+    for k in range(N):
+        bracket = weights[0] * _kernel_sum(e[k], inverse_sigmas) / (
+            n * inverse_sigmas.shape[0]) + weights[5]
+        if weights[1] != 0.0:
+            bracket += weights[1] * _kernel_sum(de[k], inverse_velocity_sigmas) / (
+                n * inverse_velocity_sigmas.shape[0])
+        if weights[2] != 0.0:
+            bracket -= weights[2] * _saturated_sum(tau[k], zero, 1.0, limit[k]) / n
+        if weights[3] != 0.0:
+            bracket -= weights[3] * _saturated_sum(tau[k], previous[k], rate_factor,
+                                                   limit[k]) / n
+        if weights[4] != 0.0:
+            bracket -= weights[4] * _saturated_sum(torsion[k], zero, 1.0, ones) / n
+        out[k] = dt * bracket

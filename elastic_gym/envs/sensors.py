@@ -72,7 +72,7 @@ class Encoder:
             n = position.shape[1]
             y = y + self.noise_std * np.array([rng.standard_normal(n) for rng in rngs])
         if self.resolution > 0.0:
-            y = np.round(y / self.resolution) * self.resolution
+            return np.round(y / self.resolution) * self.resolution
         return np.array(y, dtype=float)
 
 

@@ -272,6 +272,8 @@ class ArmSimulator:
         q'' is computed only where it is needed for the link torque (model (2)).
         """
         plant = self.plant
+        if not self._elastic and plant.friction is None:
+            return tau, None, None
         shape = self.q.shape
         link, tau_j, ddtheta = np.empty(shape), np.empty(shape), np.empty(shape)
         _transmission_kernel(self.theta, self.dtheta, self.q, self.dq, tau, plant.K, plant.D,

@@ -290,8 +290,10 @@ def _acceleration_from_readings_kernel(q, dq, readings, threshold, damping, fp, 
 
 
 @njit(cache=True)
-def _mass_and_bias_arm(q, dq, base_acc, chain, mass, com, inertia, M, h, links, small, bodies):
-    """M(q) and n(q, q') of one arm (Newton-Euler with a_0 = -g_W, composite Jacobians)."""
+def _mass_and_bias_arm(q, dq, base_acc, chain, mass, com, inertia, M, h, links, small, bodies,
+                       with_mass=True):
+    """M(q) (if ``with_mass``) and n(q, q') of one arm (Newton-Euler with a_0 = -g_W,
+    composite Jacobians)."""
     n = q.shape[0]
     R, p, z, omega, alpha, acc = links
     com_w, inertia_w, force, moment, Jv, r, t1, t2, zero_n = bodies
@@ -326,6 +328,8 @@ def _mass_and_bias_arm(q, dq, base_acc, chain, mass, com, inertia, M, h, links, 
             for c in range(3):
                 force[lam, c] += force[b, c]
                 moment[lam, c] += moment[b, c] + t1[c]
+    if not with_mass:
+        return
     for a in range(n):  # M = sum_b J_vb^T m_b J_vb + J_wb^T I_b J_wb
         for c in range(n):
             M[a, c] = 0.0
@@ -358,6 +362,17 @@ def _mass_and_bias_kernel(q, dq, fp, ip, w, M, h):
     for k in range(N):
         _mass_and_bias_arm(q[k], dq[k], minus_gravity, chain, *bodies_p, M[k], h[k], links,
                            small, bodies)
+
+
+@njit(cache=True)
+def _gravity_kernel(q, fp, ip, w, h):
+    N, n = q.shape
+    chain, bodies_p, _, _, minus_gravity = _unpack(fp, ip)
+    small, links, bodies, (M, _, _) = _workspace(n, w)
+    zero_n = bodies[8]
+    for k in range(N):
+        _mass_and_bias_arm(q[k], zero_n, minus_gravity, chain, *bodies_p, M, h[k], links, small,
+                           bodies, False)
 
 
 @njit(cache=True)
@@ -523,7 +538,10 @@ class SerialChain:
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """g(q) (N, n)."""
-        return self.mass_and_bias(q, np.zeros_like(q))[1]
+        q = _batch(q, self.n, "q")
+        h = np.empty(q.shape)
+        _gravity_kernel(q, self._params, self._ints, self._work, h)
+        return h
 
     def forward_dynamics(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
                          added_inertia: np.ndarray | None = None) -> np.ndarray:
