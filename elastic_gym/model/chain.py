@@ -149,41 +149,76 @@ def _workspace(n, w):
 @njit(cache=True)
 def _forward_kinematics(q, dq, ddq, base_acc, parent, rot_p, trans_p, axis, links, small):
     """World rotation R, origin p, axis z, angular velocity omega and acceleration alpha,
-    origin acceleration acc of every joint frame (``links``), for one arm."""
+    origin acceleration acc of every joint frame (``links``), for one arm.
+
+    Written with scalars (no array views in the loop: they cost more than the flops).
+    """
     n = q.shape[0]
     R, p, z, omega, alpha, acc = links
-    rod, tmp, v1, v2, v3, eye, zero = small
     for j in range(n):
         lam = parent[j]
-        if lam < 0:
-            R_l, p_l, w_l, al_l, ac_l = eye, zero, zero, zero, base_acc
+        if lam < 0:  # the fixed base: at rest, accelerating with base_acc
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, \
+                0.0, 1.0
+            px = py = pz = wx = wy = wz = ax = ay = az = 0.0
+            cx, cy, cz = base_acc[0], base_acc[1], base_acc[2]
         else:
-            R_l, p_l, w_l, al_l, ac_l = R[lam], p[lam], omega[lam], alpha[lam], acc[lam]
+            r00, r01, r02 = R[lam, 0, 0], R[lam, 0, 1], R[lam, 0, 2]
+            r10, r11, r12 = R[lam, 1, 0], R[lam, 1, 1], R[lam, 1, 2]
+            r20, r21, r22 = R[lam, 2, 0], R[lam, 2, 1], R[lam, 2, 2]
+            px, py, pz = p[lam, 0], p[lam, 1], p[lam, 2]
+            wx, wy, wz = omega[lam, 0], omega[lam, 1], omega[lam, 2]
+            ax, ay, az = alpha[lam, 0], alpha[lam, 1], alpha[lam, 2]
+            cx, cy, cz = acc[lam, 0], acc[lam, 1], acc[lam, 2]
+        # T = R_lam R_Pj, then R_j = T Rot(u, q_j), z_j = T u
+        P = rot_p[j]
+        t00 = r00 * P[0, 0] + r01 * P[1, 0] + r02 * P[2, 0]
+        t01 = r00 * P[0, 1] + r01 * P[1, 1] + r02 * P[2, 1]
+        t02 = r00 * P[0, 2] + r01 * P[1, 2] + r02 * P[2, 2]
+        t10 = r10 * P[0, 0] + r11 * P[1, 0] + r12 * P[2, 0]
+        t11 = r10 * P[0, 1] + r11 * P[1, 1] + r12 * P[2, 1]
+        t12 = r10 * P[0, 2] + r11 * P[1, 2] + r12 * P[2, 2]
+        t20 = r20 * P[0, 0] + r21 * P[1, 0] + r22 * P[2, 0]
+        t21 = r20 * P[0, 1] + r21 * P[1, 1] + r22 * P[2, 1]
+        t22 = r20 * P[0, 2] + r21 * P[1, 2] + r22 * P[2, 2]
+        ux, uy, uw = axis[j, 0], axis[j, 1], axis[j, 2]
+        zx = t00 * ux + t01 * uy + t02 * uw
+        zy = t10 * ux + t11 * uy + t12 * uw
+        zz = t20 * ux + t21 * uy + t22 * uw
+        z[j, 0], z[j, 1], z[j, 2] = zx, zy, zz
         c = np.cos(q[j])
         s = np.sin(q[j])
         v = 1.0 - c
-        x, y, w = axis[j, 0], axis[j, 1], axis[j, 2]
-        rod[0, 0] = c + x * x * v
-        rod[0, 1] = x * y * v - w * s
-        rod[0, 2] = x * w * v + y * s
-        rod[1, 0] = y * x * v + w * s
-        rod[1, 1] = c + y * y * v
-        rod[1, 2] = y * w * v - x * s
-        rod[2, 0] = w * x * v - y * s
-        rod[2, 1] = w * y * v + x * s
-        rod[2, 2] = c + w * w * v
-        _matmul(R_l, rot_p[j], tmp)
-        _matvec(tmp, axis[j], z[j])
-        _matmul(tmp, rod, R[j])
-        _matvec(R_l, trans_p[j], v1)  # r_j = p_j - p_lam
-        for i in range(3):
-            p[j, i] = p_l[i] + v1[i]
-            omega[j, i] = w_l[i] + z[j, i] * dq[j]
-            v2[i] = z[j, i] * dq[j]
-        _cross(w_l, v2, v3)
-        for i in range(3):
-            alpha[j, i] = al_l[i] + z[j, i] * ddq[j] + v3[i]
-        _point_acceleration(ac_l, al_l, w_l, v1, acc[j], v2, v3)
+        d00, d01, d02 = c + ux * ux * v, ux * uy * v - uw * s, ux * uw * v + uy * s
+        d10, d11, d12 = uy * ux * v + uw * s, c + uy * uy * v, uy * uw * v - ux * s
+        d20, d21, d22 = uw * ux * v - uy * s, uw * uy * v + ux * s, c + uw * uw * v
+        R[j, 0, 0] = t00 * d00 + t01 * d10 + t02 * d20
+        R[j, 0, 1] = t00 * d01 + t01 * d11 + t02 * d21
+        R[j, 0, 2] = t00 * d02 + t01 * d12 + t02 * d22
+        R[j, 1, 0] = t10 * d00 + t11 * d10 + t12 * d20
+        R[j, 1, 1] = t10 * d01 + t11 * d11 + t12 * d21
+        R[j, 1, 2] = t10 * d02 + t11 * d12 + t12 * d22
+        R[j, 2, 0] = t20 * d00 + t21 * d10 + t22 * d20
+        R[j, 2, 1] = t20 * d01 + t21 * d11 + t22 * d21
+        R[j, 2, 2] = t20 * d02 + t21 * d12 + t22 * d22
+        tx, ty, tz = trans_p[j, 0], trans_p[j, 1], trans_p[j, 2]
+        rx = r00 * tx + r01 * ty + r02 * tz  # r_j = p_j - p_lam
+        ry = r10 * tx + r11 * ty + r12 * tz
+        rz = r20 * tx + r21 * ty + r22 * tz
+        p[j, 0], p[j, 1], p[j, 2] = px + rx, py + ry, pz + rz
+        qd = dq[j]
+        omega[j, 0], omega[j, 1], omega[j, 2] = wx + zx * qd, wy + zy * qd, wz + zz * qd
+        # alpha_j = alpha_lam + z q'' + omega_lam x (z q')
+        vx, vy, vz = zx * qd, zy * qd, zz * qd
+        alpha[j, 0] = ax + zx * ddq[j] + (wy * vz - wz * vy)
+        alpha[j, 1] = ay + zy * ddq[j] + (wz * vx - wx * vz)
+        alpha[j, 2] = az + zz * ddq[j] + (wx * vy - wy * vx)
+        # acc_j = acc_lam + alpha_lam x r + omega_lam x (omega_lam x r)
+        ex, ey, ez = ay * rz - az * ry, az * rx - ax * rz, ax * ry - ay * rx
+        fx, fy, fz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx
+        acc[j, 0] = cx + ex + (wy * fz - wz * fy)
+        acc[j, 1] = cy + ey + (wz * fx - wx * fz)
+        acc[j, 2] = cz + ez + (wx * fy - wy * fx)
 
 
 @njit(cache=True)
@@ -193,14 +228,24 @@ def _sensor_reading(i, s_joint, s_rot, s_trans, gravity, links, small, out, row)
     Leaves R_WS in small[1] and the sensor offset from its joint origin in small[2].
     """
     R, p, z, omega, alpha, acc = links
-    rod, R_s, r_s, a_s, t1, eye, zero = small
+    R_s, r_s = small[1], small[2]
     j = s_joint[i]
-    _matmul(R[j], s_rot[i], R_s)
-    _matvec(R[j], s_trans[i], r_s)
-    _point_acceleration(acc[j], alpha[j], omega[j], r_s, a_s, t1, rod[0])
+    for a in range(3):
+        for b in range(3):
+            R_s[a, b] = R[j, a, 0] * s_rot[i, 0, b] + R[j, a, 1] * s_rot[i, 1, b] + \
+                R[j, a, 2] * s_rot[i, 2, b]
+        r_s[a] = R[j, a, 0] * s_trans[i, 0] + R[j, a, 1] * s_trans[i, 1] + \
+            R[j, a, 2] * s_trans[i, 2]
+    rx, ry, rz = r_s[0], r_s[1], r_s[2]
+    wx, wy, wz = omega[j, 0], omega[j, 1], omega[j, 2]
+    ax, ay, az = alpha[j, 0], alpha[j, 1], alpha[j, 2]
+    fx, fy, fz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx  # omega x r
+    # a_S - g = acc_j + alpha x r + omega x (omega x r) - g
+    sx = acc[j, 0] + (ay * rz - az * ry) + (wy * fz - wz * fy) - gravity[0]
+    sy = acc[j, 1] + (az * rx - ax * rz) + (wz * fx - wx * fz) - gravity[1]
+    sz = acc[j, 2] + (ax * ry - ay * rx) + (wx * fy - wy * fx) - gravity[2]
     for c in range(3):
-        out[row + c] = (R_s[0, c] * (a_s[0] - gravity[0]) + R_s[1, c] * (a_s[1] - gravity[1])
-                        + R_s[2, c] * (a_s[2] - gravity[2]))
+        out[row + c] = R_s[0, c] * sx + R_s[1, c] * sy + R_s[2, c] * sz
     return j
 
 
