@@ -62,6 +62,21 @@ class Interrupted(KeyboardInterrupt):
         return 128 + self.signum
 
 
+def with_detail(exc: BaseException, detail: str) -> BaseException:
+    """What to raise once a caller has cleaned up after ``exc`` and can say what it kept:
+    an :class:`Interrupted` (from any ``KeyboardInterrupt``) or a ``RuntimeError``
+    ``"<exc>; <detail>"`` (from an ``Exception``, chained), else ``exc`` itself."""
+    if isinstance(exc, KeyboardInterrupt):
+        replacement: BaseException = Interrupted.of(exc, detail)
+    elif isinstance(exc, Exception):
+        replacement = RuntimeError(f"{exc}; {detail}")
+        replacement.__cause__ = exc
+    else:
+        return exc
+    replacement.__suppress_context__ = True
+    return replacement
+
+
 _handlers_depth = 0
 _raised = False
 

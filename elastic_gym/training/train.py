@@ -414,7 +414,7 @@ def train_many(configs: list[TrainConfig], workers: int | None = None, backend: 
     process is interrupted (SIGINT/SIGTERM), the other runs are stopped, the finished
     runs are kept, the unfinished ones removed, and the exception says which is which.
     """
-    from elastic_gym.parallel import Interrupted, for_each_result
+    from elastic_gym.parallel import for_each_result, with_detail
 
     check_configs(configs, overwrite)
     created = {folder for c in configs for folder in (Path(c.out_dir), *Path(c.out_dir).parents)
@@ -435,9 +435,5 @@ def train_many(configs: list[TrainConfig], workers: int | None = None, backend: 
                 folder.rmdir()
         detail = (f"kept the finished run(s) {finished or 'none'}; removed the unfinished "
                   f"run(s) {unfinished}")
-        if isinstance(exc, KeyboardInterrupt):
-            raise Interrupted.of(exc, detail) from None
-        if isinstance(exc, Exception):
-            raise RuntimeError(f"{exc}; {detail}") from exc
-        raise
+        raise with_detail(exc, detail)  # noqa: B904 - with_detail sets the cause
     return [results[i] for i in range(len(configs))]
