@@ -252,8 +252,9 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
         model.save(out / "model.zip")
         venv.save(str(out / "vecnormalize.pkl"))
     finally:
-        venv.close()
-        eval_env.close()
+        for env in (venv, eval_env):  # a failure to close must not hide what happened
+            with contextlib.suppress(Exception):
+                env.close()
     # the run folder is self-contained: the hyper-parameters used, not a pointer to a file
     frozen = dataclasses.replace(config, hyperparams_file=None, hyperparams=merged_hyperparams(
         config.algo, config.env_id, config.hyperparams, config.hyperparams_file))
