@@ -88,18 +88,30 @@ def start(args: list[str], tmp_path: Path) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+def is_resource_tracker(pid: int) -> bool:
+    """multiprocessing's helper process, which ends when the command itself exits."""
+    try:
+        return b"resource_tracker" in Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
+
+
 def stop(process: subprocess.Popen, signum: int) -> tuple[float, str]:
-    """Send ``signum``; return the time until its worker processes are gone (none may be
-    left behind) and its stderr once it has exited."""
-    workers = children(process.pid)
-    assert len(workers) >= 2  # the two workers (and multiprocessing's resource tracker)
+    """Send ``signum``; return the time until its worker processes are gone, and its
+    stderr once it has exited (no child process may be left behind)."""
+    children_before = children(process.pid)
+    workers = [pid for pid in children_before if not is_resource_tracker(pid)]
+    assert len(workers) >= 2
     process.send_signal(signum)
     sent = time.monotonic()
     while any(alive(pid) for pid in workers) and time.monotonic() < sent + EXIT_TIME:
         time.sleep(0.02)
     workers_gone = time.monotonic() - sent
     _, err = process.communicate(timeout=EXIT_TIME)
-    assert not [pid for pid in workers if alive(pid)]
+    deadline = time.monotonic() + 5.0
+    while any(alive(pid) for pid in children_before) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert not [pid for pid in children_before if alive(pid)]
     return workers_gone, err
 
 
