@@ -148,8 +148,8 @@ def test_interrupted_compare_keeps_finished_runs_and_ends_its_workers(tmp_path, 
 def test_interrupted_multi_seed_training_keeps_finished_runs_and_ends_its_workers(tmp_path):
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "runs"
-    process = start(["train", "--state", "true", "--steps", "60", "--seeds", "0", "1", "2",
-                     "--workers", "2", "--out", str(out), "--env-kwargs",
+    process = start(["train", "--algo", "sac", "--state", "true", "--steps", "60", "--seeds",
+                     "0", "1", "2", "--workers", "2", "--out", str(out), "--env-kwargs",
                      "{max_episode_steps: 100}", "--hyperparams", "learning_starts=20",
                      "batch_size=16", "--eval-freq", "1000000", "--no-progress"], tmp_path)
     wait_for(lambda: list(out.glob("seed*/summary.json")), process, timeout=300)
