@@ -20,6 +20,7 @@ group, and the parent alone decides what to stop.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import signal
@@ -54,23 +55,40 @@ class Interrupted(KeyboardInterrupt):
 
     @classmethod
     def of(cls, exc: KeyboardInterrupt, detail: str) -> Interrupted:
-        """``exc`` (a plain Ctrl-C counts as SIGINT) with the detail of what was kept."""
-        return cls(getattr(exc, "signum", signal.SIGINT), detail)
+        """``exc`` with the detail of what was kept. A plain ``KeyboardInterrupt`` is the
+        last signal received inside :func:`interrupts_raised` (Ray turns the exception
+        our handler raises inside its waits into one), else SIGINT."""
+        return cls(getattr(exc, "signum", _received or signal.SIGINT), detail)
 
     @property
     def exit_code(self) -> int:
         return 128 + self.signum
 
 
+def with_detail(exc: BaseException, detail: str) -> BaseException:
+    """What to raise once a caller has cleaned up after ``exc`` and can say what it kept:
+    an :class:`Interrupted` (from any ``KeyboardInterrupt``) or a ``RuntimeError``
+    ``"<exc>; <detail>"`` (from an ``Exception``, chained), else ``exc`` itself."""
+    if isinstance(exc, KeyboardInterrupt):
+        replacement: BaseException = Interrupted.of(exc, detail)
+    elif isinstance(exc, Exception):
+        replacement = RuntimeError(f"{exc}; {detail}")
+        replacement.__cause__ = exc
+    else:
+        return exc
+    replacement.__suppress_context__ = True
+    return replacement
+
+
 _handlers_depth = 0
-_raised = False
+_received: int | None = None  # the signal being handled, while interrupts_raised is active
 
 
 def _raise_interrupted(signum: int, frame: object) -> None:
-    global _raised
-    if _raised:  # the cleanup of the first signal is not interrupted by a second one
+    global _received
+    if _received is not None:  # the cleanup of the first signal is not interrupted
         return
-    _raised = True
+    _received = signum
     raise Interrupted(signum)
 
 
@@ -82,13 +100,13 @@ def interrupts_raised() -> Iterator[None]:
     so cleanup runs to its end). Outside the main thread this does nothing. The previous
     handlers are restored at the end.
     """
-    global _handlers_depth, _raised
+    global _handlers_depth, _received
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     previous = {}
     if _handlers_depth == 0:
-        _raised = False
+        _received = None
         previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
         _install_handlers()
     _handlers_depth += 1
@@ -286,7 +304,8 @@ def _run_ray(function, jobs, workers, deliver, failure) -> None:
                 deliver(index, result)
     except BaseException:
         for ref in pending:
-            ray.cancel(ref, force=True)
+            with contextlib.suppress(Exception):  # e.g. a task that has just finished
+                ray.cancel(ref, force=True)
         if started:
             ray.shutdown()
         raise

@@ -298,7 +298,7 @@ def test_compare_returns_mean_and_spread_over_seeds(tmp_path, monkeypatch):
 
 
 def test_run_count_and_time_estimate_are_printed_first_and_hold(tmp_path):
-    scn = scenario(duration=0.3, seeds=[0, 1],
+    scn = scenario(duration=0.2, seeds=[0, 1],
                    state_sources=["finite-difference", "nicosia-tomei"])
     runs, _ = plan_runs(scn)
     estimate = preflight(scn, runs, workers=1)

@@ -210,6 +210,41 @@ def test_bad_options_are_named(options, error, word):
         ExtendedKalmanFilter(model, DT, **options)
 
 
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [  # each of these overflowed, broke the covariance or hung before it was refused
+        ({"alpha": 1e6}, r"'alpha' must be <= 1000 = 1/dt"),
+        ({"alpha": 1e4}, r"'alpha' must be <= 1000 = 1/dt"),
+        ({"P0": 1e10}, r"'P0': entries must be <= 1e\+06"),
+        ({"Q": 1e60}, r"'Q': entries must be <= 1e\+06"),
+        ({"R": [[1e-9, 2e7], [2e7, 1e-9]]}, r"'R': entries must be <= 1e\+06"),
+        ({"encoder_resolution": 1e300}, r"'encoder_resolution' must be <= 1000"),
+        ({"accelerometer_std": 1e300, "use_accelerometers": True},
+         r"'accelerometer_std' must be <= 1000"),
+        ({"substeps": 10**9}, r"'substeps' must be an integer in \[1, 100\]"),
+        ({"alpha": float("inf")}, r"'alpha' must be a finite number"),
+        ({"Q": [[1.0, 2.0], [3.0, 4.0]]}, r"'Q' must be a scalar, 2 block variances"),
+        ({"R": [[1e-9, 1e-6], [1e-6, 1e-9]]}, r"'R' must be symmetric positive semi-definite"),
+    ],
+)
+def test_absurd_options_are_refused_with_their_name(options, message):
+    model = RobotModel(get_robot("two_link_elastic"))
+    with pytest.raises((TypeError, ValueError), match=message):
+        ExtendedKalmanFilter(model, DT, **options)
+
+
+@pytest.mark.parametrize("options", [{"alpha": 1.0 / DT}, {"P0": 1e6}, {"Q": 1e6}, {"R": 1e6}])
+def test_options_at_their_bounds_keep_the_estimate_finite(options):
+    env = ObserverWrapper(gym.make("elastic_gym/TwoLinkElastic-v0", max_episode_steps=300),
+                          "ekf", **options)
+    env.reset(seed=0)
+    with np.errstate(over="raise", invalid="raise", divide="raise"):
+        for _ in range(300):
+            _, _, terminated, _, info = env.step(np.zeros(2))
+            assert not terminated and np.all(np.isfinite(info["estimate"]))
+    env.close()
+
+
 def test_rejects_rigid_arms_and_missing_sensors():
     with pytest.raises(ValueError, match="elastic"):
         ExtendedKalmanFilter(RobotModel(get_robot("two_link_rigid")), DT)

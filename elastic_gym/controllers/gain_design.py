@@ -2,7 +2,9 @@
 
 The gain K_P of eq. (13) (De Luca et al., ICRA 2007) is an N x 4N matrix acting on
 the state error x_d - x, x = (theta, q, theta', q'). Per-joint designs using M_ii
-were measured unstable on strongly coupled arms (DESIGN.md, Pitfalls), so the gain is
+were measured unstable on strongly coupled arms (a two-link arm with a heavy outer
+link, as in Cristofaro & De Luca, has M_12 / sqrt(M_11 M_22) of about 0.9: pole
+placement per joint on M_ii destabilised the coupled plant), so the gain is
 designed on the linearization of the complete model (1)/(2) at rest at a nominal
 configuration q0 (static equilibrium theta0 = q0 + K^-1 g(q0)):
 

@@ -71,7 +71,7 @@ from elastic_gym.evaluation.runner import (
 )
 from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
 from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
-from elastic_gym.parallel import Interrupted, for_each_result, resolve_workers
+from elastic_gym.parallel import for_each_result, resolve_workers, with_detail
 
 DEFAULT_OUTPUT_ROOT = Path("compare_out")
 
@@ -149,11 +149,7 @@ def compare(
         rows = sink.csv.finish()
         kept = f"kept the {len(rows)} finished of {len(runs)} runs in {out}/"
         _write_tables(scenario, out, rows, skipped_note + f"\nInterrupted: {kept}.\n")
-        if isinstance(exc, KeyboardInterrupt):
-            raise Interrupted.of(exc, kept) from None
-        if isinstance(exc, Exception):
-            raise RuntimeError(f"{exc}; {kept}") from exc
-        raise
+        raise with_detail(exc, kept)  # noqa: B904 - with_detail sets the cause
     rows = sink.csv.finish()
     summary, markdown = _write_tables(scenario, out, rows, skipped_note)
     files = [out / "runs.csv", out / "summary.csv", out / "summary.md", out / "scenario.yaml",

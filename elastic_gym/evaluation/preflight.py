@@ -10,9 +10,11 @@ is spent. Errors of the closed loop itself (a controller's ``reset`` or call, an
 observer's update) are not setup errors: they are left to the runs, which report
 them in their status.
 
-The estimate: a few closed-loop steps of each (env, controller, state source)
-combination measure its cost per step; with the measured setup time it gives the
-expected wall time of every run, summed and shared among the workers.
+The estimate: ``SAMPLE_TIME`` of closed loop of each (env, controller, state source)
+combination measures its wall time per step (the mean over a span of several
+scheduler time slices, so that it includes the share of the CPU the machine's load
+leaves); with the measured setup time it gives the expected wall time of every run,
+summed and shared among the workers.
 
 :func:`check_plot_names` refuses labels that would give a figure file name longer
 than a file system allows, or two figures the same file name (one would overwrite
@@ -40,7 +42,8 @@ from elastic_gym.evaluation.runner import (
 from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError
 from elastic_gym.parallel import single_threaded
 
-SAMPLE_STEPS = 20  # closed-loop steps timed per (env, controller, source) combination
+SAMPLE_TIME = 0.05  # s of closed loop timed per (env, controller, source) combination
+SAMPLE_STEPS = (3, 1000)  # fewest and most steps of a sample
 
 
 @dataclass(frozen=True)
@@ -134,7 +137,7 @@ def _check_model_errors(env: gym.Env, scenario: Scenario, error_index: dict) -> 
 
 def _sample(env: gym.Env, spec: RunSpec, paths: tuple[str, str]) -> float:
     """Build the run's observer and controller on ``env`` (errors name their field) and
-    time a few closed-loop steps; returns the expected wall time of such a run (s)
+    time ``SAMPLE_TIME`` of closed loop; returns the expected wall time of such a run (s)
     without the env construction."""
     controller_path, source_path = paths
     start = time.perf_counter()
@@ -152,16 +155,18 @@ def _sample(env: gym.Env, spec: RunSpec, paths: tuple[str, str]) -> float:
     except Exception as exc:
         raise _error(source_path, exc) from None
     setup = time.perf_counter() - start
-    durations = []
+    steps, elapsed = 0, 0.0
     with np.errstate(all="ignore"), contextlib.suppress(Exception):  # the runs report these
         controller.reset(obs, public_info(info))
-        for _ in range(SAMPLE_STEPS):
-            tick = time.perf_counter()
+        obs, _, _, _, info = wrapped.step(controller(obs, public_info(info)))  # warms caches up
+        tick = time.perf_counter()
+        while steps < SAMPLE_STEPS[1] and (steps < SAMPLE_STEPS[0] or elapsed < SAMPLE_TIME):
             obs, _, terminated, _, info = wrapped.step(controller(obs, public_info(info)))
-            durations.append(time.perf_counter() - tick)
+            steps += 1
+            elapsed = time.perf_counter() - tick
             if terminated:
                 break
-    step = float(np.median(durations)) if durations else 0.0
+    step = elapsed / steps if steps else 0.0
     return setup + step * round(spec.duration / env.unwrapped.control_dt)
 
 

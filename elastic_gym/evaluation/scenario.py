@@ -341,7 +341,8 @@ def load_scenario(path: str | Path, name: str | None = None) -> Scenario:
 
 
 def resolve_class(cls: type | str, path: str) -> type:
-    """A class given directly or as ``"module:Class"``."""
+    """A class given directly or as ``"module:Class"``, which imports the module (running
+    its top-level code: a scenario file is code, load only trusted ones)."""
     if isinstance(cls, type):
         return cls
     module, _, attr = cls.partition(":")

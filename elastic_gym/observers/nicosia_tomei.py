@@ -1,6 +1,8 @@
 """Full-order observer of Nicosia & Tomei (IEEE TAC 1990), the baseline of Cristofaro & De Luca.
 
-Standard form (ref. [8] of Cristofaro & De Luca; DESIGN.md Pitfalls), q_tilde = q - q_hat:
+Standard form (the observer is ref. [8] of Cristofaro & De Luca, who compare their
+reduced-order observer with it in Figs. 2-3 without restating its equations),
+q_tilde = q - q_hat:
 
     q_hat' = z + kD q_tilde,
     z'     = M(q)^-1 [tau - C(q, z) z - F z - g(q) + kP q_tilde],

@@ -8,7 +8,8 @@ Eqs. (6)-(7) with G = g0 I (Sec. 3):
 beta = H^-1 [-C(x_1, x_hat_2) x_hat_2 - f_r(x_hat_2)], u = H^-1 [tau - tau_g(x_1)]. The
 friction f_r of their simulated arm (Sec. 4: viscous + asymmetric Coulomb) is in the
 observer model, evaluated at the estimate and smoothed as in ``model.link_friction``
-(tanh(q'/0.01)); without it the velocity error stays large (DESIGN.md Pitfalls).
+(tanh(q'/0.01)); without it the velocity estimate keeps a large error whenever the
+plant's friction acts.
 This is the same ODE as Cristofaro & De Luca eq. (6) with k = g0, and shares its
 implementation (:class:`ScalarGainReducedObserver`, RK4 over each control period).
 

@@ -252,8 +252,9 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
         model.save(out / "model.zip")
         venv.save(str(out / "vecnormalize.pkl"))
     finally:
-        venv.close()
-        eval_env.close()
+        for env in (venv, eval_env):  # a failure to close must not hide what happened
+            with contextlib.suppress(Exception):
+                env.close()
     # the run folder is self-contained: the hyper-parameters used, not a pointer to a file
     frozen = dataclasses.replace(config, hyperparams_file=None, hyperparams=merged_hyperparams(
         config.algo, config.env_id, config.hyperparams, config.hyperparams_file))
@@ -414,7 +415,7 @@ def train_many(configs: list[TrainConfig], workers: int | None = None, backend: 
     process is interrupted (SIGINT/SIGTERM), the other runs are stopped, the finished
     runs are kept, the unfinished ones removed, and the exception says which is which.
     """
-    from elastic_gym.parallel import Interrupted, for_each_result
+    from elastic_gym.parallel import for_each_result, with_detail
 
     check_configs(configs, overwrite)
     created = {folder for c in configs for folder in (Path(c.out_dir), *Path(c.out_dir).parents)
@@ -435,9 +436,5 @@ def train_many(configs: list[TrainConfig], workers: int | None = None, backend: 
                 folder.rmdir()
         detail = (f"kept the finished run(s) {finished or 'none'}; removed the unfinished "
                   f"run(s) {unfinished}")
-        if isinstance(exc, KeyboardInterrupt):
-            raise Interrupted.of(exc, detail) from None
-        if isinstance(exc, Exception):
-            raise RuntimeError(f"{exc}; {detail}") from exc
-        raise
+        raise with_detail(exc, detail)  # noqa: B904 - with_detail sets the cause
     return [results[i] for i in range(len(configs))]
