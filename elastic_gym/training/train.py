@@ -92,7 +92,7 @@ def vec_env_factory(config: TrainConfig, settings: dict, n_arms: int):
 def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int, batches: int = 1):
     """One env (n_envs = 1), a batch of n_envs arms, or ``batches`` batches in processes."""
     from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
     from elastic_gym.training.sb3_vec_env import ProcessBatches
 
@@ -104,7 +104,7 @@ def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int, batche
     factory = vec_env_factory(config, settings, n_envs // batches)
     venv = factory() if batches == 1 else ProcessBatches([factory] * batches)
     venv.seed(seed)
-    return venv
+    return VecMonitor(venv)  # episode returns and lengths, as make_vec_env's Monitor
 
 
 def zero_action_head(model) -> None:
