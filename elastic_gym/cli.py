@@ -44,8 +44,8 @@ def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
                         help="override the simulated time per run")
     parser.add_argument("--quick", action="store_true",
                         help="a fast look at the grid: first seed only, at most 0.5 s per run, "
-                        "sweeps thinned to their extreme magnitudes (--seeds/--duration apply "
-                        "after it)")
+                        "each sweep thinned to its farthest magnitude on each side of the nominal "
+                        "(--seeds/--duration apply after it)")
     parser.add_argument("--physics-dt", type=float, metavar="SECONDS",
                         help="override the scenario's physics step (default 1/16 ms)")
     parser.add_argument("--policy", nargs="+", metavar="RUN", default=[],

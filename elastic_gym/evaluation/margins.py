@@ -102,8 +102,11 @@ def cell(row: dict) -> str:
     ``1.4``: passes up to 1.4 and fails at the next magnitude tested; ``2*``: passes
     every magnitude tested, 2 being the farthest; ``<1.1`` (``>0.9`` below the
     nominal): already fails at the first magnitude tested; two-sided sweeps show
-    ``lower .. upper``; ``unstable at nominal`` when the nominal runs do not complete.
+    ``lower .. upper``; ``unstable at nominal`` when the nominal runs do not complete;
+    ``-`` when only the nominal was run.
     """
+    if row["tested_min"] == row["tested_max"] == row["nominal"]:
+        return "-"  # nothing but the nominal tested
     if math.isnan(row["upper"]) and math.isnan(row["lower"]):
         return "unstable at nominal" if row["upper_failure"].startswith("unstable") \
             else row["upper_failure"]

@@ -201,6 +201,13 @@ class Sweep:
             out = {key: out}
         return out
 
+    def extremes(self) -> tuple[float, ...]:
+        """The farthest magnitude below and above the nominal (those that exist)."""
+        below = [v for v in self.values if self.nominal is not None and v < self.nominal]
+        above = [v for v in self.values if self.nominal is None or v > self.nominal]
+        return tuple(v for v in (min(below, default=None), max(above, default=None))
+                     if v is not None)
+
     def variations(self) -> tuple[Variation, ...]:
         """The values of the ``sweep`` axis this sweep adds (not the nominal)."""
         return tuple(Variation(self.label(v), self.kwargs(v)) for v in self.values
@@ -250,9 +257,8 @@ class Scenario:
 
     def quick(self) -> Scenario:
         """A fast look at the same grid: the first seed, at most ``QUICK_DURATION`` s per
-        run, and each sweep thinned to its smallest and largest magnitude."""
-        sweeps = tuple(replace(w, values=tuple(sorted({min(w.values), max(w.values)})))
-                       for w in self.sweeps)
+        run, and each sweep thinned to its farthest magnitude on each side of the nominal."""
+        sweeps = tuple(replace(w, values=w.extremes()) for w in self.sweeps)
         return replace(self, seeds=self.seeds[:1], duration=min(self.duration, QUICK_DURATION),
                        sweeps=sweeps, axes=with_sweep_axis(self.axes, sweeps))
 
