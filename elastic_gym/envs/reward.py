@@ -94,6 +94,8 @@ class RewardConfig:
         # 1/sigma as arrays, computed once (not dataclass fields)
         object.__setattr__(self, "_inverse_sigmas", 1.0 / np.array(self.sigmas))
         object.__setattr__(self, "_inverse_velocity_sigmas", 1.0 / np.array(self.velocity_sigmas))
+        object.__setattr__(self, "_weights", np.array(
+            [self.track, self.velocity, self.torque, self.rate, self.torsion, self.penalty_bound]))
 
     @classmethod
     def from_config(cls, config: dict | RewardConfig | None) -> RewardConfig:
@@ -205,11 +207,10 @@ def batch_reward(config: RewardConfig, dt: float, error: np.ndarray, error_rate:
     """:func:`total_reward` without the input checks (float64 arrays of the right shapes):
     one compiled loop over the arms, the hot path of the envs."""
     c = config
-    limit = np.broadcast_to(torque_limit, error.shape)
-    weights = np.array([c.track, c.velocity, c.torque, c.rate, c.torsion, c.penalty_bound])
+    limit = torque_limit if torque_limit.ndim == 2 else torque_limit[None]
     out = np.empty(len(error))
     _reward_kernel(error, error_rate, torque, previous_torque, limit, torsion,
-                   c._inverse_sigmas, c._inverse_velocity_sigmas, weights,
+                   c._inverse_sigmas, c._inverse_velocity_sigmas, c._weights,
                    c.rate_time / dt, c.torsion_scale, dt, out)
     return out
 
@@ -243,17 +244,19 @@ def _reward_kernel(e, de, tau, previous, limit, torsion, inverse_sigmas,
     N, n = e.shape
     zero = np.zeros(n)
     ones = np.ones(n) * torsion_scale
+    shared_limit = limit.shape[0] == 1  # one limit row for every arm
     for k in range(N):
+        tau_max = limit[0] if shared_limit else limit[k]
         bracket = weights[0] * _kernel_sum(e[k], inverse_sigmas) / (
             n * inverse_sigmas.shape[0]) + weights[5]
         if weights[1] != 0.0:
             bracket += weights[1] * _kernel_sum(de[k], inverse_velocity_sigmas) / (
                 n * inverse_velocity_sigmas.shape[0])
         if weights[2] != 0.0:
-            bracket -= weights[2] * _saturated_sum(tau[k], zero, 1.0, limit[k]) / n
+            bracket -= weights[2] * _saturated_sum(tau[k], zero, 1.0, tau_max) / n
         if weights[3] != 0.0:
             bracket -= weights[3] * _saturated_sum(tau[k], previous[k], rate_factor,
-                                                   limit[k]) / n
+                                                   tau_max) / n
         if weights[4] != 0.0:
             bracket -= weights[4] * _saturated_sum(torsion[k], zero, 1.0, ones) / n
         out[k] = dt * bracket

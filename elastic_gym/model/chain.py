@@ -466,6 +466,9 @@ def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
 
 
 def _batch(x: np.ndarray, n: int, name: str) -> np.ndarray:
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.ndim == 2 and x.shape[1] == n \
+            and x.flags.c_contiguous:
+        return x  # the hot path: the simulator's own arrays
     arr = np.ascontiguousarray(x, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] != n:
         raise ValueError(f"{name} must have shape (N, {n}), got {arr.shape}")
