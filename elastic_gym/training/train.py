@@ -91,20 +91,22 @@ def vec_env_factory(config: TrainConfig, settings: dict, n_arms: int):
 
 def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int, batches: int = 1):
     """One env (n_envs = 1), a batch of n_envs arms, or ``batches`` batches in processes."""
-    from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
     from elastic_gym.training.sb3_vec_env import ProcessBatches
 
-    if n_envs == 1:
-        return make_vec_env(env_factory(config, settings), n_envs=1, seed=seed,
-                            vec_env_cls=DummyVecEnv)
     if batches < 1 or n_envs % batches:
         raise ValueError(f"batches ({batches}) must divide n_envs ({n_envs})")
-    factory = vec_env_factory(config, settings, n_envs // batches)
-    venv = factory() if batches == 1 else ProcessBatches([factory] * batches)
+    if n_envs == 1:
+        venv = DummyVecEnv([env_factory(config, settings)])
+        venv.action_space.seed(seed)
+    else:
+        factory = vec_env_factory(config, settings, n_envs // batches)
+        venv = factory() if batches == 1 else ProcessBatches([factory] * batches)
     venv.seed(seed)
-    return VecMonitor(venv)  # episode returns and lengths, as make_vec_env's Monitor
+    # Episode returns and lengths; the same wrapping for the training and the evaluation
+    # env, which VecNormalize's statistics sync walks in parallel.
+    return VecMonitor(venv)
 
 
 def zero_action_head(model) -> None:
