@@ -302,11 +302,11 @@ def test_run_count_and_time_estimate_are_printed_first_and_hold(tmp_path):
                    state_sources=["finite-difference", "nicosia-tomei"])
     runs, _ = plan_runs(scn)
     estimate = preflight(scn, runs, workers=1)
-    start = time.perf_counter()
+    start = time.process_time()
     execute(runs, workers=1, progress=False)
-    measured = time.perf_counter() - start
-    # the order of magnitude (a shared, loaded machine slows either measurement)
-    assert 0.1 < estimate.seconds / measured < 10.0, (estimate.seconds, measured)
+    measured = time.process_time() - start  # CPU time: the machine's load does not enter
+    assert 0.5 < estimate.cpu_seconds / measured < 2.0, (estimate.cpu_seconds, measured)
+    assert estimate.seconds == estimate.cpu_seconds / estimate.share and 0 < estimate.share <= 1
 
     printed = io.StringIO()
     compare(scn, output_dir=tmp_path, workers=1, progress=False, plots=False,

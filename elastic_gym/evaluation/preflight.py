@@ -11,10 +11,13 @@ observer's update) are not setup errors: they are left to the runs, which report
 them in their status.
 
 The estimate: ``SAMPLE_TIME`` of closed loop of each (env, controller, state source)
-combination measures its wall time per step (the mean over a span of several
-scheduler time slices, so that it includes the share of the CPU the machine's load
-leaves); with the measured setup time it gives the expected wall time of every run,
-summed and shared among the workers.
+combination measures its CPU time per step; with the CPU time of its setup it gives
+the CPU time of every run. Their sum, shared among the workers, is divided by the share
+of a core each worker can expect, cores / (other runnable processes + workers) at most
+1, the others taken from the load average. CPU time, not wall time: a short sample in a
+process that has been idle runs at full speed on a loaded machine (the scheduler's
+credit for sleeping), and measured the default grid's wall time 2.6 times too short at
+a load average of 8.
 
 :func:`check_plot_names` refuses labels that would give a figure file name longer
 than a file system allows, or two figures the same file name (one would overwrite
@@ -24,6 +27,7 @@ the other).
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -42,16 +46,22 @@ from elastic_gym.evaluation.runner import (
 from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError
 from elastic_gym.parallel import single_threaded
 
-SAMPLE_TIME = 0.05  # s of closed loop timed per (env, controller, source) combination
+SAMPLE_TIME = 0.05  # CPU s of closed loop timed per (env, controller, source) combination
 SAMPLE_STEPS = (3, 1000)  # fewest and most steps of a sample
 
 
 @dataclass(frozen=True)
 class Estimate:
-    """Expected wall time of a comparison (s) on ``workers`` workers."""
+    """Expected CPU time of all runs (s), and the wall time on ``workers`` workers that
+    each get ``share`` of a core."""
 
-    seconds: float
+    cpu_seconds: float
     workers: int
+    share: float
+
+    @property
+    def seconds(self) -> float:
+        return self.cpu_seconds / self.workers / self.share
 
     def __str__(self) -> str:
         if self.seconds < 90:
@@ -88,9 +98,9 @@ def preflight(scenario: Scenario, runs: Sequence[RunSpec], workers: int) -> Esti
             if not any(key[0] == entry.label for key in combos):
                 continue
             path = f"envs[{i}]"
-            start = time.perf_counter()
+            start = time.process_time()
             env = _make_env(entry.id, scenario.env_kwargs(entry), f"{path}.kwargs")
-            make_time = time.perf_counter() - start
+            make_time = time.process_time() - start
             try:
                 _check_reset(env, entry.reset_options, scenario.seeds[0], path)
                 _check_axes(scenario, entry, path)
@@ -105,7 +115,19 @@ def preflight(scenario: Scenario, runs: Sequence[RunSpec], workers: int) -> Esti
                 env.close()
     total = sum(cost[(s.labels["env"], s.labels["controller"], s.labels["source"])]
                 for s in runs)
-    return Estimate(total / min(workers, len(runs)), workers)
+    workers = min(workers, len(runs))
+    return Estimate(total, workers, cpu_share(workers))
+
+
+def cpu_share(workers: int) -> float:
+    """The share of a core each of ``workers`` new processes can expect: cores / (other
+    runnable processes + workers), at most 1; the others are the 1-minute load average
+    less this process (1 where the load average is not available)."""
+    try:
+        others = max(0.0, os.getloadavg()[0] - 1.0)
+    except (AttributeError, OSError):
+        return 1.0
+    return min(1.0, (os.cpu_count() or 1) / (others + workers))
 
 
 def _check_reset(env: gym.Env, options: dict, seed: int, path: str) -> None:
@@ -137,10 +159,10 @@ def _check_model_errors(env: gym.Env, scenario: Scenario, error_index: dict) -> 
 
 def _sample(env: gym.Env, spec: RunSpec, paths: tuple[str, str]) -> float:
     """Build the run's observer and controller on ``env`` (errors name their field) and
-    time ``SAMPLE_TIME`` of closed loop; returns the expected wall time of such a run (s)
-    without the env construction."""
+    time ``SAMPLE_TIME`` of closed loop; returns the CPU time of such a run (s) without
+    the env construction."""
     controller_path, source_path = paths
-    start = time.perf_counter()
+    start = time.process_time()
     model = run_model(env, spec)
     try:
         wrapped = build_observer(env, spec, model)
@@ -154,16 +176,16 @@ def _sample(env: gym.Env, spec: RunSpec, paths: tuple[str, str]) -> float:
         obs, info = wrapped.reset(seed=spec.seed, options=spec.reset_options or None)
     except Exception as exc:
         raise _error(source_path, exc) from None
-    setup = time.perf_counter() - start
+    setup = time.process_time() - start
     steps, elapsed = 0, 0.0
     with np.errstate(all="ignore"), contextlib.suppress(Exception):  # the runs report these
         controller.reset(obs, public_info(info))
         obs, _, _, _, info = wrapped.step(controller(obs, public_info(info)))  # warms caches up
-        tick = time.perf_counter()
+        tick = time.process_time()
         while steps < SAMPLE_STEPS[1] and (steps < SAMPLE_STEPS[0] or elapsed < SAMPLE_TIME):
             obs, _, terminated, _, info = wrapped.step(controller(obs, public_info(info)))
             steps += 1
-            elapsed = time.perf_counter() - tick
+            elapsed = time.process_time() - tick
             if terminated:
                 break
     step = elapsed / steps if steps else 0.0
