@@ -163,6 +163,10 @@ def test_margins_walk_away_from_the_nominal_on_each_side():
         {"nominal": [1.0], "mass=1.2": [3.0], "mass=1.5": [1.0]})))[0]
     assert cell(one_sided) == "<1.2"
     assert cell(margin_rows(sweep_curves(s, synthetic_rows({"nominal": [1.0]})))[0]) == "-"
+    open_loop = synthetic_rows({"nominal": [1.0], "mass=1.2": [1.0]})
+    for row in open_loop:
+        row["track_rms"] = math.nan  # no tracking metric (excitation task)
+    assert [r["criterion"] for r in margin_rows(sweep_curves(s, open_loop))] == ["estimation"]
     unstable = margin_rows(sweep_curves(s, synthetic_rows({"nominal": [None], "mass=1.2": [1]})))
     assert cell(unstable[0]) == "unstable at nominal" and math.isnan(unstable[0]["upper"])
 

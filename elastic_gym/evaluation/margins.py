@@ -85,15 +85,19 @@ def curve_margin(curve: SweepCurve, criterion: str) -> dict:
     return row
 
 
+def applies(curve: SweepCurve, criterion: str) -> bool:
+    """Whether ``criterion`` applies: estimation only with an observer, and a metric that
+    is defined for the loop's runs (no tracking metric for the excitation task)."""
+    if criterion == "estimation" and curve.source == TRUE_STATE:
+        return False
+    rows = [row for point in curve.points for row in point.rows]
+    return any(not math.isnan(float(row[m])) for row in rows for m in CRITERIA[criterion])
+
+
 def margin_rows(curves: Sequence[SweepCurve]) -> list[dict]:
-    """Margin rows of every curve: tracking for all loops, estimation for observer loops."""
-    rows = []
-    for criterion in CRITERIA:
-        for curve in curves:
-            if criterion == "estimation" and curve.source == TRUE_STATE:
-                continue
-            rows.append(curve_margin(curve, criterion))
-    return rows
+    """Margin rows of every curve and criterion that applies (:func:`applies`)."""
+    return [curve_margin(curve, criterion) for criterion in CRITERIA for curve in curves
+            if applies(curve, criterion)]
 
 
 def cell(row: dict) -> str:
