@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import NullFormatter
 from matplotlib.transforms import blended_transform_factory
 
 from elastic_gym.evaluation.output import plot_file_name
@@ -66,20 +67,22 @@ def _draw(ax, curve: SweepCurve, metric: str, style: dict, slot: int) -> None:
 
 
 def plot_curves(curves: Sequence[SweepCurve], metric: str, ylabel: str, title: str,
-                path: Path) -> Path:
-    """One figure: a panel per sweep of ``curves`` (one context), a line per loop."""
+                path: Path, styles: dict | None = None) -> Path:
+    """One figure: a panel per sweep of ``curves`` (one context), a line per loop
+    (``styles``: line styles by (controller, source), default from ``curves``)."""
     sweeps = list(dict.fromkeys(c.sweep for c in curves))
     rows = math.ceil(len(sweeps) / COLUMNS)
     cols = min(COLUMNS, len(sweeps))
     fig = Figure(figsize=(4.0 * cols + LEGEND_WIDTH, 3.1 * rows + 1.0))
     axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False).ravel())
-    styles = _style(curves)
+    styles = styles or _style(curves)
     loops = list(styles)
     for ax, sweep in zip(axes, sweeps, strict=False):
         for curve in (c for c in curves if c.sweep == sweep):
             key = (curve.controller, curve.source)
             _draw(ax, curve, metric, styles[key], loops.index(key))
         ax.set_xscale("log" if sweep.log else "linear")
+        ax.xaxis.set_minor_formatter(NullFormatter())  # no crowded labels on short log ranges
         positive = any(np.any(p.values(metric) > 0) for c in curves if c.sweep == sweep
                        for p in c.points)
         ax.set_yscale("log" if positive else "linear")
@@ -95,7 +98,7 @@ def plot_curves(curves: Sequence[SweepCurve], metric: str, ylabel: str, title: s
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(label, handle)
     legend_outside(fig, handles, "controller / state\n(mean and band over seeds;\n"
-                   "x: unstable)", title)
+                   "x: unstable)", title, hspace=0.5)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
     return path
@@ -109,11 +112,13 @@ def plot_all_curves(curves: Sequence[SweepCurve], directory: Path) -> list[Path]
     paths = []
     for context, members in contexts.items():
         labels = dict(context)
+        styles = _style(members)  # the same colours in the tracking and estimation figures
         for metric, ylabel, observers_only in CURVE_METRICS:
             selected = [c for c in members if not (observers_only and c.source == TRUE_STATE)]
             if not any(p.values(metric).size for c in selected for p in c.points):
                 continue
             title = " | ".join(str(v) for v in labels.values()) + f": {ylabel}"
             paths.append(plot_curves(selected, metric, ylabel, title,
-                                     directory / plot_file_name((*labels.values(), metric))))
+                                     directory / plot_file_name((*labels.values(), metric)),
+                                     styles))
     return paths

@@ -120,11 +120,11 @@ def cell(row: dict) -> str:
         if tested == row["nominal"]:
             continue  # nothing tested on this side
         if not row[f"{side}_failure"]:
-            parts.append(f"{row[side]:g}*")
+            parts.append(f"{row[side]:.3g}*")
         elif row[side] == row["nominal"]:
-            parts.append(f"{beyond}{row[f'{side}_failed_at']:g}")
+            parts.append(f"{beyond}{row[f'{side}_failed_at']:.3g}")
         else:
-            parts.append(f"{row[side]:g}")
+            parts.append(f"{row[side]:.3g}")
     return " .. ".join(parts)
 
 

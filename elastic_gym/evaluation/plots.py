@@ -139,7 +139,8 @@ def plot_scenario(results: Sequence[RunResult], title: str, path: Path) -> Path:
     return path
 
 
-def legend_outside(fig: Figure, handles: dict, legend_title: str, title: str) -> None:
+def legend_outside(fig: Figure, handles: dict, legend_title: str, title: str,
+                   hspace: float = 0.25) -> None:
     """Figure title, and the legend in a strip right of the panels (never over the data).
 
     A fixed layout (``subplots_adjust``): matplotlib's constrained layout measured 60 %
@@ -148,7 +149,7 @@ def legend_outside(fig: Figure, handles: dict, legend_title: str, title: str) ->
     width, height = fig.get_size_inches()
     right = 1.0 - LEGEND_WIDTH / width
     fig.subplots_adjust(left=0.9 / width, right=right - 0.15 / width, bottom=0.55 / height,
-                        top=1.0 - 0.75 / height, wspace=0.3, hspace=0.25)
+                        top=1.0 - 0.75 / height, wspace=0.3, hspace=hspace)
     fig.legend(handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(right, 0.97),
                fontsize="small", title=legend_title, title_fontsize="small", frameon=False)
     fig.suptitle(title)
