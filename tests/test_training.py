@@ -132,6 +132,19 @@ def test_bad_hyperparameters(tmp_path):
         resolve_hyperparams("sac", "elastic_gym/TwoLinkElastic-v0", file=wrong)
     with pytest.raises(ValueError, match="key=value"):
         parse_overrides(["learning_rate"])
+    wrong_kinds = [({"n_steps": "abc"}, "n_steps must be a finite number"),
+                   ({"learning_rate": float("nan")}, "learning_rate must be a finite number"),
+                   ({"n_steps": 64.5}, "n_steps must be an integer"),
+                   ({"n_envs": 0}, "n_envs must be a positive integer"),
+                   ({"normalize": "yes"}, "normalize must be true or false"),
+                   ({"use_sde": "no"}, "use_sde must be true or false")]
+    for overrides, match in wrong_kinds:  # refused before any env exists, not inside SB3
+        with pytest.raises(ValueError, match=match):
+            resolve_hyperparams("ppo", "elastic_gym/TwoLinkElastic-v0", overrides)
+    floats = resolve_hyperparams("ppo", "elastic_gym/TwoLinkElastic-v0",
+                                 {"n_timesteps": 1e6, "n_steps": 64.0})  # YAML's !!float 1e6
+    assert (floats["n_timesteps"], floats["n_steps"]) == (1_000_000, 64)
+    assert type(floats["n_steps"]) is int
     assert parse_overrides(["learning_rate=1e-4", "n_envs=2"]) == {"learning_rate": 1e-4,
                                                                     "n_envs": 2}
 

@@ -45,7 +45,10 @@ def validate_poles(poles, n_joints: int) -> np.ndarray:
     Every pole must have a negative real part, and complex poles must come in
     conjugate pairs within each joint (so that the gains are real).
     """
-    arr = np.asarray(poles, dtype=complex)
+    try:
+        arr = np.asarray(poles, dtype=complex)
+    except (TypeError, ValueError):
+        raise ValueError(f"poles must be numbers (complex allowed), got {poles!r}") from None
     if arr.shape == (POLES_PER_JOINT,):
         arr = np.broadcast_to(arr, (n_joints, POLES_PER_JOINT))
     if arr.shape != (n_joints, POLES_PER_JOINT):

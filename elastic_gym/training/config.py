@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import inspect
+import math
 from dataclasses import asdict, dataclass, field, fields
 from importlib import resources
 from pathlib import Path
@@ -83,9 +84,43 @@ def resolve_hyperparams(algo: str, env_id: str, overrides: dict | None = None,
         raise ValueError(
             f"unknown hyper-parameter(s) {sorted(unknown)} for {algo}; valid: {sorted(allowed)}"
         )
+    _check_values(algo, merged)
     if "policy_kwargs" in merged:
         merged["policy_kwargs"] = _policy_kwargs(merged["policy_kwargs"])
     return merged
+
+
+POSITIVE_INTEGERS = ("n_timesteps", "n_envs", "decimation")  # our own count settings
+
+
+def _check_values(algo: str, merged: dict) -> None:
+    """Refuse a value of the wrong kind before any env is built: our own counts must be
+    positive integers and ``normalize`` a boolean; an algorithm argument whose default is
+    a number must be a finite number (an integer where the default is one) unless it is
+    a schedule or a tuple (``train_freq``), and a boolean default needs a boolean.
+    Integral floats (``!!float 1e6``) become integers where one is needed."""
+    params = inspect.signature(algorithm_class(algo).__init__).parameters
+    for key, value in merged.items():
+        default = getattr(params.get(key), "default", None)
+        if key == "normalize" or isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise ValueError(f"hyper-parameter {key} must be true or false, got {value!r}")
+        elif key in POSITIVE_INTEGERS or (
+            key in params and _is_number(default)
+            and not (callable(value) or isinstance(value, (list, tuple)))
+        ):
+            if not _is_number(value) or not math.isfinite(value):
+                raise ValueError(f"hyper-parameter {key} must be a finite number, "
+                                 f"got {value!r}")
+            if key in POSITIVE_INTEGERS or isinstance(default, int):
+                if value != int(value) or (key in POSITIVE_INTEGERS and value < 1):
+                    kind = "a positive integer" if key in POSITIVE_INTEGERS else "an integer"
+                    raise ValueError(f"hyper-parameter {key} must be {kind}, got {value!r}")
+                merged[key] = int(value)
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _policy_kwargs(value) -> dict:
