@@ -9,7 +9,7 @@ import pinocchio as pin
 import pytest
 from conftest import ELASTIC_IDS, make_noise_free
 
-from elastic_gym.envs.sensors import AccelerometerArray, AccelerometerConfig, Encoder
+from elastic_gym.envs.sensors import AccelerometerArray, AccelerometerConfig, Encoder, GaussianNoise
 
 
 def _record(env_id: str, steps: int = 300):
@@ -84,7 +84,7 @@ def test_accelerometer_noise_bias_saturation_and_filter():
     array.reset(arms, rngs)
     assert not np.array_equal(array.bias[0], array.bias[1])  # one bias per arm
     truth = np.array([[0.0, 0.0, 9.81, 1.0, -2.0, 30.0]] * 2)
-    samples = np.array([array.measure(truth, rngs) for _ in range(20000)])  # (T, arm, axis)
+    samples = np.array([array.measure(truth, rngs, arms) for _ in range(20000)])  # (T, arm, axis)
     assert np.allclose(samples[:, :, :5].std(axis=0), 2e-3 * np.sqrt(0.5 / dt), rtol=0.05)
     assert np.allclose(samples[:, :, :5].mean(axis=0) - truth[:, :5], array.bias[:, :5],
                        atol=2e-3)
@@ -93,21 +93,49 @@ def test_accelerometer_noise_bias_saturation_and_filter():
     filtered = AccelerometerConfig(noise_density=0, bias_std=0, cutoff_hz=10.0)
     lowpass = AccelerometerArray(filtered, 1, dt)
     lowpass.reset(arms[:1], [rng])
-    lowpass.measure(np.zeros((1, 3)), [rng])
+    lowpass.measure(np.zeros((1, 3)), [rng], arms[:1])
     tau = 1.0 / (2 * np.pi * 10.0)
-    response = [lowpass.measure(np.ones((1, 3)), [rng])[0, 0] for _ in range(round(tau / dt))]
+    response = [lowpass.measure(np.ones((1, 3)), [rng], arms[:1])[0, 0]
+                for _ in range(round(tau / dt))]
     assert response[-1] == pytest.approx(1 - np.exp(-1), abs=0.01)
 
 
 def test_encoder_quantization_and_noise():
     rng = np.random.default_rng(0)
-    encoder = Encoder(resolution=7e-4, noise_std=0.0)
+    one = np.arange(1)
+    encoder = Encoder(resolution=7e-4, noise_std=0.0, n_joints=1000)
     x = rng.uniform(-3, 3, size=(1, 1000))
-    y = encoder.measure(x, [rng])
+    y = encoder.measure(x, [rng], one)
     assert np.abs(y - x).max() <= 3.5e-4 + 1e-15
     assert np.allclose(np.round(y / 7e-4) * 7e-4, y)
-    noisy = Encoder(resolution=0.0, noise_std=0.01).measure(np.zeros((1, 20000)), [rng])
+    noisy_encoder = Encoder(resolution=0.0, noise_std=0.01, n_joints=200)
+    noisy = np.array([noisy_encoder.measure(np.zeros((1, 200)), [rng], one)
+                      for _ in range(100)])
     assert noisy.std() == pytest.approx(0.01, rel=0.05)
+
+
+def test_noise_of_an_arm_depends_only_on_its_generator_and_readings():
+    """Block draws: arm 1 of a batch whose arm 0 reads at other times and resets gets the
+    samples of an arm alone with the same generator, and within a block they are the
+    generator's own normal sequence."""
+    steps = 2 * GaussianNoise.BLOCK + 7
+    alone, rng = GaussianNoise(1, 3), np.random.default_rng(5)
+    solo = np.array([alone.draw(np.arange(1), [rng])[0] for _ in range(steps)])
+    assert np.array_equal(solo[:GaussianNoise.BLOCK].ravel(),
+                          np.random.default_rng(5).standard_normal(3 * GaussianNoise.BLOCK))
+    batch = GaussianNoise(2, 3)
+    rngs = [np.random.default_rng(9), np.random.default_rng(5)]
+    both, second = np.arange(2), np.array([1])
+    shared = []
+    for t in range(steps):
+        if t % 3 == 0:
+            shared.append(batch.draw(both, rngs)[1])
+        else:
+            shared.append(batch.draw(second, rngs[1:])[0])
+        if t == 100:
+            batch.restart(np.array([0]))
+            rngs[0] = np.random.default_rng(11)
+    assert np.array_equal(np.array(shared), solo)
 
 
 def test_env_sensor_defaults_follow_the_papers():

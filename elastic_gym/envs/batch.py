@@ -212,6 +212,7 @@ class ArmBatch:
         self.encoder = Encoder(
             spec.encoder_resolution if encoder_cfg.resolution is None else encoder_cfg.resolution,
             spec.encoder_noise_std if encoder_cfg.noise_std is None else encoder_cfg.noise_std,
+            n, N,
         )
         if isinstance(accelerometer, str) and accelerometer != "ideal":
             raise ValueError(
@@ -351,6 +352,8 @@ class ArmBatch:
         q, dq, theta, dtheta = self._initial_state(q0, given)
         self.sim.reset_state(arms, q, dq, theta, dtheta)
         self.accelerometer_array.reset(arms, self.rngs)
+        if self.encoder.noise_std > 0.0:
+            self.encoder.noise.restart(arms)
         self.steps[arms] = 0
         self._time = self.steps * self.control_dt
         self.running[arms] = True
@@ -473,7 +476,7 @@ class ArmBatch:
         sim = self.sim
         rngs = [self.rngs[i] for i in arms]
         position = sim.theta if self.robot.elastic else sim.q
-        readings = {self.position_key: self.encoder.measure(position[arms], rngs)}
+        readings = {self.position_key: self.encoder.measure(position[arms], rngs, arms)}
         if self.model.n_sensors:
             force = self.plant_model.chain.specific_forces(sim.q[arms], sim.dq[arms],
                                                            self.ddq[arms])
@@ -551,6 +554,9 @@ class ArmBatch:
     def close(self) -> None:
         self.sim.close()
 
+    def _noise_streams(self) -> tuple:
+        return self.encoder.noise, self.accelerometer_array.noise
+
     def __getstate__(self) -> dict:
         """Constructor arguments + the state of every arm (a PyBullet client cannot be
         pickled). Unpickling builds an independent batch with its own client in the same
@@ -566,6 +572,7 @@ class ArmBatch:
             "rngs": [rng.bit_generator.state for rng in self.rngs],
             "accelerometer": (self.accelerometer_array.bias, self.accelerometer_array.filtered,
                               self.accelerometer_array.fresh),
+            "noise": [(noise.block, noise.next) for noise in self._noise_streams()],
             "task": {k: v for k, v in vars(self.task).items() if k not in ("spec", "model")},
         }
         return {"init": self.init_kwargs, "episode": episode}
@@ -580,4 +587,7 @@ class ArmBatch:
             rng.bit_generator.state = rng_state
         acc = self.accelerometer_array
         acc.bias, acc.filtered, acc.fresh = episode["accelerometer"]
+        for noise, (block, following) in zip(self._noise_streams(), episode["noise"],
+                                              strict=True):
+            noise.block, noise.next = block, following
         vars(self.task).update(episode["task"])
