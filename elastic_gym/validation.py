@@ -44,6 +44,15 @@ def checked_fields(cls: type[T], config: Any, what: str) -> dict | T | None:
     return dict(config)
 
 
+def config_from(cls: type[T], config: Any, what: str) -> T:
+    """An instance of dataclass ``cls`` from ``None`` (the defaults), an instance (itself)
+    or a mapping of its field names (checked by :func:`checked_fields`)."""
+    config = checked_fields(cls, config, what)
+    if config is None:
+        return cls()
+    return config if isinstance(config, cls) else cls(**config)
+
+
 def check_applies(kind: str, name: str, applies_to: frozenset[str], model) -> None:
     """Refuse an observer/controller built for elastic arms on a rigid robot and vice versa."""
     arm = "elastic" if model.elastic else "rigid"

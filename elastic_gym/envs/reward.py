@@ -38,7 +38,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numba import njit
 
-from elastic_gym.validation import checked_fields
+from elastic_gym.validation import config_from
 
 DEFAULT_SIGMAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # rad, one kernel per decade
 DEFAULT_VELOCITY_SIGMAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)  # rad/s
@@ -100,12 +100,7 @@ class RewardConfig:
     @classmethod
     def from_config(cls, config: dict | RewardConfig | None) -> RewardConfig:
         """A config from a mapping of field names (unknown keys: ``ValueError``)."""
-        config = checked_fields(cls, config, "reward")
-        if config is None:
-            return cls()
-        if isinstance(config, cls):
-            return config
-        return cls(**config)
+        return config_from(cls, config, "reward")
 
     @property
     def penalty_bound(self) -> float:

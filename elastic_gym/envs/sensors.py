@@ -10,17 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from elastic_gym.validation import checked_fields
+from elastic_gym.validation import config_from
 
 GRAVITY = 9.81
-
-
-def _from_config(cls, config, what: str):
-    """Build a frozen sensor config from None, an instance or a dict; unknown keys are errors."""
-    config = checked_fields(cls, config, what)
-    if config is None:
-        return cls()
-    return config if isinstance(config, cls) else cls(**config)
 
 
 def _check_range(owner: str, key: str, value, low: float, high: float,
@@ -53,7 +45,7 @@ class EncoderConfig:
 
     @classmethod
     def from_config(cls, config) -> EncoderConfig:
-        return _from_config(cls, config, "encoder")
+        return config_from(cls, config, "encoder")
 
 
 class GaussianNoise:
@@ -139,7 +131,7 @@ class AccelerometerConfig:
 
     @classmethod
     def from_config(cls, config) -> AccelerometerConfig:
-        return _from_config(cls, config, "accelerometer")
+        return config_from(cls, config, "accelerometer")
 
     @classmethod
     def ideal(cls) -> AccelerometerConfig:

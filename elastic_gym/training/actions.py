@@ -33,7 +33,7 @@ import numpy as np
 
 from elastic_gym.controllers.gain_design import bandwidth_pd_gains, nominal_configuration
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import checked_fields, per_joint_values
+from elastic_gym.validation import config_from, per_joint_values
 
 KINDS = ("torque", "motor-offset", "residual")
 
@@ -88,12 +88,7 @@ class ActionConfig:
     @classmethod
     def from_config(cls, config: dict | ActionConfig | None) -> ActionConfig:
         """A config from a mapping of field names (unknown keys: ``ValueError``)."""
-        config = checked_fields(cls, config, "action")
-        if config is None:
-            return cls()
-        if isinstance(config, cls):
-            return config
-        return cls(**config)
+        return config_from(cls, config, "action")
 
     def to_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -32,7 +32,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from elastic_gym.validation import checked_fields
+from elastic_gym.validation import config_from
 
 FEATURES = ("error", "error_rate", "reference", "preview", "torsion", "torsion_rate",
             "motor_error", "acceleration", "last_action", "base_torque")
@@ -90,12 +90,7 @@ class ObservationConfig:
     @classmethod
     def from_config(cls, config: dict | ObservationConfig | None) -> ObservationConfig:
         """A config from a mapping of field names (unknown keys: ``ValueError``)."""
-        config = checked_fields(cls, config, "observation")
-        if config is None:
-            return cls()
-        if isinstance(config, cls):
-            return config
-        return cls(**config)
+        return config_from(cls, config, "observation")
 
     def to_dict(self) -> dict:
         out = {f.name: getattr(self, f.name) for f in fields(self)}
