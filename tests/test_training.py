@@ -18,7 +18,8 @@ from elastic_gym.training import (
     train,
 )
 from elastic_gym.training.config import resolve_hyperparams
-from elastic_gym.training.train import env_factory, evaluate_policy, split_settings
+from elastic_gym.training.evaluation import evaluate_policy
+from elastic_gym.training.train import env_factory, split_settings
 
 SHORT_EPISODES = {"max_episode_steps": 200}
 
@@ -46,7 +47,7 @@ def test_short_run_saves_reloads_and_acts_the_same(tmp_path, algo, hyperparams):
     )
     result = train(config, progress_bar=False)
     for name in ("model.zip", "vecnormalize.pkl", "config.yaml", "summary.json",
-                 "best_model.zip", "evaluations.npz"):
+                 "best_model.zip", "evaluations.npz", "learning_curve.csv"):
         assert (tmp_path / algo / name).exists(), name
     assert (tmp_path / algo / "tb").is_dir()
     assert result.policy_steps >= 128 and result.env_steps == 10 * result.policy_steps
@@ -299,7 +300,7 @@ def test_train_refuses_an_earlier_run_unless_overwrite_which_clears_it(tmp_path)
     assert stale.read_bytes() == b"stale" and sorted(p.name for p in run.iterdir()) == [
         "best_model.zip", "notes.txt"]
     train(tiny_config(run), progress_bar=False, overwrite=True)
-    assert not stale.exists()  # no evaluation ran, so no best model of this run either
+    assert (run / "best_model.zip").read_bytes() != b"stale"  # this run's best model
     assert (run / "model.zip").exists() and (run / "notes.txt").read_text() == "mine"
 
 
@@ -389,3 +390,37 @@ def test_training_on_batches_in_worker_processes(tmp_path):
         train(dataclasses.replace(config, out_dir=str(tmp_path / "bad"),
                                   hyperparams={**config.hyperparams, "batches": 3}),
               progress_bar=False)
+
+
+def test_batches_with_their_own_env_kwargs_train_on_two_plants():
+    """``batches: [{}, {plant_scaling: ...}]``: the arms of the second worker batch are the
+    single policy env on links 30 % heavier, those of the first the nominal one (arm i
+    seeded s + i in both)."""
+    from elastic_gym.training.train import _vec_env
+
+    heavy = {"plant_scaling": {"link_mass": 1.3}}
+    config = TrainConfig(state="true", env_kwargs={"episode_time": 0.05},
+                         hyperparams={"n_envs": 2, "batches": [{}, heavy]})
+    settings, _ = split_settings(config)
+    venv = _vec_env(config, settings, 2, seed=4)
+    venv.reset()
+    actions = np.array([[0.2, -0.1], [0.2, -0.1]])
+    for _ in range(3):
+        obs, *_ = venv.step(actions)
+    venv.close()
+    for arm, kwargs in enumerate(({}, heavy)):
+        expected = []
+        for plant in ({}, heavy):
+            env = make_policy_env(config.env_id, "true", {"episode_time": 0.05, **plant},
+                                  decimation=10, action=config.policy_configs(settings)[0])
+            env.reset(seed=4 + arm)
+            for _ in range(3):
+                single, *_ = env.step(actions[arm])
+            env.close()
+            expected.append(single)
+        mine = expected[0] if kwargs == {} else expected[1]
+        other = expected[1] if kwargs == {} else expected[0]
+        assert np.array_equal(obs[arm], mine)
+        assert not np.allclose(obs[arm], other, rtol=0, atol=1e-6)
+    with pytest.raises(ValueError, match="batches must be an integer >= 1 or a non-empty list"):
+        resolve_hyperparams("ppo", config.env_id, {"batches": [3]})

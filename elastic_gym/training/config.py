@@ -4,17 +4,24 @@ Hyper-parameters live in ``hyperparams/<algo>.yaml``, one entry per env id plus 
 ``default`` entry, each a mapping of the algorithm's constructor arguments and these
 keys of ours: ``n_timesteps`` (default budget, policy steps), ``n_envs`` (arms; more
 than one share a PyBullet world), ``batches`` (worker processes the arms are split
-over, one PyBullet world each), ``decimation`` (env steps per policy step),
-``normalize`` (VecNormalize on/off), ``action`` (fields of
-:class:`~elastic_gym.training.actions.ActionConfig`) and ``observation`` (fields of
-:class:`~elastic_gym.training.observation.ObservationConfig`). Command-line overrides
-(``key=value``) win over the file, which wins over the defaults; a run's own ``action`` /
-``observation`` fields win over the file's.
+over, one PyBullet world each: a number, or a list of env-kwargs updates, one per
+batch, e.g. ``[{}, {plant_scaling: {link_mass: 1.3}}]`` for two plants),
+``decimation`` (env steps per policy step), ``normalize`` (VecNormalize on/off),
+``action`` (fields of :class:`~elastic_gym.training.actions.ActionConfig`),
+``observation`` (fields of
+:class:`~elastic_gym.training.observation.ObservationConfig`) and ``env_kwargs`` (the
+training env's kwargs, e.g. the task's options). Command-line overrides (``key=value``)
+win over the file, which wins over the defaults; a run's own ``action`` /
+``observation`` fields win over the file's, and its own env kwargs over the file's key
+by key (a run that names its own ``task`` drops the file's ``task_options``, which
+belong to the file's task). ``learning_rate`` and ``clip_range`` may be
+``lin_<value>`` (RL Zoo's linear decay to 0).
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import inspect
 import math
 from dataclasses import asdict, dataclass, field, fields
@@ -28,19 +35,30 @@ from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import check_state_source
 from elastic_gym.validation import registered_env_id
 
-ALGORITHMS = ("ppo", "sac", "td3")
+ALGORITHMS = ("ppo", "sac", "td3", "recurrentppo")
+RECURRENT = {"recurrentppo"}  # sb3-contrib's RecurrentPPO: an LSTM in actor and critic
 OWN_KEYS = {"n_timesteps", "n_envs", "batches", "decimation", "normalize", "action",
-            "observation"}
+            "observation", "env_kwargs"}
+SCHEDULED = ("learning_rate", "clip_range")  # may be "lin_<value>" (RL Zoo)
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 
 
 def algorithm_class(algo: str):
-    """The stable-baselines3 class of an algorithm name."""
+    """The stable-baselines3 (or sb3-contrib, ``recurrentppo``) class of an algorithm name."""
     if algo not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {algo!r}; valid: {list(ALGORITHMS)}")
+    if algo == "recurrentppo":
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
     import stable_baselines3
 
     return getattr(stable_baselines3, algo.upper())
+
+
+def default_policy(algo: str) -> str:
+    """SB3's policy name for flat observations: an MLP, with an LSTM for recurrent ones."""
+    return "MlpLstmPolicy" if algo in RECURRENT else "MlpPolicy"
 
 
 def load_hyperparams_file(path: str | Path) -> dict:
@@ -84,9 +102,16 @@ def resolve_hyperparams(algo: str, env_id: str, overrides: dict | None = None,
         raise ValueError(
             f"unknown hyper-parameter(s) {sorted(unknown)} for {algo}; valid: {sorted(allowed)}"
         )
+    for key in SCHEDULED:
+        if isinstance(merged.get(key), str):
+            merged[key] = _schedule(key, merged[key])
     _check_values(algo, merged)
     if "policy_kwargs" in merged:
         merged["policy_kwargs"] = _policy_kwargs(merged["policy_kwargs"])
+    for key in ("env_kwargs", "action", "observation"):
+        if not isinstance(merged.get(key, {}), dict):
+            raise ValueError(f"hyper-parameter {key} must be a mapping, got {merged[key]!r}")
+    batch_kwargs(merged.get("batches", 1))
     return merged
 
 
@@ -121,6 +146,36 @@ def _check_values(algo: str, merged: dict) -> None:
 
 def _is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def batch_kwargs(batches) -> list[dict]:
+    """The ``batches`` hyper-parameter as one env-kwargs update per batch: an integer k
+    (k identical batches) or a list of mappings (e.g. ``[{}, {plant_scaling: {link_mass:
+    1.3}}]``: half the arms on the nominal plant, half on links 30 % heavier)."""
+    if isinstance(batches, int) and not isinstance(batches, bool) and batches >= 1:
+        return [{}] * batches
+    if (isinstance(batches, list) and batches
+            and all(isinstance(entry, dict) for entry in batches)):
+        return batches
+    raise ValueError(f"batches must be an integer >= 1 or a non-empty list of env-kwargs "
+                     f"mappings, got {batches!r}")
+
+
+def linear_schedule(initial: float, progress_remaining: float) -> float:
+    """RL Zoo's ``lin_<value>``: the value decays linearly from ``initial`` to 0 over
+    training (SB3 passes the remaining progress, 1 -> 0)."""
+    return progress_remaining * initial
+
+
+def _schedule(key: str, text: str):
+    prefix, _, value = text.partition("_")
+    try:
+        initial = float(value)
+    except ValueError:
+        initial = math.nan
+    if prefix != "lin" or not math.isfinite(initial) or initial <= 0:
+        raise ValueError(f"{key} {text!r}: give a number or 'lin_<number > 0>' (linear decay)")
+    return functools.partial(linear_schedule, initial)
 
 
 def _policy_kwargs(value) -> dict:
@@ -219,6 +274,15 @@ class TrainConfig:
         action = {**settings.get("action", {}), **self.action}
         observation = {**settings.get("observation", {}), **self.observation}
         return ActionConfig.from_config(action), ObservationConfig.from_config(observation)
+
+    def training_env_kwargs(self, settings: dict) -> dict:
+        """The env kwargs of the run: the hyper-parameter file's ``env_kwargs`` (in
+        ``settings``) updated key by key with the run's own; the file's ``task_options``
+        are dropped when the run names its own ``task``."""
+        shipped = dict(settings.get("env_kwargs") or {})
+        if "task" in self.env_kwargs:
+            shipped.pop("task_options", None)
+        return {**shipped, **self.env_kwargs}
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -29,7 +29,7 @@ class TrainedPolicyController(Controller):
 
     Args:
         model, dt: nominal model and control period of the comparison.
-        run: the run folder. ``best``: use the EvalCallback's best model.
+        run: the run folder. ``best``: use the best model of the learning curve.
 
     The comparison must feed it the state source it was trained on (``state_source``);
     policies trained on raw ``sensors`` or with a reference preview (which needs the
@@ -72,6 +72,7 @@ class TrainedPolicyController(Controller):
     def reset(self, obs: Mapping, info: Mapping) -> None:
         if self.base is not None:
             self.base.reset(obs, info)
+        self.trained.start()
         self._clear()
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:

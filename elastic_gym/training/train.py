@@ -4,11 +4,15 @@ Vectorized envs: with ``n_envs > 1`` the arms share one PyBullet world (the batc
 env, :func:`~elastic_gym.training.policy_env.make_policy_vec_env`, through
 :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`), or ``batches`` such worlds in
 worker processes (:class:`~elastic_gym.training.sb3_vec_env.ProcessBatches`, one per
-core); ``VecNormalize`` whose statistics are saved beside the model, an ``EvalCallback``
-(its episodes run as arms of one batch) saving the best model, TensorBoard logs and a
-progress bar. A run folder holds::
+core; or batches with different env kwargs, e.g. plants); ``VecNormalize`` whose
+statistics are saved beside the model, a learning curve
+(:class:`~elastic_gym.training.learning_curve.LearningCurve`: deterministic evaluation
+episodes on the arms of one batch at the start, every ``eval_freq`` policy steps and at
+the end) that keeps the best model, TensorBoard logs and a progress bar. A run folder
+holds::
 
-    model.zip  vecnormalize.pkl  best_model.zip  config.yaml  summary.json  tb/  evaluations.npz
+    model.zip  vecnormalize.pkl  best_model.zip  config.yaml  summary.json  tb/
+    evaluations.npz  learning_curve.csv
 
 ``summary.json`` is written last: a folder with it holds a finished run. A folder that
 already holds a run is refused unless ``overwrite`` (which first removes the files of
@@ -34,18 +38,24 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training.config import (
     OWN_KEYS,
     TrainConfig,
     algorithm_class,
+    batch_kwargs,
+    default_policy,
     merged_hyperparams,
     resolve_hyperparams,
 )
+from elastic_gym.training.evaluation import Evaluation, evaluate_arms
+from elastic_gym.training.learning_curve import CURVE_FILE, LearningCurve, PolicyActor
 from elastic_gym.training.policy_env import SENSORS, make_policy_env
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.yaml")  # needed to load a run
-RUN_OUTPUTS = (*RUN_FILES, "best_model.zip", "summary.json", "evaluations.npz", "tb")
+RUN_OUTPUTS = (*RUN_FILES, "best_model.zip", "summary.json", "evaluations.npz", CURVE_FILE,
+               "tb")
 FINISHED = "summary.json"
 
 
@@ -56,6 +66,7 @@ class TrainResult:
     env_steps: int
     wall_time: float
     mean_eval_return: float
+    eval_tracking_rms: float
 
 
 def env_factory(config: TrainConfig, settings: dict):
@@ -65,7 +76,7 @@ def env_factory(config: TrainConfig, settings: dict):
         make_policy_env,
         config.env_id,
         state=config.state,
-        env_kwargs=config.env_kwargs,
+        env_kwargs=config.training_env_kwargs(settings),
         observer_options=config.observer_options,
         decimation=int(settings.get("decimation", 1)),
         action=action,
@@ -74,38 +85,55 @@ def env_factory(config: TrainConfig, settings: dict):
     )
 
 
-def vec_env_factory(config: TrainConfig, settings: dict, n_arms: int):
-    """A picklable constructor of ``n_arms`` arms of the policy env in one PyBullet world."""
+def policy_vec_env(config: TrainConfig, settings: dict, n_arms: int,
+                   autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
+                   env_kwargs: dict | None = None):
+    """The policy stack of a config on ``n_arms`` arms of one PyBullet world (a Gymnasium
+    vector env); ``env_kwargs`` update the run's (:meth:`TrainConfig.training_env_kwargs`)
+    key by key."""
     from elastic_gym.training.policy_env import make_policy_vec_env
-    from elastic_gym.training.sb3_vec_env import SB3VecEnv
 
     action, observation = config.policy_configs(settings)
-    stack = functools.partial(
-        make_policy_vec_env, config.env_id, n_arms, state=config.state,
-        env_kwargs=config.env_kwargs, observer_options=config.observer_options,
+    return make_policy_vec_env(
+        config.env_id, n_arms, state=config.state,
+        env_kwargs={**config.training_env_kwargs(settings), **(env_kwargs or {})},
+        observer_options=config.observer_options,
         decimation=int(settings.get("decimation", 1)), action=action, observation=observation,
         frame_stack=config.frame_stack if config.state == SENSORS else 1,
+        autoreset_mode=autoreset_mode,
     )
-    return lambda: SB3VecEnv(stack())
 
 
-def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int, batches: int = 1):
-    """One env (n_envs = 1), a batch of n_envs arms, or ``batches`` batches in processes."""
+def vec_env_factory(config: TrainConfig, settings: dict, n_arms: int,
+                    env_kwargs: dict | None = None):
+    """A picklable constructor of ``n_arms`` arms of the policy env in one PyBullet world,
+    as an SB3 ``VecEnv`` (``env_kwargs`` update the run's)."""
+    from elastic_gym.training.sb3_vec_env import SB3VecEnv
+
+    return lambda: SB3VecEnv(policy_vec_env(config, settings, n_arms, env_kwargs=env_kwargs))
+
+
+def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int):
+    """One env (n_envs = 1), a batch of n_envs arms, or several batches (hyper-parameter
+    ``batches``, :func:`batch_kwargs`) in worker processes."""
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
     from elastic_gym.training.sb3_vec_env import ProcessBatches
 
-    if batches < 1 or n_envs % batches:
-        raise ValueError(f"batches ({batches}) must divide n_envs ({n_envs})")
+    batches = batch_kwargs(settings.get("batches", 1))
+    if n_envs % len(batches):
+        raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs "
+                         f"({n_envs})")
     if n_envs == 1:
         venv = DummyVecEnv([env_factory(config, settings)])
         venv.action_space.seed(seed)
     else:
-        factory = vec_env_factory(config, settings, n_envs // batches)
-        venv = factory() if batches == 1 else ProcessBatches([factory] * batches)
+        factories = [vec_env_factory(config, settings, n_envs // len(batches), kwargs)
+                     for kwargs in batches]
+        venv = factories[0]() if len(factories) == 1 else ProcessBatches(factories)
     venv.seed(seed)
-    # Episode returns and lengths; the same wrapping for the training and the evaluation
-    # env, which VecNormalize's statistics sync walks in parallel.
+    # Episode returns and lengths, one wrapping whatever the arms' layout (VecNormalize's
+    # statistics sync walks wrapper stacks in parallel).
     return VecMonitor(venv)
 
 
@@ -217,14 +245,15 @@ def train(config: TrainConfig, progress_bar: bool = True, verbose: int = 0,
 
 def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
            progress_bar: bool, verbose: int) -> TrainResult:
-    from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.vec_env import VecNormalize
 
     total = config.total_steps or int(settings.get("n_timesteps", 100_000))
     n_envs = int(settings.get("n_envs", 1))
-    venv = _vec_env(config, settings, n_envs, config.seed, int(settings.get("batches", 1)))
+    decimation = int(settings.get("decimation", 1))
+    venv = _vec_env(config, settings, n_envs, config.seed)
     try:
-        eval_env = _vec_env(config, settings, config.eval_episodes, config.seed + 10_000)
+        eval_envs = policy_vec_env(config, settings, config.eval_episodes,
+                                   AutoresetMode.NEXT_STEP)
     except BaseException:
         venv.close()
         raise
@@ -232,40 +261,34 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
         normalize = bool(settings.get("normalize", True))
         gamma = float(algo_kwargs.get("gamma", 0.99))
         venv = VecNormalize(venv, norm_obs=normalize, norm_reward=normalize, gamma=gamma)
-        eval_env = VecNormalize(eval_env, training=False, norm_obs=normalize, norm_reward=False)
 
-        policy = algo_kwargs.pop("policy", "MlpPolicy")
+        policy = algo_kwargs.pop("policy", default_policy(config.algo))
         model = algorithm_class(config.algo)(
             policy, venv, seed=config.seed, tensorboard_log=str(out / "tb"), verbose=verbose,
             device="cpu", **algo_kwargs,
         )
         if config.policy_configs(settings)[0].kind == "residual":
             zero_action_head(model)
-        callback = EvalCallback(
-            eval_env, n_eval_episodes=config.eval_episodes,
-            eval_freq=max(config.eval_freq // n_envs, 1), best_model_save_path=str(out),
-            log_path=str(out), deterministic=True, verbose=verbose,
-        )
+        curve = LearningCurve(eval_envs, venv, out, config.eval_freq, config.seed + 10_000,
+                              decimation)
         start = time.perf_counter()
-        model.learn(total_timesteps=total, callback=callback, progress_bar=progress_bar,
+        model.learn(total_timesteps=total, callback=curve, progress_bar=progress_bar,
                     tb_log_name=config.algo)
         wall = time.perf_counter() - start
 
         model.save(out / "model.zip")
         venv.save(str(out / "vecnormalize.pkl"))
     finally:
-        for env in (venv, eval_env):  # a failure to close must not hide what happened
+        for env in (venv, eval_envs):  # a failure to close must not hide what happened
             with contextlib.suppress(Exception):
                 env.close()
     # the run folder is self-contained: the hyper-parameters used, not a pointer to a file
     frozen = dataclasses.replace(config, hyperparams_file=None, hyperparams=merged_hyperparams(
         config.algo, config.env_id, config.hyperparams, config.hyperparams_file))
     (out / "config.yaml").write_text(yaml.safe_dump(frozen.to_dict(), sort_keys=False))
-    decimation = int(settings.get("decimation", 1))
-    mean_eval = float(np.mean(callback.evaluations_results[-1])) if callback.evaluations_results \
-        else float("nan")
+    final = curve.evaluations[-1]
     result = TrainResult(str(out), model.num_timesteps, model.num_timesteps * decimation, wall,
-                         mean_eval)
+                         final.mean_return, final.rms)
     (out / FINISHED).write_text(json.dumps(result.__dict__, indent=2))
     return result
 
@@ -279,17 +302,21 @@ class TrainedRun:
     config: TrainConfig
     settings: dict
 
+    def __post_init__(self) -> None:
+        self._actor = PolicyActor(self.model, self.normalizer)
+
     @property
     def decimation(self) -> int:
         return int(self.settings.get("decimation", 1))
 
+    def start(self) -> None:
+        """A new episode: a recurrent policy forgets its memory."""
+        self._actor.start()
+
     def act(self, flat_obs: np.ndarray) -> np.ndarray:
-        """Deterministic action in [-1, 1]^N for one flattened observation."""
-        obs = np.asarray(flat_obs, dtype=np.float32)
-        if self.normalizer is not None and self.normalizer.norm_obs:
-            obs = self.normalizer.normalize_obs(obs)
-        action, _ = self.model.predict(obs, deterministic=True)
-        return np.asarray(action, dtype=float)
+        """Deterministic action in [-1, 1]^n for one flattened observation, or (N, n) for
+        a batch of N."""
+        return self._actor(flat_obs)
 
 
 def read_run_config(run_dir: str | Path) -> TrainConfig:
@@ -312,7 +339,8 @@ def read_run_config(run_dir: str | Path) -> TrainConfig:
 
 
 def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
-    """Load a run folder written by :func:`train` (``best=True``: the EvalCallback's best model).
+    """Load a run folder written by :func:`train` (``best=True``: the best model of the
+    learning curve).
 
     Unpickles ``model.zip`` and ``vecnormalize.pkl``: load only trusted run folders. A
     missing or corrupted file raises ``ValueError`` naming it.
@@ -338,55 +366,17 @@ def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
     return TrainedRun(model, normalizer, config, settings)
 
 
-@dataclass(frozen=True)
-class Evaluation:
-    """Deterministic policy on fresh episodes: per-episode return and link tracking RMS
-    (rad, over the policy steps), and the fraction of policy steps with an action at its
-    bound on some joint (bang-bang actions)."""
-
-    seeds: tuple[int, ...]
-    returns: tuple[float, ...]
-    tracking_rms: tuple[float, ...]
-    saturated_actions: tuple[float, ...]
-
-    @property
-    def mean_return(self) -> float:
-        return float(np.mean(self.returns))
-
-    @property
-    def rms(self) -> float:
-        """Tracking RMS over all episodes' samples (equal lengths: the RMS of the RMS)."""
-        return float(np.sqrt(np.mean(np.square(self.tracking_rms))))
-
-
-def evaluate_policy(env, act, seeds) -> Evaluation:
-    """Run ``act(obs) -> action`` deterministically on one episode per seed of ``env``."""
-    returns, rms, saturated = [], [], []
-    for seed in seeds:
-        obs, _ = env.reset(seed=int(seed))
-        done, total, errors, at_bound = False, 0.0, [], 0
-        while not done:
-            action = act(obs)
-            at_bound += bool(np.any(np.abs(action) >= 1.0 - 1e-6))
-            obs, reward, terminated, truncated, info = env.step(action)
-            total += float(reward)
-            done = terminated or truncated
-            if "true_state" in info:
-                errors.append(info["true_state"]["q"] - info["reference"]["q"])
-        returns.append(total)
-        rms.append(float(np.sqrt(np.mean(np.square(errors)))) if errors else float("inf"))
-        saturated.append(at_bound / max(len(errors), 1))
-    return Evaluation(tuple(int(s) for s in seeds), tuple(returns), tuple(rms), tuple(saturated))
-
-
-def evaluate_run(run: TrainedRun, n_episodes: int = 3, seed: int = 123) -> Evaluation:
+def evaluate_run(run: TrainedRun, n_episodes: int = 3, seed: int = 123,
+                 env_kwargs: dict | None = None) -> Evaluation:
     """The deterministic policy of a run on ``n_episodes`` fresh episodes (seeds
-    ``seed``, ``seed + 1``, ...)."""
-    env = env_factory(run.config, run.settings)()
+    ``seed``, ``seed + 1``, ...), run as the arms of one batch; ``env_kwargs`` are merged
+    into the run's (e.g. ``{"plant_scaling": {"link_mass": 1.3}}``)."""
+    envs = policy_vec_env(run.config, run.settings, n_episodes, AutoresetMode.NEXT_STEP,
+                          env_kwargs)
     try:
-        return evaluate_policy(env, run.act, range(seed, seed + n_episodes))
+        return evaluate_arms(envs, run.act, seed, run.start)
     finally:
-        env.close()
+        envs.close()
 
 
 def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:

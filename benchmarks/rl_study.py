@@ -1,0 +1,360 @@
+"""The RL study of the README: RL policies on the true state, on estimates and on raw
+sensors, next to eq. (13), eq. (13) with integral action and motor PD on the same sources.
+
+    nohup python benchmarks/rl_study.py > rl_study.log 2>&1 &    # the whole study, background
+    python benchmarks/rl_study.py --report                         # tables + figures only
+
+Steps (each skips what an earlier invocation finished, so an interrupted study resumes
+where it stopped; ``--fresh`` starts over):
+
+1. Training: every run of ``ROWS`` (row x training seed) with
+   :func:`elastic_gym.training.train` and the shipped hyper-parameters of its algorithm
+   (``elastic_gym/training/hyperparams/``), one run at a time, into ``--runs``
+   (default ``runs/rl_study/<row>/seed<k>``): each run folder holds its learning curve
+   (``learning_curve.csv``: return and tracking RMS vs policy steps and wall time).
+2. Evaluation: every policy (deterministic, its final model) and every classical
+   controller on ``EVAL_EPISODES`` fresh episodes (seeds ``EVAL_SEED`` ...: never a
+   training or learning-curve episode) of the comparison's tracking task (the
+   ``default`` preset of ``elastic-gym compare``: 2 moves of 0.8 s, 0.5 s dwell, 3 s
+   episodes), on the nominal plant and on links 30 % heavier than the model
+   (``plant_scaling={"link_mass": 1.3}``); the classical controllers run through the same
+   policy stack (a residual action kind with a zero action is its base controller).
+   Tracking RMS as the comparison's ``track_rms``: sqrt(mean |q - q_d|^2), norm over the
+   joints, at the policy rate (100 Hz).
+3. Report, into ``--out`` (default ``docs/rl_study/``): ``table.md`` / ``table.csv`` (per
+   row: mean over training seeds of the RMS over the evaluation episodes, and the range
+   over training seeds), ``evaluations.csv`` (every run x plant x episode),
+   ``curves.csv`` (every learning-curve row of every run) and ``learning_curves.png``
+   (mean and min-max over training seeds).
+
+The log has one line per finished step with its wall time. Training runs use
+single-threaded torch; ``batches`` in the hyper-parameters decides how many processes a
+run uses.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from gymnasium.vector import AutoresetMode
+
+from elastic_gym.training import TrainConfig, load_run, train
+from elastic_gym.training.evaluation import Evaluation, evaluate_arms
+from elastic_gym.training.learning_curve import CURVE_FILE
+from elastic_gym.training.policy_env import make_policy_vec_env
+from elastic_gym.training.train import FINISHED, evaluate_run
+
+TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
+KR15 = "elastic_gym/KR15Elastic-v0"
+TASK = {"task": "tracking", "task_options": {"n_moves": 2, "move_time": 0.8, "dwell_time": 0.5}}
+PLANTS = {"nominal": {}, "mass+30%": {"plant_scaling": {"link_mass": 1.3}}}
+EVAL_EPISODES = 10
+EVAL_SEED = 100_000
+EQ13 = "feedforward-state-feedback"
+RESIDUAL = {"kind": "residual", "residual": EQ13}
+
+
+@dataclass(frozen=True)
+class Row:
+    """One policy configuration of the table, trained with ``len(seeds)`` seeds."""
+
+    key: str
+    label: str
+    state: str
+    seeds: tuple[int, ...]
+    algo: str = "ppo"
+    env_id: str = TWO_LINK
+    action: dict = field(default_factory=dict)
+    frame_stack: int = 1
+    eval_task: dict = field(default_factory=lambda: TASK)
+
+    def config(self, seed: int, runs: Path) -> TrainConfig:
+        return TrainConfig(env_id=self.env_id, algo=self.algo, state=self.state, seed=seed,
+                           out_dir=str(runs / self.key / f"seed{seed}"), action=self.action,
+                           frame_stack=self.frame_stack, eval_freq=20_000, eval_episodes=5)
+
+
+ROWS = (
+    Row("pure-true", "pure RL", "true", (0, 1, 2)),
+    Row("pure-deluca", "pure RL", "deluca", (0, 1, 2)),
+    Row("pure-ekf", "pure RL", "ekf", (0,)),
+    Row("pure-sensors-stack", "pure RL, 4 stacked frames", "sensors", (0,), frame_stack=4),
+    Row("pure-sensors-lstm", "pure RL, RecurrentPPO (LSTM)", "sensors", (0,),
+        algo="recurrentppo"),
+    Row("residual-true", "residual on eq. (13)", "true", (0, 1, 2), action=RESIDUAL),
+    Row("residual-deluca", "residual on eq. (13)", "deluca", (0, 1, 2), action=RESIDUAL),
+    Row("residual-ekf", "residual on eq. (13)", "ekf", (0,), action=RESIDUAL),
+    Row("kr15-pure-true", "pure RL", "true", (0,), env_id=KR15, eval_task={}),
+)
+
+CLASSICAL = (  # (controller, label, state sources)
+    (EQ13, "eq. (13)", ("true", "deluca", "ekf")),
+    ("integral-state-feedback", "eq. (13) + integral action", ("true", "deluca", "ekf")),
+    ("motor-pd", "motor PD", ("true", "deluca", "ekf")),
+)
+KR15_CLASSICAL = ((EQ13, "eq. (13)", ("true",)),)
+
+
+def log(message: str, start: float) -> None:
+    print(f"[{time.perf_counter() - start:7.0f} s] {message}", flush=True)
+
+
+# ---------------------------------------------------------------- training
+def train_all(rows, runs: Path, start: float) -> None:
+    for row in rows:
+        for seed in row.seeds:
+            config = row.config(seed, runs)
+            if (Path(config.out_dir) / FINISHED).exists():
+                continue
+            result = train(config, progress_bar=False, overwrite=True)
+            log(f"trained {row.key} seed {seed}: {result.policy_steps} policy steps in "
+                f"{result.wall_time:.0f} s, eval tracking RMS {result.eval_tracking_rms:.2e}",
+                start)
+
+
+# ---------------------------------------------------------------- evaluation
+def classical_evaluation(env_id: str, controller: str, source: str, env_kwargs: dict
+                         ) -> Evaluation:
+    """A classical controller on the evaluation episodes, through the policy stack: a
+    residual on it whose action is zero applies exactly its torque."""
+    envs = make_policy_vec_env(env_id, EVAL_EPISODES, source, env_kwargs, decimation=10,
+                               action={"kind": "residual", "residual": controller},
+                               autoreset_mode=AutoresetMode.NEXT_STEP)
+    try:
+        return evaluate_arms(envs, lambda obs: np.zeros((len(obs), envs.n)), EVAL_SEED)
+    finally:
+        envs.close()
+
+
+def zero_action_evaluation(env_id: str, env_kwargs: dict) -> Evaluation:
+    """The motor-offset PD with a zero action: where a pure-RL policy starts."""
+    envs = make_policy_vec_env(env_id, EVAL_EPISODES, "true", env_kwargs, decimation=10,
+                               action={"kind": "motor-offset"},
+                               autoreset_mode=AutoresetMode.NEXT_STEP)
+    try:
+        return evaluate_arms(envs, lambda obs: np.zeros((len(obs), envs.n)), EVAL_SEED)
+    finally:
+        envs.close()
+
+
+EVAL_COLUMNS = ("row", "label", "env", "state", "algo", "seed", "plant", "episode_seed",
+                "tracking_rms", "return", "saturated", "policy_steps", "wall_time")
+
+
+def evaluate_all(rows, runs: Path, out: Path, start: float) -> list[dict]:
+    """Every run and classical controller x plant x episode -> evaluations.csv (cached)."""
+    path = out / "evaluations.csv"
+    done = {}
+    if path.exists():
+        with open(path) as handle:
+            for record in csv.DictReader(handle):
+                done.setdefault((record["row"], record["seed"], record["plant"]), []).append(record)
+    records = [r for group in done.values() for r in group]
+
+    def add(key, label, env_id, state, algo, seed, plant, evaluation, steps="", wall=""):
+        for episode, rms, ret, sat in zip(evaluation.seeds, evaluation.tracking_rms,
+                                          evaluation.returns, evaluation.saturated_actions,
+                                          strict=True):
+            records.append(dict(row=key, label=label, env=env_id.split("/")[-1], state=state,
+                                algo=algo, seed=seed, plant=plant, episode_seed=episode,
+                                tracking_rms=rms, **{"return": ret}, saturated=sat,
+                                policy_steps=steps, wall_time=wall))
+
+    def missing(key, seed, plant) -> bool:
+        return (key, str(seed), plant) not in done
+
+    for env_id, table in ((TWO_LINK, CLASSICAL), (KR15, KR15_CLASSICAL)):
+        if not any(row.env_id == env_id for row in rows):
+            continue
+        task = TASK if env_id == TWO_LINK else {}
+        for controller, label, sources in table:
+            for source in sources:
+                key = f"{controller}-{source}" + ("-kr15" if env_id == KR15 else "")
+                for plant, kwargs in PLANTS.items():
+                    if missing(key, "", plant):
+                        add(key, label, env_id, source, "", "", plant,
+                            classical_evaluation(env_id, controller, source, {**task, **kwargs}))
+                        log(f"evaluated {key} on {plant}", start)
+        key = "zero-offset" + ("-kr15" if env_id == KR15 else "")
+        for plant, kwargs in PLANTS.items():
+            if missing(key, "", plant):
+                add(key, "motor-offset PD, zero action (pure RL's start)", env_id, "true", "",
+                    "", plant, zero_action_evaluation(env_id, {**task, **kwargs}))
+    for row in rows:
+        for seed in row.seeds:
+            config = row.config(seed, runs)
+            folder = Path(config.out_dir)
+            if not (folder / FINISHED).exists():
+                continue
+            summary = json.loads((folder / FINISHED).read_text())
+            run = None
+            for plant, kwargs in PLANTS.items():
+                if missing(row.key, seed, plant):
+                    run = run or load_run(folder)
+                    evaluation = evaluate_run(run, EVAL_EPISODES, EVAL_SEED,
+                                              {**row.eval_task, **kwargs})
+                    add(row.key, row.label, row.env_id, row.state, row.algo, seed, plant,
+                        evaluation, summary["policy_steps"], summary["wall_time"])
+                    log(f"evaluated {row.key} seed {seed} on {plant}: "
+                        f"{evaluation.rms:.2e}", start)
+    out.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, EVAL_COLUMNS)
+        writer.writeheader()
+        writer.writerows(records)
+    return records
+
+
+# ---------------------------------------------------------------- report
+def _rms(records) -> float:
+    return float(np.sqrt(np.mean([float(r["tracking_rms"]) ** 2 for r in records])))
+
+
+TABLE_COLUMNS = ("env", "policy / controller", "state", "training seeds",
+                 "track RMS nominal [rad]", "range nominal", "track RMS +30 % mass [rad]",
+                 "range +30 % mass", "policy steps", "training time [s]")
+
+
+def table(records: list[dict]) -> list[dict]:
+    """One line per row key: per training seed the RMS over the episodes; the mean over
+    seeds and their range."""
+    order = list(dict.fromkeys(r["row"] for r in records))
+    lines = []
+    for key in order:
+        mine = [r for r in records if r["row"] == key]
+        first = mine[0]
+        seeds = sorted({r["seed"] for r in mine})
+        line = {"env": first["env"], "policy / controller": first["label"]
+                + (f" ({first['algo']})" if first["algo"] not in ("", "ppo") else ""),
+                "state": first["state"], "training seeds": len(seeds) if seeds != [""] else "—"}
+        for plant, suffix in (("nominal", "nominal"), ("mass+30%", "+30 % mass")):
+            per_seed = [_rms([r for r in mine if r["plant"] == plant and r["seed"] == s])
+                        for s in seeds if any(r["plant"] == plant and r["seed"] == s
+                                              for r in mine)]
+            name = "track RMS nominal [rad]" if plant == "nominal" else \
+                "track RMS +30 % mass [rad]"
+            line[name] = f"{np.mean(per_seed):.2e}" if per_seed else ""
+            line[f"range {suffix}"] = (f"{min(per_seed):.1e} – {max(per_seed):.1e}"
+                                       if len(per_seed) > 1 else "")
+        steps = [float(r["policy_steps"]) for r in mine if r["policy_steps"] not in ("", None)]
+        walls = [float(r["wall_time"]) for r in mine if r["wall_time"] not in ("", None)]
+        line["policy steps"] = f"{np.mean(steps):.0f}" if steps else ""
+        line["training time [s]"] = f"{np.mean(walls):.0f}" if walls else ""
+        lines.append(line)
+    return lines
+
+
+def write_table(lines: list[dict], out: Path) -> None:
+    with open(out / "table.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, TABLE_COLUMNS)
+        writer.writeheader()
+        writer.writerows(lines)
+    numeric = {"training seeds", "track RMS nominal [rad]", "range nominal",
+               "track RMS +30 % mass [rad]", "range +30 % mass", "policy steps",
+               "training time [s]"}
+    text = ["| " + " | ".join(TABLE_COLUMNS) + " |",
+            "|" + "|".join("---:" if c in numeric else "---" for c in TABLE_COLUMNS) + "|"]
+    text += ["| " + " | ".join(str(line[c]) for c in TABLE_COLUMNS) + " |" for line in lines]
+    (out / "table.md").write_text("\n".join(text) + "\n")
+
+
+def gather_curves(rows, runs: Path, out: Path) -> list[dict]:
+    records = []
+    for row in rows:
+        for seed in row.seeds:
+            path = Path(row.config(seed, runs).out_dir) / CURVE_FILE
+            if not (path.parent / FINISHED).exists():
+                continue
+            with open(path) as handle:
+                for record in csv.DictReader(handle):
+                    records.append({"row": row.key, "seed": seed, **record})
+    if records:
+        with open(out / "curves.csv", "w", newline="") as handle:
+            writer = csv.DictWriter(handle, list(records[0]))
+            writer.writeheader()
+            writer.writerows(records)
+    return records
+
+
+def plot_curves(records: list[dict], out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharey="row")
+    for key in dict.fromkeys(r["row"] for r in records):
+        mine = [r for r in records if r["row"] == key]
+        seeds = sorted({r["seed"] for r in mine})
+        per_seed = [[r for r in mine if r["seed"] == s] for s in seeds]
+        length = min(len(c) for c in per_seed)
+        steps = np.array([float(r["policy_steps"]) for r in per_seed[0][:length]])
+        wall = np.mean([[float(r["wall_time"]) for r in c[:length]] for c in per_seed], axis=0)
+        label = f"{key} ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})"
+        for row_index, column in enumerate(("tracking_rms", "eval_return")):
+            values = np.array([[float(r[column]) for r in c[:length]] for c in per_seed])
+            for col_index, x in enumerate((steps, wall / 60.0)):
+                ax = axes[row_index, col_index]
+                line, = ax.plot(x, values.mean(axis=0), label=label)
+                if len(seeds) > 1:
+                    ax.fill_between(x, values.min(axis=0), values.max(axis=0), alpha=0.2,
+                                    color=line.get_color())
+    for ax in axes[0]:
+        ax.set_yscale("log")
+    axes[0, 0].set_ylabel("tracking RMS [rad] (5 evaluation episodes)")
+    axes[1, 0].set_ylabel("evaluation return")
+    axes[1, 0].set_xlabel("policy steps")
+    axes[1, 1].set_xlabel("training wall time [min] (mean over seeds; evaluations excluded)")
+    for ax in axes.flat:
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0, 1].legend(fontsize=7, loc="upper right")
+    fig.suptitle("Learning curves: mean and min–max over training seeds")
+    fig.tight_layout()
+    fig.savefig(out / "learning_curves.png", dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", default="runs/rl_study", help="training run folders")
+    parser.add_argument("--out", default="docs/rl_study", help="tables and figures")
+    parser.add_argument("--rows", nargs="+", metavar="KEY", help="only these rows "
+                        f"(default: all: {[row.key for row in ROWS]})")
+    parser.add_argument("--report", action="store_true",
+                        help="no training: evaluate finished runs, write tables and figures")
+    parser.add_argument("--fresh", action="store_true",
+                        help="remove earlier runs and evaluations of the chosen rows first")
+    args = parser.parse_args()
+    rows = [row for row in ROWS if args.rows is None or row.key in args.rows]
+    unknown = set(args.rows or ()) - {row.key for row in ROWS}
+    if unknown:
+        parser.error(f"unknown rows {sorted(unknown)}; valid: {[row.key for row in ROWS]}")
+    runs, out = Path(args.runs), Path(args.out)
+    if args.fresh:
+        for row in rows:
+            shutil.rmtree(runs / row.key, ignore_errors=True)
+        (out / "evaluations.csv").unlink(missing_ok=True)
+    start = time.perf_counter()
+    log(f"RL study: {sum(len(r.seeds) for r in rows)} training runs of {len(rows)} rows "
+        f"into {runs}, report into {out}", start)
+    if not args.report:
+        train_all(rows, runs, start)
+    out.mkdir(parents=True, exist_ok=True)
+    records = evaluate_all(rows, runs, out, start)
+    write_table(table(records), out)
+    curves = gather_curves(rows, runs, out)
+    if curves:
+        plot_curves(curves, out)
+    log(f"wrote {out}/table.md, table.csv, evaluations.csv, curves.csv, "
+        "learning_curves.png", start)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,140 @@
+"""Learning curves of a training run: return and tracking RMS versus policy steps and
+wall time, written to the run folder.
+
+:class:`LearningCurve` (an SB3 callback) evaluates the deterministic policy at the start
+of training, every ``every`` policy steps and at the end, on the same episodes each time
+(the arms of one batch, seeds ``seed``, ``seed + 1``, ...; :func:`evaluate_arms`), with
+the observation normalization of that moment. Each evaluation appends a row to
+``learning_curve.csv``:
+
+====================  ==============================================================
+column                value
+====================  ==============================================================
+``policy_steps``      policy steps taken so far (all arms)
+``env_steps``         control periods simulated so far (policy steps x decimation)
+``wall_time``         seconds of training so far, evaluations excluded
+``eval_return``       mean return of the evaluation episodes (reward of the env)
+``eval_return_std``   their standard deviation
+``tracking_rms``      link tracking RMS over all evaluation episodes (rad)
+``tracking_rms_max``  the worst episode's
+``saturated``         share of policy steps with an action at its bound
+``train_return``      mean return of the last 100 training episodes (exploration
+                      noise included; empty before the first one ends)
+====================  ==============================================================
+
+It also keeps the model of the best mean evaluation return (``best_model.zip``) and
+writes ``evaluations.npz`` (``timesteps``, ``results`` = returns, as SB3's
+``EvalCallback`` does, plus ``tracking_rms`` and ``saturated``, one column per episode).
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from elastic_gym.training.evaluation import Evaluation, evaluate_arms
+
+CURVE_FILE = "learning_curve.csv"
+COLUMNS = ("policy_steps", "env_steps", "wall_time", "eval_return", "eval_return_std",
+           "tracking_rms", "tracking_rms_max", "saturated", "train_return")
+
+
+class PolicyActor:
+    """The deterministic policy of a model on a batch of observations, normalized with
+    a ``VecNormalize``'s statistics; a recurrent policy's memory restarts at
+    :meth:`start`."""
+
+    def __init__(self, model, normalizer=None) -> None:
+        self.model, self.normalizer = model, normalizer
+        self._memory = None
+        self._starting = True
+
+    def start(self) -> None:
+        self._memory, self._starting = None, True
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs, dtype=np.float32)
+        batch = obs if obs.ndim == 2 else obs[None]
+        if self.normalizer is not None and self.normalizer.norm_obs:
+            batch = self.normalizer.normalize_obs(batch)
+        starts = np.full(len(batch), self._starting)
+        action, self._memory = self.model.predict(batch, state=self._memory,
+                                                  episode_start=starts, deterministic=True)
+        self._starting = False
+        action = np.asarray(action, dtype=float)
+        return action if obs.ndim == 2 else action[0]
+
+
+class LearningCurve(BaseCallback):
+    """Evaluations during training -> ``learning_curve.csv``, ``evaluations.npz`` and
+    ``best_model.zip`` in ``out_dir`` (module docstring).
+
+    Args:
+        envs: the evaluation batch (policy vector env, autoreset ``NEXT_STEP``).
+        normalizer: the training ``VecNormalize`` (its current statistics), or None.
+        out_dir: the run folder.
+        every: policy steps between evaluations.
+        seed: seed of the first evaluation arm.
+        decimation: control periods per policy step.
+    """
+
+    def __init__(self, envs, normalizer, out_dir: str | Path, every: int, seed: int,
+                 decimation: int) -> None:
+        super().__init__()
+        if every < 1:
+            raise ValueError(f"evaluation interval must be >= 1 policy step, got {every}")
+        self.envs, self.normalizer = envs, normalizer
+        self.out = Path(out_dir)
+        self.every, self.seed, self.decimation = every, seed, decimation
+        self.evaluations: list[Evaluation] = []
+        self.timesteps: list[int] = []
+        self._next = 0
+        self._evaluating = 0.0
+        self._start = 0.0
+        self._best = -np.inf
+
+    def _on_training_start(self) -> None:
+        self._start = time.perf_counter()
+        with open(self.out / CURVE_FILE, "w", newline="") as handle:
+            csv.writer(handle).writerow(COLUMNS)
+        self._evaluate()
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            self._evaluate()
+        return True
+
+    def _on_training_end(self) -> None:
+        if not self.timesteps or self.timesteps[-1] != self.num_timesteps:
+            self._evaluate()
+
+    def _evaluate(self) -> None:
+        began = time.perf_counter()
+        actor = PolicyActor(self.model, self.normalizer)
+        result = evaluate_arms(self.envs, actor, self.seed, actor.start)
+        self.evaluations.append(result)
+        self.timesteps.append(self.num_timesteps)
+        self._next = (self.num_timesteps // self.every + 1) * self.every
+        if result.mean_return > self._best:
+            self._best = result.mean_return
+            self.model.save(self.out / "best_model.zip")
+        buffer = getattr(self.model, "ep_info_buffer", None) or []
+        train_return = float(np.mean([info["r"] for info in buffer])) if buffer else ""
+        row = (self.num_timesteps, self.num_timesteps * self.decimation,
+               began - self._start - self._evaluating, result.mean_return,
+               float(np.std(result.returns)), result.rms, max(result.tracking_rms),
+               float(np.mean(result.saturated_actions)), train_return)
+        with open(self.out / CURVE_FILE, "a", newline="") as handle:
+            csv.writer(handle).writerow(row)
+        np.savez(self.out / "evaluations.npz", timesteps=np.array(self.timesteps),
+                 results=np.array([e.returns for e in self.evaluations]),
+                 tracking_rms=np.array([e.tracking_rms for e in self.evaluations]),
+                 saturated=np.array([e.saturated_actions for e in self.evaluations]))
+        self._evaluating += time.perf_counter() - began
+        if self.logger is not None:
+            self.logger.record("eval/mean_return", result.mean_return)
+            self.logger.record("eval/tracking_rms", result.rms)
