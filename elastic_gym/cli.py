@@ -147,7 +147,7 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument("--hyperparams", nargs="+", default=[], metavar="KEY=VALUE",
                         help="override hyper-parameters, e.g. learning_rate=1e-4 n_envs=2")
     parser.add_argument("--hyperparams-file", metavar="YAML")
-    parser.add_argument("--eval-freq", type=int, default=5000, help="policy steps between evals")
+    parser.add_argument("--eval-freq", type=int, default=20000, help="policy steps between evals")
     parser.add_argument("--eval-episodes", type=int, default=3)
     parser.add_argument("--backend", choices=BACKENDS, default="process",
                         help="for several seeds: local processes (default) or Ray")

@@ -53,7 +53,7 @@ def test_short_run_saves_reloads_and_acts_the_same(tmp_path, algo, hyperparams):
     assert result.policy_steps >= 128 and result.env_steps == 10 * result.policy_steps
 
     first, second = load_run(result.out_dir), load_run(result.out_dir)
-    env = make_policy_env(config.env_id, "deluca", SHORT_EPISODES, decimation=10)
+    env = env_factory(first.config, first.settings)()  # the run's own observation and actions
     obs, _ = env.reset(seed=0)
     observations = [obs]
     for _ in range(5):
@@ -77,9 +77,15 @@ def test_ppo_learns_to_hold_the_arm_against_gravity(tmp_path):
                    "learning_rate": 3e-3, "gamma": 0.9, "decimation": 10,
                    "policy_kwargs": {"net_arch": [32, 32], "log_std_init": -1.0}}
     config = TrainConfig(algo="ppo", state="true", total_steps=2000, out_dir=str(tmp_path / "r"),
-                         env_kwargs=env_kwargs, hyperparams=hyperparams, eval_freq=10**9,
-                         action={"kind": "motor-offset"})
+                         env_kwargs=env_kwargs, hyperparams=hyperparams, eval_freq=1000,
+                         eval_episodes=2, action={"kind": "motor-offset"})
     train(config, progress_bar=False)
+    curve = np.genfromtxt(Path(config.out_dir) / "learning_curve.csv", delimiter=",",
+                          names=True)
+    assert list(curve["policy_steps"]) == [0, 1000, 2000]
+    # the learning curve shows the learning: return up, tracking error down
+    assert curve["eval_return"][-1] > curve["eval_return"][0]
+    assert curve["tracking_rms"][-1] < 0.3 * curve["tracking_rms"][0]
     trained = evaluate_run(load_run(config.out_dir), n_episodes=2)
     settings, _ = split_settings(config)
     env = env_factory(config, settings)()
@@ -411,8 +417,10 @@ def test_batches_with_their_own_env_kwargs_train_on_two_plants():
     for arm, kwargs in enumerate(({}, heavy)):
         expected = []
         for plant in ({}, heavy):
-            env = make_policy_env(config.env_id, "true", {"episode_time": 0.05, **plant},
-                                  decimation=10, action=config.policy_configs(settings)[0])
+            env = make_policy_env(config.env_id, "true",
+                                  {**config.training_env_kwargs(settings), **plant},
+                                  decimation=10, action=config.policy_configs(settings)[0],
+                                  observation=config.policy_configs(settings)[1])
             env.reset(seed=4 + arm)
             for _ in range(3):
                 single, *_ = env.step(actions[arm])
@@ -424,3 +432,18 @@ def test_batches_with_their_own_env_kwargs_train_on_two_plants():
         assert not np.allclose(obs[arm], other, rtol=0, atol=1e-6)
     with pytest.raises(ValueError, match="batches must be an integer >= 1 or a non-empty list"):
         resolve_hyperparams("ppo", config.env_id, {"batches": [3]})
+
+
+def test_env_kwargs_of_the_file_and_of_the_run():
+    """The hyper-parameter file's ``env_kwargs`` apply unless the run sets the same key;
+    a run that names its own task drops the file's task options (they belong to the
+    file's task)."""
+    settings = {"env_kwargs": {"task_options": {"move_time": 0.8}, "episode_time": 2.0}}
+    own = TrainConfig(env_kwargs={"episode_time": 1.0})
+    assert own.training_env_kwargs(settings) == {"task_options": {"move_time": 0.8},
+                                                 "episode_time": 1.0}
+    regulation = TrainConfig(env_kwargs={"task": "regulation"})
+    assert regulation.training_env_kwargs(settings) == {"episode_time": 2.0,
+                                                        "task": "regulation"}
+    with pytest.raises(ValueError, match="env_kwargs must be a mapping"):
+        resolve_hyperparams("ppo", own.env_id, {"env_kwargs": "fast"})

@@ -237,7 +237,7 @@ class TrainConfig:
     observer_options: dict = field(default_factory=dict)
     hyperparams: dict = field(default_factory=dict)
     hyperparams_file: str | None = None
-    eval_freq: int = 5000
+    eval_freq: int = 20000
     eval_episodes: int = 3
 
     def __post_init__(self) -> None:
