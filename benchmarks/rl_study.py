@@ -54,16 +54,21 @@ from elastic_gym.training.train import FINISHED, evaluate_run
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 KR15 = "elastic_gym/KR15Elastic-v0"
 TASK = {"task": "tracking", "task_options": {"n_moves": 2, "move_time": 0.8, "dwell_time": 0.5}}
-PLANTS = {"nominal": {}, "mass+30%": {"plant_scaling": {"link_mass": 1.3}}}
+PLANTS = {"nominal": {"plant_scaling": {"link_mass": 1.0}},  # explicit: overrides a run's own
+          "mass+30%": {"plant_scaling": {"link_mass": 1.3}}}
 EVAL_EPISODES = 10
 EVAL_SEED = 100_000
 EQ13 = "feedforward-state-feedback"
 RESIDUAL = {"kind": "residual", "residual": EQ13}
 
 
+STEPS = 150_000  # policy steps per study run (the shipped default is 200 k; see the README)
+
+
 @dataclass(frozen=True)
 class Row:
-    """One policy configuration of the table, trained with ``len(seeds)`` seeds."""
+    """One policy configuration of the table, trained with ``len(seeds)`` seeds for
+    ``steps`` policy steps on ``train_env`` (env kwargs, e.g. a heavier plant)."""
 
     key: str
     label: str
@@ -73,25 +78,32 @@ class Row:
     env_id: str = TWO_LINK
     action: dict = field(default_factory=dict)
     frame_stack: int = 1
+    train_env: dict = field(default_factory=dict)
+    steps: int = STEPS
+    hyperparams: dict = field(default_factory=dict)
     eval_task: dict = field(default_factory=lambda: TASK)
+    plants: tuple[str, ...] = tuple(PLANTS)
 
     def config(self, seed: int, runs: Path) -> TrainConfig:
         return TrainConfig(env_id=self.env_id, algo=self.algo, state=self.state, seed=seed,
                            out_dir=str(runs / self.key / f"seed{seed}"), action=self.action,
-                           frame_stack=self.frame_stack, eval_freq=20_000, eval_episodes=5)
+                           frame_stack=self.frame_stack, env_kwargs=self.train_env,
+                           total_steps=self.steps, hyperparams=self.hyperparams,
+                           eval_freq=max(self.steps // 10, 1), eval_episodes=5)
 
 
+HEAVY = PLANTS["mass+30%"]
 ROWS = (
-    Row("pure-true", "pure RL", "true", (0, 1, 2)),
-    Row("pure-deluca", "pure RL", "deluca", (0, 1, 2)),
-    Row("pure-ekf", "pure RL", "ekf", (0,)),
-    Row("pure-sensors-stack", "pure RL, 4 stacked frames", "sensors", (0,), frame_stack=4),
-    Row("pure-sensors-lstm", "pure RL, RecurrentPPO (LSTM)", "sensors", (0,),
-        algo="recurrentppo"),
-    Row("residual-true", "residual on eq. (13)", "true", (0, 1, 2), action=RESIDUAL),
-    Row("residual-deluca", "residual on eq. (13)", "deluca", (0, 1, 2), action=RESIDUAL),
-    Row("residual-ekf", "residual on eq. (13)", "ekf", (0,), action=RESIDUAL),
-    Row("kr15-pure-true", "pure RL", "true", (0,), env_id=KR15, eval_task={}),
+    Row("pure-true", "pure RL (motor offsets)", "true", (0, 1, 2)),
+    Row("pure-deluca", "pure RL (motor offsets)", "deluca", (0, 1, 2)),
+    Row("pure-ekf", "pure RL (motor offsets)", "ekf", (0,)),
+    Row("pure-sensors", "pure RL (motor offsets), 4 stacked frames", "sensors", (0,),
+        frame_stack=4),
+    Row("residual-deluca", "residual on eq. (13)", "deluca", (0,), action=RESIDUAL),
+    Row("residual-deluca-heavy", "residual on eq. (13), trained on +30 % mass", "deluca",
+        (0,), action=RESIDUAL, train_env=HEAVY),
+    Row("kr15-residual-deluca", "residual on eq. (13)", "deluca", (0,), env_id=KR15,
+        action=RESIDUAL, eval_task={}, plants=("nominal",)),
 )
 
 CLASSICAL = (  # (controller, label, state sources)
@@ -99,7 +111,7 @@ CLASSICAL = (  # (controller, label, state sources)
     ("integral-state-feedback", "eq. (13) + integral action", ("true", "deluca", "ekf")),
     ("motor-pd", "motor PD", ("true", "deluca", "ekf")),
 )
-KR15_CLASSICAL = ((EQ13, "eq. (13)", ("true",)),)
+KR15_CLASSICAL = ((EQ13, "eq. (13)", ("deluca",)),)
 
 
 def log(message: str, start: float) -> None:
@@ -108,15 +120,18 @@ def log(message: str, start: float) -> None:
 
 # ---------------------------------------------------------------- training
 def train_all(rows, runs: Path, start: float) -> None:
-    for row in rows:
-        for seed in row.seeds:
-            config = row.config(seed, runs)
-            if (Path(config.out_dir) / FINISHED).exists():
-                continue
-            result = train(config, progress_bar=False, overwrite=True)
-            log(f"trained {row.key} seed {seed}: {result.policy_steps} policy steps in "
-                f"{result.wall_time:.0f} s, eval tracking RMS {result.eval_tracking_rms:.2e}",
-                start)
+    """Every row's first seed, then every row's second seed, ...: an interrupted study
+    still has every row."""
+    order = sorted(((index, row, seed) for row in rows
+                    for index, seed in enumerate(row.seeds)), key=lambda item: item[0])
+    for _, row, seed in order:
+        config = row.config(seed, runs)
+        if (Path(config.out_dir) / FINISHED).exists():
+            continue
+        result = train(config, progress_bar=False, overwrite=True)
+        log(f"trained {row.key} seed {seed}: {result.policy_steps} policy steps in "
+            f"{result.wall_time:.0f} s, eval tracking RMS {result.eval_tracking_rms:.2e}",
+            start)
 
 
 # ---------------------------------------------------------------- evaluation
@@ -174,16 +189,18 @@ def evaluate_all(rows, runs: Path, out: Path, start: float) -> list[dict]:
         if not any(row.env_id == env_id for row in rows):
             continue
         task = TASK if env_id == TWO_LINK else {}
+        plants = {name: PLANTS[name] for row in rows if row.env_id == env_id
+                  for name in row.plants}
         for controller, label, sources in table:
             for source in sources:
                 key = f"{controller}-{source}" + ("-kr15" if env_id == KR15 else "")
-                for plant, kwargs in PLANTS.items():
+                for plant, kwargs in plants.items():
                     if missing(key, "", plant):
                         add(key, label, env_id, source, "", "", plant,
                             classical_evaluation(env_id, controller, source, {**task, **kwargs}))
                         log(f"evaluated {key} on {plant}", start)
         key = "zero-offset" + ("-kr15" if env_id == KR15 else "")
-        for plant, kwargs in PLANTS.items():
+        for plant, kwargs in plants.items():
             if missing(key, "", plant):
                 add(key, "motor-offset PD, zero action (pure RL's start)", env_id, "true", "",
                     "", plant, zero_action_evaluation(env_id, {**task, **kwargs}))
@@ -195,7 +212,8 @@ def evaluate_all(rows, runs: Path, out: Path, start: float) -> list[dict]:
                 continue
             summary = json.loads((folder / FINISHED).read_text())
             run = None
-            for plant, kwargs in PLANTS.items():
+            for plant in row.plants:
+                kwargs = PLANTS[plant]
                 if missing(row.key, seed, plant):
                     run = run or load_run(folder)
                     evaluation = evaluate_run(run, EVAL_EPISODES, EVAL_SEED,
@@ -263,6 +281,56 @@ def write_table(lines: list[dict], out: Path) -> None:
             "|" + "|".join("---:" if c in numeric else "---" for c in TABLE_COLUMNS) + "|"]
     text += ["| " + " | ".join(str(line[c]) for c in TABLE_COLUMNS) + " |" for line in lines]
     (out / "table.md").write_text("\n".join(text) + "\n")
+
+
+def _row_rms(records, key: str, plant: str) -> float:
+    """A row's RMS on a plant: the mean over its training seeds of each seed's RMS over
+    the evaluation episodes (NaN when the row was not evaluated)."""
+    mine = [r for r in records if r["row"] == key and r["plant"] == plant]
+    seeds = sorted({r["seed"] for r in mine})
+    if not seeds:
+        return float("nan")
+    return float(np.mean([_rms([r for r in mine if r["seed"] == s]) for s in seeds]))
+
+
+def targets(records: list[dict]) -> list[dict]:
+    """The targets of the study, each with the measured value, its bound and the verdict
+    (``measured / bound``: met when <= 1)."""
+    def rms(key, plant="nominal"):
+        return _row_rms(records, key, plant)
+
+    checks = [
+        ("pure RL, true state, nominal", rms("pure-true"), 1e-3, "1e-3 rad"),
+        ("pure RL, De Luca estimate, nominal", rms("pure-deluca"), 1.5 * rms("pure-true"),
+         "1.5 x pure RL on the true state"),
+        ("pure RL, raw sensors, nominal", rms("pure-sensors"), 3 * rms("pure-true"),
+         "3 x pure RL on the true state"),
+        ("residual on eq. (13), De Luca, nominal", rms("residual-deluca"),
+         1.2 * rms(f"{EQ13}-deluca"), "1.2 x eq. (13) on De Luca"),
+        ("residual on eq. (13), De Luca, +30 % mass (trained there)",
+         rms("residual-deluca-heavy", "mass+30%"),
+         min(0.5 * rms(f"{EQ13}-deluca", "mass+30%"), 4e-3),
+         "min(0.5 x eq. (13) on De Luca, 4e-3 rad)"),
+        ("residual on eq. (13), De Luca, +30 % mass (trained there), vs integral action",
+         rms("residual-deluca-heavy", "mass+30%"),
+         rms("integral-state-feedback-deluca", "mass+30%"),
+         "eq. (13) + integral action on De Luca"),
+    ]
+    lines = []
+    for name, value, bound, rule in checks:
+        ratio = value / bound
+        verdict = "—" if not np.isfinite(ratio) else ("met" if ratio <= 1 else "missed")
+        lines.append({"target": name, "measured [rad]": f"{value:.2e}",
+                      "bound": f"{bound:.2e} ({rule})", "measured / bound": f"{ratio:.2f}",
+                      "verdict": verdict})
+    return lines
+
+
+def write_targets(lines: list[dict], out: Path) -> None:
+    columns = list(lines[0])
+    text = ["| " + " | ".join(columns) + " |", "|" + "|".join("---" for _ in columns) + "|"]
+    text += ["| " + " | ".join(line[c] for c in columns) + " |" for line in lines]
+    (out / "targets.md").write_text("\n".join(text) + "\n")
 
 
 def gather_curves(rows, runs: Path, out: Path) -> list[dict]:
@@ -349,10 +417,11 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     records = evaluate_all(rows, runs, out, start)
     write_table(table(records), out)
+    write_targets(targets(records), out)
     curves = gather_curves(rows, runs, out)
     if curves:
         plot_curves(curves, out)
-    log(f"wrote {out}/table.md, table.csv, evaluations.csv, curves.csv, "
+    log(f"wrote {out}/table.md, table.csv, targets.md, evaluations.csv, curves.csv, "
         "learning_curves.png", start)
 
 
