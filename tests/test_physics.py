@@ -175,3 +175,30 @@ def test_natural_frequencies_and_static_equilibrium():
     x = np.concatenate([model.static_motor_position(q), q, np.zeros(2), np.zeros(2)])
     ddtheta, ddq = model.elastic_accelerations(x, model.K * (x[:2] - q))
     assert np.allclose(ddq, 0.0, atol=1e-10) and np.allclose(ddtheta, 0.0, atol=1e-10)
+
+
+def test_unmodelled_friction_acts_on_the_simulated_plant_only():
+    """``unmodelled_friction`` (fractions of the torque limit): the plant's link equation
+    has d(q') = tau_max (v q' + c tanh(q' / 0.01)), PyBullet's q'' follows it, and the
+    nominal model (what observers and controllers use) knows nothing of it."""
+    env = gym.make("elastic_gym/TwoLinkElastic-v0",
+                   unmodelled_friction={"coulomb": 0.05, "viscous": [0.01, 0.02]})
+    u = env.unwrapped
+    plant, model, limit = u.plant_model, u.model, u.torque_limit
+    assert model.friction is None
+    q, dq = np.array([0.3, -0.5]), np.array([0.5, -0.3])
+    theta, dtheta = q + 0.01, dq
+    np.testing.assert_allclose(
+        plant.link_friction(dq),
+        limit * (np.array([0.01, 0.02]) * dq + 0.05 * np.tanh(dq / 0.01)), rtol=1e-12)
+    tau = 0.02 * limit
+    x = np.concatenate([theta, q, dtheta, dq])
+    expected = plant.elastic_accelerations(x, tau)[1]
+    frictionless = model.elastic_accelerations(x, tau)[1]
+    arm = np.arange(1)
+    u.sim.reset_state(arm, q[None], dq[None], theta[None], dtheta[None])
+    u.sim.step(tau[None], 1)
+    measured = (u.sim.dq[0] - dq) / u.physics_dt
+    assert np.abs(measured - expected).max() < 1e-6 * np.abs(expected).max()
+    assert np.abs(expected - frictionless).min() > 1.0  # rad/s^2: the friction is felt
+    env.close()

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
@@ -56,7 +57,7 @@ from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.envs.tasks import make_task
 from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
-from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
+from elastic_gym.robots.spec import AccelerometerMount, LinkFriction, RobotSpec
 from elastic_gym.robots.urdf_tools import joint_limits
 from elastic_gym.validation import per_joint_values
 
@@ -144,6 +145,10 @@ class ArmBatch:
             the robot's default sensor placement.
         plant_scaling: parameter changes of the *simulated* robot relative to the nominal
             model (``ParameterScaling`` fields, e.g. ``{"link_mass": 1.3}``).
+        unmodelled_friction: link-side joint friction of the *simulated* robot that no
+            model knows, ``{"coulomb": c, "viscous": v}`` (scalars or per joint) in
+            fractions of each joint's motor torque limit:
+            d(q') = tau_max (v q' + c tanh(q' / 0.01 rad/s)), added to the robot's own.
         torque_limit: override of the motor torque limits (N m).
         reward: weights and scales of the reward, see
             :class:`~elastic_gym.envs.reward.RewardConfig` (also the termination reward).
@@ -156,8 +161,8 @@ class ArmBatch:
 
     KWARGS: ClassVar[tuple[str, ...]] = (
         "task", "task_options", "physics_dt", "control_dt", "encoder", "accelerometer",
-        "accelerometers", "plant_scaling", "torque_limit", "reward", "max_velocity",
-        "sensor_delay", "episode_time",
+        "accelerometers", "plant_scaling", "unmodelled_friction", "torque_limit", "reward",
+        "max_velocity", "sensor_delay", "episode_time",
     )
 
     def __init__(
@@ -172,6 +177,7 @@ class ArmBatch:
         accelerometer: dict | AccelerometerConfig | str | None = None,
         accelerometers: list | None = None,
         plant_scaling: dict | ParameterScaling | None = None,
+        unmodelled_friction: dict | None = None,
         torque_limit: list | float | None = None,
         reward: dict | RewardConfig | None = None,
         max_velocity: float = 100.0,
@@ -191,10 +197,11 @@ class ArmBatch:
             AccelerometerMount.from_config(m) for m in accelerometers
         )
         self._check_scaling(plant_scaling)
-        self.model = RobotModel(spec, accelerometers=mounts)
-        self.plant_model = RobotModel(spec, plant_scaling, mounts)
-        self._check_stability()
         self.torque_limit = self._torque_limit(torque_limit)
+        self.model = RobotModel(spec, accelerometers=mounts)
+        self.plant_model = RobotModel(spec, plant_scaling, mounts,
+                                      self._unmodelled_friction(unmodelled_friction))
+        self._check_stability()
         self.max_velocity = _positive_number(max_velocity, "max_velocity")
         self.sensor_delay = self._sensor_delay(sensor_delay)
         episode = _positive_number(episode_time, "episode_time", allow_none=True)
@@ -302,6 +309,25 @@ class ArmBatch:
                 f"physics_dt={self.physics_dt} too coarse for the stiffest joint mode "
                 f"({omega:.0f} rad/s): need physics_dt * omega <= {STABILITY_LIMIT}"
             )
+
+    def _unmodelled_friction(self, config) -> LinkFriction | None:
+        """The ``unmodelled_friction`` kwarg as a :class:`LinkFriction` in N m."""
+        if config is None:
+            return None
+        if not isinstance(config, Mapping) or set(config) - {"coulomb", "viscous"}:
+            raise ValueError("unmodelled_friction must be a mapping with 'coulomb' and/or "
+                             f"'viscous' (fractions of the torque limit), got {config!r}")
+        n, limit = self.n_joints, self.torque_limit
+        coulomb = per_joint_values(config.get("coulomb", 0.0), n,
+                                   "unmodelled_friction.coulomb", 0.0)
+        viscous = per_joint_values(config.get("viscous", 0.0), n,
+                                   "unmodelled_friction.viscous", 0.0)
+        if np.any(coulomb >= 1.0) or np.any(viscous > 1.0):
+            raise ValueError("unmodelled_friction: coulomb must stay below 1 (the motor could "
+                             "not move the joint) and viscous at most 1 s/rad, got "
+                             f"{config!r}")
+        return LinkFriction(viscous=tuple((limit * viscous).tolist()),
+                            coulomb_pos=tuple((limit * coulomb).tolist()))
 
     def _torque_limit(self, torque_limit) -> np.ndarray:
         if torque_limit is None:

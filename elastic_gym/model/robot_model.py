@@ -93,7 +93,9 @@ class RobotModel:
     """Pinocchio model of a :class:`RobotSpec` with its elastic transmission.
 
     All arrays are float64. Methods are not thread-safe (one pinocchio ``Data``
-    per instance); use :meth:`copy` to give each user its own.
+    per instance); use :meth:`copy` to give each user its own. ``added_friction``: link
+    friction beyond the spec's (a simulated plant's unmodelled friction), added to the
+    spec's friction after ``scaling``.
     """
 
     def __init__(
@@ -101,6 +103,7 @@ class RobotModel:
         spec: RobotSpec,
         scaling: ParameterScaling | dict | None = None,
         accelerometers: tuple[AccelerometerMount, ...] | None = None,
+        added_friction: LinkFriction | None = None,
     ) -> None:
         self.spec = spec
         self.scaling = ParameterScaling.from_config(scaling)
@@ -128,9 +131,8 @@ class RobotModel:
         )
         self.has_coupling = bool(np.any(self.S != 0.0))
         self.B_inv = np.where(self.B > 0.0, 1.0 / np.where(self.B > 0.0, self.B, 1.0), 0.0)
-        self.friction: LinkFriction | None = (
-            spec.friction.scaled(self.scaling.friction) if spec.friction is not None else None
-        )
+        own = spec.friction.scaled(self.scaling.friction) if spec.friction is not None else None
+        self.friction: LinkFriction | None = own.plus(added_friction) if own else added_friction
         self.torque_limit = np.asarray(spec.torque_limit, dtype=float)
         self.gravity_vector = np.asarray(spec.gravity, dtype=float)
 

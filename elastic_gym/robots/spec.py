@@ -106,6 +106,27 @@ class LinkFriction:
             d = d + np.where(s > 0.0, self._pos, self._neg) * (1.0 - s**2) / eps
         return d
 
+    def plus(self, other: LinkFriction | None) -> LinkFriction:
+        """The sum of two frictions (this one's smoothing velocity)."""
+        if other is None:
+            return self
+
+        def _add(a: tuple[float, ...] | None, b: tuple[float, ...] | None):
+            if a is None and b is None:
+                return None
+            return tuple((np.zeros(len(self.viscous)) + (0.0 if a is None else np.asarray(a))
+                          + (0.0 if b is None else np.asarray(b))).tolist())
+
+        return LinkFriction(
+            viscous=_add(self.viscous, other.viscous),  # type: ignore[arg-type]
+            coulomb_pos=_add(self.coulomb_pos, other.coulomb_pos),
+            coulomb_neg=_add(self._neg_tuple(), other._neg_tuple()),
+            smoothing_velocity=self.smoothing_velocity,
+        )
+
+    def _neg_tuple(self) -> tuple[float, ...] | None:
+        return self.coulomb_neg if self.coulomb_neg is not None else self.coulomb_pos
+
     def scaled(self, factor: float) -> LinkFriction:
         def _scale(values: tuple[float, ...] | None) -> tuple[float, ...] | None:
             return None if values is None else tuple(factor * v for v in values)
