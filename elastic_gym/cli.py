@@ -66,6 +66,8 @@ def run_compare(args: argparse.Namespace) -> int:
         scenario = scenario.quick()
     scenario = scenario.with_overrides(seeds=args.seeds, duration=args.duration,
                                        physics_dt=args.physics_dt)
+    if args.policy:
+        require_rl_extra("compare --policy")
     for run in args.policy:
         scenario = with_trained_policy(scenario, run)
     compare(
@@ -182,10 +184,23 @@ def _action_fields(args: argparse.Namespace) -> dict:
     return fields
 
 
+def require_rl_extra(command: str) -> None:
+    """Refuse an RL command clearly where stable-baselines3 / torch are not installed
+    (``pip install .`` leaves them out; they come with the ``rl`` extra)."""
+    try:
+        import stable_baselines3  # noqa: F401
+        import torch  # noqa: F401
+    except ImportError as exc:
+        raise RuntimeError(f"{command} needs the 'rl' extra ({exc}): pip install "
+                           "'elastic-gym[rl]' (CPU torch first: pip install torch --index-url "
+                           "https://download.pytorch.org/whl/cpu)") from None
+
+
 def run_train(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
+    require_rl_extra("elastic-gym train")
     from elastic_gym.training import TrainConfig, parse_overrides, train, train_many
     from elastic_gym.training.train import check_run_folder
 

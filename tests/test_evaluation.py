@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import math
 import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -322,6 +324,38 @@ def test_cli_default_preset_short_run(tmp_path, capsys):
     with (tmp_path / "runs.csv").open() as handle:
         rows = list(csv.DictReader(handle))
     assert len(rows) == len(runs) and {row["status"] for row in rows} == {"ok"}
+
+
+def test_compare_works_without_the_rl_extra(tmp_path):
+    """`pip install .` (the README's main command) has no stable-baselines3 or torch (the
+    `rl` extra): the CLI and a comparison must not need them."""
+    scenario = tmp_path / "small.yaml"
+    scenario.write_text(yaml.safe_dump({
+        "name": "small", "duration": 0.05, "seeds": [0], "envs": ["TwoLinkElastic-v0"],
+        "controllers": ["feedforward-state-feedback"], "state_sources": ["deluca"]}))
+    blocked = ("stable_baselines3", "sb3_contrib", "torch")
+    code = (  # an import of a blocked package fails as if it were not installed
+        "import importlib.abc, sys\n"
+        "class NotInstalled(importlib.abc.MetaPathFinder):\n"
+        "    def find_spec(self, name, path, target=None):\n"
+        f"        if name.partition('.')[0] in {blocked!r}:\n"
+        "            raise ModuleNotFoundError(f'No module named {name!r}')\n"
+        "sys.meta_path.insert(0, NotInstalled())\n"
+        "from elastic_gym.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))\n")
+
+    def cli(*argv: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-c", code, *argv], capture_output=True,
+                              text=True, timeout=300)
+
+    result = cli("compare", "--config", str(scenario), "--output", str(tmp_path / "out"),
+                 "--no-progress", "--no-plots", "--workers", "1")
+    assert result.returncode == 0, result.stderr[-2000:]
+    with (tmp_path / "out" / "runs.csv").open() as handle:
+        assert [row["status"] for row in csv.DictReader(handle)] == ["ok"]
+    result = cli("train", "--steps", "10", "--out", str(tmp_path / "run"))  # RL: said clearly
+    assert result.returncode == 1 and "needs the 'rl' extra" in result.stderr, result.stderr
+    assert not (tmp_path / "run").exists()
 
 
 def test_cli_errors_name_the_field(tmp_path, capsys):

@@ -9,6 +9,7 @@ The tracking RMS of an episode is the comparison's (``elastic-gym compare``'s
 the link error e = q - q_d of the true state, whatever state the policy sees, sampled at
 the policy steps (the end of each hold window: 100 Hz at the shipped decimation; on
 trained TwoLinkElastic policies the 1 kHz samples give the same value to 3 digits).
+:class:`PolicyActor` is the act of a trained SB3 model (duck-typed: no SB3 import here).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 Act = Callable[[np.ndarray], np.ndarray]
+CURVE_FILE = "learning_curve.csv"  # the learning curve of a run folder
 
 
 @dataclass(frozen=True)
@@ -104,3 +106,29 @@ def evaluate_arms(envs, act: Act, seed: int,
     return Evaluation(tuple(int(seed) + i for i in range(n_arms)), tuple(returns.tolist()),
                       tuple(np.sqrt(squared / samples).tolist()),
                       tuple((at_bound / samples).tolist()))
+
+
+class PolicyActor:
+    """The deterministic policy of a model on a batch of observations, normalized with
+    a ``VecNormalize``'s statistics; a recurrent policy's memory restarts at
+    :meth:`start`."""
+
+    def __init__(self, model, normalizer=None) -> None:
+        self.model, self.normalizer = model, normalizer
+        self._memory = None
+        self._starting = True
+
+    def start(self) -> None:
+        self._memory, self._starting = None, True
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs, dtype=np.float32)
+        batch = obs if obs.ndim == 2 else obs[None]
+        if self.normalizer is not None and self.normalizer.norm_obs:
+            batch = self.normalizer.normalize_obs(batch)
+        starts = np.full(len(batch), self._starting)
+        action, self._memory = self.model.predict(batch, state=self._memory,
+                                                  episode_start=starts, deterministic=True)
+        self._starting = False
+        action = np.asarray(action, dtype=float)
+        return action if obs.ndim == 2 else action[0]

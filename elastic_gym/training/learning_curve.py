@@ -36,37 +36,10 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from elastic_gym.training.evaluation import Evaluation, evaluate_arms
+from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
 
-CURVE_FILE = "learning_curve.csv"
 COLUMNS = ("policy_steps", "env_steps", "wall_time", "eval_return", "eval_return_std",
            "tracking_rms", "tracking_rms_max", "saturated", "train_return")
-
-
-class PolicyActor:
-    """The deterministic policy of a model on a batch of observations, normalized with
-    a ``VecNormalize``'s statistics; a recurrent policy's memory restarts at
-    :meth:`start`."""
-
-    def __init__(self, model, normalizer=None) -> None:
-        self.model, self.normalizer = model, normalizer
-        self._memory = None
-        self._starting = True
-
-    def start(self) -> None:
-        self._memory, self._starting = None, True
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        obs = np.asarray(obs, dtype=np.float32)
-        batch = obs if obs.ndim == 2 else obs[None]
-        if self.normalizer is not None and self.normalizer.norm_obs:
-            batch = self.normalizer.normalize_obs(batch)
-        starts = np.full(len(batch), self._starting)
-        action, self._memory = self.model.predict(batch, state=self._memory,
-                                                  episode_start=starts, deterministic=True)
-        self._starting = False
-        action = np.asarray(action, dtype=float)
-        return action if obs.ndim == 2 else action[0]
 
 
 class LearningCurve(BaseCallback):

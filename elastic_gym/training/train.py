@@ -49,8 +49,7 @@ from elastic_gym.training.config import (
     merged_hyperparams,
     resolve_hyperparams,
 )
-from elastic_gym.training.evaluation import Evaluation, evaluate_arms
-from elastic_gym.training.learning_curve import CURVE_FILE, LearningCurve, PolicyActor
+from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
 from elastic_gym.training.policy_env import SENSORS, make_policy_env
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.yaml")  # needed to load a run
@@ -246,6 +245,8 @@ def train(config: TrainConfig, progress_bar: bool = True, verbose: int = 0,
 def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
            progress_bar: bool, verbose: int) -> TrainResult:
     from stable_baselines3.common.vec_env import VecNormalize
+
+    from elastic_gym.training.learning_curve import LearningCurve
 
     total = config.total_steps or int(settings.get("n_timesteps", 100_000))
     n_envs = int(settings.get("n_envs", 1))
