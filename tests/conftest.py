@@ -24,6 +24,17 @@ def make_noise_free(env_id: str, **kwargs) -> gym.Env:
     return gym.make(env_id, **{**NOISE_FREE, **kwargs})
 
 
+@pytest.fixture
+def single_thread_torch():
+    """One torch thread during a test (training tests on 2 cores: threads compete)."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 @pytest.fixture(params=elastic_gym.ENV_IDS)
 def env_id(request) -> str:
     return request.param

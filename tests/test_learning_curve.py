@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training import TrainConfig, evaluate_run, load_run, make_policy_env, train
@@ -20,12 +19,7 @@ ENV_ID = "elastic_gym/TwoLinkElastic-v0"
 SHORT = {"episode_time": 0.3}
 
 
-@pytest.fixture(autouse=True)
-def _single_thread_torch():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_thread_torch")
 
 
 def _sway(obs: np.ndarray) -> np.ndarray:

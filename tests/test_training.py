@@ -24,12 +24,7 @@ from elastic_gym.training.train import env_factory, split_settings
 SHORT_EPISODES = {"max_episode_steps": 200}
 
 
-@pytest.fixture(autouse=True)
-def _single_thread_torch():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_thread_torch")
 
 
 @pytest.mark.parametrize(
