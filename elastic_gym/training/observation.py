@@ -151,6 +151,17 @@ class ObservationBuilder:
         torque_limit: tau_max (n,), scales the base torque.
     """
 
+    @classmethod
+    def for_observations(cls, observation: ObservationConfig | dict | None, space,
+                         n: int, elastic: bool, residual: bool,
+                         torque_limit: np.ndarray) -> ObservationBuilder:
+        """The builder for an env (or one arm of a vector env) whose observations have the
+        Dict ``space``: raw sensors when it has no ``state``, its accelerometer channels."""
+        accelerations = space.spaces.get("acceleration")
+        return cls(ObservationConfig.from_config(observation), n, elastic,
+                   "state" not in space.spaces, residual, torque_limit,
+                   0 if accelerations is None else accelerations.shape[0])
+
     def __init__(self, config: ObservationConfig, n: int, elastic: bool, sensors: bool,
                  residual: bool, torque_limit: np.ndarray, n_accelerations: int = 0) -> None:
         self.config = config

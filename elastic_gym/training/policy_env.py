@@ -41,6 +41,17 @@ def check_state_source(state: str) -> None:
         raise ValueError(f"unknown state source {state!r}; valid: {state_sources()}")
 
 
+def _observed(env, state: str, observer_options: dict | None, observer_wrapper):
+    """``env`` under the observer wrapper of ``state`` (single or vector); raw sensors
+    take no observer and no observer options."""
+    check_state_source(state)
+    if state == SENSORS:
+        if observer_options:
+            raise ValueError("observer_options given but the state source is raw 'sensors'")
+        return env
+    return observer_wrapper(env, state, **(observer_options or {}))
+
+
 def make_policy_env(
     env_id: str,
     state: str = "true",
@@ -68,11 +79,7 @@ def wrap_policy_env(
 ) -> gym.Env:
     """The wrapper stack of the module docstring around an env made by the caller (e.g.
     RL Zoo's ``env_wrapper`` hyper-parameter)."""
-    check_state_source(state)
-    if state != SENSORS:
-        env = ObserverWrapper(env, state, **(observer_options or {}))
-    elif observer_options:
-        raise ValueError("observer_options given but the state source is raw 'sensors'")
+    env = _observed(env, state, observer_options, ObserverWrapper)
     env = PolicyAction(env, action)
     if decimation > 1:
         env = ActionRepeat(env, decimation)
@@ -102,10 +109,7 @@ def make_policy_vec_env(
     check_state_source(state)
     envs = gym.make_vec(env_id, num_envs=n_arms, vectorization_mode="vector_entry_point",
                         autoreset_mode=autoreset_mode, **(env_kwargs or {}))
-    if state != SENSORS:
-        envs = vector.ObserverWrapper(envs, state, **(observer_options or {}))
-    elif observer_options:
-        raise ValueError("observer_options given but the state source is raw 'sensors'")
+    envs = _observed(envs, state, observer_options, vector.ObserverWrapper)
     envs = policy_vector.PolicyAction(envs, action)
     if decimation > 1:
         envs = policy_vector.ActionRepeat(envs, decimation)

@@ -163,13 +163,9 @@ class PolicyObservation(_ArmResets):
         super().__init__(env)
         batch = env.unwrapped.batch
         action_config = wrapper_attribute(env, "action_config")
-        self.sensors = "state" not in env.single_observation_space.spaces
-        accelerations = env.single_observation_space.spaces.get("acceleration")
-        self.builder = ObservationBuilder(
-            ObservationConfig.from_config(observation), batch.n_joints, batch.robot.elastic,
-            self.sensors, action_config.kind == "residual", batch.torque_limit,
-            0 if accelerations is None else accelerations.shape[0],
-        )
+        self.builder = ObservationBuilder.for_observations(
+            observation, env.single_observation_space, batch.n_joints, batch.robot.elastic,
+            action_config.kind == "residual", batch.torque_limit)
         if isinstance(frame_stack, bool) or not isinstance(frame_stack, int) or frame_stack < 1:
             raise ValueError(f"frame_stack must be an integer >= 1, got {frame_stack!r}")
         self.frame_stack = frame_stack

@@ -158,13 +158,9 @@ class PolicyObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.Wrapper.__init__(self, env)
         base = env.unwrapped
         action_config = env.get_wrapper_attr("action_config")
-        self.sensors = "state" not in env.observation_space.spaces
-        accelerations = env.observation_space.spaces.get("acceleration")
-        self.builder = ObservationBuilder(
-            ObservationConfig.from_config(observation), base.n_joints, base.robot.elastic,
-            self.sensors, action_config.kind == "residual", base.torque_limit,
-            0 if accelerations is None else accelerations.shape[0],
-        )
+        self.builder = ObservationBuilder.for_observations(
+            observation, env.observation_space, base.n_joints, base.robot.elastic,
+            action_config.kind == "residual", base.torque_limit)
         self.n = base.n_joints
         self.observation_space = spaces.Box(-np.inf, np.inf, (self.builder.size,),
                                             dtype=np.float32)
