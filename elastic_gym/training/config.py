@@ -7,6 +7,8 @@ than one share a PyBullet world), ``batches`` (worker processes the arms are spl
 over, one PyBullet world each: a number, or a list of env-kwargs updates, one per
 batch, e.g. ``[{}, {plant_scaling: {link_mass: 1.3}}]`` for two plants),
 ``decimation`` (env steps per policy step), ``normalize`` (VecNormalize on/off),
+``critic_state`` (PPO only: a critic that also sees the true state, the actor never
+does; :mod:`elastic_gym.training.critic`),
 ``action`` (fields of :class:`~elastic_gym.training.actions.ActionConfig`),
 ``observation`` (fields of
 :class:`~elastic_gym.training.observation.ObservationConfig`) and ``env_kwargs`` (the
@@ -37,8 +39,9 @@ from elastic_gym.validation import registered_env_id
 
 ALGORITHMS = ("ppo", "sac", "td3", "recurrentppo")
 RECURRENT = {"recurrentppo"}  # sb3-contrib's RecurrentPPO: an LSTM in actor and critic
-OWN_KEYS = {"n_timesteps", "n_envs", "batches", "decimation", "normalize", "action",
-            "observation", "env_kwargs"}
+OWN_KEYS = {"n_timesteps", "n_envs", "batches", "decimation", "normalize", "critic_state",
+            "action", "observation", "env_kwargs"}
+OWN_BOOLEANS = ("normalize", "critic_state")
 SCHEDULED = ("learning_rate", "clip_range")  # may be "lin_<value>" (RL Zoo)
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 
@@ -106,6 +109,8 @@ def resolve_hyperparams(algo: str, env_id: str, overrides: dict | None = None,
         if isinstance(merged.get(key), str):
             merged[key] = _schedule(key, merged[key])
     _check_values(algo, merged)
+    if merged.get("critic_state"):
+        _check_critic_state(algo, merged)
     if "policy_kwargs" in merged:
         merged["policy_kwargs"] = _policy_kwargs(merged["policy_kwargs"])
     for key in ("env_kwargs", "action", "observation"):
@@ -127,7 +132,7 @@ def _check_values(algo: str, merged: dict) -> None:
     params = inspect.signature(algorithm_class(algo).__init__).parameters
     for key, value in merged.items():
         default = getattr(params.get(key), "default", None)
-        if key == "normalize" or isinstance(default, bool):
+        if key in OWN_BOOLEANS or isinstance(default, bool):
             if not isinstance(value, bool):
                 raise ValueError(f"hyper-parameter {key} must be true or false, got {value!r}")
         elif key in POSITIVE_INTEGERS or (
@@ -142,6 +147,20 @@ def _check_values(algo: str, merged: dict) -> None:
                     kind = "a positive integer" if key in POSITIVE_INTEGERS else "an integer"
                     raise ValueError(f"hyper-parameter {key} must be {kind}, got {value!r}")
                 merged[key] = int(value)
+
+
+def _check_critic_state(algo: str, merged: dict) -> None:
+    """``critic_state: true`` needs PPO with its MLP policy, whose features extractor it
+    splits (:class:`~elastic_gym.training.critic.PrivilegedCriticPolicy`)."""
+    if algo != "ppo":
+        raise ValueError(f"critic_state (a critic that sees the true state) is implemented "
+                         f"for ppo only, not {algo}")
+    if merged.get("policy", "MlpPolicy") != "MlpPolicy":
+        raise ValueError(f"critic_state needs the MlpPolicy, got policy {merged['policy']!r}")
+    kwargs = merged.get("policy_kwargs") or {}
+    if isinstance(kwargs, dict) and kwargs.get("share_features_extractor"):
+        raise ValueError("critic_state gives the critic its own features extractor: drop "
+                         "policy_kwargs.share_features_extractor")
 
 
 def _is_number(value) -> bool:

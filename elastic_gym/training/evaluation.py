@@ -111,7 +111,9 @@ def evaluate_arms(envs, act: Act, seed: int,
 class PolicyActor:
     """The deterministic policy of a model on a batch of observations, normalized with
     a ``VecNormalize``'s statistics; a recurrent policy's memory restarts at
-    :meth:`start`."""
+    :meth:`start`. A model whose critic saw privileged entries the actor ignores (a
+    policy with ``privileged_size`` k, :mod:`elastic_gym.training.critic`) gets the
+    actor's observation with k NaN entries appended: no true state needed."""
 
     def __init__(self, model, normalizer=None) -> None:
         self.model, self.normalizer = model, normalizer
@@ -123,7 +125,7 @@ class PolicyActor:
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=np.float32)
-        batch = obs if obs.ndim == 2 else obs[None]
+        batch = self._padded(obs if obs.ndim == 2 else obs[None])
         if self.normalizer is not None and self.normalizer.norm_obs:
             batch = self.normalizer.normalize_obs(batch)
         starts = np.full(len(batch), self._starting)
@@ -132,3 +134,10 @@ class PolicyActor:
         self._starting = False
         action = np.asarray(action, dtype=float)
         return action if obs.ndim == 2 else action[0]
+
+    def _padded(self, batch: np.ndarray) -> np.ndarray:
+        privileged = getattr(self.model.policy, "privileged_size", 0)
+        if privileged and batch.shape[1] == self.model.observation_space.shape[0] - privileged:
+            filler = np.full((len(batch), privileged), np.nan, dtype=np.float32)
+            return np.concatenate([batch, filler], axis=1)
+        return batch

@@ -23,10 +23,16 @@ name               size      value
 (theta, q, theta', q') or (q, q') for rigid arms); "raw sensors" ones the sensor
 observation. The reference and its preview are known in advance (the task defines
 them), so they are no measurement. ``VecNormalize`` may normalize further.
+
+:class:`TrueStateFeatures` computes every state feature of the TRUE state (error,
+error_rate and, for elastic arms, torsion, torsion_rate, scaled as above): what a
+critic trained with privileged information sees besides the policy's observation
+(:mod:`elastic_gym.training.critic`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, fields
 
@@ -224,3 +230,25 @@ class ObservationBuilder:
         if name == "torsion":
             return (theta - q) / c.torsion_scale
         return (dtheta - dq) / c.torsion_rate_scale  # torsion_rate
+
+
+class TrueStateFeatures:
+    """The state features of the true state, (N, k) float32: error, error_rate and, for
+    elastic arms, torsion, torsion_rate, with the scales of ``config`` (the same values
+    the ``"true"`` state source gives these features; the selection of ``config`` is
+    ignored). k = 4n (elastic) or 2n: with the reference they determine the whole state.
+    """
+
+    def __init__(self, config: ObservationConfig, n: int, elastic: bool) -> None:
+        features = tuple(f for f in FEATURES if f in STATE_FEATURES
+                         and (elastic or f not in ELASTIC_FEATURES))
+        self.builder = ObservationBuilder(dataclasses.replace(config, features=features), n,
+                                          elastic, False, False, np.ones(n))
+        self.n, self.size = n, self.builder.size
+
+    def __call__(self, true_state: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        """``true_state`` (N, 4n | 2n) in the layout (theta, q, theta', q') | (q, q');
+        ``reference`` (N, 5, n) rows q_d .. q_d^(4)."""
+        return self.builder.build(ObservationInputs(
+            reference=reference, last_action=np.zeros((len(reference), self.n)),
+            state=true_state))

@@ -13,6 +13,8 @@ PyBullet world with the twins of :mod:`elastic_gym.training.vector` and
     ActionRepeat(decimation)              policy rate = 1 kHz / decimation
     PolicyObservation                     flat features (error, reference, torsion, ...)
     (FrameStackObservation + Flatten)     raw sensors: the last frames
+    (CriticState)                         critic_state=True (training only): the true
+                                          state's features appended for the critic
 """
 
 from __future__ import annotations
@@ -26,7 +28,12 @@ from elastic_gym.observers import OBSERVERS, ObserverWrapper, vector
 from elastic_gym.training import vector as policy_vector
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
-from elastic_gym.training.wrappers import ActionRepeat, PolicyAction, PolicyObservation
+from elastic_gym.training.wrappers import (
+    ActionRepeat,
+    CriticState,
+    PolicyAction,
+    PolicyObservation,
+)
 
 SENSORS = "sensors"
 
@@ -61,11 +68,12 @@ def make_policy_env(
     action: ActionConfig | dict | None = None,
     observation: ObservationConfig | dict | None = None,
     frame_stack: int = 1,
+    critic_state: bool = False,
 ) -> gym.Env:
     """Build the wrapper stack of the module docstring."""
     check_state_source(state)
     return wrap_policy_env(gym.make(env_id, **(env_kwargs or {})), state, observer_options,
-                           decimation, action, observation, frame_stack)
+                           decimation, action, observation, frame_stack, critic_state)
 
 
 def wrap_policy_env(
@@ -76,6 +84,7 @@ def wrap_policy_env(
     action: ActionConfig | dict | None = None,
     observation: ObservationConfig | dict | None = None,
     frame_stack: int = 1,
+    critic_state: bool = False,
 ) -> gym.Env:
     """The wrapper stack of the module docstring around an env made by the caller (e.g.
     RL Zoo's ``env_wrapper`` hyper-parameter)."""
@@ -86,6 +95,8 @@ def wrap_policy_env(
     env = PolicyObservation(env, observation)
     if frame_stack > 1:
         env = FlattenObservation(FrameStackObservation(env, frame_stack))
+    if critic_state:
+        env = CriticState(env, observation)
     return env
 
 
@@ -100,6 +111,7 @@ def make_policy_vec_env(
     observation: ObservationConfig | dict | None = None,
     frame_stack: int = 1,
     autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
+    critic_state: bool = False,
 ) -> gym.vector.VectorEnv:
     """The stack of :func:`make_policy_env` on ``n_arms`` arms in one PyBullet world.
 
@@ -113,4 +125,5 @@ def make_policy_vec_env(
     envs = policy_vector.PolicyAction(envs, action)
     if decimation > 1:
         envs = policy_vector.ActionRepeat(envs, decimation)
-    return policy_vector.PolicyObservation(envs, observation, frame_stack)
+    envs = policy_vector.PolicyObservation(envs, observation, frame_stack)
+    return policy_vector.CriticState(envs, observation) if critic_state else envs

@@ -68,8 +68,9 @@ class TrainResult:
     eval_tracking_rms: float
 
 
-def env_factory(config: TrainConfig, settings: dict):
-    """A picklable constructor of the policy env of a config (for vec envs and workers)."""
+def env_factory(config: TrainConfig, settings: dict, critic_state: bool = False):
+    """A picklable constructor of the policy env of a config (for vec envs and workers);
+    ``critic_state``: the training stack with the true state appended for the critic."""
     action, observation = config.policy_configs(settings)
     return functools.partial(
         make_policy_env,
@@ -81,15 +82,16 @@ def env_factory(config: TrainConfig, settings: dict):
         action=action,
         observation=observation,
         frame_stack=config.frame_stack if config.state == SENSORS else 1,
+        critic_state=critic_state,
     )
 
 
 def policy_vec_env(config: TrainConfig, settings: dict, n_arms: int,
                    autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
-                   env_kwargs: dict | None = None):
+                   env_kwargs: dict | None = None, critic_state: bool = False):
     """The policy stack of a config on ``n_arms`` arms of one PyBullet world (a Gymnasium
     vector env); ``env_kwargs`` update the run's (:meth:`TrainConfig.training_env_kwargs`)
-    key by key."""
+    key by key; ``critic_state``: the training stack with the true state appended."""
     from elastic_gym.training.policy_env import make_policy_vec_env
 
     action, observation = config.policy_configs(settings)
@@ -99,22 +101,24 @@ def policy_vec_env(config: TrainConfig, settings: dict, n_arms: int,
         observer_options=config.observer_options,
         decimation=int(settings.get("decimation", 1)), action=action, observation=observation,
         frame_stack=config.frame_stack if config.state == SENSORS else 1,
-        autoreset_mode=autoreset_mode,
+        autoreset_mode=autoreset_mode, critic_state=critic_state,
     )
 
 
 def vec_env_factory(config: TrainConfig, settings: dict, n_arms: int,
-                    env_kwargs: dict | None = None):
+                    env_kwargs: dict | None = None, critic_state: bool = False):
     """A picklable constructor of ``n_arms`` arms of the policy env in one PyBullet world,
     as an SB3 ``VecEnv`` (``env_kwargs`` update the run's)."""
     from elastic_gym.training.sb3_vec_env import SB3VecEnv
 
-    return lambda: SB3VecEnv(policy_vec_env(config, settings, n_arms, env_kwargs=env_kwargs))
+    return lambda: SB3VecEnv(policy_vec_env(config, settings, n_arms, env_kwargs=env_kwargs,
+                                            critic_state=critic_state))
 
 
 def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int):
     """One env (n_envs = 1), a batch of n_envs arms, or several batches (hyper-parameter
-    ``batches``, :func:`batch_kwargs`) in worker processes."""
+    ``batches``, :func:`batch_kwargs`) in worker processes; with the true state appended
+    for the critic if the hyper-parameter ``critic_state`` is set."""
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
     from elastic_gym.training.sb3_vec_env import ProcessBatches
@@ -123,12 +127,13 @@ def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int):
     if n_envs % len(batches):
         raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs "
                          f"({n_envs})")
+    critic_state = bool(settings.get("critic_state", False))
     if n_envs == 1:
-        venv = DummyVecEnv([env_factory(config, settings)])
+        venv = DummyVecEnv([env_factory(config, settings, critic_state)])
         venv.action_space.seed(seed)
     else:
-        factories = [vec_env_factory(config, settings, n_envs // len(batches), kwargs)
-                     for kwargs in batches]
+        factories = [vec_env_factory(config, settings, n_envs // len(batches), kwargs,
+                                     critic_state) for kwargs in batches]
         venv = factories[0]() if len(factories) == 1 else ProcessBatches(factories)
     venv.seed(seed)
     # Episode returns and lengths, one wrapping whatever the arms' layout (VecNormalize's
@@ -264,6 +269,15 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
         venv = VecNormalize(venv, norm_obs=normalize, norm_reward=normalize, gamma=gamma)
 
         policy = algo_kwargs.pop("policy", default_policy(config.algo))
+        if settings.get("critic_state"):
+            from elastic_gym.training.critic import PrivilegedCriticPolicy
+
+            # the evaluation envs are the deployment stack: the actor's observation only
+            privileged = (venv.observation_space.shape[0]
+                          - eval_envs.single_observation_space.shape[0])
+            policy = PrivilegedCriticPolicy
+            algo_kwargs["policy_kwargs"] = {**algo_kwargs.get("policy_kwargs", {}),
+                                            "privileged_size": privileged}
         model = algorithm_class(config.algo)(
             policy, venv, seed=config.seed, tensorboard_log=str(out / "tb"), verbose=verbose,
             device="cpu", **algo_kwargs,

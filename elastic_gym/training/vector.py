@@ -19,11 +19,13 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from elastic_gym.controllers import make_controller, public_info
+from elastic_gym.observers.wrappers import true_state_vector
 from elastic_gym.training.actions import ActionConfig, ActionMap
 from elastic_gym.training.observation import (
     ObservationBuilder,
     ObservationConfig,
     ObservationInputs,
+    TrueStateFeatures,
 )
 from elastic_gym.training.wrappers import REFERENCE_KEYS
 
@@ -210,6 +212,34 @@ class PolicyObservation(_ArmResets):
         self._last_action[restarted] = 0.0
         return (self._observation(self._features(obs, info), restarted), reward, terminated,
                 truncated, info)
+
+
+class CriticState(gym.vector.VectorWrapper):
+    """Every arm's flat policy observation with its true state's features appended: the
+    twin of :class:`elastic_gym.training.wrappers.CriticState` (training only)."""
+
+    def __init__(self, env: gym.vector.VectorEnv,
+                 observation: ObservationConfig | dict | None = None) -> None:
+        super().__init__(env)
+        batch = env.unwrapped.batch
+        self.elastic = batch.robot.elastic
+        self.features = TrueStateFeatures(ObservationConfig.from_config(observation),
+                                          batch.n_joints, self.elastic)
+        size = env.single_observation_space.shape[0] + self.features.size
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+
+    def _observation(self, obs: np.ndarray, info: Mapping) -> np.ndarray:
+        privileged = self.features(true_state_vector(info, self.elastic), reference_rows(info))
+        return np.concatenate([obs, privileged], axis=1)
+
+    def reset(self, *, seed=None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        return self._observation(obs, info), info
+
+    def step(self, actions):
+        obs, reward, terminated, truncated, info = self.env.step(actions)
+        return self._observation(obs, info), reward, terminated, truncated, info
 
 
 class ActionRepeat(gym.vector.VectorWrapper):

@@ -14,6 +14,9 @@ Stack, bottom to top (``make_policy_env``)::
 * :class:`PolicyObservation`: the flat feature vector of
   :class:`~elastic_gym.training.observation.ObservationBuilder`, with the last action and
   a preview of the reference.
+* :class:`CriticState` (training only, on top of the stack, frame stack included): the
+  true state's features appended for a critic with privileged information
+  (:mod:`elastic_gym.training.critic`); the policy's observation stays the first entries.
 """
 
 from __future__ import annotations
@@ -23,11 +26,13 @@ import numpy as np
 from gymnasium import spaces
 
 from elastic_gym.controllers import make_controller, public_info
+from elastic_gym.observers.wrappers import true_state_vector
 from elastic_gym.training.actions import ActionConfig, ActionMap
 from elastic_gym.training.observation import (
     ObservationBuilder,
     ObservationConfig,
     ObservationInputs,
+    TrueStateFeatures,
 )
 
 REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
@@ -193,4 +198,43 @@ class PolicyObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         a = check_action(action, self.n)
         obs, reward, terminated, truncated, info = self.env.step(a)
         self._last_action = np.clip(a, -1.0, 1.0)
+        return self._observation(obs, info), reward, terminated, truncated, info
+
+
+class CriticState(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """The flat policy observation with the true state's features appended
+    (:class:`~elastic_gym.training.observation.TrueStateFeatures` of
+    ``info["true_state"]``, the current step only, not frame-stacked): the privileged
+    input of a critic in training. The first entries are the policy's observation,
+    unchanged.
+
+    Args:
+        env: a flat policy stack (``PolicyObservation``, possibly frame-stacked).
+        observation: the stack's :class:`ObservationConfig` (its scales are used).
+    """
+
+    def __init__(self, env: gym.Env, observation: ObservationConfig | dict | None = None
+                 ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, observation=observation)
+        gym.Wrapper.__init__(self, env)
+        base = env.unwrapped
+        self.elastic = base.robot.elastic
+        self.features = TrueStateFeatures(ObservationConfig.from_config(observation),
+                                          base.n_joints, self.elastic)
+        size = env.observation_space.shape[0] + self.features.size
+        self.observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
+        self._privileged = np.zeros(self.features.size, dtype=np.float32)
+
+    def _observation(self, obs: np.ndarray, info: dict) -> np.ndarray:
+        if "reference" in info:  # absent on the step that ended on broken physics
+            self._privileged = self.features(true_state_vector(info, self.elastic)[None],
+                                             reference_rows(info)[None])[0]
+        return np.concatenate([obs, self._privileged])
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        return self._observation(obs, info), info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
         return self._observation(obs, info), reward, terminated, truncated, info

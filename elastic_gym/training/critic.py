@@ -1,0 +1,91 @@
+"""A PPO critic that sees the true state for an actor that never does (asymmetric
+actor-critic, Pinto et al., "Asymmetric Actor Critic for Image-Based Robot Learning",
+RSS 2018, Sec. IV).
+
+PPO needs its value function only in training, to estimate advantages; the deployed
+policy is the actor alone. So the critic may see what the deployed actor cannot: here
+the true state. Hyper-parameter ``critic_state: true`` (PPO only) trains on the policy
+stack with :class:`~elastic_gym.training.wrappers.CriticState` on top, whose observation
+is ``[policy observation (size m), true-state features (size k)]`` (k = 4n on elastic
+arms: error, error rate, torsion, torsion rate of the truth, scaled as the ``"true"``
+source's), and with :class:`PrivilegedCriticPolicy`:
+
+* the actor's features extractor (:class:`ActorSlice`) keeps the first m entries; the
+  actor network (``mlp_extractor.policy_net``, ``action_net``) is built for m inputs and
+  ``log_std`` is a parameter, so the action distribution is a function of the first m
+  entries only: no weight multiplies a privileged entry;
+* the critic's features extractor passes all m + k entries to ``value_net``.
+
+Deployment (:class:`~elastic_gym.training.evaluation.PolicyActor`: ``evaluate_run``,
+the learning curve, ``elastic-gym compare --policy``) builds the stack without
+``CriticState`` and pads the k privileged entries with NaN before normalization: the
+actor never reads them (a NaN would poison any action that did).
+"""
+
+from __future__ import annotations
+
+import torch
+from gymnasium import spaces
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, MlpExtractor
+
+
+class ActorSlice(BaseFeaturesExtractor):
+    """The first ``size`` entries of a flat observation (the policy's own)."""
+
+    def __init__(self, observation_space: spaces.Box, size: int) -> None:
+        super().__init__(observation_space, size)
+        self.size = size
+
+    def forward(self, observations: torch.Tensor) -> torch.Tensor:
+        return observations[:, : self.size]
+
+
+class _SplitMlpExtractor(MlpExtractor):
+    """SB3's ``MlpExtractor`` with the policy net on ``actor_dim`` inputs and the value
+    net on ``critic_dim`` (SB3's takes one input size for both)."""
+
+    def __init__(self, actor_dim: int, critic_dim: int, net_arch, activation_fn,
+                 device) -> None:
+        super().__init__(actor_dim, net_arch, activation_fn, device)
+        self.value_net = MlpExtractor(critic_dim, net_arch, activation_fn, device).value_net
+
+
+class PrivilegedCriticPolicy(ActorCriticPolicy):
+    """SB3's ``ActorCriticPolicy`` (MLP) whose actor ignores the last ``privileged_size``
+    observation entries and whose critic sees them (module docstring). Separate features
+    extractors (``share_features_extractor=False``) by construction."""
+
+    def __init__(self, observation_space: spaces.Box, action_space: spaces.Space,
+                 lr_schedule, privileged_size: int, **kwargs) -> None:
+        if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 1:
+            raise ValueError(f"a privileged critic needs flat Box observations, got "
+                             f"{observation_space}")
+        size = observation_space.shape[0]
+        if (isinstance(privileged_size, bool) or not isinstance(privileged_size, int)
+                or not 0 < privileged_size < size):
+            raise ValueError(f"privileged_size must be an integer in 1 .. {size - 1} (the "
+                             f"observation has {size} entries), got {privileged_size!r}")
+        if kwargs.pop("share_features_extractor", False):
+            raise ValueError("a privileged critic cannot share the actor's features extractor")
+        self.privileged_size = privileged_size
+        super().__init__(observation_space, action_space, lr_schedule,
+                         share_features_extractor=False, **kwargs)
+
+    @property
+    def actor_size(self) -> int:
+        """Observation entries the actor sees (the first ones)."""
+        return self.observation_space.shape[0] - self.privileged_size
+
+    def _build_mlp_extractor(self) -> None:
+        # called by ActorCriticPolicy._build after both (full) features extractors exist
+        self.pi_features_extractor = ActorSlice(self.observation_space, self.actor_size)
+        self.features_extractor = self.pi_features_extractor
+        self.features_dim = self.actor_size
+        self.mlp_extractor = _SplitMlpExtractor(
+            self.actor_size, self.vf_features_extractor.features_dim, self.net_arch,
+            self.activation_fn, self.device)
+
+    def _get_constructor_parameters(self) -> dict:
+        return {**super()._get_constructor_parameters(),
+                "privileged_size": self.privileged_size}
