@@ -178,22 +178,28 @@ def test_raw_sensor_policy_env_stacks_frames():
     env.close()
 
 
-@pytest.mark.parametrize("action", [
-    {"kind": "torque"}, {"kind": "motor-offset"},
-    {"kind": "residual", "residual": "feedforward-state-feedback"},
+SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arch": [32, 32]}}
+
+
+@pytest.mark.parametrize(("action", "algo", "hyperparams"), [
+    ({"kind": "torque"}, "sac", SHORT_SAC), ({"kind": "motor-offset"}, "sac", SHORT_SAC),
+    ({"kind": "residual", "residual": "feedforward-state-feedback"}, "sac", SHORT_SAC),
+    ({"kind": "motor-offset"}, "ppo",  # one env (DummyVecEnv); a critic with the truth
+     {"critic_state": True, "n_envs": 1, "n_steps": 50, "batch_size": 50, "n_epochs": 2}),
 ])
-def test_trained_run_as_comparison_controller_matches_the_policy_env(tmp_path, action):
+def test_trained_run_as_comparison_controller_matches_the_policy_env(tmp_path, action, algo,
+                                                                     hyperparams):
     """The "trained-policy" controller behind an ObserverWrapper reproduces the training
-    stack (same features, normalization, decimation and action map): same episode return."""
+    stack (same features, normalization, decimation and action map): same episode return.
+    A PPO run whose critic saw the true state needs no true state here."""
     import gymnasium as gym
 
     from elastic_gym.controllers import make_controller, public_info
     from elastic_gym.observers import ObserverWrapper
 
-    config = TrainConfig(algo="sac", state="deluca", total_steps=100, out_dir=str(tmp_path / "p"),
+    config = TrainConfig(algo=algo, state="deluca", total_steps=100, out_dir=str(tmp_path / "p"),
                          env_kwargs=SHORT_EPISODES, eval_freq=10**9, action=action,
-                         hyperparams={"learning_starts": 50, "batch_size": 32,
-                                      "policy_kwargs": {"net_arch": [32, 32]}})
+                         hyperparams=hyperparams)
     train(config, progress_bar=False)
     run = load_run(config.out_dir)
 
@@ -211,7 +217,7 @@ def test_trained_run_as_comparison_controller_matches_the_policy_env(tmp_path, a
     comparison_state = info["true_state"]["x"]
 
     policy_env = make_policy_env(config.env_id, "deluca", SHORT_EPISODES, decimation=10,
-                                 action=action)
+                                 action=action, observation=config.policy_configs(run.settings)[1])
     obs, _ = policy_env.reset(seed=4)
     training_return, done = 0.0, False
     while not done:
