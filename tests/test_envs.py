@@ -151,6 +151,9 @@ def test_tracking_reference_is_c4_rest_to_rest():
         assert np.allclose(integral, ref[1:, k], atol=1e-4 * max(1.0, np.abs(ref[:, k]).max()))
     # at rest at the start, at the end, and between moves
     assert np.allclose(ref[0, 1:], 0.0) and np.allclose(ref[-1, 1:], 0.0)
+    # the compiled kernel reads one time per arm: other lengths are refused, not read past
+    with pytest.raises(ValueError, match="one time per arm"):
+        task.reference(times)
     env.close()
 
 

@@ -164,6 +164,22 @@ def test_residual_policy_starts_as_its_base_controller():
     plain.close()
 
 
+def test_residual_deadzone_is_zero_inside_and_continuous_to_the_bound():
+    """tau = base + s tau_max sign(a) max(|a| - d, 0) / (1 - d): zero for |a| <= d, the
+    full bound at |a| = 1, linear in between."""
+    env = gym.make(ENV_ID)
+    model = env.unwrapped.model
+    env.close()
+    config = ActionConfig.from_config({"kind": "residual", "residual": "motor-pd",
+                                       "residual_scale": 0.1, "residual_deadzone": 0.2})
+    actions = ActionMap(config, model)
+    base = np.array([[3.0, -1.0]] * 5)
+    a = np.array([[0.0, 0.2], [-0.2, 0.19], [0.6, -0.6], [1.0, -1.0], [2.0, -0.3]])
+    residual = (actions.torque(a, base_torque=base) - base) / (0.1 * model.torque_limit)
+    expected = np.array([[0.0, 0.0], [0.0, 0.0], [0.5, -0.5], [1.0, -1.0], [1.0, -0.125]])
+    np.testing.assert_allclose(residual, expected, atol=1e-12)
+
+
 def test_raw_sensor_motor_offset_uses_the_encoder_difference():
     """On raw sensors the PD's motor velocity is the backward difference of the encoder:
     with exact encoders, the same torques as the PD on the true state within O(dt)."""
@@ -192,6 +208,8 @@ def test_raw_sensor_motor_offset_uses_the_encoder_difference():
         ({"offset_scale": -0.1}, "offset_scale"),
         ({"kp": 100.0}, "kp"),
         ({"residual_scale": 2.0}, "residual_scale"),
+        ({"residual_deadzone": 1.0}, "residual_deadzone"),
+        ({"residual_deadzone": -0.1}, "residual_deadzone"),
         ({"gain": 1.0}, "gain"),
     ],
 )

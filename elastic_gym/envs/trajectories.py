@@ -85,6 +85,9 @@ def rest_to_rest(t: np.ndarray, waypoints: np.ndarray, move_time: float, dwell_t
         raise ValueError(f"order must be <= {MAX_ORDER}")
     t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
     waypoints = np.ascontiguousarray(waypoints, dtype=np.float64)
+    if waypoints.ndim != 3 or len(t) != len(waypoints):  # the kernel does not check bounds
+        raise ValueError(f"one time per arm: {len(t)} times for waypoints of shape "
+                         f"{waypoints.shape} (N, n_points, n)")
     out = np.empty((len(t), order + 1, waypoints.shape[2]))
     _rest_to_rest_kernel(t, waypoints, float(move_time), float(dwell_time),
                          _COEFFICIENTS[: order + 1], out)

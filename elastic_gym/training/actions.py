@@ -21,7 +21,10 @@ below turns it into a motor torque at every control period (1 kHz), from the sta
 * ``residual`` (Residual Policy Learning, Silver et al. 2018): tau = tau_base +
   residual_scale * tau_max * a, tau_base from a classical controller (e.g. eq. (13)) at
   the control rate; the policy's output starts at zero (zeroed mean head, small initial
-  standard deviation, see :func:`elastic_gym.training.train`).
+  standard deviation, see :func:`elastic_gym.training.train`). With a ``residual_deadzone``
+  d > 0 the residual is scale * tau_max * sign(a) max(|a| - d, 0) / (1 - d): exactly zero
+  while |a| <= d, so a policy whose mean drifts a little around zero (PPO's mean is never
+  exactly still) adds no torque, while the full bound stays reachable (continuous at d).
 """
 
 from __future__ import annotations
@@ -51,6 +54,7 @@ class ActionConfig:
         residual: name of the base controller (registry of ``elastic_gym.controllers``).
         residual_options: options of the base controller.
         residual_scale: bound of the residual torque as a fraction of tau_max.
+        residual_deadzone: |a| below which the residual is exactly zero, in [0, 1).
     """
 
     kind: str = "torque"
@@ -63,6 +67,7 @@ class ActionConfig:
     residual: str | None = None
     residual_options: dict = field(default_factory=dict)
     residual_scale: float = 0.1
+    residual_deadzone: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -75,6 +80,11 @@ class ActionConfig:
         if self.residual_scale > 1:
             raise ValueError(f"action 'residual_scale' must be in (0, 1], got "
                              f"{self.residual_scale!r}")
+        deadzone = self.residual_deadzone
+        if (not isinstance(deadzone, (int, float)) or isinstance(deadzone, bool)
+                or not 0 <= deadzone < 1):
+            raise ValueError(f"action 'residual_deadzone' must be a number in [0, 1), got "
+                             f"{deadzone!r}")
         if (self.kp is None) != (self.kd is None):
             raise ValueError("give both action 'kp' and 'kd', or neither (bandwidth rule)")
         if not isinstance(self.gravity_compensation, bool):
@@ -142,6 +152,9 @@ class ActionMap:
         if kind == "torque":
             return self.torque_limit * a
         if kind == "residual":
+            deadzone = self.config.residual_deadzone
+            if deadzone:
+                a = np.sign(a) * np.maximum(np.abs(a) - deadzone, 0.0) / (1.0 - deadzone)
             return base_torque + self.config.residual_scale * self.torque_limit * a
         q_d, dq_d = reference[:, 0], reference[:, 1]
         target = q_d + self.config.offset_scale * a
