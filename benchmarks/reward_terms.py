@@ -55,9 +55,9 @@ def episode_terms(controller: Controller, source: str, seed: int) -> tuple[dict,
         obs, _, terminated, truncated, info = env.step(controller(obs, public_info(info)))
         done = terminated or truncated
         truth, ref = info["true_state"], info["reference"]
-        terms = reward_terms(base.reward_config, base.control_dt, (truth["q"] - ref["q"])[None],
-                             (truth["dq"] - ref["dq"])[None], info["torque"][None],
-                             previous[None], base.torque_limit,
+        terms = reward_terms(base.batch.reward_config, base.control_dt,
+                             (truth["q"] - ref["q"])[None], (truth["dq"] - ref["dq"])[None],
+                             info["torque"][None], previous[None], base.torque_limit,
                              (truth["theta"] - truth["q"])[None])
         previous = info["torque"]
         for name in TERM_NAMES:

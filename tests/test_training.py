@@ -10,6 +10,8 @@ import pytest
 import torch
 
 from elastic_gym.training import (
+    ActionConfig,
+    ObservationConfig,
     TrainConfig,
     evaluate_run,
     load_run,
@@ -273,8 +275,9 @@ def test_cli_rejects_bad_training_input(tmp_path, capsys):
 
 
 def test_run_folder_freezes_its_hyperparameters(tmp_path):
-    """config.yaml holds the hyper-parameters used, so a later change of the shipped file
-    cannot change how a saved policy is rebuilt (e.g. its decimation)."""
+    """config.yaml holds the hyper-parameters used and every field of the action and
+    observation configs, so a later change of the shipped file or of a default cannot
+    change how a saved policy is rebuilt (e.g. its decimation, its residual deadzone)."""
     import yaml
 
     config = TrainConfig(algo="sac", state="true", total_steps=30, out_dir=str(tmp_path / "f"),
@@ -286,6 +289,8 @@ def test_run_folder_freezes_its_hyperparameters(tmp_path):
     assert saved["hyperparams"]["decimation"] == 5
     assert saved["hyperparams"]["gamma"] == resolve_hyperparams("sac", config.env_id)["gamma"]
     assert load_run(tmp_path / "f").decimation == 5
+    assert saved["action"] == ActionConfig(kind="motor-offset").to_dict()
+    assert saved["observation"] == ObservationConfig().to_dict()
 
 
 def tiny_config(out, **changes) -> TrainConfig:

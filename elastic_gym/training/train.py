@@ -297,9 +297,14 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
         for env in (venv, eval_envs):  # a failure to close must not hide what happened
             with contextlib.suppress(Exception):
                 env.close()
-    # the run folder is self-contained: the hyper-parameters used, not a pointer to a file
-    frozen = dataclasses.replace(config, hyperparams_file=None, hyperparams=merged_hyperparams(
-        config.algo, config.env_id, config.hyperparams, config.hyperparams_file))
+    # the run folder is self-contained: the hyper-parameters used, not a pointer to a file,
+    # and every field of the action and observation configs (a later release's defaults
+    # must not change what a saved policy's actions mean)
+    action, observation = config.policy_configs(settings)
+    frozen = dataclasses.replace(
+        config, hyperparams_file=None, action=action.to_dict(),
+        observation=observation.to_dict(), hyperparams=merged_hyperparams(
+            config.algo, config.env_id, config.hyperparams, config.hyperparams_file))
     (out / "config.yaml").write_text(yaml.safe_dump(frozen.to_dict(), sort_keys=False))
     final = curve.evaluations[-1]
     result = TrainResult(str(out), model.num_timesteps, model.num_timesteps * decimation, wall,
