@@ -108,19 +108,21 @@ ROWS = (  # the budget (about 2 cores for 45 min) and what it cut: see the READM
     Row("pure-deluca", "pure RL (motor offsets)", "deluca", (0, 1, 2)),
     Row("pure-sensors", "pure RL (motor offsets), 4 stacked frames", "sensors", (0,),
         frame_stack=4),
-    Row("pure-sensors-lstm", "pure RL (motor offsets), RecurrentPPO (LSTM)", "sensors", (0,),
-        algo="recurrentppo", steps=200_000),
     Row("residual-deluca-plain", "residual on eq. (13), no deadzone", "deluca", (0,),
         action=PLAIN_RESIDUAL, steps=60_000),
     Row("residual-deluca", "residual on eq. (13)", "deluca", (0,), action=RESIDUAL,
         steps=60_000),
     Row("residual-deluca-heavy", "residual on eq. (13), trained on +30 % mass", "deluca",
         (0,), action=RESIDUAL, train_env=HEAVY, steps=150_000),
+    Row("residual-deluca-heavy-plain", "residual on eq. (13), no deadzone, trained on +30 % "
+        "mass", "deluca", (0,), action=PLAIN_RESIDUAL, train_env=HEAVY, steps=150_000),
     Row("residual-deluca-both", "residual on eq. (13), trained on both plants", "deluca",
         (0,), action=RESIDUAL, hyperparams=BOTH_PLANTS, steps=150_000),
-    Row("pure-ekf", "pure RL (motor offsets)", "ekf", (0,), steps=50_000),
     Row("kr15-residual-deluca", "residual on eq. (13)", "deluca", (0,), env_id=KR15,
         action=RESIDUAL, eval_task={}, plants=("nominal",), steps=20_000),
+    Row("pure-sensors-lstm", "pure RL (motor offsets), RecurrentPPO (LSTM)", "sensors", (0,),
+        algo="recurrentppo", steps=200_000),
+    Row("pure-ekf", "pure RL (motor offsets)", "ekf", (0,), steps=50_000),
 )
 
 CLASSICAL = (  # (controller, label, state sources); the EKF's per-arm filter is slow
