@@ -123,10 +123,12 @@ def test_arms_of_a_batch_are_independent():
                               inputs.state[i:i + 1, 4:6], inputs.reference[i:i + 1],
                               inputs.base_torque[i:i + 1])
             np.testing.assert_array_equal(tau[i], single[0])
-    # torque: clipped to the limits; residual: base + 10 % of the limit at |a| = 1
+    # torque: clipped to the limits; residual: base + 10 % of the limit at |a| = 1, zero
+    # inside the default deadzone 0.2
     assert np.all(np.abs(torques[0]) <= model.torque_limit)
-    np.testing.assert_allclose(torques[2] - inputs.base_torque,
-                               0.1 * model.torque_limit * np.clip(action, -1, 1))
+    a = np.clip(action, -1, 1)
+    np.testing.assert_allclose(torques[2] - inputs.base_torque, 0.1 * model.torque_limit
+                               * np.sign(a) * np.maximum(np.abs(a) - 0.2, 0) / 0.8)
 
 
 def test_residual_policy_starts_as_its_base_controller():
