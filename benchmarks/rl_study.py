@@ -103,7 +103,7 @@ class Row:
 
 HEAVY = PLANTS["mass+30%"]
 BOTH_PLANTS = {"batches": [{}, HEAVY]}  # half the arms on each plant (two worker processes)
-ROWS = (  # the budget (about 2 cores for 75 min) and what it cut: see the README
+ROWS = (  # the budget (about 2 cores for 85 min) and what it cut: see the README
     Row("pure-true", "pure RL (motor offsets)", "true", (0, 1, 2)),
     Row("pure-deluca", "pure RL (motor offsets)", "deluca", (0, 1, 2)),
     Row("pure-sensors", "pure RL (motor offsets), 4 stacked frames", "sensors", (0,),
@@ -346,6 +346,13 @@ def targets(records: list[dict]) -> list[dict]:
          rms("residual-deluca-heavy", "mass+30%"), half_eq13, half_rule),
         ("residual on eq. (13), De Luca, +30 % mass (trained there), vs integral action",
          rms("residual-deluca-heavy", "mass+30%"), integral, integral_rule),
+        ("residual on eq. (13) without deadzone, De Luca, nominal",
+         rms("residual-deluca-plain"), no_harm, no_harm_rule),
+        ("residual on eq. (13) without deadzone, De Luca, +30 % mass (trained there)",
+         rms("residual-deluca-heavy-plain", "mass+30%"), half_eq13, half_rule),
+        ("residual on eq. (13) without deadzone, De Luca, +30 % mass (trained there), vs "
+         "integral action", rms("residual-deluca-heavy-plain", "mass+30%"), integral,
+         integral_rule),
         ("residual on eq. (13) trained on both plants, De Luca, nominal",
          rms("residual-deluca-both"), no_harm, no_harm_rule),
         ("residual on eq. (13) trained on both plants, De Luca, +30 % mass",
@@ -395,7 +402,10 @@ def plot_curves(records: list[dict], out: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharey="row")
-    for key in dict.fromkeys(r["row"] for r in records):
+    keys = list(dict.fromkeys(r["row"] for r in records))
+    colors = plt.get_cmap("tab20")(np.linspace(0, 1, 20))[::2]  # 10 dark, then 10 light
+    colors = [*colors, *plt.get_cmap("tab20")(np.linspace(0, 1, 20))[1::2]]
+    for index, key in enumerate(keys):
         mine = [r for r in records if r["row"] == key]
         seeds = sorted({r["seed"] for r in mine})
         per_seed = [[r for r in mine if r["seed"] == s] for s in seeds]
@@ -407,7 +417,8 @@ def plot_curves(records: list[dict], out: Path) -> None:
             values = np.array([[float(r[column]) for r in c[:length]] for c in per_seed])
             for col_index, x in enumerate((steps, wall / 60.0)):
                 ax = axes[row_index, col_index]
-                line, = ax.plot(x, values.mean(axis=0), label=label)
+                line, = ax.plot(x, values.mean(axis=0), label=label,
+                                color=colors[index % len(colors)])
                 if len(seeds) > 1:
                     ax.fill_between(x, values.min(axis=0), values.max(axis=0), alpha=0.2,
                                     color=line.get_color())
