@@ -293,6 +293,27 @@ def test_run_folder_freezes_its_hyperparameters(tmp_path):
     assert saved["observation"] == ObservationConfig().to_dict()
 
 
+def test_a_run_saved_before_the_residual_deadzone_keeps_its_actions(tmp_path):
+    """A run folder whose config has no ``residual_deadzone`` (written before the field
+    existed) loads with none, not with today's default; a saved value is kept."""
+    import yaml
+
+    from elastic_gym.training.train import read_run_config
+
+    for name in ("model.zip", "vecnormalize.pkl"):
+        (tmp_path / name).write_bytes(b"")
+    residual = {"kind": "residual", "residual": "feedforward-state-feedback"}
+    config = TrainConfig(algo="ppo", state="deluca", action=residual)
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config.to_dict()))
+    old = read_run_config(tmp_path)
+    assert old.policy_configs(split_settings(old)[0])[0].residual_deadzone == 0.0
+    saved = dataclasses.replace(config, action={**residual, "residual_deadzone": 0.3})
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(saved.to_dict()))
+    new = read_run_config(tmp_path)
+    assert new.policy_configs(split_settings(new)[0])[0].residual_deadzone == 0.3
+    assert ActionConfig(**residual).residual_deadzone == 0.2  # today's default
+
+
 def tiny_config(out, **changes) -> TrainConfig:
     """A SAC run of a few policy steps on the true state (seconds)."""
     settings = {"algo": "sac", "state": "true", "total_steps": 30, "out_dir": str(out),

@@ -352,10 +352,22 @@ def read_run_config(run_dir: str | Path) -> TrainConfig:
         data = yaml.safe_load(path.read_text())
         if not isinstance(data, dict):
             raise ValueError(f"must hold a mapping, got {type(data).__name__}")
-        return TrainConfig.from_dict(data)
+        return TrainConfig.from_dict(_before_the_deadzone(data))
     except (yaml.YAMLError, TypeError, ValueError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path} is not a valid run configuration: "
                          f"{' '.join(str(exc).split())}") from None
+
+
+def _before_the_deadzone(data: dict) -> dict:
+    """A run saved before actions had ``residual_deadzone`` applied its residual without
+    one: say so explicitly, so that today's default (0.2) does not change its actions."""
+    action = data.get("action", {})
+    hyperparams = data.get("hyperparams")
+    shipped = hyperparams.get("action") if isinstance(hyperparams, dict) else None
+    if not isinstance(action, dict) or any(
+            isinstance(part, dict) and "residual_deadzone" in part for part in (action, shipped)):
+        return data
+    return {**data, "action": {**action, "residual_deadzone": 0.0}}
 
 
 def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
