@@ -403,8 +403,8 @@ def plot_curves(records: list[dict], out: Path) -> None:
 
     fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharey="row")
     keys = list(dict.fromkeys(r["row"] for r in records))
-    colors = plt.get_cmap("tab20")(np.linspace(0, 1, 20))[::2]  # 10 dark, then 10 light
-    colors = [*colors, *plt.get_cmap("tab20")(np.linspace(0, 1, 20))[1::2]]
+    tab20 = plt.get_cmap("tab20")  # 10 dark colours, then their 10 light twins
+    colors = [tab20(i) for i in (*range(0, 20, 2), *range(1, 20, 2))]
     for index, key in enumerate(keys):
         mine = [r for r in records if r["row"] == key]
         seeds = sorted({r["seed"] for r in mine})

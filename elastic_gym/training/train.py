@@ -256,6 +256,7 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
     total = config.total_steps or int(settings.get("n_timesteps", 100_000))
     n_envs = int(settings.get("n_envs", 1))
     decimation = int(settings.get("decimation", 1))
+    action, observation = config.policy_configs(settings)
     venv = _vec_env(config, settings, n_envs, config.seed)
     try:
         eval_envs = policy_vec_env(config, settings, config.eval_episodes,
@@ -282,7 +283,7 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
             policy, venv, seed=config.seed, tensorboard_log=str(out / "tb"), verbose=verbose,
             device="cpu", **algo_kwargs,
         )
-        if config.policy_configs(settings)[0].kind == "residual":
+        if action.kind == "residual":
             zero_action_head(model)
         curve = LearningCurve(eval_envs, venv, out, config.eval_freq, config.seed + 10_000,
                               decimation)
@@ -300,7 +301,6 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
     # the run folder is self-contained: the hyper-parameters used, not a pointer to a file,
     # and every field of the action and observation configs (a later release's defaults
     # must not change what a saved policy's actions mean)
-    action, observation = config.policy_configs(settings)
     frozen = dataclasses.replace(
         config, hyperparams_file=None, action=action.to_dict(),
         observation=observation.to_dict(), hyperparams=merged_hyperparams(

@@ -223,13 +223,11 @@ class CriticState(gym.Wrapper, gym.utils.RecordConstructorArgs):
                                           base.n_joints, self.elastic)
         size = env.observation_space.shape[0] + self.features.size
         self.observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
-        self._privileged = np.zeros(self.features.size, dtype=np.float32)
 
     def _observation(self, obs: np.ndarray, info: dict) -> np.ndarray:
-        if "reference" in info:  # absent on the step that ended on broken physics
-            self._privileged = self.features(true_state_vector(info, self.elastic)[None],
-                                             reference_rows(info)[None])[0]
-        return np.concatenate([obs, self._privileged])
+        privileged = self.features(true_state_vector(info, self.elastic)[None],
+                                   reference_rows(info)[None])[0]
+        return np.concatenate([obs, privileged])
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
