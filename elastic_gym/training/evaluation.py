@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from elastic_gym.parallel import single_threaded
+
 Act = Callable[[np.ndarray], np.ndarray]
 CURVE_FILE = "learning_curve.csv"  # the learning curve of a run folder
 
@@ -84,7 +86,18 @@ def evaluate_arms(envs, act: Act, seed: int,
     ``start()`` is called after the reset. An arm's results stop at the end of its first
     episode (the autoreset that follows is ignored); stepping stops when every arm's
     episode has ended.
+
+    Runs single-threaded (torch and BLAS), as training does: with 2 threads a matmul
+    splits the arms' rows differently, and the episodes amplify the last-bit
+    differences (up to 2 % of an episode's RMS for the RL study's policies and 0.5 % for
+    eq. (13) on KR15), so the numbers would depend on the caller's thread settings.
     """
+    with single_threaded():
+        return _evaluate_arms(envs, act, seed, start)
+
+
+def _evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None
+                   ) -> Evaluation:
     n_arms = envs.num_envs
     obs, _ = envs.reset(seed=int(seed))
     if start is not None:
