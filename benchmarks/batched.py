@@ -40,8 +40,9 @@ PPO_ROLLOUT = 1024  # policy steps per rollout, whatever the number of envs
 
 
 def vector_env(env_id: str, n_arms: int, **kwargs) -> gym.vector.VectorEnv:
-    return gym.make_vec(env_id, num_envs=n_arms, vectorization_mode="vector_entry_point",
-                        **{**AT_REST, **kwargs})
+    return gym.make_vec(
+        env_id, num_envs=n_arms, vectorization_mode="vector_entry_point", **{**AT_REST, **kwargs}
+    )
 
 
 class BareBatch:
@@ -52,8 +53,9 @@ class BareBatch:
     def __init__(self, envs: gym.vector.VectorEnv) -> None:
         batch = envs.unwrapped.batch
         self.sim = ArmSimulator(batch.robot, batch.plant_model, batch.physics_dt, batch.n_arms)
-        self.sim.reset_state(np.arange(batch.n_arms), batch.sim.q, batch.sim.dq,
-                             batch.sim.theta, batch.sim.dtheta)
+        self.sim.reset_state(
+            np.arange(batch.n_arms), batch.sim.q, batch.sim.dq, batch.sim.theta, batch.sim.dtheta
+        )
         self.n_substeps = batch.n_substeps
         self.forces = batch.torque.tolist()
 
@@ -62,8 +64,9 @@ class BareBatch:
         client, joints, bodies = sim.client, sim.joint_indices, sim.bodies
         for _ in range(self.n_substeps):
             for body, forces in zip(bodies, self.forces, strict=True):
-                p.setJointMotorControlArray(body, joints, p.TORQUE_CONTROL, forces=forces,
-                                            physicsClientId=client)
+                p.setJointMotorControlArray(
+                    body, joints, p.TORQUE_CONTROL, forces=forces, physicsClientId=client
+                )
             p.stepSimulation(physicsClientId=client)
             for body in bodies:
                 p.getJointStates(body, joints, physicsClientId=client)
@@ -90,12 +93,21 @@ def batch_costs(env_id: str, sizes: tuple[int, ...], block: int, repeats: int) -
         bare = BareBatch(envs)
         steps = max(5, block // n_arms)
         step = _stepper(envs, n_arms, envs.unwrapped.n_joints)
-        costs = interleaved_best({
-            "batch": lambda step=step, steps=steps: seconds_per_call(step, [()] * steps),
-            "bare": lambda bare=bare, steps=steps: seconds_per_call(bare.step, [()] * steps),
-        }, repeats)
-        rows.append((n_arms, 1e6 * costs["batch"] / n_arms, 1e6 * costs["bare"] / n_arms,
-                     costs["batch"] / costs["bare"]))
+        costs = interleaved_best(
+            {
+                "batch": lambda step=step, steps=steps: seconds_per_call(step, [()] * steps),
+                "bare": lambda bare=bare, steps=steps: seconds_per_call(bare.step, [()] * steps),
+            },
+            repeats,
+        )
+        rows.append(
+            (
+                n_arms,
+                1e6 * costs["batch"] / n_arms,
+                1e6 * costs["bare"] / n_arms,
+                costs["batch"] / costs["bare"],
+            )
+        )
         envs.close()
         bare.close()
     return rows
@@ -120,10 +132,13 @@ def throughput_and_loop(env_id: str, n_arms: int, block: int, repeats: int) -> d
         "single+deluca": (_stepper(single_loop, 1, n, True), block, 1),
         "batch+deluca": (_stepper(batch_loop, n_arms, n), batch_steps, n_arms),
     }
-    costs = interleaved_best({
-        name: (lambda f=f, k=k, a=a: seconds_per_call(f, [()] * k) / a)
-        for name, (f, k, a) in timed.items()
-    }, repeats)
+    costs = interleaved_best(
+        {
+            name: (lambda f=f, k=k, a=a: seconds_per_call(f, [()] * k) / a)
+            for name, (f, k, a) in timed.items()
+        },
+        repeats,
+    )
     for env in (single, envs, single_loop, batch_loop):
         env.close()
     return costs
@@ -132,8 +147,12 @@ def throughput_and_loop(env_id: str, n_arms: int, block: int, repeats: int) -> d
 def _batched_stack(env_id: str, n_arms: int):
     from elastic_gym.training.sb3_vec_env import SB3VecEnv
 
-    envs = gym.make_vec(env_id, num_envs=n_arms, vectorization_mode="vector_entry_point",
-                        autoreset_mode=AutoresetMode.DISABLED)
+    envs = gym.make_vec(
+        env_id,
+        num_envs=n_arms,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode=AutoresetMode.DISABLED,
+    )
     envs = training_vector.ActionRepeat(vector.TrueStateWrapper(envs), PPO_DECIMATION)
     envs = vector_wrappers.RescaleAction(vector_wrappers.FlattenObservation(envs), -1.0, 1.0)
     return SB3VecEnv(envs)
@@ -144,8 +163,9 @@ def _single_stack(env_id: str) -> gym.Env:
     return RescaleAction(FlattenObservation(env), -1.0, 1.0)
 
 
-def ppo_policy_steps_per_second(env_id: str, n_arms: int, workers: int,
-                                policy_steps: int) -> dict[str, float]:
+def ppo_policy_steps_per_second(
+    env_id: str, n_arms: int, workers: int, policy_steps: int
+) -> dict[str, float]:
     """PPO policy steps/s on one batch of ``n_arms`` vs SubprocVecEnv with ``workers``."""
     import torch
     from stable_baselines3 import PPO
@@ -155,18 +175,21 @@ def ppo_policy_steps_per_second(env_id: str, n_arms: int, workers: int,
     makers = {
         f"batched env, {n_arms} arms, 1 process": lambda: _batched_stack(env_id, n_arms),
         f"SubprocVecEnv, {workers} workers": lambda: SubprocVecEnv(
-            [functools.partial(_single_stack, env_id)] * workers),
+            [functools.partial(_single_stack, env_id)] * workers
+        ),
     }
     rates = {}
     for label, make in makers.items():
         venv = VecNormalize(make())
         n_steps = max(8, PPO_ROLLOUT // venv.num_envs)
-        model = PPO("MlpPolicy", venv, n_steps=n_steps, batch_size=256, n_epochs=5, seed=0,
-                    device="cpu")
+        model = PPO(
+            "MlpPolicy", venv, n_steps=n_steps, batch_size=256, n_epochs=5, seed=0, device="cpu"
+        )
         model.learn(n_steps * venv.num_envs)  # warm-up: workers up, first rollout
         start = time.perf_counter()
         model.learn(policy_steps, reset_num_timesteps=False)
         rates[label] = (model.num_timesteps - n_steps * venv.num_envs) / (
-            time.perf_counter() - start)
+            time.perf_counter() - start
+        )
         venv.close()
     return rates

@@ -94,8 +94,9 @@ def checked_step(env: gym.Env, action: np.ndarray) -> tuple:
     """``env.step`` that refuses to let a benchmark episode end unnoticed."""
     result = env.step(action)
     if result[2] or result[3]:
-        raise RuntimeError(f"{env.spec.id} ended during the benchmark: "
-                           f"{result[4].get('termination_reason')}")
+        raise RuntimeError(
+            f"{env.spec.id} ended during the benchmark: {result[4].get('termination_reason')}"
+        )
     return result
 
 
@@ -119,8 +120,9 @@ class BarePyBullet:
         body, joints, client = sim.bodies[0], sim.joint_indices, sim.client
         forces = torque.tolist()  # PyBullet converts a list faster than an array
         for _ in range(self.n_substeps):
-            p.setJointMotorControlArray(body, joints, p.TORQUE_CONTROL, forces=forces,
-                                        physicsClientId=client)
+            p.setJointMotorControlArray(
+                body, joints, p.TORQUE_CONTROL, forces=forces, physicsClientId=client
+            )
             p.stepSimulation(physicsClientId=client)
             p.getJointStates(body, joints, physicsClientId=client)
 
@@ -144,10 +146,13 @@ def env_step_costs(env_id: str, scale: Scale) -> dict[str, float]:
     env_blocks = blocks_of(np.zeros((steps, env.unwrapped.n_joints)), scale.block)
     bare_blocks = blocks_of(np.tile(info["torque"], (steps, 1)), scale.block)  # at rest too
     step = functools.partial(checked_step, env)
-    costs = interleaved_best({
-        "env": lambda: seconds_per_call(step, next(env_blocks)),
-        "bare": lambda: seconds_per_call(bare.step, next(bare_blocks)),
-    }, scale.repeats)
+    costs = interleaved_best(
+        {
+            "env": lambda: seconds_per_call(step, next(env_blocks)),
+            "bare": lambda: seconds_per_call(bare.step, next(bare_blocks)),
+        },
+        scale.repeats,
+    )
     env.close()
     bare.close()
     return costs
@@ -164,8 +169,11 @@ def record_measurements(env_id: str, steps: int) -> tuple[dict, list[tuple], flo
     obs, info = env.reset(seed=0)
 
     def measurement(obs: dict, info: dict) -> dict:
-        return {**obs, "link_acceleration": info["true_state"]["ddq"],
-                "true_state": info["true_state"]}
+        return {
+            **obs,
+            "link_acceleration": info["true_state"]["ddq"],
+            "true_state": info["true_state"],
+        }
 
     first = measurement(obs, info)
     dt = env.unwrapped.control_dt
@@ -182,16 +190,19 @@ def observer_update_costs(env_id: str, scale: Scale) -> tuple[int, dict[str, flo
     first, updates, dt = record_measurements(env_id, scale.block)
     env = make_env(env_id)
     n = env.unwrapped.n_joints
-    observers = {name: make_observer(name, env.unwrapped.model, dt)
-                 for name in applicable_observers(kind(env) == "elastic")}
+    observers = {
+        name: make_observer(name, env.unwrapped.model, dt)
+        for name in applicable_observers(kind(env) == "elastic")
+    }
     env.close()
 
     def block(observer) -> float:
         observer.reset(first)
         return seconds_per_call(observer.update, updates)
 
-    return n, interleaved_best({name: functools.partial(block, obs)
-                                for name, obs in observers.items()}, scale.repeats)
+    return n, interleaved_best(
+        {name: functools.partial(block, obs) for name, obs in observers.items()}, scale.repeats
+    )
 
 
 # ---------------------------------------------------------------------------- table 3
@@ -231,8 +242,9 @@ class ClosedLoop:
 
 
 # ---------------------------------------------------------------------------- table 4
-def _time_vector_env(vec, n_envs: int, n_joints: int, steps: int, gymnasium_api: bool,
-                     repeat: int) -> float:
+def _time_vector_env(
+    vec, n_envs: int, n_joints: int, steps: int, gymnasium_api: bool, repeat: int
+) -> float:
     """Env steps per second (all workers together, best of ``VEC_BLOCKS`` blocks) of a
     vectorized env whose every ``step`` runs ``repeat`` env steps per worker."""
     actions = np.zeros((n_envs, n_joints))
@@ -244,8 +256,10 @@ def _time_vector_env(vec, n_envs: int, n_joints: int, steps: int, gymnasium_api:
     for _ in range(20):  # warm-up: workers started, first-step checks done
         vec.step(actions)
     block = max(1, steps // VEC_BLOCKS)
-    best = interleaved_best({"vec": lambda: seconds_per_call(
-        vec.step, [(actions,)] * block, clock=time.perf_counter)}, VEC_BLOCKS)["vec"]
+    best = interleaved_best(
+        {"vec": lambda: seconds_per_call(vec.step, [(actions,)] * block, clock=time.perf_counter)},
+        VEC_BLOCKS,
+    )["vec"]
     vec.close()
     return n_envs * repeat / best
 
@@ -266,23 +280,52 @@ def vector_throughput(env_id: str, steps: int) -> list[tuple[str, int, int, floa
     zero = np.zeros(n)
     block = [(zero,)] * max(1, steps // VEC_BLOCKS)
     step = functools.partial(checked_step, env)
-    single = 1.0 / interleaved_best({"env": lambda: seconds_per_call(
-        step, block, clock=time.perf_counter)}, VEC_BLOCKS)["env"]
+    single = (
+        1.0
+        / interleaved_best(
+            {"env": lambda: seconds_per_call(step, block, clock=time.perf_counter)}, VEC_BLOCKS
+        )["env"]
+    )
     env.close()
     rows = [("one env, this process", 1, 1, single)]
     makers: list[tuple[str, int, int, Callable[[], object], bool]] = [
-        ("gymnasium.make_vec sync", 1, 1,
-         lambda: gym.make_vec(env_id, 1, vectorization_mode="sync", **ENV_KWARGS), True),
+        (
+            "gymnasium.make_vec sync",
+            1,
+            1,
+            lambda: gym.make_vec(env_id, 1, vectorization_mode="sync", **ENV_KWARGS),
+            True,
+        ),
     ]
     for workers, repeat in ((1, 1), (2, 1), (2, DECIMATION)):
         factory = functools.partial(repeated_env, env_id, repeat)
-        makers.append(("gymnasium.make_vec async", workers, repeat, functools.partial(
-            gym.vector.AsyncVectorEnv, [factory] * workers), True))
-        makers.append(("SB3 SubprocVecEnv", workers, repeat,
-                       functools.partial(SubprocVecEnv, [factory] * workers), False))
+        makers.append(
+            (
+                "gymnasium.make_vec async",
+                workers,
+                repeat,
+                functools.partial(gym.vector.AsyncVectorEnv, [factory] * workers),
+                True,
+            )
+        )
+        makers.append(
+            (
+                "SB3 SubprocVecEnv",
+                workers,
+                repeat,
+                functools.partial(SubprocVecEnv, [factory] * workers),
+                False,
+            )
+        )
     for method, workers, repeat, make, gymnasium_api in makers:
-        rows.append((method, workers, repeat, _time_vector_env(
-            make(), workers, n, steps // repeat, gymnasium_api, repeat)))
+        rows.append(
+            (
+                method,
+                workers,
+                repeat,
+                _time_vector_env(make(), workers, n, steps // repeat, gymnasium_api, repeat),
+            )
+        )
     return rows
 
 
@@ -307,8 +350,10 @@ def profile_closed_loop(env_id: str, steps: int, top: int) -> tuple[list[tuple],
     stats = pstats.Stats(profiler).stats
     total = sum(entry[2] for entry in stats.values())
     ranked = sorted(stats.items(), key=lambda item: item[1][2], reverse=True)[:top]
-    rows = [(_label(key), f"{100 * tt / total:.1f}", f"{nc / steps:.0f}",
-             f"{100 * ct / total:.1f}") for key, (_, nc, tt, ct, _) in ranked]
+    rows = [
+        (_label(key), f"{100 * tt / total:.1f}", f"{nc / steps:.0f}", f"{100 * ct / total:.1f}")
+        for key, (_, nc, tt, ct, _) in ranked
+    ]
     return rows, per_step
 
 
@@ -324,10 +369,20 @@ def table_env(env_ids: list[str], scale: Scale) -> dict[str, float]:
         costs = env_step_costs(env_id, scale)
         env_costs[env_id] = costs["env"]
         ratio = costs["env"] / costs["bare"]
-        rows.append((env_id, fmt(1e6 * costs["env"]), fmt(1e6 * costs["bare"]), fmt(ratio),
-                     "yes" if ratio <= TARGET_ENV_RATIO else "no"))
-    print_table(f"1. env step / bare PyBullet (target <= {TARGET_ENV_RATIO}x)",
-                ("env id", "env step [us]", "bare PyBullet [us]", "ratio", "target met"), rows)
+        rows.append(
+            (
+                env_id,
+                fmt(1e6 * costs["env"]),
+                fmt(1e6 * costs["bare"]),
+                fmt(ratio),
+                "yes" if ratio <= TARGET_ENV_RATIO else "no",
+            )
+        )
+    print_table(
+        f"1. env step / bare PyBullet (target <= {TARGET_ENV_RATIO}x)",
+        ("env id", "env step [us]", "bare PyBullet [us]", "ratio", "target met"),
+        rows,
+    )
     return env_costs
 
 
@@ -337,12 +392,17 @@ def table_observers(env_ids: list[str], scale: Scale, env_costs: dict[str, float
         n, costs = observer_update_costs(env_id, scale)
         for name, cost in costs.items():
             ratio = cost / env_costs[env_id]
-            target = (("yes" if ratio <= TARGET_DELUCA_RATIO else "no")
-                      if name == "deluca" and "Iiwa" in env_id else "")
+            target = (
+                ("yes" if ratio <= TARGET_DELUCA_RATIO else "no")
+                if name == "deluca" and "Iiwa" in env_id
+                else ""
+            )
             rows.append((env_id, n, name, fmt(1e6 * cost), fmt(ratio), target))
-    print_table(f"2. observer update / env step (target De Luca <= {TARGET_DELUCA_RATIO}x "
-                "at N = 7)", ("env id", "N", "observer", "update [us]", "ratio",
-                              "target met"), rows)
+    print_table(
+        f"2. observer update / env step (target De Luca <= {TARGET_DELUCA_RATIO}x at N = 7)",
+        ("env id", "N", "observer", "update [us]", "ratio", "target met"),
+        rows,
+    )
 
 
 def table_closed_loop(env_ids: list[str], scale: Scale, env_costs: dict[str, float]) -> None:
@@ -354,61 +414,102 @@ def table_closed_loop(env_ids: list[str], scale: Scale, env_costs: dict[str, flo
         env_part = env_costs[env_id]
         observer_part = loop.best - loop.best_controller - env_part
         realtime = loop.env.unwrapped.control_dt / loop.best
-        rows.append((env_id, loop.observer, fmt(1e6 * loop.best), fmt(realtime),
-                     f"{100 * env_part / loop.best:.0f}",
-                     f"{100 * observer_part / loop.best:.0f}",
-                     f"{100 * loop.best_controller / loop.best:.0f}",
-                     "yes" if realtime >= TARGET_REALTIME else "no"))
-    print_table(f"3. closed loop at 1 kHz, simulated / wall time (target >= {TARGET_REALTIME:g}x;"
-                " split of a step in %)",
-                ("env id", "observer", "step [us]", "x real time", "env (table 1)",
-                 "observer+wrapper", "eq. (13) controller", "target met"), rows)
+        rows.append(
+            (
+                env_id,
+                loop.observer,
+                fmt(1e6 * loop.best),
+                fmt(realtime),
+                f"{100 * env_part / loop.best:.0f}",
+                f"{100 * observer_part / loop.best:.0f}",
+                f"{100 * loop.best_controller / loop.best:.0f}",
+                "yes" if realtime >= TARGET_REALTIME else "no",
+            )
+        )
+    print_table(
+        f"3. closed loop at 1 kHz, simulated / wall time (target >= {TARGET_REALTIME:g}x;"
+        " split of a step in %)",
+        (
+            "env id",
+            "observer",
+            "step [us]",
+            "x real time",
+            "env (table 1)",
+            "observer+wrapper",
+            "eq. (13) controller",
+            "target met",
+        ),
+        rows,
+    )
 
 
 def table_vector(vec_id: str, scale: Scale) -> None:
     rows = vector_throughput(vec_id, scale.vec_steps)
     single = rows[0][3]
-    print_table(f"4. vectorized throughput, {vec_id}",
-                ("method", "workers", "action repeat", "env steps/s", "vs one env"),
-                [(m, w, r, f"{s:.0f}", fmt(s / single)) for m, w, r, s in rows])
+    print_table(
+        f"4. vectorized throughput, {vec_id}",
+        ("method", "workers", "action repeat", "env steps/s", "vs one env"),
+        [(m, w, r, f"{s:.0f}", fmt(s / single)) for m, w, r, s in rows],
+    )
 
 
 def table_batched(env_ids: list[str], vec_id: str, scale: Scale) -> None:
     rows = []
     for env_id in env_ids:
         for n_arms, batch_us, bare_us, ratio in batched.batch_costs(
-                env_id, BATCH_SIZES, scale.block * 4, scale.repeats):
-            target = ("yes" if ratio <= batched.TARGET_BATCH_RATIO else "no") if (
-                n_arms == BATCH_ARMS and env_id == vec_id) else ""
+            env_id, BATCH_SIZES, scale.block * 4, scale.repeats
+        ):
+            target = (
+                ("yes" if ratio <= batched.TARGET_BATCH_RATIO else "no")
+                if (n_arms == BATCH_ARMS and env_id == vec_id)
+                else ""
+            )
             rows.append((env_id, n_arms, fmt(batch_us), fmt(bare_us), fmt(ratio), target))
-    print_table(f"5a. batched env / bare N-arm PyBullet loop, per arm-step (target <= "
-                f"{batched.TARGET_BATCH_RATIO:g}x at N = {BATCH_ARMS}, {vec_id})",
-                ("env id", "arms N", "batched env [us]", "bare PyBullet [us]", "ratio",
-                 "target met"), rows)
+    print_table(
+        f"5a. batched env / bare N-arm PyBullet loop, per arm-step (target <= "
+        f"{batched.TARGET_BATCH_RATIO:g}x at N = {BATCH_ARMS}, {vec_id})",
+        ("env id", "arms N", "batched env [us]", "bare PyBullet [us]", "ratio", "target met"),
+        rows,
+    )
     costs = batched.throughput_and_loop(vec_id, BATCH_ARMS, scale.block, scale.repeats)
     gain = costs["single"] / costs["batch"]
-    print_table(f"5b. {vec_id}, {BATCH_ARMS} arms in one world vs one env, per arm-step",
-                ("loop", "one env [us]", f"batch of {BATCH_ARMS} [us]", "speed-up",
-                 "target met"),
-                [("env step", fmt(1e6 * costs["single"]), fmt(1e6 * costs["batch"]), fmt(gain),
-                  "yes" if gain >= batched.TARGET_THROUGHPUT else "no"),
-                 ("env + De Luca observer", fmt(1e6 * costs["single+deluca"]),
-                  fmt(1e6 * costs["batch+deluca"]),
-                  fmt(costs["single+deluca"] / costs["batch+deluca"]), "")])
+    print_table(
+        f"5b. {vec_id}, {BATCH_ARMS} arms in one world vs one env, per arm-step",
+        ("loop", "one env [us]", f"batch of {BATCH_ARMS} [us]", "speed-up", "target met"),
+        [
+            (
+                "env step",
+                fmt(1e6 * costs["single"]),
+                fmt(1e6 * costs["batch"]),
+                fmt(gain),
+                "yes" if gain >= batched.TARGET_THROUGHPUT else "no",
+            ),
+            (
+                "env + De Luca observer",
+                fmt(1e6 * costs["single+deluca"]),
+                fmt(1e6 * costs["batch+deluca"]),
+                fmt(costs["single+deluca"] / costs["batch+deluca"]),
+                "",
+            ),
+        ],
+    )
     workers = os.cpu_count() or 1
     rates = batched.ppo_policy_steps_per_second(vec_id, BATCH_ARMS, workers, scale.ppo_steps)
     first = next(iter(rates.values()))
-    print_table(f"5c. PPO end to end, {vec_id} (true state, action repeat "
-                f"{batched.PPO_DECIMATION}, rollout {batched.PPO_ROLLOUT} policy steps)",
-                ("env", "policy steps/s", "vs batched"),
-                [(label, f"{rate:.0f}", fmt(rate / first)) for label, rate in rates.items()])
+    print_table(
+        f"5c. PPO end to end, {vec_id} (true state, action repeat "
+        f"{batched.PPO_DECIMATION}, rollout {batched.PPO_ROLLOUT} policy steps)",
+        ("env", "policy steps/s", "vs batched"),
+        [(label, f"{rate:.0f}", fmt(rate / first)) for label, rate in rates.items()],
+    )
 
 
-def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool,
-        tables: set[int]) -> None:
+def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool, tables: set[int]) -> None:
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-    print(f"{os.cpu_count()} CPUs, load average {load} (other processes slow the timings; "
-          "each value is the best of interleaved blocks)\n")
+    print(
+        f"{os.cpu_count()} CPUs, load average {load} (other processes slow the timings; "
+        "each value is the best of interleaved blocks)\n"
+    )
     env_costs = table_env(env_ids, scale) if tables & {1, 2, 3} else {}
     if 2 in tables:
         table_observers(env_ids, scale, env_costs)
@@ -421,21 +522,34 @@ def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool,
     if profile:
         for env_id in env_ids:
             top, per_step = profile_closed_loop(env_id, scale.block, top=15)
-            print_table(f"profile (cProfile), closed loop of table 3, {env_id}: "
-                        f"{fmt(1e6 * per_step)} us/step under the profiler",
-                        ("function", "own time %", "calls/step", "incl. callees %"), top)
+            print_table(
+                f"profile (cProfile), closed loop of table 3, {env_id}: "
+                f"{fmt(1e6 * per_step)} us/step under the profiler",
+                ("function", "own time %", "calls/step", "incl. callees %"),
+                top,
+            )
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="short blocks (about a minute)")
     parser.add_argument("--profile", action="store_true", help="cProfile the closed loop")
-    parser.add_argument("--ids", nargs="+", default=list(elastic_gym.ENV_IDS),
-                        help="env ids (default: all)")
-    parser.add_argument("--vec-id", default="elastic_gym/TwoLinkElastic-v0",
-                        help="env id of the vectorized throughput and batch rows")
-    parser.add_argument("--tables", nargs="+", type=int, default=[1, 2, 3, 4, 5],
-                        choices=[1, 2, 3, 4, 5], help="tables to run (default: all)")
+    parser.add_argument(
+        "--ids", nargs="+", default=list(elastic_gym.ENV_IDS), help="env ids (default: all)"
+    )
+    parser.add_argument(
+        "--vec-id",
+        default="elastic_gym/TwoLinkElastic-v0",
+        help="env id of the vectorized throughput and batch rows",
+    )
+    parser.add_argument(
+        "--tables",
+        nargs="+",
+        type=int,
+        default=[1, 2, 3, 4, 5],
+        choices=[1, 2, 3, 4, 5],
+        help="tables to run (default: all)",
+    )
     args = parser.parse_args(argv)
     ensure_single_thread_blas()
     run(args.ids, QUICK if args.quick else FULL, args.vec_id, args.profile, set(args.tables))

@@ -33,8 +33,12 @@ def main() -> int:
     parser.add_argument("--physics-dt", type=float, help="override the scenario's physics step")
     parser.add_argument("--duration", type=float)
     parser.add_argument("--seeds", type=int, nargs="+")
-    parser.add_argument("--sweep", nargs="+", metavar="LABEL",
-                        help="keep only these values of the scenario's 'sweep' axis")
+    parser.add_argument(
+        "--sweep",
+        nargs="+",
+        metavar="LABEL",
+        help="keep only these values of the scenario's 'sweep' axis",
+    )
     parser.add_argument("--refinement", type=int, default=REFINEMENT)
     parser.add_argument("--tolerance", type=float, default=TOLERANCE)
     parser.add_argument("--workers", type=int)
@@ -42,18 +46,22 @@ def main() -> int:
     args = parser.parse_args()
 
     scenario = load_preset(args.preset).with_overrides(
-        seeds=args.seeds, duration=args.duration, physics_dt=args.physics_dt)
+        seeds=args.seeds, duration=args.duration, physics_dt=args.physics_dt
+    )
     if args.sweep:
-        axes = tuple((name, tuple(v for v in values if name != "sweep" or v.label in args.sweep))
-                     for name, values in scenario.axes)
+        axes = tuple(
+            (name, tuple(v for v in values if name != "sweep" or v.label in args.sweep))
+            for name, values in scenario.axes
+        )
         scenario = dataclasses.replace(scenario, axes=axes)
     with single_thread_blas():
-        rows = check_convergence(scenario, args.refinement, args.tolerance,
-                                 workers=args.workers)
+        rows = check_convergence(scenario, args.refinement, args.tolerance, workers=args.workers)
     path = write_csv(rows, Path(args.output) / f"{scenario.name}.csv")
 
-    table = Table(title=f"{scenario.name}: metrics at physics_dt vs physics_dt/{args.refinement} "
-                  f"(tolerance {args.tolerance:.0%})")
+    table = Table(
+        title=f"{scenario.name}: metrics at physics_dt vs physics_dt/{args.refinement} "
+        f"(tolerance {args.tolerance:.0%})"
+    )
     for column in ("metric", "runs", "converged", "worst rel. diff.", "worst run"):
         table.add_column(column)
     failed = 0
@@ -64,7 +72,9 @@ def main() -> int:
         finite = [r for r in members if not math.isnan(r["relative_difference"])]
         worst = max(finite, key=lambda r: r["relative_difference"], default=None)
         table.add_row(
-            metric, str(len(members)), str(ok),
+            metric,
+            str(len(members)),
+            str(ok),
             f"{worst['relative_difference']:.3f}" if worst else "-",
             ", ".join(f"{k}={worst[k]}" for k in scenario.identity_columns) if worst else "-",
         )
@@ -73,10 +83,15 @@ def main() -> int:
     for row in rows:
         if not row["converged"]:
             labels = ", ".join(f"{k}={row[k]}" for k in scenario.identity_columns)
-            console.print(f"not converged: {labels}: {row['metric']} {row['value']:.4g} vs "
-                          f"{row['refined']:.4g} ({row['status']})", markup=False)
-    print(f"physics_dt of the runs: {sorted({r['physics_dt'] for r in rows})}; "
-          f"{failed} metric values not converged; rows in {path}")
+            console.print(
+                f"not converged: {labels}: {row['metric']} {row['value']:.4g} vs "
+                f"{row['refined']:.4g} ({row['status']})",
+                markup=False,
+            )
+    print(
+        f"physics_dt of the runs: {sorted({r['physics_dt'] for r in rows})}; "
+        f"{failed} metric values not converged; rows in {path}"
+    )
     return 1 if failed else 0
 
 

@@ -39,8 +39,7 @@ class ZeroOffsetPD(Controller):
         x = state_vector(obs, 4 * self.n)
         ref = reference_derivatives(info, self.n)
         n = self.n
-        return self.map.torque(np.zeros((1, n)), x[None, :n], x[None, 2 * n:3 * n],
-                               ref[None])[0]
+        return self.map.torque(np.zeros((1, n)), x[None, :n], x[None, 2 * n : 3 * n], ref[None])[0]
 
 
 def episode_terms(controller: Controller, source: str, seed: int) -> tuple[dict, float]:
@@ -55,18 +54,23 @@ def episode_terms(controller: Controller, source: str, seed: int) -> tuple[dict,
         obs, _, terminated, truncated, info = env.step(controller(obs, public_info(info)))
         done = terminated or truncated
         truth, ref = info["true_state"], info["reference"]
-        terms = reward_terms(base.batch.reward_config, base.control_dt,
-                             (truth["q"] - ref["q"])[None], (truth["dq"] - ref["dq"])[None],
-                             info["torque"][None], previous[None], base.torque_limit,
-                             (truth["theta"] - truth["q"])[None])
+        terms = reward_terms(
+            base.batch.reward_config,
+            base.control_dt,
+            (truth["q"] - ref["q"])[None],
+            (truth["dq"] - ref["dq"])[None],
+            info["torque"][None],
+            previous[None],
+            base.torque_limit,
+            (truth["theta"] - truth["q"])[None],
+        )
         previous = info["torque"]
         for name in TERM_NAMES:
             totals[name] += float(terms[name][0])
         errors.append(truth["q"] - ref["q"])
     env.close()
     seconds = info["time"]
-    return ({k: v / seconds for k, v in totals.items()},
-            float(np.sqrt(np.mean(np.square(errors)))))
+    return ({k: v / seconds for k, v in totals.items()}, float(np.sqrt(np.mean(np.square(errors)))))
 
 
 def main() -> None:
@@ -75,10 +79,11 @@ def main() -> None:
     parser.add_argument("--policy", nargs="*", default=[], metavar="RUN")
     args = parser.parse_args()
     model = gym.make(ENV_ID).unwrapped.model
-    rows = [("eq. (13)", "true", lambda: make_controller("feedforward-state-feedback", model,
-                                                         1e-3)),
-            ("motor PD", "finite-difference", lambda: make_controller("motor-pd", model, 1e-3)),
-            ("motor-offset PD, zero action", "true", lambda: ZeroOffsetPD(model, 1e-3))]
+    rows = [
+        ("eq. (13)", "true", lambda: make_controller("feedforward-state-feedback", model, 1e-3)),
+        ("motor PD", "finite-difference", lambda: make_controller("motor-pd", model, 1e-3)),
+        ("motor-offset PD, zero action", "true", lambda: ZeroOffsetPD(model, 1e-3)),
+    ]
     for run in args.policy:
         law = make_controller("trained-policy", model, 1e-3, run=run)
         rows.append((f"policy {run}", law.state_source, lambda law=law: law))

@@ -62,8 +62,10 @@ from elastic_gym.training.train import FINISHED, evaluate_run
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 KR15 = "elastic_gym/KR15Elastic-v0"
 TASK = {"task": "tracking", "task_options": {"n_moves": 2, "move_time": 0.8, "dwell_time": 0.5}}
-PLANTS = {"nominal": {"plant_scaling": {"link_mass": 1.0}},  # explicit: overrides a run's own
-          "mass+30%": {"plant_scaling": {"link_mass": 1.3}}}
+PLANTS = {
+    "nominal": {"plant_scaling": {"link_mass": 1.0}},  # explicit: overrides a run's own
+    "mass+30%": {"plant_scaling": {"link_mass": 1.3}},
+}
 EVAL_EPISODES = 10
 EVAL_SEED = 100_000
 EQ13 = "feedforward-state-feedback"
@@ -94,11 +96,20 @@ class Row:
     plants: tuple[str, ...] = tuple(PLANTS)
 
     def config(self, seed: int, runs: Path) -> TrainConfig:
-        return TrainConfig(env_id=self.env_id, algo=self.algo, state=self.state, seed=seed,
-                           out_dir=str(runs / self.key / f"seed{seed}"), action=self.action,
-                           frame_stack=self.frame_stack, env_kwargs=self.train_env,
-                           total_steps=self.steps, hyperparams=self.hyperparams,
-                           eval_freq=max(self.steps // 10, 10_000), eval_episodes=5)
+        return TrainConfig(
+            env_id=self.env_id,
+            algo=self.algo,
+            state=self.state,
+            seed=seed,
+            out_dir=str(runs / self.key / f"seed{seed}"),
+            action=self.action,
+            frame_stack=self.frame_stack,
+            env_kwargs=self.train_env,
+            total_steps=self.steps,
+            hyperparams=self.hyperparams,
+            eval_freq=max(self.steps // 10, 10_000),
+            eval_episodes=5,
+        )
 
 
 HEAVY = PLANTS["mass+30%"]
@@ -106,22 +117,57 @@ BOTH_PLANTS = {"batches": [{}, HEAVY]}  # half the arms on each plant (two worke
 ROWS = (  # the budget (about 2 cores for 85 min) and what it cut: see the README
     Row("pure-true", "pure RL (motor offsets)", "true", (0, 1, 2)),
     Row("pure-deluca", "pure RL (motor offsets)", "deluca", (0, 1, 2)),
-    Row("pure-sensors", "pure RL (motor offsets), 4 stacked frames", "sensors", (0,),
-        frame_stack=4),
-    Row("residual-deluca-plain", "residual on eq. (13), no deadzone", "deluca", (0,),
-        action=PLAIN_RESIDUAL, steps=60_000),
-    Row("residual-deluca", "residual on eq. (13)", "deluca", (0,), action=RESIDUAL,
-        steps=60_000),
-    Row("residual-deluca-heavy", "residual on eq. (13), trained on +30 % mass", "deluca",
-        (0,), action=RESIDUAL, train_env=HEAVY, steps=150_000),
-    Row("residual-deluca-heavy-plain", "residual on eq. (13), no deadzone, trained on +30 % "
-        "mass", "deluca", (0,), action=PLAIN_RESIDUAL, train_env=HEAVY, steps=150_000),
-    Row("residual-deluca-both", "residual on eq. (13), trained on both plants", "deluca",
-        (0,), action=RESIDUAL, hyperparams=BOTH_PLANTS, steps=150_000),
-    Row("kr15-residual-deluca", "residual on eq. (13)", "deluca", (0,), env_id=KR15,
-        action=RESIDUAL, eval_task={}, plants=("nominal",), steps=20_000),
-    Row("pure-sensors-lstm", "pure RL (motor offsets), LSTM", "sensors", (0,),
-        algo="recurrentppo"),
+    Row(
+        "pure-sensors", "pure RL (motor offsets), 4 stacked frames", "sensors", (0,), frame_stack=4
+    ),
+    Row(
+        "residual-deluca-plain",
+        "residual on eq. (13), no deadzone",
+        "deluca",
+        (0,),
+        action=PLAIN_RESIDUAL,
+        steps=60_000,
+    ),
+    Row("residual-deluca", "residual on eq. (13)", "deluca", (0,), action=RESIDUAL, steps=60_000),
+    Row(
+        "residual-deluca-heavy",
+        "residual on eq. (13), trained on +30 % mass",
+        "deluca",
+        (0,),
+        action=RESIDUAL,
+        train_env=HEAVY,
+        steps=150_000,
+    ),
+    Row(
+        "residual-deluca-heavy-plain",
+        "residual on eq. (13), no deadzone, trained on +30 % mass",
+        "deluca",
+        (0,),
+        action=PLAIN_RESIDUAL,
+        train_env=HEAVY,
+        steps=150_000,
+    ),
+    Row(
+        "residual-deluca-both",
+        "residual on eq. (13), trained on both plants",
+        "deluca",
+        (0,),
+        action=RESIDUAL,
+        hyperparams=BOTH_PLANTS,
+        steps=150_000,
+    ),
+    Row(
+        "kr15-residual-deluca",
+        "residual on eq. (13)",
+        "deluca",
+        (0,),
+        env_id=KR15,
+        action=RESIDUAL,
+        eval_task={},
+        plants=("nominal",),
+        steps=20_000,
+    ),
+    Row("pure-sensors-lstm", "pure RL (motor offsets), LSTM", "sensors", (0,), algo="recurrentppo"),
     Row("pure-ekf", "pure RL (motor offsets)", "ekf", (0,), steps=50_000),
 )
 
@@ -141,8 +187,10 @@ def log(message: str, start: float) -> None:
 def train_all(rows, runs: Path, start: float) -> None:
     """Every row's first seed, then every row's second seed, ...: an interrupted study
     still has every row."""
-    order = sorted(((index, row, seed) for row in rows
-                    for index, seed in enumerate(row.seeds)), key=lambda item: item[0])
+    order = sorted(
+        ((index, row, seed) for row in rows for index, seed in enumerate(row.seeds)),
+        key=lambda item: item[0],
+    )
     for _, row, seed in order:
         config = row.config(seed, runs)
         if (Path(config.out_dir) / FINISHED).exists():
@@ -152,19 +200,26 @@ def train_all(rows, runs: Path, start: float) -> None:
         except Exception as exc:  # one failed run must not stop the study
             log(f"FAILED {row.key} seed {seed}: {exc!r}", start)
             continue
-        log(f"trained {row.key} seed {seed}: {result.policy_steps} policy steps in "
+        log(
+            f"trained {row.key} seed {seed}: {result.policy_steps} policy steps in "
             f"{result.wall_time:.0f} s, eval tracking RMS {result.eval_tracking_rms:.2e}",
-            start)
+            start,
+        )
 
 
 # ---------------------------------------------------------------- evaluation
-def classical_evaluation(env_id: str, controller: str, source: str, env_kwargs: dict
-                         ) -> Evaluation:
+def classical_evaluation(env_id: str, controller: str, source: str, env_kwargs: dict) -> Evaluation:
     """A classical controller on the evaluation episodes, through the policy stack: a
     residual on it whose action is zero applies exactly its torque."""
-    envs = make_policy_vec_env(env_id, EVAL_EPISODES, source, env_kwargs, decimation=10,
-                               action={"kind": "residual", "residual": controller},
-                               autoreset_mode=AutoresetMode.NEXT_STEP)
+    envs = make_policy_vec_env(
+        env_id,
+        EVAL_EPISODES,
+        source,
+        env_kwargs,
+        decimation=10,
+        action={"kind": "residual", "residual": controller},
+        autoreset_mode=AutoresetMode.NEXT_STEP,
+    )
     try:
         return evaluate_arms(envs, lambda obs: np.zeros((len(obs), envs.n)), EVAL_SEED)
     finally:
@@ -173,17 +228,36 @@ def classical_evaluation(env_id: str, controller: str, source: str, env_kwargs: 
 
 def zero_action_evaluation(env_id: str, env_kwargs: dict) -> Evaluation:
     """The motor-offset PD with a zero action: where a pure-RL policy starts."""
-    envs = make_policy_vec_env(env_id, EVAL_EPISODES, "true", env_kwargs, decimation=10,
-                               action={"kind": "motor-offset"},
-                               autoreset_mode=AutoresetMode.NEXT_STEP)
+    envs = make_policy_vec_env(
+        env_id,
+        EVAL_EPISODES,
+        "true",
+        env_kwargs,
+        decimation=10,
+        action={"kind": "motor-offset"},
+        autoreset_mode=AutoresetMode.NEXT_STEP,
+    )
     try:
         return evaluate_arms(envs, lambda obs: np.zeros((len(obs), envs.n)), EVAL_SEED)
     finally:
         envs.close()
 
 
-EVAL_COLUMNS = ("row", "label", "env", "state", "algo", "seed", "plant", "episode_seed",
-                "tracking_rms", "return", "saturated", "policy_steps", "wall_time")
+EVAL_COLUMNS = (
+    "row",
+    "label",
+    "env",
+    "state",
+    "algo",
+    "seed",
+    "plant",
+    "episode_seed",
+    "tracking_rms",
+    "return",
+    "saturated",
+    "policy_steps",
+    "wall_time",
+)
 
 
 def evaluate_all(rows, runs: Path, out: Path, start: float) -> list[dict]:
@@ -197,13 +271,30 @@ def evaluate_all(rows, runs: Path, out: Path, start: float) -> list[dict]:
     records = [r for group in done.values() for r in group]
 
     def add(key, label, env_id, state, algo, seed, plant, evaluation, steps="", wall=""):
-        for episode, rms, ret, sat in zip(evaluation.seeds, evaluation.tracking_rms,
-                                          evaluation.returns, evaluation.saturated_actions,
-                                          strict=True):
-            records.append(dict(row=key, label=label, env=env_id.split("/")[-1], state=state,
-                                algo=algo, seed=str(seed), plant=plant, episode_seed=episode,
-                                tracking_rms=rms, **{"return": ret}, saturated=sat,
-                                policy_steps=steps, wall_time=wall))
+        for episode, rms, ret, sat in zip(
+            evaluation.seeds,
+            evaluation.tracking_rms,
+            evaluation.returns,
+            evaluation.saturated_actions,
+            strict=True,
+        ):
+            records.append(
+                dict(
+                    row=key,
+                    label=label,
+                    env=env_id.split("/")[-1],
+                    state=state,
+                    algo=algo,
+                    seed=str(seed),
+                    plant=plant,
+                    episode_seed=episode,
+                    tracking_rms=rms,
+                    **{"return": ret},
+                    saturated=sat,
+                    policy_steps=steps,
+                    wall_time=wall,
+                )
+            )
         save()  # after every evaluation: an interrupted study keeps what it evaluated
 
     def save() -> None:
@@ -220,21 +311,36 @@ def evaluate_all(rows, runs: Path, out: Path, start: float) -> list[dict]:
         if not any(row.env_id == env_id for row in rows):
             continue
         task = TASK if env_id == TWO_LINK else {}
-        plants = {name: PLANTS[name] for row in rows if row.env_id == env_id
-                  for name in row.plants}
+        plants = {name: PLANTS[name] for row in rows if row.env_id == env_id for name in row.plants}
         for controller, label, sources in table:
             for source in sources:
                 key = f"{controller}-{source}" + ("-kr15" if env_id == KR15 else "")
                 for plant, kwargs in plants.items():
                     if missing(key, "", plant):
-                        add(key, label, env_id, source, "", "", plant,
-                            classical_evaluation(env_id, controller, source, {**task, **kwargs}))
+                        add(
+                            key,
+                            label,
+                            env_id,
+                            source,
+                            "",
+                            "",
+                            plant,
+                            classical_evaluation(env_id, controller, source, {**task, **kwargs}),
+                        )
                         log(f"evaluated {key} on {plant}", start)
         key = "zero-offset" + ("-kr15" if env_id == KR15 else "")
         for plant, kwargs in plants.items():
             if missing(key, "", plant):
-                add(key, "motor-offset PD, zero action (pure RL's start)", env_id, "true", "",
-                    "", plant, zero_action_evaluation(env_id, {**task, **kwargs}))
+                add(
+                    key,
+                    "motor-offset PD, zero action (pure RL's start)",
+                    env_id,
+                    "true",
+                    "",
+                    "",
+                    plant,
+                    zero_action_evaluation(env_id, {**task, **kwargs}),
+                )
     for row in rows:
         for seed in row.seeds:
             config = row.config(seed, runs)
@@ -247,12 +353,22 @@ def evaluate_all(rows, runs: Path, out: Path, start: float) -> list[dict]:
                 kwargs = PLANTS[plant]
                 if missing(row.key, seed, plant):
                     run = run or load_run(folder)
-                    evaluation = evaluate_run(run, EVAL_EPISODES, EVAL_SEED,
-                                              {**row.eval_task, **kwargs})
-                    add(row.key, row.label, row.env_id, row.state, row.algo, seed, plant,
-                        evaluation, summary["policy_steps"], summary["wall_time"])
-                    log(f"evaluated {row.key} seed {seed} on {plant}: "
-                        f"{evaluation.rms:.2e}", start)
+                    evaluation = evaluate_run(
+                        run, EVAL_EPISODES, EVAL_SEED, {**row.eval_task, **kwargs}
+                    )
+                    add(
+                        row.key,
+                        row.label,
+                        row.env_id,
+                        row.state,
+                        row.algo,
+                        seed,
+                        plant,
+                        evaluation,
+                        summary["policy_steps"],
+                        summary["wall_time"],
+                    )
+                    log(f"evaluated {row.key} seed {seed} on {plant}: {evaluation.rms:.2e}", start)
     save()
     return records
 
@@ -262,9 +378,18 @@ def _rms(records) -> float:
     return float(np.sqrt(np.mean([float(r["tracking_rms"]) ** 2 for r in records])))
 
 
-TABLE_COLUMNS = ("env", "policy / controller", "state", "training seeds",
-                 "track RMS nominal [rad]", "range nominal", "track RMS +30 % mass [rad]",
-                 "range +30 % mass", "policy steps", "training time [s]")
+TABLE_COLUMNS = (
+    "env",
+    "policy / controller",
+    "state",
+    "training seeds",
+    "track RMS nominal [rad]",
+    "range nominal",
+    "track RMS +30 % mass [rad]",
+    "range +30 % mass",
+    "policy steps",
+    "training time [s]",
+)
 
 
 def table(records: list[dict]) -> list[dict]:
@@ -276,18 +401,24 @@ def table(records: list[dict]) -> list[dict]:
         mine = [r for r in records if r["row"] == key]
         first = mine[0]
         seeds = sorted({r["seed"] for r in mine})
-        line = {"env": first["env"], "policy / controller": first["label"]
-                + (f" ({first['algo']})" if first["algo"] not in ("", "ppo") else ""),
-                "state": first["state"], "training seeds": len(seeds) if seeds != [""] else "—"}
+        line = {
+            "env": first["env"],
+            "policy / controller": first["label"]
+            + (f" ({first['algo']})" if first["algo"] not in ("", "ppo") else ""),
+            "state": first["state"],
+            "training seeds": len(seeds) if seeds != [""] else "—",
+        }
         for plant, suffix in (("nominal", "nominal"), ("mass+30%", "+30 % mass")):
-            per_seed = [_rms([r for r in mine if r["plant"] == plant and r["seed"] == s])
-                        for s in seeds if any(r["plant"] == plant and r["seed"] == s
-                                              for r in mine)]
-            name = "track RMS nominal [rad]" if plant == "nominal" else \
-                "track RMS +30 % mass [rad]"
+            per_seed = [
+                _rms([r for r in mine if r["plant"] == plant and r["seed"] == s])
+                for s in seeds
+                if any(r["plant"] == plant and r["seed"] == s for r in mine)
+            ]
+            name = "track RMS nominal [rad]" if plant == "nominal" else "track RMS +30 % mass [rad]"
             line[name] = f"{np.mean(per_seed):.2e}" if per_seed else ""
-            line[f"range {suffix}"] = (f"{min(per_seed):.1e} – {max(per_seed):.1e}"
-                                       if len(per_seed) > 1 else "")
+            line[f"range {suffix}"] = (
+                f"{min(per_seed):.1e} – {max(per_seed):.1e}" if len(per_seed) > 1 else ""
+            )
         steps = [float(r["policy_steps"]) for r in mine if r["policy_steps"] not in ("", None)]
         walls = [float(r["wall_time"]) for r in mine if r["wall_time"] not in ("", None)]
         line["policy steps"] = f"{np.mean(steps):.0f}" if steps else ""
@@ -301,11 +432,19 @@ def write_table(lines: list[dict], out: Path) -> None:
         writer = csv.DictWriter(handle, TABLE_COLUMNS)
         writer.writeheader()
         writer.writerows(lines)
-    numeric = {"training seeds", "track RMS nominal [rad]", "range nominal",
-               "track RMS +30 % mass [rad]", "range +30 % mass", "policy steps",
-               "training time [s]"}
-    text = ["| " + " | ".join(TABLE_COLUMNS) + " |",
-            "|" + "|".join("---:" if c in numeric else "---" for c in TABLE_COLUMNS) + "|"]
+    numeric = {
+        "training seeds",
+        "track RMS nominal [rad]",
+        "range nominal",
+        "track RMS +30 % mass [rad]",
+        "range +30 % mass",
+        "policy steps",
+        "training time [s]",
+    }
+    text = [
+        "| " + " | ".join(TABLE_COLUMNS) + " |",
+        "|" + "|".join("---:" if c in numeric else "---" for c in TABLE_COLUMNS) + "|",
+    ]
     text += ["| " + " | ".join(str(line[c]) for c in TABLE_COLUMNS) + " |" for line in lines]
     (out / "table.md").write_text("\n".join(text) + "\n")
 
@@ -323,6 +462,7 @@ def _row_rms(records, key: str, plant: str) -> float:
 def targets(records: list[dict]) -> list[dict]:
     """The targets of the study, each with the measured value, its bound and the verdict
     (``measured / bound``: met when <= 1)."""
+
     def rms(key, plant="nominal"):
         return _row_rms(records, key, plant)
 
@@ -334,39 +474,88 @@ def targets(records: list[dict]) -> list[dict]:
     no_harm_rule = "1.2 x eq. (13) on De Luca"
     checks = [
         ("pure RL, true state, nominal", rms("pure-true"), 1e-3, "1e-3 rad"),
-        ("pure RL, De Luca estimate, nominal", rms("pure-deluca"), 1.5 * rms("pure-true"),
-         "1.5 x pure RL on the true state"),
-        ("pure RL, raw sensors (4 stacked frames), nominal", rms("pure-sensors"),
-         3 * rms("pure-true"), "3 x pure RL on the true state"),
-        ("pure RL, raw sensors (RecurrentPPO), nominal", rms("pure-sensors-lstm"),
-         3 * rms("pure-true"), "3 x pure RL on the true state"),
-        ("residual on eq. (13), De Luca, nominal", rms("residual-deluca"), no_harm,
-         no_harm_rule),
-        ("residual on eq. (13), De Luca, +30 % mass (trained there)",
-         rms("residual-deluca-heavy", "mass+30%"), half_eq13, half_rule),
-        ("residual on eq. (13), De Luca, +30 % mass (trained there), vs integral action",
-         rms("residual-deluca-heavy", "mass+30%"), integral, integral_rule),
-        ("residual on eq. (13) without deadzone, De Luca, nominal",
-         rms("residual-deluca-plain"), no_harm, no_harm_rule),
-        ("residual on eq. (13) without deadzone, De Luca, +30 % mass (trained there)",
-         rms("residual-deluca-heavy-plain", "mass+30%"), half_eq13, half_rule),
-        ("residual on eq. (13) without deadzone, De Luca, +30 % mass (trained there), vs "
-         "integral action", rms("residual-deluca-heavy-plain", "mass+30%"), integral,
-         integral_rule),
-        ("residual on eq. (13) trained on both plants, De Luca, nominal",
-         rms("residual-deluca-both"), no_harm, no_harm_rule),
-        ("residual on eq. (13) trained on both plants, De Luca, +30 % mass",
-         rms("residual-deluca-both", "mass+30%"), half_eq13, half_rule),
-        ("residual on eq. (13) trained on both plants, De Luca, +30 % mass, vs integral "
-         "action", rms("residual-deluca-both", "mass+30%"), integral, integral_rule),
+        (
+            "pure RL, De Luca estimate, nominal",
+            rms("pure-deluca"),
+            1.5 * rms("pure-true"),
+            "1.5 x pure RL on the true state",
+        ),
+        (
+            "pure RL, raw sensors (4 stacked frames), nominal",
+            rms("pure-sensors"),
+            3 * rms("pure-true"),
+            "3 x pure RL on the true state",
+        ),
+        (
+            "pure RL, raw sensors (RecurrentPPO), nominal",
+            rms("pure-sensors-lstm"),
+            3 * rms("pure-true"),
+            "3 x pure RL on the true state",
+        ),
+        ("residual on eq. (13), De Luca, nominal", rms("residual-deluca"), no_harm, no_harm_rule),
+        (
+            "residual on eq. (13), De Luca, +30 % mass (trained there)",
+            rms("residual-deluca-heavy", "mass+30%"),
+            half_eq13,
+            half_rule,
+        ),
+        (
+            "residual on eq. (13), De Luca, +30 % mass (trained there), vs integral action",
+            rms("residual-deluca-heavy", "mass+30%"),
+            integral,
+            integral_rule,
+        ),
+        (
+            "residual on eq. (13) without deadzone, De Luca, nominal",
+            rms("residual-deluca-plain"),
+            no_harm,
+            no_harm_rule,
+        ),
+        (
+            "residual on eq. (13) without deadzone, De Luca, +30 % mass (trained there)",
+            rms("residual-deluca-heavy-plain", "mass+30%"),
+            half_eq13,
+            half_rule,
+        ),
+        (
+            "residual on eq. (13) without deadzone, De Luca, +30 % mass (trained there), vs "
+            "integral action",
+            rms("residual-deluca-heavy-plain", "mass+30%"),
+            integral,
+            integral_rule,
+        ),
+        (
+            "residual on eq. (13) trained on both plants, De Luca, nominal",
+            rms("residual-deluca-both"),
+            no_harm,
+            no_harm_rule,
+        ),
+        (
+            "residual on eq. (13) trained on both plants, De Luca, +30 % mass",
+            rms("residual-deluca-both", "mass+30%"),
+            half_eq13,
+            half_rule,
+        ),
+        (
+            "residual on eq. (13) trained on both plants, De Luca, +30 % mass, vs integral action",
+            rms("residual-deluca-both", "mass+30%"),
+            integral,
+            integral_rule,
+        ),
     ]
     lines = []
     for name, value, bound, rule in checks:
         ratio = value / bound
         verdict = "—" if not np.isfinite(ratio) else ("met" if ratio <= 1 else "missed")
-        lines.append({"target": name, "measured [rad]": f"{value:.2e}",
-                      "bound": f"{bound:.2e} ({rule})", "measured / bound": f"{ratio:.3f}",
-                      "verdict": verdict})
+        lines.append(
+            {
+                "target": name,
+                "measured [rad]": f"{value:.2e}",
+                "bound": f"{bound:.2e} ({rule})",
+                "measured / bound": f"{ratio:.3f}",
+                "verdict": verdict,
+            }
+        )
     return lines
 
 
@@ -417,11 +606,13 @@ def plot_curves(records: list[dict], out: Path) -> None:
             values = np.array([[float(r[column]) for r in c[:length]] for c in per_seed])
             for col_index, x in enumerate((steps, wall / 60.0)):
                 ax = axes[row_index, col_index]
-                line, = ax.plot(x, values.mean(axis=0), label=label,
-                                color=colors[index % len(colors)])
+                (line,) = ax.plot(
+                    x, values.mean(axis=0), label=label, color=colors[index % len(colors)]
+                )
                 if len(seeds) > 1:
-                    ax.fill_between(x, values.min(axis=0), values.max(axis=0), alpha=0.2,
-                                    color=line.get_color())
+                    ax.fill_between(
+                        x, values.min(axis=0), values.max(axis=0), alpha=0.2, color=line.get_color()
+                    )
     for ax in axes[0]:
         ax.set_yscale("log")
     axes[0, 0].set_ylabel("tracking RMS [rad] (5 evaluation episodes)")
@@ -453,14 +644,28 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", default="runs/rl_study", help="training run folders")
     parser.add_argument("--out", default="docs/rl_study", help="tables and figures")
-    parser.add_argument("--rows", nargs="+", metavar="KEY", help="only these rows "
-                        f"(default: all: {[row.key for row in ROWS]})")
-    parser.add_argument("--report", action="store_true",
-                        help="no training: evaluate finished runs, write tables and figures")
-    parser.add_argument("--steps", type=int, metavar="N",
-                        help="policy steps of every run instead of the rows' (a smoke test)")
-    parser.add_argument("--fresh", action="store_true",
-                        help="remove earlier runs and evaluations of the chosen rows first")
+    parser.add_argument(
+        "--rows",
+        nargs="+",
+        metavar="KEY",
+        help=f"only these rows (default: all: {[row.key for row in ROWS]})",
+    )
+    parser.add_argument(
+        "--report",
+        action="store_true",
+        help="no training: evaluate finished runs, write tables and figures",
+    )
+    parser.add_argument(
+        "--steps",
+        type=int,
+        metavar="N",
+        help="policy steps of every run instead of the rows' (a smoke test)",
+    )
+    parser.add_argument(
+        "--fresh",
+        action="store_true",
+        help="remove earlier runs and evaluations of the chosen rows first",
+    )
     args = parser.parse_args()
     rows = [row for row in ROWS if args.rows is None or row.key in args.rows]
     unknown = set(args.rows or ()) - {row.key for row in ROWS}
@@ -474,8 +679,11 @@ def main() -> None:
             shutil.rmtree(runs / row.key, ignore_errors=True)
         forget_evaluations(out / "evaluations.csv", {row.key for row in rows})
     start = time.perf_counter()
-    log(f"RL study: {sum(len(r.seeds) for r in rows)} training runs of {len(rows)} rows "
-        f"into {runs}, report into {out}", start)
+    log(
+        f"RL study: {sum(len(r.seeds) for r in rows)} training runs of {len(rows)} rows "
+        f"into {runs}, report into {out}",
+        start,
+    )
     if not args.report:
         train_all(rows, runs, start)
     out.mkdir(parents=True, exist_ok=True)
@@ -485,8 +693,11 @@ def main() -> None:
     curves = gather_curves(rows, runs, out)
     if curves:
         plot_curves(curves, out)
-    log(f"wrote {out}/table.md, table.csv, targets.md, evaluations.csv, curves.csv, "
-        "learning_curves.png", start)
+    log(
+        f"wrote {out}/table.md, table.csv, targets.md, evaluations.csv, curves.csv, "
+        "learning_curves.png",
+        start,
+    )
 
 
 if __name__ == "__main__":

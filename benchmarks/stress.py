@@ -137,8 +137,10 @@ def run_job(job: Job) -> Tally:
             run_episode(env, seed, job.steps, tally)
         except Exception as exc:  # a crash is what this script looks for: count, go on
             tally.crashes += 1
-            tally.first_errors.append(f"{job.env_id} {job.wrapper} {job.task} seed {seed}: "
-                                      + "".join(traceback.format_exception_only(exc)).strip())
+            tally.first_errors.append(
+                f"{job.env_id} {job.wrapper} {job.task} seed {seed}: "
+                + "".join(traceback.format_exception_only(exc)).strip()
+            )
             if env is not None:
                 env.close()
             env = None
@@ -147,8 +149,9 @@ def run_job(job: Job) -> Tally:
     return tally
 
 
-def plan(env_ids: list[str], wrappers: list[str] | None, episodes: int, steps: int,
-         chunk: int, seed: int) -> list[Job]:
+def plan(
+    env_ids: list[str], wrappers: list[str] | None, episodes: int, steps: int, chunk: int, seed: int
+) -> list[Job]:
     """Jobs of ``chunk`` episodes; every (id, wrapper) gets ``episodes`` episodes spread
     over the tasks, each with its own seed."""
     jobs = []
@@ -158,8 +161,10 @@ def plan(env_ids: list[str], wrappers: list[str] | None, episodes: int, steps: i
             for i, task in enumerate(TASKS):
                 count = episodes // len(TASKS) + (i < episodes % len(TASKS))
                 seeds = [seed + 1000 * i + k for k in range(count)]
-                jobs += [Job(env_id, wrapper, task, tuple(seeds[s : s + chunk]), steps)
-                         for s in range(0, count, chunk)]
+                jobs += [
+                    Job(env_id, wrapper, task, tuple(seeds[s : s + chunk]), steps)
+                    for s in range(0, count, chunk)
+                ]
     return jobs
 
 
@@ -173,13 +178,44 @@ def report(jobs: list[Job], tallies: list[Tally]) -> Tally:
     for (env_id, wrapper), tally in groups.items():
         total.add(tally)
         reasons = ", ".join(f"{r} {c}" for r, c in tally.terminations.most_common()) or "-"
-        rows.append((env_id.split("/")[-1], wrapper, tally.episodes, tally.steps,
-                     tally.truncated, reasons, tally.crashes, tally.non_finite_steps))
-    rows.append(("total", "", total.episodes, total.steps, total.truncated,
-                 sum(total.terminations.values()), total.crashes, total.non_finite_steps))
-    print_table("stress: random-action episodes (targets: 0 crashes, 0 non-finite)",
-                ("env", "wrapper", "episodes", "steps", "truncated", "terminated (reason)",
-                 "crashes", "non-finite steps"), rows)
+        rows.append(
+            (
+                env_id.split("/")[-1],
+                wrapper,
+                tally.episodes,
+                tally.steps,
+                tally.truncated,
+                reasons,
+                tally.crashes,
+                tally.non_finite_steps,
+            )
+        )
+    rows.append(
+        (
+            "total",
+            "",
+            total.episodes,
+            total.steps,
+            total.truncated,
+            sum(total.terminations.values()),
+            total.crashes,
+            total.non_finite_steps,
+        )
+    )
+    print_table(
+        "stress: random-action episodes (targets: 0 crashes, 0 non-finite)",
+        (
+            "env",
+            "wrapper",
+            "episodes",
+            "steps",
+            "truncated",
+            "terminated (reason)",
+            "crashes",
+            "non-finite steps",
+        ),
+        rows,
+    )
     for line in total.first_errors:
         print("crash:", line)
     return total
@@ -187,15 +223,20 @@ def report(jobs: list[Job], tallies: list[Tally]) -> Tally:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--episodes", type=int, default=100,
-                        help="episodes per (env id, wrapper) (default 100)")
-    parser.add_argument("--steps", type=int, default=500,
-                        help="episode length: max_episode_steps (default 500)")
-    parser.add_argument("--ids", nargs="+", default=list(elastic_gym.ENV_IDS),
-                        help="env ids (default: all)")
-    parser.add_argument("--wrappers", nargs="+",
-                        help="subset of: raw, true-state and observer names (default: all "
-                             "applicable to each id)")
+    parser.add_argument(
+        "--episodes", type=int, default=100, help="episodes per (env id, wrapper) (default 100)"
+    )
+    parser.add_argument(
+        "--steps", type=int, default=500, help="episode length: max_episode_steps (default 500)"
+    )
+    parser.add_argument(
+        "--ids", nargs="+", default=list(elastic_gym.ENV_IDS), help="env ids (default: all)"
+    )
+    parser.add_argument(
+        "--wrappers",
+        nargs="+",
+        help="subset of: raw, true-state and observer names (default: all applicable to each id)",
+    )
     parser.add_argument("--workers", type=int, help="worker processes (default: one per CPU)")
     parser.add_argument("--chunk", type=int, default=10, help="episodes per job (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
@@ -213,9 +254,13 @@ def main(argv: list[str] | None = None) -> int:
     jobs = plan(args.ids, args.wrappers, args.episodes, args.steps, args.chunk, args.seed)
     if not jobs:
         parser.error("no (id, wrapper) combination selected")
-    tallies = run_jobs(run_job, jobs, workers=args.workers,
-                       label=f"stress (jobs of {args.chunk} episodes)",
-                       describe=lambda job: f"{job.env_id} {job.wrapper} {job.task}")
+    tallies = run_jobs(
+        run_job,
+        jobs,
+        workers=args.workers,
+        label=f"stress (jobs of {args.chunk} episodes)",
+        describe=lambda job: f"{job.env_id} {job.wrapper} {job.task}",
+    )
     total = report(jobs, tallies)
     return 1 if total.crashes or total.non_finite_steps else 0
 

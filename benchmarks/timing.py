@@ -37,8 +37,11 @@ def ensure_single_thread_blas() -> None:
     os.execve(sys.executable, [sys.executable, *sys.argv], {**os.environ, **SINGLE_THREAD_ENV})
 
 
-def seconds_per_call(function: Callable[..., object], arguments: Sequence[tuple],
-                     clock: Callable[[], float] = time.process_time) -> float:
+def seconds_per_call(
+    function: Callable[..., object],
+    arguments: Sequence[tuple],
+    clock: Callable[[], float] = time.process_time,
+) -> float:
     """Mean time (s) of ``function(*args)`` over the argument tuples: CPU time of this
     process by default, ``clock=time.perf_counter`` for wall time (worker processes)."""
     start = clock()
@@ -60,11 +63,16 @@ def interleaved_best(blocks: Mapping[str, Callable[[], float]], repeats: int) ->
     return best
 
 
-def print_table(title: str, headers: Sequence[str], rows: Iterable[Sequence[object]],
-                console: Console | None = None) -> None:
+def print_table(
+    title: str,
+    headers: Sequence[str],
+    rows: Iterable[Sequence[object]],
+    console: Console | None = None,
+) -> None:
     """A markdown-compatible table (pastes into reports and READMEs)."""
-    table = Table(*(escape(h) for h in headers), title=escape(title), box=box.MARKDOWN,
-                  title_justify="left")
+    table = Table(
+        *(escape(h) for h in headers), title=escape(title), box=box.MARKDOWN, title_justify="left"
+    )
     for row in rows:
         table.add_row(*(escape(str(cell)) for cell in row))
     (console or Console(width=TABLE_WIDTH)).print(table)

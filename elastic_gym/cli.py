@@ -27,29 +27,51 @@ def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
         "TwoLinkElastic (about 300 s of CPU: 2.5 to 3 minutes on 2 free cores).",
     )
     source = parser.add_mutually_exclusive_group()
-    source.add_argument("--preset", default=DEFAULT_PRESET,
-                        help=f"shipped preset name (default: {DEFAULT_PRESET}); see --list-presets")
+    source.add_argument(
+        "--preset",
+        default=DEFAULT_PRESET,
+        help=f"shipped preset name (default: {DEFAULT_PRESET}); see --list-presets",
+    )
     source.add_argument("--config", metavar="YAML", help="scenario YAML file")
     source.add_argument("--list-presets", action="store_true", help="list presets and exit")
-    parser.add_argument("--output", metavar="DIR",
-                        help="output folder (default: ./compare_out/<scenario name>)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace the files of an earlier comparison in the output folder")
+    parser.add_argument(
+        "--output", metavar="DIR", help="output folder (default: ./compare_out/<scenario name>)"
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the files of an earlier comparison in the output folder",
+    )
     parser.add_argument("--workers", type=int, help="parallel workers (default: one per CPU)")
-    parser.add_argument("--backend", choices=BACKENDS, default="process",
-                        help="local processes (default) or Ray")
-    parser.add_argument("--seeds", type=int, nargs="+", metavar="SEED",
-                        help="override the scenario's seeds")
-    parser.add_argument("--duration", type=float, metavar="SECONDS",
-                        help="override the simulated time per run")
-    parser.add_argument("--quick", action="store_true",
-                        help="a fast look at the grid: first seed only, at most 0.5 s per run, "
-                        "each sweep thinned to its farthest magnitude on each side of the nominal "
-                        "(--seeds/--duration apply after it)")
-    parser.add_argument("--physics-dt", type=float, metavar="SECONDS",
-                        help="override the scenario's physics step (default 1/16 ms)")
-    parser.add_argument("--policy", nargs="+", metavar="RUN", default=[],
-                        help="training run folder(s) (elastic-gym train) to compare as controllers")
+    parser.add_argument(
+        "--backend", choices=BACKENDS, default="process", help="local processes (default) or Ray"
+    )
+    parser.add_argument(
+        "--seeds", type=int, nargs="+", metavar="SEED", help="override the scenario's seeds"
+    )
+    parser.add_argument(
+        "--duration", type=float, metavar="SECONDS", help="override the simulated time per run"
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="a fast look at the grid: first seed only, at most 0.5 s per run, "
+        "each sweep thinned to its farthest magnitude on each side of the nominal "
+        "(--seeds/--duration apply after it)",
+    )
+    parser.add_argument(
+        "--physics-dt",
+        type=float,
+        metavar="SECONDS",
+        help="override the scenario's physics step (default 1/16 ms)",
+    )
+    parser.add_argument(
+        "--policy",
+        nargs="+",
+        metavar="RUN",
+        default=[],
+        help="training run folder(s) (elastic-gym train) to compare as controllers",
+    )
     parser.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run_compare)
@@ -64,15 +86,21 @@ def run_compare(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.config) if args.config else load_preset(args.preset)
     if args.quick:
         scenario = scenario.quick()
-    scenario = scenario.with_overrides(seeds=args.seeds, duration=args.duration,
-                                       physics_dt=args.physics_dt)
+    scenario = scenario.with_overrides(
+        seeds=args.seeds, duration=args.duration, physics_dt=args.physics_dt
+    )
     if args.policy:
         require_rl_extra("compare --policy")
     for run in args.policy:
         scenario = with_trained_policy(scenario, run)
     compare(
-        scenario, output_dir=args.output, workers=args.workers, backend=args.backend,
-        progress=not args.no_progress, plots=not args.no_plots, overwrite=args.overwrite,
+        scenario,
+        output_dir=args.output,
+        workers=args.workers,
+        backend=args.backend,
+        progress=not args.no_progress,
+        plots=not args.no_plots,
+        overwrite=args.overwrite,
     )
     return 0
 
@@ -89,22 +117,33 @@ def with_trained_policy(scenario, run_dir: str):
 
     config = read_run_config(run_dir)
     if config.state == SENSORS:
-        raise ValueError(f"--policy {run_dir}: trained on raw sensors; comparisons need a "
-                         "policy trained on 'true' or an observer state")
+        raise ValueError(
+            f"--policy {run_dir}: trained on raw sensors; comparisons need a "
+            "policy trained on 'true' or an observer state"
+        )
     other_envs = sorted({e.id for e in scenario.envs} - {config.env_id})
     if other_envs:
-        raise ValueError(f"--policy {run_dir}: trained on {config.env_id}, but the scenario "
-                         f"also has {other_envs}")
+        raise ValueError(
+            f"--policy {run_dir}: trained on {config.env_id}, but the scenario "
+            f"also has {other_envs}"
+        )
     sources = list(scenario.state_sources)
-    source = next((s for s in sources if s.name == config.state
-                   and s.options == config.observer_options), None)
+    source = next(
+        (s for s in sources if s.name == config.state and s.options == config.observer_options),
+        None,
+    )
     if source is None:
         source = SourceEntry(config.state, f"{config.state}-policy", dict(config.observer_options))
         sources.append(source)
-    controller = ControllerEntry("trained-policy", f"policy:{Path(run_dir).name}",
-                                 {"run": str(Path(run_dir).resolve())}, (source.label,))
-    return dataclasses.replace(scenario, controllers=(*scenario.controllers, controller),
-                               state_sources=tuple(sources))
+    controller = ControllerEntry(
+        "trained-policy",
+        f"policy:{Path(run_dir).name}",
+        {"run": str(Path(run_dir).resolve())},
+        (source.label,),
+    )
+    return dataclasses.replace(
+        scenario, controllers=(*scenario.controllers, controller), state_sources=tuple(sources)
+    )
 
 
 def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
@@ -118,41 +157,84 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
         "overridable), VecNormalize, evaluation callback, TensorBoard logs. The run folder "
         "plugs into 'elastic-gym compare --policy RUN'.",
     )
-    parser.add_argument("--env", default="elastic_gym/TwoLinkElastic-v0",
-                        help="env id (the elastic_gym/ prefix is optional)")
+    parser.add_argument(
+        "--env",
+        default="elastic_gym/TwoLinkElastic-v0",
+        help="env id (the elastic_gym/ prefix is optional)",
+    )
     parser.add_argument("--algo", default="ppo", choices=ALGORITHMS)
-    parser.add_argument("--state", default="deluca", choices=state_sources(),
-                        help="what the policy sees: an observer's estimate, 'true', or raw "
-                        "'sensors' (frame-stacked)")
-    parser.add_argument("--steps", type=int, help="policy steps (default: n_timesteps of the "
-                        "hyper-parameter file)")
+    parser.add_argument(
+        "--state",
+        default="deluca",
+        choices=state_sources(),
+        help="what the policy sees: an observer's estimate, 'true', or raw "
+        "'sensors' (frame-stacked)",
+    )
+    parser.add_argument(
+        "--steps", type=int, help="policy steps (default: n_timesteps of the hyper-parameter file)"
+    )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], metavar="SEED")
-    parser.add_argument("--out", metavar="DIR", help="run folder (default: runs/<algo>-<env>-"
-                        "<state>; one sub-folder per seed when several)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace an earlier run in the run folder")
-    parser.add_argument("--action", choices=("torque", "motor-offset", "residual"),
-                        help="action parameterization (default: the hyper-parameter file's)")
-    parser.add_argument("--action-options", default="{}", metavar="YAML",
-                        help="ActionConfig fields, e.g. '{offset_scale: 0.05, bandwidth: 60}'")
-    parser.add_argument("--observation", default="{}", metavar="YAML",
-                        help="ObservationConfig fields, e.g. '{preview: [0.02, 0.05]}'")
-    parser.add_argument("--residual", metavar="CONTROLLER",
-                        help="residual policy on top of this controller (e.g. "
-                        "feedforward-state-feedback); same as --action residual")
-    parser.add_argument("--residual-scale", type=float,
-                        help="bound of the residual torque as a fraction of the torque limit")
+    parser.add_argument(
+        "--out",
+        metavar="DIR",
+        help="run folder (default: runs/<algo>-<env>-"
+        "<state>; one sub-folder per seed when several)",
+    )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace an earlier run in the run folder"
+    )
+    parser.add_argument(
+        "--action",
+        choices=("torque", "motor-offset", "residual"),
+        help="action parameterization (default: the hyper-parameter file's)",
+    )
+    parser.add_argument(
+        "--action-options",
+        default="{}",
+        metavar="YAML",
+        help="ActionConfig fields, e.g. '{offset_scale: 0.05, bandwidth: 60}'",
+    )
+    parser.add_argument(
+        "--observation",
+        default="{}",
+        metavar="YAML",
+        help="ObservationConfig fields, e.g. '{preview: [0.02, 0.05]}'",
+    )
+    parser.add_argument(
+        "--residual",
+        metavar="CONTROLLER",
+        help="residual policy on top of this controller (e.g. "
+        "feedforward-state-feedback); same as --action residual",
+    )
+    parser.add_argument(
+        "--residual-scale",
+        type=float,
+        help="bound of the residual torque as a fraction of the torque limit",
+    )
     parser.add_argument("--frame-stack", type=int, default=4, help="frames for 'sensors'")
-    parser.add_argument("--env-kwargs", default="{}", metavar="YAML",
-                        help="env kwargs as a YAML mapping, e.g. '{task: regulation}'")
+    parser.add_argument(
+        "--env-kwargs",
+        default="{}",
+        metavar="YAML",
+        help="env kwargs as a YAML mapping, e.g. '{task: regulation}'",
+    )
     parser.add_argument("--observer-options", default="{}", metavar="YAML")
-    parser.add_argument("--hyperparams", nargs="+", default=[], metavar="KEY=VALUE",
-                        help="override hyper-parameters, e.g. learning_rate=1e-4 n_envs=2")
+    parser.add_argument(
+        "--hyperparams",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override hyper-parameters, e.g. learning_rate=1e-4 n_envs=2",
+    )
     parser.add_argument("--hyperparams-file", metavar="YAML")
     parser.add_argument("--eval-freq", type=int, default=20000, help="policy steps between evals")
     parser.add_argument("--eval-episodes", type=int, default=3)
-    parser.add_argument("--backend", choices=BACKENDS, default="process",
-                        help="for several seeds: local processes (default) or Ray")
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="process",
+        help="for several seeds: local processes (default) or Ray",
+    )
     parser.add_argument("--workers", type=int, help="parallel runs (default: one per CPU)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run_train)
@@ -191,9 +273,11 @@ def require_rl_extra(command: str) -> None:
         import stable_baselines3  # noqa: F401
         import torch  # noqa: F401
     except ImportError as exc:
-        raise RuntimeError(f"{command} needs the 'rl' extra ({exc}): pip install "
-                           "'elastic-gym[rl]' (CPU torch first: pip install torch --index-url "
-                           "https://download.pytorch.org/whl/cpu)") from None
+        raise RuntimeError(
+            f"{command} needs the 'rl' extra ({exc}): pip install "
+            "'elastic-gym[rl]' (CPU torch first: pip install torch --index-url "
+            "https://download.pytorch.org/whl/cpu)"
+        ) from None
 
 
 def run_train(args: argparse.Namespace) -> int:
@@ -209,11 +293,16 @@ def run_train(args: argparse.Namespace) -> int:
         raise ValueError(f"--seeds: duplicate seed(s) {duplicates}")
     name = args.env.split("/")[-1]
     base = args.out or f"runs/{args.algo}-{name}-{args.state}" + (
-        f"-residual-{args.residual}" if args.residual else "")
+        f"-residual-{args.residual}" if args.residual else ""
+    )
     check_run_folder(base, args.overwrite)
     configs = [
         TrainConfig(
-            env_id=args.env, algo=args.algo, state=args.state, total_steps=args.steps, seed=seed,
+            env_id=args.env,
+            algo=args.algo,
+            state=args.state,
+            total_steps=args.steps,
+            seed=seed,
             out_dir=base if len(args.seeds) == 1 else f"{base}/seed{seed}",
             action=_action_fields(args),
             observation=_yaml_mapping(args.observation, "--observation"),
@@ -222,24 +311,34 @@ def run_train(args: argparse.Namespace) -> int:
             observer_options=_yaml_mapping(args.observer_options, "--observer-options"),
             hyperparams=parse_overrides(args.hyperparams),
             hyperparams_file=args.hyperparams_file,
-            eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
+            eval_freq=args.eval_freq,
+            eval_episodes=args.eval_episodes,
         )
         for seed in args.seeds
     ]
     if len(configs) == 1:
-        results = [train(configs[0], progress_bar=not args.no_progress,
-                         overwrite=args.overwrite)]
+        results = [train(configs[0], progress_bar=not args.no_progress, overwrite=args.overwrite)]
     else:
-        results = train_many(configs, workers=args.workers, backend=args.backend,
-                             progress=not args.no_progress, overwrite=args.overwrite)
+        results = train_many(
+            configs,
+            workers=args.workers,
+            backend=args.backend,
+            progress=not args.no_progress,
+            overwrite=args.overwrite,
+        )
     table = Table(title=f"{args.algo} on {configs[0].env_id} ({args.state} state)")
     table.add_column("run", overflow="fold")
     for column in ("seed", "policy steps", "env steps", "wall time [s]", "eval return"):
         table.add_column(column)
     for config, result in zip(configs, results, strict=True):
-        table.add_row(result.out_dir, str(config.seed), str(result.policy_steps),
-                      str(result.env_steps), f"{result.wall_time:.0f}",
-                      f"{result.mean_eval_return:.4g}")
+        table.add_row(
+            result.out_dir,
+            str(config.seed),
+            str(result.policy_steps),
+            str(result.env_steps),
+            f"{result.wall_time:.0f}",
+            f"{result.mean_eval_return:.4g}",
+        )
     Console().print(table)
     print(f"compare with: elastic-gym compare --policy {' '.join(r.out_dir for r in results)}")
     return 0
@@ -256,8 +355,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-USAGE_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError,
-                PermissionError)
+USAGE_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, PermissionError)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

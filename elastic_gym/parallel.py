@@ -132,8 +132,9 @@ def resolve_workers(workers: int | None, n_jobs: int, backend: str) -> int:
     arguments (``ValueError``)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; valid: {list(BACKENDS)}")
-    if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool)
-                                or workers < 1):
+    if workers is not None and (
+        not isinstance(workers, int) or isinstance(workers, bool) or workers < 1
+    ):
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     return workers or default_workers(n_jobs)
 
@@ -171,8 +172,9 @@ def for_each_result(
             bar.advance(task)
 
         def failure(index: int, exc: Exception) -> RuntimeError:
-            return RuntimeError(f"{describe(jobs[index])} could not run: "
-                                f"{type(exc).__name__}: {exc}")
+            return RuntimeError(
+                f"{describe(jobs[index])} could not run: {type(exc).__name__}: {exc}"
+            )
 
         if backend == "ray":
             _run_ray(function, jobs, workers, deliver, failure)
@@ -199,8 +201,16 @@ def run_jobs(
 ) -> list[Any]:
     """``[function(job) for job in jobs]`` computed in parallel (:func:`for_each_result`)."""
     results: dict[int, Any] = {}
-    for_each_result(function, jobs, results.__setitem__, workers=workers, backend=backend,
-                    progress=progress, label=label, describe=describe)
+    for_each_result(
+        function,
+        jobs,
+        results.__setitem__,
+        workers=workers,
+        backend=backend,
+        progress=progress,
+        label=label,
+        describe=describe,
+    )
     return [results[i] for i in range(len(jobs))]
 
 
@@ -237,12 +247,12 @@ def _worker_init() -> None:
 
 def _run_processes(function, jobs, workers, deliver, failure) -> None:
     context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                               initializer=_worker_init)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_init)
     try:
         with single_threaded():  # the workers are spawned by the first submissions
-            futures: dict[Future, int] = {pool.submit(function, job): i
-                                          for i, job in enumerate(jobs)}
+            futures: dict[Future, int] = {
+                pool.submit(function, job): i for i, job in enumerate(jobs)
+            }
         for future in as_completed(futures):
             index = futures[future]
             try:
@@ -273,16 +283,24 @@ def _run_ray(function, jobs, workers, deliver, failure) -> None:
     try:
         import ray
     except ImportError:
-        raise ImportError("backend 'ray' needs the optional extra: pip install "
-                          "'elastic-gym[ray]'") from None
+        raise ImportError(
+            "backend 'ray' needs the optional extra: pip install 'elastic-gym[ray]'"
+        ) from None
     started = not ray.is_initialized()
     if started and os.environ.get("RAY_ADDRESS"):  # an existing cluster (its own CPUs)
-        ray.init(address=os.environ["RAY_ADDRESS"], log_to_driver=False,
-                 runtime_env={"env_vars": SINGLE_THREAD_ENV})
+        ray.init(
+            address=os.environ["RAY_ADDRESS"],
+            log_to_driver=False,
+            runtime_env={"env_vars": SINGLE_THREAD_ENV},
+        )
         workers = max(1, int(ray.cluster_resources().get("CPU", workers)))
     elif started:
-        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
-                 runtime_env={"env_vars": SINGLE_THREAD_ENV})
+        ray.init(
+            num_cpus=workers,
+            include_dashboard=False,
+            log_to_driver=False,
+            runtime_env={"env_vars": SINGLE_THREAD_ENV},
+        )
     if started and _handlers_depth and threading.current_thread() is threading.main_thread():
         _install_handlers()  # ray.init installs a SIGTERM handler of its own
     remote = ray.remote(num_cpus=1)(_call)  # _call: ray.remote takes plain functions only

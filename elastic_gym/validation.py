@@ -63,8 +63,9 @@ def check_applies(kind: str, name: str, applies_to: frozenset[str], model) -> No
         )
 
 
-def per_joint_values(value: Any, n: int, name: str, minimum: float | None = None,
-                     strict: bool = False) -> np.ndarray:
+def per_joint_values(
+    value: Any, n: int, name: str, minimum: float | None = None, strict: bool = False
+) -> np.ndarray:
     """A scalar or N finite numbers as an (N,) float array, optionally bounded below.
 
     ``minimum`` with ``strict`` means every value > minimum, else >= minimum. The error

@@ -66,19 +66,28 @@ class StaticLinkObserver(Observer):
 
 
 def scenario(duration: float) -> Scenario:
-    return Scenario.from_dict({
-        "name": "custom-example",
-        "duration": duration,
-        "seeds": [0],
-        "envs": [{"id": "TwoLinkElastic-v0", "kwargs": {"task": "regulation",
-                                                         "task_options": {"max_move": 0.1}}}],
-        "controllers": [
-            "feedforward-state-feedback",
-            {"name": "torsion-damping", "class": MotorPDWithTorsionDamping,
-             "options": {"kt": 20.0}},
-        ],
-        "state_sources": ["deluca", {"name": "static", "class": StaticLinkObserver}],
-    })
+    return Scenario.from_dict(
+        {
+            "name": "custom-example",
+            "duration": duration,
+            "seeds": [0],
+            "envs": [
+                {
+                    "id": "TwoLinkElastic-v0",
+                    "kwargs": {"task": "regulation", "task_options": {"max_move": 0.1}},
+                }
+            ],
+            "controllers": [
+                "feedforward-state-feedback",
+                {
+                    "name": "torsion-damping",
+                    "class": MotorPDWithTorsionDamping,
+                    "options": {"kt": 20.0},
+                },
+            ],
+            "state_sources": ["deluca", {"name": "static", "class": StaticLinkObserver}],
+        }
+    )
 
 
 if __name__ == "__main__":

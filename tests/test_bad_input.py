@@ -75,8 +75,11 @@ def test_step_before_reset():
         ({"unmodelled_friction": {"coulomb": -0.1}}, ValueError, "unmodelled_friction.coulomb"),
         ({"unmodelled_friction": {"coulomb": 1.0}}, ValueError, "below 1"),
         ({"unmodelled_friction": {"stiction": 0.1}}, ValueError, "'coulomb' and/or 'viscous'"),
-        ({"unmodelled_friction": {"viscous": [0.1, 0.2, 0.3]}}, ValueError,
-         "unmodelled_friction.viscous"),
+        (
+            {"unmodelled_friction": {"viscous": [0.1, 0.2, 0.3]}},
+            ValueError,
+            "unmodelled_friction.viscous",
+        ),
         ({"physics_dt": 2e-3}, ValueError, "physics_dt"),
         ({"control_dt": 7.5e-4}, ValueError, "control_dt"),
         ({"torque_limit": [1.0]}, ValueError, "torque_limit"),
@@ -107,15 +110,15 @@ def test_unknown_observer_lists_the_valid_ones(env):
 
 def test_non_finite_physics_terminates_with_a_reason():
     env = gym.make("elastic_gym/TwoLinkRigid-v0", max_velocity=1e300)
-    first, first_info = env.reset(seed=0, options={
-        "initial_state": {"q": [0.0, 0.0], "dq": [1e300, 1e300]}})
+    first, first_info = env.reset(
+        seed=0, options={"initial_state": {"q": [0.0, 0.0], "dq": [1e300, 1e300]}}
+    )
     obs, reward, terminated, _, info = env.step(np.zeros(2))
     assert terminated and info["termination_reason"] == "non-finite state"
     assert reward == RewardConfig().termination_reward < 0  # every other step pays >= 0
     # the last finite observation, the same info keys as every step (the truth is not finite)
     assert all(np.array_equal(obs[k], first[k]) for k in obs)
-    assert set(info) == set(first_info) and set(info["true_state"]) == set(
-        first_info["true_state"])
+    assert set(info) == set(first_info) and set(info["true_state"]) == set(first_info["true_state"])
     assert not np.all(np.isfinite(info["true_state"]["x"]))
     with pytest.raises(RuntimeError, match="reset"):
         env.step(np.zeros(2))

@@ -21,8 +21,11 @@ N_ARMS = 3
 # kwargs that exercise every batched part: filter + noise + bias, delay line, scaling,
 # encoder noise, a coarser control period, short episodes (autoresets)
 KWARGS = {
-    "elastic_gym/TwoLinkElastic-v0": {"accelerometer": {"cutoff_hz": 80.0}, "sensor_delay": 2,
-                                      "plant_scaling": {"link_mass": 1.2, "stiffness": 0.9}},
+    "elastic_gym/TwoLinkElastic-v0": {
+        "accelerometer": {"cutoff_hz": 80.0},
+        "sensor_delay": 2,
+        "plant_scaling": {"link_mass": 1.2, "stiffness": 0.9},
+    },
     "elastic_gym/KR15Elastic-v0": {"encoder": {"noise_std": 1e-4}, "task": "regulation"},
     "elastic_gym/IiwaElastic-v0": {"control_dt": 2e-3, "sensor_delay": 1},
     "elastic_gym/TwoLinkRigid-v0": {"task": "excitation"},
@@ -40,8 +43,11 @@ def _flat(value) -> np.ndarray:
 
 def _arm(batched: dict, i: int) -> dict:
     """Arm i of a batched observation or info (masks dropped)."""
-    return {k: _arm(v, i) if isinstance(v, dict) else v[i]
-            for k, v in batched.items() if not k.startswith("_")}
+    return {
+        k: _arm(v, i) if isinstance(v, dict) else v[i]
+        for k, v in batched.items()
+        if not k.startswith("_")
+    }
 
 
 def _actions(limit: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -53,8 +59,7 @@ def _actions(limit: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 @pytest.mark.parametrize("env_id", elastic_gym.ENV_IDS)
 def test_each_arm_equals_the_single_env_bit_for_bit(env_id):
     kwargs = {**KWARGS[env_id], "episode_time": 0.06, "max_velocity": 2.0}
-    envs = gym.make_vec(env_id, num_envs=N_ARMS, vectorization_mode="vector_entry_point",
-                        **kwargs)
+    envs = gym.make_vec(env_id, num_envs=N_ARMS, vectorization_mode="vector_entry_point", **kwargs)
     assert isinstance(envs.unwrapped, gym.vector.VectorEnv)
     singles = [gym.make(env_id, **kwargs) for _ in range(N_ARMS)]
     obs, info = envs.reset(seed=11)
@@ -92,9 +97,13 @@ def test_each_arm_equals_the_single_env_bit_for_bit(env_id):
 
 def test_same_step_autoreset_and_masks():
     kwargs = {"task": "excitation", "episode_time": 0.01}
-    envs = gym.make_vec("elastic_gym/TwoLinkRigid-v0", num_envs=2,
-                        vectorization_mode="vector_entry_point",
-                        autoreset_mode=AutoresetMode.SAME_STEP, **kwargs)
+    envs = gym.make_vec(
+        "elastic_gym/TwoLinkRigid-v0",
+        num_envs=2,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode=AutoresetMode.SAME_STEP,
+        **kwargs,
+    )
     assert envs.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
     single = gym.make("elastic_gym/TwoLinkRigid-v0", **kwargs)
     envs.reset(seed=[5, 9])
@@ -106,7 +115,8 @@ def test_same_step_autoreset_and_masks():
     final_obs, *_ = single.step(np.zeros(2))
     assert truncated.all() and not terminated.any()
     assert info["_final_obs"].all() and np.array_equal(
-        info["final_obs"][1]["link_position"], final_obs["link_position"])
+        info["final_obs"][1]["link_position"], final_obs["link_position"]
+    )
     assert info["final_info"]["time"][1] == pytest.approx(0.01)
     reset_obs, _ = single.reset()  # the arm was reset in the same step
     assert np.array_equal(obs["link_position"][1], reset_obs["link_position"])
@@ -116,9 +126,14 @@ def test_same_step_autoreset_and_masks():
 
 
 def test_disabled_autoreset_needs_a_masked_reset():
-    envs = gym.make_vec("elastic_gym/TwoLinkRigid-v0", num_envs=2,
-                        vectorization_mode="vector_entry_point", autoreset_mode="Disabled",
-                        task="excitation", episode_time=0.002)
+    envs = gym.make_vec(
+        "elastic_gym/TwoLinkRigid-v0",
+        num_envs=2,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode="Disabled",
+        task="excitation",
+        episode_time=0.002,
+    )
     envs.reset(seed=0)
     envs.step(np.zeros((2, 2)))
     _, _, _, truncated, _ = envs.step(np.zeros((2, 2)))
@@ -133,19 +148,27 @@ def test_disabled_autoreset_needs_a_masked_reset():
 
 
 def test_vector_env_bad_input_changes_nothing_and_closed_env_refuses():
-    envs = gym.make_vec("elastic_gym/TwoLinkElastic-v0", num_envs=2,
-                        vectorization_mode="vector_entry_point")
+    envs = gym.make_vec(
+        "elastic_gym/TwoLinkElastic-v0", num_envs=2, vectorization_mode="vector_entry_point"
+    )
     envs.reset(seed=0)
     batch = envs.unwrapped.batch
     before = batch.sim.state.copy()
-    for bad, error in (([[np.nan, 0.0], [0.0, 0.0]], ValueError), (np.zeros(2), ValueError),
-                       (np.zeros((2, 2), dtype=complex), TypeError)):
+    for bad, error in (
+        ([[np.nan, 0.0], [0.0, 0.0]], ValueError),
+        (np.zeros(2), ValueError),
+        (np.zeros((2, 2), dtype=complex), TypeError),
+    ):
         with pytest.raises(error):
             envs.step(bad)
     assert np.array_equal(batch.sim.state, before)
     with pytest.raises(TypeError, match="unexpected keyword argument 'stifness'"):
-        gym.make_vec("elastic_gym/TwoLinkElastic-v0", num_envs=2,
-                     vectorization_mode="vector_entry_point", stifness=1.0)
+        gym.make_vec(
+            "elastic_gym/TwoLinkElastic-v0",
+            num_envs=2,
+            vectorization_mode="vector_entry_point",
+            stifness=1.0,
+        )
     with pytest.raises(ValueError, match="seeds"):
         envs.reset(seed=[1, 2, 3])
     envs.close()
@@ -154,8 +177,12 @@ def test_vector_env_bad_input_changes_nothing_and_closed_env_refuses():
 
 
 def test_pickled_vector_env_continues_bit_for_bit():
-    envs = gym.make_vec("elastic_gym/KR15Elastic-v0", num_envs=2,
-                        vectorization_mode="vector_entry_point", sensor_delay=1)
+    envs = gym.make_vec(
+        "elastic_gym/KR15Elastic-v0",
+        num_envs=2,
+        vectorization_mode="vector_entry_point",
+        sensor_delay=1,
+    )
     envs.reset(seed=4)
     rng = np.random.default_rng(1)
     limit = envs.unwrapped.torque_limit
@@ -198,8 +225,12 @@ def test_arms_of_a_large_batch_equal_single_envs():
 
 
 def test_vector_env_renders_one_image_per_arm():
-    envs = gym.make_vec("elastic_gym/TwoLinkElastic-v0", num_envs=2,
-                        vectorization_mode="vector_entry_point", render_mode="rgb_array")
+    envs = gym.make_vec(
+        "elastic_gym/TwoLinkElastic-v0",
+        num_envs=2,
+        vectorization_mode="vector_entry_point",
+        render_mode="rgb_array",
+    )
     envs.reset(seed=0)
     frames = envs.render()
     assert len(frames) == 2 and all(f.shape == (360, 480, 3) for f in frames)

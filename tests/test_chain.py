@@ -46,8 +46,9 @@ def test_chain_equals_pinocchio(robot):
         readings = chain.specific_forces(q, dq, ddq)
         T, W = chain.accelerometer_maps(q, dq)
         for k in range(len(q)):
-            worst = max(worst, _relative(readings[k],
-                                         model.accelerometer_readings(q[k], dq[k], ddq[k])))
+            worst = max(
+                worst, _relative(readings[k], model.accelerometer_readings(q[k], dq[k], ddq[k]))
+            )
             T_ref, W_ref = model.accelerometer_maps(q[k], dq[k])
             worst = max(worst, _relative(T[k], T_ref), _relative(W[k], W_ref))
             assert np.allclose(T[k] @ ddq[k] + W[k], readings[k], rtol=1e-12, atol=1e-12)
@@ -59,14 +60,20 @@ def test_each_arm_is_bit_identical_whatever_the_batch_size(robot):
     model = RobotModel(get_robot(robot))
     chain = model.chain
     q, dq, ddq, tau = _states(model, 64, seed=3)
-    batch = [chain.forward_dynamics(q, dq, tau), chain.specific_forces(q, dq, ddq),
-             *chain.accelerometer_maps(q, dq), *chain.mass_and_bias(q, dq)]
+    batch = [
+        chain.forward_dynamics(q, dq, tau),
+        chain.specific_forces(q, dq, ddq),
+        *chain.accelerometer_maps(q, dq),
+        *chain.mass_and_bias(q, dq),
+    ]
     for k in (0, 17, 63):
         rows = slice(k, k + 1)
-        alone = [chain.forward_dynamics(q[rows], dq[rows], tau[rows]),
-                 chain.specific_forces(q[rows], dq[rows], ddq[rows]),
-                 *chain.accelerometer_maps(q[rows], dq[rows]),
-                 *chain.mass_and_bias(q[rows], dq[rows])]
+        alone = [
+            chain.forward_dynamics(q[rows], dq[rows], tau[rows]),
+            chain.specific_forces(q[rows], dq[rows], ddq[rows]),
+            *chain.accelerometer_maps(q[rows], dq[rows]),
+            *chain.mass_and_bias(q[rows], dq[rows]),
+        ]
         for whole, single in zip(batch, alone, strict=True):
             assert np.array_equal(whole[k], single[0])
 

@@ -129,7 +129,8 @@ def test_output_folder_that_cannot_hold_results_is_refused_before_any_run(tmp_pa
         with pytest.raises(error, match=message):
             run(scenario(), out)
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        ["file.txt"] + (["locked"] if (tmp_path / "locked").exists() else []))
+        ["file.txt"] + (["locked"] if (tmp_path / "locked").exists() else [])
+    )
     assert a_file.read_text() == "mine"
 
 
@@ -148,7 +149,13 @@ def test_earlier_results_are_refused_unless_overwrite_which_removes_only_ours(tm
     assert [p.name for p in (tmp_path / "plots").iterdir()] == ["TwoLinkRigid_exact.png"]
     assert list(result.runs["seed"]) == [1]
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "notes.txt", "plots", "runs.csv", "scenario.yaml", "summary.csv", "summary.md"]
+        "notes.txt",
+        "plots",
+        "runs.csv",
+        "scenario.yaml",
+        "summary.csv",
+        "summary.md",
+    ]
 
 
 def test_cli_refuses_earlier_results_and_duplicate_seeds(tmp_path, capsys):
@@ -170,10 +177,17 @@ def test_scenario_name_stays_one_folder_inside_the_output_root(name):
 
 
 def test_labels_giving_the_same_or_too_long_figure_names_are_refused(tmp_path):
-    same = scenario(envs=[{"id": "TwoLinkRigid-v0", "label": "arm a"},
-                          {"id": "TwoLinkRigid-v0", "label": "arm/a"}])
-    with pytest.raises(ScenarioError, match=r"^envs: the env labels 'arm a' and 'arm/a' give "
-                                            r"the same figure file name 'arm_a_exact\.png'"):
+    same = scenario(
+        envs=[
+            {"id": "TwoLinkRigid-v0", "label": "arm a"},
+            {"id": "TwoLinkRigid-v0", "label": "arm/a"},
+        ]
+    )
+    with pytest.raises(
+        ScenarioError,
+        match=r"^envs: the env labels 'arm a' and 'arm/a' give "
+        r"the same figure file name 'arm_a_exact\.png'",
+    ):
         run(same, tmp_path / "a")
     long = scenario(model_errors=[{"label": "m" * 300, "link_mass": 1.1}])
     with pytest.raises(ScenarioError, match=r"^model_errors: .* \(the limit is 255\)"):
@@ -187,19 +201,37 @@ def test_labels_giving_the_same_or_too_long_figure_names_are_refused(tmp_path):
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
-        ({"envs": [{"id": "TwoLinkRigid-v0",
-                    "reset_options": {"initial_state": {"q": [0.1, 0.2, 0.3]}}}]},
-         r"^envs\[0\]\.reset_options: ValueError: .*q"),
-        ({"envs": [{"id": "TwoLinkRigid-v0", "reset_options": {"initial_stat": {}}}]},
-         r"^envs\[0\]\.reset_options: ValueError: .*initial_stat"),
-        ({"axes": {"enc": [{}, {"encoder": {"noise_std": -1.0}}]}},
-         r"^axes\.enc\[1\] \(on envs\[0\]\): ValueError: .*noise_std"),
-        ({"model_errors": [{"link_mass": [1.1, 1.2, 1.3]}]},
-         r"^model_errors\[0\]: ValueError: .*'link_mass' needs 1 or 2 values, got 3"),
-        ({"state_sources": [{"name": "finite-difference", "initial_estimate": [0.0] * 3}]},
-         r"^state_sources\[0\]: ValueError: initial_estimate must be 4 finite numbers"),
-        ({"state_sources": [{"name": "finite-difference", "options": {"cutoff_hz": -5.0}}]},
-         r"^state_sources\[0\]\.options: ValueError: cutoff_hz must be > 0"),
+        (
+            {
+                "envs": [
+                    {
+                        "id": "TwoLinkRigid-v0",
+                        "reset_options": {"initial_state": {"q": [0.1, 0.2, 0.3]}},
+                    }
+                ]
+            },
+            r"^envs\[0\]\.reset_options: ValueError: .*q",
+        ),
+        (
+            {"envs": [{"id": "TwoLinkRigid-v0", "reset_options": {"initial_stat": {}}}]},
+            r"^envs\[0\]\.reset_options: ValueError: .*initial_stat",
+        ),
+        (
+            {"axes": {"enc": [{}, {"encoder": {"noise_std": -1.0}}]}},
+            r"^axes\.enc\[1\] \(on envs\[0\]\): ValueError: .*noise_std",
+        ),
+        (
+            {"model_errors": [{"link_mass": [1.1, 1.2, 1.3]}]},
+            r"^model_errors\[0\]: ValueError: .*'link_mass' needs 1 or 2 values, got 3",
+        ),
+        (
+            {"state_sources": [{"name": "finite-difference", "initial_estimate": [0.0] * 3}]},
+            r"^state_sources\[0\]: ValueError: initial_estimate must be 4 finite numbers",
+        ),
+        (
+            {"state_sources": [{"name": "finite-difference", "options": {"cutoff_hz": -5.0}}]},
+            r"^state_sources\[0\]\.options: ValueError: cutoff_hz must be > 0",
+        ),
     ],
 )
 def test_what_would_fail_every_run_is_found_before_the_first(tmp_path, changes, message):
@@ -219,20 +251,25 @@ def test_missing_or_corrupted_policy_folder_is_found_before_the_first_run(tmp_pa
     pytest.importorskip("stable_baselines3")
     from elastic_gym.training import TrainConfig
 
-    missing = scenario(controllers=[{"name": "trained-policy",
-                                     "options": {"run": str(tmp_path / "nope")}}])
+    missing = scenario(
+        controllers=[{"name": "trained-policy", "options": {"run": str(tmp_path / "nope")}}]
+    )
     with pytest.raises(ScenarioError, match=r"^controllers\[0\]\.options: .*not a training run"):
         run(missing, tmp_path / "out")
     broken = tmp_path / "broken"
     broken.mkdir()
-    config = TrainConfig(env_id="TwoLinkRigid-v0", algo="sac", state="finite-difference",
-                         out_dir="x")
+    config = TrainConfig(
+        env_id="TwoLinkRigid-v0", algo="sac", state="finite-difference", out_dir="x"
+    )
     (broken / "config.yaml").write_text(yaml.safe_dump(config.to_dict()))
     (broken / "model.zip").write_bytes(b"not a zip archive")
     (broken / "vecnormalize.pkl").write_bytes(b"not a pickle")
     corrupted = scenario(controllers=[{"name": "trained-policy", "options": {"run": str(broken)}}])
-    with pytest.raises(ScenarioError, match=r"^controllers\[0\]\.options: .*model\.zip cannot be "
-                                            r"loaded as a sac model"):
+    with pytest.raises(
+        ScenarioError,
+        match=r"^controllers\[0\]\.options: .*model\.zip cannot be "
+        r"loaded as a sac model",
+    ):
         run(corrupted, tmp_path / "out")
     assert not (tmp_path / "out").exists()
     (broken / "config.yaml").write_text("algo: [sac\n")
@@ -246,10 +283,11 @@ def test_missing_or_corrupted_policy_folder_is_found_before_the_first_run(tmp_pa
 def test_any_exception_in_a_users_controller_or_observer_is_a_failed_row(tmp_path):
     scn = scenario(
         duration=0.05,
-        controllers=[{"name": "hold", "class": HoldPD},
-                     {"name": "exploding", "class": ExplodingController},
-                     {"name": "broken-reset", "class": BrokenReset,
-                      "sources": ["finite-difference"]}],
+        controllers=[
+            {"name": "hold", "class": HoldPD},
+            {"name": "exploding", "class": ExplodingController},
+            {"name": "broken-reset", "class": BrokenReset, "sources": ["finite-difference"]},
+        ],
         state_sources=["finite-difference", {"name": "dividing", "class": DividingObserver}],
     )
     result = run(scn, tmp_path)
@@ -257,7 +295,8 @@ def test_any_exception_in_a_users_controller_or_observer_is_a_failed_row(tmp_pat
     assert rows["hold", "finite-difference"]["status"] == "ok"
     assert rows["hold", "finite-difference"]["sim_time"] == pytest.approx(0.05)
     assert rows["exploding", "finite-difference"]["status"] == (
-        "failed: BoomError: gain table exhausted")
+        "failed: BoomError: gain table exhausted"
+    )
     assert rows["exploding", "finite-difference"]["sim_time"] == pytest.approx(0.004)
     assert rows["hold", "dividing"]["status"] == "failed: ZeroDivisionError: division by zero"
     assert rows["broken-reset", "finite-difference"]["status"] == "failed: KeyError: 'reference'"
@@ -269,17 +308,24 @@ def test_any_exception_in_a_users_controller_or_observer_is_a_failed_row(tmp_pat
 
 def test_rows_and_figures_are_on_disk_as_soon_as_their_runs_finish(tmp_path):
     CountingController.seen.clear()
-    scn = scenario(seeds=[0, 1], axes={"plant": [{}, {"plant_scaling": {"link_mass": 1.1}}]},
-                   controllers=[{"name": "counting", "class": CountingController,
-                                 "options": {"folder": str(tmp_path)}}])
+    scn = scenario(
+        seeds=[0, 1],
+        axes={"plant": [{}, {"plant_scaling": {"link_mass": 1.1}}]},
+        controllers=[
+            {"name": "counting", "class": CountingController, "options": {"folder": str(tmp_path)}}
+        ],
+    )
     run(scn, tmp_path)
     # the last 4 resets are the runs (the checks before the first run build it once more)
     assert CountingController.seen[-4:] == [(0, 0), (1, 0), (2, 1), (3, 1)]
 
 
 def test_compare_returns_mean_and_spread_over_seeds(tmp_path, monkeypatch):
-    scn = scenario(seeds=[0, 1, 2], duration=0.05,
-                   envs=[{"id": "TwoLinkRigid-v0", "kwargs": {"task": "regulation"}}])
+    scn = scenario(
+        seeds=[0, 1, 2],
+        duration=0.05,
+        envs=[{"id": "TwoLinkRigid-v0", "kwargs": {"task": "regulation"}}],
+    )
     result = run(scn, tmp_path)
     track = result.runs["track_rms"].to_numpy()
     assert len(set(track)) == 3  # the seeds draw different goals
@@ -292,14 +338,15 @@ def test_compare_returns_mean_and_spread_over_seeds(tmp_path, monkeypatch):
 
     monkeypatch.setitem(sys.modules, "pandas", None)  # pandas not installed
     plain = run(scn, tmp_path / "plain")
-    assert isinstance(plain.summary, list) and plain.summary[0]["track_rms_std"] == (
-        row["track_rms_std"])
+    assert (
+        isinstance(plain.summary, list)
+        and plain.summary[0]["track_rms_std"] == (row["track_rms_std"])
+    )
     assert [r["track_rms"] for r in plain.runs] == list(track)
 
 
 def test_run_count_and_time_estimate_are_printed_first_and_hold(tmp_path):
-    scn = scenario(duration=0.2, seeds=[0, 1],
-                   state_sources=["finite-difference", "nicosia-tomei"])
+    scn = scenario(duration=0.2, seeds=[0, 1], state_sources=["finite-difference", "nicosia-tomei"])
     runs, _ = plan_runs(scn)
     estimate = preflight(scn, runs, workers=1)
     start = time.process_time()
@@ -309,7 +356,13 @@ def test_run_count_and_time_estimate_are_printed_first_and_hold(tmp_path):
     assert estimate.seconds == estimate.cpu_seconds / estimate.share and 0 < estimate.share <= 1
 
     printed = io.StringIO()
-    compare(scn, output_dir=tmp_path, workers=1, progress=False, plots=False,
-            console=Console(file=printed, width=200))
+    compare(
+        scn,
+        output_dir=tmp_path,
+        workers=1,
+        progress=False,
+        plots=False,
+        console=Console(file=printed, width=200),
+    )
     first = printed.getvalue().splitlines()[0]
     assert first.startswith("checks: 4 runs on 1 worker, about ") and first.endswith(" s")

@@ -90,8 +90,9 @@ def test_rigid_torque_derivatives():
     exact_dtau = (rt.torque(path.evaluate(t + h)) - rt.torque(path.evaluate(t - h))) / (2 * h)
     np.testing.assert_allclose(rt.first_derivative(path.evaluate(t)), exact_dtau, rtol=1e-6)
     # reference tau_r'' from the exact path (its derivatives above 4 are not used by INVDYN)
-    exact_ddtau = (rt.first_derivative(path.evaluate(t + h)) - rt.first_derivative(
-        path.evaluate(t - h))) / (2 * h)
+    exact_ddtau = (
+        rt.first_derivative(path.evaluate(t + h)) - rt.first_derivative(path.evaluate(t - h))
+    ) / (2 * h)
     ddtau = rt.second_derivative(path.evaluate(t))
     assert np.abs(ddtau - exact_ddtau).max() < 1e-5 * np.abs(exact_ddtau).max()
 
@@ -141,8 +142,9 @@ def test_invdyn_neglected_coupling_terms_are_tiny_for_kr15_without_damping():
     times = np.arange(0.06, 0.64, h)  # inside the move: q_d^(5) jumps at its ends
 
     def exact_ddtau(t, e=1e-5):
-        return (rt.first_derivative(path.evaluate(t + e)) - rt.first_derivative(
-            path.evaluate(t - e))) / (2 * e)
+        return (
+            rt.first_derivative(path.evaluate(t + e)) - rt.first_derivative(path.evaluate(t - e))
+        ) / (2 * e)
 
     tau3 = np.array([exact_ddtau(t) for t in times])[:, 2]
     d3 = np.gradient(tau3, h)[2:-2]
@@ -213,7 +215,9 @@ def test_eq13_tracks_with_true_state_and_feedforward_alone_follows(env_id):
     for feedback in (True, False):
         env = TrueStateWrapper(make_noise_free(env_id, task_options=TRACK))
         controller = make_controller(
-            "feedforward-state-feedback", env.unwrapped.model, env.unwrapped.control_dt,
+            "feedforward-state-feedback",
+            env.unwrapped.model,
+            env.unwrapped.control_dt,
             feedback=feedback,
         )
         results[feedback] = rms(simulate(env, controller, 1000)["error"])
@@ -229,10 +233,14 @@ def test_full_state_feedback_beats_motor_pd_under_link_mass_error():
     start, goal = np.array([-1.2, 0.5]), np.array([-1.1, 0.6])
     metrics = {}
     for name in ("feedforward-state-feedback", "motor-pd"):
-        env = TrueStateWrapper(make_noise_free(
-            TWO_LINK, task="regulation", task_options={"start": start, "goal": goal},
-            plant_scaling={"link_mass": 1.3},
-        ))
+        env = TrueStateWrapper(
+            make_noise_free(
+                TWO_LINK,
+                task="regulation",
+                task_options={"start": start, "goal": goal},
+                plant_scaling={"link_mass": 1.3},
+            )
+        )
         controller = make_controller(name, env.unwrapped.model, env.unwrapped.control_dt)
         q = simulate(env, controller, 600)["q"]
         final = q[-50:].mean(axis=0)
@@ -250,8 +258,8 @@ def cristofaro_example3(observer: str | None) -> np.ndarray:
     q_d reaches (pi/4, -pi/3) at t = 8 s; returns the link error to it over the last 0.5 s."""
     start, target = [-2 * PI / 3, PI / 10], np.array([PI / 4, -PI / 3])
     env = gym.make(
-        RIGID, task_options={"start": start, "waypoints": [target], "move_time": 8.0,
-                             "dwell_time": 0.0},
+        RIGID,
+        task_options={"start": start, "waypoints": [target], "move_time": 8.0, "dwell_time": 0.0},
         episode_time=None,
     )
     if observer is None:
@@ -259,8 +267,9 @@ def cristofaro_example3(observer: str | None) -> np.ndarray:
     else:  # eta = 1, v_bar = 2, hybrid gain with r(0) = 1, as in the paper
         env = ObserverWrapper(env, observer, eta=1.0, v_bar=2.0, hybrid=True, r0=1)
     controller = make_controller("cristofaro-tracking", env.unwrapped.model, 1e-3)
-    run = simulate(env, controller, 8000,
-                   options={"initial_state": {"q": start, "dq": [-0.5, 1.0]}})
+    run = simulate(
+        env, controller, 8000, options={"initial_state": {"q": start, "dq": [-0.5, 1.0]}}
+    )
     return run["q"][-500:] - target
 
 
@@ -281,8 +290,9 @@ def test_feedback_linearization_on_solsona_puleston_arm():
     without the friction model (a friction-free nominal model) the error is much larger."""
     errors = []
     for friction in (True, False):
-        env = TrueStateWrapper(make_noise_free(
-            "elastic_gym/TwoLinkRigidFriction-v0", task_options=TRACK))
+        env = TrueStateWrapper(
+            make_noise_free("elastic_gym/TwoLinkRigidFriction-v0", task_options=TRACK)
+        )
         model = env.unwrapped.model
         if not friction:
             model = model.perturbed(friction=0.0)

@@ -44,11 +44,19 @@ def test_floors():
 def nominal_eq13(physics_dt=None) -> Scenario:
     """Eq. (13) on the true state, nominal TwoLinkElastic, one 0.4 s move."""
     data = {
-        "name": "convergence", "duration": 0.6,
-        "envs": [{"id": "TwoLinkElastic-v0", "kwargs": {
-            "task": "tracking",
-            "task_options": {"n_moves": 1, "move_time": 0.4, "dwell_time": 0.05}}}],
-        "controllers": ["feedforward-state-feedback"], "state_sources": [True],
+        "name": "convergence",
+        "duration": 0.6,
+        "envs": [
+            {
+                "id": "TwoLinkElastic-v0",
+                "kwargs": {
+                    "task": "tracking",
+                    "task_options": {"n_moves": 1, "move_time": 0.4, "dwell_time": 0.05},
+                },
+            }
+        ],
+        "controllers": ["feedforward-state-feedback"],
+        "state_sources": [True],
     }
     if physics_dt is not None:
         data["physics_dt"] = physics_dt
@@ -69,8 +77,11 @@ def test_comparison_default_step_is_converged_and_the_robots_default_is_not():
     assert all(r["converged"] for r in rows), [r for r in rows if not r["converged"]]
     # at the robot's own 0.5 ms step the tracking RMS measures the integrator: it is
     # several times its value at 1/16 ms (measured 9.1e-5 vs 2.6e-5 on a longer move)
-    coarse = track_rms(check_convergence(nominal_eq13(physics_dt=None).with_overrides(
-        physics_dt=5e-4), workers=1, progress=False))
+    coarse = track_rms(
+        check_convergence(
+            nominal_eq13(physics_dt=None).with_overrides(physics_dt=5e-4), workers=1, progress=False
+        )
+    )
     assert not coarse["converged"] and coarse["value"] > 2.0 * row["value"]
     assert coarse["refined"] == pytest.approx(row["value"], rel=1e-9)  # 0.5 ms / 8 = 1/16 ms
 

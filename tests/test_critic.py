@@ -24,9 +24,13 @@ pytestmark = pytest.mark.usefixtures("single_thread_torch")
 def _policy(actor_size: int = 6, privileged: int = 4) -> PrivilegedCriticPolicy:
     torch.manual_seed(0)
     space = spaces.Box(-np.inf, np.inf, (actor_size + privileged,), dtype=np.float32)
-    return PrivilegedCriticPolicy(space, spaces.Box(-1, 1, (2,), dtype=np.float32),
-                                  lambda _: 1e-3, privileged_size=privileged,
-                                  net_arch=[16, 16])
+    return PrivilegedCriticPolicy(
+        space,
+        spaces.Box(-1, 1, (2,), dtype=np.float32),
+        lambda _: 1e-3,
+        privileged_size=privileged,
+        net_arch=[16, 16],
+    )
 
 
 def test_actor_never_depends_on_the_privileged_entries_and_the_critic_does():
@@ -64,18 +68,25 @@ def test_bad_privileged_size_and_shared_extractor_are_refused():
         _policy(actor_size=0)
     space = spaces.Box(-np.inf, np.inf, (6,), dtype=np.float32)
     with pytest.raises(ValueError, match="share"):
-        PrivilegedCriticPolicy(space, spaces.Box(-1, 1, (2,)), lambda _: 1e-3, 2,
-                               share_features_extractor=True)
+        PrivilegedCriticPolicy(
+            space, spaces.Box(-1, 1, (2,)), lambda _: 1e-3, 2, share_features_extractor=True
+        )
 
 
-@pytest.mark.parametrize(("algo", "overrides", "match"), [
-    ("sac", {"critic_state": True}, "ppo only"),
-    ("recurrentppo", {"critic_state": True}, "ppo only"),
-    ("ppo", {"critic_state": True, "policy": "CnnPolicy"}, "MlpPolicy"),
-    ("ppo", {"critic_state": True, "policy_kwargs": {"share_features_extractor": True}},
-     "share_features_extractor"),
-    ("ppo", {"critic_state": "yes"}, "critic_state must be true or false"),
-])
+@pytest.mark.parametrize(
+    ("algo", "overrides", "match"),
+    [
+        ("sac", {"critic_state": True}, "ppo only"),
+        ("recurrentppo", {"critic_state": True}, "ppo only"),
+        ("ppo", {"critic_state": True, "policy": "CnnPolicy"}, "MlpPolicy"),
+        (
+            "ppo",
+            {"critic_state": True, "policy_kwargs": {"share_features_extractor": True}},
+            "share_features_extractor",
+        ),
+        ("ppo", {"critic_state": "yes"}, "critic_state must be true or false"),
+    ],
+)
 def test_critic_state_is_refused_where_it_does_not_apply(algo, overrides, match):
     with pytest.raises(ValueError, match=match):
         resolve_hyperparams(algo, TWO_LINK, overrides)
@@ -87,8 +98,9 @@ def test_critic_state_appends_the_true_sources_features_to_the_unchanged_observa
     torsion and torsion rate (the run's scales), step after step."""
     scales = {"error_scale": 0.02, "torsion_rate_scale": 2.0}
     kwargs = {"env_kwargs": SHORT_EPISODES, "decimation": 10, "action": TORQUE}
-    critic = make_policy_env(TWO_LINK, "sensors", observation=scales, frame_stack=4,
-                             critic_state=True, **kwargs)
+    critic = make_policy_env(
+        TWO_LINK, "sensors", observation=scales, frame_stack=4, critic_state=True, **kwargs
+    )
     plain = make_policy_env(TWO_LINK, "sensors", observation=scales, frame_stack=4, **kwargs)
     truth = make_policy_env(TWO_LINK, "true", observation={**TRUE_FEATURES, **scales}, **kwargs)
     m = plain.observation_space.shape[0]
@@ -112,8 +124,9 @@ def test_vector_critic_state_matches_the_single_env_truth_arm_by_arm():
     envs = make_policy_vec_env(TWO_LINK, 3, "deluca", critic_state=True, **kwargs)
     m = envs.single_observation_space.shape[0] - 8
     obs, _ = envs.reset(seed=7)
-    singles = [make_policy_env(TWO_LINK, "true", observation=TRUE_FEATURES, **kwargs)
-               for _ in range(3)]
+    singles = [
+        make_policy_env(TWO_LINK, "true", observation=TRUE_FEATURES, **kwargs) for _ in range(3)
+    ]
     single_obs = [env.reset(seed=7 + i)[0] for i, env in enumerate(singles)]
     rng = np.random.default_rng(1)
     for _ in range(4):
@@ -131,10 +144,21 @@ def test_critic_state_run_deploys_without_the_true_state(tmp_path):
     PrivilegedCriticPolicy; on the deployment stack (no true state) its action equals the
     action given the true features, its critic's value depends on them, and
     ``evaluate_run`` tracks on fresh episodes."""
-    config = TrainConfig(state="deluca", total_steps=128, out_dir=str(tmp_path / "r"),
-                         env_kwargs=SHORT_EPISODES, eval_freq=64, eval_episodes=2,
-                         hyperparams={"critic_state": True, "n_envs": 2, "n_steps": 32,
-                                      "batch_size": 32, "n_epochs": 2})
+    config = TrainConfig(
+        state="deluca",
+        total_steps=128,
+        out_dir=str(tmp_path / "r"),
+        env_kwargs=SHORT_EPISODES,
+        eval_freq=64,
+        eval_episodes=2,
+        hyperparams={
+            "critic_state": True,
+            "n_envs": 2,
+            "n_steps": 32,
+            "batch_size": 32,
+            "n_epochs": 2,
+        },
+    )
     train(config, progress_bar=False)
     run = load_run(config.out_dir)
     policy = run.model.policy
@@ -150,14 +174,15 @@ def test_critic_state_run_deploys_without_the_true_state(tmp_path):
         with_truth, _ = run.model.predict(normalized, deterministic=True)
         np.testing.assert_array_equal(run.act(obs), with_truth[0])
         shifted = normalized.copy()
-        shifted[:, policy.actor_size:] += 1.0
+        shifted[:, policy.actor_size :] += 1.0
         with torch.no_grad():
-            values = [float(policy.predict_values(torch.as_tensor(x)))
-                      for x in (normalized, shifted)]
+            values = [
+                float(policy.predict_values(torch.as_tensor(x))) for x in (normalized, shifted)
+            ]
         assert abs(values[0] - values[1]) > 1e-6
         action = run.act(obs)
         obs, full = deployed.step(action)[0], training.step(action)[0]
-        np.testing.assert_array_equal(full[:policy.actor_size], obs)
+        np.testing.assert_array_equal(full[: policy.actor_size], obs)
     deployed.close()
     training.close()
 

@@ -26,8 +26,14 @@ def test_custom_controller_and_observer_example(tmp_path):
     spec = importlib.util.spec_from_file_location("custom_example", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    result = compare(module.scenario(duration=0.3), output_dir=tmp_path, workers=1,
-                     progress=False, plots=False, console=Console(quiet=True))
+    result = compare(
+        module.scenario(duration=0.3),
+        output_dir=tmp_path,
+        workers=1,
+        progress=False,
+        plots=False,
+        console=Console(quiet=True),
+    )
     labels = {(row["controller"], row["source"]) for row in result.runs.to_dict("records")}
     assert ("torsion-damping", "static") in labels
     assert all(row["status"] == "ok" for row in result.runs.to_dict("records"))
@@ -40,8 +46,9 @@ def test_readme_scenario_yaml_is_valid():
     from elastic_gym.evaluation.runner import plan_runs
 
     text = (ROOT / "README.md").read_text()
-    blocks = [b for b in re.findall(r"```yaml\n(.*?)```", text, flags=re.DOTALL)
-              if "state_sources" in b]
+    blocks = [
+        b for b in re.findall(r"```yaml\n(.*?)```", text, flags=re.DOTALL) if "state_sources" in b
+    ]
     assert blocks
     for block in blocks:
         runs, _ = plan_runs(Scenario.from_dict(yaml.safe_load(block)))

@@ -22,8 +22,11 @@ def test_a_closed_env_refuses_to_run_and_cannot_move_another_env():
     b = gym.make(ID)  # PyBullet may hand out the client id a had
     b.reset(seed=1)
     state = b.unwrapped.sim.state.copy()
-    for call in (lambda: a.step(np.zeros(2)), lambda: a.reset(seed=0),
-                 lambda: a.unwrapped.render()):
+    for call in (
+        lambda: a.step(np.zeros(2)),
+        lambda: a.reset(seed=0),
+        lambda: a.unwrapped.render(),
+    ):
         with pytest.raises(RuntimeError, match="closed"):
             call()
     assert np.array_equal(b.unwrapped.sim.state, state)
@@ -104,8 +107,11 @@ def test_observer_wrapper_refuses_what_would_be_silently_wrong():
         (ID, {"task_options": {"max_move": -0.1}}, "max_move"),
         (ID, {"task_options": {"move_time": float("nan")}}, "move_time"),
         (ID, {"task_options": {"n_moves": "2"}}, "n_moves"),
-        (ID, {"task": "excitation", "task_options": {"gravity_compensation": "yes"}},
-         "gravity_compensation"),
+        (
+            ID,
+            {"task": "excitation", "task_options": {"gravity_compensation": "yes"}},
+            "gravity_compensation",
+        ),
         ("elastic_gym/TwoLinkRigid-v0", {"plant_scaling": {"stiffness": 0.5}}, "stiffness"),
         (ID, {"plant_scaling": {"friction": 2.0}}, "friction"),
         (ID, {"encoder": {"resolution": 1e-320}}, "resolution"),
@@ -115,9 +121,11 @@ def test_observer_wrapper_refuses_what_would_be_silently_wrong():
         (ID, {"sensor_delay": 10**9}, "sensor_delay"),
         (ID, {"control_dt": 10.0}, "control_dt"),
         (ID, {"episode_time": -1.0}, "episode_time"),
-        ("elastic_gym/IiwaElastic-v0", {"task": "regulation",
-                                        "task_options": {"goal": [9.0, 0, 0, 0, 0, 0, 0]}},
-         "joint limits"),
+        (
+            "elastic_gym/IiwaElastic-v0",
+            {"task": "regulation", "task_options": {"goal": [9.0, 0, 0, 0, 0, 0, 0]}},
+            "joint limits",
+        ),
     ],
 )
 def test_numbers_that_would_break_later_are_refused_at_creation(env_id, kwargs, match):

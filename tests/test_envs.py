@@ -15,7 +15,10 @@ from elastic_gym.envs import ElasticArmEnv, RigidArmEnv
 
 def test_every_documented_id_is_registered():
     expected = {
-        "TwoLinkElastic-v0", "KR15Elastic-v0", "IiwaElastic-v0", "TwoLinkRigid-v0",
+        "TwoLinkElastic-v0",
+        "KR15Elastic-v0",
+        "IiwaElastic-v0",
+        "TwoLinkRigid-v0",
         "TwoLinkRigidFriction-v0",
     }
     assert {i.split("/")[1] for i in elastic_gym.ENV_IDS} == expected
@@ -28,8 +31,9 @@ def test_every_documented_id_is_registered():
 
 @pytest.mark.parametrize("control_dt", [1e-3, 2e-3])
 def test_episode_length_is_simulated_time_and_video_plays_in_real_time(control_dt):
-    env = gym.make("elastic_gym/TwoLinkRigid-v0", task="excitation", episode_time=0.5,
-                   control_dt=control_dt)
+    env = gym.make(
+        "elastic_gym/TwoLinkRigid-v0", task="excitation", episode_time=0.5, control_dt=control_dt
+    )
     env.reset(seed=0)
     assert env.metadata["render_fps"] * control_dt == pytest.approx(1.0)
     steps, truncated = 0, False
@@ -158,14 +162,20 @@ def test_tracking_reference_is_c4_rest_to_rest():
 
 
 def test_regulation_and_excitation_tasks():
-    env = gym.make("elastic_gym/TwoLinkElastic-v0", task="regulation",
-                   task_options={"goal": [0.1, 0.2], "start": [0.0, 0.0]})
+    env = gym.make(
+        "elastic_gym/TwoLinkElastic-v0",
+        task="regulation",
+        task_options={"goal": [0.1, 0.2], "start": [0.0, 0.0]},
+    )
     obs, info = env.reset(seed=0)
     assert np.allclose(info["reference"]["q"], [0.1, 0.2])
     assert np.allclose(info["true_state"]["q"], [0.0, 0.0])
     env.close()
-    env = gym.make("elastic_gym/TwoLinkRigid-v0", task="excitation",
-                   task_options={"amplitude": [1.0, -1.0], "frequency": [0.5, 1.0]})
+    env = gym.make(
+        "elastic_gym/TwoLinkRigid-v0",
+        task="excitation",
+        task_options={"amplitude": [1.0, -1.0], "frequency": [0.5, 1.0]},
+    )
     obs, info = env.reset(seed=0)
     _, _, _, _, info = env.step(np.zeros(2))
     model = env.unwrapped.model

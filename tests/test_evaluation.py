@@ -167,8 +167,10 @@ def test_regulation_step_counts_as_a_move_from_the_initial_state():
         ({"state_sources": ["kalman"]}, "state_sources[0].name"),
         ({"state_sources": [True, "true"]}, "state_sources"),
         ({"model_errors": [{"link_mas": 1.1}]}, "model_errors[0]"),
-        ({"axes": {"plant": [{"plant_scaling": {"link_mass": 1.3}}, {"encoders": {}}]}},
-         "axes.plant[1]"),
+        (
+            {"axes": {"plant": [{"plant_scaling": {"link_mass": 1.3}}, {"encoders": {}}]}},
+            "axes.plant[1]",
+        ),
         ({"axes": {"seed": [{}]}}, "axes.seed"),
     ],
 )
@@ -180,8 +182,14 @@ def test_invalid_field_is_named(change, field):
 
 def test_invalid_yaml_file_and_unknown_names(tmp_path):
     path = tmp_path / "bad.yaml"
-    path.write_text(yaml.safe_dump({**rigid_scenario(controllers=["motor-pd"]),
-                                    "state_sources": ["true", "nicosia-tomei", "oracle"]}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                **rigid_scenario(controllers=["motor-pd"]),
+                "state_sources": ["true", "nicosia-tomei", "oracle"],
+            }
+        )
+    )
     with pytest.raises(ScenarioError, match=r"state_sources\[2\]\.name.*valid: \[.*'ekf'"):
         load_scenario(path)
     path.write_text("envs: [TwoLinkRigid-v0\n")
@@ -206,10 +214,14 @@ def test_shipped_preset_parses_and_plans(name):
 @pytest.mark.parametrize(
     ("entry", "message"),
     [
-        ({"controllers": [{"name": "x", "class": int}]},
-         r"^controllers\[0\]\.class: .*int.* not a subclass of Controller"),
-        ({"state_sources": [{"name": "x", "class": "no_such_module:Observer"}]},
-         r"^state_sources\[0\]\.class: cannot import class 'no_such_module:Observer'"),
+        (
+            {"controllers": [{"name": "x", "class": int}]},
+            r"^controllers\[0\]\.class: .*int.* not a subclass of Controller",
+        ),
+        (
+            {"state_sources": [{"name": "x", "class": "no_such_module:Observer"}]},
+            r"^state_sources\[0\]\.class: cannot import class 'no_such_module:Observer'",
+        ),
     ],
 )
 def test_explicit_classes_are_checked_when_planning(entry, message):
@@ -219,30 +231,45 @@ def test_explicit_classes_are_checked_when_planning(entry, message):
 
 
 def test_plan_skips_inapplicable_and_merges_axes():
-    scenario = Scenario.from_dict(rigid_scenario(
-        state_sources=[True, "deluca"],
-        axes={"plant": [{}, {"label": "heavy", "plant_scaling": {"link_mass": 1.1}}]},
-        model_errors=[{}, {"link_mass": 1.2}],
-        seeds=[0, 1],
-    ))
+    scenario = Scenario.from_dict(
+        rigid_scenario(
+            state_sources=[True, "deluca"],
+            axes={"plant": [{}, {"label": "heavy", "plant_scaling": {"link_mass": 1.1}}]},
+            model_errors=[{}, {"link_mass": 1.2}],
+            seeds=[0, 1],
+        )
+    )
     runs, skipped = plan_runs(scenario)
     assert len(runs) == 2 * 2 * 2 and len(skipped) == 8  # deluca is for elastic arms
     assert all("deluca" in s.reason and "elastic" in s.reason for s in skipped)
     heavy = [r for r in runs if r.labels["plant"] == "heavy"]
-    assert heavy[0].env_kwargs == {"physics_dt": COMPARISON_PHYSICS_DT, "task": "regulation",
-                                   "plant_scaling": {"link_mass": 1.1}}
+    assert heavy[0].env_kwargs == {
+        "physics_dt": COMPARISON_PHYSICS_DT,
+        "task": "regulation",
+        "plant_scaling": {"link_mass": 1.1},
+    }
     assert {r.labels["model_error"] for r in runs} == {"exact", "link_mass=1.2"}
-    assert scenario.identity_columns == ("env", "plant", "model_error", "controller", "source",
-                                         "seed")
+    assert scenario.identity_columns == (
+        "env",
+        "plant",
+        "model_error",
+        "controller",
+        "source",
+        "seed",
+    )
 
 
 # ---------------------------------------------------------------------------- runs
 def test_controller_sees_only_public_information_and_the_perturbed_model():
     Spy.seen.clear()
-    scenario = Scenario.from_dict(rigid_scenario(
-        controllers=[{"name": "spy", "class": Spy}], state_sources=["finite-difference"],
-        model_errors=[{"link_mass": 1.25}], duration=0.01,
-    ))
+    scenario = Scenario.from_dict(
+        rigid_scenario(
+            controllers=[{"name": "spy", "class": Spy}],
+            state_sources=["finite-difference"],
+            model_errors=[{"link_mass": 1.25}],
+            duration=0.01,
+        )
+    )
     results = execute(plan_runs(scenario)[0], workers=1, progress=False)
     assert results[0].ok and len(results[0].series) == 11
     assert {keys for keys, _, _ in Spy.seen} == {frozenset({"state", "reference"})}
@@ -251,11 +278,19 @@ def test_controller_sees_only_public_information_and_the_perturbed_model():
 
 
 def test_diverging_run_is_reported_not_raised():
-    scenario = Scenario.from_dict(rigid_scenario(
-        controllers=[{"name": "unstable", "class": Unstable}, {"name": "pd", "class": GravityPD}],
-        state_sources=[True], duration=1.0,
-        envs=[{"id": "TwoLinkRigid-v0", "kwargs": {"task": "regulation", "max_velocity": 20.0}}],
-    ))
+    scenario = Scenario.from_dict(
+        rigid_scenario(
+            controllers=[
+                {"name": "unstable", "class": Unstable},
+                {"name": "pd", "class": GravityPD},
+            ],
+            state_sources=[True],
+            duration=1.0,
+            envs=[
+                {"id": "TwoLinkRigid-v0", "kwargs": {"task": "regulation", "max_velocity": 20.0}}
+            ],
+        )
+    )
     results = execute(plan_runs(scenario)[0], workers=1, progress=False)
     unstable, stable = results
     assert unstable.status.startswith("terminated: ") and not unstable.ok
@@ -266,20 +301,36 @@ def test_diverging_run_is_reported_not_raised():
 @pytest.mark.parametrize(
     ("entry", "message"),
     [
-        ({"controllers": [{"name": "pd", "class": GravityPD, "options": {"gain": 1.0}}]},
-         r"^controllers\[0\]\.options\.gain: unexpected option; valid: \['kp', 'kd'\]"),
-        ({"controllers": [{"name": "pd", "class": GravityPD, "options": {1: 2.0}}]},
-         r"^controllers\[0\]\.options\.1: unexpected option"),
-        ({"controllers": ["motor-pd", {"name": "feedforward-state-feedback",
-                                       "options": {"omegaa": 30.0}}],
-          "envs": ["TwoLinkElastic-v0"]},
-         r"^controllers\[1\]\.options\.omegaa: unexpected option; valid: \[.*'omega'"),
-        ({"controllers": ["trained-policy"]},
-         r"^controllers\[0\]\.options: .*missing a required argument: 'run'"),
-        ({"state_sources": [{"name": "deluca", "options": {"acceleration": "ideal"}}]},
-         r"^state_sources\[0\]\.options\.acceleration: fixed to 'accelerometer' by the name"),
-        ({"state_sources": [{"name": "ekf", "options": {"alpa": 1.0}}]},
-         r"^state_sources\[0\]\.options\.alpa: unexpected option; valid: \['alpha'"),
+        (
+            {"controllers": [{"name": "pd", "class": GravityPD, "options": {"gain": 1.0}}]},
+            r"^controllers\[0\]\.options\.gain: unexpected option; valid: \['kp', 'kd'\]",
+        ),
+        (
+            {"controllers": [{"name": "pd", "class": GravityPD, "options": {1: 2.0}}]},
+            r"^controllers\[0\]\.options\.1: unexpected option",
+        ),
+        (
+            {
+                "controllers": [
+                    "motor-pd",
+                    {"name": "feedforward-state-feedback", "options": {"omegaa": 30.0}},
+                ],
+                "envs": ["TwoLinkElastic-v0"],
+            },
+            r"^controllers\[1\]\.options\.omegaa: unexpected option; valid: \[.*'omega'",
+        ),
+        (
+            {"controllers": ["trained-policy"]},
+            r"^controllers\[0\]\.options: .*missing a required argument: 'run'",
+        ),
+        (
+            {"state_sources": [{"name": "deluca", "options": {"acceleration": "ideal"}}]},
+            r"^state_sources\[0\]\.options\.acceleration: fixed to 'accelerometer' by the name",
+        ),
+        (
+            {"state_sources": [{"name": "ekf", "options": {"alpa": 1.0}}]},
+            r"^state_sources\[0\]\.options\.alpa: unexpected option; valid: \['alpha'",
+        ),
     ],
 )
 def test_options_are_bound_to_the_constructor_before_any_run(entry, message):
@@ -289,12 +340,20 @@ def test_options_are_bound_to_the_constructor_before_any_run(entry, message):
 
 
 def test_compare_in_worker_processes_writes_tables_and_plots(tmp_path):
-    scenario = Scenario.from_dict(rigid_scenario(
-        envs=[{"id": "TwoLinkElastic-v0",
-               "kwargs": {"task": "tracking",
-                          "task_options": {"n_moves": 1, "move_time": 0.2, "dwell_time": 0.05}}}],
-        duration=0.4,
-    ))
+    scenario = Scenario.from_dict(
+        rigid_scenario(
+            envs=[
+                {
+                    "id": "TwoLinkElastic-v0",
+                    "kwargs": {
+                        "task": "tracking",
+                        "task_options": {"n_moves": 1, "move_time": 0.2, "dwell_time": 0.05},
+                    },
+                }
+            ],
+            duration=0.4,
+        )
+    )
     result = compare(scenario, output_dir=tmp_path, workers=2, progress=False, console=QUIET)
     assert list(result.runs["status"]) == ["ok", "ok"]
     with (tmp_path / "runs.csv").open() as handle:
@@ -316,8 +375,21 @@ def test_cli_default_preset_short_run(tmp_path, capsys):
         runs, _ = plan_runs(load_preset("default").with_overrides(seeds=[0]))
     except ScenarioError as exc:
         pytest.skip(str(exc))
-    code = main(["compare", "--duration", "0.05", "--seeds", "0", "--output", str(tmp_path),
-                 "--no-progress", "--no-plots", "--workers", "2"])
+    code = main(
+        [
+            "compare",
+            "--duration",
+            "0.05",
+            "--seeds",
+            "0",
+            "--output",
+            str(tmp_path),
+            "--no-progress",
+            "--no-plots",
+            "--workers",
+            "2",
+        ]
+    )
     assert code == 0
     out = capsys.readouterr().out
     assert "est. RMS q'" in out and "deluca" in out
@@ -330,9 +402,18 @@ def test_compare_works_without_the_rl_extra(tmp_path):
     """`pip install .` (the README's main command) has no stable-baselines3 or torch (the
     `rl` extra): the CLI and a comparison must not need them."""
     scenario = tmp_path / "small.yaml"
-    scenario.write_text(yaml.safe_dump({
-        "name": "small", "duration": 0.05, "seeds": [0], "envs": ["TwoLinkElastic-v0"],
-        "controllers": ["feedforward-state-feedback"], "state_sources": ["deluca"]}))
+    scenario.write_text(
+        yaml.safe_dump(
+            {
+                "name": "small",
+                "duration": 0.05,
+                "seeds": [0],
+                "envs": ["TwoLinkElastic-v0"],
+                "controllers": ["feedforward-state-feedback"],
+                "state_sources": ["deluca"],
+            }
+        )
+    )
     blocked = ("stable_baselines3", "sb3_contrib", "torch")
     code = (  # an import of a blocked package fails as if it were not installed
         "import importlib.abc, sys\n"
@@ -342,14 +423,25 @@ def test_compare_works_without_the_rl_extra(tmp_path):
         "            raise ModuleNotFoundError(f'No module named {name!r}')\n"
         "sys.meta_path.insert(0, NotInstalled())\n"
         "from elastic_gym.cli import main\n"
-        "sys.exit(main(sys.argv[1:]))\n")
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
 
     def cli(*argv: str) -> subprocess.CompletedProcess:
-        return subprocess.run([sys.executable, "-c", code, *argv], capture_output=True,
-                              text=True, timeout=300)
+        return subprocess.run(
+            [sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=300
+        )
 
-    result = cli("compare", "--config", str(scenario), "--output", str(tmp_path / "out"),
-                 "--no-progress", "--no-plots", "--workers", "1")
+    result = cli(
+        "compare",
+        "--config",
+        str(scenario),
+        "--output",
+        str(tmp_path / "out"),
+        "--no-progress",
+        "--no-plots",
+        "--workers",
+        "1",
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     with (tmp_path / "out" / "runs.csv").open() as handle:
         assert [row["status"] for row in csv.DictReader(handle)] == ["ok"]
@@ -360,8 +452,16 @@ def test_compare_works_without_the_rl_extra(tmp_path):
 
 def test_cli_errors_name_the_field(tmp_path, capsys):
     path = tmp_path / "bad.yaml"
-    path.write_text(yaml.safe_dump({"envs": ["TwoLinkRigid-v0"], "controllers": ["motor-pd"],
-                                    "state_sources": ["true"], "duraton": 1.0}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "envs": ["TwoLinkRigid-v0"],
+                "controllers": ["motor-pd"],
+                "state_sources": ["true"],
+                "duraton": 1.0,
+            }
+        )
+    )
     with pytest.raises(SystemExit) as info:
         main(["compare", "--config", str(path)])
     assert info.value.code == 2
@@ -372,10 +472,14 @@ def test_cli_errors_name_the_field(tmp_path, capsys):
 
 def test_ray_backend_gives_the_same_table():
     ray = pytest.importorskip("ray")
-    scenario = Scenario.from_dict(rigid_scenario(
-        controllers=["open-loop"], state_sources=["finite-difference"], duration=0.1,
-        envs=[{"id": "TwoLinkRigid-v0", "kwargs": {"task": "excitation"}}],
-    ))
+    scenario = Scenario.from_dict(
+        rigid_scenario(
+            controllers=["open-loop"],
+            state_sources=["finite-difference"],
+            duration=0.1,
+            envs=[{"id": "TwoLinkRigid-v0", "kwargs": {"task": "excitation"}}],
+        )
+    )
     runs = plan_runs(scenario)[0]
     local = execute(runs, workers=1, progress=False)
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)

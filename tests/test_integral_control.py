@@ -30,9 +30,11 @@ def run(controller: str, link_mass: float = 1.0) -> dict:
 
 @pytest.fixture(scope="module")
 def runs() -> dict:
-    return {(name, mass): run(name, mass)
-            for name in ("feedforward-state-feedback", "integral-state-feedback")
-            for mass in (1.0, 1.3)}
+    return {
+        (name, mass): run(name, mass)
+        for name in ("feedforward-state-feedback", "integral-state-feedback")
+        for mass in (1.0, 1.3)
+    }
 
 
 def test_integral_action_removes_the_static_offset_of_heavier_links(runs):
@@ -81,8 +83,13 @@ def test_anti_windup_freezes_on_saturation_and_bounds_the_integral_torque():
     env.close()
     controller = make_controller("integral-state-feedback", model, 1e-3)
     q_d = np.array([0.3, -0.5])
-    reference = {"q": q_d, "dq": np.zeros(2), "ddq": np.zeros(2), "d3q": np.zeros(2),
-                 "d4q": np.zeros(2)}
+    reference = {
+        "q": q_d,
+        "dq": np.zeros(2),
+        "ddq": np.zeros(2),
+        "d3q": np.zeros(2),
+        "d4q": np.zeros(2),
+    }
     theta_d = model.static_motor_position(q_d)
 
     def state(offset: float) -> dict:

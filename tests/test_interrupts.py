@@ -84,8 +84,13 @@ def data_rows(path: Path) -> list[dict]:
 
 def start(args: list[str], tmp_path: Path) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
-    return subprocess.Popen([sys.executable, "-m", "elastic_gym.cli", *args], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "elastic_gym.cli", *args],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def is_resource_tracker(pid: int) -> bool:
@@ -119,18 +124,44 @@ def stop(process: subprocess.Popen, signum: int) -> tuple[float, str]:
 def test_interrupted_compare_keeps_finished_runs_and_ends_its_workers(tmp_path, signum):
     (tmp_path / "sleepy_controller.py").write_text(SLEEPY_CONTROLLER)
     config = tmp_path / "slow.yaml"
-    config.write_text(yaml.safe_dump({
-        "name": "slow", "duration": 0.4, "seeds": list(range(N_RUNS // 2)),
-        "envs": [{"id": "TwoLinkRigid-v0", "kwargs": {"task": "excitation"}}],
-        "controllers": [
-            {"name": "fast", "class": "sleepy_controller:Sleepy", "options": {"delay": 0.0}},
-            {"name": "slow", "class": "sleepy_controller:Sleepy", "options": {"delay": 0.05}},
-        ],
-        "state_sources": ["finite-difference"],
-    }))
+    config.write_text(
+        yaml.safe_dump(
+            {
+                "name": "slow",
+                "duration": 0.4,
+                "seeds": list(range(N_RUNS // 2)),
+                "envs": [{"id": "TwoLinkRigid-v0", "kwargs": {"task": "excitation"}}],
+                "controllers": [
+                    {
+                        "name": "fast",
+                        "class": "sleepy_controller:Sleepy",
+                        "options": {"delay": 0.0},
+                    },
+                    {
+                        "name": "slow",
+                        "class": "sleepy_controller:Sleepy",
+                        "options": {"delay": 0.05},
+                    },
+                ],
+                "state_sources": ["finite-difference"],
+            }
+        )
+    )
     out = tmp_path / "out"
-    process = start(["compare", "--config", str(config), "--output", str(out), "--workers", "2",
-                     "--no-progress", "--no-plots"], tmp_path)
+    process = start(
+        [
+            "compare",
+            "--config",
+            str(config),
+            "--output",
+            str(out),
+            "--workers",
+            "2",
+            "--no-progress",
+            "--no-plots",
+        ],
+        tmp_path,
+    )
     wait_for(lambda: data_rows(out / "runs.csv"), process, timeout=180)
     workers_gone, err = stop(process, signum)
 
@@ -148,10 +179,34 @@ def test_interrupted_compare_keeps_finished_runs_and_ends_its_workers(tmp_path, 
 def test_interrupted_multi_seed_training_keeps_finished_runs_and_ends_its_workers(tmp_path):
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "runs"
-    process = start(["train", "--algo", "sac", "--state", "true", "--steps", "60", "--seeds",
-                     "0", "1", "2", "--workers", "2", "--out", str(out), "--env-kwargs",
-                     "{max_episode_steps: 100}", "--hyperparams", "learning_starts=20",
-                     "batch_size=16", "--eval-freq", "1000000", "--no-progress"], tmp_path)
+    process = start(
+        [
+            "train",
+            "--algo",
+            "sac",
+            "--state",
+            "true",
+            "--steps",
+            "60",
+            "--seeds",
+            "0",
+            "1",
+            "2",
+            "--workers",
+            "2",
+            "--out",
+            str(out),
+            "--env-kwargs",
+            "{max_episode_steps: 100}",
+            "--hyperparams",
+            "learning_starts=20",
+            "batch_size=16",
+            "--eval-freq",
+            "1000000",
+            "--no-progress",
+        ],
+        tmp_path,
+    )
     wait_for(lambda: list(out.glob("seed*/summary.json")), process, timeout=300)
     workers_gone, err = stop(process, signal.SIGINT)
 

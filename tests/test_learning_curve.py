@@ -33,8 +33,15 @@ def test_batch_evaluation_equals_episodes_one_by_one():
     saturation, including an arm whose action sits at its bound."""
     kwargs = {**SHORT, "accelerometer": "ideal"}
     action = {"kind": "motor-offset"}
-    envs = make_policy_vec_env(ENV_ID, 3, "deluca", kwargs, decimation=10, action=action,
-                               autoreset_mode=AutoresetMode.NEXT_STEP)
+    envs = make_policy_vec_env(
+        ENV_ID,
+        3,
+        "deluca",
+        kwargs,
+        decimation=10,
+        action=action,
+        autoreset_mode=AutoresetMode.NEXT_STEP,
+    )
     batch = evaluate_arms(envs, _sway, seed=5)
     envs.close()
     env = make_policy_env(ENV_ID, "deluca", kwargs, decimation=10, action=action)
@@ -60,17 +67,24 @@ def test_tracking_rms_is_the_norm_over_joints():
     evaluation = evaluate_policy(env, lambda obs: np.zeros(2), [1])
     env.close()
     norms = np.linalg.norm(errors, axis=1)
-    assert evaluation.tracking_rms[0] == pytest.approx(np.sqrt(np.mean(norms ** 2)), rel=1e-12)
+    assert evaluation.tracking_rms[0] == pytest.approx(np.sqrt(np.mean(norms**2)), rel=1e-12)
 
 
 def test_learning_curve_is_written_and_its_last_row_is_the_final_policy(tmp_path):
     """learning_curve.csv: a row at the start, one per eval_freq policy steps and one at the
     end, with growing steps and wall time; its last row is the saved model evaluated on
     the same episodes (seed + 10000, ...)."""
-    config = TrainConfig(algo="ppo", state="true", total_steps=256, out_dir=str(tmp_path / "r"),
-                         env_kwargs=SHORT, eval_freq=100, eval_episodes=2, seed=3,
-                         hyperparams={"n_envs": 4, "n_steps": 16, "batch_size": 32,
-                                      "n_epochs": 1})
+    config = TrainConfig(
+        algo="ppo",
+        state="true",
+        total_steps=256,
+        out_dir=str(tmp_path / "r"),
+        env_kwargs=SHORT,
+        eval_freq=100,
+        eval_episodes=2,
+        seed=3,
+        hyperparams={"n_envs": 4, "n_steps": 16, "batch_size": 32, "n_epochs": 1},
+    )
     result = train(config, progress_bar=False)
     with open(Path(config.out_dir) / CURVE_FILE) as handle:
         rows = list(csv.DictReader(handle))
@@ -99,8 +113,9 @@ def test_learning_curve_is_written_and_its_last_row_is_the_final_policy(tmp_path
 
 
 def test_linear_schedules_decay_to_zero():
-    settings = resolve_hyperparams("ppo", ENV_ID, {"learning_rate": "lin_1e-3",
-                                                   "clip_range": "lin_0.2"})
+    settings = resolve_hyperparams(
+        "ppo", ENV_ID, {"learning_rate": "lin_1e-3", "clip_range": "lin_0.2"}
+    )
     assert settings["learning_rate"](1.0) == pytest.approx(1e-3)
     assert settings["learning_rate"](0.25) == pytest.approx(2.5e-4)
     assert settings["clip_range"](0.5) == pytest.approx(0.1)
@@ -113,17 +128,32 @@ def test_recurrent_ppo_on_raw_sensors_trains_reloads_and_remembers(tmp_path):
     """RecurrentPPO (sb3-contrib, an LSTM) on raw sensors: the run reloads and acts
     identically; its action depends on the memory (the same observation after a
     different history gives another action) until start() clears it."""
-    config = TrainConfig(algo="recurrentppo", state="sensors", total_steps=128,
-                         out_dir=str(tmp_path / "r"), env_kwargs=SHORT, eval_freq=10**9,
-                         eval_episodes=2, frame_stack=1,
-                         hyperparams={"n_envs": 4, "n_steps": 16, "batch_size": 32,
-                                      "n_epochs": 1, "policy_kwargs": {
-                                          "lstm_hidden_size": 16, "net_arch": [16],
-                                          "log_std_init": -1.0}})
+    config = TrainConfig(
+        algo="recurrentppo",
+        state="sensors",
+        total_steps=128,
+        out_dir=str(tmp_path / "r"),
+        env_kwargs=SHORT,
+        eval_freq=10**9,
+        eval_episodes=2,
+        frame_stack=1,
+        hyperparams={
+            "n_envs": 4,
+            "n_steps": 16,
+            "batch_size": 32,
+            "n_epochs": 1,
+            "policy_kwargs": {"lstm_hidden_size": 16, "net_arch": [16], "log_std_init": -1.0},
+        },
+    )
     train(config, progress_bar=False)
     first, second = load_run(config.out_dir), load_run(config.out_dir)
-    env = make_policy_env(ENV_ID, "sensors", SHORT, decimation=10,
-                          action=first.config.policy_configs(first.settings)[0])
+    env = make_policy_env(
+        ENV_ID,
+        "sensors",
+        SHORT,
+        decimation=10,
+        action=first.config.policy_configs(first.settings)[0],
+    )
     obs, _ = env.reset(seed=0)
     first.start()
     second.start()

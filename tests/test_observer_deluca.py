@@ -47,12 +47,12 @@ class Record:
         return self.model.n
 
 
-def record(env_id: str, steps: int, seed: int = 0, task_options: dict | None = None,
-           **env_kwargs) -> Record:
+def record(
+    env_id: str, steps: int, seed: int = 0, task_options: dict | None = None, **env_kwargs
+) -> Record:
     n = JOINTS[env_id]
     options = {"phase": [-np.pi / 2] * n, **(task_options or {})}  # torque starts smoothly
-    env = gym.make(env_id, task="excitation", task_options=options,
-                   episode_time=None, **env_kwargs)
+    env = gym.make(env_id, task="excitation", task_options=options, episode_time=None, **env_kwargs)
     base = env.unwrapped
 
     def measurement(obs, info):
@@ -97,9 +97,14 @@ def test_closed_form_gains_place_the_assigned_poles(robot):
     n = model.n
     rng = np.random.default_rng(2)
     radius = rng.uniform(100.0, 400.0, (n, 1))
-    per_joint = np.hstack([
-        -radius, -2.0 * radius, radius * (-0.5 + 0.8j), radius * (-0.5 - 0.8j),
-    ])
+    per_joint = np.hstack(
+        [
+            -radius,
+            -2.0 * radius,
+            radius * (-0.5 + 0.8j),
+            radius * (-0.5 - 0.8j),
+        ]
+    )
     for poles in (None, per_joint):
         observer = DeLucaObserver(model, 1e-3, acceleration="ideal", poles=poles)
         expected = observer.poles.ravel()
@@ -251,8 +256,9 @@ def test_velocity_saturation_prevents_peaking_escape_of_eq12():
     rec = record(KR15, 300, seed=5)
     start = rec.states[0] - 10.0 * initial_error(rec.n)  # 0.1 rad, 3 rad/s
     with np.errstate(all="ignore"):
-        plain = run_observer(DeLucaObserver(rec.model, rec.dt, velocity_saturation=None), rec,
-                             start)
+        plain = run_observer(
+            DeLucaObserver(rec.model, rec.dt, velocity_saturation=None), rec, start
+        )
     assert not np.all(np.isfinite(plain[-1])) or np.abs(plain[-1] - rec.states[-1]).max() > 1.0
     saturated = DeLucaObserver(rec.model, rec.dt, velocity_saturation=10.0)
     errors = rec.states - run_observer(saturated, rec, start)
@@ -303,8 +309,11 @@ def test_kr15_singular_configurations_are_flagged_and_damped():
 
     # moving through the aligned singularity with MEMS noise: DLS bounded, plain inverse not
     limit = np.asarray(get_robot("kr15_elastic").torque_limit)
-    moving = {"start": configs["aligned with axes 2, 3"].tolist(),
-              "amplitude": (0.01 * limit).tolist(), "frequency": [2.0, 3.0, 4.0]}
+    moving = {
+        "start": configs["aligned with axes 2, 3"].tolist(),
+        "amplitude": (0.01 * limit).tolist(),
+        "frequency": [2.0, 3.0, 4.0],
+    }
     rec = record(KR15, 400, seed=3, task_options=moving)
     damped = rec.states - run_observer(DeLucaObserver(rec.model, rec.dt), rec)
     plain = rec.states - run_observer(

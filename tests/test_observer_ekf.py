@@ -27,8 +27,9 @@ def random_state(model: RobotModel, seed: int = 3) -> tuple[np.ndarray, np.ndarr
     rng = np.random.default_rng(seed)
     n = model.n
     q = rng.uniform(model.spec.workspace_low, model.spec.workspace_high)
-    x = np.concatenate([q + 0.02 * rng.standard_normal(n), q, rng.normal(size=n),
-                        rng.normal(size=n)])
+    x = np.concatenate(
+        [q + 0.02 * rng.standard_normal(n), q, rng.normal(size=n), rng.normal(size=n)]
+    )
     return x, 0.1 * model.torque_limit * rng.uniform(-1.0, 1.0, n)
 
 
@@ -60,8 +61,9 @@ def test_measurement_jacobian_matches_finite_differences(model):
     x, tau = random_state(model)
     h, H = ekf.measurement_model(x, tau)
     n = model.n
-    readings = model.accelerometer_readings(x[n : 2 * n], x[3 * n :],
-                                            model.elastic_accelerations(x, tau)[1])
+    readings = model.accelerometer_readings(
+        x[n : 2 * n], x[3 * n :], model.elastic_accelerations(x, tau)[1]
+    )
     np.testing.assert_allclose(h, np.concatenate([x[:n], readings]), atol=1e-12)
     H_fd = central_difference(lambda z: ekf.measurement_model(z, tau)[0], x)
     np.testing.assert_allclose(H, H_fd, rtol=0, atol=1e-6 * np.abs(H_fd).max())
@@ -113,8 +115,9 @@ def run_from_wrong_estimate(env_id: str, steps: int, seed: int = 0, **options):
     started at rest from a link estimate off by (Q_ERROR, DQ_ERROR)."""
     spec = get_robot(gym.spec(env_id).kwargs["robot"])
     start = 0.5 * (np.asarray(spec.workspace_low) + np.asarray(spec.workspace_high))
-    env = gym.make(env_id, task="excitation",
-                   task_options={"start": start.tolist()}, episode_time=None)
+    env = gym.make(
+        env_id, task="excitation", task_options={"start": start.tolist()}, episode_time=None
+    )
     base = env.unwrapped
     n = base.model.n
     truth = np.concatenate([base.plant_model.static_motor_position(start), start, np.zeros(2 * n)])
@@ -219,8 +222,10 @@ def test_bad_options_are_named(options, error, word):
         ({"Q": 1e60}, r"'Q': entries must be <= 1e\+06"),
         ({"R": [[1e-9, 2e7], [2e7, 1e-9]]}, r"'R': entries must be <= 1e\+06"),
         ({"encoder_resolution": 1e300}, r"'encoder_resolution' must be <= 1000"),
-        ({"accelerometer_std": 1e300, "use_accelerometers": True},
-         r"'accelerometer_std' must be <= 1000"),
+        (
+            {"accelerometer_std": 1e300, "use_accelerometers": True},
+            r"'accelerometer_std' must be <= 1000",
+        ),
         ({"substeps": 10**9}, r"'substeps' must be an integer in \[1, 100\]"),
         ({"alpha": float("inf")}, r"'alpha' must be a finite number"),
         ({"Q": [[1.0, 2.0], [3.0, 4.0]]}, r"'Q' must be a scalar, 2 block variances"),
@@ -235,8 +240,9 @@ def test_absurd_options_are_refused_with_their_name(options, message):
 
 @pytest.mark.parametrize("options", [{"alpha": 1.0 / DT}, {"P0": 1e6}, {"Q": 1e6}, {"R": 1e6}])
 def test_options_at_their_bounds_keep_the_estimate_finite(options):
-    env = ObserverWrapper(gym.make("elastic_gym/TwoLinkElastic-v0", max_episode_steps=300),
-                          "ekf", **options)
+    env = ObserverWrapper(
+        gym.make("elastic_gym/TwoLinkElastic-v0", max_episode_steps=300), "ekf", **options
+    )
     env.reset(seed=0)
     with np.errstate(over="raise", invalid="raise", divide="raise"):
         for _ in range(300):
@@ -251,8 +257,9 @@ def test_rejects_rigid_arms_and_missing_sensors():
     bare = RobotModel(get_robot("two_link_elastic")).with_accelerometers(())
     with pytest.raises(ValueError, match="use_accelerometers"):
         ExtendedKalmanFilter(bare, DT, use_accelerometers=True)
-    ekf = ExtendedKalmanFilter(RobotModel(get_robot("two_link_elastic")), DT,
-                               use_accelerometers=True)
+    ekf = ExtendedKalmanFilter(
+        RobotModel(get_robot("two_link_elastic")), DT, use_accelerometers=True
+    )
     ekf.reset({"motor_position": np.zeros(2)})
     with pytest.raises(ValueError, match="acceleration"):
         ekf.update({"motor_position": np.zeros(2)}, np.zeros(2), DT)

@@ -34,7 +34,9 @@ FRICTION = "elastic_gym/TwoLinkRigidFriction-v0"
 EXAMPLE_START = {"q": [-2 * PI / 3, PI / 10], "dq": [-0.5, 1.0]}
 EXAMPLE_1 = {"amplitude": [1.0, -1.0], "frequency": [0.5, 1.0]}
 EXAMPLE_2 = {
-    "amplitude": [1.0, 1.0], "frequency": [1.0, 2.0], "phase": [0.0, -PI / 2],
+    "amplitude": [1.0, 1.0],
+    "frequency": [1.0, 2.0],
+    "phase": [0.0, -PI / 2],
     "offset": [0.0, -1.0],
 }
 INITIAL_ERROR = float(np.hypot(0.5, 1.0))  # x_hat_2(0) = 0
@@ -49,15 +51,19 @@ class Rollout:
     observers: dict
 
 
-def rollout(env_id, steps, observers, initial_state, velocity_estimate=None, driver=None,
-            **env_kwargs) -> Rollout:
+def rollout(
+    env_id, steps, observers, initial_state, velocity_estimate=None, driver=None, **env_kwargs
+) -> Rollout:
     """Run several observers on one episode (same samples and torques for all)."""
     env = gym.make(env_id, episode_time=None, **env_kwargs)
     obs, info = env.reset(seed=0, options={"initial_state": initial_state})
     model = env.unwrapped.model
     built = {key: make_observer(name, model, DT, **opts) for key, (name, opts) in observers.items()}
-    x0 = None if velocity_estimate is None else np.concatenate([obs["link_position"],
-                                                                 velocity_estimate])
+    x0 = (
+        None
+        if velocity_estimate is None
+        else np.concatenate([obs["link_position"], velocity_estimate])
+    )
     for observer in built.values():
         observer.reset(obs, x0)
     n = model.n
@@ -107,8 +113,9 @@ def test_coriolis_bound_is_the_norm_maximum_and_scales_with_sin_q2(rigid_model):
         assert bounds.c0[k] == pytest.approx(dense_coriolis_norm(rigid_model, q), rel=1e-6)
     # planar 2R: C = h [[-u2, -(u1 + u2)], [u1, 0]] with h = m2 l1 lc2 sin q2 = 15 sin q2
     angles = np.linspace(0.0, PI, 2001)
-    kappa = max(np.linalg.norm([[-np.sin(a), -np.cos(a) - np.sin(a)], [np.cos(a), 0.0]], 2)
-                for a in angles)
+    kappa = max(
+        np.linalg.norm([[-np.sin(a), -np.cos(a) - np.sin(a)], [np.cos(a), 0.0]], 2) for a in angles
+    )
     s = np.abs(np.sin(bounds.configurations[:, 1]))
     np.testing.assert_allclose(bounds.c0, 15.0 * kappa * s, rtol=1e-6, atol=1e-9)
 
@@ -133,8 +140,9 @@ def test_christoffel_tensor_on_a_spatial_arm():
     q, dq, u, w = rng.normal(size=(4, 3))
     T = christoffel_tensor(model, q)
     np.testing.assert_allclose((T @ u) @ w, (T @ w) @ u, atol=1e-10)
-    np.testing.assert_allclose((T @ dq) @ dq, model.nonlinear_effects(q, dq) - model.gravity(q),
-                               atol=1e-10)
+    np.testing.assert_allclose(
+        (T @ dq) @ dq, model.nonlinear_effects(q, dq) - model.gravity(q), atol=1e-10
+    )
     h = 1e-6
     Mdot = (model.mass_matrix(q + h * dq) - model.mass_matrix(q - h * dq)) / (2 * h)
     N = Mdot - 2 * (T @ dq)
@@ -145,8 +153,9 @@ def test_christoffel_tensor_on_a_spatial_arm():
     directions = rng.normal(size=(500, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     for k in range(0, 25, 6):
-        norms = np.linalg.norm(np.einsum("abc,sc->sab", bounds.tensors[k], directions), 2,
-                               axis=(1, 2))
+        norms = np.linalg.norm(
+            np.einsum("abc,sc->sab", bounds.tensors[k], directions), 2, axis=(1, 2)
+        )
         assert norms.max() <= bounds.c0[k] * (1 + 1e-9)
         assert norms.max() >= 0.95 * bounds.c0[k]
 
@@ -157,8 +166,15 @@ def test_rk4_period_with_linear_hold_is_exact_for_polynomials():
     x = rk4_period(lambda x, y, tau: y, np.zeros(2), y0, y1, None, 0.1)
     np.testing.assert_allclose(x, 0.05 * (y0 + y1), atol=1e-15)
     a, b, dt = 5.0, 0.5, 0.01
-    x = rk4_period(lambda x, y, tau: -a * x + y + tau, np.array([1.0]), np.array([0.0]),
-                   np.array([1.0]), np.array([b]), dt, substeps=2)
+    x = rk4_period(
+        lambda x, y, tau: -a * x + y + tau,
+        np.array([1.0]),
+        np.array([0.0]),
+        np.array([1.0]),
+        np.array([b]),
+        dt,
+        substeps=2,
+    )
     slope = 1.0 / dt  # x' = -a x + slope t + b, x(0) = 1: x = alpha t + beta + (1 - beta) e^-at
     alpha = slope / a
     beta = (b - alpha) / a
@@ -167,9 +183,11 @@ def test_rk4_period_with_linear_hold_is_exact_for_polynomials():
 
 # ------------------------------------------------------------------ interface
 def test_registry_names_and_option_errors(rigid_model):
-    for name, cls in (("reduced-order", ReducedOrderObserver),
-                      ("nicosia-tomei", NicosiaTomeiObserver),
-                      ("solsona-puleston", SolsonaPulestonObserver)):
+    for name, cls in (
+        ("reduced-order", ReducedOrderObserver),
+        ("nicosia-tomei", NicosiaTomeiObserver),
+        ("solsona-puleston", SolsonaPulestonObserver),
+    ):
         observer = make_observer(name, rigid_model, DT)
         assert type(observer) is cls and observer.state_names == ("q", "dq")
         with pytest.raises(ValueError, match="rigid"):
@@ -199,8 +217,9 @@ def test_nicosia_tomei_defaults_to_the_reduced_order_gain(rigid_model):
 
 
 def test_observer_wrapper_runs_the_reduced_order_observer():
-    env = ObserverWrapper(gym.make(RIGID, task="excitation", task_options=EXAMPLE_1),
-                          "reduced-order", hybrid=True)
+    env = ObserverWrapper(
+        gym.make(RIGID, task="excitation", task_options=EXAMPLE_1), "reduced-order", hybrid=True
+    )
     obs, info = env.reset(seed=0, options={"initial_state": EXAMPLE_START})
     np.testing.assert_allclose(obs["state"][2:], 0.0)
     for _ in range(300):
@@ -213,12 +232,23 @@ def test_observer_wrapper_runs_the_reduced_order_observer():
 # ------------------------------------------------------------------ Cristofaro & De Luca
 def test_lyapunov_function_decays_at_rate_2k0_without_quantization():
     """Theorem 1: V = 1/2 e^T M(y) e decreases monotonically, at ~2 k0 (error eq. -k0 e + ...)."""
-    run = rollout(RIGID, 400, {"ro": ("reduced-order", {})}, EXAMPLE_START, task="excitation",
-                  task_options=EXAMPLE_1, encoder={"resolution": 0.0})
+    run = rollout(
+        RIGID,
+        400,
+        {"ro": ("reduced-order", {})},
+        EXAMPLE_START,
+        task="excitation",
+        task_options=EXAMPLE_1,
+        encoder={"resolution": 0.0},
+    )
     k0 = run.observers["ro"].k0
     model = RobotModel(get_robot("two_link_rigid"))
-    V = np.array([0.5 * e @ model.mass_matrix(q) @ e
-                  for e, q in zip(run.errors["ro"], run.position, strict=True)])
+    V = np.array(
+        [
+            0.5 * e @ model.mass_matrix(q) @ e
+            for e, q in zip(run.errors["ro"], run.position, strict=True)
+        ]
+    )
     assert np.all(np.diff(V) < 0.0)
     rate = -np.log(V[300] / V[0]) / (300 * DT)
     assert rate == pytest.approx(2.0 * k0, rel=0.1)
@@ -226,8 +256,14 @@ def test_lyapunov_function_decays_at_rate_2k0_without_quantization():
 
 @pytest.fixture(scope="module")
 def example_1() -> Rollout:
-    return rollout(RIGID, 2000, {"ro": ("reduced-order", {}), "nt": ("nicosia-tomei", {})},
-                   EXAMPLE_START, task="excitation", task_options=EXAMPLE_1)
+    return rollout(
+        RIGID,
+        2000,
+        {"ro": ("reduced-order", {}), "nt": ("nicosia-tomei", {})},
+        EXAMPLE_START,
+        task="excitation",
+        task_options=EXAMPLE_1,
+    )
 
 
 def test_example_1_reduced_order_converges_faster_than_nicosia_tomei(example_1):
@@ -244,8 +280,15 @@ def test_example_1_reduced_order_converges_faster_than_nicosia_tomei(example_1):
 
 def test_example_1_with_heavier_links_still_converges():
     """Example 1b: plant link masses +10 %, observers on the nominal model."""
-    run = rollout(RIGID, 3000, {"ro": ("reduced-order", {})}, EXAMPLE_START, task="excitation",
-                  task_options=EXAMPLE_1, plant_scaling={"link_mass": 1.1})
+    run = rollout(
+        RIGID,
+        3000,
+        {"ro": ("reduced-order", {})},
+        EXAMPLE_START,
+        task="excitation",
+        task_options=EXAMPLE_1,
+        plant_scaling={"link_mass": 1.1},
+    )
     error = run.errors["ro"]
     peak_speed = np.linalg.norm(run.velocity, axis=1).max()
     assert settling_time(error, 0.2 * INITIAL_ERROR) < 0.5
@@ -256,10 +299,17 @@ def test_example_1_with_heavier_links_still_converges():
 def test_example_2_hybrid_gain_schedules_without_chattering():
     """Example 2 (eq. 19): r rises with the speed, a handful of jumps; literal sets chatter."""
     steps = 7000
-    run = rollout(RIGID, steps, {
-        "hybrid": ("reduced-order", {"hybrid": True}),
-        "literal": ("reduced-order", {"hybrid": True, "jump_sets": "literal"}),
-    }, EXAMPLE_START, task="excitation", task_options=EXAMPLE_2)
+    run = rollout(
+        RIGID,
+        steps,
+        {
+            "hybrid": ("reduced-order", {"hybrid": True}),
+            "literal": ("reduced-order", {"hybrid": True, "jump_sets": "literal"}),
+        },
+        EXAMPLE_START,
+        task="excitation",
+        task_options=EXAMPLE_2,
+    )
     r = np.array([d["r"] for d in run.diagnostics["hybrid"]])
     gain = np.array([d["gain"] for d in run.diagnostics["hybrid"]])
     jumps = run.diagnostics["hybrid"][-1]["jumps"]
@@ -278,10 +328,15 @@ def constant_speed_ramp(model: RobotModel, peak: float, duration: float):
     w = PI / duration
     position = np.array([0.3, -0.5]) + np.outer(peak / w * (1 - np.cos(w * t)), direction)
     mid = t[:-1] + 0.5 * DT
-    torques = [model.rnea(np.array([0.3, -0.5]) + peak / w * (1 - np.cos(w * s)) * direction,
-                          peak * np.sin(w * s) * direction,
-                          peak * w * np.cos(w * s) * direction)
-               + model.link_friction(peak * np.sin(w * s) * direction) for s in mid]
+    torques = [
+        model.rnea(
+            np.array([0.3, -0.5]) + peak / w * (1 - np.cos(w * s)) * direction,
+            peak * np.sin(w * s) * direction,
+            peak * w * np.cos(w * s) * direction,
+        )
+        + model.link_friction(peak * np.sin(w * s) * direction)
+        for s in mid
+    ]
     return position, np.array(torques), peak * np.abs(np.sin(w * t))
 
 
@@ -319,20 +374,32 @@ def computed_torque(env, info) -> np.ndarray:
     plant, state, ref = env.plant_model, info["true_state"], info["reference"]
     q, dq = state["q"], state["dq"]
     acceleration = ref["ddq"] + 40.0 * (ref["dq"] - dq) + 400.0 * (ref["q"] - q)
-    return (plant.mass_matrix(q) @ acceleration + plant.nonlinear_effects(q, dq)
-            + plant.link_friction(dq))
+    return (
+        plant.mass_matrix(q) @ acceleration
+        + plant.nonlinear_effects(q, dq)
+        + plant.link_friction(dq)
+    )
 
 
 def test_solsona_puleston_example_converges_although_g0_is_below_their_bound():
     g0, sigma = 3.0, 0.01
     run = rollout(
-        FRICTION, 4000,
-        {"sp": ("solsona-puleston", {"g0": g0}),
-         "no_friction": ("solsona-puleston", {"g0": g0, "model_friction": False})},
-        {"q": [PI / 10, PI / 8], "dq": [0.0, 0.0]}, velocity_estimate=np.array([1.2, 1.4]),
-        driver=computed_torque, task="tracking",
-        task_options={"start": [PI / 10, PI / 8], "waypoints": [[-0.5, 1.0], [0.6, -0.4]],
-                      "move_time": 1.0, "dwell_time": 0.3},
+        FRICTION,
+        4000,
+        {
+            "sp": ("solsona-puleston", {"g0": g0}),
+            "no_friction": ("solsona-puleston", {"g0": g0, "model_friction": False}),
+        },
+        {"q": [PI / 10, PI / 8], "dq": [0.0, 0.0]},
+        velocity_estimate=np.array([1.2, 1.4]),
+        driver=computed_torque,
+        task="tracking",
+        task_options={
+            "start": [PI / 10, PI / 8],
+            "waypoints": [[-0.5, 1.0], [0.6, -0.4]],
+            "move_time": 1.0,
+            "dwell_time": 0.3,
+        },
     )
     error = run.errors["sp"]
     initial = np.hypot(1.2, 1.4)

@@ -27,8 +27,14 @@ def kr15_step_rows(tmp_path_factory):
         envs=tuple(e for e in preset.envs if e.label == "KR15-axis1-5deg-step"),
         duration=1.5,
     )
-    result = compare(scenario, output_dir=tmp_path_factory.mktemp("kr15"), workers=2,
-                     progress=False, plots=False, console=Console(quiet=True))
+    result = compare(
+        scenario,
+        output_dir=tmp_path_factory.mktemp("kr15"),
+        workers=2,
+        progress=False,
+        plots=False,
+        console=Console(quiet=True),
+    )
     return {(r["plant"], r["controller"], r["source"]): r for r in result.runs.to_dict("records")}
 
 

@@ -91,8 +91,16 @@ def test_open_loop_matches_scipy_integration_of_the_model(env_id):
         return model.elastic_dynamics(x, torques[min(int(t / dt), steps - 1)])
 
     times = np.arange(steps + 1) * dt
-    sol = solve_ivp(rhs, (0.0, times[-1]), states[0], method="DOP853", rtol=1e-9, atol=1e-10,
-                    t_eval=times, max_step=dt)
+    sol = solve_ivp(
+        rhs,
+        (0.0, times[-1]),
+        states[0],
+        method="DOP853",
+        rtol=1e-9,
+        atol=1e-10,
+        t_eval=times,
+        max_step=dt,
+    )
     error = np.abs(sol.y.T - states)
     motion = np.ptp(states[:, n : 2 * n], axis=0).max()
     assert motion > 0.02  # the arm really moved
@@ -119,8 +127,13 @@ def test_energy_is_conserved_without_torque_and_damping(robot):
     options = None
     if robot == "iiwa_elastic":
         q = 0.5 * (np.asarray(spec.workspace_low) + np.asarray(spec.workspace_high))
-        options = {"initial_state": {"q": q, "theta": q + 0.02 * rng.standard_normal(n),
-                                     "dq": 0.5 * rng.standard_normal(n)}}
+        options = {
+            "initial_state": {
+                "q": q,
+                "theta": q + 0.02 * rng.standard_normal(n),
+                "dq": 0.5 * rng.standard_normal(n),
+            }
+        }
     obs, info = env.reset(seed=0, options=options)
     model = env.plant_model
     energy, exchanged = [], []
@@ -150,8 +163,12 @@ def test_model_2_coupling_changes_the_motion():
     uncoupled = dataclasses.replace(spec, coupling=None)
     results = []
     for robot in (spec, uncoupled):
-        env = ElasticArmEnv(robot, task="excitation", accelerometer="ideal",
-                            task_options={"amplitude": 0.0, "start": [0.0, 0.0, 0.0]})
+        env = ElasticArmEnv(
+            robot,
+            task="excitation",
+            accelerometer="ideal",
+            task_options={"amplitude": 0.0, "start": [0.0, 0.0, 0.0]},
+        )
         env.reset(seed=0)
         for _ in range(200):
             *_, info = env.step(np.array([0.0, 0.0, 300.0]))
@@ -181,8 +198,10 @@ def test_unmodelled_friction_acts_on_the_simulated_plant_only():
     """``unmodelled_friction`` (fractions of the torque limit): the plant's link equation
     has d(q') = tau_max (v q' + c tanh(q' / 0.01)), PyBullet's q'' follows it, and the
     nominal model (what observers and controllers use) knows nothing of it."""
-    env = gym.make("elastic_gym/TwoLinkElastic-v0",
-                   unmodelled_friction={"coulomb": 0.05, "viscous": [0.01, 0.02]})
+    env = gym.make(
+        "elastic_gym/TwoLinkElastic-v0",
+        unmodelled_friction={"coulomb": 0.05, "viscous": [0.01, 0.02]},
+    )
     u = env.unwrapped
     plant, model, limit = u.plant_model, u.model, u.torque_limit
     assert model.friction is None
@@ -190,7 +209,9 @@ def test_unmodelled_friction_acts_on_the_simulated_plant_only():
     theta, dtheta = q + 0.01, dq
     np.testing.assert_allclose(
         plant.link_friction(dq),
-        limit * (np.array([0.01, 0.02]) * dq + 0.05 * np.tanh(dq / 0.01)), rtol=1e-12)
+        limit * (np.array([0.01, 0.02]) * dq + 0.05 * np.tanh(dq / 0.01)),
+        rtol=1e-12,
+    )
     tau = 0.02 * limit
     x = np.concatenate([theta, q, dtheta, dq])
     expected = plant.elastic_accelerations(x, tau)[1]

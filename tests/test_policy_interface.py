@@ -35,8 +35,9 @@ def test_motor_offset_pd_with_the_invdyn_offset_tracks():
     feedforward torque over kp, from INVDYN) tracks a 1 rad move to < 3e-4 rad RMS: the
     action map is the PD of its docstring, and the parameterization can reach 1e-4 rad."""
     config = ActionConfig(kind="motor-offset", offset_scale=0.05)
-    env = make_policy_env(ENV_ID, "true", {"max_episode_steps": 1500, **EXACT}, decimation=10,
-                          action=config)
+    env = make_policy_env(
+        ENV_ID, "true", {"max_episode_steps": 1500, **EXACT}, decimation=10, action=config
+    )
     base = env.unwrapped
     action_map = env.get_wrapper_attr("map")
     invdyn = make_controller("feedforward-state-feedback", base.model, base.control_dt)
@@ -62,11 +63,27 @@ def test_motor_offset_pd_with_the_invdyn_offset_tracks():
 def test_features_equal_their_definitions():
     """Each feature of the flat observation, read back from its slice, equals its formula
     applied to the truth, the reference and the last action."""
-    observation = ObservationConfig(features=("error", "error_rate", "reference", "preview",
-                                              "torsion", "torsion_rate", "last_action"),
-                                    reference_order=3, preview=(0.05, 0.2))
-    env = make_policy_env(ENV_ID, "true", {"max_episode_steps": 500}, decimation=10,
-                          action={"kind": "motor-offset"}, observation=observation)
+    observation = ObservationConfig(
+        features=(
+            "error",
+            "error_rate",
+            "reference",
+            "preview",
+            "torsion",
+            "torsion_rate",
+            "last_action",
+        ),
+        reference_order=3,
+        preview=(0.05, 0.2),
+    )
+    env = make_policy_env(
+        ENV_ID,
+        "true",
+        {"max_episode_steps": 500},
+        decimation=10,
+        action={"kind": "motor-offset"},
+        observation=observation,
+    )
     env.reset(seed=1)
     for _ in range(40):  # into the first move
         obs, _, _, _, info = env.step(np.array([0.3, -0.7]))
@@ -77,8 +94,10 @@ def test_features_equal_their_definitions():
         "error": (truth["q"] - ref[0]) / c.error_scale,
         "error_rate": (truth["dq"] - ref[1]) / c.error_rate_scale,
         "reference": np.concatenate([ref[0], ref[1], ref[2] / 10, ref[3] / 100]),
-        "preview": np.concatenate([task.reference(np.array([info["time"] + h]))[0, 0] - ref[0]
-                                   for h in c.preview]) / c.preview_scale,
+        "preview": np.concatenate(
+            [task.reference(np.array([info["time"] + h]))[0, 0] - ref[0] for h in c.preview]
+        )
+        / c.preview_scale,
         "torsion": (truth["theta"] - truth["q"]) / c.torsion_scale,
         "torsion_rate": (truth["dtheta"] - truth["dq"]) / c.torsion_rate_scale,
         "last_action": np.array([0.3, -0.7]),
@@ -87,8 +106,7 @@ def test_features_equal_their_definitions():
     assert obs.dtype == np.float32 and obs.shape == (builder.size,) == (22,)
     start = 0
     for name, size in builder.sizes.items():
-        np.testing.assert_allclose(obs[start:start + size], expected[name], rtol=1e-6,
-                                   atol=1e-6)
+        np.testing.assert_allclose(obs[start : start + size], expected[name], rtol=1e-6, atol=1e-6)
         start += size
     assert np.abs(expected["preview"]).max() > 0.1  # the move is under way: a real preview
     env.close()
@@ -102,33 +120,56 @@ def test_arms_of_a_batch_are_independent():
     rng = np.random.default_rng(0)
     n_arms = 3
     inputs = ObservationInputs(
-        reference=rng.normal(size=(n_arms, 5, 2)), last_action=rng.uniform(-1, 1, (n_arms, 2)),
-        state=rng.normal(size=(n_arms, 8)), preview=rng.normal(size=(n_arms, 2, 2)),
-        base_torque=rng.normal(size=(n_arms, 2)))
-    builder = ObservationBuilder(ObservationConfig(preview=(0.1, 0.2)), 2, True, False, True,
-                                 model.torque_limit)
+        reference=rng.normal(size=(n_arms, 5, 2)),
+        last_action=rng.uniform(-1, 1, (n_arms, 2)),
+        state=rng.normal(size=(n_arms, 8)),
+        preview=rng.normal(size=(n_arms, 2, 2)),
+        base_torque=rng.normal(size=(n_arms, 2)),
+    )
+    builder = ObservationBuilder(
+        ObservationConfig(preview=(0.1, 0.2)), 2, True, False, True, model.torque_limit
+    )
     batch = builder.build(inputs)
     action = rng.uniform(-1.5, 1.5, (n_arms, 2))
-    maps = [ActionMap(ActionConfig(kind=k, residual="motor-pd" if k == "residual" else None,
-                                   gravity_compensation=k == "motor-offset"), model)
-            for k in ("torque", "motor-offset", "residual")]
-    torques = [m.torque(action, inputs.state[:, :2], inputs.state[:, 4:6], inputs.reference,
-                        inputs.base_torque) for m in maps]
+    maps = [
+        ActionMap(
+            ActionConfig(
+                kind=k,
+                residual="motor-pd" if k == "residual" else None,
+                gravity_compensation=k == "motor-offset",
+            ),
+            model,
+        )
+        for k in ("torque", "motor-offset", "residual")
+    ]
+    torques = [
+        m.torque(
+            action, inputs.state[:, :2], inputs.state[:, 4:6], inputs.reference, inputs.base_torque
+        )
+        for m in maps
+    ]
     for i in range(n_arms):
-        one = ObservationInputs(**{k: v[i:i + 1] for k, v in vars(inputs).items()
-                                   if v is not None})
+        one = ObservationInputs(
+            **{k: v[i : i + 1] for k, v in vars(inputs).items() if v is not None}
+        )
         np.testing.assert_array_equal(batch[i], builder.build(one)[0])
         for m, tau in zip(maps, torques, strict=True):
-            single = m.torque(action[i:i + 1], inputs.state[i:i + 1, :2],
-                              inputs.state[i:i + 1, 4:6], inputs.reference[i:i + 1],
-                              inputs.base_torque[i:i + 1])
+            single = m.torque(
+                action[i : i + 1],
+                inputs.state[i : i + 1, :2],
+                inputs.state[i : i + 1, 4:6],
+                inputs.reference[i : i + 1],
+                inputs.base_torque[i : i + 1],
+            )
             np.testing.assert_array_equal(tau[i], single[0])
     # torque: clipped to the limits; residual: base + 10 % of the limit at |a| = 1, zero
     # inside the default deadzone 0.2
     assert np.all(np.abs(torques[0]) <= model.torque_limit)
     a = np.clip(action, -1, 1)
-    np.testing.assert_allclose(torques[2] - inputs.base_torque, 0.1 * model.torque_limit
-                               * np.sign(a) * np.maximum(np.abs(a) - 0.2, 0) / 0.8)
+    np.testing.assert_allclose(
+        torques[2] - inputs.base_torque,
+        0.1 * model.torque_limit * np.sign(a) * np.maximum(np.abs(a) - 0.2, 0) / 0.8,
+    )
 
 
 def test_residual_policy_starts_as_its_base_controller():
@@ -139,10 +180,16 @@ def test_residual_policy_starts_as_its_base_controller():
     from elastic_gym.training.train import zero_action_head
 
     action = {"kind": "residual", "residual": "feedforward-state-feedback"}
-    env = make_policy_env(ENV_ID, "true", {"max_episode_steps": 200, **EXACT}, decimation=10,
-                          action=action)
-    model = PPO("MlpPolicy", env, seed=0, device="cpu",
-                policy_kwargs={"log_std_init": -3.0, "net_arch": [16]})
+    env = make_policy_env(
+        ENV_ID, "true", {"max_episode_steps": 200, **EXACT}, decimation=10, action=action
+    )
+    model = PPO(
+        "MlpPolicy",
+        env,
+        seed=0,
+        device="cpu",
+        policy_kwargs={"log_std_init": -3.0, "net_arch": [16]},
+    )
     zero_action_head(model)
     obs, _ = env.reset(seed=2)
     policy_q = []
@@ -172,8 +219,14 @@ def test_residual_deadzone_is_zero_inside_and_continuous_to_the_bound():
     env = gym.make(ENV_ID)
     model = env.unwrapped.model
     env.close()
-    config = ActionConfig.from_config({"kind": "residual", "residual": "motor-pd",
-                                       "residual_scale": 0.1, "residual_deadzone": 0.2})
+    config = ActionConfig.from_config(
+        {
+            "kind": "residual",
+            "residual": "motor-pd",
+            "residual_scale": 0.1,
+            "residual_deadzone": 0.2,
+        }
+    )
     actions = ActionMap(config, model)
     base = np.array([[3.0, -1.0]] * 5)
     a = np.array([[0.0, 0.2], [-0.2, 0.19], [0.6, -0.6], [1.0, -1.0], [2.0, -0.3]])

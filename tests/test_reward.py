@@ -21,17 +21,22 @@ def _zeros(n_arms: int = 1) -> np.ndarray:
 
 def _track(error: float, config: RewardConfig | None = None) -> float:
     e = np.full((1, 2), error)
-    terms = reward_terms(config or RewardConfig(), DT, e, _zeros(), _zeros(), _zeros(), LIMIT,
-                         _zeros())
+    terms = reward_terms(
+        config or RewardConfig(), DT, e, _zeros(), _zeros(), _zeros(), LIMIT, _zeros()
+    )
     return float(terms["track"][0])
 
 
 def _episode(controller: str | None, options: dict, source: str, seed: int, steps: int):
-    env = ObserverWrapper(gym.make("elastic_gym/TwoLinkElastic-v0", max_episode_steps=steps),
-                          source)
+    env = ObserverWrapper(
+        gym.make("elastic_gym/TwoLinkElastic-v0", max_episode_steps=steps), source
+    )
     base = env.unwrapped
-    law = None if controller is None else make_controller(controller, base.model,
-                                                          base.control_dt, **options)
+    law = (
+        None
+        if controller is None
+        else make_controller(controller, base.model, base.control_dt, **options)
+    )
     obs, info = env.reset(seed=seed)
     if law is not None:
         law.reset(obs, public_info(info))
@@ -52,11 +57,14 @@ def test_returns_rank_controllers_like_their_tracking_rms(seed):
     motor-only law), motor PD without the INVDYN feedforward at two bandwidths and zero
     torque on the same episode: higher return <=> lower tracking RMS, over errors from
     about 1e-5 to 1 rad."""
-    laws = [("feedforward-state-feedback", {}, "true"), ("motor-pd", {}, "finite-difference"),
-            ("motor-pd", {"feedforward": False}, "true"),
-            ("motor-pd", {"feedforward": False, "omega": 10.0}, "true"), (None, {}, "true")]
-    results = [_episode(name, options, source, seed, steps=800)
-               for name, options, source in laws]
+    laws = [
+        ("feedforward-state-feedback", {}, "true"),
+        ("motor-pd", {}, "finite-difference"),
+        ("motor-pd", {"feedforward": False}, "true"),
+        ("motor-pd", {"feedforward": False, "omega": 10.0}, "true"),
+        (None, {}, "true"),
+    ]
+    results = [_episode(name, options, source, seed, steps=800) for name, options, source in laws]
     returns, rms = np.array(results).T
     assert rms.min() < 1e-4 and rms.max() > 0.3  # the range the ranking must cover
     assert list(np.argsort(-returns)) == list(np.argsort(rms))
@@ -79,8 +87,9 @@ def test_torque_cannot_outweigh_tracking():
     """Halving the error anywhere in 1e-5 .. 1e-1 rad is worth more than the whole range
     of the torque term (zero torque vs full torque on every joint)."""
     config = RewardConfig()
-    full = reward_terms(config, DT, _zeros(), _zeros(), LIMIT[None], LIMIT[None], LIMIT,
-                        _zeros())["torque"][0]
+    full = reward_terms(config, DT, _zeros(), _zeros(), LIMIT[None], LIMIT[None], LIMIT, _zeros())[
+        "torque"
+    ][0]
     smallest_gain = min(_track(e) - _track(2 * e) for e in np.logspace(-5, -1, 200))
     assert -full < smallest_gain
 
@@ -92,8 +101,7 @@ def test_reward_is_bounded_and_termination_never_pays():
     rng = np.random.default_rng(0)
     scale = 10.0 ** rng.uniform(-8, 3, size=(6, 500, 2))
     e, de, torsion = (scale[i] * rng.choice([-1, 1], size=(500, 2)) for i in range(3))
-    tau, previous = (np.clip(scale[i] * rng.normal(size=(500, 2)), -LIMIT, LIMIT)
-                     for i in (3, 4))
+    tau, previous = (np.clip(scale[i] * rng.normal(size=(500, 2)), -LIMIT, LIMIT) for i in (3, 4))
     r = total_reward(config, DT, e, de, tau, previous, LIMIT, torsion)
     assert r.shape == (500,)
     assert np.all(r >= 0) and np.all(r <= DT * config.max_rate + 1e-15)
@@ -105,12 +113,32 @@ def test_reward_is_bounded_and_termination_never_pays():
 def test_a_torque_step_costs_more_than_a_ramp():
     """The rate term penalizes jumps: one 10 N m step vs the same change over 10 periods."""
     config = RewardConfig()
-    step = total_reward(config, DT, _zeros(), _zeros(), np.array([[10.0, 0.0]]), _zeros(),
-                        LIMIT, _zeros())[0]
-    ramp = sum(total_reward(config, DT, _zeros(), _zeros(), np.array([[k + 1.0, 0.0]]),
-                            np.array([[float(k), 0.0]]), LIMIT, _zeros())[0] for k in range(10))
-    still = total_reward(config, DT, _zeros(), _zeros(), np.array([[10.0, 0.0]]),
-                         np.array([[10.0, 0.0]]), LIMIT, _zeros())[0]
+    step = total_reward(
+        config, DT, _zeros(), _zeros(), np.array([[10.0, 0.0]]), _zeros(), LIMIT, _zeros()
+    )[0]
+    ramp = sum(
+        total_reward(
+            config,
+            DT,
+            _zeros(),
+            _zeros(),
+            np.array([[k + 1.0, 0.0]]),
+            np.array([[float(k), 0.0]]),
+            LIMIT,
+            _zeros(),
+        )[0]
+        for k in range(10)
+    )
+    still = total_reward(
+        config,
+        DT,
+        _zeros(),
+        _zeros(),
+        np.array([[10.0, 0.0]]),
+        np.array([[10.0, 0.0]]),
+        LIMIT,
+        _zeros(),
+    )[0]
     assert ramp - 9 * still > step  # the ramp's rate cost summed is below the one jump's
 
 
@@ -121,8 +149,9 @@ def test_arms_of_a_batch_are_independent():
     config = RewardConfig(velocity=0.2, torsion=0.1)
     batch = reward_terms(config, DT, *arrays[:4], LIMIT, arrays[4])
     for i in range(4):
-        single = reward_terms(config, DT, *(a[i : i + 1] for a in arrays[:4]), LIMIT,
-                              arrays[4][i : i + 1])
+        single = reward_terms(
+            config, DT, *(a[i : i + 1] for a in arrays[:4]), LIMIT, arrays[4][i : i + 1]
+        )
         for name in TERM_NAMES:
             assert batch[name][i] == single[name][0]
 
@@ -145,8 +174,6 @@ def test_bad_reward_config(config, match):
 
 def test_bad_reward_inputs():
     with pytest.raises(ValueError, match="arms, joints"):
-        total_reward(RewardConfig(), DT, np.zeros(2), _zeros(), _zeros(), _zeros(), LIMIT,
-                     _zeros())
+        total_reward(RewardConfig(), DT, np.zeros(2), _zeros(), _zeros(), _zeros(), LIMIT, _zeros())
     with pytest.raises(ValueError, match="torque"):
-        total_reward(RewardConfig(), DT, _zeros(), _zeros(), _zeros(3), _zeros(), LIMIT,
-                     _zeros())
+        total_reward(RewardConfig(), DT, _zeros(), _zeros(), _zeros(3), _zeros(), LIMIT, _zeros())

@@ -116,8 +116,11 @@ def test_different_seeds_give_different_references_and_noise(env_id):
     b = episode(make(env_id, **fixed), seed=1, steps=20, action_seed=0)
     base = make(env_id).unwrapped
     base.close()
-    noisy = {"motor_position": base.encoder.noise_std > 0, "link_position":
-             base.encoder.noise_std > 0, "acceleration": base.accelerometer_array.sample_std > 0}
+    noisy = {
+        "motor_position": base.encoder.noise_std > 0,
+        "link_position": base.encoder.noise_std > 0,
+        "acceleration": base.accelerometer_array.sample_std > 0,
+    }
     for key in a[0][0].keys() - {"reference"}:
         readings = [np.array([r[0][key] for r in run]) for run in (a, b)]
         assert np.array_equal(*readings) != noisy[key], key
@@ -128,8 +131,9 @@ def test_different_seeds_give_different_references_and_noise(env_id):
 def test_32_envs_stepped_interleaved_match_each_env_alone():
     configs = CASES[:32]  # every id, raw env and wrappers with their observers
     steps = 50
-    alone = [leaves(episode(make(*config), seed=i, steps=steps))
-             for i, config in enumerate(configs)]
+    alone = [
+        leaves(episode(make(*config), seed=i, steps=steps)) for i, config in enumerate(configs)
+    ]
     drivers = [Driver(make(*config), seed=i) for i, config in enumerate(configs)]
     for _ in range(steps):
         for driver in drivers:
@@ -165,7 +169,8 @@ def test_env_factories_survive_a_cloudpickle_round_trip():
     for factory in (by_spec, by_lambda):
         clone = cloudpickle.loads(cloudpickle.dumps(factory))
         assert leaves(episode(clone(), seed=5, steps=50)) == leaves(
-            episode(factory(), seed=5, steps=50))
+            episode(factory(), seed=5, steps=50)
+        )
 
 
 def test_subproc_vec_env_with_env_factories_matches_envs_in_this_process():
@@ -275,11 +280,12 @@ def test_singular_accelerometer_placement_is_flagged_by_the_observer():
         infos = [r[-1] for r in records]
         diagnostics = [info["observer_diagnostics"] for info in infos]
         if label == "singular":
-            T, _ = env.unwrapped.model.accelerometer_maps(infos[-1]["true_state"]["q"],
-                                                          np.zeros(2))
+            T, _ = env.unwrapped.model.accelerometer_maps(infos[-1]["true_state"]["q"], np.zeros(2))
             assert np.array_equal(T[:, 1], np.zeros(3)) and np.linalg.matrix_rank(T) == 1
-            assert all(d["near_singular"] and d["sigma_min_TA"] == 0.0
-                       and d["cond_TA"] == np.inf for d in diagnostics)
+            assert all(
+                d["near_singular"] and d["sigma_min_TA"] == 0.0 and d["cond_TA"] == np.inf
+                for d in diagnostics
+            )
         else:
             assert not any(d["near_singular"] for d in diagnostics)
         error = np.array([info["estimation_error"] for info in infos])

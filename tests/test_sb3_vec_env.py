@@ -22,8 +22,13 @@ STATE = slice(4, 8)  # FlattenObservation puts "reference" (4) before "state" (4
 
 
 def _vector(n: int, **kwargs):
-    envs = gym.make_vec(ID, num_envs=n, vectorization_mode="vector_entry_point",
-                        autoreset_mode=AutoresetMode.DISABLED, **{**KWARGS, **kwargs})
+    envs = gym.make_vec(
+        ID,
+        num_envs=n,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode=AutoresetMode.DISABLED,
+        **{**KWARGS, **kwargs},
+    )
     return FlattenObservation(vector.TrueStateWrapper(envs))
 
 
@@ -79,8 +84,9 @@ def test_batches_in_worker_processes_equal_the_batches_in_this_process():
 
     from elastic_gym.training.sb3_vec_env import ProcessBatches
 
-    workers = ProcessBatches([functools.partial(_batch_factory, 2),
-                              functools.partial(_batch_factory, 1)])
+    workers = ProcessBatches(
+        [functools.partial(_batch_factory, 2), functools.partial(_batch_factory, 1)]
+    )
     local = [_batch_factory(2), _batch_factory(1)]
     assert workers.num_envs == 3
     workers.seed(7)

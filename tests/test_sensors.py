@@ -51,10 +51,12 @@ def test_accelerometer_equals_finite_difference_of_sensor_position(env_id):
         # (b) sensor points from PyBullet's own link states (single-precision poses), 3 ms stencil
         for i in range(n_sensors):
             reading = readings[k][3 * i : 3 * i + 3]
-            f_exact = specific_force([p[i].translation for p in placements],
-                                     placements[1][i].rotation, dt)
-            f_pybullet = specific_force([poses[j][i][0] for j in (k - 3, k, k + 3)],
-                                        poses[k][i][1], 3 * dt)
+            f_exact = specific_force(
+                [p[i].translation for p in placements], placements[1][i].rotation, dt
+            )
+            f_pybullet = specific_force(
+                [poses[j][i][0] for j in (k - 3, k, k + 3)], poses[k][i][1], 3 * dt
+            )
             exact_err = max(exact_err, np.abs(f_exact - reading).max())
             pybullet_err = max(pybullet_err, np.abs(f_pybullet - reading).max())
             dynamic = max(dynamic, np.abs(reading - poses[k][i][1].T @ (-g)).max())
@@ -86,8 +88,7 @@ def test_accelerometer_noise_bias_saturation_and_filter():
     truth = np.array([[0.0, 0.0, 9.81, 1.0, -2.0, 30.0]] * 2)
     samples = np.array([array.measure(truth, rngs, arms) for _ in range(20000)])  # (T, arm, axis)
     assert np.allclose(samples[:, :, :5].std(axis=0), 2e-3 * np.sqrt(0.5 / dt), rtol=0.05)
-    assert np.allclose(samples[:, :, :5].mean(axis=0) - truth[:, :5], array.bias[:, :5],
-                       atol=2e-3)
+    assert np.allclose(samples[:, :, :5].mean(axis=0) - truth[:, :5], array.bias[:, :5], atol=2e-3)
     assert np.all(samples[:, :, 5] == 20.0)  # saturated at the range
     # first-order low-pass: a step settles with time constant 1 / (2 pi f_c)
     filtered = AccelerometerConfig(noise_density=0, bias_std=0, cutoff_hz=10.0)
@@ -95,8 +96,9 @@ def test_accelerometer_noise_bias_saturation_and_filter():
     lowpass.reset(arms[:1], [rng])
     lowpass.measure(np.zeros((1, 3)), [rng], arms[:1])
     tau = 1.0 / (2 * np.pi * 10.0)
-    response = [lowpass.measure(np.ones((1, 3)), [rng], arms[:1])[0, 0]
-                for _ in range(round(tau / dt))]
+    response = [
+        lowpass.measure(np.ones((1, 3)), [rng], arms[:1])[0, 0] for _ in range(round(tau / dt))
+    ]
     assert response[-1] == pytest.approx(1 - np.exp(-1), abs=0.01)
 
 
@@ -109,8 +111,7 @@ def test_encoder_quantization_and_noise():
     assert np.abs(y - x).max() <= 3.5e-4 + 1e-15
     assert np.allclose(np.round(y / 7e-4) * 7e-4, y)
     noisy_encoder = Encoder(resolution=0.0, noise_std=0.01, n_joints=200)
-    noisy = np.array([noisy_encoder.measure(np.zeros((1, 200)), [rng], one)
-                      for _ in range(100)])
+    noisy = np.array([noisy_encoder.measure(np.zeros((1, 200)), [rng], one) for _ in range(100)])
     assert noisy.std() == pytest.approx(0.01, rel=0.05)
 
 
@@ -121,8 +122,10 @@ def test_noise_of_an_arm_depends_only_on_its_generator_and_readings():
     steps = 2 * GaussianNoise.BLOCK + 7
     alone, rng = GaussianNoise(1, 3), np.random.default_rng(5)
     solo = np.array([alone.draw(np.arange(1), [rng])[0] for _ in range(steps)])
-    assert np.array_equal(solo[:GaussianNoise.BLOCK].ravel(),
-                          np.random.default_rng(5).standard_normal(3 * GaussianNoise.BLOCK))
+    assert np.array_equal(
+        solo[: GaussianNoise.BLOCK].ravel(),
+        np.random.default_rng(5).standard_normal(3 * GaussianNoise.BLOCK),
+    )
     batch = GaussianNoise(2, 3)
     rngs = [np.random.default_rng(9), np.random.default_rng(5)]
     both, second = np.arange(2), np.array([1])

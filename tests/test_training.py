@@ -33,18 +33,30 @@ pytestmark = pytest.mark.usefixtures("single_thread_torch")
     ("algo", "hyperparams"),
     [
         ("ppo", {"n_envs": 2, "n_steps": 64, "batch_size": 64, "n_epochs": 2}),
-        ("sac", {"learning_starts": 50, "batch_size": 32,
-                 "policy_kwargs": {"net_arch": [32, 32]}}),
+        ("sac", {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arch": [32, 32]}}),
     ],
 )
 def test_short_run_saves_reloads_and_acts_the_same(tmp_path, algo, hyperparams):
     config = TrainConfig(
-        algo=algo, state="deluca", total_steps=128, out_dir=str(tmp_path / algo),
-        env_kwargs=SHORT_EPISODES, hyperparams=hyperparams, eval_freq=64, eval_episodes=1,
+        algo=algo,
+        state="deluca",
+        total_steps=128,
+        out_dir=str(tmp_path / algo),
+        env_kwargs=SHORT_EPISODES,
+        hyperparams=hyperparams,
+        eval_freq=64,
+        eval_episodes=1,
     )
     result = train(config, progress_bar=False)
-    for name in ("model.zip", "vecnormalize.pkl", "config.yaml", "summary.json",
-                 "best_model.zip", "evaluations.npz", "learning_curve.csv"):
+    for name in (
+        "model.zip",
+        "vecnormalize.pkl",
+        "config.yaml",
+        "summary.json",
+        "best_model.zip",
+        "evaluations.npz",
+        "learning_curve.csv",
+    ):
         assert (tmp_path / algo / name).exists(), name
     assert (tmp_path / algo / "tb").is_dir()
     assert result.policy_steps >= 128 and result.env_steps == 10 * result.policy_steps
@@ -68,17 +80,35 @@ def test_ppo_learns_to_hold_the_arm_against_gravity(tmp_path):
     gravity sag of the elastic arm held at a configuration: after 2000 policy steps on 4
     arms of one batched PyBullet world its link error is below 30 % of the zero-offset
     policy's (the PD alone sags ~8 mrad)."""
-    env_kwargs = {"max_episode_steps": 100, "task": "regulation", "accelerometer": "ideal",
-                  "task_options": {"start": [-1.0, 0.5], "goal": [-1.0, 0.5]}}
-    hyperparams = {"n_envs": 4, "n_steps": 25, "batch_size": 50, "n_epochs": 10,
-                   "learning_rate": 3e-3, "gamma": 0.9, "decimation": 10,
-                   "policy_kwargs": {"net_arch": [32, 32], "log_std_init": -1.0}}
-    config = TrainConfig(algo="ppo", state="true", total_steps=2000, out_dir=str(tmp_path / "r"),
-                         env_kwargs=env_kwargs, hyperparams=hyperparams, eval_freq=1000,
-                         eval_episodes=2, action={"kind": "motor-offset"})
+    env_kwargs = {
+        "max_episode_steps": 100,
+        "task": "regulation",
+        "accelerometer": "ideal",
+        "task_options": {"start": [-1.0, 0.5], "goal": [-1.0, 0.5]},
+    }
+    hyperparams = {
+        "n_envs": 4,
+        "n_steps": 25,
+        "batch_size": 50,
+        "n_epochs": 10,
+        "learning_rate": 3e-3,
+        "gamma": 0.9,
+        "decimation": 10,
+        "policy_kwargs": {"net_arch": [32, 32], "log_std_init": -1.0},
+    }
+    config = TrainConfig(
+        algo="ppo",
+        state="true",
+        total_steps=2000,
+        out_dir=str(tmp_path / "r"),
+        env_kwargs=env_kwargs,
+        hyperparams=hyperparams,
+        eval_freq=1000,
+        eval_episodes=2,
+        action={"kind": "motor-offset"},
+    )
     train(config, progress_bar=False)
-    curve = np.genfromtxt(Path(config.out_dir) / "learning_curve.csv", delimiter=",",
-                          names=True)
+    curve = np.genfromtxt(Path(config.out_dir) / "learning_curve.csv", delimiter=",", names=True)
     assert list(curve["policy_steps"]) == [0, 1000, 2000]
     # the learning curve shows the learning: return up, tracking error down
     assert curve["eval_return"][-1] > curve["eval_return"][0]
@@ -94,10 +124,17 @@ def test_ppo_learns_to_hold_the_arm_against_gravity(tmp_path):
 
 
 def test_residual_policy_env_starts_from_the_classical_controller():
-    env = make_policy_env("elastic_gym/TwoLinkElastic-v0", "true",
-                          {"max_episode_steps": 300, "accelerometer": "ideal"},
-                          decimation=10, action={"kind": "residual", "residual_scale": 0.1,
-                                                 "residual": "feedforward-state-feedback"})
+    env = make_policy_env(
+        "elastic_gym/TwoLinkElastic-v0",
+        "true",
+        {"max_episode_steps": 300, "accelerometer": "ideal"},
+        decimation=10,
+        action={
+            "kind": "residual",
+            "residual_scale": 0.1,
+            "residual": "feedforward-state-feedback",
+        },
+    )
     obs, _ = env.reset(seed=0)
     total, errors = 0.0, []
     done = False
@@ -136,21 +173,26 @@ def test_bad_hyperparameters(tmp_path):
         resolve_hyperparams("sac", "elastic_gym/TwoLinkElastic-v0", file=wrong)
     with pytest.raises(ValueError, match="key=value"):
         parse_overrides(["learning_rate"])
-    wrong_kinds = [({"n_steps": "abc"}, "n_steps must be a finite number"),
-                   ({"learning_rate": float("nan")}, "learning_rate must be a finite number"),
-                   ({"n_steps": 64.5}, "n_steps must be an integer"),
-                   ({"n_envs": 0}, "n_envs must be a positive integer"),
-                   ({"normalize": "yes"}, "normalize must be true or false"),
-                   ({"use_sde": "no"}, "use_sde must be true or false")]
+    wrong_kinds = [
+        ({"n_steps": "abc"}, "n_steps must be a finite number"),
+        ({"learning_rate": float("nan")}, "learning_rate must be a finite number"),
+        ({"n_steps": 64.5}, "n_steps must be an integer"),
+        ({"n_envs": 0}, "n_envs must be a positive integer"),
+        ({"normalize": "yes"}, "normalize must be true or false"),
+        ({"use_sde": "no"}, "use_sde must be true or false"),
+    ]
     for overrides, match in wrong_kinds:  # refused before any env exists, not inside SB3
         with pytest.raises(ValueError, match=match):
             resolve_hyperparams("ppo", "elastic_gym/TwoLinkElastic-v0", overrides)
-    floats = resolve_hyperparams("ppo", "elastic_gym/TwoLinkElastic-v0",
-                                 {"n_timesteps": 1e6, "n_steps": 64.0})  # YAML's !!float 1e6
+    floats = resolve_hyperparams(
+        "ppo", "elastic_gym/TwoLinkElastic-v0", {"n_timesteps": 1e6, "n_steps": 64.0}
+    )  # YAML's !!float 1e6
     assert (floats["n_timesteps"], floats["n_steps"]) == (1_000_000, 64)
     assert type(floats["n_steps"]) is int
-    assert parse_overrides(["learning_rate=1e-4", "n_envs=2"]) == {"learning_rate": 1e-4,
-                                                                    "n_envs": 2}
+    assert parse_overrides(["learning_rate=1e-4", "n_envs=2"]) == {
+        "learning_rate": 1e-4,
+        "n_envs": 2,
+    }
 
 
 def test_shipped_hyperparameters_are_valid():
@@ -172,8 +214,7 @@ def test_shipped_hyperparameters_are_valid():
 
 
 def test_raw_sensor_policy_env_stacks_frames():
-    env = make_policy_env("elastic_gym/TwoLinkElastic-v0", "sensors", decimation=5,
-                          frame_stack=4)
+    env = make_policy_env("elastic_gym/TwoLinkElastic-v0", "sensors", decimation=5, frame_stack=4)
     obs, _ = env.reset(seed=0)
     # motor error, 2 accelerometers, reference q_d, q_d', q_d'', last action
     assert obs.shape == (4 * (2 + 6 + 6 + 2),)
@@ -183,14 +224,22 @@ def test_raw_sensor_policy_env_stacks_frames():
 SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arch": [32, 32]}}
 
 
-@pytest.mark.parametrize(("action", "algo", "hyperparams"), [
-    ({"kind": "torque"}, "sac", SHORT_SAC), ({"kind": "motor-offset"}, "sac", SHORT_SAC),
-    ({"kind": "residual", "residual": "feedforward-state-feedback"}, "sac", SHORT_SAC),
-    ({"kind": "motor-offset"}, "ppo",  # one env (DummyVecEnv); a critic with the truth
-     {"critic_state": True, "n_envs": 1, "n_steps": 50, "batch_size": 50, "n_epochs": 2}),
-])
-def test_trained_run_as_comparison_controller_matches_the_policy_env(tmp_path, action, algo,
-                                                                     hyperparams):
+@pytest.mark.parametrize(
+    ("action", "algo", "hyperparams"),
+    [
+        ({"kind": "torque"}, "sac", SHORT_SAC),
+        ({"kind": "motor-offset"}, "sac", SHORT_SAC),
+        ({"kind": "residual", "residual": "feedforward-state-feedback"}, "sac", SHORT_SAC),
+        (
+            {"kind": "motor-offset"},
+            "ppo",  # one env (DummyVecEnv); a critic with the truth
+            {"critic_state": True, "n_envs": 1, "n_steps": 50, "batch_size": 50, "n_epochs": 2},
+        ),
+    ],
+)
+def test_trained_run_as_comparison_controller_matches_the_policy_env(
+    tmp_path, action, algo, hyperparams
+):
     """The "trained-policy" controller behind an ObserverWrapper reproduces the training
     stack (same features, normalization, decimation and action map): same episode return.
     A PPO run whose critic saw the true state needs no true state here."""
@@ -199,9 +248,16 @@ def test_trained_run_as_comparison_controller_matches_the_policy_env(tmp_path, a
     from elastic_gym.controllers import make_controller, public_info
     from elastic_gym.observers import ObserverWrapper
 
-    config = TrainConfig(algo=algo, state="deluca", total_steps=100, out_dir=str(tmp_path / "p"),
-                         env_kwargs=SHORT_EPISODES, eval_freq=10**9, action=action,
-                         hyperparams=hyperparams)
+    config = TrainConfig(
+        algo=algo,
+        state="deluca",
+        total_steps=100,
+        out_dir=str(tmp_path / "p"),
+        env_kwargs=SHORT_EPISODES,
+        eval_freq=10**9,
+        action=action,
+        hyperparams=hyperparams,
+    )
     train(config, progress_bar=False)
     run = load_run(config.out_dir)
 
@@ -218,8 +274,14 @@ def test_trained_run_as_comparison_controller_matches_the_policy_env(tmp_path, a
     env.close()
     comparison_state = info["true_state"]["x"]
 
-    policy_env = make_policy_env(config.env_id, "deluca", SHORT_EPISODES, decimation=10,
-                                 action=action, observation=config.policy_configs(run.settings)[1])
+    policy_env = make_policy_env(
+        config.env_id,
+        "deluca",
+        SHORT_EPISODES,
+        decimation=10,
+        action=action,
+        observation=config.policy_configs(run.settings)[1],
+    )
     obs, _ = policy_env.reset(seed=4)
     training_return, done = 0.0, False
     while not done:
@@ -239,10 +301,32 @@ def test_cli_trains_two_seeds_on_ray_and_compares_the_policy(tmp_path, capsys):
 
     out = tmp_path / "runs"
     try:
-        code = main(["train", "--algo", "sac", "--steps", "40", "--seeds", "0", "1",
-                     "--backend", "ray", "--workers", "2", "--out", str(out), "--env-kwargs",
-                     "{max_episode_steps: 100}", "--hyperparams", "learning_starts=20",
-                     "batch_size=16", "--eval-freq", "1000000", "--no-progress"])
+        code = main(
+            [
+                "train",
+                "--algo",
+                "sac",
+                "--steps",
+                "40",
+                "--seeds",
+                "0",
+                "1",
+                "--backend",
+                "ray",
+                "--workers",
+                "2",
+                "--out",
+                str(out),
+                "--env-kwargs",
+                "{max_episode_steps: 100}",
+                "--hyperparams",
+                "learning_starts=20",
+                "batch_size=16",
+                "--eval-freq",
+                "1000000",
+                "--no-progress",
+            ]
+        )
     finally:
         ray.shutdown()
     assert code == 0
@@ -252,9 +336,23 @@ def test_cli_trains_two_seeds_on_ray_and_compares_the_policy(tmp_path, capsys):
         assert (out / f"seed{seed}" / "vecnormalize.pkl").exists()
     assert "policy steps" in printed and printed.count("seed") >= 2
 
-    code = main(["compare", "--policy", str(out / "seed0"), "--seeds", "0", "--duration", "0.2",
-                 "--workers", "1", "--output", str(tmp_path / "cmp"), "--no-plots",
-                 "--no-progress"])
+    code = main(
+        [
+            "compare",
+            "--policy",
+            str(out / "seed0"),
+            "--seeds",
+            "0",
+            "--duration",
+            "0.2",
+            "--workers",
+            "1",
+            "--output",
+            str(tmp_path / "cmp"),
+            "--no-plots",
+            "--no-progress",
+        ]
+    )
     assert code == 0
     summary = (tmp_path / "cmp" / "summary.md").read_text()
     assert "policy:seed0" in summary and "eq13-state-feedback" in summary
@@ -280,9 +378,15 @@ def test_run_folder_freezes_its_hyperparameters(tmp_path):
     change how a saved policy is rebuilt (e.g. its decimation, its residual deadzone)."""
     import yaml
 
-    config = TrainConfig(algo="sac", state="true", total_steps=30, out_dir=str(tmp_path / "f"),
-                         env_kwargs=SHORT_EPISODES, eval_freq=10**9,
-                         hyperparams={"learning_starts": 10, "batch_size": 8, "decimation": 5})
+    config = TrainConfig(
+        algo="sac",
+        state="true",
+        total_steps=30,
+        out_dir=str(tmp_path / "f"),
+        env_kwargs=SHORT_EPISODES,
+        eval_freq=10**9,
+        hyperparams={"learning_starts": 10, "batch_size": 8, "decimation": 5},
+    )
     train(config, progress_bar=False)
     saved = yaml.safe_load((tmp_path / "f" / "config.yaml").read_text())
     assert saved["hyperparams_file"] is None
@@ -316,9 +420,15 @@ def test_a_run_saved_before_the_residual_deadzone_keeps_its_actions(tmp_path):
 
 def tiny_config(out, **changes) -> TrainConfig:
     """A SAC run of a few policy steps on the true state (seconds)."""
-    settings = {"algo": "sac", "state": "true", "total_steps": 30, "out_dir": str(out),
-                "env_kwargs": SHORT_EPISODES, "eval_freq": 10**9,
-                "hyperparams": {"learning_starts": 10, "batch_size": 8}}
+    settings = {
+        "algo": "sac",
+        "state": "true",
+        "total_steps": 30,
+        "out_dir": str(out),
+        "env_kwargs": SHORT_EPISODES,
+        "eval_freq": 10**9,
+        "hyperparams": {"learning_starts": 10, "batch_size": 8},
+    }
     return TrainConfig(**{**settings, **changes})
 
 
@@ -331,7 +441,9 @@ def test_train_refuses_an_earlier_run_unless_overwrite_which_clears_it(tmp_path)
     with pytest.raises(FileExistsError, match=r"holds an earlier run \(best_model\.zip\)"):
         train(tiny_config(run), progress_bar=False)
     assert stale.read_bytes() == b"stale" and sorted(p.name for p in run.iterdir()) == [
-        "best_model.zip", "notes.txt"]
+        "best_model.zip",
+        "notes.txt",
+    ]
     train(tiny_config(run), progress_bar=False, overwrite=True)
     assert (run / "best_model.zip").read_bytes() != b"stale"  # this run's best model
     assert (run / "model.zip").exists() and (run / "notes.txt").read_text() == "mine"
@@ -402,27 +514,41 @@ def test_corrupted_run_folder_is_named(tmp_path):
     with pytest.raises(ValueError, match=r"vecnormalize\.pkl cannot be loaded: UnpicklingError"):
         load_run(tmp_path / "run")
     (tmp_path / "run" / "config.yaml").write_text("algo: ppo\nlearning_rate: 3\n")
-    with pytest.raises(ValueError, match=r"config\.yaml is not a valid run configuration: "
-                                         r"unknown training config field\(s\) \['learning_rate'\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"config\.yaml is not a valid run configuration: "
+        r"unknown training config field\(s\) \['learning_rate'\]",
+    ):
         load_run(tmp_path / "run")
 
 
 def test_training_on_batches_in_worker_processes(tmp_path):
     """n_envs arms split over ``batches`` worker processes (one PyBullet world each); the
     evaluation episodes run as arms of one batch; the run folder loads and acts."""
-    config = TrainConfig(algo="ppo", state="deluca", total_steps=128, out_dir=str(tmp_path / "r"),
-                         env_kwargs={"episode_time": 0.1}, eval_freq=64, eval_episodes=2,
-                         hyperparams={"n_envs": 4, "batches": 2, "n_steps": 16,
-                                      "batch_size": 32, "n_epochs": 1})
+    config = TrainConfig(
+        algo="ppo",
+        state="deluca",
+        total_steps=128,
+        out_dir=str(tmp_path / "r"),
+        env_kwargs={"episode_time": 0.1},
+        eval_freq=64,
+        eval_episodes=2,
+        hyperparams={"n_envs": 4, "batches": 2, "n_steps": 16, "batch_size": 32, "n_epochs": 1},
+    )
     result = train(config, progress_bar=False)
     assert result.policy_steps == 128
     run = load_run(config.out_dir)
     assert run.settings["batches"] == 2
     assert np.load(Path(config.out_dir) / "evaluations.npz")["results"].shape[1] == 2
     with pytest.raises(ValueError, match="batches"):
-        train(dataclasses.replace(config, out_dir=str(tmp_path / "bad"),
-                                  hyperparams={**config.hyperparams, "batches": 3}),
-              progress_bar=False)
+        train(
+            dataclasses.replace(
+                config,
+                out_dir=str(tmp_path / "bad"),
+                hyperparams={**config.hyperparams, "batches": 3},
+            ),
+            progress_bar=False,
+        )
 
 
 def test_batches_with_their_own_env_kwargs_train_on_two_plants():
@@ -432,8 +558,11 @@ def test_batches_with_their_own_env_kwargs_train_on_two_plants():
     from elastic_gym.training.train import _vec_env
 
     heavy = {"plant_scaling": {"link_mass": 1.3}}
-    config = TrainConfig(state="true", env_kwargs={"episode_time": 0.05},
-                         hyperparams={"n_envs": 2, "batches": [{}, heavy]})
+    config = TrainConfig(
+        state="true",
+        env_kwargs={"episode_time": 0.05},
+        hyperparams={"n_envs": 2, "batches": [{}, heavy]},
+    )
     settings, _ = split_settings(config)
     venv = _vec_env(config, settings, 2, seed=4)
     venv.reset()
@@ -444,10 +573,14 @@ def test_batches_with_their_own_env_kwargs_train_on_two_plants():
     for arm, kwargs in enumerate(({}, heavy)):
         expected = []
         for plant in ({}, heavy):
-            env = make_policy_env(config.env_id, "true",
-                                  {**config.training_env_kwargs(settings), **plant},
-                                  decimation=10, action=config.policy_configs(settings)[0],
-                                  observation=config.policy_configs(settings)[1])
+            env = make_policy_env(
+                config.env_id,
+                "true",
+                {**config.training_env_kwargs(settings), **plant},
+                decimation=10,
+                action=config.policy_configs(settings)[0],
+                observation=config.policy_configs(settings)[1],
+            )
             env.reset(seed=4 + arm)
             for _ in range(3):
                 single, *_ = env.step(actions[arm])
@@ -467,10 +600,11 @@ def test_env_kwargs_of_the_file_and_of_the_run():
     file's task)."""
     settings = {"env_kwargs": {"task_options": {"move_time": 0.8}, "episode_time": 2.0}}
     own = TrainConfig(env_kwargs={"episode_time": 1.0})
-    assert own.training_env_kwargs(settings) == {"task_options": {"move_time": 0.8},
-                                                 "episode_time": 1.0}
+    assert own.training_env_kwargs(settings) == {
+        "task_options": {"move_time": 0.8},
+        "episode_time": 1.0,
+    }
     regulation = TrainConfig(env_kwargs={"task": "regulation"})
-    assert regulation.training_env_kwargs(settings) == {"episode_time": 2.0,
-                                                        "task": "regulation"}
+    assert regulation.training_env_kwargs(settings) == {"episode_time": 2.0, "task": "regulation"}
     with pytest.raises(ValueError, match="env_kwargs must be a mapping"):
         resolve_hyperparams("ppo", own.env_id, {"env_kwargs": "fast"})

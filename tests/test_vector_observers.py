@@ -32,14 +32,17 @@ def test_each_arm_estimate_equals_the_single_observer(env_id, name, options):
     kwargs = {"episode_time": 0.04}
     envs = vector.ObserverWrapper(
         gym.make_vec(env_id, num_envs=N_ARMS, vectorization_mode="vector_entry_point", **kwargs),
-        name, **options)
-    singles = [ObserverWrapper(gym.make(env_id, **kwargs), name, **options)
-               for _ in range(N_ARMS)]
+        name,
+        **options,
+    )
+    singles = [ObserverWrapper(gym.make(env_id, **kwargs), name, **options) for _ in range(N_ARMS)]
     batched = name in ("deluca", "deluca-ideal", "finite-difference", "true")
     assert isinstance(envs.observer, BatchedObserver) == batched
     obs, info = envs.reset(seed=5)
-    worst = max(_relative(obs["state"][i], env.reset(seed=5 + i)[0]["state"])
-                for i, env in enumerate(singles))
+    worst = max(
+        _relative(obs["state"][i], env.reset(seed=5 + i)[0]["state"])
+        for i, env in enumerate(singles)
+    )
     limit = envs.unwrapped.torque_limit
     rng = np.random.default_rng(2)
     ended = np.zeros(N_ARMS, dtype=bool)
@@ -49,8 +52,9 @@ def test_each_arm_estimate_equals_the_single_observer(env_id, name, options):
         for i, env in enumerate(singles):
             single = env.reset()[0] if ended[i] else env.step(actions[i])[0]
             worst = max(worst, _relative(obs["state"][i], single["state"]))
-        assert np.array_equal(info["estimation_error"],
-                              info["estimate"] - info["true_state_vector"])
+        assert np.array_equal(
+            info["estimation_error"], info["estimate"] - info["true_state_vector"]
+        )
         ended = terminated | truncated
     assert worst < 1e-9
     assert envs.observation_space["state"].shape == (N_ARMS, envs.observer.state_dim)
@@ -60,9 +64,12 @@ def test_each_arm_estimate_equals_the_single_observer(env_id, name, options):
 
 
 def test_vector_deluca_diagnostics_per_arm():
-    envs = vector.ObserverWrapper(gym.make_vec(
-        "elastic_gym/KR15Elastic-v0", num_envs=2, vectorization_mode="vector_entry_point"),
-        "deluca")
+    envs = vector.ObserverWrapper(
+        gym.make_vec(
+            "elastic_gym/KR15Elastic-v0", num_envs=2, vectorization_mode="vector_entry_point"
+        ),
+        "deluca",
+    )
     _, info = envs.reset(seed=0)
     _, _, _, _, info = envs.step(np.zeros((2, 3)))
     diagnostics = info["observer_diagnostics"]
@@ -87,8 +94,12 @@ class _Diverging(Observer):
 
 def test_a_diverged_arm_ends_its_episode_and_restarts():
     start = {"initial_state": {"q": [0.1, 0.0]}}
-    envs = gym.make_vec("elastic_gym/TwoLinkRigid-v0", num_envs=2,
-                        vectorization_mode="vector_entry_point", task="excitation")
+    envs = gym.make_vec(
+        "elastic_gym/TwoLinkRigid-v0",
+        num_envs=2,
+        vectorization_mode="vector_entry_point",
+        task="excitation",
+    )
     wrapped = vector.ObserverWrapper(envs, _Diverging(envs.unwrapped.model, 1e-3))
     wrapped.reset(seed=0, options=start)
     wrapped.observer.observers[1]._sign = -1.0
@@ -102,9 +113,16 @@ def test_a_diverged_arm_ends_its_episode_and_restarts():
 
 
 def test_same_step_final_observation_is_an_estimate():
-    envs = vector.TrueStateWrapper(gym.make_vec(
-        "elastic_gym/TwoLinkRigid-v0", num_envs=2, vectorization_mode="vector_entry_point",
-        autoreset_mode=AutoresetMode.SAME_STEP, task="excitation", episode_time=0.003))
+    envs = vector.TrueStateWrapper(
+        gym.make_vec(
+            "elastic_gym/TwoLinkRigid-v0",
+            num_envs=2,
+            vectorization_mode="vector_entry_point",
+            autoreset_mode=AutoresetMode.SAME_STEP,
+            task="excitation",
+            episode_time=0.003,
+        )
+    )
     envs.reset(seed=0)
     for _ in range(2):
         envs.step(np.zeros((2, 2)))
@@ -113,17 +131,24 @@ def test_same_step_final_observation_is_an_estimate():
     final = info["final_obs"][0]
     truth = info["final_info"]["true_state"]
     assert np.array_equal(final["state"], np.concatenate([truth["q"][0], truth["dq"][0]]))
-    assert np.array_equal(obs["state"][0], np.concatenate([info["true_state"]["q"][0],
-                                                          info["true_state"]["dq"][0]]))
+    assert np.array_equal(
+        obs["state"][0], np.concatenate([info["true_state"]["q"][0], info["true_state"]["dq"][0]])
+    )
     envs.close()
 
 
 def test_vector_wrapper_refuses_what_it_cannot_serve():
     single = gym.make("elastic_gym/TwoLinkElastic-v0")
     with pytest.raises(TypeError, match="vector_entry_point"):
-        vector.ObserverWrapper(gym.make_vec("elastic_gym/TwoLinkElastic-v0", num_envs=2,
-                                            vectorization_mode="sync"), "deluca")
+        vector.ObserverWrapper(
+            gym.make_vec("elastic_gym/TwoLinkElastic-v0", num_envs=2, vectorization_mode="sync"),
+            "deluca",
+        )
     with pytest.raises(ValueError, match="applies to"):
-        vector.ObserverWrapper(gym.make_vec("elastic_gym/TwoLinkRigid-v0", num_envs=2,
-                                            vectorization_mode="vector_entry_point"), "deluca")
+        vector.ObserverWrapper(
+            gym.make_vec(
+                "elastic_gym/TwoLinkRigid-v0", num_envs=2, vectorization_mode="vector_entry_point"
+            ),
+            "deluca",
+        )
     single.close()

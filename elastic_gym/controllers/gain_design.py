@@ -153,8 +153,9 @@ def integral_linearization(model: RobotModel, q0: np.ndarray) -> tuple[np.ndarra
     return A_aug, np.vstack([np.zeros((n, model.n)), Bu])
 
 
-def lqr_integral_gain(model: RobotModel, q0: np.ndarray, omega: float,
-                      integral_weight: float) -> tuple[np.ndarray, np.ndarray]:
+def lqr_integral_gain(
+    model: RobotModel, q0: np.ndarray, omega: float, integral_weight: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(K_x, K_z): LQR on the linearization augmented with the integral z of the link
     position error, u = -K_z z - K_x (x - x_d).
 
@@ -165,8 +166,11 @@ def lqr_integral_gain(model: RobotModel, q0: np.ndarray, omega: float,
     0.33 w and leaves the other two within 4 % of the design without integral
     (0.84 +- 0.50j vs 0.87 +- 0.50j).
     """
-    if not (isinstance(integral_weight, (int, float)) and np.isfinite(integral_weight)
-            and integral_weight > 0):
+    if not (
+        isinstance(integral_weight, (int, float))
+        and np.isfinite(integral_weight)
+        and integral_weight > 0
+    ):
         raise ValueError(f"integral_weight must be a positive number, got {integral_weight!r}")
     w = bandwidth_weight(model, q0, omega)
     J = rigid_inertia(model, q0)

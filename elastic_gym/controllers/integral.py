@@ -79,19 +79,27 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
         design_configuration=None,
         fd_step: float = DEFAULT_FD_STEP,
     ) -> None:
-        if not (isinstance(integral_limit, (int, float)) and np.isfinite(integral_limit)
-                and integral_limit > 0):
+        if not (
+            isinstance(integral_limit, (int, float))
+            and np.isfinite(integral_limit)
+            and integral_limit > 0
+        ):
             raise ValueError(f"integral_limit must be a positive number, got {integral_limit!r}")
         self.integral_weight = integral_weight
-        super().__init__(model, dt, omega=omega, feedforward=feedforward,
-                         design_configuration=design_configuration, fd_step=fd_step)
+        super().__init__(
+            model,
+            dt,
+            omega=omega,
+            feedforward=feedforward,
+            design_configuration=design_configuration,
+            fd_step=fd_step,
+        )
         q0 = self.design["configuration"]
         self.integral_bound = float(integral_limit) * np.asarray(model.spec.torque_limit, float)
         self.torque_limit = np.asarray(model.spec.torque_limit, dtype=float)
         self._rows = link_position_rows(model)
         A, Bu = integral_linearization(model, q0)
-        self.design["poles"] = closed_loop_poles(
-            A, Bu, np.hstack([self.integral_gain, self.gain]))
+        self.design["poles"] = closed_loop_poles(A, Bu, np.hstack([self.integral_gain, self.gain]))
         self.integral = np.zeros(self.n)
         self._time: float | None = None
         self._saturated = False

@@ -211,9 +211,7 @@ class InverseDynamics:
         if model.elastic:
             self.filter = TorsionFilter(model.K, model.D)
             # torsion of the uncoupled model (1), used inside the S theta_d'' term
-            self.uncoupled_filter = (
-                TorsionFilter(model.K, model.D) if model.has_coupling else None
-            )
+            self.uncoupled_filter = TorsionFilter(model.K, model.D) if model.has_coupling else None
             self.needs_second = model.has_coupling or bool(np.any(model.D == 0.0))
 
     def reset(self) -> None:

@@ -55,8 +55,12 @@ class _BlockPD(FeedforwardStateFeedback):
         self._kp, self._kd = kp, kd
         self.bandwidth = omega
         super().__init__(
-            model, dt, omega=omega, feedforward=feedforward,
-            design_configuration=design_configuration, fd_step=fd_step,
+            model,
+            dt,
+            omega=omega,
+            feedforward=feedforward,
+            design_configuration=design_configuration,
+            fd_step=fd_step,
         )
 
     def _design(self, A, Bu, q0, omega, gain, weights, poles) -> tuple[np.ndarray, str]:

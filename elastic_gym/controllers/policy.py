@@ -165,7 +165,9 @@ class PolicyController(Controller):
             policy_obs = self.normalization.normalize_obs(policy_obs)
         if self._predict:
             action, self._state = self.policy.predict(
-                policy_obs, state=self._state, episode_start=self._episode_start,
+                policy_obs,
+                state=self._state,
+                episode_start=self._episode_start,
                 deterministic=self.deterministic,
             )
             self._episode_start = np.zeros(1, dtype=bool)

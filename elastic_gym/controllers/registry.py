@@ -10,7 +10,8 @@ from elastic_gym.model import RobotModel
 # name -> (module, class)
 CONTROLLERS: dict[str, tuple[str, str]] = {
     "feedforward-state-feedback": (
-        "elastic_gym.controllers.state_feedback", "FeedforwardStateFeedback",
+        "elastic_gym.controllers.state_feedback",
+        "FeedforwardStateFeedback",
     ),
     "integral-state-feedback": ("elastic_gym.controllers.integral", "IntegralStateFeedback"),
     "motor-pd": ("elastic_gym.controllers.pd", "MotorPD"),

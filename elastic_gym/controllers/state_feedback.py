@@ -115,8 +115,9 @@ class FeedforwardStateFeedback(Controller):
         return arr
 
     def _design(self, A, Bu, q0, omega, gain, weights, poles) -> tuple[np.ndarray, str]:
-        given = [k for k, v in (("gain", gain), ("weights", weights), ("poles", poles))
-                 if v is not None]
+        given = [
+            k for k, v in (("gain", gain), ("weights", weights), ("poles", poles)) if v is not None
+        ]
         if len(given) > 1:
             raise ValueError(f"give at most one of gain, weights, poles; got {given}")
         if gain is not None:

@@ -152,9 +152,14 @@ class ArmEnv(gym.Env):
     def __getstate__(self) -> dict:
         """The batch pickles its constructor arguments and arm state (a PyBullet client
         cannot be pickled): a copy is an independent env that continues bit for bit."""
-        return {"batch": self.batch, "render_mode": self.render_mode,
-                "init": self._init_kwargs, "spec": getattr(self, "spec", None),
-                "seeded": self._np_random is not None, "seed": self._np_random_seed}
+        return {
+            "batch": self.batch,
+            "render_mode": self.render_mode,
+            "init": self._init_kwargs,
+            "spec": getattr(self, "spec", None),
+            "seeded": self._np_random is not None,
+            "seed": self._np_random_seed,
+        }
 
     def __setstate__(self, state: dict) -> None:
         self.batch = state["batch"]

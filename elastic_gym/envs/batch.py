@@ -70,8 +70,9 @@ REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 STATE_KEYS = ("q", "dq", "theta", "dtheta")
 
 
-REASONS = np.array([None, "joint limit exceeded", "velocity limit exceeded", "non-finite state"],
-                   dtype=object)
+REASONS = np.array(
+    [None, "joint limit exceeded", "velocity limit exceeded", "non-finite state"], dtype=object
+)
 
 
 @njit(cache=True)
@@ -84,8 +85,12 @@ def _break_codes(q, dq, theta, dtheta, lower, upper, max_velocity, codes):
         code = 0
         for j in range(q.shape[1]):
             values = (q[k, j], dq[k, j], theta[k, j], dtheta[k, j])
-            if not (np.isfinite(values[0]) and np.isfinite(values[1])
-                    and np.isfinite(values[2]) and np.isfinite(values[3])):
+            if not (
+                np.isfinite(values[0])
+                and np.isfinite(values[1])
+                and np.isfinite(values[2])
+                and np.isfinite(values[3])
+            ):
                 code = 3
             elif abs(values[1]) > max_velocity or abs(values[3]) > max_velocity:
                 code = max(code, 2)
@@ -101,8 +106,11 @@ def with_batch_options(init):
     :class:`ArmBatch` the signature it really accepts (``inspect.signature``, ``help``,
     keyword validation by the comparison runner), and refuse unknown keywords."""
     own = inspect.signature(init)
-    batch = [p for name, p in inspect.signature(ArmBatch.__init__).parameters.items()
-             if name in ArmBatch.KWARGS]
+    batch = [
+        p
+        for name, p in inspect.signature(ArmBatch.__init__).parameters.items()
+        if name in ArmBatch.KWARGS
+    ]
     fixed = [p for p in own.parameters.values() if p.kind is not p.VAR_KEYWORD]
     signature = own.replace(parameters=[*fixed, *(p.replace(kind=p.KEYWORD_ONLY) for p in batch)])
 
@@ -110,8 +118,10 @@ def with_batch_options(init):
     def checked(self, *args, **kwargs):
         unknown = set(kwargs) - set(own.parameters) - set(ArmBatch.KWARGS)
         if unknown:
-            raise TypeError(f"{type(self).__name__}() got an unexpected keyword argument "
-                            f"{sorted(unknown)[0]!r}; valid: {sorted(ArmBatch.KWARGS)}")
+            raise TypeError(
+                f"{type(self).__name__}() got an unexpected keyword argument "
+                f"{sorted(unknown)[0]!r}; valid: {sorted(ArmBatch.KWARGS)}"
+            )
         init(self, *args, **kwargs)
 
     checked.__signature__ = signature
@@ -121,8 +131,10 @@ def with_batch_options(init):
 def _positive_number(value, name: str, allow_none: bool = False) -> float | None:
     if value is None and allow_none:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-        np.isfinite(value) and value > 0
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not (np.isfinite(value) and value > 0)
     ):
         raise ValueError(f"{name} must be a positive finite number, got {value!r}")
     return float(value)
@@ -160,9 +172,20 @@ class ArmBatch:
     """
 
     KWARGS: ClassVar[tuple[str, ...]] = (
-        "task", "task_options", "physics_dt", "control_dt", "encoder", "accelerometer",
-        "accelerometers", "plant_scaling", "unmodelled_friction", "torque_limit", "reward",
-        "max_velocity", "sensor_delay", "episode_time",
+        "task",
+        "task_options",
+        "physics_dt",
+        "control_dt",
+        "encoder",
+        "accelerometer",
+        "accelerometers",
+        "plant_scaling",
+        "unmodelled_friction",
+        "torque_limit",
+        "reward",
+        "max_velocity",
+        "sensor_delay",
+        "episode_time",
     )
 
     def __init__(
@@ -193,14 +216,17 @@ class ArmBatch:
         self.n_arms = N = int(n_arms)
         self.n_joints = n = spec.n_joints
         self.physics_dt, self.control_dt, self.n_substeps = self._timing(physics_dt, control_dt)
-        mounts = spec.accelerometers if accelerometers is None else tuple(
-            AccelerometerMount.from_config(m) for m in accelerometers
+        mounts = (
+            spec.accelerometers
+            if accelerometers is None
+            else tuple(AccelerometerMount.from_config(m) for m in accelerometers)
         )
         self._check_scaling(plant_scaling)
         self.torque_limit = self._torque_limit(torque_limit)
         self.model = RobotModel(spec, accelerometers=mounts)
-        self.plant_model = RobotModel(spec, plant_scaling, mounts,
-                                      self._unmodelled_friction(unmodelled_friction))
+        self.plant_model = RobotModel(
+            spec, plant_scaling, mounts, self._unmodelled_friction(unmodelled_friction)
+        )
         self._check_stability()
         self.max_velocity = _positive_number(max_velocity, "max_velocity")
         self.sensor_delay = self._sensor_delay(sensor_delay)
@@ -212,14 +238,17 @@ class ArmBatch:
         self.task = make_task(task, spec, self.model, task_options, n_arms=N)
         for name, points in self.task.configured_points().items():
             if np.any(points < self.joint_lower) or np.any(points > self.joint_upper):
-                raise ValueError(f"task option {name!r} = {points.tolist()} is outside the "
-                                 f"joint limits [{self.joint_lower}, {self.joint_upper}]")
+                raise ValueError(
+                    f"task option {name!r} = {points.tolist()} is outside the "
+                    f"joint limits [{self.joint_lower}, {self.joint_upper}]"
+                )
 
         encoder_cfg = EncoderConfig.from_config(encoder)
         self.encoder = Encoder(
             spec.encoder_resolution if encoder_cfg.resolution is None else encoder_cfg.resolution,
             spec.encoder_noise_std if encoder_cfg.noise_std is None else encoder_cfg.noise_std,
-            n, N,
+            n,
+            N,
         )
         if isinstance(accelerometer, str) and accelerometer != "ideal":
             raise ValueError(
@@ -227,15 +256,17 @@ class ArmBatch:
                 f"got the string {accelerometer!r}"
             )
         accel_cfg = (
-            AccelerometerConfig.ideal() if accelerometer == "ideal"
+            AccelerometerConfig.ideal()
+            if accelerometer == "ideal"
             else AccelerometerConfig.from_config(accelerometer)
         )
         self.accelerometer_array = AccelerometerArray(
             accel_cfg, self.model.n_sensors, self.control_dt, N
         )
         self.single_observation_space = self._observation_space()
-        self.single_action_space = spaces.Box(-self.torque_limit, self.torque_limit,
-                                              dtype=np.float64)
+        self.single_action_space = spaces.Box(
+            -self.torque_limit, self.torque_limit, dtype=np.float64
+        )
 
         self.sim = ArmSimulator(spec, self.plant_model, self.physics_dt, N, gui=gui)
         self.rngs = [np.random.default_rng() for _ in range(N)]
@@ -254,10 +285,14 @@ class ArmBatch:
         self._arms = np.arange(N)
         self._minus_limit = -self.torque_limit
         self._time = np.zeros(N)
-        self.obs = {key: np.zeros((N, *space.shape))
-                    for key, space in self.single_observation_space.items()}
-        self._measured = {key: np.zeros((self.sensor_delay + 1, *value.shape))
-                          for key, value in self.obs.items() if key != "reference"}
+        self.obs = {
+            key: np.zeros((N, *space.shape)) for key, space in self.single_observation_space.items()
+        }
+        self._measured = {
+            key: np.zeros((self.sensor_delay + 1, *value.shape))
+            for key, value in self.obs.items()
+            if key != "reference"
+        }
         self._slot = 0  # slot of the newest reading in the delay line
 
     # ------------------------------------------------------------------ setup
@@ -279,19 +314,25 @@ class ArmBatch:
 
     def _sensor_delay(self, delay) -> int:
         if isinstance(delay, bool) or not isinstance(delay, (int, np.integer)) or delay < 0:
-            raise ValueError(f"sensor_delay must be an integer >= 0 (control periods), "
-                             f"got {delay!r}")
+            raise ValueError(
+                f"sensor_delay must be an integer >= 0 (control periods), got {delay!r}"
+            )
         if delay * self.control_dt > MAX_SENSOR_DELAY:
-            raise ValueError(f"sensor_delay of {delay} control periods is more than "
-                             f"{MAX_SENSOR_DELAY} s")
+            raise ValueError(
+                f"sensor_delay of {delay} control periods is more than {MAX_SENSOR_DELAY} s"
+            )
         return int(delay)
 
     def _check_scaling(self, plant_scaling) -> None:
         """Refuse scaling a part the robot does not have (it would silently do nothing)."""
         scaling = ParameterScaling.from_config(plant_scaling)
         spec = self.robot
-        absent = {"stiffness": not spec.elastic, "motor_inertia": not spec.elastic,
-                  "damping": not spec.elastic, "friction": spec.friction is None}
+        absent = {
+            "stiffness": not spec.elastic,
+            "motor_inertia": not spec.elastic,
+            "damping": not spec.elastic,
+            "friction": spec.friction is None,
+        }
         for key, missing in absent.items():
             if missing and np.any(np.asarray(getattr(scaling, key)) != 1.0):
                 raise ValueError(
@@ -315,19 +356,26 @@ class ArmBatch:
         if config is None:
             return None
         if not isinstance(config, Mapping) or set(config) - {"coulomb", "viscous"}:
-            raise ValueError("unmodelled_friction must be a mapping with 'coulomb' and/or "
-                             f"'viscous' (fractions of the torque limit), got {config!r}")
+            raise ValueError(
+                "unmodelled_friction must be a mapping with 'coulomb' and/or "
+                f"'viscous' (fractions of the torque limit), got {config!r}"
+            )
         n, limit = self.n_joints, self.torque_limit
-        coulomb = per_joint_values(config.get("coulomb", 0.0), n,
-                                   "unmodelled_friction.coulomb", 0.0)
-        viscous = per_joint_values(config.get("viscous", 0.0), n,
-                                   "unmodelled_friction.viscous", 0.0)
+        coulomb = per_joint_values(
+            config.get("coulomb", 0.0), n, "unmodelled_friction.coulomb", 0.0
+        )
+        viscous = per_joint_values(
+            config.get("viscous", 0.0), n, "unmodelled_friction.viscous", 0.0
+        )
         if np.any(coulomb >= 1.0) or np.any(viscous > 1.0):
-            raise ValueError("unmodelled_friction: coulomb must stay below 1 (the motor could "
-                             "not move the joint) and viscous at most 1 s/rad, got "
-                             f"{config!r}")
-        return LinkFriction(viscous=tuple((limit * viscous).tolist()),
-                            coulomb_pos=tuple((limit * coulomb).tolist()))
+            raise ValueError(
+                "unmodelled_friction: coulomb must stay below 1 (the motor could "
+                "not move the joint) and viscous at most 1 s/rad, got "
+                f"{config!r}"
+            )
+        return LinkFriction(
+            viscous=tuple((limit * viscous).tolist()), coulomb_pos=tuple((limit * coulomb).tolist())
+        )
 
     def _torque_limit(self, torque_limit) -> np.ndarray:
         if torque_limit is None:
@@ -341,8 +389,9 @@ class ArmBatch:
         if self.model.n_sensors:
             r = np.full(3 * self.model.n_sensors, self.accelerometer_array.config.range)
             entries["acceleration"] = spaces.Box(-r, r, dtype=np.float64)
-        entries["reference"] = spaces.Box(-np.full(2 * n, np.inf), np.full(2 * n, np.inf),
-                                          dtype=np.float64)
+        entries["reference"] = spaces.Box(
+            -np.full(2 * n, np.inf), np.full(2 * n, np.inf), dtype=np.float64
+        )
         return spaces.Dict(entries)
 
     def limit_episode(self, steps: int) -> None:
@@ -418,8 +467,9 @@ class ArmBatch:
         self.reference = self.task.reference(self._time)
         reasons = self._termination_reasons()
         self._slot = (self._slot + 1) % (self.sensor_delay + 1)
-        self._observe(self._arms if every else np.flatnonzero(stepping), first=False,
-                      finite=reasons is None)
+        self._observe(
+            self._arms if every else np.flatnonzero(stepping), first=False, finite=reasons is None
+        )
         reward = self._reward()
         truncated = self._no_arm if self.max_steps is None else self.steps >= self.max_steps
         if reasons is None:  # the common case: no arm broke its physics
@@ -456,11 +506,15 @@ class ArmBatch:
             except (TypeError, ValueError):
                 arr = np.full(n + 1, np.nan)
             if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(np.abs(arr) > bound):
-                raise ValueError(f"initial_state[{key!r}] must be {n} finite numbers with "
-                                 f"magnitude <= {bound:g}, got {value!r}")
+                raise ValueError(
+                    f"initial_state[{key!r}] must be {n} finite numbers with "
+                    f"magnitude <= {bound:g}, got {value!r}"
+                )
             if key == "q" and (np.any(arr < self.joint_lower) or np.any(arr > self.joint_upper)):
-                raise ValueError(f"initial_state['q'] = {arr} is outside the joint limits "
-                                 f"[{self.joint_lower}, {self.joint_upper}]")
+                raise ValueError(
+                    f"initial_state['q'] = {arr} is outside the joint limits "
+                    f"[{self.joint_lower}, {self.joint_upper}]"
+                )
             values[key] = arr
         return values
 
@@ -485,8 +539,16 @@ class ArmBatch:
     def _termination_reasons(self) -> np.ndarray | None:
         """Why each arm's physics broke (None entries where it did not), or None if no arm's."""
         sim = self.sim
-        if not _break_codes(sim.q, sim.dq, sim.theta, sim.dtheta, self.joint_lower,
-                            self.joint_upper, self.max_velocity, self._codes):
+        if not _break_codes(
+            sim.q,
+            sim.dq,
+            sim.theta,
+            sim.dtheta,
+            self.joint_lower,
+            self.joint_upper,
+            self.max_velocity,
+            self._codes,
+        ):
             return None
         return REASONS[self._codes]
 
@@ -504,8 +566,9 @@ class ArmBatch:
         position = sim.theta if self.robot.elastic else sim.q
         readings = {self.position_key: self.encoder.measure(position[arms], rngs, arms)}
         if self.model.n_sensors:
-            force = self.plant_model.chain.specific_forces(sim.q[arms], sim.dq[arms],
-                                                           self.ddq[arms])
+            force = self.plant_model.chain.specific_forces(
+                sim.q[arms], sim.dq[arms], self.ddq[arms]
+            )
             readings["acceleration"] = self.accelerometer_array.measure(force, rngs, arms)
         delay = self.sensor_delay
         oldest = (self._slot + 1) % (delay + 1)
@@ -525,9 +588,16 @@ class ArmBatch:
 
     def _reward(self) -> np.ndarray:
         sim = self.sim
-        return batch_reward(self.reward_config, self.control_dt, sim.q - self.reference[:, 0],
-                            sim.dq - self.reference[:, 1], self.torque, self.previous_torque,
-                            self.torque_limit, sim.theta - sim.q)
+        return batch_reward(
+            self.reward_config,
+            self.control_dt,
+            sim.q - self.reference[:, 0],
+            sim.dq - self.reference[:, 1],
+            self.torque,
+            self.previous_torque,
+            self.torque_limit,
+            sim.theta - sim.q,
+        )
 
     # ------------------------------------------------------------------ outputs
     def observation(self, arms: int | slice | np.ndarray = slice(None)) -> dict[str, np.ndarray]:
@@ -539,19 +609,23 @@ class ArmBatch:
         or plain values of one arm when ``arms`` is an int."""
         sim = self.sim
         one = isinstance(arms, (int, np.integer))
-        state = {"q": sim.q[arms].copy(), "dq": sim.dq[arms].copy(),
-                 "theta": sim.theta[arms].copy(), "dtheta": sim.dtheta[arms].copy(),
-                 "ddq": self.ddq[arms].copy()}
-        state["x"] = np.concatenate([state["theta"], state["q"], state["dtheta"], state["dq"]],
-                                    axis=-1)
+        state = {
+            "q": sim.q[arms].copy(),
+            "dq": sim.dq[arms].copy(),
+            "theta": sim.theta[arms].copy(),
+            "dtheta": sim.dtheta[arms].copy(),
+            "ddq": self.ddq[arms].copy(),
+        }
+        state["x"] = np.concatenate(
+            [state["theta"], state["q"], state["dtheta"], state["dq"]], axis=-1
+        )
         reference = self.reference[arms]
         return {
             "time": float(self._time[arms]) if one else self._time[arms].copy(),
             "true_state": state,
             "torque": self.torque[arms].copy(),
             "torque_saturated": bool(self.saturated[arms]) if one else self.saturated[arms].copy(),
-            "reference": {key: reference[..., k, :].copy() for k, key in
-                          enumerate(REFERENCE_KEYS)},
+            "reference": {key: reference[..., k, :].copy() for k, key in enumerate(REFERENCE_KEYS)},
             "termination_reason": self.reasons[arms] if one else self.reasons[arms].copy(),
         }
 
@@ -592,12 +666,29 @@ class ArmBatch:
         sim = self.sim
         episode = {
             "sim": (sim.q, sim.dq, sim.theta, sim.dtheta),
-            "arrays": {key: getattr(self, key) for key in (
-                "steps", "_time", "running", "torque", "previous_torque", "saturated", "ddq",
-                "reference", "reasons", "obs", "_measured", "_slot")},
+            "arrays": {
+                key: getattr(self, key)
+                for key in (
+                    "steps",
+                    "_time",
+                    "running",
+                    "torque",
+                    "previous_torque",
+                    "saturated",
+                    "ddq",
+                    "reference",
+                    "reasons",
+                    "obs",
+                    "_measured",
+                    "_slot",
+                )
+            },
             "rngs": [rng.bit_generator.state for rng in self.rngs],
-            "accelerometer": (self.accelerometer_array.bias, self.accelerometer_array.filtered,
-                              self.accelerometer_array.fresh),
+            "accelerometer": (
+                self.accelerometer_array.bias,
+                self.accelerometer_array.filtered,
+                self.accelerometer_array.fresh,
+            ),
             "noise": [(noise.block, noise.next) for noise in self._noise_streams()],
             "task": {k: v for k, v in vars(self.task).items() if k not in ("spec", "model")},
         }
@@ -613,7 +704,6 @@ class ArmBatch:
             rng.bit_generator.state = rng_state
         acc = self.accelerometer_array
         acc.bias, acc.filtered, acc.fresh = episode["accelerometer"]
-        for noise, (block, following) in zip(self._noise_streams(), episode["noise"],
-                                              strict=True):
+        for noise, (block, following) in zip(self._noise_streams(), episode["noise"], strict=True):
             noise.block, noise.next = block, following
         vars(self.task).update(episode["task"])

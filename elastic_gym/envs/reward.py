@@ -86,16 +86,32 @@ class RewardConfig:
                 raise ValueError(f"reward {name!r} must be a finite number > 0, got {value!r}")
         for name in ("sigmas", "velocity_sigmas"):
             value = getattr(self, name)
-            if (not isinstance(value, (tuple, list)) or not value
-                    or not all(_is_number(s) and s > 0 for s in value)):
-                raise ValueError(f"reward {name!r} must be a non-empty list of numbers > 0, "
-                                 f"got {value!r}")
+            if (
+                not isinstance(value, (tuple, list))
+                or not value
+                or not all(_is_number(s) and s > 0 for s in value)
+            ):
+                raise ValueError(
+                    f"reward {name!r} must be a non-empty list of numbers > 0, got {value!r}"
+                )
             object.__setattr__(self, name, tuple(float(s) for s in value))
         # 1/sigma as arrays, computed once (not dataclass fields)
         object.__setattr__(self, "_inverse_sigmas", 1.0 / np.array(self.sigmas))
         object.__setattr__(self, "_inverse_velocity_sigmas", 1.0 / np.array(self.velocity_sigmas))
-        object.__setattr__(self, "_weights", np.array(
-            [self.track, self.velocity, self.torque, self.rate, self.torsion, self.penalty_bound]))
+        object.__setattr__(
+            self,
+            "_weights",
+            np.array(
+                [
+                    self.track,
+                    self.velocity,
+                    self.torque,
+                    self.rate,
+                    self.torsion,
+                    self.penalty_bound,
+                ]
+            ),
+        )
 
     @classmethod
     def from_config(cls, config: dict | RewardConfig | None) -> RewardConfig:
@@ -122,8 +138,7 @@ class RewardConfig:
 
 
 def _is_number(value) -> bool:
-    return (isinstance(value, (int, float)) and not isinstance(value, bool)
-            and math.isfinite(value))
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _kernel_mean(x: np.ndarray, inverse_sigmas: np.ndarray) -> np.ndarray:
@@ -138,28 +153,51 @@ def _saturated_mean(x: np.ndarray) -> np.ndarray:
 
 
 def _checked(error, error_rate, torque, previous_torque, torque_limit, torsion):
-    arrays = {"error": error, "error_rate": error_rate, "torque": torque,
-              "previous_torque": previous_torque, "torsion": torsion}
+    arrays = {
+        "error": error,
+        "error_rate": error_rate,
+        "torque": torque,
+        "previous_torque": previous_torque,
+        "torsion": torsion,
+    }
     out = {}
     for name, value in arrays.items():
         arr = np.asarray(value, dtype=float)
         if arr.ndim != 2:
-            raise ValueError(f"reward input {name!r} must have shape (arms, joints), "
-                             f"got {arr.shape}")
+            raise ValueError(
+                f"reward input {name!r} must have shape (arms, joints), got {arr.shape}"
+            )
         if out and arr.shape != out["error"].shape:
-            raise ValueError(f"reward input {name!r} has shape {arr.shape}, error has "
-                             f"{out['error'].shape}")
+            raise ValueError(
+                f"reward input {name!r} has shape {arr.shape}, error has {out['error'].shape}"
+            )
         out[name] = arr
     limit = np.asarray(torque_limit, dtype=float)
     if limit.shape not in (arr.shape, arr.shape[1:]):
-        raise ValueError(f"reward input 'torque_limit' must have shape {arr.shape[1:]} or "
-                         f"{arr.shape}, got {limit.shape}")
-    return out["error"], out["error_rate"], out["torque"], out["previous_torque"], limit, \
-        out["torsion"]
+        raise ValueError(
+            f"reward input 'torque_limit' must have shape {arr.shape[1:]} or "
+            f"{arr.shape}, got {limit.shape}"
+        )
+    return (
+        out["error"],
+        out["error_rate"],
+        out["torque"],
+        out["previous_torque"],
+        limit,
+        out["torsion"],
+    )
 
 
-def reward_terms(config: RewardConfig, dt: float, error, error_rate, torque, previous_torque,
-                 torque_limit, torsion) -> dict[str, np.ndarray]:
+def reward_terms(
+    config: RewardConfig,
+    dt: float,
+    error,
+    error_rate,
+    torque,
+    previous_torque,
+    torque_limit,
+    torsion,
+) -> dict[str, np.ndarray]:
     """Each term of the reward (already multiplied by ``dt``), every entry of shape (N,).
 
     Args:
@@ -172,8 +210,9 @@ def reward_terms(config: RewardConfig, dt: float, error, error_rate, torque, pre
 
     The keys are :data:`TERM_NAMES`; their sum is :func:`total_reward`.
     """
-    e, de, tau, previous, limit, torsion = _checked(error, error_rate, torque, previous_torque,
-                                                    torque_limit, torsion)
+    e, de, tau, previous, limit, torsion = _checked(
+        error, error_rate, torque, previous_torque, torque_limit, torsion
+    )
     c = config
     return {
         "track": dt * c.track * _kernel_mean(e, c._inverse_sigmas),
@@ -185,8 +224,16 @@ def reward_terms(config: RewardConfig, dt: float, error, error_rate, torque, pre
     }
 
 
-def total_reward(config: RewardConfig, dt: float, error, error_rate, torque, previous_torque,
-                 torque_limit, torsion) -> np.ndarray:
+def total_reward(
+    config: RewardConfig,
+    dt: float,
+    error,
+    error_rate,
+    torque,
+    previous_torque,
+    torque_limit,
+    torsion,
+) -> np.ndarray:
     """The reward of one control period per arm, shape (N,), each value in [0, dt * max_rate].
 
     Equal to the sum of :func:`reward_terms` (to rounding); terms of weight zero are not
@@ -196,17 +243,36 @@ def total_reward(config: RewardConfig, dt: float, error, error_rate, torque, pre
     return batch_reward(config, dt, *arrays)
 
 
-def batch_reward(config: RewardConfig, dt: float, error: np.ndarray, error_rate: np.ndarray,
-                 torque: np.ndarray, previous_torque: np.ndarray, torque_limit: np.ndarray,
-                 torsion: np.ndarray) -> np.ndarray:
+def batch_reward(
+    config: RewardConfig,
+    dt: float,
+    error: np.ndarray,
+    error_rate: np.ndarray,
+    torque: np.ndarray,
+    previous_torque: np.ndarray,
+    torque_limit: np.ndarray,
+    torsion: np.ndarray,
+) -> np.ndarray:
     """:func:`total_reward` without the input checks (float64 arrays of the right shapes):
     one compiled loop over the arms, the hot path of the envs."""
     c = config
     limit = torque_limit if torque_limit.ndim == 2 else torque_limit[None]
     out = np.empty(len(error))
-    _reward_kernel(error, error_rate, torque, previous_torque, limit, torsion,
-                   c._inverse_sigmas, c._inverse_velocity_sigmas, c._weights,
-                   c.rate_time / dt, c.torsion_scale, dt, out)
+    _reward_kernel(
+        error,
+        error_rate,
+        torque,
+        previous_torque,
+        limit,
+        torsion,
+        c._inverse_sigmas,
+        c._inverse_velocity_sigmas,
+        c._weights,
+        c.rate_time / dt,
+        c.torsion_scale,
+        dt,
+        out,
+    )
     return out
 
 
@@ -232,8 +298,21 @@ def _saturated_sum(x, y, scale, divisor):
 
 
 @njit(cache=True)
-def _reward_kernel(e, de, tau, previous, limit, torsion, inverse_sigmas,
-                   inverse_velocity_sigmas, weights, rate_factor, torsion_scale, dt, out):
+def _reward_kernel(
+    e,
+    de,
+    tau,
+    previous,
+    limit,
+    torsion,
+    inverse_sigmas,
+    inverse_velocity_sigmas,
+    weights,
+    rate_factor,
+    torsion_scale,
+    dt,
+    out,
+):
     """The module docstring's reward for each arm (weights: track, velocity, torque, rate,
     torsion, penalty bound)."""
     N, n = e.shape
@@ -242,16 +321,20 @@ def _reward_kernel(e, de, tau, previous, limit, torsion, inverse_sigmas,
     shared_limit = limit.shape[0] == 1  # one limit row for every arm
     for k in range(N):
         tau_max = limit[0] if shared_limit else limit[k]
-        bracket = weights[0] * _kernel_sum(e[k], inverse_sigmas) / (
-            n * inverse_sigmas.shape[0]) + weights[5]
+        bracket = (
+            weights[0] * _kernel_sum(e[k], inverse_sigmas) / (n * inverse_sigmas.shape[0])
+            + weights[5]
+        )
         if weights[1] != 0.0:
-            bracket += weights[1] * _kernel_sum(de[k], inverse_velocity_sigmas) / (
-                n * inverse_velocity_sigmas.shape[0])
+            bracket += (
+                weights[1]
+                * _kernel_sum(de[k], inverse_velocity_sigmas)
+                / (n * inverse_velocity_sigmas.shape[0])
+            )
         if weights[2] != 0.0:
             bracket -= weights[2] * _saturated_sum(tau[k], zero, 1.0, tau_max) / n
         if weights[3] != 0.0:
-            bracket -= weights[3] * _saturated_sum(tau[k], previous[k], rate_factor,
-                                                   tau_max) / n
+            bracket -= weights[3] * _saturated_sum(tau[k], previous[k], rate_factor, tau_max) / n
         if weights[4] != 0.0:
             bracket -= weights[4] * _saturated_sum(torsion[k], zero, 1.0, ones) / n
         out[k] = dt * bracket

@@ -15,8 +15,9 @@ from elastic_gym.validation import config_from
 GRAVITY = 9.81
 
 
-def _check_range(owner: str, key: str, value, low: float, high: float,
-                 zero: bool = True, none: bool = True) -> None:
+def _check_range(
+    owner: str, key: str, value, low: float, high: float, zero: bool = True, none: bool = True
+) -> None:
     """``value`` in [low, high] (or 0 / None where allowed): limits beyond which a sensor
     setting would overflow the observation or mean nothing physical."""
     if value is None and none:
@@ -84,14 +85,14 @@ class Encoder:
     Positions have a leading arm axis (N, n); arm i draws its noise from ``rngs[i]``.
     """
 
-    def __init__(self, resolution: float, noise_std: float, n_joints: int,
-                 n_arms: int = 1) -> None:
+    def __init__(self, resolution: float, noise_std: float, n_joints: int, n_arms: int = 1) -> None:
         self.resolution = float(resolution)
         self.noise_std = float(noise_std)
         self.noise = GaussianNoise(n_arms if self.noise_std > 0.0 else 0, n_joints)
 
-    def measure(self, position: np.ndarray, rngs: list[np.random.Generator],
-                arms: np.ndarray) -> np.ndarray:
+    def measure(
+        self, position: np.ndarray, rngs: list[np.random.Generator], arms: np.ndarray
+    ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``position``; ``rngs`` are theirs)."""
         y = position
         if self.noise_std > 0.0:
@@ -122,8 +123,7 @@ class AccelerometerConfig:
     resolution: float | None = None
 
     def __post_init__(self) -> None:
-        _check_range("accelerometer", "noise_density", self.noise_density, 1e-12, 10.0,
-                     none=False)
+        _check_range("accelerometer", "noise_density", self.noise_density, 1e-12, 10.0, none=False)
         _check_range("accelerometer", "bias_std", self.bias_std, 1e-12, 100.0, none=False)
         _check_range("accelerometer", "resolution", self.resolution, 1e-9, 100.0)
         _check_range("accelerometer", "range", self.range, 1e-3, 1e9, zero=False, none=False)
@@ -146,8 +146,9 @@ class AccelerometerArray:
     filter state and draws from its own generator.
     """
 
-    def __init__(self, config: AccelerometerConfig, n_sensors: int, sample_time: float,
-                 n_arms: int = 1) -> None:
+    def __init__(
+        self, config: AccelerometerConfig, n_sensors: int, sample_time: float, n_arms: int = 1
+    ) -> None:
         self.config = config
         self.size = 3 * n_sensors
         self.sample_std = config.noise_density * np.sqrt(0.5 / sample_time)
@@ -169,8 +170,9 @@ class AccelerometerArray:
         if self.sample_std > 0.0:
             self.noise.restart(arms)
 
-    def measure(self, specific_force: np.ndarray, rngs: list[np.random.Generator],
-                arms: np.ndarray) -> np.ndarray:
+    def measure(
+        self, specific_force: np.ndarray, rngs: list[np.random.Generator], arms: np.ndarray
+    ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``specific_force``; ``rngs`` are theirs)."""
         y = specific_force + self.bias[arms]
         if self.sample_std > 0.0:

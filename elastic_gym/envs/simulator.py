@@ -44,8 +44,24 @@ X11_TIMEOUT = 1.0  # s to reach the X server before the PyBullet GUI is started
 
 
 @njit(cache=True)
-def _transmission_kernel(theta, dtheta, q, dq, tau, K, D, B_inv, viscous, coulomb_pos,
-                         coulomb_neg, smoothing, elastic, link, tau_j, ddtheta):
+def _transmission_kernel(
+    theta,
+    dtheta,
+    q,
+    dq,
+    tau,
+    K,
+    D,
+    B_inv,
+    viscous,
+    coulomb_pos,
+    coulomb_neg,
+    smoothing,
+    elastic,
+    link,
+    tau_j,
+    ddtheta,
+):
     """Per arm and joint: tau_J = K (theta - q) + D (theta' - q'), the link torque
     tau_J - d(q') (rigid: tau - d(q')) and theta'' = B^-1 (tau - tau_J) of model (1);
     d(q') = F_v q' + c tanh(q' / smoothing), c = coulomb_pos or coulomb_neg by the sign."""
@@ -132,8 +148,14 @@ class ArmSimulator:
     State arrays have a leading arm axis: ``q``, ``dq``, ``theta``, ``dtheta`` (N, n).
     """
 
-    def __init__(self, spec: RobotSpec, plant: RobotModel, physics_dt: float, n_arms: int = 1,
-                 gui: bool = False):
+    def __init__(
+        self,
+        spec: RobotSpec,
+        plant: RobotModel,
+        physics_dt: float,
+        n_arms: int = 1,
+        gui: bool = False,
+    ):
         self.spec = spec
         self.plant = plant
         self.chain = plant.chain
@@ -156,8 +178,13 @@ class ArmSimulator:
         urdf = urdf_without_limits(spec.urdf)
         self.base_positions = self._grid(n_arms)
         self.bodies = [
-            p.loadURDF(urdf, basePosition=base.tolist(), useFixedBase=True,
-                       flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
+            p.loadURDF(
+                urdf,
+                basePosition=base.tolist(),
+                useFixedBase=True,
+                flags=p.URDF_USE_INERTIA_FROM_FILE,
+                physicsClientId=c,
+            )
             for base in self.base_positions
         ]
         first = self.bodies[0]
@@ -178,11 +205,16 @@ class ArmSimulator:
         elastic = spec.elastic
         friction = plant.friction
         empty = np.zeros(0)
-        self._friction = (empty, empty, empty, 1.0) if friction is None else (
-            friction._viscous * np.ones(n),
-            empty if friction._pos is None else friction._pos * np.ones(n),
-            empty if friction._neg is None else friction._neg * np.ones(n),
-            float(friction.smoothing_velocity))
+        self._friction = (
+            (empty, empty, empty, 1.0)
+            if friction is None
+            else (
+                friction._viscous * np.ones(n),
+                empty if friction._pos is None else friction._pos * np.ones(n),
+                empty if friction._neg is None else friction._neg * np.ones(n),
+                float(friction.smoothing_velocity),
+            )
+        )
         self._SBinv = plant.S * plant.B_inv if plant.has_coupling else None
         self._schur_inertia = -self._SBinv @ plant.S.T if plant.has_coupling else None
         self._ST = plant.S.T.copy()
@@ -193,8 +225,9 @@ class ArmSimulator:
         """Base positions of the arms: a square grid in the horizontal plane."""
         side = int(np.ceil(np.sqrt(n_arms)))
         index = np.arange(n_arms)
-        return np.stack([ARM_SPACING * (index % side), ARM_SPACING * (index // side),
-                         np.zeros(n_arms)], axis=1)
+        return np.stack(
+            [ARM_SPACING * (index % side), ARM_SPACING * (index // side), np.zeros(n_arms)], axis=1
+        )
 
     # ------------------------------------------------------------------ setup
     def _configure_dynamics(self, body: int) -> None:
@@ -207,15 +240,21 @@ class ArmSimulator:
         for link in range(-1, n_links):
             # One property per call: PyBullet 3.2.7 silently drops jointDamping when it is
             # passed together with other properties (measured: URDF damping stayed active).
-            for prop in ({"linearDamping": 0.0}, {"angularDamping": 0.0},
-                         {"jointDamping": 0.0}, {"maxJointVelocity": 1e4}):
+            for prop in (
+                {"linearDamping": 0.0},
+                {"angularDamping": 0.0},
+                {"jointDamping": 0.0},
+                {"maxJointVelocity": 1e4},
+            ):
                 p.changeDynamics(body, link, **prop, physicsClientId=c)
             j = owner.get(link)
             if j is not None and (mass_scale[j] != 1.0 or inertia_scale[j] != 1.0):
                 info = p.getDynamicsInfo(body, link, physicsClientId=c)
                 mass, inertia = info[0], np.asarray(info[2])
                 p.changeDynamics(
-                    body, link, mass=mass * mass_scale[j],
+                    body,
+                    link,
+                    mass=mass * mass_scale[j],
                     localInertiaDiagonal=(inertia * mass_scale[j] * inertia_scale[j]).tolist(),
                     physicsClientId=c,
                 )
@@ -243,15 +282,15 @@ class ArmSimulator:
         """x = (theta, q, theta', q') per arm, (N, 4n) (rigid arms: theta = q)."""
         return np.concatenate([self.theta, self.q, self.dtheta, self.dq], axis=1)
 
-    def reset_state(self, arms: np.ndarray, q: np.ndarray, dq: np.ndarray, theta: np.ndarray,
-                    dtheta: np.ndarray) -> None:
+    def reset_state(
+        self, arms: np.ndarray, q: np.ndarray, dq: np.ndarray, theta: np.ndarray, dtheta: np.ndarray
+    ) -> None:
         """Set the state of the given arms (rows of q, dq, theta, dtheta, in ``arms`` order)."""
         c = self.client
         for row, arm in enumerate(arms):
             body = self.bodies[arm]
             for k, j in enumerate(self.joint_indices):
-                p.resetJointState(body, j, float(q[row, k]), float(dq[row, k]),
-                                  physicsClientId=c)
+                p.resetJointState(body, j, float(q[row, k]), float(dq[row, k]), physicsClientId=c)
         self.q[arms], self.dq[arms] = q, dq
         if self._elastic:
             self.theta[arms], self.dtheta[arms] = theta, dtheta
@@ -260,8 +299,12 @@ class ArmSimulator:
 
     def _read_links(self) -> None:
         c, joints, get = self.client, self.joint_indices, p.getJointStates
-        flat = [value for body in self.bodies for joint in get(body, joints, physicsClientId=c)
-                for value in joint[:2]]
+        flat = [
+            value
+            for body in self.bodies
+            for joint in get(body, joints, physicsClientId=c)
+            for value in joint[:2]
+        ]
         states = np.array(flat).reshape(self.n_arms, self.n, 2)
         self.q, self.dq = states[:, :, 0].copy(), states[:, :, 1].copy()
 
@@ -276,8 +319,21 @@ class ArmSimulator:
             return tau, None, None
         shape = self.q.shape
         link, tau_j, ddtheta = np.empty(shape), np.empty(shape), np.empty(shape)
-        _transmission_kernel(self.theta, self.dtheta, self.q, self.dq, tau, plant.K, plant.D,
-                             plant.B_inv, *self._friction, self._elastic, link, tau_j, ddtheta)
+        _transmission_kernel(
+            self.theta,
+            self.dtheta,
+            self.q,
+            self.dq,
+            tau,
+            plant.K,
+            plant.D,
+            plant.B_inv,
+            *self._friction,
+            self._elastic,
+            link,
+            tau_j,
+            ddtheta,
+        )
         if not self._elastic:
             return link, None, None
         if self._SBinv is None:
@@ -326,8 +382,13 @@ class ArmSimulator:
         target, distance, yaw, pitch = self.spec.camera
         c = self.client
         view = p.computeViewMatrixFromYawPitchRoll(
-            (np.asarray(target) + self.base_positions[arm]).tolist(), distance, yaw, pitch, 0.0,
-            2, physicsClientId=c,
+            (np.asarray(target) + self.base_positions[arm]).tolist(),
+            distance,
+            yaw,
+            pitch,
+            0.0,
+            2,
+            physicsClientId=c,
         )
         proj = p.computeProjectionMatrixFOV(60.0, width / height, 0.05, 50.0, physicsClientId=c)
         _, _, rgba, _, _ = p.getCameraImage(

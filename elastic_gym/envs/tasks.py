@@ -30,8 +30,10 @@ def _vector(value, n: int, name: str) -> np.ndarray:
 def _max_move(value, spec: RobotSpec) -> float:
     if value is None:
         return spec.max_move
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-        np.isfinite(value) and value > 0
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not (np.isfinite(value) and value > 0)
     ):
         raise ValueError(f"task option 'max_move' must be a number > 0, got {value!r}")
     return float(value)
@@ -77,8 +79,10 @@ class Task:
     def configured_points(self) -> dict[str, np.ndarray]:
         """The configurations given as options (start, goal, waypoints), by option name."""
         names = ("start", "goal", "waypoints")
-        values = {name: getattr(self, f"_{name if name != 'waypoints' else 'given'}", None)
-                  for name in names}
+        values = {
+            name: getattr(self, f"_{name if name != 'waypoints' else 'given'}", None)
+            for name in names
+        }
         return {name: np.atleast_2d(v) for name, v in values.items() if v is not None}
 
     # helpers
@@ -145,8 +149,10 @@ class TrackingTask(Task):
             raise ValueError(f"task option 'n_moves' must be an integer >= 1, got {self.n_moves!r}")
         for key in ("move_time", "dwell_time"):
             value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-                np.isfinite(value) and value >= 0
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float))
+                or not (np.isfinite(value) and value >= 0)
             ):
                 raise ValueError(f"task option {key!r} must be a number >= 0, got {value!r}")
         if self.move_time <= 0:
@@ -239,8 +245,10 @@ class ExcitationTask(Task):
         self.name = "excitation"
         n = self.spec.n_joints
         if not isinstance(self.gravity_compensation, bool):
-            raise ValueError("task option 'gravity_compensation' must be true or false, "
-                             f"got {self.gravity_compensation!r}")
+            raise ValueError(
+                "task option 'gravity_compensation' must be true or false, "
+                f"got {self.gravity_compensation!r}"
+            )
         limit = np.asarray(self.spec.torque_limit)
         self._amplitude = (
             _vector(self.amplitude, n, "amplitude") if self.amplitude is not None else 0.05 * limit
@@ -276,8 +284,9 @@ TASKS: dict[str, type[Task]] = {
 }
 
 
-def make_task(name: str, spec: RobotSpec, model: RobotModel, options: dict | None,
-              n_arms: int = 1) -> Task:
+def make_task(
+    name: str, spec: RobotSpec, model: RobotModel, options: dict | None, n_arms: int = 1
+) -> Task:
     """Instantiate a task for ``n_arms`` arms by name with validated options."""
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; valid: {sorted(TASKS)}")

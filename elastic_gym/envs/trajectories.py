@@ -73,8 +73,9 @@ def _rest_to_rest_kernel(t, waypoints, move_time, dwell_time, coefficients, out)
             out[k, 0, j] += waypoints[k, index, j]
 
 
-def rest_to_rest(t: np.ndarray, waypoints: np.ndarray, move_time: float, dwell_time: float,
-                 order: int = 4) -> np.ndarray:
+def rest_to_rest(
+    t: np.ndarray, waypoints: np.ndarray, move_time: float, dwell_time: float, order: int = 4
+) -> np.ndarray:
     """Reference derivatives of N piecewise rest-to-rest motions, (N, order + 1, n).
 
     Arm k moves through ``waypoints[k]`` (n_points, n): segment i goes from waypoint i
@@ -86,11 +87,14 @@ def rest_to_rest(t: np.ndarray, waypoints: np.ndarray, move_time: float, dwell_t
     t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
     waypoints = np.ascontiguousarray(waypoints, dtype=np.float64)
     if waypoints.ndim != 3 or len(t) != len(waypoints):  # the kernel does not check bounds
-        raise ValueError(f"one time per arm: {len(t)} times for waypoints of shape "
-                         f"{waypoints.shape} (N, n_points, n)")
+        raise ValueError(
+            f"one time per arm: {len(t)} times for waypoints of shape "
+            f"{waypoints.shape} (N, n_points, n)"
+        )
     out = np.empty((len(t), order + 1, waypoints.shape[2]))
-    _rest_to_rest_kernel(t, waypoints, float(move_time), float(dwell_time),
-                         _COEFFICIENTS[: order + 1], out)
+    _rest_to_rest_kernel(
+        t, waypoints, float(move_time), float(dwell_time), _COEFFICIENTS[: order + 1], out
+    )
     return out
 
 
@@ -112,5 +116,6 @@ class RestToRestPath:
 
     def evaluate(self, t: float, order: int = 4) -> np.ndarray:
         """Reference derivatives (order + 1, N): rows q_d, q_d', ..., q_d^(order)."""
-        return rest_to_rest(np.array([t]), np.asarray(self.waypoints)[None], self.move_time,
-                            self.dwell_time, order)[0]
+        return rest_to_rest(
+            np.array([t]), np.asarray(self.waypoints)[None], self.move_time, self.dwell_time, order
+        )[0]

@@ -57,30 +57,41 @@ class ArmVectorEnv(VectorEnv):
         **kwargs: the options of :class:`~elastic_gym.envs.batch.ArmBatch`.
     """
 
-    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"],
-                                "autoreset_mode": AutoresetMode.NEXT_STEP}
+    metadata: ClassVar[dict] = {
+        "render_modes": ["rgb_array"],
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
     kind: ClassVar[str | None] = None
 
     @with_batch_options
-    def __init__(self, robot: str | RobotSpec, num_envs: int = 1,
-                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 max_episode_steps: int | None = None, render_mode: str | None = None,
-                 **kwargs) -> None:
+    def __init__(
+        self,
+        robot: str | RobotSpec,
+        num_envs: int = 1,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        **kwargs,
+    ) -> None:
         try:
             mode = AutoresetMode(autoreset_mode)
         except ValueError:
-            raise ValueError(f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}, "
-                             f"got {autoreset_mode!r}") from None
+            raise ValueError(
+                f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}, "
+                f"got {autoreset_mode!r}"
+            ) from None
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode {render_mode!r} not supported; valid: {self.metadata['render_modes']}"
             )
         if max_episode_steps is not None and (
-            isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, int)
+            isinstance(max_episode_steps, bool)
+            or not isinstance(max_episode_steps, int)
             or max_episode_steps < 1
         ):
             raise ValueError(
-                f"max_episode_steps must be an integer >= 1, got {max_episode_steps!r}")
+                f"max_episode_steps must be an integer >= 1, got {max_episode_steps!r}"
+            )
         self.batch = batch = ArmBatch(robot, num_envs, **kwargs)
         if max_episode_steps is not None:
             batch.limit_episode(max_episode_steps)
@@ -91,10 +102,15 @@ class ArmVectorEnv(VectorEnv):
         self.num_envs = batch.n_arms
         self.render_mode = render_mode
         self.autoreset_mode = mode
-        self.metadata = {**self.metadata, "autoreset_mode": mode,
-                         "render_fps": round(1.0 / batch.control_dt),
-                         "physics_dt": batch.physics_dt, "control_dt": batch.control_dt,
-                         "robot": batch.robot.name, "task": batch.task.name}
+        self.metadata = {
+            **self.metadata,
+            "autoreset_mode": mode,
+            "render_fps": round(1.0 / batch.control_dt),
+            "physics_dt": batch.physics_dt,
+            "control_dt": batch.control_dt,
+            "robot": batch.robot.name,
+            "task": batch.task.name,
+        }
         self.single_observation_space = batch.single_observation_space
         self.single_action_space = batch.single_action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -160,8 +176,10 @@ class ArmVectorEnv(VectorEnv):
         tau = validated_actions(actions, self.num_envs, batch.n_joints)
         mode = self.autoreset_mode
         if mode is AutoresetMode.DISABLED and not batch.running.all():
-            raise RuntimeError("autoreset is disabled: reset the arms whose episode has ended "
-                               "(reset(options={'reset_mask': ...})) before stepping them")
+            raise RuntimeError(
+                "autoreset is disabled: reset the arms whose episode has ended "
+                "(reset(options={'reset_mask': ...})) before stepping them"
+            )
         if mode is not AutoresetMode.DISABLED and not (batch.running | self._autoreset).all():
             raise RuntimeError("call reset() before step()")
         stepping = ~self._autoreset
@@ -183,11 +201,20 @@ class ArmVectorEnv(VectorEnv):
             final_info = masked_info(batch.info(), done)
             batch.reset_arms(ended)
             info = masked_info(batch.info(), self._all)
-            info.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info,
-                        _final_info=done.copy())
+            info.update(
+                final_obs=final_obs,
+                _final_obs=done.copy(),
+                final_info=final_info,
+                _final_info=done.copy(),
+            )
             return batch.observation(), reward, terminated, truncated, info
-        return (batch.observation(), reward, terminated, truncated,
-                masked_info(batch.info(), self._all))
+        return (
+            batch.observation(),
+            reward,
+            terminated,
+            truncated,
+            masked_info(batch.info(), self._all),
+        )
 
     def end_episodes(self, arms: np.ndarray) -> None:
         """End the episodes of ``arms`` now (a wrapper terminated them, e.g. on a diverged

@@ -125,16 +125,20 @@ def compare(
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / scenario.name
     runs, skipped = plan_runs(scenario)
     if not runs:
-        raise ValueError(f"scenario {scenario.name!r} has no applicable run "
-                         f"({len(skipped)} combinations skipped: {skipped[:3]})")
+        raise ValueError(
+            f"scenario {scenario.name!r} has no applicable run "
+            f"({len(skipped)} combinations skipped: {skipped[:3]})"
+        )
     n_workers = resolve_workers(workers, len(runs), backend)
     check_output_folder(out, overwrite)
     if plots:
         check_plot_names(scenario, runs)
     estimate = preflight(scenario, runs, n_workers)
     skipped_note = _skipped_note(skipped)
-    console.print(f"[bold]{scenario.name}[/bold]: {len(runs)} runs on {n_workers} "
-                  f"{'worker' if n_workers == 1 else 'workers'}, {estimate}")
+    console.print(
+        f"[bold]{scenario.name}[/bold]: {len(runs)} runs on {n_workers} "
+        f"{'worker' if n_workers == 1 else 'workers'}, {estimate}"
+    )
     console.print(skipped_note, markup=False, end="")
 
     if overwrite:
@@ -143,8 +147,16 @@ def compare(
     (out / "scenario.yaml").write_text(yaml.safe_dump(scenario.to_dict(), sort_keys=False))
     sink = _Sink(out, runs, plots)
     try:
-        for_each_result(run_episode, runs, sink.add, workers=n_workers, backend=backend,
-                        progress=progress, label="runs", describe=describe_run)
+        for_each_result(
+            run_episode,
+            runs,
+            sink.add,
+            workers=n_workers,
+            backend=backend,
+            progress=progress,
+            label="runs",
+            describe=describe_run,
+        )
     except BaseException as exc:
         rows = sink.csv.finish()
         kept = f"kept the {len(rows)} finished of {len(runs)} runs in {out}/"
@@ -152,8 +164,13 @@ def compare(
         raise with_detail(exc, kept)  # noqa: B904 - with_detail sets the cause
     rows = sink.csv.finish()
     summary, markdown = _write_tables(scenario, out, rows, skipped_note)
-    files = [out / "runs.csv", out / "summary.csv", out / "summary.md", out / "scenario.yaml",
-             *sink.plots]
+    files = [
+        out / "runs.csv",
+        out / "summary.csv",
+        out / "summary.md",
+        out / "scenario.yaml",
+        *sink.plots,
+    ]
     if scenario.sweeps:
         curves = sweep_curves(scenario, rows)
         files += write_margins(margin_rows(curves), context_columns(scenario), out, scenario.name)
@@ -162,8 +179,11 @@ def compare(
     console.print(markdown, soft_wrap=True, markup=False)  # long lines are not cut
     failed = [row["status"] for row in rows if row["status"].startswith("failed")]
     if failed:
-        console.print(f"{len(failed)} of {len(rows)} runs failed (status column of runs.csv), "
-                      f"e.g. {failed[0]}", markup=False)
+        console.print(
+            f"{len(failed)} of {len(rows)} runs failed (status column of runs.csv), "
+            f"e.g. {failed[0]}",
+            markup=False,
+        )
     if scenario.sweeps:
         console.print(f"robustness margins: {out / 'margins.md'}", markup=False)
     console.print(f"written to {out}/")
@@ -196,8 +216,9 @@ class _Sink:
                 self.plots += plot_results(members, self.plot_dir)
 
 
-def _write_tables(scenario: Scenario, out: Path, rows: list[dict],
-                  note: str) -> tuple[list[dict], str]:
+def _write_tables(
+    scenario: Scenario, out: Path, rows: list[dict], note: str
+) -> tuple[list[dict], str]:
     identity = scenario.identity_columns
     summary = summary_rows(rows, identity)
     markdown = markdown_table(summary, identity)

@@ -71,9 +71,12 @@ def converged(coarse: float, fine: float, floor: float, tolerance: float = TOLER
     return abs(coarse - fine) <= tolerance * abs(fine) + floor
 
 
-def compare_results(coarse: Sequence[RunResult], fine: Sequence[RunResult],
-                    tolerance: float = TOLERANCE,
-                    metrics: Sequence[str] = CONVERGENCE_METRICS) -> list[dict]:
+def compare_results(
+    coarse: Sequence[RunResult],
+    fine: Sequence[RunResult],
+    tolerance: float = TOLERANCE,
+    metrics: Sequence[str] = CONVERGENCE_METRICS,
+) -> list[dict]:
     """One row per run and metric: labels, both values, relative difference, verdict."""
     rows = []
     for a, b in zip(coarse, fine, strict=True):
@@ -84,17 +87,19 @@ def compare_results(coarse: Sequence[RunResult], fine: Sequence[RunResult],
             if math.isnan(m_a) and math.isnan(m_b):
                 continue  # not applicable to this run
             finite = math.isfinite(m_a) and math.isfinite(m_b) and m_b != 0.0
-            rows.append({
-                **a.spec.labels,
-                "status": a.status if a.status == b.status else f"{a.status} / {b.status}",
-                "metric": metric,
-                "physics_dt": run_physics_dt(a.spec),
-                "value": m_a,
-                "refined": m_b,
-                "relative_difference": abs(m_a - m_b) / abs(m_b) if finite else math.nan,
-                "converged": a.status == b.status and converged(
-                    m_a, m_b, metric_floor(metric, control_dt), tolerance),
-            })
+            rows.append(
+                {
+                    **a.spec.labels,
+                    "status": a.status if a.status == b.status else f"{a.status} / {b.status}",
+                    "metric": metric,
+                    "physics_dt": run_physics_dt(a.spec),
+                    "value": m_a,
+                    "refined": m_b,
+                    "relative_difference": abs(m_a - m_b) / abs(m_b) if finite else math.nan,
+                    "converged": a.status == b.status
+                    and converged(m_a, m_b, metric_floor(metric, control_dt), tolerance),
+                }
+            )
     return rows
 
 
@@ -115,6 +120,10 @@ def check_convergence(
         raise ValueError(f"refinement must be an integer >= 2, got {refinement!r}")
     runs, _ = plan_runs(scenario)
     coarse = execute(runs, workers=workers, backend=backend, progress=progress)
-    fine = execute([refined(spec, refinement) for spec in runs], workers=workers,
-                   backend=backend, progress=progress)
+    fine = execute(
+        [refined(spec, refinement) for spec in runs],
+        workers=workers,
+        backend=backend,
+        progress=progress,
+    )
     return compare_results(coarse, fine, tolerance)

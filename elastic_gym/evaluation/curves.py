@@ -41,10 +41,13 @@ def _style(curves: Sequence[SweepCurve]) -> dict[tuple[str, str], dict]:
     """Colour per state source, line style per controller (the same in every figure)."""
     sources = list(dict.fromkeys(c.source for c in curves))
     controllers = list(dict.fromkeys(c.controller for c in curves))
-    return {(c.controller, c.source): {
-        "color": f"C{sources.index(c.source) % 10}",
-        "linestyle": LINE_STYLES[controllers.index(c.controller) % len(LINE_STYLES)],
-    } for c in curves}
+    return {
+        (c.controller, c.source): {
+            "color": f"C{sources.index(c.source) % 10}",
+            "linestyle": LINE_STYLES[controllers.index(c.controller) % len(LINE_STYLES)],
+        }
+        for c in curves
+    }
 
 
 def _draw(ax, curve: SweepCurve, metric: str, style: dict, slot: int) -> None:
@@ -52,8 +55,9 @@ def _draw(ax, curve: SweepCurve, metric: str, style: dict, slot: int) -> None:
     drawable = [p for p in curve.points if not (sweep.log and p.magnitude <= 0)]
     x = np.array([p.magnitude for p in drawable], dtype=float)
     mean = np.array([p.mean(metric) if p.stable else math.nan for p in drawable])
-    bands = np.array([p.band(metric) if p.stable else (math.nan, math.nan)
-                      for p in drawable]).reshape(-1, 2)
+    bands = np.array(
+        [p.band(metric) if p.stable else (math.nan, math.nan) for p in drawable]
+    ).reshape(-1, 2)
     ax.plot(x, mean, marker="o", markersize=3, linewidth=1.2, label=curve.loop, **style)
     ax.fill_between(x, bands[:, 0], bands[:, 1], color=style["color"], alpha=0.15, linewidth=0)
     nominal = curve.nominal
@@ -62,12 +66,26 @@ def _draw(ax, curve: SweepCurve, metric: str, style: dict, slot: int) -> None:
     unstable = [p.magnitude for p in drawable if not p.stable]
     if unstable:
         marks = blended_transform_factory(ax.transData, ax.transAxes)
-        ax.plot(unstable, [0.97 - 0.035 * slot] * len(unstable), linestyle="none", marker="x",
-                markersize=7, markeredgewidth=2, color=style["color"], transform=marks)
+        ax.plot(
+            unstable,
+            [0.97 - 0.035 * slot] * len(unstable),
+            linestyle="none",
+            marker="x",
+            markersize=7,
+            markeredgewidth=2,
+            color=style["color"],
+            transform=marks,
+        )
 
 
-def plot_curves(curves: Sequence[SweepCurve], metric: str, ylabel: str, title: str,
-                path: Path, styles: dict | None = None) -> Path:
+def plot_curves(
+    curves: Sequence[SweepCurve],
+    metric: str,
+    ylabel: str,
+    title: str,
+    path: Path,
+    styles: dict | None = None,
+) -> Path:
     """One figure: a panel per sweep of ``curves`` (one context), a line per loop
     (``styles``: line styles by (controller, source), default from ``curves``)."""
     sweeps = list(dict.fromkeys(c.sweep for c in curves))
@@ -83,13 +101,14 @@ def plot_curves(curves: Sequence[SweepCurve], metric: str, ylabel: str, title: s
             _draw(ax, curve, metric, styles[key], loops.index(key))
         ax.set_xscale("log" if sweep.log else "linear")
         ax.xaxis.set_minor_formatter(NullFormatter())  # no crowded labels on short log ranges
-        positive = any(np.any(p.values(metric) > 0) for c in curves if c.sweep == sweep
-                       for p in c.points)
+        positive = any(
+            np.any(p.values(metric) > 0) for c in curves if c.sweep == sweep for p in c.points
+        )
         ax.set_yscale("log" if positive else "linear")
         ax.set_xlabel(f"{sweep.parameter} (nominal {sweep.nominal:g})")
         ax.set_title(sweep.name, fontsize="medium")
         ax.grid(True, which="both", alpha=0.25)
-    for ax in axes[len(sweeps):]:
+    for ax in axes[len(sweeps) :]:
         ax.set_visible(False)
     for ax in axes[::cols]:
         ax.set_ylabel(ylabel)
@@ -97,8 +116,13 @@ def plot_curves(curves: Sequence[SweepCurve], metric: str, ylabel: str, title: s
     for ax in axes:
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(label, handle)
-    legend_outside(fig, handles, "controller / state\n(mean and band over seeds;\n"
-                   "x: unstable)", title, hspace=0.5)
+    legend_outside(
+        fig,
+        handles,
+        "controller / state\n(mean and band over seeds;\nx: unstable)",
+        title,
+        hspace=0.5,
+    )
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
     return path
@@ -118,7 +142,14 @@ def plot_all_curves(curves: Sequence[SweepCurve], directory: Path) -> list[Path]
             if not any(p.values(metric).size for c in selected for p in c.points):
                 continue
             title = " | ".join(str(v) for v in labels.values()) + f": {ylabel}"
-            paths.append(plot_curves(selected, metric, ylabel, title,
-                                     directory / plot_file_name((*labels.values(), metric)),
-                                     styles))
+            paths.append(
+                plot_curves(
+                    selected,
+                    metric,
+                    ylabel,
+                    title,
+                    directory / plot_file_name((*labels.values(), metric)),
+                    styles,
+                )
+            )
     return paths

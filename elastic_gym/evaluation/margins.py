@@ -43,13 +43,17 @@ def failure(point: SweepPoint, nominal: dict[str, float]) -> str:
     for metric, reference in nominal.items():
         value = point.mean(metric)
         if not value <= FACTOR * reference:  # NaN fails too
-            return f"{metric} {value / reference:.3g}x nominal" if reference > 0 else \
-                f"{metric} {value:.3g} (nominal 0)"
+            return (
+                f"{metric} {value / reference:.3g}x nominal"
+                if reference > 0
+                else f"{metric} {value:.3g} (nominal 0)"
+            )
     return ""
 
 
-def side_margin(points: Sequence[SweepPoint], nominal: dict[str, float],
-                start: float) -> tuple[float, str, float]:
+def side_margin(
+    points: Sequence[SweepPoint], nominal: dict[str, float], start: float
+) -> tuple[float, str, float]:
     """(margin, reason of the first failure or '', first failing magnitude or NaN) walking
     through ``points`` (ordered away from the nominal magnitude ``start``)."""
     margin = start
@@ -67,16 +71,29 @@ def curve_margin(curve: SweepCurve, criterion: str) -> dict:
     nominal_point = curve.nominal
     nominal = {m: nominal_point.mean(m) for m in metrics}
     sweep = curve.sweep
-    row = {**curve.context, "controller": curve.controller, "source": curve.source,
-           "criterion": criterion, "sweep": sweep.name, "parameter": sweep.parameter,
-           "nominal": sweep.nominal,
-           **{f"nominal_{m}": v for m, v in nominal.items()},
-           "tested_min": curve.points[0].magnitude, "tested_max": curve.points[-1].magnitude}
+    row = {
+        **curve.context,
+        "controller": curve.controller,
+        "source": curve.source,
+        "criterion": criterion,
+        "sweep": sweep.name,
+        "parameter": sweep.parameter,
+        "nominal": sweep.nominal,
+        **{f"nominal_{m}": v for m, v in nominal.items()},
+        "tested_min": curve.points[0].magnitude,
+        "tested_max": curve.points[-1].magnitude,
+    }
     if not nominal_point.stable or any(math.isnan(v) for v in nominal.values()):
         reason = failure(nominal_point, {}) or "no nominal value"
-        return {**row, "lower": math.nan, "upper": math.nan, "lower_failure": reason,
-                "upper_failure": reason, "lower_failed_at": sweep.nominal,
-                "upper_failed_at": sweep.nominal}
+        return {
+            **row,
+            "lower": math.nan,
+            "upper": math.nan,
+            "lower_failure": reason,
+            "upper_failure": reason,
+            "lower_failed_at": sweep.nominal,
+            "upper_failed_at": sweep.nominal,
+        }
     below = [p for p in reversed(curve.points) if p.magnitude < sweep.nominal]
     above = [p for p in curve.points if p.magnitude > sweep.nominal]
     for side, points in (("lower", below), ("upper", above)):
@@ -96,8 +113,12 @@ def applies(curve: SweepCurve, criterion: str) -> bool:
 
 def margin_rows(curves: Sequence[SweepCurve]) -> list[dict]:
     """Margin rows of every curve and criterion that applies (:func:`applies`)."""
-    return [curve_margin(curve, criterion) for criterion in CRITERIA for curve in curves
-            if applies(curve, criterion)]
+    return [
+        curve_margin(curve, criterion)
+        for criterion in CRITERIA
+        for curve in curves
+        if applies(curve, criterion)
+    ]
 
 
 def cell(row: dict) -> str:
@@ -112,8 +133,11 @@ def cell(row: dict) -> str:
     if row["tested_min"] == row["tested_max"] == row["nominal"]:
         return "-"  # nothing but the nominal tested
     if math.isnan(row["upper"]) and math.isnan(row["lower"]):
-        return "unstable at nominal" if row["upper_failure"].startswith("unstable") \
+        return (
+            "unstable at nominal"
+            if row["upper_failure"].startswith("unstable")
             else row["upper_failure"]
+        )
     parts = []
     for side, beyond in (("lower", ">"), ("upper", "<")):
         tested = row["tested_min"] if side == "lower" else row["tested_max"]
@@ -142,22 +166,30 @@ def margins_markdown(rows: Sequence[dict], context_keys: Sequence[str]) -> str:
         title = ", ".join(f"{k}: {v}" for k, v in zip(context_keys, context, strict=True))
         metrics = " and ".join(CRITERIA[criterion])
         header = ["controller", "source", *sweeps]
-        lines = [f"### {title} — {criterion} ({metrics} within {FACTOR:g}x nominal, stable)",
-                 "", "| " + " | ".join(header) + " |",
-                 "|" + "|".join("---" for _ in header) + "|"]
+        lines = [
+            f"### {title} — {criterion} ({metrics} within {FACTOR:g}x nominal, stable)",
+            "",
+            "| " + " | ".join(header) + " |",
+            "|" + "|".join("---" for _ in header) + "|",
+        ]
         for controller, source in loops:
-            lines.append("| " + " | ".join(
-                [controller, source, *(cells.get((controller, source, s), "-") for s in sweeps)]
-            ) + " |")
-        nominal = {r["sweep"]: f"{r['sweep']} = {r['parameter']} (nominal {r['nominal']:g})"
-                   for r in members}
+            lines.append(
+                "| "
+                + " | ".join(
+                    [controller, source, *(cells.get((controller, source, s), "-") for s in sweeps)]
+                )
+                + " |"
+            )
+        nominal = {
+            r["sweep"]: f"{r['sweep']} = {r['parameter']} (nominal {r['nominal']:g})"
+            for r in members
+        }
         lines += ["", "Sweeps: " + "; ".join(nominal.values()) + ".", ""]
         blocks.append("\n".join(lines))
     return "\n".join(blocks)
 
 
-def write_margins(rows: Sequence[dict], context_keys: Sequence[str], directory,
-                  title: str) -> list:
+def write_margins(rows: Sequence[dict], context_keys: Sequence[str], directory, title: str) -> list:
     """``margins.csv`` (one row per context, loop, sweep, criterion) and ``margins.md``."""
     csv_path = write_csv(rows, directory / "margins.csv")
     md_path = directory / "margins.md"

@@ -85,8 +85,13 @@ class TimeSeries:
     def truncated(self, length: int) -> TimeSeries:
         """The first ``length`` samples."""
         return TimeSeries(
-            self.time[:length], self.q[:length], self.q_ref[:length], self.dq_ref[:length],
-            self.torque[:length], self.estimation_error[:length], self.state_names,
+            self.time[:length],
+            self.q[:length],
+            self.q_ref[:length],
+            self.dq_ref[:length],
+            self.torque[:length],
+            self.estimation_error[:length],
+            self.state_names,
             None if self.theta is None else self.theta[:length],
         )
 
@@ -164,8 +169,11 @@ def residual_torsion(series: TimeSeries) -> float:
     """Largest standard deviation of theta - q after a move's arrival (see module docstring)."""
     torsion = series.theta - series.q
     delay = np.searchsorted(series.time, series.time[0] + RESIDUAL_DELAY)
-    windows = [torsion[m.arrival + delay : m.end] for m in find_moves(series)
-               if m.end - m.arrival - delay > 1]
+    windows = [
+        torsion[m.arrival + delay : m.end]
+        for m in find_moves(series)
+        if m.end - m.arrival - delay > 1
+    ]
     return max((float(np.max(np.std(w, axis=0))) for w in windows), default=float("nan"))
 
 
@@ -181,13 +189,14 @@ def compute_metrics(series: TimeSeries, tracking: bool = True) -> dict[str, floa
         metrics["track_max"] = float(np.max(np.linalg.norm(error, axis=1)))
         metrics["overshoot_pct"], metrics["settling_time"] = step_response(series)
     has_torsion = series.theta is not None and len(series)
-    metrics["torsion_max"] = (
-        float(np.max(np.abs(series.theta - series.q))) if has_torsion else nan
-    )
+    metrics["torsion_max"] = float(np.max(np.abs(series.theta - series.q))) if has_torsion else nan
     metrics["torsion_osc"] = residual_torsion(series) if has_torsion and tracking else nan
     metrics["torque_rms"] = rms_norm(series.torque)
-    start = np.searchsorted(series.time, min(ESTIMATION_TRANSIENT, series.time[-1] / 2)) \
-        if len(series) else 0
+    start = (
+        np.searchsorted(series.time, min(ESTIMATION_TRANSIENT, series.time[-1] / 2))
+        if len(series)
+        else 0
+    )
     for name, block in series.estimation_blocks().items():
         metrics[f"est_rms_{name}"] = rms_norm(block[start:])
     return metrics

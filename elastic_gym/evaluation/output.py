@@ -18,8 +18,14 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
-RESULT_FILES = ("runs.csv", "summary.csv", "summary.md", "scenario.yaml", "margins.csv",
-                "margins.md")
+RESULT_FILES = (
+    "runs.csv",
+    "summary.csv",
+    "summary.md",
+    "scenario.yaml",
+    "margins.csv",
+    "margins.md",
+)
 PLOT_DIR = "plots"
 CURVE_DIR = "curves"
 FIGURE_DIRS = (PLOT_DIR, CURVE_DIR)
@@ -65,14 +71,17 @@ def check_output_folder(folder: Path, overwrite: bool) -> None:
     while not existing.exists() and existing != existing.parent:
         existing = existing.parent
     if not existing.is_dir():
-        raise NotADirectoryError(f"output folder {str(folder)!r}: {str(existing)!r} is a file, "
-                                 "not a folder")
+        raise NotADirectoryError(
+            f"output folder {str(folder)!r}: {str(existing)!r} is a file, not a folder"
+        )
     try:
         with tempfile.TemporaryFile(dir=existing):
             pass
     except OSError as exc:
-        raise PermissionError(f"output folder {str(folder)!r}: cannot write in "
-                              f"{str(existing)!r} ({exc.strerror or exc})") from None
+        raise PermissionError(
+            f"output folder {str(folder)!r}: cannot write in "
+            f"{str(existing)!r} ({exc.strerror or exc})"
+        ) from None
     if existing == folder and not overwrite:
         earlier = earlier_results(folder)
         if earlier:

@@ -87,8 +87,10 @@ def plot_scenario(results: Sequence[RunResult], title: str, path: Path) -> Path:
     sources = list(dict.fromkeys(source for _, source in loops))
     controllers = list(dict.fromkeys(controller for controller, _ in loops))
     for (controller, source), members in loops.items():
-        style = {"color": f"C{sources.index(source) % 10}",
-                 "linestyle": LINE_STYLES[controllers.index(controller) % len(LINE_STYLES)]}
+        style = {
+            "color": f"C{sources.index(source) % 10}",
+            "linestyle": LINE_STYLES[controllers.index(controller) % len(LINE_STYLES)],
+        }
         label = f"{controller} / {source}"
         ended = sum(not r.ok for r in members)
         if ended:
@@ -104,14 +106,23 @@ def plot_scenario(results: Sequence[RunResult], title: str, path: Path) -> Path:
             values = values[:, ::stride]
             with warnings.catch_warnings():  # all-NaN instants (every run ended) stay NaN
                 warnings.simplefilter("ignore", RuntimeWarning)
-                mean, low, high = (np.nanmean(values, 0), np.nanmin(values, 0),
-                                   np.nanmax(values, 0))
+                mean, low, high = (
+                    np.nanmean(values, 0),
+                    np.nanmin(values, 0),
+                    np.nanmax(values, 0),
+                )
             for joint in range(n):
                 ax = axes[row, joint]
                 ax.plot(time[::stride], mean[:, joint], linewidth=1.0, label=label, **style)
                 if len(members) > 1:
-                    ax.fill_between(time[::stride], low[:, joint], high[:, joint],
-                                    color=style["color"], alpha=0.15, linewidth=0)
+                    ax.fill_between(
+                        time[::stride],
+                        low[:, joint],
+                        high[:, joint],
+                        color=style["color"],
+                        alpha=0.15,
+                        linewidth=0,
+                    )
     limits = np.asarray(_torque_limit(results[0]), dtype=float)
     for row, panel in enumerate(panels):
         for joint in range(n):
@@ -124,8 +135,13 @@ def plot_scenario(results: Sequence[RunResult], title: str, path: Path) -> Path:
                 ax.set_ylabel(panel.label)
             if panel.label.startswith("torque"):
                 for sign in (-1, 1):
-                    ax.axhline(sign * limits[joint], color="k", linestyle="--", linewidth=0.8,
-                               label="torque limit")
+                    ax.axhline(
+                        sign * limits[joint],
+                        color="k",
+                        linestyle="--",
+                        linewidth=0.8,
+                        label="torque limit",
+                    )
     for ax in axes[-1]:
         ax.set_xlabel("time [s]")
     handles = {}
@@ -139,8 +155,9 @@ def plot_scenario(results: Sequence[RunResult], title: str, path: Path) -> Path:
     return path
 
 
-def legend_outside(fig: Figure, handles: dict, legend_title: str, title: str,
-                   hspace: float = 0.25) -> None:
+def legend_outside(
+    fig: Figure, handles: dict, legend_title: str, title: str, hspace: float = 0.25
+) -> None:
     """Figure title, and the legend in a strip right of the panels (never over the data).
 
     A fixed layout (``subplots_adjust``): matplotlib's constrained layout measured 60 %
@@ -148,10 +165,24 @@ def legend_outside(fig: Figure, handles: dict, legend_title: str, title: str,
     """
     width, height = fig.get_size_inches()
     right = 1.0 - LEGEND_WIDTH / width
-    fig.subplots_adjust(left=0.9 / width, right=right - 0.15 / width, bottom=0.55 / height,
-                        top=1.0 - 0.75 / height, wspace=0.3, hspace=hspace)
-    fig.legend(handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(right, 0.97),
-               fontsize="small", title=legend_title, title_fontsize="small", frameon=False)
+    fig.subplots_adjust(
+        left=0.9 / width,
+        right=right - 0.15 / width,
+        bottom=0.55 / height,
+        top=1.0 - 0.75 / height,
+        wspace=0.3,
+        hspace=hspace,
+    )
+    fig.legend(
+        handles.values(),
+        handles.keys(),
+        loc="upper left",
+        bbox_to_anchor=(right, 0.97),
+        fontsize="small",
+        title=legend_title,
+        title_fontsize="small",
+        frameon=False,
+    )
     fig.suptitle(title)
 
 

@@ -90,8 +90,9 @@ def preflight(scenario: Scenario, runs: Sequence[RunSpec], workers: int) -> Esti
     error_index = {v.label: i for i, v in enumerate(scenario.model_errors)}
     combos: dict[tuple, RunSpec] = {}
     for spec in runs:
-        combos.setdefault((spec.labels["env"], spec.labels["controller"],
-                           spec.labels["source"]), spec)
+        combos.setdefault(
+            (spec.labels["env"], spec.labels["controller"], spec.labels["source"]), spec
+        )
     cost: dict[tuple, float] = {}
     with single_threaded():
         for i, entry in enumerate(scenario.envs):
@@ -108,13 +109,14 @@ def preflight(scenario: Scenario, runs: Sequence[RunSpec], workers: int) -> Esti
                 for key, spec in combos.items():
                     if key[0] != entry.label:
                         continue
-                    paths = (f"controllers[{controller_index[key[1]]}]",
-                             f"state_sources[{source_index[key[2]]}]")
+                    paths = (
+                        f"controllers[{controller_index[key[1]]}]",
+                        f"state_sources[{source_index[key[2]]}]",
+                    )
                     cost[key] = make_time + _sample(env, spec, paths)
             finally:
                 env.close()
-    total = sum(cost[(s.labels["env"], s.labels["controller"], s.labels["source"])]
-                for s in runs)
+    total = sum(cost[(s.labels["env"], s.labels["controller"], s.labels["source"])] for s in runs)
     workers = min(workers, len(runs))
     return Estimate(total, workers, cpu_share(workers))
 
@@ -142,8 +144,9 @@ def _check_axes(scenario: Scenario, entry, path: str) -> None:
         for j, variation in enumerate(values):
             if not variation.values:
                 continue
-            env = _make_env(entry.id, scenario.env_kwargs(entry, (variation,)),
-                            f"axes.{axis}[{j}] (on {path})")
+            env = _make_env(
+                entry.id, scenario.env_kwargs(entry, (variation,)), f"axes.{axis}[{j}] (on {path})"
+            )
             env.close()
 
 
@@ -202,13 +205,17 @@ def check_plot_names(scenario: Scenario, runs: Sequence[RunSpec]) -> None:
         if len(name.encode()) > MAX_NAME_BYTES:
             longest = max(range(len(group)), key=lambda k: len(str(group[k])))
             raise ScenarioError(
-                fields[longest], f"the labels {list(group)} give a figure file name of "
+                fields[longest],
+                f"the labels {list(group)} give a figure file name of "
                 f"{len(name.encode())} bytes (the limit is {MAX_NAME_BYTES}): shorten the "
-                f"{columns[longest]} label {group[longest]!r}")
+                f"{columns[longest]} label {group[longest]!r}",
+            )
         other = seen.setdefault(name, group)
         if other != group:
             differ = next(k for k in range(len(group)) if group[k] != other[k])
             raise ScenarioError(
-                fields[differ], f"the {columns[differ]} labels {other[differ]!r} and "
+                fields[differ],
+                f"the {columns[differ]} labels {other[differ]!r} and "
                 f"{group[differ]!r} give the same figure file name {name!r} (only letters, "
-                "digits, '.', '+' and '-' are kept): make them differ in those")
+                "digits, '.', '+' and '-' are kept): make them differ in those",
+            )

@@ -75,8 +75,8 @@ def summary_rows(rows: Sequence[dict], identity: Sequence[str]) -> list[dict]:
         summary = dict(zip(keys, key, strict=True))
         summary["seeds"] = len(members)
         failures = sorted({r["status"] for r in members} - {"ok"})
-        summary["status"] = "ok" if not failures else (
-            f"{len(ok)}/{len(members)} ok ({'; '.join(failures)})"
+        summary["status"] = (
+            "ok" if not failures else (f"{len(ok)}/{len(members)} ok ({'; '.join(failures)})")
         )
         for column in METRIC_KEYS:
             values = np.array([r[column] for r in ok], dtype=float)
@@ -129,26 +129,41 @@ def markdown_table(rows: Sequence[dict], identity: Sequence[str]) -> str:
     """
     if not rows:
         return "_no runs_\n"
-    constant = [k for k in (*identity, "seeds")
-                if k in rows[0] and len({r[k] for r in rows}) == 1]
-    labels = [k for k in rows[0] if k not in METRIC_KEYS and k not in constant
-              and not (k.endswith(SPREAD_SUFFIX) and k[: -len(SPREAD_SUFFIX)] in METRIC_KEYS)]
-    metrics = [c for c in METRIC_COLUMNS
-               if any(not math.isnan(r.get(c.key, math.nan)) for r in rows)]
+    constant = [k for k in (*identity, "seeds") if k in rows[0] and len({r[k] for r in rows}) == 1]
+    labels = [
+        k
+        for k in rows[0]
+        if k not in METRIC_KEYS
+        and k not in constant
+        and not (k.endswith(SPREAD_SUFFIX) and k[: -len(SPREAD_SUFFIX)] in METRIC_KEYS)
+    ]
+    metrics = [
+        c for c in METRIC_COLUMNS if any(not math.isnan(r.get(c.key, math.nan)) for r in rows)
+    ]
     headers = labels + [c.header for c in metrics]
-    body = [[format_value(row[k]) for k in labels]
-            + [format_value(row[c.key], c.digits) for c in metrics] for row in rows]
+    body = [
+        [format_value(row[k]) for k in labels]
+        + [format_value(row[c.key], c.digits) for c in metrics]
+        for row in rows
+    ]
     widths = [max(len(text) for text in column) for column in zip(headers, *body, strict=True)]
     numeric = [False] * len(labels) + [True] * len(metrics)
 
     def line(cells: list[str]) -> str:
-        padded = [c.rjust(w) if n else c.ljust(w)
-                  for c, w, n in zip(cells, widths, numeric, strict=True)]
+        padded = [
+            c.rjust(w) if n else c.ljust(w) for c, w, n in zip(cells, widths, numeric, strict=True)
+        ]
         return "| " + " | ".join(padded) + " |"
 
     lines = [", ".join(f"{k}: {rows[0][k]}" for k in constant) + "\n"] if constant else []
     lines.append(line(headers))
-    lines.append("|" + "|".join(("-" * (w + 1) + ":") if n else "-" * (w + 2)
-                                for w, n in zip(widths, numeric, strict=True)) + "|")
+    lines.append(
+        "|"
+        + "|".join(
+            ("-" * (w + 1) + ":") if n else "-" * (w + 2)
+            for w, n in zip(widths, numeric, strict=True)
+        )
+        + "|"
+    )
     lines += [line(cells) for cells in body]
     return "\n".join(lines) + "\n"

@@ -108,8 +108,9 @@ def is_elastic(env_id: str, env_kwargs: dict) -> bool:
     return env_robot(env_id, env_kwargs).elastic
 
 
-def _entry_class(entry: ControllerEntry | SourceEntry, path: str, base: type,
-                 lookup: Callable[[str], type]) -> type:
+def _entry_class(
+    entry: ControllerEntry | SourceEntry, path: str, base: type, lookup: Callable[[str], type]
+) -> type:
     """The class of a controller/observer entry: explicit ``class`` or registry name."""
     if entry.cls is not None:
         cls = resolve_class(entry.cls, f"{path}.class")
@@ -119,8 +120,11 @@ def _entry_class(entry: ControllerEntry | SourceEntry, path: str, base: type,
     try:
         return lookup(entry.name)
     except ImportError as exc:
-        raise ScenarioError(f"{path}.name", f"{base.__name__.lower()} {entry.name!r} is "
-                            f"registered but not available in this installation ({exc})") from None
+        raise ScenarioError(
+            f"{path}.name",
+            f"{base.__name__.lower()} {entry.name!r} is "
+            f"registered but not available in this installation ({exc})",
+        ) from None
 
 
 def _controller_lookup(name: str) -> type[Controller]:
@@ -141,16 +145,20 @@ def check_options(cls: type, options: dict, path: str, fixed: dict | None = None
         return
     parameters = list(signature.parameters.values())[2:]  # after (model, dt)
     if not any(p.kind is p.VAR_KEYWORD for p in parameters):
-        valid = [p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
-                 and p.name not in fixed]
+        valid = [
+            p.name
+            for p in parameters
+            if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name not in fixed
+        ]
         for key in options:
             if key not in valid:
                 raise ScenarioError(f"{path}.options.{key}", f"unexpected option; valid: {valid}")
     try:
         signature.bind(None, None, **fixed, **options)
     except TypeError as exc:
-        raise ScenarioError(f"{path}.options",
-                            f"{cls.__name__}(model, dt, **options): {exc}") from None
+        raise ScenarioError(
+            f"{path}.options", f"{cls.__name__}(model, dt, **options): {exc}"
+        ) from None
 
 
 def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
@@ -177,29 +185,46 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
         kwargs = scenario.env_kwargs(env, variations)
         kind = "elastic" if is_elastic(env.id, kwargs) else "rigid"
         base_labels = {"env": env.label}
-        base_labels.update({name: v.label for (name, _), v in zip(scenario.axes, variations,
-                                                                  strict=True)})
+        base_labels.update(
+            {name: v.label for (name, _), v in zip(scenario.axes, variations, strict=True)}
+        )
         for error, seed in itertools.product(scenario.model_errors, scenario.seeds):
             for (controller, c_cls), (source, o_cls) in itertools.product(controllers, sources):
                 if controller.sources is not None and source.label not in controller.sources:
                     continue
-                labels = {**base_labels, "model_error": error.label,
-                          "controller": controller.label, "source": source.label, "seed": seed}
+                labels = {
+                    **base_labels,
+                    "model_error": error.label,
+                    "controller": controller.label,
+                    "source": source.label,
+                    "seed": seed,
+                }
                 reason = _inapplicable(kind, c_cls, o_cls, controller, source)
                 if reason:
                     skipped.append(SkippedRun(labels, reason))
                     continue
-                runs.append(RunSpec(
-                    index=len(runs), labels=labels, env_id=env.id, env_kwargs=kwargs,
-                    reset_options=env.reset_options, duration=scenario.duration, seed=seed,
-                    controller=controller, controller_cls=c_cls, source=source,
-                    observer_cls=o_cls, model_error=error.values,
-                ))
+                runs.append(
+                    RunSpec(
+                        index=len(runs),
+                        labels=labels,
+                        env_id=env.id,
+                        env_kwargs=kwargs,
+                        reset_options=env.reset_options,
+                        duration=scenario.duration,
+                        seed=seed,
+                        controller=controller,
+                        controller_cls=c_cls,
+                        source=source,
+                        observer_cls=o_cls,
+                        model_error=error.values,
+                    )
+                )
     return runs, skipped
 
 
-def _inapplicable(kind: str, c_cls: type, o_cls: type, controller: ControllerEntry,
-                  source: SourceEntry) -> str:
+def _inapplicable(
+    kind: str, c_cls: type, o_cls: type, controller: ControllerEntry, source: SourceEntry
+) -> str:
     if kind not in c_cls.applies_to:
         return f"controller {controller.name!r} applies to {sorted(c_cls.applies_to)} arms"
     if kind not in o_cls.applies_to:
@@ -240,8 +265,16 @@ class _Recorder:
         self.length = k + 1
 
     def series(self, state_names: tuple[str, ...]) -> TimeSeries:
-        return TimeSeries(self.time, self.q, self.q_ref, self.dq_ref, self.torque, self.error,
-                          state_names, self.theta).truncated(self.length)
+        return TimeSeries(
+            self.time,
+            self.q,
+            self.q_ref,
+            self.dq_ref,
+            self.torque,
+            self.error,
+            state_names,
+            self.theta,
+        ).truncated(self.length)
 
 
 def run_model(env: gym.Env, spec: RunSpec):
@@ -258,8 +291,11 @@ def build_observer(env: gym.Env, spec: RunSpec, model) -> ObserverWrapper:
         if source.cls is None
         else spec.observer_cls(model.copy(), dt, **source.options)
     )
-    estimate = (None if source.initial_estimate is None
-                else np.asarray(source.initial_estimate, dtype=float))
+    estimate = (
+        None
+        if source.initial_estimate is None
+        else np.asarray(source.initial_estimate, dtype=float)
+    )
     return ObserverWrapper(env, observer, initial_estimate=estimate)
 
 
@@ -317,8 +353,9 @@ def failed_status(exc: BaseException, where: str = "") -> str:
     return f"failed: {where}{type(exc).__name__}: {message}"
 
 
-def _simulate(wrapped: ObserverWrapper, controller: Controller, recorder: _Recorder,
-              spec: RunSpec, steps: int) -> str:
+def _simulate(
+    wrapped: ObserverWrapper, controller: Controller, recorder: _Recorder, spec: RunSpec, steps: int
+) -> str:
     """The closed loop; returns the status. Exceptions of the reset propagate, those of
     the loop end it with a ``failed`` status (the samples recorded so far are kept)."""
     with np.errstate(all="ignore"):
@@ -350,8 +387,15 @@ def execute(
     meanwhile). Every result stays in memory with its time series; :func:`compare
     <elastic_gym.evaluation.compare>` streams them to disk instead.
     """
-    return run_jobs(run_episode, runs, workers=workers, backend=backend, progress=progress,
-                    label="runs", describe=describe_run)
+    return run_jobs(
+        run_episode,
+        runs,
+        workers=workers,
+        backend=backend,
+        progress=progress,
+        label="runs",
+        describe=describe_run,
+    )
 
 
 def describe_run(spec: RunSpec) -> str:

@@ -113,8 +113,17 @@ COMPARISON_PHYSICS_DT = 1.0 / 16000.0  # s; see the module docstring
 MAX_PHYSICS_DT = 1e-3  # s, the envs' own bound
 
 TOP_LEVEL_KEYS = (
-    "name", "description", "duration", "physics_dt", "seeds", "envs", "axes", "sweeps",
-    "model_errors", "controllers", "state_sources",
+    "name",
+    "description",
+    "duration",
+    "physics_dt",
+    "seeds",
+    "envs",
+    "axes",
+    "sweeps",
+    "model_errors",
+    "controllers",
+    "state_sources",
 )
 SWEEP_KEYS = ("parameter", "values", "range", "num", "log", "nominal")
 ENV_KEYS = ("id", "label", "kwargs", "reset_options")
@@ -205,13 +214,15 @@ class Sweep:
         """The farthest magnitude below and above the nominal (those that exist)."""
         below = [v for v in self.values if self.nominal is not None and v < self.nominal]
         above = [v for v in self.values if self.nominal is None or v > self.nominal]
-        return tuple(v for v in (min(below, default=None), max(above, default=None))
-                     if v is not None)
+        return tuple(
+            v for v in (min(below, default=None), max(above, default=None)) if v is not None
+        )
 
     def variations(self) -> tuple[Variation, ...]:
         """The values of the ``sweep`` axis this sweep adds (not the nominal)."""
-        return tuple(Variation(self.label(v), self.kwargs(v)) for v in self.values
-                     if v != self.nominal)
+        return tuple(
+            Variation(self.label(v), self.kwargs(v)) for v in self.values if v != self.nominal
+        )
 
     def magnitude(self, label: str) -> float | None:
         """The magnitude of a ``sweep`` axis label of this sweep (None if not one)."""
@@ -241,9 +252,13 @@ class Scenario:
         """Validate a mapping (parsed YAML, or Python objects) into a scenario."""
         return _parse(data, name)
 
-    def with_overrides(self, *, seeds: Sequence[int] | None = None,
-                       duration: float | None = None,
-                       physics_dt: float | None = None) -> Scenario:
+    def with_overrides(
+        self,
+        *,
+        seeds: Sequence[int] | None = None,
+        duration: float | None = None,
+        physics_dt: float | None = None,
+    ) -> Scenario:
         """A copy with other seeds, duration and/or physics step (validated like the YAML
         fields)."""
         changes: dict[str, Any] = {}
@@ -259,8 +274,13 @@ class Scenario:
         """A fast look at the same grid: the first seed, at most ``QUICK_DURATION`` s per
         run, and each sweep thinned to its farthest magnitude on each side of the nominal."""
         sweeps = tuple(replace(w, values=w.extremes()) for w in self.sweeps)
-        return replace(self, seeds=self.seeds[:1], duration=min(self.duration, QUICK_DURATION),
-                       sweeps=sweeps, axes=with_sweep_axis(self.axes, sweeps))
+        return replace(
+            self,
+            seeds=self.seeds[:1],
+            duration=min(self.duration, QUICK_DURATION),
+            sweeps=sweeps,
+            axes=with_sweep_axis(self.axes, sweeps),
+        )
 
     def env_kwargs(self, env: EnvEntry, variations: Sequence[Variation] = ()) -> dict:
         """Kwargs of ``env`` under axis values ``variations``: the scenario's physics step,
@@ -282,37 +302,67 @@ class Scenario:
 
     def to_dict(self) -> dict:
         """Plain-data form (YAML-serialisable; classes as ``"module:Class"``)."""
-        return _plain({
-            "name": self.name,
-            "description": self.description,
-            "duration": self.duration,
-            "physics_dt": self.physics_dt,
-            "seeds": list(self.seeds),
-            "envs": [
-                {"id": e.id, "label": e.label, "kwargs": e.kwargs,
-                 "reset_options": e.reset_options}
-                for e in self.envs
-            ],
-            "axes": {name: [{"label": v.label, **v.values} for v in values]
-                     for name, values in self.axes if not (self.sweeps and name == SWEEP_AXIS)},
-            "sweeps": {w.name: _without_none({"parameter": w.parameter, "values": list(w.values),
-                                              "nominal": w.nominal, "log": w.log})
-                       for w in self.sweeps},
-            "model_errors": [{"label": v.label, **v.values} for v in self.model_errors],
-            "controllers": [
-                _without_none({"name": c.name, "label": c.label, "options": c.options,
-                               "sources": list(c.sources) if c.sources else None,
-                               "class": _class_path(c.cls)})
-                for c in self.controllers
-            ],
-            "state_sources": [
-                _without_none({"name": s.name, "label": s.label, "options": s.options,
-                               "initial_estimate": list(s.initial_estimate)
-                               if s.initial_estimate is not None else None,
-                               "class": _class_path(s.cls)})
-                for s in self.state_sources
-            ],
-        })
+        return _plain(
+            {
+                "name": self.name,
+                "description": self.description,
+                "duration": self.duration,
+                "physics_dt": self.physics_dt,
+                "seeds": list(self.seeds),
+                "envs": [
+                    {
+                        "id": e.id,
+                        "label": e.label,
+                        "kwargs": e.kwargs,
+                        "reset_options": e.reset_options,
+                    }
+                    for e in self.envs
+                ],
+                "axes": {
+                    name: [{"label": v.label, **v.values} for v in values]
+                    for name, values in self.axes
+                    if not (self.sweeps and name == SWEEP_AXIS)
+                },
+                "sweeps": {
+                    w.name: _without_none(
+                        {
+                            "parameter": w.parameter,
+                            "values": list(w.values),
+                            "nominal": w.nominal,
+                            "log": w.log,
+                        }
+                    )
+                    for w in self.sweeps
+                },
+                "model_errors": [{"label": v.label, **v.values} for v in self.model_errors],
+                "controllers": [
+                    _without_none(
+                        {
+                            "name": c.name,
+                            "label": c.label,
+                            "options": c.options,
+                            "sources": list(c.sources) if c.sources else None,
+                            "class": _class_path(c.cls),
+                        }
+                    )
+                    for c in self.controllers
+                ],
+                "state_sources": [
+                    _without_none(
+                        {
+                            "name": s.name,
+                            "label": s.label,
+                            "options": s.options,
+                            "initial_estimate": list(s.initial_estimate)
+                            if s.initial_estimate is not None
+                            else None,
+                            "class": _class_path(s.cls),
+                        }
+                    )
+                    for s in self.state_sources
+                ],
+            }
+        )
 
 
 # ---------------------------------------------------------------------------- loaders
@@ -371,8 +421,7 @@ def _parse(data: Mapping, name: str | None) -> Scenario:
         raise ScenarioError("name", f"must be a string, got {scenario_name!r}")
     problem = folder_name_problem(scenario_name)
     if problem:
-        raise ScenarioError("name", f"{problem} (it names the output folder "
-                            "compare_out/<name>)")
+        raise ScenarioError("name", f"{problem} (it names the output folder compare_out/<name>)")
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ScenarioError("description", "must be a string")
@@ -420,8 +469,9 @@ def _env(item: Any, path: str) -> EnvEntry:
     env_id = _env_id(item["id"], f"{path}.id")
     kwargs = _mapping(item.get("kwargs", {}), f"{path}.kwargs")
     _check_env_kwargs(env_id, kwargs, f"{path}.kwargs")
-    label = _label(item.get("label", env_id.removeprefix(ENV_NAMESPACE).removesuffix("-v0")),
-                   f"{path}.label")
+    label = _label(
+        item.get("label", env_id.removeprefix(ENV_NAMESPACE).removesuffix("-v0")), f"{path}.label"
+    )
     reset_options = _mapping(item.get("reset_options", {}), f"{path}.reset_options")
     return EnvEntry(env_id, label, dict(kwargs), dict(reset_options))
 
@@ -455,8 +505,9 @@ def _check_env_kwargs(env_id: str, kwargs: Mapping, path: str) -> None:
     unknown = set(kwargs) - env_parameters(env_id)
     if unknown:
         raise ScenarioError(
-            path, f"unknown env kwarg(s) {sorted(unknown)} for {env_id}; "
-            f"valid: {sorted(env_parameters(env_id))}"
+            path,
+            f"unknown env kwarg(s) {sorted(unknown)} for {env_id}; "
+            f"valid: {sorted(env_parameters(env_id))}",
         )
     if "plant_scaling" in kwargs:
         try:
@@ -477,12 +528,16 @@ def _controller(item: Any, path: str, source_labels: set[str]) -> ControllerEntr
         raise ScenarioError(f"{path}.name", f"unknown controller {name!r}; valid: {valid}")
     sources = item.get("sources")
     if sources is not None:
-        sources = tuple(_label(s, f"{path}.sources[{i}]")
-                        for i, s in enumerate(_list(sources, f"{path}.sources")))
+        sources = tuple(
+            _label(s, f"{path}.sources[{i}]")
+            for i, s in enumerate(_list(sources, f"{path}.sources"))
+        )
         missing = sorted(set(sources) - source_labels)
         if missing:
-            raise ScenarioError(f"{path}.sources", f"unknown state source label(s) {missing}; "
-                                f"valid: {sorted(source_labels)}")
+            raise ScenarioError(
+                f"{path}.sources",
+                f"unknown state source label(s) {missing}; valid: {sorted(source_labels)}",
+            )
     return ControllerEntry(
         name=name,
         label=_label(item.get("label", name), f"{path}.label"),
@@ -500,12 +555,15 @@ def _source(item: Any, path: str) -> SourceEntry:
     name = _name(item, path)
     cls = _class_field(item.get("class"), f"{path}.class")
     if cls is None and name not in OBSERVERS:
-        raise ScenarioError(f"{path}.name",
-                            f"unknown state source {name!r}; valid: {sorted(OBSERVERS)}")
+        raise ScenarioError(
+            f"{path}.name", f"unknown state source {name!r}; valid: {sorted(OBSERVERS)}"
+        )
     estimate = item.get("initial_estimate")
     if estimate is not None:
-        estimate = tuple(_number(v, f"{path}.initial_estimate[{i}]")
-                         for i, v in enumerate(_list(estimate, f"{path}.initial_estimate")))
+        estimate = tuple(
+            _number(v, f"{path}.initial_estimate[{i}]")
+            for i, v in enumerate(_list(estimate, f"{path}.initial_estimate"))
+        )
     return SourceEntry(
         name=name,
         label=_label(item.get("label", name), f"{path}.label"),
@@ -528,12 +586,16 @@ def _axes(data: Any, envs: tuple[EnvEntry, ...]) -> tuple[tuple[str, tuple[Varia
     for axis, items in axes.items():
         path = f"axes.{_axis_name(axis, f'axes.{axis}')}"
         if isinstance(items, Mapping):  # generated from the magnitudes of one parameter
-            values = [Variation(f"{axis}={v:g}", w.kwargs(v))
-                      for w in [_sweep(axis, items, path, envs, nominal_required=False)]
-                      for v in w.values]
+            values = [
+                Variation(f"{axis}={v:g}", w.kwargs(v))
+                for w in [_sweep(axis, items, path, envs, nominal_required=False)]
+                for v in w.values
+            ]
         else:
-            values = [_variation(item, f"{path}[{i}]", NOMINAL)
-                      for i, item in enumerate(_list(items, path))]
+            values = [
+                _variation(item, f"{path}[{i}]", NOMINAL)
+                for i, item in enumerate(_list(items, path))
+            ]
             for i, value in enumerate(values):
                 for env in envs:
                     _check_env_kwargs(env.id, value.values, f"{path}[{i}]")
@@ -543,20 +605,26 @@ def _axes(data: Any, envs: tuple[EnvEntry, ...]) -> tuple[tuple[str, tuple[Varia
 
 
 def _sweeps(data: Any, envs: tuple[EnvEntry, ...]) -> tuple[Sweep, ...]:
-    return tuple(_sweep(name, item, f"sweeps.{_axis_name(name, f'sweeps.{name}')}", envs)
-                 for name, item in _mapping(data, "sweeps").items())
+    return tuple(
+        _sweep(name, item, f"sweeps.{_axis_name(name, f'sweeps.{name}')}", envs)
+        for name, item in _mapping(data, "sweeps").items()
+    )
 
 
-def _sweep(name: str, data: Any, path: str, envs: tuple[EnvEntry, ...],
-           nominal_required: bool = True) -> Sweep:
+def _sweep(
+    name: str, data: Any, path: str, envs: tuple[EnvEntry, ...], nominal_required: bool = True
+) -> Sweep:
     """One parameter's magnitudes: ``values``, or ``range`` + ``num`` (``log``: geometric)."""
     data = _mapping(data, path)
     _check_keys(data, SWEEP_KEYS, path)
     parameter = data.get("parameter")
     keys = parameter.split(".") if isinstance(parameter, str) else []
     if not keys or not all(k.isidentifier() for k in keys):
-        raise ScenarioError(f"{path}.parameter", "must be a dotted path into the env kwargs, "
-                            f"e.g. 'plant_scaling.link_mass', got {parameter!r}")
+        raise ScenarioError(
+            f"{path}.parameter",
+            "must be a dotted path into the env kwargs, "
+            f"e.g. 'plant_scaling.link_mass', got {parameter!r}",
+        )
     log = data.get("log", False)
     if not isinstance(log, bool):
         raise ScenarioError(f"{path}.log", f"must be true or false, got {log!r}")
@@ -565,16 +633,21 @@ def _sweep(name: str, data: Any, path: str, envs: tuple[EnvEntry, ...],
     if "values" in data:
         if "num" in data:
             raise ScenarioError(f"{path}.num", "goes with 'range', not with 'values'")
-        values = [_number(v, f"{path}.values[{i}]")
-                  for i, v in enumerate(_list(data["values"], f"{path}.values"))]
-        values = [int(v) if isinstance(raw, int) else v  # integer parameters stay integers
-                  for v, raw in zip(values, data["values"], strict=True)]
+        values = [
+            _number(v, f"{path}.values[{i}]")
+            for i, v in enumerate(_list(data["values"], f"{path}.values"))
+        ]
+        values = [
+            int(v) if isinstance(raw, int) else v  # integer parameters stay integers
+            for v, raw in zip(values, data["values"], strict=True)
+        ]
     else:
         values = _range(data, path, log)
     for i, v in enumerate(values):
         if not math.isfinite(v) or (log and v <= 0):
-            raise ScenarioError(f"{path}.values[{i}]", f"must be finite{' and > 0' if log else ''}"
-                                f", got {v!r}")
+            raise ScenarioError(
+                f"{path}.values[{i}]", f"must be finite{' and > 0' if log else ''}, got {v!r}"
+            )
     _unique_labels([f"{v:g}" for v in values], f"{path}.values")
     nominal = data.get("nominal")
     if nominal is None and nominal_required:
@@ -676,8 +749,10 @@ def _without_none(data: dict) -> dict:
 def _check_keys(data: Mapping, allowed: Sequence[str], path: str) -> None:
     unknown = [k for k in data if k not in allowed]
     if unknown:
-        raise ScenarioError(f"{path}.{unknown[0]}" if path != "scenario" else str(unknown[0]),
-                            f"unknown field; valid: {list(allowed)}")
+        raise ScenarioError(
+            f"{path}.{unknown[0]}" if path != "scenario" else str(unknown[0]),
+            f"unknown field; valid: {list(allowed)}",
+        )
 
 
 def _mapping(value: Any, path: str) -> Mapping:
@@ -756,6 +831,9 @@ def _seeds(value: Any, path: str) -> tuple[int, ...]:
             raise ScenarioError(f"{path}[{i}]", f"must be an integer >= 0, got {seed!r}")
     duplicates = sorted({seed for seed in items if items.count(seed) > 1})
     if duplicates:
-        raise ScenarioError(path, f"duplicate seed(s) {duplicates}: a seed repeated would "
-                            "count the same run twice in the means over seeds")
+        raise ScenarioError(
+            path,
+            f"duplicate seed(s) {duplicates}: a seed repeated would "
+            "count the same run twice in the means over seeds",
+        )
     return tuple(items)

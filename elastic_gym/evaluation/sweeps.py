@@ -45,8 +45,9 @@ class SweepPoint:
 
     def values(self, metric: str) -> np.ndarray:
         """The metric of each completed seed (NaN entries dropped)."""
-        values = np.array([float(row[metric]) for row in self.rows
-                           if row["status"] == STATUS_OK], dtype=float)
+        values = np.array(
+            [float(row[metric]) for row in self.rows if row["status"] == STATUS_OK], dtype=float
+        )
         return values[~np.isnan(values)]
 
     def mean(self, metric: str) -> float:
@@ -80,8 +81,9 @@ class SweepCurve:
 
 def context_columns(scenario: Scenario) -> tuple[str, ...]:
     """Identity columns that define a curve's context (not the sweep, loop or seed)."""
-    return tuple(c for c in scenario.identity_columns
-                 if c not in (SWEEP_AXIS, *LOOP_COLUMNS, "seed"))
+    return tuple(
+        c for c in scenario.identity_columns if c not in (SWEEP_AXIS, *LOOP_COLUMNS, "seed")
+    )
 
 
 def sweep_curves(scenario: Scenario, rows: Sequence[dict]) -> list[SweepCurve]:
@@ -105,8 +107,13 @@ def sweep_curves(scenario: Scenario, rows: Sequence[dict]) -> list[SweepCurve]:
                 magnitude = sweep.magnitude(label)
                 if magnitude is not None and label != NOMINAL:
                     points[magnitude] = members
-            curves.append(SweepCurve(
-                dict(zip(context_keys, context, strict=True)), controller, source, sweep,
-                tuple(SweepPoint(m, tuple(points[m])) for m in sorted(points)),
-            ))
+            curves.append(
+                SweepCurve(
+                    dict(zip(context_keys, context, strict=True)),
+                    controller,
+                    source,
+                    sweep,
+                    tuple(SweepPoint(m, tuple(points[m])) for m in sorted(points)),
+                )
+            )
     return curves

@@ -158,8 +158,17 @@ def _forward_kinematics(q, dq, ddq, base_acc, parent, rot_p, trans_p, axis, link
     for j in range(n):
         lam = parent[j]
         if lam < 0:  # the fixed base: at rest, accelerating with base_acc
-            r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, \
-                0.0, 1.0
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = (
+                1.0,
+                0.0,
+                0.0,
+                0.0,
+                1.0,
+                0.0,
+                0.0,
+                0.0,
+                1.0,
+            )
             px = py = pz = wx = wy = wz = ax = ay = az = 0.0
             cx, cy, cz = base_acc[0], base_acc[1], base_acc[2]
         else:
@@ -232,10 +241,14 @@ def _sensor_reading(i, s_joint, s_rot, s_trans, gravity, links, small, out, row)
     j = s_joint[i]
     for a in range(3):
         for b in range(3):
-            R_s[a, b] = R[j, a, 0] * s_rot[i, 0, b] + R[j, a, 1] * s_rot[i, 1, b] + \
-                R[j, a, 2] * s_rot[i, 2, b]
-        r_s[a] = R[j, a, 0] * s_trans[i, 0] + R[j, a, 1] * s_trans[i, 1] + \
-            R[j, a, 2] * s_trans[i, 2]
+            R_s[a, b] = (
+                R[j, a, 0] * s_rot[i, 0, b]
+                + R[j, a, 1] * s_rot[i, 1, b]
+                + R[j, a, 2] * s_rot[i, 2, b]
+            )
+        r_s[a] = (
+            R[j, a, 0] * s_trans[i, 0] + R[j, a, 1] * s_trans[i, 1] + R[j, a, 2] * s_trans[i, 2]
+        )
     rx, ry, rz = r_s[0], r_s[1], r_s[2]
     wx, wy, wz = omega[j, 0], omega[j, 1], omega[j, 2]
     ax, ay, az = alpha[j, 0], alpha[j, 1], alpha[j, 2]
@@ -295,8 +308,9 @@ def _accelerometer_maps_kernel(q, dq, fp, ip, w, T, W):
 
 
 @njit(cache=True)
-def _acceleration_from_readings_kernel(q, dq, readings, threshold, damping, fp, ip, w, ddq,
-                                       diagnostics):
+def _acceleration_from_readings_kernel(
+    q, dq, readings, threshold, damping, fp, ip, w, ddq, diagnostics
+):
     N, n = q.shape
     m = readings.shape[1]
     chain, _, sensors, gravity, _ = _unpack(fp, ip)
@@ -335,8 +349,9 @@ def _acceleration_from_readings_kernel(q, dq, readings, threshold, damping, fp, 
 
 
 @njit(cache=True)
-def _mass_and_bias_arm(q, dq, base_acc, chain, mass, com, inertia, M, h, links, small, bodies,
-                       with_mass=True):
+def _mass_and_bias_arm(
+    q, dq, base_acc, chain, mass, com, inertia, M, h, links, small, bodies, with_mass=True
+):
     """M(q) (if ``with_mass``) and n(q, q') of one arm (Newton-Euler with a_0 = -g_W,
     composite Jacobians)."""
     n = q.shape[0]
@@ -352,8 +367,9 @@ def _mass_and_bias_arm(q, dq, base_acc, chain, mass, com, inertia, M, h, links, 
         _matmul(R[b], inertia[b], tmp)
         for a in range(3):
             for c in range(3):
-                inertia_w[b, a, c] = (tmp[a, 0] * R[b, c, 0] + tmp[a, 1] * R[b, c, 1]
-                                      + tmp[a, 2] * R[b, c, 2])
+                inertia_w[b, a, c] = (
+                    tmp[a, 0] * R[b, c, 0] + tmp[a, 1] * R[b, c, 1] + tmp[a, 2] * R[b, c, 2]
+                )
         _point_acceleration(acc[b], alpha[b], omega[b], r, a_c, t1, t2)
         for c in range(3):
             force[b, c] = mass[b] * a_c[c]
@@ -405,8 +421,9 @@ def _mass_and_bias_kernel(q, dq, fp, ip, w, M, h):
     chain, bodies_p, _, _, minus_gravity = _unpack(fp, ip)
     small, links, bodies, _ = _workspace(n, w)
     for k in range(N):
-        _mass_and_bias_arm(q[k], dq[k], minus_gravity, chain, *bodies_p, M[k], h[k], links,
-                           small, bodies)
+        _mass_and_bias_arm(
+            q[k], dq[k], minus_gravity, chain, *bodies_p, M[k], h[k], links, small, bodies
+        )
 
 
 @njit(cache=True)
@@ -416,8 +433,9 @@ def _gravity_kernel(q, fp, ip, w, h):
     small, links, bodies, (M, _, _) = _workspace(n, w)
     zero_n = bodies[8]
     for k in range(N):
-        _mass_and_bias_arm(q[k], zero_n, minus_gravity, chain, *bodies_p, M, h[k], links, small,
-                           bodies, False)
+        _mass_and_bias_arm(
+            q[k], zero_n, minus_gravity, chain, *bodies_p, M, h[k], links, small, bodies, False
+        )
 
 
 @njit(cache=True)
@@ -453,8 +471,7 @@ def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
     chain, bodies_p, _, _, minus_gravity = _unpack(fp, ip)
     small, links, bodies, (M, h, rhs) = _workspace(n, w)
     for k in range(N):
-        _mass_and_bias_arm(q[k], dq[k], minus_gravity, chain, *bodies_p, M, h, links, small,
-                           bodies)
+        _mass_and_bias_arm(q[k], dq[k], minus_gravity, chain, *bodies_p, M, h, links, small, bodies)
         for a in range(n):
             rhs[a] = tau[k, a] - h[a]
             for c in range(n):
@@ -466,8 +483,13 @@ def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
 
 
 def _batch(x: np.ndarray, n: int, name: str) -> np.ndarray:
-    if type(x) is np.ndarray and x.dtype == np.float64 and x.ndim == 2 and x.shape[1] == n \
-            and x.flags.c_contiguous:
+    if (
+        type(x) is np.ndarray
+        and x.dtype == np.float64
+        and x.ndim == 2
+        and x.shape[1] == n
+        and x.flags.c_contiguous
+    ):
         return x  # the hot path: the simulator's own arrays
     arr = np.ascontiguousarray(x, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] != n:
@@ -514,7 +536,8 @@ class SerialChain:
             [body.mass for body in bodies],
             [body.lever for body in bodies],
             [body.inertia for body in bodies],
-            gravity, -gravity,
+            gravity,
+            -gravity,
             [f.placement.rotation for f in frames],
             [f.placement.translation for f in frames],
         ]
@@ -552,7 +575,11 @@ class SerialChain:
         return T, W
 
     def acceleration_from_readings(
-        self, q: np.ndarray, dq: np.ndarray, readings: np.ndarray, threshold: float,
+        self,
+        q: np.ndarray,
+        dq: np.ndarray,
+        readings: np.ndarray,
+        threshold: float,
         damping: float,
     ) -> tuple[np.ndarray, np.ndarray]:
         """q'' = T_A^+(q) (readings - W_A(q, q')) of De Luca et al. (2007), eq. (11), per arm.
@@ -567,12 +594,23 @@ class SerialChain:
         q, dq = _batch(q, n, "q"), _batch(dq, n, "dq")
         readings = np.ascontiguousarray(readings, dtype=np.float64)
         if readings.shape != (len(q), 3 * self.n_sensors):
-            raise ValueError(f"readings must have shape ({len(q)}, {3 * self.n_sensors}), "
-                             f"got {readings.shape}")
+            raise ValueError(
+                f"readings must have shape ({len(q)}, {3 * self.n_sensors}), got {readings.shape}"
+            )
         ddq = np.empty((len(q), n))
         diagnostics = np.empty((len(q), 3))
-        _acceleration_from_readings_kernel(q, dq, readings, float(threshold), float(damping),
-                                           self._params, self._ints, self._work, ddq, diagnostics)
+        _acceleration_from_readings_kernel(
+            q,
+            dq,
+            readings,
+            float(threshold),
+            float(damping),
+            self._params,
+            self._ints,
+            self._work,
+            ddq,
+            diagnostics,
+        )
         return ddq, diagnostics
 
     def mass_and_bias(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -591,13 +629,21 @@ class SerialChain:
         _gravity_kernel(q, self._params, self._ints, self._work, h)
         return h
 
-    def forward_dynamics(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
-                         added_inertia: np.ndarray | None = None) -> np.ndarray:
+    def forward_dynamics(
+        self,
+        q: np.ndarray,
+        dq: np.ndarray,
+        tau: np.ndarray,
+        added_inertia: np.ndarray | None = None,
+    ) -> np.ndarray:
         """q'' solving (M(q) + M_a) q'' + n(q, q') = tau, (N, n); M_a constant (n, n)."""
         n = self.n
         q, dq, tau = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(tau, n, "tau")
-        extra = self._no_inertia if added_inertia is None else np.ascontiguousarray(
-            added_inertia, dtype=np.float64)
+        extra = (
+            self._no_inertia
+            if added_inertia is None
+            else np.ascontiguousarray(added_inertia, dtype=np.float64)
+        )
         out = np.empty((len(q), n))
         _forward_dynamics_kernel(q, dq, tau, extra, self._params, self._ints, self._work, out)
         return out

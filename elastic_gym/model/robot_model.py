@@ -309,8 +309,11 @@ class RobotModel:
         return q + self.gravity(q) / self.K
 
     def static_link_position(
-        self, theta: np.ndarray, initial: np.ndarray | None = None,
-        tolerance: float = 1e-12, max_iterations: int = 50,
+        self,
+        theta: np.ndarray,
+        initial: np.ndarray | None = None,
+        tolerance: float = 1e-12,
+        max_iterations: int = 50,
     ) -> np.ndarray:
         """Link position of the arm at rest for motor position theta.
 
@@ -336,7 +339,10 @@ class RobotModel:
         return q[0] if single else q
 
     def energy(
-        self, q: np.ndarray, dq: np.ndarray, theta: np.ndarray | None = None,
+        self,
+        q: np.ndarray,
+        dq: np.ndarray,
+        theta: np.ndarray | None = None,
         dtheta: np.ndarray | None = None,
     ) -> float:
         """Total energy: link kinetic + potential, motor kinetic (+ S coupling), springs."""
@@ -376,9 +382,7 @@ class RobotModel:
         pin.framesForwardKinematics(self.pin_model, self.data, q)
         return [self.data.oMf[f].copy() for f in self.sensor_frame_ids]
 
-    def accelerometer_readings(
-        self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray
-    ) -> np.ndarray:
+    def accelerometer_readings(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """Noise-free specific force of every sensor in its own frame, eq. (9) stacked.
 
         f = R_WS^T (a_W - g_W), a_W the classical acceleration of the sensor point.
@@ -397,9 +401,7 @@ class RobotModel:
             out[3 * i : 3 * i + 3] = acc - data.oMf[fid].rotation.T @ self.gravity_vector
         return out
 
-    def accelerometer_maps(
-        self, q: np.ndarray, dq: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def accelerometer_maps(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T_A(q), W_A(q, q')) of eq. (10): readings = T_A q'' + W_A.
 
         One forward-kinematics pass (q, q', q'' = 0) gives W_A and the joint Jacobians,

@@ -73,8 +73,9 @@ class Observer(ABC):
         return len(self.state_names) * self.n
 
     @abstractmethod
-    def reset(self, obs: Mapping[str, np.ndarray], initial_estimate: np.ndarray | None = None
-              ) -> np.ndarray:
+    def reset(
+        self, obs: Mapping[str, np.ndarray], initial_estimate: np.ndarray | None = None
+    ) -> np.ndarray:
         """Initialise from the first observation; return the initial estimate.
 
         ``initial_estimate`` (full state vector) overrides the observer's own
@@ -109,8 +110,10 @@ ARM0 = np.array([0])
 
 def as_batch(obs: Mapping) -> dict:
     """A single-arm observation as a batch of one arm (nested mappings included)."""
-    return {key: as_batch(value) if isinstance(value, Mapping) else np.asarray(value)[None]
-            for key, value in obs.items()}
+    return {
+        key: as_batch(value) if isinstance(value, Mapping) else np.asarray(value)[None]
+        for key, value in obs.items()
+    }
 
 
 class BatchedObserver(Observer):
@@ -126,8 +129,12 @@ class BatchedObserver(Observer):
         self.arm_diagnostics: dict[str, np.ndarray] = {}
 
     @abstractmethod
-    def reset_arms(self, obs: Mapping[str, np.ndarray], arms: np.ndarray,
-                   initial_estimate: np.ndarray | None = None) -> np.ndarray:
+    def reset_arms(
+        self,
+        obs: Mapping[str, np.ndarray],
+        arms: np.ndarray,
+        initial_estimate: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Initialise the arms ``arms`` (rows of ``obs``); return their estimates.
 
         The number of arms is that of ``obs``; ``initial_estimate`` is one state vector
@@ -135,12 +142,18 @@ class BatchedObserver(Observer):
         """
 
     @abstractmethod
-    def update_arms(self, obs: Mapping[str, np.ndarray], torque: np.ndarray, dt: float,
-                    arms: np.ndarray | None = None) -> np.ndarray:
+    def update_arms(
+        self,
+        obs: Mapping[str, np.ndarray],
+        torque: np.ndarray,
+        dt: float,
+        arms: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Estimates (N, dim) after one period; only ``arms`` (default all) are advanced."""
 
-    def reset(self, obs: Mapping[str, np.ndarray], initial_estimate: np.ndarray | None = None
-              ) -> np.ndarray:
+    def reset(
+        self, obs: Mapping[str, np.ndarray], initial_estimate: np.ndarray | None = None
+    ) -> np.ndarray:
         estimate = self.reset_arms(as_batch(obs), ARM0, initial_estimate)[0]
         self.diagnostics = {key: value[0].item() for key, value in self.arm_diagnostics.items()}
         return estimate
@@ -164,8 +177,10 @@ class BatchedObserver(Observer):
         if x.shape not in ((1, self.state_dim), (count, self.state_dim)) or not np.all(
             np.isfinite(x)
         ):
-            raise ValueError(f"initial_estimate must be {self.state_dim} finite numbers "
-                             f"{self.state_names} (or one row per arm), got shape {x.shape}")
+            raise ValueError(
+                f"initial_estimate must be {self.state_dim} finite numbers "
+                f"{self.state_names} (or one row per arm), got shape {x.shape}"
+            )
         return np.broadcast_to(x, (count, self.state_dim)).copy()
 
     def measured_positions(self, obs: Mapping, arms: np.ndarray | slice) -> np.ndarray:

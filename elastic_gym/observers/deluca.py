@@ -151,8 +151,10 @@ class DeLucaObserver(BatchedObserver):
         if not isinstance(use_coupling, bool):
             raise TypeError(f"use_coupling must be a bool, got {use_coupling!r}")
         for key, value in (("dls_threshold", dls_threshold), ("dls_damping", dls_damping)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-                np.isfinite(value) and value > 0
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float))
+                or not (np.isfinite(value) and value > 0)
             ):
                 raise ValueError(f"{key} must be a positive number, got {value!r}")
         if velocity_saturation is not None and (
@@ -241,18 +243,26 @@ class DeLucaObserver(BatchedObserver):
             raise ValueError("acceleration='accelerometer' needs obs['acceleration']")
         reading = np.asarray(obs["acceleration"], dtype=float)[arms]
         if reading.shape[1:] != (3 * self.model.n_sensors,):
-            raise ValueError(f"obs['acceleration'] must have shape "
-                             f"({3 * self.model.n_sensors},) per arm, got {reading.shape[1:]}")
+            raise ValueError(
+                f"obs['acceleration'] must have shape "
+                f"({3 * self.model.n_sensors},) per arm, got {reading.shape[1:]}"
+            )
         dq = xi[:, 3 * n :]
         if self.velocity_saturation is not None:
             dq = np.clip(dq, -self.velocity_saturation, self.velocity_saturation)
         ddq, singular = self._sensors.acceleration_from_readings(
-            xi[:, n : 2 * n], dq, reading, self.dls_threshold, self.dls_damping)
+            xi[:, n : 2 * n], dq, reading, self.dls_threshold, self.dls_damping
+        )
         sigma_max, sigma_min, damping = singular.T
         with np.errstate(divide="ignore", invalid="ignore"):
             cond = np.where(sigma_min > 0.0, sigma_max / sigma_min, np.inf)
-        self._record(arms, cond_TA=cond, sigma_min_TA=sigma_min, dls_damping=damping,
-                     near_singular=sigma_min < self.dls_threshold)
+        self._record(
+            arms,
+            cond_TA=cond,
+            sigma_min_TA=sigma_min,
+            dls_damping=damping,
+            near_singular=sigma_min < self.dls_threshold,
+        )
         return ddq
 
     def _record(self, arms, **values: np.ndarray) -> None:
@@ -280,8 +290,9 @@ class DeLucaObserver(BatchedObserver):
         self._ddq[arms] = self._link_acceleration(obs, xi, arms)
         return xi.copy()
 
-    def update_arms(self, obs: Mapping, torque: np.ndarray, dt: float,
-                    arms: np.ndarray | None = None) -> np.ndarray:
+    def update_arms(
+        self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
+    ) -> np.ndarray:
         if abs(dt - self.dt) > DT_TOLERANCE * self.dt:
             raise ValueError(
                 f"DeLucaObserver was discretized for dt={self.dt}, update called with dt={dt}"

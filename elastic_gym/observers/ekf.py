@@ -71,8 +71,14 @@ stiffest elastic mode of the package (596 rad/s); more only multiply the cost.""
 
 
 # ----------------------------------------------------------------------------- helpers
-def _check_number(name: str, value, minimum: float = 0.0, strict: bool = False,
-                  maximum: float = np.inf, why: str = "") -> float:
+def _check_number(
+    name: str,
+    value,
+    minimum: float = 0.0,
+    strict: bool = False,
+    maximum: float = np.inf,
+    why: str = "",
+) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
         raise TypeError(f"EKF option {name!r} must be a finite number, got {value!r}")
     if value < minimum or (strict and value == minimum):
@@ -98,8 +104,10 @@ def covariance_option(value, name: str, block_sizes: tuple[int, ...]) -> np.ndar
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"EKF option {name!r} must be finite, got {value!r}")
     if np.any(np.abs(arr) > MAX_VARIANCE):
-        raise ValueError(f"EKF option {name!r}: entries must be <= {MAX_VARIANCE:g} in SI units "
-                         f"(larger ones overflow the filter's arithmetic), got {value!r}")
+        raise ValueError(
+            f"EKF option {name!r}: entries must be <= {MAX_VARIANCE:g} in SI units "
+            f"(larger ones overflow the filter's arithmetic), got {value!r}"
+        )
     if arr.ndim == 0:
         arr = np.full(dim, float(arr))
     elif arr.ndim == 1 and arr.size == len(block_sizes):
@@ -274,9 +282,12 @@ class ExtendedKalmanFilter(Observer):
         super().__init__(model, dt)
         n = self.n
         self.alpha = _check_number(
-            "alpha", alpha, maximum=1.0 / self.dt,
+            "alpha",
+            alpha,
+            maximum=1.0 / self.dt,
             why=" = 1/dt (it would discount the past by more than e^2 per sample; measured at "
-            "1/dt: estimation errors of 0.6 - 1.4 rad, at 10/dt: a broken covariance)")
+            "1/dt: estimation errors of 0.6 - 1.4 rad, at 10/dt: a broken covariance)",
+        )
         if not isinstance(use_accelerometers, bool):
             raise TypeError(
                 f"EKF option 'use_accelerometers' must be a bool, got {use_accelerometers!r}"
@@ -286,20 +297,27 @@ class ExtendedKalmanFilter(Observer):
                 f"EKF option 'use_accelerometers': robot {model.spec.name!r} has no accelerometers"
             )
         self.use_accelerometers = use_accelerometers
-        accelerometer_std = _check_number("accelerometer_std", accelerometer_std, strict=True,
-                                          maximum=MAX_STD)
-        if (isinstance(substeps, bool) or not isinstance(substeps, int)
-                or not 1 <= substeps <= MAX_SUBSTEPS):
-            raise ValueError(f"EKF option 'substeps' must be an integer in [1, {MAX_SUBSTEPS}], "
-                             f"got {substeps!r}")
+        accelerometer_std = _check_number(
+            "accelerometer_std", accelerometer_std, strict=True, maximum=MAX_STD
+        )
+        if (
+            isinstance(substeps, bool)
+            or not isinstance(substeps, int)
+            or not 1 <= substeps <= MAX_SUBSTEPS
+        ):
+            raise ValueError(
+                f"EKF option 'substeps' must be an integer in [1, {MAX_SUBSTEPS}], got {substeps!r}"
+            )
         self.substeps = substeps
 
         self.Q = (
-            default_process_noise(model, self.dt) if Q is None
+            default_process_noise(model, self.dt)
+            if Q is None
             else covariance_option(Q, "Q", (n, n))
         )
         sensor_options = {
-            "encoder_resolution": encoder_resolution, "encoder_noise_std": encoder_noise_std,
+            "encoder_resolution": encoder_resolution,
+            "encoder_noise_std": encoder_noise_std,
         }
         if R is not None:
             given = [key for key, value in sensor_options.items() if value is not None]
@@ -311,7 +329,8 @@ class ExtendedKalmanFilter(Observer):
         blocks = (n, 3 * model.n_sensors) if use_accelerometers else (n,)
         self.R = (
             self._sensor_covariance(encoder_resolution, encoder_noise_std, accelerometer_std)
-            if R is None else covariance_option(R, "R", blocks)
+            if R is None
+            else covariance_option(R, "R", blocks)
         )
         if np.linalg.eigvalsh(self.R).min() <= 0.0:
             raise ValueError(
@@ -319,7 +338,8 @@ class ExtendedKalmanFilter(Observer):
                 "positive definite"
             )
         self.P0 = (
-            np.diag(np.repeat(np.asarray(DEFAULT_INITIAL_STD) ** 2, n)) if P0 is None
+            np.diag(np.repeat(np.asarray(DEFAULT_INITIAL_STD) ** 2, n))
+            if P0 is None
             else covariance_option(P0, "P0", (n, n, n, n))
         )
         self.x = np.zeros(4 * n)

@@ -25,8 +25,10 @@ class FiniteDifferenceObserver(BatchedObserver):
 
     def __init__(self, model: RobotModel, dt: float, cutoff_hz: float = 30.0) -> None:
         super().__init__(model, dt)
-        if isinstance(cutoff_hz, bool) or not isinstance(cutoff_hz, (int, float)) or not (
-            np.isfinite(cutoff_hz) and cutoff_hz > 0
+        if (
+            isinstance(cutoff_hz, bool)
+            or not isinstance(cutoff_hz, (int, float))
+            or not (np.isfinite(cutoff_hz) and cutoff_hz > 0)
         ):
             raise ValueError(f"cutoff_hz must be > 0 (a finite number), got {cutoff_hz!r}")
         self.cutoff_hz = float(cutoff_hz)
@@ -40,8 +42,7 @@ class FiniteDifferenceObserver(BatchedObserver):
         velocity = self._velocity[arms]
         if not self.elastic:
             return np.concatenate([position, velocity], axis=1)
-        q = self.model.static_link_position(position, initial=self._q_static[arms],
-                                            tolerance=1e-10)
+        q = self.model.static_link_position(position, initial=self._q_static[arms], tolerance=1e-10)
         self._q_static[arms] = q
         return np.concatenate([position, q, velocity, velocity], axis=1)
 
@@ -56,8 +57,9 @@ class FiniteDifferenceObserver(BatchedObserver):
         self._velocity[arms] = 0.0 if x0 is None else x0[:, -self.n :]
         return self._estimate(position, arms)
 
-    def update_arms(self, obs: Mapping, torque: np.ndarray, dt: float,
-                    arms: np.ndarray | None = None) -> np.ndarray:
+    def update_arms(
+        self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
+    ) -> np.ndarray:
         arms = slice(None) if arms is None else arms
         position = self.measured_positions(obs, arms)
         raw = (position - self._previous[arms]) / dt

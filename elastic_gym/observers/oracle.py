@@ -24,6 +24,7 @@ class OracleObserver(BatchedObserver):
     def reset_arms(self, obs: Mapping, arms: np.ndarray, initial_estimate=None) -> np.ndarray:
         return self._truth(obs, arms)
 
-    def update_arms(self, obs: Mapping, torque: np.ndarray, dt: float,
-                    arms: np.ndarray | None = None) -> np.ndarray:
+    def update_arms(
+        self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
+    ) -> np.ndarray:
         return self._truth(obs, slice(None))

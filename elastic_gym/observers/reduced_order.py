@@ -113,8 +113,9 @@ class ReducedOrderObserver(ScalarGainReducedObserver):
         self.k0 = positive_number("k0", k0)
         self.r = self.r0
         self.jumps = 0
-        super().__init__(model, dt, self.level_gain(self.r0) if hybrid else self.k0,
-                         model_friction, substeps)
+        super().__init__(
+            model, dt, self.level_gain(self.r0) if hybrid else self.k0, model_friction, substeps
+        )
         self._update_diagnostics()
 
     def level_gain(self, r: int) -> float:

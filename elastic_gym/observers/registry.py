@@ -14,11 +14,15 @@ OBSERVERS: dict[str, tuple[str, str, dict]] = {
     "ekf": ("elastic_gym.observers.ekf", "ExtendedKalmanFilter", {}),
     "reduced-order": ("elastic_gym.observers.reduced_order", "ReducedOrderObserver", {}),
     "solsona-puleston": (
-        "elastic_gym.observers.solsona_puleston", "SolsonaPulestonObserver", {},
+        "elastic_gym.observers.solsona_puleston",
+        "SolsonaPulestonObserver",
+        {},
     ),
     "nicosia-tomei": ("elastic_gym.observers.nicosia_tomei", "NicosiaTomeiObserver", {}),
     "finite-difference": (
-        "elastic_gym.observers.finite_difference", "FiniteDifferenceObserver", {},
+        "elastic_gym.observers.finite_difference",
+        "FiniteDifferenceObserver",
+        {},
     ),
     "true": ("elastic_gym.observers.oracle", "OracleObserver", {}),
 }

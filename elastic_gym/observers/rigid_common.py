@@ -221,7 +221,12 @@ class RigidArmBounds:
         inertia = np.stack([model.mass_matrix(q) for q in configurations])
         eig = np.linalg.eigvalsh(inertia)
         return cls(
-            configurations, tensors, inertia, coriolis_bound(tensors), eig[:, 0], eig[:, -1],
+            configurations,
+            tensors,
+            inertia,
+            coriolis_bound(tensors),
+            eig[:, 0],
+            eig[:, -1],
             viscous_lower_bound(model),
         )
 
@@ -252,7 +257,11 @@ class ScalarGainReducedObserver(Observer):
     applies_to = frozenset({"rigid"})
 
     def __init__(
-        self, model: RobotModel, dt: float, gain: float, model_friction: bool = True,
+        self,
+        model: RobotModel,
+        dt: float,
+        gain: float,
+        model_friction: bool = True,
         substeps: int = 1,
     ) -> None:
         super().__init__(model, dt)

@@ -48,7 +48,11 @@ class SolsonaPulestonObserver(ScalarGainReducedObserver):
     name = "solsona-puleston"
 
     def __init__(
-        self, model: RobotModel, dt: float, g0: float = 3.0, model_friction: bool = True,
+        self,
+        model: RobotModel,
+        dt: float,
+        g0: float = 3.0,
+        model_friction: bool = True,
         substeps: int = 1,
     ) -> None:
         super().__init__(model, dt, positive_number("g0", g0), model_friction, substeps)

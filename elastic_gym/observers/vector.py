@@ -40,8 +40,11 @@ from elastic_gym.observers.wrappers import (
 
 
 def _arm(batched: Mapping, i: int) -> dict:
-    return {key: _arm(value, i) if isinstance(value, Mapping) else value[i]
-            for key, value in batched.items() if not key.startswith("_")}
+    return {
+        key: _arm(value, i) if isinstance(value, Mapping) else value[i]
+        for key, value in batched.items()
+        if not key.startswith("_")
+    }
 
 
 class ObserverArray:
@@ -59,20 +62,26 @@ class ObserverArray:
         for i in arms:
             for key, value in self.observers[i].diagnostics.items():
                 column = self.arm_diagnostics.setdefault(
-                    key, np.zeros(len(self.observers), dtype=np.asarray(value).dtype))
+                    key, np.zeros(len(self.observers), dtype=np.asarray(value).dtype)
+                )
                 column[i] = value
 
     def reset_arms(self, obs: Mapping, arms: np.ndarray, initial_estimate=None) -> np.ndarray:
-        rows = (None if initial_estimate is None
-                else np.broadcast_to(initial_estimate, (len(arms), self.state_dim)))
+        rows = (
+            None
+            if initial_estimate is None
+            else np.broadcast_to(initial_estimate, (len(arms), self.state_dim))
+        )
         for k, i in enumerate(arms):
             self._estimates[i] = self.observers[i].reset(
-                _arm(obs, i), None if rows is None else rows[k])
+                _arm(obs, i), None if rows is None else rows[k]
+            )
         self._record(arms)
         return self._estimates[arms].copy()
 
-    def update_arms(self, obs: Mapping, torque: np.ndarray, dt: float,
-                    arms: np.ndarray | None = None) -> np.ndarray:
+    def update_arms(
+        self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
+    ) -> np.ndarray:
         arms = range(len(self.observers)) if arms is None else arms
         for i in arms:
             self._estimates[i] = self.observers[i].update(_arm(obs, i), torque[i], dt)
@@ -93,25 +102,33 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         **options: options of the named observer.
     """
 
-    def __init__(self, env: VectorEnv, observer: Observer | str = "deluca",
-                 initial_estimate: np.ndarray | None = None, model: RobotModel | None = None,
-                 **options) -> None:
+    def __init__(
+        self,
+        env: VectorEnv,
+        observer: Observer | str = "deluca",
+        initial_estimate: np.ndarray | None = None,
+        model: RobotModel | None = None,
+        **options,
+    ) -> None:
         super().__init__(env)
         base = env.unwrapped
         if not hasattr(base, "batch"):
-            raise TypeError("the vector ObserverWrapper needs an elastic_gym vector env "
-                            "(gym.make_vec(..., vectorization_mode='vector_entry_point'))")
+            raise TypeError(
+                "the vector ObserverWrapper needs an elastic_gym vector env "
+                "(gym.make_vec(..., vectorization_mode='vector_entry_point'))"
+            )
         single = build_observer(base.batch, observer, model, options)
         check_sensor_space(env.single_observation_space, single)
         N = env.num_envs
-        self.observer = single if isinstance(single, BatchedObserver) else ObserverArray(
-            single, N)
+        self.observer = single if isinstance(single, BatchedObserver) else ObserverArray(single, N)
         self.initial_estimate = initial_estimate
         dim = single.state_dim
-        self.single_observation_space = spaces.Dict({
-            "state": spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float64),
-            "reference": env.single_observation_space["reference"],
-        })
+        self.single_observation_space = spaces.Dict(
+            {
+                "state": spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float64),
+                "reference": env.single_observation_space["reference"],
+            }
+        )
         self.observation_space = batch_space(self.single_observation_space, N)
         self._estimates = np.zeros((N, dim))
         self._autoreset = np.zeros(N, dtype=bool)  # arms the env resets at the next step
@@ -125,8 +142,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         return {"state": self._estimates.copy(), "reference": obs["reference"]}
 
     def _annotate(self, info: dict) -> dict:
-        info = annotate(info, self._estimates, self.observer.elastic,
-                        self.observer.arm_diagnostics)
+        info = annotate(info, self._estimates, self.observer.elastic, self.observer.arm_diagnostics)
         for key in ("estimate", "true_state_vector", "estimation_error", "observer_diagnostics"):
             info[f"_{key}"] = self._all.copy()
         return info
@@ -134,7 +150,8 @@ class ObserverWrapper(gym.vector.VectorWrapper):
     def _reset_observer(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
         if len(arms):
             self._estimates[arms] = self.observer.reset_arms(
-                measurement(self.observer, obs, info), arms, self.initial_estimate)
+                measurement(self.observer, obs, info), arms, self.initial_estimate
+            )
 
     def reset(self, *, seed=None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -150,8 +167,11 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         if not len(arms):
             return arms
         estimates = self.observer.update_arms(
-            measurement(self.observer, obs, info), info["torque"], self.env.unwrapped.control_dt,
-            arms)
+            measurement(self.observer, obs, info),
+            info["torque"],
+            self.env.unwrapped.control_dt,
+            arms,
+        )
         finite = np.isfinite(estimates[arms]).all(axis=1)
         self._estimates[arms[finite]] = estimates[arms[finite]]
         return arms[~finite]
@@ -159,17 +179,24 @@ class ObserverWrapper(gym.vector.VectorWrapper):
     def _final_estimates(self, obs: Mapping, info: dict, ended: np.ndarray) -> None:
         """SAME_STEP: estimate the terminal observations of the arms the env has just reset
         (``info["final_obs"]``) before their observers restart."""
-        final_obs = {key: np.array([info["final_obs"][i][key] if info["_final_obs"][i]
-                                    else value[i] for i in range(self.num_envs)])
-                     for key, value in obs.items()}
+        final_obs = {
+            key: np.array(
+                [
+                    info["final_obs"][i][key] if info["_final_obs"][i] else value[i]
+                    for i in range(self.num_envs)
+                ]
+            )
+            for key, value in obs.items()
+        }
         final_info = info["final_info"]
         diverged = self._update(final_obs, final_info, ended)
         final_info["termination_reason"][diverged] = NON_FINITE_ESTIMATE
         for i in ended:
-            info["final_obs"][i] = {"state": self._estimates[i].copy(),
-                                    "reference": info["final_obs"][i]["reference"]}
-        annotate(final_info, self._estimates, self.observer.elastic,
-                 self.observer.arm_diagnostics)
+            info["final_obs"][i] = {
+                "state": self._estimates[i].copy(),
+                "reference": info["final_obs"][i]["reference"],
+            }
+        annotate(final_info, self._estimates, self.observer.elastic, self.observer.arm_diagnostics)
 
     def step(self, actions):
         obs, reward, terminated, truncated, info = self.env.step(actions)

@@ -31,8 +31,9 @@ NON_FINITE_STATE = "non-finite state"
 NON_FINITE_ESTIMATE = "non-finite state estimate"
 
 
-def build_observer(base, observer: Observer | str, model: RobotModel | None,
-                   options: dict) -> Observer:
+def build_observer(
+    base, observer: Observer | str, model: RobotModel | None, options: dict
+) -> Observer:
     """The wrapper's own observer: built by name on ``model`` (default: the env's nominal
     model), or a private copy of a given instance (envs never share an observer)."""
     if isinstance(observer, str):
@@ -43,8 +44,10 @@ def build_observer(base, observer: Observer | str, model: RobotModel | None,
         raise ValueError("model and observer options apply only when observer is a name")
     own = observer.model.spec
     if own.name != base.robot.name or own.n_joints != base.robot.n_joints:
-        raise ValueError(f"the observer was built on the model of robot {own.name!r}, "
-                         f"the env simulates {base.robot.name!r}")
+        raise ValueError(
+            f"the observer was built on the model of robot {own.name!r}, "
+            f"the env simulates {base.robot.name!r}"
+        )
     return copy.deepcopy(observer)
 
 
@@ -110,8 +113,12 @@ class ObserverWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         **options,
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
-            self, observer=observer, initial_estimate=initial_estimate, model=model,
-            _disable_deepcopy=True, **options,
+            self,
+            observer=observer,
+            initial_estimate=initial_estimate,
+            model=model,
+            _disable_deepcopy=True,
+            **options,
         )
         gym.Wrapper.__init__(self, env)
         self.observer = build_observer(env.unwrapped, observer, model, options)
@@ -139,8 +146,9 @@ class ObserverWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
-        self._estimate = self.observer.reset(measurement(self.observer, obs, info),
-                                             self.initial_estimate)
+        self._estimate = self.observer.reset(
+            measurement(self.observer, obs, info), self.initial_estimate
+        )
         self._needs_reset = False
         return self._observation(obs), self._annotate(info)
 
@@ -150,7 +158,8 @@ class ObserverWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obs, reward, terminated, truncated, info = self.env.step(action)
         if info.get("termination_reason") != NON_FINITE_STATE:
             estimate = self.observer.update(
-                measurement(self.observer, obs, info), info["torque"],
+                measurement(self.observer, obs, info),
+                info["torque"],
                 self.env.unwrapped.control_dt,
             )
             if np.all(np.isfinite(estimate)):

@@ -114,8 +114,13 @@ class LinkFriction:
         def _add(a: tuple[float, ...] | None, b: tuple[float, ...] | None):
             if a is None and b is None:
                 return None
-            return tuple((np.zeros(len(self.viscous)) + (0.0 if a is None else np.asarray(a))
-                          + (0.0 if b is None else np.asarray(b))).tolist())
+            return tuple(
+                (
+                    np.zeros(len(self.viscous))
+                    + (0.0 if a is None else np.asarray(a))
+                    + (0.0 if b is None else np.asarray(b))
+                ).tolist()
+            )
 
         return LinkFriction(
             viscous=_add(self.viscous, other.viscous),  # type: ignore[arg-type]
@@ -181,7 +186,10 @@ class RobotSpec:
     encoder_resolution: float = 2.0 * np.pi / 2**20
     encoder_noise_std: float = 0.0
     camera: tuple[tuple[float, float, float], float, float, float] = (
-        (0.0, 0.0, 0.0), 2.0, 0.0, -10.0,
+        (0.0, 0.0, 0.0),
+        2.0,
+        0.0,
+        -10.0,
     )
     physics_dt: float = 5e-4
     control_dt: float = 1e-3

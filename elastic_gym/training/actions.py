@@ -77,24 +77,34 @@ class ActionConfig:
             raise ValueError(f"unknown action kind {self.kind!r}; valid: {list(KINDS)}")
         for name in ("offset_scale", "bandwidth", "damping_ratio", "residual_scale"):
             value = getattr(self, name)
-            if (not isinstance(value, (int, float)) or isinstance(value, bool)
-                    or not math.isfinite(value) or value <= 0):
+            if (
+                not isinstance(value, (int, float))
+                or isinstance(value, bool)
+                or not math.isfinite(value)
+                or value <= 0
+            ):
                 raise ValueError(f"action {name!r} must be a finite number > 0, got {value!r}")
         if self.residual_scale > 1:
-            raise ValueError(f"action 'residual_scale' must be in (0, 1], got "
-                             f"{self.residual_scale!r}")
+            raise ValueError(
+                f"action 'residual_scale' must be in (0, 1], got {self.residual_scale!r}"
+            )
         deadzone = self.residual_deadzone
-        if (not isinstance(deadzone, (int, float)) or isinstance(deadzone, bool)
-                or not 0 <= deadzone < 1):
-            raise ValueError(f"action 'residual_deadzone' must be a number in [0, 1), got "
-                             f"{deadzone!r}")
+        if (
+            not isinstance(deadzone, (int, float))
+            or isinstance(deadzone, bool)
+            or not 0 <= deadzone < 1
+        ):
+            raise ValueError(
+                f"action 'residual_deadzone' must be a number in [0, 1), got {deadzone!r}"
+            )
         if (self.kp is None) != (self.kd is None):
             raise ValueError("give both action 'kp' and 'kd', or neither (bandwidth rule)")
         if not isinstance(self.gravity_compensation, bool):
             raise ValueError("action 'gravity_compensation' must be true or false")
         if (self.kind == "residual") != (self.residual is not None):
-            raise ValueError("action kind 'residual' needs 'residual' (a controller name), "
-                             "and only it takes one")
+            raise ValueError(
+                "action kind 'residual' needs 'residual' (a controller name), and only it takes one"
+            )
         if not isinstance(self.residual_options, dict):
             raise ValueError("action 'residual_options' must be a mapping")
 
@@ -128,11 +138,14 @@ class ActionMap:
         self.kp = self.kd = np.zeros(self.n)
         if config.kind == "motor-offset":
             if not model.elastic:
-                raise ValueError("action kind 'motor-offset' needs an elastic arm (motor "
-                                 "positions); use 'torque' or 'residual' on rigid arms")
+                raise ValueError(
+                    "action kind 'motor-offset' needs an elastic arm (motor "
+                    "positions); use 'torque' or 'residual' on rigid arms"
+                )
             if config.kp is None:
-                self.kp, self.kd = bandwidth_pd_gains(model, nominal_configuration(model),
-                                                      config.bandwidth, config.damping_ratio)
+                self.kp, self.kd = bandwidth_pd_gains(
+                    model, nominal_configuration(model), config.bandwidth, config.damping_ratio
+                )
             else:
                 self.kp = per_joint_values(config.kp, self.n, "action 'kp'", 0.0, strict=True)
                 self.kd = per_joint_values(config.kd, self.n, "action 'kd'", 0.0)
@@ -141,9 +154,14 @@ class ActionMap:
     def needs_motor_state(self) -> bool:
         return self.config.kind == "motor-offset"
 
-    def torque(self, action: np.ndarray, motor_position: np.ndarray | None = None,
-               motor_velocity: np.ndarray | None = None, reference: np.ndarray | None = None,
-               base_torque: np.ndarray | None = None) -> np.ndarray:
+    def torque(
+        self,
+        action: np.ndarray,
+        motor_position: np.ndarray | None = None,
+        motor_velocity: np.ndarray | None = None,
+        reference: np.ndarray | None = None,
+        base_torque: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Motor torque (N, n) for actions (N, n) in [-1, 1] (clipped).
 
         ``motor_position``, ``motor_velocity`` (N, n) and ``reference`` (N, >= 2, n) rows

@@ -39,8 +39,17 @@ from elastic_gym.validation import registered_env_id
 
 ALGORITHMS = ("ppo", "sac", "td3", "recurrentppo")
 RECURRENT = {"recurrentppo"}  # sb3-contrib's RecurrentPPO: an LSTM in actor and critic
-OWN_KEYS = {"n_timesteps", "n_envs", "batches", "decimation", "normalize", "critic_state",
-            "action", "observation", "env_kwargs"}
+OWN_KEYS = {
+    "n_timesteps",
+    "n_envs",
+    "batches",
+    "decimation",
+    "normalize",
+    "critic_state",
+    "action",
+    "observation",
+    "env_kwargs",
+}
 OWN_BOOLEANS = ("normalize", "critic_state")
 SCHEDULED = ("learning_rate", "clip_range")  # may be "lin_<value>" (RL Zoo)
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
@@ -84,19 +93,27 @@ def shipped_hyperparams(algo: str) -> dict:
     return load_hyperparams_file(str(path))
 
 
-def merged_hyperparams(algo: str, env_id: str, overrides: dict | None = None,
-                       file: str | Path | None = None) -> dict:
+def merged_hyperparams(
+    algo: str, env_id: str, overrides: dict | None = None, file: str | Path | None = None
+) -> dict:
     """Plain merged settings: file ``default`` < file[env_id] < overrides (YAML-serialisable)."""
     table = load_hyperparams_file(file) if file is not None else shipped_hyperparams(algo)
     return {**table.get("default", {}), **table.get(env_id, {}), **(overrides or {})}
 
 
-def resolve_hyperparams(algo: str, env_id: str, overrides: dict | None = None,
-                        file: str | Path | None = None) -> dict:
+def resolve_hyperparams(
+    algo: str, env_id: str, overrides: dict | None = None, file: str | Path | None = None
+) -> dict:
     """Merged settings for one run (:func:`merged_hyperparams`), validated, ready for SB3."""
     merged = merged_hyperparams(algo, env_id, overrides, file)
     allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters) - {
-        "self", "env", "policy_kwargs", "seed", "tensorboard_log", "verbose", "device",
+        "self",
+        "env",
+        "policy_kwargs",
+        "seed",
+        "tensorboard_log",
+        "verbose",
+        "device",
         "_init_setup_model",
     }
     allowed |= OWN_KEYS | {"policy_kwargs"}
@@ -136,12 +153,12 @@ def _check_values(algo: str, merged: dict) -> None:
             if not isinstance(value, bool):
                 raise ValueError(f"hyper-parameter {key} must be true or false, got {value!r}")
         elif key in POSITIVE_INTEGERS or (
-            key in params and _is_number(default)
+            key in params
+            and _is_number(default)
             and not (callable(value) or isinstance(value, (list, tuple)))
         ):
             if not _is_number(value) or not math.isfinite(value):
-                raise ValueError(f"hyper-parameter {key} must be a finite number, "
-                                 f"got {value!r}")
+                raise ValueError(f"hyper-parameter {key} must be a finite number, got {value!r}")
             if key in POSITIVE_INTEGERS or isinstance(default, int):
                 if value != int(value) or (key in POSITIVE_INTEGERS and value < 1):
                     kind = "a positive integer" if key in POSITIVE_INTEGERS else "an integer"
@@ -153,14 +170,18 @@ def _check_critic_state(algo: str, merged: dict) -> None:
     """``critic_state: true`` needs PPO with its MLP policy, whose features extractor it
     splits (:class:`~elastic_gym.training.critic.PrivilegedCriticPolicy`)."""
     if algo != "ppo":
-        raise ValueError(f"critic_state (a critic that sees the true state) is implemented "
-                         f"for ppo only, not {algo}")
+        raise ValueError(
+            f"critic_state (a critic that sees the true state) is implemented "
+            f"for ppo only, not {algo}"
+        )
     if merged.get("policy", "MlpPolicy") != "MlpPolicy":
         raise ValueError(f"critic_state needs the MlpPolicy, got policy {merged['policy']!r}")
     kwargs = merged.get("policy_kwargs") or {}
     if isinstance(kwargs, dict) and kwargs.get("share_features_extractor"):
-        raise ValueError("critic_state gives the critic its own features extractor: drop "
-                         "policy_kwargs.share_features_extractor")
+        raise ValueError(
+            "critic_state gives the critic its own features extractor: drop "
+            "policy_kwargs.share_features_extractor"
+        )
 
 
 def _is_number(value) -> bool:
@@ -173,11 +194,12 @@ def batch_kwargs(batches) -> list[dict]:
     1.3}}]``: half the arms on the nominal plant, half on links 30 % heavier)."""
     if isinstance(batches, int) and not isinstance(batches, bool) and batches >= 1:
         return [{}] * batches
-    if (isinstance(batches, list) and batches
-            and all(isinstance(entry, dict) for entry in batches)):
+    if isinstance(batches, list) and batches and all(isinstance(entry, dict) for entry in batches):
         return batches
-    raise ValueError(f"batches must be an integer >= 1 or a non-empty list of env-kwargs "
-                     f"mappings, got {batches!r}")
+    raise ValueError(
+        f"batches must be an integer >= 1 or a non-empty list of env-kwargs "
+        f"mappings, got {batches!r}"
+    )
 
 
 def linear_schedule(initial: float, progress_remaining: float) -> float:
@@ -269,8 +291,9 @@ class TrainConfig:
                 raise ValueError(f"{key} must be a non-negative integer, got {value!r}")
         for key in ("action", "observation"):
             if not isinstance(getattr(self, key), dict):
-                raise ValueError(f"{key} must be a mapping of its fields, got "
-                                 f"{getattr(self, key)!r}")
+                raise ValueError(
+                    f"{key} must be a mapping of its fields, got {getattr(self, key)!r}"
+                )
         self.policy_configs({})
         if self.total_steps is not None and (
             not isinstance(self.total_steps, int) or self.total_steps < 1

@@ -45,8 +45,7 @@ class _SplitMlpExtractor(MlpExtractor):
     """SB3's ``MlpExtractor`` with the policy net on ``actor_dim`` inputs and the value
     net on ``critic_dim`` (SB3's takes one input size for both)."""
 
-    def __init__(self, actor_dim: int, critic_dim: int, net_arch, activation_fn,
-                 device) -> None:
+    def __init__(self, actor_dim: int, critic_dim: int, net_arch, activation_fn, device) -> None:
         super().__init__(actor_dim, net_arch, activation_fn, device)
         self.value_net = MlpExtractor(critic_dim, net_arch, activation_fn, device).value_net
 
@@ -56,21 +55,34 @@ class PrivilegedCriticPolicy(ActorCriticPolicy):
     observation entries and whose critic sees them (module docstring). Separate features
     extractors (``share_features_extractor=False``) by construction."""
 
-    def __init__(self, observation_space: spaces.Box, action_space: spaces.Space,
-                 lr_schedule, privileged_size: int, **kwargs) -> None:
+    def __init__(
+        self,
+        observation_space: spaces.Box,
+        action_space: spaces.Space,
+        lr_schedule,
+        privileged_size: int,
+        **kwargs,
+    ) -> None:
         if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 1:
-            raise ValueError(f"a privileged critic needs flat Box observations, got "
-                             f"{observation_space}")
+            raise ValueError(
+                f"a privileged critic needs flat Box observations, got {observation_space}"
+            )
         size = observation_space.shape[0]
-        if (isinstance(privileged_size, bool) or not isinstance(privileged_size, int)
-                or not 0 < privileged_size < size):
-            raise ValueError(f"privileged_size must be an integer in 1 .. {size - 1} (the "
-                             f"observation has {size} entries), got {privileged_size!r}")
+        if (
+            isinstance(privileged_size, bool)
+            or not isinstance(privileged_size, int)
+            or not 0 < privileged_size < size
+        ):
+            raise ValueError(
+                f"privileged_size must be an integer in 1 .. {size - 1} (the "
+                f"observation has {size} entries), got {privileged_size!r}"
+            )
         if kwargs.pop("share_features_extractor", False):
             raise ValueError("a privileged critic cannot share the actor's features extractor")
         self.privileged_size = privileged_size
-        super().__init__(observation_space, action_space, lr_schedule,
-                         share_features_extractor=False, **kwargs)
+        super().__init__(
+            observation_space, action_space, lr_schedule, share_features_extractor=False, **kwargs
+        )
 
     @property
     def actor_size(self) -> int:
@@ -83,9 +95,12 @@ class PrivilegedCriticPolicy(ActorCriticPolicy):
         self.features_extractor = self.pi_features_extractor
         self.features_dim = self.actor_size
         self.mlp_extractor = _SplitMlpExtractor(
-            self.actor_size, self.vf_features_extractor.features_dim, self.net_arch,
-            self.activation_fn, self.device)
+            self.actor_size,
+            self.vf_features_extractor.features_dim,
+            self.net_arch,
+            self.activation_fn,
+            self.device,
+        )
 
     def _get_constructor_parameters(self) -> dict:
-        return {**super()._get_constructor_parameters(),
-                "privileged_size": self.privileged_size}
+        return {**super()._get_constructor_parameters(), "privileged_size": self.privileged_size}

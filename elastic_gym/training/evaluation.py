@@ -50,8 +50,9 @@ def _at_bound(action: np.ndarray) -> np.ndarray:
     return np.any(np.abs(action) >= 1.0 - 1e-6, axis=-1)
 
 
-def evaluate_policy(env, act: Act, seeds: Iterable[int],
-                    start: Callable[[], None] | None = None) -> Evaluation:
+def evaluate_policy(
+    env, act: Act, seeds: Iterable[int], start: Callable[[], None] | None = None
+) -> Evaluation:
     """Run ``act(obs) -> action`` deterministically on one episode per seed of ``env``;
     ``start()`` (e.g. clearing a recurrent policy's memory) is called at each reset."""
     returns, rms, saturated = [], [], []
@@ -70,14 +71,14 @@ def evaluate_policy(env, act: Act, seeds: Iterable[int],
             if "true_state" in info:
                 errors.append(info["true_state"]["q"] - info["reference"]["q"])
         returns.append(total)
-        rms.append(float(np.sqrt(np.mean(np.sum(np.square(errors), axis=1))))
-                   if errors else float("inf"))
+        rms.append(
+            float(np.sqrt(np.mean(np.sum(np.square(errors), axis=1)))) if errors else float("inf")
+        )
         saturated.append(at_bound / max(len(errors), 1))
     return Evaluation(seeds, tuple(returns), tuple(rms), tuple(saturated))
 
 
-def evaluate_arms(envs, act: Act, seed: int,
-                  start: Callable[[], None] | None = None) -> Evaluation:
+def evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None = None) -> Evaluation:
     """One deterministic episode per arm of a policy vector env, all at once.
 
     ``envs``: a policy stack on N arms with autoreset ``NEXT_STEP``
@@ -96,8 +97,7 @@ def evaluate_arms(envs, act: Act, seed: int,
         return _evaluate_arms(envs, act, seed, start)
 
 
-def _evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None
-                   ) -> Evaluation:
+def _evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None) -> Evaluation:
     n_arms = envs.num_envs
     obs, _ = envs.reset(seed=int(seed))
     if start is not None:
@@ -116,9 +116,12 @@ def _evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None
         samples[running] += 1
         at_bound[running] += _at_bound(action[running])
         running &= ~(terminated | truncated)
-    return Evaluation(tuple(int(seed) + i for i in range(n_arms)), tuple(returns.tolist()),
-                      tuple(np.sqrt(squared / samples).tolist()),
-                      tuple((at_bound / samples).tolist()))
+    return Evaluation(
+        tuple(int(seed) + i for i in range(n_arms)),
+        tuple(returns.tolist()),
+        tuple(np.sqrt(squared / samples).tolist()),
+        tuple((at_bound / samples).tolist()),
+    )
 
 
 class PolicyActor:
@@ -142,8 +145,9 @@ class PolicyActor:
         if self.normalizer is not None and self.normalizer.norm_obs:
             batch = self.normalizer.normalize_obs(batch)
         starts = np.full(len(batch), self._starting)
-        action, self._memory = self.model.predict(batch, state=self._memory,
-                                                  episode_start=starts, deterministic=True)
+        action, self._memory = self.model.predict(
+            batch, state=self._memory, episode_start=starts, deterministic=True
+        )
         self._starting = False
         action = np.asarray(action, dtype=float)
         return action if obs.ndim == 2 else action[0]

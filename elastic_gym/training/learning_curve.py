@@ -38,8 +38,17 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
 
-COLUMNS = ("policy_steps", "env_steps", "wall_time", "eval_return", "eval_return_std",
-           "tracking_rms", "tracking_rms_max", "saturated", "train_return")
+COLUMNS = (
+    "policy_steps",
+    "env_steps",
+    "wall_time",
+    "eval_return",
+    "eval_return_std",
+    "tracking_rms",
+    "tracking_rms_max",
+    "saturated",
+    "train_return",
+)
 
 
 class LearningCurve(BaseCallback):
@@ -55,8 +64,9 @@ class LearningCurve(BaseCallback):
         decimation: control periods per policy step.
     """
 
-    def __init__(self, envs, normalizer, out_dir: str | Path, every: int, seed: int,
-                 decimation: int) -> None:
+    def __init__(
+        self, envs, normalizer, out_dir: str | Path, every: int, seed: int, decimation: int
+    ) -> None:
         super().__init__()
         if every < 1:
             raise ValueError(f"evaluation interval must be >= 1 policy step, got {every}")
@@ -97,16 +107,26 @@ class LearningCurve(BaseCallback):
             self.model.save(self.out / "best_model.zip")
         buffer = getattr(self.model, "ep_info_buffer", None) or []
         train_return = float(np.mean([info["r"] for info in buffer])) if buffer else ""
-        row = (self.num_timesteps, self.num_timesteps * self.decimation,
-               began - self._start - self._evaluating, result.mean_return,
-               float(np.std(result.returns)), result.rms, max(result.tracking_rms),
-               float(np.mean(result.saturated_actions)), train_return)
+        row = (
+            self.num_timesteps,
+            self.num_timesteps * self.decimation,
+            began - self._start - self._evaluating,
+            result.mean_return,
+            float(np.std(result.returns)),
+            result.rms,
+            max(result.tracking_rms),
+            float(np.mean(result.saturated_actions)),
+            train_return,
+        )
         with open(self.out / CURVE_FILE, "a", newline="") as handle:
             csv.writer(handle).writerow(row)
-        np.savez(self.out / "evaluations.npz", timesteps=np.array(self.timesteps),
-                 results=np.array([e.returns for e in self.evaluations]),
-                 tracking_rms=np.array([e.tracking_rms for e in self.evaluations]),
-                 saturated=np.array([e.saturated_actions for e in self.evaluations]))
+        np.savez(
+            self.out / "evaluations.npz",
+            timesteps=np.array(self.timesteps),
+            results=np.array([e.returns for e in self.evaluations]),
+            tracking_rms=np.array([e.tracking_rms for e in self.evaluations]),
+            saturated=np.array([e.saturated_actions for e in self.evaluations]),
+        )
         self._evaluating += time.perf_counter() - began
         if self.logger is not None:
             self.logger.record("eval/mean_return", result.mean_return)

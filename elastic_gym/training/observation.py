@@ -40,14 +40,29 @@ import numpy as np
 
 from elastic_gym.validation import config_from
 
-FEATURES = ("error", "error_rate", "reference", "preview", "torsion", "torsion_rate",
-            "motor_error", "acceleration", "last_action", "base_torque")
+FEATURES = (
+    "error",
+    "error_rate",
+    "reference",
+    "preview",
+    "torsion",
+    "torsion_rate",
+    "motor_error",
+    "acceleration",
+    "last_action",
+    "base_torque",
+)
 STATE_FEATURES = frozenset({"error", "error_rate", "torsion", "torsion_rate"})
 ELASTIC_FEATURES = frozenset({"torsion", "torsion_rate", "motor_error"})
 SENSOR_FEATURES = frozenset({"motor_error", "acceleration"})
 GRAVITY = 9.81
-_SCALES = ("error_scale", "error_rate_scale", "torsion_scale", "torsion_rate_scale",
-           "preview_scale")
+_SCALES = (
+    "error_scale",
+    "error_rate_scale",
+    "torsion_scale",
+    "torsion_rate_scale",
+    "preview_scale",
+)
 
 
 @dataclass(frozen=True)
@@ -70,12 +85,14 @@ class ObservationConfig:
     def __post_init__(self) -> None:
         if self.features is not None:
             if not isinstance(self.features, (list, tuple)) or not self.features:
-                raise ValueError(f"observation 'features' must be a non-empty list, "
-                                 f"got {self.features!r}")
+                raise ValueError(
+                    f"observation 'features' must be a non-empty list, got {self.features!r}"
+                )
             unknown = [f for f in self.features if f not in FEATURES]
             if unknown:
-                raise ValueError(f"unknown observation feature(s) {unknown}; valid: "
-                                 f"{list(FEATURES)}")
+                raise ValueError(
+                    f"unknown observation feature(s) {unknown}; valid: {list(FEATURES)}"
+                )
             if len(set(self.features)) != len(self.features):
                 raise ValueError(f"observation features repeat: {list(self.features)}")
             ordered = tuple(f for f in FEATURES if f in self.features)
@@ -84,14 +101,17 @@ class ObservationConfig:
         if not isinstance(order, int) or isinstance(order, bool) or not 0 <= order <= 4:
             raise ValueError(f"observation 'reference_order' must be 0 .. 4, got {order!r}")
         if not isinstance(self.preview, (list, tuple)) or not all(
-                _positive(h) for h in self.preview):
-            raise ValueError(f"observation 'preview' must be a list of horizons > 0 (s), "
-                             f"got {self.preview!r}")
+            _positive(h) for h in self.preview
+        ):
+            raise ValueError(
+                f"observation 'preview' must be a list of horizons > 0 (s), got {self.preview!r}"
+            )
         object.__setattr__(self, "preview", tuple(float(h) for h in self.preview))
         for name in _SCALES:
             if not _positive(getattr(self, name)):
-                raise ValueError(f"observation {name!r} must be a finite number > 0, "
-                                 f"got {getattr(self, name)!r}")
+                raise ValueError(
+                    f"observation {name!r} must be a finite number > 0, got {getattr(self, name)!r}"
+                )
 
     @classmethod
     def from_config(cls, config: dict | ObservationConfig | None) -> ObservationConfig:
@@ -106,12 +126,17 @@ class ObservationConfig:
 
 
 def _positive(value) -> bool:
-    return (isinstance(value, (int, float)) and not isinstance(value, bool)
-            and math.isfinite(value) and value > 0)
+    return (
+        isinstance(value, (int, float))
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+        and value > 0
+    )
 
 
-def default_features(sensors: bool, elastic: bool, residual: bool,
-                     preview: bool) -> tuple[str, ...]:
+def default_features(
+    sensors: bool, elastic: bool, residual: bool, preview: bool
+) -> tuple[str, ...]:
     """The default selection: tracking error and rate, reference (and preview), torsion,
     last action (state sources); motor error and accelerations instead of the state
     features on raw sensors; the base torque for residual policies."""
@@ -158,23 +183,44 @@ class ObservationBuilder:
     """
 
     @classmethod
-    def for_observations(cls, observation: ObservationConfig | dict | None, space,
-                         n: int, elastic: bool, residual: bool,
-                         torque_limit: np.ndarray) -> ObservationBuilder:
+    def for_observations(
+        cls,
+        observation: ObservationConfig | dict | None,
+        space,
+        n: int,
+        elastic: bool,
+        residual: bool,
+        torque_limit: np.ndarray,
+    ) -> ObservationBuilder:
         """The builder for an env (or one arm of a vector env) whose observations have the
         Dict ``space``: raw sensors when it has no ``state``, its accelerometer channels."""
         accelerations = space.spaces.get("acceleration")
-        return cls(ObservationConfig.from_config(observation), n, elastic,
-                   "state" not in space.spaces, residual, torque_limit,
-                   0 if accelerations is None else accelerations.shape[0])
+        return cls(
+            ObservationConfig.from_config(observation),
+            n,
+            elastic,
+            "state" not in space.spaces,
+            residual,
+            torque_limit,
+            0 if accelerations is None else accelerations.shape[0],
+        )
 
-    def __init__(self, config: ObservationConfig, n: int, elastic: bool, sensors: bool,
-                 residual: bool, torque_limit: np.ndarray, n_accelerations: int = 0) -> None:
+    def __init__(
+        self,
+        config: ObservationConfig,
+        n: int,
+        elastic: bool,
+        sensors: bool,
+        residual: bool,
+        torque_limit: np.ndarray,
+        n_accelerations: int = 0,
+    ) -> None:
         self.config = config
         self.n, self.elastic, self.sensors = n, elastic, sensors
         self.torque_limit = np.asarray(torque_limit, dtype=float)
-        self.features = config.features or default_features(sensors, elastic, residual,
-                                                             bool(config.preview))
+        self.features = config.features or default_features(
+            sensors, elastic, residual, bool(config.preview)
+        )
         problems = []
         for name in self.features:
             if name in STATE_FEATURES and sensors:
@@ -191,16 +237,20 @@ class ObservationBuilder:
                 problems.append("'acceleration' needs accelerometers")
         if problems:
             raise ValueError("observation features: " + "; ".join(problems))
-        sizes = {"reference": (config.reference_order + 1) * n,
-                 "preview": len(config.preview) * n, "acceleration": n_accelerations}
+        sizes = {
+            "reference": (config.reference_order + 1) * n,
+            "preview": len(config.preview) * n,
+            "acceleration": n_accelerations,
+        }
         self.sizes = {name: sizes.get(name, n) for name in self.features}
         self.size = sum(self.sizes.values())
         self._reference_scale = 10.0 ** np.maximum(np.arange(config.reference_order + 1) - 1, 0)
 
     def build(self, inputs: ObservationInputs) -> np.ndarray:
         """Observations (N, size), float32."""
-        return np.concatenate([self._feature(name, inputs) for name in self.features],
-                              axis=-1).astype(np.float32)
+        return np.concatenate(
+            [self._feature(name, inputs) for name in self.features], axis=-1
+        ).astype(np.float32)
 
     def _feature(self, name: str, x: ObservationInputs) -> np.ndarray:
         c, n = self.config, self.n
@@ -220,7 +270,7 @@ class ObservationBuilder:
             return x.acceleration / GRAVITY
         s = x.state
         if self.elastic:
-            theta, q, dtheta, dq = (s[:, i * n:(i + 1) * n] for i in range(4))
+            theta, q, dtheta, dq = (s[:, i * n : (i + 1) * n] for i in range(4))
         else:
             q, dq = s[:, :n], s[:, n:]
         if name == "error":
@@ -240,15 +290,21 @@ class TrueStateFeatures:
     """
 
     def __init__(self, config: ObservationConfig, n: int, elastic: bool) -> None:
-        features = tuple(f for f in FEATURES if f in STATE_FEATURES
-                         and (elastic or f not in ELASTIC_FEATURES))
-        self.builder = ObservationBuilder(dataclasses.replace(config, features=features), n,
-                                          elastic, False, False, np.ones(n))
+        features = tuple(
+            f for f in FEATURES if f in STATE_FEATURES and (elastic or f not in ELASTIC_FEATURES)
+        )
+        self.builder = ObservationBuilder(
+            dataclasses.replace(config, features=features), n, elastic, False, False, np.ones(n)
+        )
         self.n, self.size = n, self.builder.size
 
     def __call__(self, true_state: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """``true_state`` (N, 4n | 2n) in the layout (theta, q, theta', q') | (q, q');
         ``reference`` (N, 5, n) rows q_d .. q_d^(4)."""
-        return self.builder.build(ObservationInputs(
-            reference=reference, last_action=np.zeros((len(reference), self.n)),
-            state=true_state))
+        return self.builder.build(
+            ObservationInputs(
+                reference=reference,
+                last_action=np.zeros((len(reference), self.n)),
+                state=true_state,
+            )
+        )

@@ -49,11 +49,14 @@ class TrainedPolicyController(Controller):
             )
         action, observation = config.policy_configs(trained.settings)
         self.map = ActionMap(action, model)
-        self.builder = ObservationBuilder(observation, self.n, model.elastic, False,
-                                          action.kind == "residual", model.torque_limit)
+        self.builder = ObservationBuilder(
+            observation, self.n, model.elastic, False, action.kind == "residual", model.torque_limit
+        )
         if "preview" in self.builder.features:
-            raise ValueError(f"the policy in {run} sees a preview of the reference, which a "
-                             "comparison controller cannot read")
+            raise ValueError(
+                f"the policy in {run} sees a preview of the reference, which a "
+                "comparison controller cannot read"
+            )
         self.base = None
         if action.kind == "residual":
             self.base = make_controller(action.residual, model, dt, **action.residual_options)
@@ -80,13 +83,18 @@ class TrainedPolicyController(Controller):
         x = state_vector(obs, 4 * n if self.elastic else 2 * n)
         reference = reference_derivatives(info, n)
         if self._calls % self.decimation == 0:  # the policy acts at 1 / (decimation dt)
-            features = self.builder.build(ObservationInputs(
-                reference=reference[None], last_action=self._last_action[None], state=x[None],
-                base_torque=self._last_base[None]))
+            features = self.builder.build(
+                ObservationInputs(
+                    reference=reference[None],
+                    last_action=self._last_action[None],
+                    state=x[None],
+                    base_torque=self._last_base[None],
+                )
+            )
             self._action = self.trained.act(features[0])
             self._last_action = np.clip(self._action, -1.0, 1.0)
         self._calls += 1
         base = np.zeros(n) if self.base is None else self.base(obs, info)
         self._last_base = base
-        motor = (x[None, :n], x[None, 2 * n:3 * n]) if self.elastic else (None, None)
+        motor = (x[None, :n], x[None, 2 * n : 3 * n]) if self.elastic else (None, None)
         return self.map.torque(self._action[None], *motor, reference[None], base[None])[0]

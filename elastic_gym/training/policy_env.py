@@ -72,8 +72,16 @@ def make_policy_env(
 ) -> gym.Env:
     """Build the wrapper stack of the module docstring."""
     check_state_source(state)
-    return wrap_policy_env(gym.make(env_id, **(env_kwargs or {})), state, observer_options,
-                           decimation, action, observation, frame_stack, critic_state)
+    return wrap_policy_env(
+        gym.make(env_id, **(env_kwargs or {})),
+        state,
+        observer_options,
+        decimation,
+        action,
+        observation,
+        frame_stack,
+        critic_state,
+    )
 
 
 def wrap_policy_env(
@@ -119,8 +127,13 @@ def make_policy_vec_env(
     resets the arms whose episode ended.
     """
     check_state_source(state)
-    envs = gym.make_vec(env_id, num_envs=n_arms, vectorization_mode="vector_entry_point",
-                        autoreset_mode=autoreset_mode, **(env_kwargs or {}))
+    envs = gym.make_vec(
+        env_id,
+        num_envs=n_arms,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode=autoreset_mode,
+        **(env_kwargs or {}),
+    )
     envs = _observed(envs, state, observer_options, vector.ObserverWrapper)
     envs = policy_vector.PolicyAction(envs, action)
     if decimation > 1:

@@ -50,8 +50,10 @@ class SB3VecEnv(VecEnv):
     def __init__(self, env: gym.vector.VectorEnv, info_keys: Iterable[str] = ()) -> None:
         mode = env.metadata.get("autoreset_mode")
         if mode is not AutoresetMode.DISABLED:
-            raise ValueError(f"SB3VecEnv needs a vector env with autoreset_mode=DISABLED "
-                             f"(it resets ended arms itself), got {mode}")
+            raise ValueError(
+                f"SB3VecEnv needs a vector env with autoreset_mode=DISABLED "
+                f"(it resets ended arms itself), got {mode}"
+            )
         self.env = env
         self.info_keys = tuple(info_keys)
         self.render_mode = None
@@ -163,8 +165,11 @@ class ProcessBatches(VecEnv):
         self.remotes, self.processes = [], []
         for factory in factories:
             remote, work_remote = context.Pipe()
-            process = context.Process(target=_batch_worker, daemon=True,
-                                      args=(work_remote, remote, CloudpickleWrapper(factory)))
+            process = context.Process(
+                target=_batch_worker,
+                daemon=True,
+                args=(work_remote, remote, CloudpickleWrapper(factory)),
+            )
             process.start()
             work_remote.close()
             self.remotes.append(remote)
@@ -197,8 +202,12 @@ class ProcessBatches(VecEnv):
     def step_wait(self):
         results = [remote.recv() for remote in self.remotes]
         obs, rewards, dones, infos = zip(*results, strict=True)
-        return (_concatenate(list(obs)), np.concatenate(rewards), np.concatenate(dones),
-                [info for part in infos for info in part])
+        return (
+            _concatenate(list(obs)),
+            np.concatenate(rewards),
+            np.concatenate(dones),
+            [info for part in infos for info in part],
+        )
 
     def close(self) -> None:
         if self.closed:

@@ -53,8 +53,7 @@ from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, PolicyActor,
 from elastic_gym.training.policy_env import SENSORS, make_policy_env
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.yaml")  # needed to load a run
-RUN_OUTPUTS = (*RUN_FILES, "best_model.zip", "summary.json", "evaluations.npz", CURVE_FILE,
-               "tb")
+RUN_OUTPUTS = (*RUN_FILES, "best_model.zip", "summary.json", "evaluations.npz", CURVE_FILE, "tb")
 FINISHED = "summary.json"
 
 
@@ -86,9 +85,14 @@ def env_factory(config: TrainConfig, settings: dict, critic_state: bool = False)
     )
 
 
-def policy_vec_env(config: TrainConfig, settings: dict, n_arms: int,
-                   autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
-                   env_kwargs: dict | None = None, critic_state: bool = False):
+def policy_vec_env(
+    config: TrainConfig,
+    settings: dict,
+    n_arms: int,
+    autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
+    env_kwargs: dict | None = None,
+    critic_state: bool = False,
+):
     """The policy stack of a config on ``n_arms`` arms of one PyBullet world (a Gymnasium
     vector env); ``env_kwargs`` update the run's (:meth:`TrainConfig.training_env_kwargs`)
     key by key; ``critic_state``: the training stack with the true state appended."""
@@ -96,23 +100,34 @@ def policy_vec_env(config: TrainConfig, settings: dict, n_arms: int,
 
     action, observation = config.policy_configs(settings)
     return make_policy_vec_env(
-        config.env_id, n_arms, state=config.state,
+        config.env_id,
+        n_arms,
+        state=config.state,
         env_kwargs={**config.training_env_kwargs(settings), **(env_kwargs or {})},
         observer_options=config.observer_options,
-        decimation=int(settings.get("decimation", 1)), action=action, observation=observation,
+        decimation=int(settings.get("decimation", 1)),
+        action=action,
+        observation=observation,
         frame_stack=config.frame_stack if config.state == SENSORS else 1,
-        autoreset_mode=autoreset_mode, critic_state=critic_state,
+        autoreset_mode=autoreset_mode,
+        critic_state=critic_state,
     )
 
 
-def vec_env_factory(config: TrainConfig, settings: dict, n_arms: int,
-                    env_kwargs: dict | None = None, critic_state: bool = False):
+def vec_env_factory(
+    config: TrainConfig,
+    settings: dict,
+    n_arms: int,
+    env_kwargs: dict | None = None,
+    critic_state: bool = False,
+):
     """A picklable constructor of ``n_arms`` arms of the policy env in one PyBullet world,
     as an SB3 ``VecEnv`` (``env_kwargs`` update the run's)."""
     from elastic_gym.training.sb3_vec_env import SB3VecEnv
 
-    return lambda: SB3VecEnv(policy_vec_env(config, settings, n_arms, env_kwargs=env_kwargs,
-                                            critic_state=critic_state))
+    return lambda: SB3VecEnv(
+        policy_vec_env(config, settings, n_arms, env_kwargs=env_kwargs, critic_state=critic_state)
+    )
 
 
 def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int):
@@ -125,15 +140,16 @@ def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int):
 
     batches = batch_kwargs(settings.get("batches", 1))
     if n_envs % len(batches):
-        raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs "
-                         f"({n_envs})")
+        raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs ({n_envs})")
     critic_state = bool(settings.get("critic_state", False))
     if n_envs == 1:
         venv = DummyVecEnv([env_factory(config, settings, critic_state)])
         venv.action_space.seed(seed)
     else:
-        factories = [vec_env_factory(config, settings, n_envs // len(batches), kwargs,
-                                     critic_state) for kwargs in batches]
+        factories = [
+            vec_env_factory(config, settings, n_envs // len(batches), kwargs, critic_state)
+            for kwargs in batches
+        ]
         venv = factories[0]() if len(factories) == 1 else ProcessBatches(factories)
     venv.seed(seed)
     # Episode returns and lengths, one wrapping whatever the arms' layout (VecNormalize's
@@ -152,8 +168,11 @@ def zero_action_head(model) -> None:
         heads = [policy.action_net]
     elif hasattr(policy.actor, "mu"):  # SAC: Linear; TD3: Sequential(..., Linear, Tanh)
         mu = policy.actor.mu
-        heads = [mu] if isinstance(mu, torch.nn.Linear) else [
-            m for m in mu if isinstance(m, torch.nn.Linear)][-1:]
+        heads = (
+            [mu]
+            if isinstance(mu, torch.nn.Linear)
+            else [m for m in mu if isinstance(m, torch.nn.Linear)][-1:]
+        )
         if hasattr(model, "actor_target"):
             target = model.actor_target.mu
             heads += [m for m in target if isinstance(m, torch.nn.Linear)][-1:]
@@ -167,8 +186,9 @@ def zero_action_head(model) -> None:
 
 def split_settings(config: TrainConfig) -> tuple[dict, dict]:
     """(our settings, algorithm kwargs) resolved from the hyper-parameter file + overrides."""
-    merged = resolve_hyperparams(config.algo, config.env_id, config.hyperparams,
-                                 config.hyperparams_file)
+    merged = resolve_hyperparams(
+        config.algo, config.env_id, config.hyperparams, config.hyperparams_file
+    )
     ours = {k: merged.pop(k) for k in OWN_KEYS if k in merged}
     return ours, merged
 
@@ -177,8 +197,11 @@ def earlier_run(folder: Path) -> list[str]:
     """Files of an earlier training run in ``folder`` or in its ``seed*`` sub-folders."""
     found = []
     for directory in (folder, *sorted(folder.glob("seed*"))):
-        found += [str((directory / name).relative_to(folder)) for name in RUN_OUTPUTS
-                  if (directory / name).exists()]
+        found += [
+            str((directory / name).relative_to(folder))
+            for name in RUN_OUTPUTS
+            if (directory / name).exists()
+        ]
     return found
 
 
@@ -217,8 +240,9 @@ def clear_run(folder: str | Path, keep_folder: bool = False) -> None:
                 directory.rmdir()
 
 
-def train(config: TrainConfig, progress_bar: bool = True, verbose: int = 0,
-          overwrite: bool = False) -> TrainResult:
+def train(
+    config: TrainConfig, progress_bar: bool = True, verbose: int = 0, overwrite: bool = False
+) -> TrainResult:
     """Train one policy; write the run folder; return what happened.
 
     Raises before training if the folder holds an earlier run (unless ``overwrite``)
@@ -247,8 +271,14 @@ def train(config: TrainConfig, progress_bar: bool = True, verbose: int = 0,
         raise
 
 
-def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
-           progress_bar: bool, verbose: int) -> TrainResult:
+def _train(
+    config: TrainConfig,
+    settings: dict,
+    algo_kwargs: dict,
+    out: Path,
+    progress_bar: bool,
+    verbose: int,
+) -> TrainResult:
     from stable_baselines3.common.vec_env import VecNormalize
 
     from elastic_gym.training.learning_curve import LearningCurve
@@ -259,8 +289,7 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
     action, observation = config.policy_configs(settings)
     venv = _vec_env(config, settings, n_envs, config.seed)
     try:
-        eval_envs = policy_vec_env(config, settings, config.eval_episodes,
-                                   AutoresetMode.NEXT_STEP)
+        eval_envs = policy_vec_env(config, settings, config.eval_episodes, AutoresetMode.NEXT_STEP)
     except BaseException:
         venv.close()
         raise
@@ -274,22 +303,35 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
             from elastic_gym.training.critic import PrivilegedCriticPolicy
 
             # the evaluation envs are the deployment stack: the actor's observation only
-            privileged = (venv.observation_space.shape[0]
-                          - eval_envs.single_observation_space.shape[0])
+            privileged = (
+                venv.observation_space.shape[0] - eval_envs.single_observation_space.shape[0]
+            )
             policy = PrivilegedCriticPolicy
-            algo_kwargs["policy_kwargs"] = {**algo_kwargs.get("policy_kwargs", {}),
-                                            "privileged_size": privileged}
+            algo_kwargs["policy_kwargs"] = {
+                **algo_kwargs.get("policy_kwargs", {}),
+                "privileged_size": privileged,
+            }
         model = algorithm_class(config.algo)(
-            policy, venv, seed=config.seed, tensorboard_log=str(out / "tb"), verbose=verbose,
-            device="cpu", **algo_kwargs,
+            policy,
+            venv,
+            seed=config.seed,
+            tensorboard_log=str(out / "tb"),
+            verbose=verbose,
+            device="cpu",
+            **algo_kwargs,
         )
         if action.kind == "residual":
             zero_action_head(model)
-        curve = LearningCurve(eval_envs, venv, out, config.eval_freq, config.seed + 10_000,
-                              decimation)
+        curve = LearningCurve(
+            eval_envs, venv, out, config.eval_freq, config.seed + 10_000, decimation
+        )
         start = time.perf_counter()
-        model.learn(total_timesteps=total, callback=curve, progress_bar=progress_bar,
-                    tb_log_name=config.algo)
+        model.learn(
+            total_timesteps=total,
+            callback=curve,
+            progress_bar=progress_bar,
+            tb_log_name=config.algo,
+        )
         wall = time.perf_counter() - start
 
         model.save(out / "model.zip")
@@ -302,13 +344,24 @@ def _train(config: TrainConfig, settings: dict, algo_kwargs: dict, out: Path,
     # and every field of the action and observation configs (a later release's defaults
     # must not change what a saved policy's actions mean)
     frozen = dataclasses.replace(
-        config, hyperparams_file=None, action=action.to_dict(),
-        observation=observation.to_dict(), hyperparams=merged_hyperparams(
-            config.algo, config.env_id, config.hyperparams, config.hyperparams_file))
+        config,
+        hyperparams_file=None,
+        action=action.to_dict(),
+        observation=observation.to_dict(),
+        hyperparams=merged_hyperparams(
+            config.algo, config.env_id, config.hyperparams, config.hyperparams_file
+        ),
+    )
     (out / "config.yaml").write_text(yaml.safe_dump(frozen.to_dict(), sort_keys=False))
     final = curve.evaluations[-1]
-    result = TrainResult(str(out), model.num_timesteps, model.num_timesteps * decimation, wall,
-                         final.mean_return, final.rms)
+    result = TrainResult(
+        str(out),
+        model.num_timesteps,
+        model.num_timesteps * decimation,
+        wall,
+        final.mean_return,
+        final.rms,
+    )
     (out / FINISHED).write_text(json.dumps(result.__dict__, indent=2))
     return result
 
@@ -354,8 +407,9 @@ def read_run_config(run_dir: str | Path) -> TrainConfig:
             raise ValueError(f"must hold a mapping, got {type(data).__name__}")
         return TrainConfig.from_dict(_before_the_deadzone(data))
     except (yaml.YAMLError, TypeError, ValueError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path} is not a valid run configuration: "
-                         f"{' '.join(str(exc).split())}") from None
+        raise ValueError(
+            f"{path} is not a valid run configuration: {' '.join(str(exc).split())}"
+        ) from None
 
 
 def _before_the_deadzone(data: dict) -> dict:
@@ -365,7 +419,8 @@ def _before_the_deadzone(data: dict) -> dict:
     hyperparams = data.get("hyperparams")
     shipped = hyperparams.get("action") if isinstance(hyperparams, dict) else None
     if not isinstance(action, dict) or any(
-            isinstance(part, dict) and "residual_deadzone" in part for part in (action, shipped)):
+        isinstance(part, dict) and "residual_deadzone" in part for part in (action, shipped)
+    ):
         return data
     return {**data, "action": {**action, "residual_deadzone": 0.0}}
 
@@ -380,31 +435,34 @@ def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
     folder = Path(run_dir)
     config = read_run_config(folder)
     settings, _ = split_settings(config)
-    model_path = folder / ("best_model.zip" if best and (folder / "best_model.zip").exists()
-                           else "model.zip")
+    model_path = folder / (
+        "best_model.zip" if best and (folder / "best_model.zip").exists() else "model.zip"
+    )
     try:
         model = algorithm_class(config.algo).load(str(model_path), device="cpu")
     except Exception as exc:
-        raise ValueError(f"{model_path} cannot be loaded as a {config.algo} model: "
-                         f"{type(exc).__name__}: {exc}") from None
+        raise ValueError(
+            f"{model_path} cannot be loaded as a {config.algo} model: {type(exc).__name__}: {exc}"
+        ) from None
     normalizer_path = folder / "vecnormalize.pkl"
     try:
         with open(normalizer_path, "rb") as handle:
             normalizer = pickle.load(handle)
         normalizer.training = False
     except Exception as exc:
-        raise ValueError(f"{normalizer_path} cannot be loaded: {type(exc).__name__}: "
-                         f"{exc}") from None
+        raise ValueError(
+            f"{normalizer_path} cannot be loaded: {type(exc).__name__}: {exc}"
+        ) from None
     return TrainedRun(model, normalizer, config, settings)
 
 
-def evaluate_run(run: TrainedRun, n_episodes: int = 3, seed: int = 123,
-                 env_kwargs: dict | None = None) -> Evaluation:
+def evaluate_run(
+    run: TrainedRun, n_episodes: int = 3, seed: int = 123, env_kwargs: dict | None = None
+) -> Evaluation:
     """The deterministic policy of a run on ``n_episodes`` fresh episodes (seeds
     ``seed``, ``seed + 1``, ...), run as the arms of one batch; ``env_kwargs`` are merged
     into the run's (e.g. ``{"plant_scaling": {"link_mass": 1.3}}``)."""
-    envs = policy_vec_env(run.config, run.settings, n_episodes, AutoresetMode.NEXT_STEP,
-                          env_kwargs)
+    envs = policy_vec_env(run.config, run.settings, n_episodes, AutoresetMode.NEXT_STEP, env_kwargs)
     try:
         return evaluate_arms(envs, run.act, seed, run.start)
     finally:
@@ -419,8 +477,10 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
     repeated = sorted({f for f in folders if folders.count(f) > 1})
     if repeated:
         seeds = sorted({c.seed for c in configs if str(Path(c.out_dir)) in repeated})
-        raise ValueError(f"several runs would write to {repeated} (seeds {seeds}): give each "
-                         "run its own seed and folder")
+        raise ValueError(
+            f"several runs would write to {repeated} (seeds {seeds}): give each "
+            "run its own seed and folder"
+        )
     built = set()
     for config in configs:
         check_run_folder(config.out_dir, overwrite)
@@ -431,8 +491,13 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
             env_factory(config, settings)().close()
 
 
-def train_many(configs: list[TrainConfig], workers: int | None = None, backend: str = "process",
-               progress: bool = True, overwrite: bool = False) -> list[TrainResult]:
+def train_many(
+    configs: list[TrainConfig],
+    workers: int | None = None,
+    backend: str = "process",
+    progress: bool = True,
+    overwrite: bool = False,
+) -> list[TrainResult]:
     """Several runs (e.g. seeds) in parallel on local processes or Ray; results in order.
 
     Checks every run before the first (:func:`check_configs`). If a run fails or the
@@ -442,14 +507,24 @@ def train_many(configs: list[TrainConfig], workers: int | None = None, backend: 
     from elastic_gym.parallel import for_each_result, with_detail
 
     check_configs(configs, overwrite)
-    created = {folder for c in configs for folder in (Path(c.out_dir), *Path(c.out_dir).parents)
-               if not folder.exists()}
+    created = {
+        folder
+        for c in configs
+        for folder in (Path(c.out_dir), *Path(c.out_dir).parents)
+        if not folder.exists()
+    }
     results: dict[int, TrainResult] = {}
     try:
-        for_each_result(functools.partial(train, progress_bar=False, overwrite=overwrite),
-                        configs, results.__setitem__, workers=workers, backend=backend,
-                        progress=progress, label="training runs",
-                        describe=lambda c: f"training run {c.out_dir} (seed {c.seed})")
+        for_each_result(
+            functools.partial(train, progress_bar=False, overwrite=overwrite),
+            configs,
+            results.__setitem__,
+            workers=workers,
+            backend=backend,
+            progress=progress,
+            label="training runs",
+            describe=lambda c: f"training run {c.out_dir} (seed {c.seed})",
+        )
     except BaseException as exc:
         finished = [c.out_dir for c in configs if (Path(c.out_dir) / FINISHED).exists()]
         unfinished = [c.out_dir for c in configs if c.out_dir not in finished]
@@ -458,7 +533,9 @@ def train_many(configs: list[TrainConfig], workers: int | None = None, backend: 
         for folder in sorted(created, key=lambda f: len(f.parts), reverse=True):
             with contextlib.suppress(OSError):  # the folders this call made, if left empty
                 folder.rmdir()
-        detail = (f"kept the finished run(s) {finished or 'none'}; removed the unfinished "
-                  f"run(s) {unfinished}")
+        detail = (
+            f"kept the finished run(s) {finished or 'none'}; removed the unfinished "
+            f"run(s) {unfinished}"
+        )
         raise with_detail(exc, detail)  # noqa: B904 - with_detail sets the cause
     return [results[i] for i in range(len(configs))]

@@ -38,8 +38,11 @@ def reference_rows(info: Mapping) -> np.ndarray:
 
 def arm_view(batched: Mapping, i: int) -> dict:
     """Arm i of a batched observation or info (the ``_key`` masks dropped)."""
-    return {key: arm_view(value, i) if isinstance(value, Mapping) else value[i]
-            for key, value in batched.items() if not key.startswith("_")}
+    return {
+        key: arm_view(value, i) if isinstance(value, Mapping) else value[i]
+        for key, value in batched.items()
+        if not key.startswith("_")
+    }
 
 
 def wrapper_attribute(env: gym.vector.VectorEnv, name: str):
@@ -81,8 +84,11 @@ class _ArmResets(gym.vector.VectorWrapper):
     def _restarted(self, terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
         """Arms the env reset during the step just taken (NEXT_STEP autoreset)."""
         mode = self.env.metadata.get("autoreset_mode")
-        restarted = np.flatnonzero(self._ended) if mode is AutoresetMode.NEXT_STEP else (
-            np.zeros(0, dtype=np.int64))
+        restarted = (
+            np.flatnonzero(self._ended)
+            if mode is AutoresetMode.NEXT_STEP
+            else (np.zeros(0, dtype=np.int64))
+        )
         self._ended = terminated | truncated
         return restarted
 
@@ -94,8 +100,9 @@ class PolicyAction(_ArmResets):
     controller runs one copy per arm. ``info["base_torque"]`` is (N, n).
     """
 
-    def __init__(self, env: gym.vector.VectorEnv, action: ActionConfig | dict | None = None
-                 ) -> None:
+    def __init__(
+        self, env: gym.vector.VectorEnv, action: ActionConfig | dict | None = None
+    ) -> None:
         super().__init__(env)
         batch = env.unwrapped.batch
         self.action_config = ActionConfig.from_config(action)
@@ -107,9 +114,14 @@ class PolicyAction(_ArmResets):
             if self.sensors:
                 raise ValueError("a residual policy needs a state source for its base controller")
             self.controllers = [
-                make_controller(self.action_config.residual, batch.model, self.dt,
-                                **self.action_config.residual_options)
-                for _ in range(self.num_envs)]
+                make_controller(
+                    self.action_config.residual,
+                    batch.model,
+                    self.dt,
+                    **self.action_config.residual_options,
+                )
+                for _ in range(self.num_envs)
+            ]
         self.single_action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._obs = self._info = None
@@ -136,8 +148,12 @@ class PolicyAction(_ArmResets):
         a = checked_actions(actions, self.num_envs, self.n)
         obs, info, n = self._obs, self._info, self.n
         if self.controllers:
-            self._base = np.array([controller(arm_view(obs, i), public_info(arm_view(info, i)))
-                                   for i, controller in enumerate(self.controllers)])
+            self._base = np.array(
+                [
+                    controller(arm_view(obs, i), public_info(arm_view(info, i)))
+                    for i, controller in enumerate(self.controllers)
+                ]
+            )
         theta = dtheta = None
         if self.map.needs_motor_state:
             if self.sensors:  # backward difference of the encoders
@@ -159,15 +175,23 @@ class PolicyObservation(_ArmResets):
     concatenates each arm's last frames (oldest first, the first frame repeated after a
     reset), the vector twin of ``FrameStackObservation`` + ``FlattenObservation``."""
 
-    def __init__(self, env: gym.vector.VectorEnv,
-                 observation: ObservationConfig | dict | None = None,
-                 frame_stack: int = 1) -> None:
+    def __init__(
+        self,
+        env: gym.vector.VectorEnv,
+        observation: ObservationConfig | dict | None = None,
+        frame_stack: int = 1,
+    ) -> None:
         super().__init__(env)
         batch = env.unwrapped.batch
         action_config = wrapper_attribute(env, "action_config")
         self.builder = ObservationBuilder.for_observations(
-            observation, env.single_observation_space, batch.n_joints, batch.robot.elastic,
-            action_config.kind == "residual", batch.torque_limit)
+            observation,
+            env.single_observation_space,
+            batch.n_joints,
+            batch.robot.elastic,
+            action_config.kind == "residual",
+            batch.torque_limit,
+        )
         if isinstance(frame_stack, bool) or not isinstance(frame_stack, int) or frame_stack < 1:
             raise ValueError(f"frame_stack must be an integer >= 1, got {frame_stack!r}")
         self.frame_stack = frame_stack
@@ -181,12 +205,16 @@ class PolicyObservation(_ArmResets):
     def _features(self, obs: Mapping, info: Mapping) -> np.ndarray:
         preview = None
         if "preview" in self.builder.features:
-            preview = self.env.unwrapped.batch.reference_preview(
-                self.builder.config.preview)[:, :, 0]
+            preview = self.env.unwrapped.batch.reference_preview(self.builder.config.preview)[
+                :, :, 0
+            ]
         inputs = ObservationInputs(
-            reference=reference_rows(info), last_action=self._last_action,
-            state=obs.get("state"), motor_position=obs.get("motor_position"),
-            acceleration=obs.get("acceleration"), preview=preview,
+            reference=reference_rows(info),
+            last_action=self._last_action,
+            state=obs.get("state"),
+            motor_position=obs.get("motor_position"),
+            acceleration=obs.get("acceleration"),
+            preview=preview,
             base_torque=info["base_torque"],
         )
         return self.builder.build(inputs)
@@ -210,21 +238,28 @@ class PolicyObservation(_ArmResets):
         self._last_action = np.clip(a, -1.0, 1.0)
         restarted = self._restarted(terminated, truncated)
         self._last_action[restarted] = 0.0
-        return (self._observation(self._features(obs, info), restarted), reward, terminated,
-                truncated, info)
+        return (
+            self._observation(self._features(obs, info), restarted),
+            reward,
+            terminated,
+            truncated,
+            info,
+        )
 
 
 class CriticState(gym.vector.VectorWrapper):
     """Every arm's flat policy observation with its true state's features appended: the
     twin of :class:`elastic_gym.training.wrappers.CriticState` (training only)."""
 
-    def __init__(self, env: gym.vector.VectorEnv,
-                 observation: ObservationConfig | dict | None = None) -> None:
+    def __init__(
+        self, env: gym.vector.VectorEnv, observation: ObservationConfig | dict | None = None
+    ) -> None:
         super().__init__(env)
         batch = env.unwrapped.batch
         self.elastic = batch.robot.elastic
-        self.features = TrueStateFeatures(ObservationConfig.from_config(observation),
-                                          batch.n_joints, self.elastic)
+        self.features = TrueStateFeatures(
+            ObservationConfig.from_config(observation), batch.n_joints, self.elastic
+        )
         size = env.single_observation_space.shape[0] + self.features.size
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)

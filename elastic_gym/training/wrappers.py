@@ -86,8 +86,12 @@ class PolicyAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self.action_config.kind == "residual":
             if self.sensors:
                 raise ValueError("a residual policy needs a state source for its base controller")
-            self.controller = make_controller(self.action_config.residual, base.model, self.dt,
-                                              **self.action_config.residual_options)
+            self.controller = make_controller(
+                self.action_config.residual,
+                base.model,
+                self.dt,
+                **self.action_config.residual_options,
+            )
         self.action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
         self._obs = self._info = None
         self._previous_motor = None
@@ -105,7 +109,7 @@ class PolicyAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
         n, obs = self.n, self._obs
         if not self.sensors:
             state = obs["state"]
-            return state[:n], state[2 * n:3 * n]
+            return state[:n], state[2 * n : 3 * n]
         theta = obs["motor_position"]  # backward difference of the encoder
         previous = theta if self._previous_motor is None else self._previous_motor
         return theta, (theta - previous) / self.dt
@@ -118,9 +122,13 @@ class PolicyAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
         theta = dtheta = None
         if self.map.needs_motor_state:
             theta, dtheta = self._motor_state()
-        torque = self.map.torque(a[None], None if theta is None else theta[None],
-                                 None if dtheta is None else dtheta[None],
-                                 reference_rows(self._info)[None], base[None])[0]
+        torque = self.map.torque(
+            a[None],
+            None if theta is None else theta[None],
+            None if dtheta is None else dtheta[None],
+            reference_rows(self._info)[None],
+            base[None],
+        )[0]
         if self.sensors:
             self._previous_motor = self._obs["motor_position"]
         obs, reward, terminated, truncated, info = self.env.step(torque)
@@ -164,11 +172,15 @@ class PolicyObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         base = env.unwrapped
         action_config = env.get_wrapper_attr("action_config")
         self.builder = ObservationBuilder.for_observations(
-            observation, env.observation_space, base.n_joints, base.robot.elastic,
-            action_config.kind == "residual", base.torque_limit)
+            observation,
+            env.observation_space,
+            base.n_joints,
+            base.robot.elastic,
+            action_config.kind == "residual",
+            base.torque_limit,
+        )
         self.n = base.n_joints
-        self.observation_space = spaces.Box(-np.inf, np.inf, (self.builder.size,),
-                                            dtype=np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (self.builder.size,), dtype=np.float32)
         self._last_action = np.zeros(self.n)
         self._vector = np.zeros(self.builder.size, dtype=np.float32)
 
@@ -180,11 +192,13 @@ class PolicyObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if "preview" in self.builder.features:
             preview = reference_preview(self.env, config.preview)[None]
         inputs = ObservationInputs(
-            reference=reference_rows(info)[None], last_action=self._last_action[None],
+            reference=reference_rows(info)[None],
+            last_action=self._last_action[None],
             state=obs["state"][None] if "state" in obs else None,
             motor_position=obs["motor_position"][None] if "motor_position" in obs else None,
             acceleration=obs["acceleration"][None] if "acceleration" in obs else None,
-            preview=preview, base_torque=info["base_torque"][None],
+            preview=preview,
+            base_torque=info["base_torque"][None],
         )
         self._vector = self.builder.build(inputs)[0]
         return self._vector.copy()
@@ -213,20 +227,21 @@ class CriticState(gym.Wrapper, gym.utils.RecordConstructorArgs):
         observation: the stack's :class:`ObservationConfig` (its scales are used).
     """
 
-    def __init__(self, env: gym.Env, observation: ObservationConfig | dict | None = None
-                 ) -> None:
+    def __init__(self, env: gym.Env, observation: ObservationConfig | dict | None = None) -> None:
         gym.utils.RecordConstructorArgs.__init__(self, observation=observation)
         gym.Wrapper.__init__(self, env)
         base = env.unwrapped
         self.elastic = base.robot.elastic
-        self.features = TrueStateFeatures(ObservationConfig.from_config(observation),
-                                          base.n_joints, self.elastic)
+        self.features = TrueStateFeatures(
+            ObservationConfig.from_config(observation), base.n_joints, self.elastic
+        )
         size = env.observation_space.shape[0] + self.features.size
         self.observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
 
     def _observation(self, obs: np.ndarray, info: dict) -> np.ndarray:
-        privileged = self.features(true_state_vector(info, self.elastic)[None],
-                                   reference_rows(info)[None])[0]
+        privileged = self.features(
+            true_state_vector(info, self.elastic)[None], reference_rows(info)[None]
+        )[0]
         return np.concatenate([obs, privileged])
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
