@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import fields
 from typing import Any, TypeVar
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
 T = TypeVar("T")
 ENV_NAMESPACE = "elastic_gym/"
@@ -84,3 +85,72 @@ def per_joint_values(
         bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
         raise ValueError(f"{name} must be one or {n} finite numbers{bound}, got {value!r}")
     return arr.copy()
+
+
+# ---------------------------------------------------------------- declarative configuration
+class StrictModel(BaseModel):
+    """Base of every configuration model: unknown keys are refused (``extra="forbid"``),
+    values are validated on assignment too, and numpy scalars count as Python numbers."""
+
+    model_config = ConfigDict(
+        extra="forbid", validate_assignment=True, arbitrary_types_allowed=True
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _plain_numbers(cls, data: Any) -> Any:
+        if isinstance(data, Mapping):
+            return {key: plain(value) for key, value in data.items()}
+        return data
+
+
+def plain(value: Any) -> Any:
+    """numpy scalars and arrays as Python numbers and lists (recursively through mappings and
+    sequences), so that ``np.float32(1e-3)`` validates like ``1e-3``."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Mapping):
+        return {key: plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(plain(item) for item in value)
+    return value
+
+
+def field_path(loc: Sequence[int | str], prefix: str = "") -> str:
+    """``("controllers", 1, "options", "omega")`` -> ``controllers[1].options.omega``."""
+    path = prefix
+    for part in loc:
+        if isinstance(part, int):
+            path += f"[{part}]"
+        else:
+            path += f".{part}" if path else str(part)
+    return path or "(top level)"
+
+
+def format_validation_error(error: ValidationError, prefix: str = "") -> str:
+    """One line per problem, the field path first: ``controllers[1].options.omega: ...``."""
+    lines = []
+    for item in error.errors(include_url=False):
+        # pydantic adds the failing union member / validator name to loc; drop function names
+        loc = [part for part in item["loc"] if not (isinstance(part, str) and "[" in part)]
+        message = item["msg"]
+        if item["type"] == "extra_forbidden":
+            message = "unexpected field"
+        lines.append(f"{field_path(loc, prefix)}: {message}")
+    return "; ".join(dict.fromkeys(lines))
+
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def validated(model: type[M], data: Any, prefix: str = "") -> M:
+    """``model`` built from ``data`` (an instance is returned as is, ``None`` gives the
+    defaults). ``ValueError`` with one ``field.path: message`` per problem otherwise."""
+    if isinstance(data, model):
+        return data
+    try:
+        return model.model_validate({} if data is None else plain(data))
+    except ValidationError as error:
+        raise ValueError(format_validation_error(error, prefix)) from None
