@@ -108,7 +108,6 @@ def run_compare(args: argparse.Namespace) -> int:
 def with_trained_policy(scenario, run_dir: str):
     """The scenario with a ``trained-policy`` controller for a run folder, paired with the
     state source it was trained on (added to the scenario if missing)."""
-    import dataclasses
     from pathlib import Path
 
     from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry
@@ -133,16 +132,18 @@ def with_trained_policy(scenario, run_dir: str):
         None,
     )
     if source is None:
-        source = SourceEntry(config.state, f"{config.state}-policy", dict(config.observer_options))
+        source = SourceEntry(
+            name=config.state, label=f"{config.state}-policy", options=config.observer_options
+        )
         sources.append(source)
     controller = ControllerEntry(
-        "trained-policy",
-        f"policy:{Path(run_dir).name}",
-        {"run": str(Path(run_dir).resolve())},
-        (source.label,),
+        name="trained-policy",
+        label=f"policy:{Path(run_dir).name}",
+        options={"run": str(Path(run_dir).resolve())},
+        sources=(source.label,),
     )
-    return dataclasses.replace(
-        scenario, controllers=(*scenario.controllers, controller), state_sources=tuple(sources)
+    return scenario.with_overrides(
+        controllers=(*scenario.controllers, controller), state_sources=tuple(sources)
     )
 
 

@@ -129,15 +129,43 @@ def field_path(loc: Sequence[int | str], prefix: str = "") -> str:
     return path or "(top level)"
 
 
+class FieldError(ValueError):
+    """Raised by a validator to refuse a part of its value: ``loc`` (field names and list
+    indices) is appended to the validator's own path in the error message."""
+
+    def __init__(self, loc: Sequence[int | str], message: str) -> None:
+        super().__init__(message)
+        self.loc = tuple(loc)
+
+
+_UNION_TAGS = frozenset({"int", "float", "str", "bool", "list", "dict", "tuple", "none"})
+
+
+def _is_union_tag(part: int | str) -> bool:
+    """pydantic names the failing member of a union in ``loc`` (``int``, ``list[str]``,
+    ``function-after[...]``, a model class name): not a field of the user's data."""
+    return isinstance(part, str) and (
+        "[" in part or part in _UNION_TAGS or (part.isidentifier() and part[0].isupper())
+    )
+
+
 def format_validation_error(error: ValidationError, prefix: str = "") -> str:
     """One line per problem, the field path first: ``controllers[1].options.omega: ...``."""
     lines = []
-    for item in error.errors(include_url=False):
-        # pydantic adds the failing union member / validator name to loc; drop function names
-        loc = [part for part in item["loc"] if not (isinstance(part, str) and "[" in part)]
+    items = error.errors(include_url=False)
+    for item in items:
+        loc = [part for part in item["loc"] if not _is_union_tag(part)]
+        if item["type"] == "too_short" and any(
+            other["loc"][: len(item["loc"])] == item["loc"] and other is not item for other in items
+        ):
+            continue  # a list left short by its own invalid items
         message = item["msg"]
+        cause = item.get("ctx", {}).get("error")
         if item["type"] == "extra_forbidden":
             message = "unexpected field"
+        elif isinstance(cause, ValueError):  # a validator's own message, without "Value error, "
+            loc += list(getattr(cause, "loc", ()))
+            message = str(cause)
         lines.append(f"{field_path(loc, prefix)}: {message}")
     return "; ".join(dict.fromkeys(lines))
 

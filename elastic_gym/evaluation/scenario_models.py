@@ -1,0 +1,379 @@
+"""The entries of a comparison scenario as pydantic models (field-path errors, JSON Schema).
+
+Each model states its fields, types, bounds and defaults; the custom validators check only
+what a schema cannot know: registry names, env kwargs against an env's constructor,
+model-error and plant scalings against :class:`~elastic_gym.model.ParameterScaling`, and
+labels that must be unique. :class:`~elastic_gym.evaluation.scenario.Scenario` combines
+them into the grid.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+from collections.abc import Mapping
+from typing import Annotated, Any
+
+import gymnasium as gym
+import numpy as np
+from pydantic import (
+    AfterValidator,
+    AllowInfNan,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    StrictBool,
+    StrictFloat,
+    StrictInt,
+    StrictStr,
+    ValidationInfo,
+    WithJsonSchema,
+    field_serializer,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
+
+import elastic_gym  # noqa: F401 - registers the env ids
+from elastic_gym.controllers.registry import CONTROLLERS
+from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
+from elastic_gym.model import ParameterScaling
+from elastic_gym.observers.registry import OBSERVERS
+from elastic_gym.validation import ENV_NAMESPACE, FieldError, StrictModel, registered_env_id
+
+TRUE_STATE = "true"
+NOMINAL = "nominal"
+IDENTITY_COLUMNS = ("env", "model_error", "controller", "source", "seed")
+SWEEP_AXIS = "sweep"
+RESERVED_AXES = (*IDENTITY_COLUMNS, SWEEP_AXIS)
+
+Real = Annotated[StrictInt | StrictFloat, AllowInfNan(False)]  # an int stays an int
+Positive = Annotated[StrictFloat, Field(gt=0, allow_inf_nan=False)]
+
+
+def _label(value: Any) -> Any:
+    """YAML's bare ``true`` is the true state's label; numbers are labels too."""
+    if value is True:
+        return TRUE_STATE
+    return str(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else value
+
+
+Label = Annotated[StrictStr, BeforeValidator(_label), Field(min_length=1)]
+Name = Annotated[
+    StrictStr, BeforeValidator(lambda v: TRUE_STATE if v is True else v), Field(min_length=1)
+]
+
+
+def _axis_name(name: str) -> str:
+    if not name.isidentifier() or name in RESERVED_AXES:
+        raise ValueError(
+            f"names must be identifiers other than {list(RESERVED_AXES)}, got {name!r}"
+        )
+    return name
+
+
+AxisName = Annotated[str, AfterValidator(_axis_name)]
+ClassPath = Annotated[
+    Any,
+    BeforeValidator(lambda v: _class_field(v)),
+    WithJsonSchema({"type": "string", "pattern": "^[\\w.]+:[\\w.]+$"}),
+]
+
+
+def _class_field(value: Any) -> type | str | None:
+    if value is None or isinstance(value, type) or (isinstance(value, str) and ":" in value):
+        return value
+    raise ValueError(f"must be a class or a 'module:Class' string, got {value!r}")
+
+
+def unique_labels(entries: tuple) -> tuple:
+    """Refuse entries of a list whose labels repeat (they name rows and figures)."""
+    labels = [entry.label for entry in entries]
+    duplicates = sorted({x for x in labels if labels.count(x) > 1})
+    if duplicates:
+        raise ValueError(f"duplicate label(s) {duplicates}; give each entry a 'label'")
+    return entries
+
+
+# ---------------------------------------------------------------------------- env kwargs
+def env_parameters(env_id: str) -> set[str]:
+    """Constructor keyword names of a registered env (following ``**kwargs`` up the MRO)."""
+    entry = gym.spec(env_id).entry_point
+    if isinstance(entry, str):
+        module, _, attr = entry.partition(":")
+        entry = getattr(importlib.import_module(module), attr)
+    names: set[str] = set()
+    for klass in entry.__mro__ if isinstance(entry, type) else ():
+        if "__init__" not in vars(klass):
+            continue
+        params = inspect.signature(klass.__init__).parameters.values()
+        names |= {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        if not any(p.kind is p.VAR_KEYWORD for p in params):
+            break
+    names.discard("self")
+    return names
+
+
+def check_env_kwargs(env_id: str, kwargs: Mapping, loc: tuple = ()) -> None:
+    """Refuse kwargs that ``env_id``'s constructor does not take, and a bad ``plant_scaling``
+    (``FieldError`` at ``loc``)."""
+    valid = env_parameters(env_id)
+    unknown = set(kwargs) - valid
+    if unknown:
+        raise FieldError(
+            loc, f"unknown env kwarg(s) {sorted(unknown)} for {env_id}; valid: {sorted(valid)}"
+        )
+    if "plant_scaling" in kwargs:
+        try:
+            ParameterScaling.from_config(kwargs["plant_scaling"])
+        except (TypeError, ValueError) as exc:
+            raise FieldError((*loc, "plant_scaling"), str(exc)) from None
+
+
+# ---------------------------------------------------------------------------- entries
+def _bare(key: str):
+    """A before-validator: a bare string (or YAML's ``true``) is the entry's ``key``."""
+
+    def bare(cls: type, data: Any) -> Any:
+        return {key: data} if isinstance(data, str) or data is True else data
+
+    return model_validator(mode="before")(classmethod(bare))
+
+
+class EnvEntry(StrictModel):
+    """One env of the grid: gym id (the ``elastic_gym/`` prefix is optional), constructor
+    kwargs and ``reset`` options; the label defaults to the id's name."""
+
+    model_config = ConfigDict(frozen=True)
+    id: Annotated[str, AfterValidator(registered_env_id)]
+    label: Label | None = None
+    kwargs: dict[str, Any] = Field(default_factory=dict)
+    reset_options: dict[Any, Any] = Field(default_factory=dict)
+    _bare = _bare("id")
+
+    @field_validator("kwargs")
+    @classmethod
+    def _known_kwargs(cls, kwargs: dict, info: ValidationInfo) -> dict:
+        if "id" in info.data:
+            check_env_kwargs(info.data["id"], kwargs)
+        return kwargs
+
+    @model_validator(mode="after")
+    def _default_label(self) -> EnvEntry:
+        if self.label is None:
+            self.__dict__["label"] = self.id.removeprefix(ENV_NAMESPACE).removesuffix("-v0")
+        return self
+
+
+class _Named(StrictModel):
+    """Base of the controller and state-source entries (a bare string is the name)."""
+
+    model_config = ConfigDict(frozen=True)
+    name: Name
+    label: Label | None = None
+    options: dict[Any, Any] = Field(default_factory=dict)
+    cls: ClassPath = Field(None, alias="class")
+    _bare = _bare("name")
+
+    @model_validator(mode="after")
+    def _defaults(self) -> _Named:
+        valid = self.registry()
+        if self.cls is None and self.name not in valid:
+            kind = "controller" if isinstance(self, ControllerEntry) else "state source"
+            raise FieldError(("name",), f"unknown {kind} {self.name!r}; valid: {sorted(valid)}")
+        if self.label is None:
+            self.__dict__["label"] = self.name
+        return self
+
+    @field_serializer("cls")
+    def _class_path(self, cls: type | str | None) -> str | None:
+        return (
+            cls if cls is None or isinstance(cls, str) else f"{cls.__module__}:{cls.__qualname__}"
+        )
+
+    @staticmethod
+    def registry() -> set[str]:
+        """The names valid without an explicit ``class``."""
+        raise NotImplementedError
+
+
+class ControllerEntry(_Named):
+    """A controller by registry name (or explicit ``class``, a
+    :class:`~elastic_gym.controllers.Controller` subclass or ``"module:Class"``) with its
+    constructor options; ``sources`` restricts the state sources (by label) it is paired
+    with (``None``: all)."""
+
+    sources: tuple[Label, ...] | None = Field(None, min_length=1)
+
+    @staticmethod
+    def registry() -> set[str]:
+        return {*CONTROLLERS, *BUILTIN_CONTROLLERS}
+
+
+class SourceEntry(_Named):
+    """A state source: ``"true"`` (the oracle) or an observer with options;
+    ``initial_estimate`` (full state vector) is passed to ``observer.reset``."""
+
+    initial_estimate: tuple[Annotated[StrictFloat, AllowInfNan(False)], ...] | None = Field(
+        None, min_length=1
+    )
+
+    @staticmethod
+    def registry() -> set[str]:
+        return set(OBSERVERS)
+
+
+# ---------------------------------------------------------------------------- variations
+VARIATION_SCHEMA = {
+    "type": "object",
+    "properties": {"label": {"type": ["string", "number"]}},
+    "additionalProperties": True,
+    "description": "a label and values: env kwargs (axes) or scaling factors (model errors)",
+}
+
+
+class Variation(StrictModel):
+    """One value of an axis: env kwargs (robustness axes) or scaling factors (model errors).
+
+    Written flat in YAML (``{label: heavy, plant_scaling: {link_mass: 1.3}}``); without a
+    label it is named by its values (:func:`format_values`)."""
+
+    model_config = ConfigDict(frozen=True)
+    label: Label | None = None
+    values: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _flat(cls, data: Any) -> Any:
+        if not isinstance(data, Mapping) or set(data) <= {"label", "values"}:
+            return data
+        return {
+            "label": data.get("label"),
+            "values": {k: v for k, v in data.items() if k != "label"},
+        }
+
+    @model_serializer
+    def _flat_dump(self) -> dict:
+        return {"label": self.label, **self.values}
+
+    def named(self, empty: str) -> Variation:
+        """Itself with its label, or one made of its values (``empty`` without values)."""
+        if self.label is not None:
+            return self
+        return self.model_copy(update={"label": format_values(self.values) or empty})
+
+
+def _model_error(variation: Variation) -> Variation:
+    ParameterScaling.from_config(dict(variation.values))
+    return variation.named("exact")
+
+
+AxisValue = Annotated[
+    Variation, AfterValidator(lambda v: v.named(NOMINAL)), WithJsonSchema(VARIATION_SCHEMA)
+]
+ModelError = Annotated[Variation, AfterValidator(_model_error), WithJsonSchema(VARIATION_SCHEMA)]
+
+
+def format_values(values: Mapping, prefix: str = "") -> str:
+    """Compact label of (nested) values: ``plant_scaling.link_mass=1.3,task=tracking``."""
+    parts = []
+    for key, value in values.items():
+        if isinstance(value, Mapping):
+            parts.append(format_values(value, f"{prefix}{key}."))
+        else:
+            parts.append(f"{prefix}{key}={value}")
+    return ",".join(p for p in parts if p)
+
+
+# ---------------------------------------------------------------------------- magnitudes
+class Magnitudes(StrictModel):
+    """Magnitudes of one parameter, a dotted path into the env kwargs
+    (``plant_scaling.link_mass``, ``encoder.noise_std``, ``sensor_delay``): ``values``, or
+    ``range`` + ``num`` (``log``: geometric). After validation ``values`` holds them."""
+
+    model_config = ConfigDict(frozen=True)
+    parameter: Annotated[
+        str, Field(pattern=r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$", examples=["plant_scaling.link_mass"])
+    ]
+    values: tuple[Real, ...] | None = Field(None, min_length=1)
+    range: tuple[Real, Real] | None = None
+    num: Annotated[StrictInt, Field(ge=2)] | None = None
+    log: StrictBool = False
+    nominal: Real | None = None
+    _name: str = PrivateAttr("")
+
+    @model_validator(mode="after")
+    def _resolved(self) -> Magnitudes:
+        if (self.values is None) == (self.range is None):
+            raise ValueError("give either 'values' or 'range' (with 'num')")
+        if (self.num is None) == (self.range is not None):
+            raise FieldError(("num",), "goes with 'range' (an integer >= 2), not with 'values'")
+        if self.range is not None:
+            low, high = self.range
+            if self.log and not (low > 0 and high > 0):
+                raise FieldError(("range",), f"log: true needs bounds > 0, got {list(self.range)}")
+            points = (np.geomspace if self.log else np.linspace)(low, high, self.num)
+            values = tuple(float(f"{v:.12g}") for v in points)  # 1.2000000000000002 -> 1.2
+            self.__dict__.update(values=values, range=None, num=None)
+        for i, v in enumerate(self.values):
+            if self.log and v <= 0:
+                raise FieldError(("values", i), f"must be finite and > 0, got {v!r}")
+        if len({f"{v:g}" for v in self.values}) < len(self.values):
+            raise FieldError(("values",), f"magnitudes repeat: {list(self.values)}")
+        return self
+
+    @property
+    def name(self) -> str:
+        """The sweep's (or generated axis') name, the key it is given under."""
+        return self._name
+
+    def named(self, name: str) -> Magnitudes:
+        self._name = name
+        return self
+
+    def label(self, value: float) -> str:
+        """Label of a magnitude in the ``sweep`` axis; ``"nominal"`` for the nominal one."""
+        return NOMINAL if value == self.nominal else f"{self.name}={value:g}"
+
+    def kwargs(self, value: float) -> dict:
+        """The env kwargs that set the parameter to ``value``."""
+        out: Any = value
+        for key in reversed(self.parameter.split(".")):
+            out = {key: out}
+        return out
+
+    def extremes(self) -> tuple[float, ...]:
+        """The farthest magnitude below and above the nominal (those that exist)."""
+        below = [v for v in self.values if self.nominal is not None and v < self.nominal]
+        above = [v for v in self.values if self.nominal is None or v > self.nominal]
+        return tuple(
+            v for v in (min(below, default=None), max(above, default=None)) if v is not None
+        )
+
+    def axis_values(self) -> tuple[Variation, ...]:
+        """The values of an axis generated from these magnitudes, ``<name>=<magnitude>``."""
+        return tuple(
+            Variation(label=f"{self.name}={v:g}", values=self.kwargs(v)) for v in self.values
+        )
+
+    def variations(self) -> tuple[Variation, ...]:
+        """The values these magnitudes add to the ``sweep`` axis (the nominal left out)."""
+        return tuple(
+            Variation(label=self.label(v), values=self.kwargs(v))
+            for v in self.values
+            if v != self.nominal
+        )
+
+    def magnitude(self, label: str) -> float | None:
+        """The magnitude of a ``sweep`` axis label of this sweep (None if not one)."""
+        if label == NOMINAL:
+            return self.nominal
+        return next((v for v in self.values if self.label(v) == label), None)
+
+
+class Sweep(Magnitudes):
+    """A one-at-a-time sweep: magnitudes and the ``nominal`` one, which the runs as given
+    have (required)."""
+
+    nominal: Real
