@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import fields
-from typing import Any, TypeVar
+from typing import Annotated, Any, ClassVar, TypeVar
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, ValidationError, model_validator
+from typing_extensions import Self
 
 T = TypeVar("T")
 ENV_NAMESPACE = "elastic_gym/"
@@ -104,6 +105,28 @@ class StrictModel(BaseModel):
         return data
 
 
+Finite = Annotated[StrictFloat, Field(allow_inf_nan=False)]  # a number, not a bool or a string
+PositiveFinite = Annotated[Finite, Field(gt=0)]
+NonNegativeFinite = Annotated[Finite, Field(ge=0)]
+
+
+class ConfigModel(StrictModel):
+    """A frozen plain-data configuration, built by :meth:`from_config` from ``None`` (the
+    defaults), an instance (itself) or a mapping of its fields; errors are prefixed with
+    its ``section`` (``reward.sigmas: ...``)."""
+
+    model_config = ConfigDict(frozen=True)
+    section: ClassVar[str] = ""
+
+    @classmethod
+    def from_config(cls, config: Any) -> Self:
+        return validated(cls, config, cls.section)
+
+    def to_dict(self) -> dict:
+        """Plain data (lists, not tuples): YAML- and JSON-serialisable."""
+        return self.model_dump(mode="json")
+
+
 def plain(value: Any) -> Any:
     """numpy scalars and arrays as Python numbers and lists (recursively through mappings and
     sequences), so that ``np.float32(1e-3)`` validates like ``1e-3``."""
@@ -166,6 +189,8 @@ def format_validation_error(error: ValidationError, prefix: str = "") -> str:
         elif isinstance(cause, ValueError):  # a validator's own message, without "Value error, "
             loc += list(getattr(cause, "loc", ()))
             message = str(cause)
+        elif item["type"] != "missing" and isinstance(item["input"], (str, int, float, type(None))):
+            message += f", got {item['input']!r}"
         lines.append(f"{field_path(loc, prefix)}: {message}")
     return "; ".join(dict.fromkeys(lines))
 
