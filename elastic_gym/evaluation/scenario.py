@@ -95,6 +95,7 @@ from pydantic import (
     StrictInt,
     StrictStr,
     ValidationError,
+    WithJsonSchema,
     field_validator,
     model_validator,
 )
@@ -168,8 +169,14 @@ def _folder_name(name: str) -> str:
     return name
 
 
+SEED = {"type": "integer", "minimum": 0}
 Seeds = Annotated[
-    tuple[Annotated[StrictInt, Field(ge=0)], ...], Field(min_length=1), AfterValidator(_distinct)
+    tuple[Annotated[StrictInt, Field(ge=0)], ...],
+    Field(min_length=1),
+    AfterValidator(_distinct),
+    WithJsonSchema(
+        {"anyOf": [SEED, {"type": "array", "items": SEED, "minItems": 1, "uniqueItems": True}]}
+    ),
 ]
 Values = Annotated[tuple[AxisValue, ...], Field(min_length=1), AfterValidator(unique_labels)]
 

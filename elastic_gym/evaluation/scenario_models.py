@@ -12,7 +12,7 @@ from __future__ import annotations
 import importlib
 import inspect
 from collections.abc import Mapping
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -59,7 +59,14 @@ def _label(value: Any) -> Any:
     return str(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else value
 
 
-Label = Annotated[StrictStr, BeforeValidator(_label), Field(min_length=1)]
+Label = Annotated[
+    StrictStr,
+    BeforeValidator(_label),
+    Field(min_length=1),
+    WithJsonSchema(
+        {"anyOf": [{"type": "string", "minLength": 1}, {"type": "number"}, {"const": True}]}
+    ),
+]
 Name = Annotated[
     StrictStr, BeforeValidator(lambda v: TRUE_STATE if v is True else v), Field(min_length=1)
 ]
@@ -132,25 +139,33 @@ def check_env_kwargs(env_id: str, kwargs: Mapping, loc: tuple = ()) -> None:
 
 
 # ---------------------------------------------------------------------------- entries
-def _bare(key: str):
-    """A before-validator: a bare string (or YAML's ``true``) is the entry's ``key``."""
+class BareEntry(StrictModel):
+    """A list entry that may be written as its ``bare_key`` alone (a string; for state
+    sources also YAML's ``true``), e.g. ``- deluca`` for ``- {name: deluca}``."""
 
-    def bare(cls: type, data: Any) -> Any:
-        return {key: data} if isinstance(data, str) or data is True else data
+    model_config = ConfigDict(frozen=True)
+    bare_key: ClassVar[str] = "name"
+    bare_schemas: ClassVar[tuple[dict, ...]] = ({"type": "string"},)
 
-    return model_validator(mode="before")(classmethod(bare))
+    @model_validator(mode="before")
+    @classmethod
+    def _bare(cls, data: Any) -> Any:
+        return {cls.bare_key: data} if isinstance(data, str) or data is True else data
+
+    @classmethod
+    def __get_pydantic_json_schema__(cls, core_schema: Any, handler: Any) -> dict:
+        return {"anyOf": [*cls.bare_schemas, handler(core_schema)]}
 
 
-class EnvEntry(StrictModel):
+class EnvEntry(BareEntry):
     """One env of the grid: gym id (the ``elastic_gym/`` prefix is optional), constructor
     kwargs and ``reset`` options; the label defaults to the id's name."""
 
-    model_config = ConfigDict(frozen=True)
+    bare_key = "id"
     id: Annotated[str, AfterValidator(registered_env_id)]
     label: Label | None = None
     kwargs: dict[str, Any] = Field(default_factory=dict)
     reset_options: dict[Any, Any] = Field(default_factory=dict)
-    _bare = _bare("id")
 
     @field_validator("kwargs")
     @classmethod
@@ -166,15 +181,13 @@ class EnvEntry(StrictModel):
         return self
 
 
-class _Named(StrictModel):
+class _Named(BareEntry):
     """Base of the controller and state-source entries (a bare string is the name)."""
 
-    model_config = ConfigDict(frozen=True)
     name: Name
     label: Label | None = None
     options: dict[Any, Any] = Field(default_factory=dict)
     cls: ClassPath = Field(None, alias="class")
-    _bare = _bare("name")
 
     @model_validator(mode="after")
     def _defaults(self) -> _Named:
@@ -215,6 +228,7 @@ class SourceEntry(_Named):
     """A state source: ``"true"`` (the oracle) or an observer with options;
     ``initial_estimate`` (full state vector) is passed to ``observer.reset``."""
 
+    bare_schemas = ({"type": "string"}, {"const": True})
     initial_estimate: tuple[Annotated[StrictFloat, AllowInfNan(False)], ...] | None = Field(
         None, min_length=1
     )

@@ -78,7 +78,7 @@ def _count(value: Any) -> Any:
     return value
 
 
-Count = Annotated[int, BeforeValidator(_count), Field(ge=1)]
+Count = Annotated[int, Field(ge=1), BeforeValidator(_count)]
 EnvKwargs = dict[str, Any]
 
 
@@ -296,7 +296,7 @@ class TrainConfig(ConfigModel):
     algo: Literal[ALGORITHMS] = "ppo"  # type: ignore[valid-type]
     state: Annotated[StrictStr, AfterValidator(_state_source)] = "deluca"
     total_steps: Count | None = None
-    seed: Annotated[int, BeforeValidator(_count), Field(ge=0)] = 0
+    seed: Annotated[int, Field(ge=0), BeforeValidator(_count)] = 0
     out_dir: StrictStr = "runs/ppo-twolink"
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
