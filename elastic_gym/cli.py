@@ -19,12 +19,8 @@ from collections.abc import Sequence
 
 from pydantic import BaseModel
 
-from elastic_gym.evaluation.scenario import (
-    COMPARISON_PHYSICS_DT,
-    DEFAULT_PRESET,
-    QUICK_DURATION,
-    list_presets,
-)
+from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
+from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
 from elastic_gym.parallel import BACKENDS, Interrupted, interrupts_raised
 
 

@@ -1,4 +1,5 @@
-"""Comparison scenarios: the grid of runs, from a dict, a YAML file or a shipped preset.
+"""Comparison scenarios: the grid of runs, from a dict (YAML files and the shipped presets:
+:mod:`~elastic_gym.evaluation.presets`).
 
 A scenario is the product
 
@@ -62,13 +63,10 @@ nominal run itself, run once for all sweeps), so N sweeps of k magnitudes cost
 :mod:`~elastic_gym.evaluation.margins` turn them into metric-versus-magnitude curves
 and robustness margins.
 
-Physics step. PyBullet integrates the links with first-order semi-implicit Euler and
-the elastic transmissions are integrated the same way, so a closed loop's tracking
-error carries an O(physics_dt) integration error; at the robots' default 0.5 ms step it
-can exceed the differences between controllers. Comparisons therefore default to
-``COMPARISON_PHYSICS_DT`` = 1/16 ms (:mod:`~elastic_gym.evaluation.convergence` checks
-that a scenario's metrics agree with those at a finer step). An env entry's or axis
-value's own ``physics_dt`` kwarg takes precedence.
+Physics step. PyBullet's first-order semi-implicit Euler puts an O(physics_dt) error in
+every closed loop's tracking; comparisons default to ``COMPARISON_PHYSICS_DT`` = 1/16 ms
+(:mod:`~elastic_gym.evaluation.convergence` checks a scenario at a finer step). An env
+entry's or axis value's own ``physics_dt`` kwarg takes precedence.
 
 Loading validates structure, types and registry names (the pydantic models of
 :mod:`~elastic_gym.evaluation.scenario_models`; ``elastic-gym schema scenario`` prints
@@ -84,10 +82,8 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Annotated, Any
 
-import yaml
 from pydantic import (
     AfterValidator,
     ConfigDict,
@@ -100,6 +96,7 @@ from pydantic import (
     model_validator,
 )
 
+from elastic_gym.evaluation.magnitudes import Magnitudes, Sweep
 from elastic_gym.evaluation.output import folder_name_problem
 from elastic_gym.evaluation.scenario_models import (
     IDENTITY_COLUMNS,
@@ -110,14 +107,11 @@ from elastic_gym.evaluation.scenario_models import (
     AxisValue,
     ControllerEntry,
     EnvEntry,
-    Magnitudes,
     ModelError,
     Positive,
     SourceEntry,
-    Sweep,
     Variation,
     check_env_kwargs,
-    format_values,
     unique_labels,
 )
 from elastic_gym.validation import FieldError, StrictModel, format_validation_error
@@ -134,11 +128,8 @@ __all__ = [
     "SourceEntry",
     "Sweep",
     "Variation",
-    "format_values",
 ]
 
-PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
-DEFAULT_PRESET = "default"
 QUICK_DURATION = 0.5  # s, Scenario.quick()
 COMPARISON_PHYSICS_DT = 1.0 / 16000.0  # s; see the module docstring
 MAX_PHYSICS_DT = 1e-3  # s, the envs' own bound
@@ -325,37 +316,6 @@ def _validated(model: type[Scenario], data: Any, by_name: bool = False) -> Scena
     except ValidationError as error:
         path, _, message = format_validation_error(error).partition(": ")
         raise ScenarioError(path, message) from None
-
-
-# ---------------------------------------------------------------------------- loaders
-def list_presets() -> list[str]:
-    """Names of the presets shipped in ``elastic_gym/presets``."""
-    return sorted(path.stem for path in PRESET_DIR.glob("*.yaml"))
-
-
-def preset_path(name: str) -> Path:
-    if name not in list_presets():
-        raise ValueError(f"unknown preset {name!r}; valid: {list_presets()}")
-    return PRESET_DIR / f"{name}.yaml"
-
-
-def load_preset(name: str = DEFAULT_PRESET) -> Scenario:
-    """A shipped preset by name (``elastic-gym compare --preset NAME``)."""
-    return load_scenario(preset_path(name), name=name)
-
-
-def load_scenario(path: str | Path, name: str | None = None) -> Scenario:
-    """A scenario from a YAML file; the name defaults to the file's ``name`` field or stem."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"scenario file {str(path)!r} does not exist")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ScenarioError(str(path), f"invalid YAML: {exc}") from None
-    if not isinstance(data, Mapping):
-        raise ScenarioError(str(path), "the file must contain a mapping of scenario fields")
-    return Scenario.from_dict(data, name or data.get("name") or path.stem)
 
 
 def resolve_class(cls: type | str, path: str) -> type:
