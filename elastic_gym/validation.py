@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import fields
-from typing import Annotated, Any, ClassVar, TypeVar
+from typing import Annotated, Any, ClassVar, TypeVar, get_args
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, ValidationError, model_validator
@@ -172,8 +172,32 @@ def _is_union_tag(part: int | str) -> bool:
     )
 
 
-def format_validation_error(error: ValidationError, prefix: str = "") -> str:
-    """One line per problem, the field path first: ``controllers[1].options.omega: ...``."""
+def _models_in(annotation: Any) -> list[type[BaseModel]]:
+    """The pydantic models in an annotation (through Annotated, unions, containers)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return [model for arg in get_args(annotation) for model in _models_in(arg)]
+
+
+def field_names(model: type[BaseModel], loc: Sequence[int | str]) -> list[str]:
+    """The field names (aliases) of the model reached from ``model`` along ``loc`` (a
+    union member named in ``loc`` is followed; none: ``[]``)."""
+    models = [model]
+    for part in loc:
+        named = [m for m in models if m.__name__ == part]
+        fields = [f for m in models for n, f in m.model_fields.items() if part in (n, f.alias)]
+        if named:
+            models = named
+        elif fields:
+            models = _models_in(fields[0].annotation)
+    return [f.alias or name for name, f in models[0].model_fields.items()] if models else []
+
+
+def format_validation_error(
+    error: ValidationError, prefix: str = "", model: type[BaseModel] | None = None
+) -> str:
+    """One line per problem, the field path first: ``controllers[1].options.omega: ...``;
+    an unknown field lists the valid ones when the validated ``model`` is given."""
     lines = []
     items = error.errors(include_url=False)
     for item in items:
@@ -185,7 +209,8 @@ def format_validation_error(error: ValidationError, prefix: str = "") -> str:
         message = item["msg"]
         cause = item.get("ctx", {}).get("error")
         if item["type"] == "extra_forbidden":
-            message = "unexpected field"
+            valid = field_names(model, item["loc"][:-1]) if model else []
+            message = "unexpected field" + (f"; valid: {valid}" if valid else "")
         elif isinstance(cause, ValueError):  # a validator's own message, without "Value error, "
             loc += list(getattr(cause, "loc", ()))
             message = str(cause)
@@ -206,4 +231,4 @@ def validated(model: type[M], data: Any, prefix: str = "") -> M:
     try:
         return model.model_validate({} if data is None else plain(data))
     except ValidationError as error:
-        raise ValueError(format_validation_error(error, prefix)) from None
+        raise ValueError(format_validation_error(error, prefix, model)) from None

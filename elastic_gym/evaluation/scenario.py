@@ -87,9 +87,11 @@ from typing import Annotated, Any
 from pydantic import (
     AfterValidator,
     ConfigDict,
+    Discriminator,
     Field,
     StrictInt,
     StrictStr,
+    Tag,
     ValidationError,
     WithJsonSchema,
     field_validator,
@@ -170,6 +172,10 @@ Seeds = Annotated[
     ),
 ]
 Values = Annotated[tuple[AxisValue, ...], Field(min_length=1), AfterValidator(unique_labels)]
+Axis = Annotated[  # a list of values, or a mapping of magnitudes
+    Annotated[Values, Tag("list")] | Annotated[Magnitudes, Tag("Magnitudes")],
+    Discriminator(lambda v: "Magnitudes" if isinstance(v, Mapping | Magnitudes) else "list"),
+]
 
 
 def _entries(entry: Any) -> Any:
@@ -192,7 +198,7 @@ class Scenario(StrictModel):
     physics_dt: Annotated[Positive, Field(le=MAX_PHYSICS_DT)] | None = COMPARISON_PHYSICS_DT
     seeds: Seeds = (0,)
     envs: _entries(EnvEntry)
-    axis_table: dict[AxisName, Values | Magnitudes] = Field({}, alias="axes")
+    axis_table: dict[AxisName, Axis] = Field({}, alias="axes")
     sweep_table: dict[AxisName, Sweep] = Field({}, alias="sweeps")
     model_errors: _entries(ModelError) = (Variation(label="exact"),)
     controllers: _entries(ControllerEntry)
@@ -314,7 +320,7 @@ def _validated(model: type[Scenario], data: Any, by_name: bool = False) -> Scena
     try:
         return model.model_validate(data, by_name=by_name)
     except ValidationError as error:
-        path, _, message = format_validation_error(error).partition(": ")
+        path, _, message = format_validation_error(error, model=model).partition(": ")
         raise ScenarioError(path, message) from None
 
 

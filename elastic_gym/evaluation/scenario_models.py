@@ -22,10 +22,10 @@ from pydantic import (
     ConfigDict,
     Field,
     StrictFloat,
-    StrictInt,
     StrictStr,
     ValidationInfo,
     WithJsonSchema,
+    WrapValidator,
     field_serializer,
     field_validator,
     model_serializer,
@@ -45,7 +45,13 @@ IDENTITY_COLUMNS = ("env", "model_error", "controller", "source", "seed")
 SWEEP_AXIS = "sweep"
 RESERVED_AXES = (*IDENTITY_COLUMNS, SWEEP_AXIS)
 
-Real = Annotated[StrictInt | StrictFloat, AllowInfNan(False)]  # an int stays an int
+
+def _keep_int(value: Any, handler: Any) -> float | int:
+    number = handler(value)
+    return int(number) if isinstance(value, int) else number
+
+
+Real = Annotated[StrictFloat, AllowInfNan(False), WrapValidator(_keep_int)]  # 1 stays 1
 Positive = Annotated[StrictFloat, Field(gt=0, allow_inf_nan=False)]
 
 
