@@ -143,15 +143,21 @@ def with_trained_policy(scenario, run_dir: str):
         None,
     )
     if source is None:
-        source = SourceEntry(
-            name=config.state, label=f"{config.state}-policy", options=config.observer_options
+        source = SourceEntry.model_validate(
+            {
+                "name": config.state,
+                "label": f"{config.state}-policy",
+                "options": config.observer_options,
+            }
         )
         sources.append(source)
-    controller = ControllerEntry(
-        name="trained-policy",
-        label=f"policy:{Path(run_dir).name}",
-        options={"run": str(Path(run_dir).resolve())},
-        sources=(source.label,),
+    controller = ControllerEntry.model_validate(
+        {
+            "name": "trained-policy",
+            "label": f"policy:{Path(run_dir).name}",
+            "options": {"run": str(Path(run_dir).resolve())},
+            "sources": [source.label],
+        }
     )
     return scenario.with_overrides(
         controllers=(*scenario.controllers, controller), state_sources=tuple(sources)

@@ -26,7 +26,7 @@ class Magnitudes(StrictModel):
     parameter: Annotated[
         str, Field(pattern=r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$", examples=["plant_scaling.link_mass"])
     ]
-    values: tuple[Real, ...] | None = Field(None, min_length=1)
+    values: tuple[Real, ...] = Field((), json_schema_extra={"minItems": 1})
     range: tuple[Real, Real] | None = None
     num: Annotated[StrictInt, Field(ge=2)] | None = None
     log: StrictBool = False
@@ -35,17 +35,22 @@ class Magnitudes(StrictModel):
 
     @model_validator(mode="after")
     def _resolved(self) -> Magnitudes:
-        if (self.values is None) == (self.range is None):
+        given = "values" in self.model_fields_set
+        if given == (self.range is not None):
             raise ValueError("give either 'values' or 'range' (with 'num')")
-        if (self.num is None) == (self.range is not None):
-            raise FieldError(("num",), "goes with 'range' (an integer >= 2), not with 'values'")
         if self.range is not None:
+            if self.num is None:
+                raise FieldError(("num",), "an integer >= 2 goes with 'range'")
             low, high = self.range
             if self.log and not (low > 0 and high > 0):
                 raise FieldError(("range",), f"log: true needs bounds > 0, got {list(self.range)}")
             points = (np.geomspace if self.log else np.linspace)(low, high, self.num)
             values = tuple(float(f"{v:.12g}") for v in points)  # 1.2000000000000002 -> 1.2
-            self.__dict__.update(values=values, range=None, num=None)
+            vars(self).update(values=values, range=None, num=None)
+        elif self.num is not None:
+            raise FieldError(("num",), "goes with 'range', not with 'values'")
+        if not self.values:
+            raise FieldError(("values",), "must not be empty")
         for i, v in enumerate(self.values):
             if self.log and v <= 0:
                 raise FieldError(("values", i), f"must be finite and > 0, got {v!r}")
@@ -106,4 +111,10 @@ class Sweep(Magnitudes):
     """A one-at-a-time sweep: magnitudes and the ``nominal`` one, which the runs as given
     have (required)."""
 
-    nominal: Real
+    model_config = ConfigDict(json_schema_extra={"required": ["parameter", "nominal"]})
+
+    @model_validator(mode="after")
+    def _nominal(self) -> Sweep:
+        if self.nominal is None:
+            raise FieldError(("nominal",), "is required: the magnitude of the nominal runs")
+        return self

@@ -82,7 +82,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Mapping, Sequence
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 from pydantic import (
     AfterValidator,
@@ -176,11 +176,8 @@ Axis = Annotated[  # a list of values, or a mapping of magnitudes
     Annotated[Values, Tag("list")] | Annotated[Magnitudes, Tag("Magnitudes")],
     Discriminator(lambda v: "Magnitudes" if isinstance(v, Mapping | Magnitudes) else "list"),
 ]
-
-
-def _entries(entry: Any) -> Any:
-    """A non-empty list of ``entry`` with distinct labels."""
-    return Annotated[tuple[entry, ...], Field(min_length=1), AfterValidator(unique_labels)]
+E = TypeVar("E")
+Entries = Annotated[tuple[E, ...], Field(min_length=1), AfterValidator(unique_labels)]
 
 
 class Scenario(StrictModel):
@@ -197,12 +194,12 @@ class Scenario(StrictModel):
     duration: Positive = 3.0
     physics_dt: Annotated[Positive, Field(le=MAX_PHYSICS_DT)] | None = COMPARISON_PHYSICS_DT
     seeds: Seeds = (0,)
-    envs: _entries(EnvEntry)
+    envs: Entries[EnvEntry]
     axis_table: dict[AxisName, Axis] = Field({}, alias="axes")
     sweep_table: dict[AxisName, Sweep] = Field({}, alias="sweeps")
-    model_errors: _entries(ModelError) = (Variation(label="exact"),)
-    controllers: _entries(ControllerEntry)
-    state_sources: _entries(SourceEntry)
+    model_errors: Entries[ModelError] = (Variation(label="exact"),)
+    controllers: Entries[ControllerEntry]
+    state_sources: Entries[SourceEntry]
 
     @model_validator(mode="before")
     @classmethod

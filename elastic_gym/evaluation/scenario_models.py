@@ -166,7 +166,7 @@ class EnvEntry(BareEntry):
 
     bare_key = "id"
     id: Annotated[str, AfterValidator(registered_env_id)]
-    label: Label | None = None
+    label: Label = ""  # the id's name
     kwargs: dict[str, Any] = Field(default_factory=dict)
     reset_options: dict[Any, Any] = Field(default_factory=dict)
 
@@ -179,8 +179,8 @@ class EnvEntry(BareEntry):
 
     @model_validator(mode="after")
     def _default_label(self) -> EnvEntry:
-        if self.label is None:
-            self.__dict__["label"] = self.id.removeprefix(ENV_NAMESPACE).removesuffix("-v0")
+        if not self.label:
+            vars(self)["label"] = self.id.removeprefix(ENV_NAMESPACE).removesuffix("-v0")
         return self
 
 
@@ -188,7 +188,7 @@ class _Named(BareEntry):
     """Base of the controller and state-source entries (a bare string is the name)."""
 
     name: Name
-    label: Label | None = None
+    label: Label = ""  # the name
     options: dict[Any, Any] = Field(default_factory=dict)
     cls: ClassPath = Field(None, alias="class")
 
@@ -198,8 +198,8 @@ class _Named(BareEntry):
         if self.cls is None and self.name not in valid:
             kind = "controller" if isinstance(self, ControllerEntry) else "state source"
             raise FieldError(("name",), f"unknown {kind} {self.name!r}; valid: {sorted(valid)}")
-        if self.label is None:
-            self.__dict__["label"] = self.name
+        if not self.label:
+            vars(self)["label"] = self.name
         return self
 
     @field_serializer("cls")
@@ -257,7 +257,7 @@ class Variation(StrictModel):
     label it is named by its values (:func:`format_values`)."""
 
     model_config = ConfigDict(frozen=True)
-    label: Label | None = None
+    label: Label = ""  # made of the values
     values: dict[str, Any] = Field(default_factory=dict)
 
     @model_validator(mode="before")
@@ -265,10 +265,9 @@ class Variation(StrictModel):
     def _flat(cls, data: Any) -> Any:
         if not isinstance(data, Mapping) or set(data) <= {"label", "values"}:
             return data
-        return {
-            "label": data.get("label"),
-            "values": {k: v for k, v in data.items() if k != "label"},
-        }
+        values = {k: v for k, v in data.items() if k != "label"}
+        label = data.get("label")
+        return {"values": values} if label is None else {"label": label, "values": values}
 
     @model_serializer
     def _flat_dump(self) -> dict:
@@ -276,7 +275,7 @@ class Variation(StrictModel):
 
     def named(self, empty: str) -> Variation:
         """Itself with its label, or one made of its values (``empty`` without values)."""
-        if self.label is not None:
+        if self.label:
             return self
         return self.model_copy(update={"label": format_values(self.values) or empty})
 
