@@ -51,6 +51,7 @@ from elastic_gym.training.config import (
 )
 from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
 from elastic_gym.training.policy_env import SENSORS, make_policy_env
+from elastic_gym.yaml_io import load_yaml
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.yaml")  # needed to load a run
 RUN_OUTPUTS = (*RUN_FILES, "best_model.zip", "summary.json", "evaluations.npz", CURVE_FILE, "tb")
@@ -402,11 +403,11 @@ def read_run_config(run_dir: str | Path) -> TrainConfig:
         raise ValueError(f"{folder} is not a training run folder: missing {missing}")
     path = folder / "config.yaml"
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml(path)
         if not isinstance(data, dict):
             raise ValueError(f"must hold a mapping, got {type(data).__name__}")
         return TrainConfig.from_dict(_before_the_deadzone(data))
-    except (yaml.YAMLError, TypeError, ValueError, UnicodeDecodeError) as exc:
+    except (TypeError, ValueError) as exc:
         raise ValueError(
             f"{path} is not a valid run configuration: {' '.join(str(exc).split())}"
         ) from None
