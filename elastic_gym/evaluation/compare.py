@@ -68,6 +68,7 @@ from elastic_gym.evaluation.runner import (
     RunResult,
     RunSpec,
     SkippedRun,
+    crashed_result,
     describe_run,
     plan_runs,
     run_episode,
@@ -176,6 +177,7 @@ def _compare(
             progress=progress,
             label="runs",
             describe=describe_run,
+            crashed=crashed_result,
         )
     except BaseException as exc:
         rows = sink.csv.finish()
