@@ -24,6 +24,7 @@ USER_CODE = '''
 import ctypes
 import multiprocessing
 import os
+import signal
 import sys
 import time
 
@@ -232,3 +233,148 @@ def test_workers_end_when_compare_is_killed(tmp_path):
     while any(alive(pid) for pid in left) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not [pid for pid in left if alive(pid)]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_the_ray_runtime_ends_when_compare_is_killed(tmp_path):
+    pytest.importorskip("ray")
+
+    def ray_processes() -> list[int]:
+        found = []
+        for path in Path("/proc").glob("[0-9]*/cmdline"):
+            try:
+                command = path.read_bytes()
+            except OSError:
+                continue
+            if b"/ray/" in command or command.startswith(b"ray::"):
+                found.append(int(path.parent.name))
+        return [pid for pid in found if alive(pid)]
+
+    before = set(ray_processes())
+    out = tmp_path / "out"
+    args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
+    process = cli([*args, "--workers", "2", "--backend", "ray", "--no-progress"], tmp_path)
+    deadline = time.monotonic() + 180
+    while not (out / "scenario.yaml").exists() or len(set(ray_processes()) - before) < 5:
+        assert process.poll() is None, process.communicate()
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    time.sleep(3.0)  # the agents and the workers are up
+    started = set(ray_processes()) - before
+    process.kill()
+    process.communicate()
+    deadline = time.monotonic() + 15.0
+    while any(alive(pid) for pid in started) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = [pid for pid in started if alive(pid)]
+    for pid in left:  # do not leave them to the other tests
+        os.kill(pid, signal.SIGKILL)
+    assert not left
+
+
+# ------------------------------------------------------------ full disks
+def rows_of(path: Path) -> list[dict]:
+    with path.open(newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def failing_write(monkeypatch, after_bytes: int) -> None:
+    """``os.write`` (as the output module calls it) writes ``after_bytes`` bytes more, then
+    the disk is full."""
+    from elastic_gym.evaluation import output
+
+    budget = [after_bytes]
+    real = os.write
+
+    def write(fd: int, data) -> int:
+        if budget[0] <= 0:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        written = real(fd, bytes(data[: budget[0]]))
+        budget[0] -= written
+        return written
+
+    monkeypatch.setattr(output.os, "write", write)
+
+
+def test_runs_csv_keeps_every_complete_row_when_the_disk_fills(tmp_path, monkeypatch):
+    from elastic_gym.evaluation.output import ResultsWriteError, RunsCsv
+
+    path = tmp_path / "runs.csv"
+    runs = RunsCsv(path)
+    for i in range(3):
+        runs.add(i, {"run": i, "status": "ok", "track_rms": 0.1 * i})
+    failing_write(monkeypatch, after_bytes=7)  # the 4th row is cut off mid-line
+    with pytest.raises(
+        ResultsWriteError, match=rf"^disk full: 3 of 4 finished rows kept in {path}$"
+    ):
+        runs.add(3, {"run": 3, "status": "ok", "track_rms": 0.3})
+    assert [int(r["run"]) for r in rows_of(path)] == [0, 1, 2]
+    assert path.read_text().endswith("\n")
+    with pytest.raises(ResultsWriteError, match="3 of 4"):
+        runs.finish()  # still refused, the file untouched
+    assert [int(r["run"]) for r in rows_of(path)] == [0, 1, 2]
+
+
+def test_a_new_column_on_a_full_disk_leaves_the_old_file_whole(tmp_path, monkeypatch):
+    from elastic_gym.evaluation.output import ResultsWriteError, RunsCsv
+
+    path = tmp_path / "runs.csv"
+    runs = RunsCsv(path)
+    runs.add(1, {"run": 1, "status": "ok"})
+    runs.add(0, {"run": 0, "status": "ok"})
+    before = path.read_bytes()
+    failing_write(monkeypatch, after_bytes=10)
+    with pytest.raises(ResultsWriteError, match="disk full: 2 of 3 finished rows kept"):
+        runs.add(2, {"run": 2, "status": "ok", "max_jumps": 4.0})  # the file is rewritten
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["runs.csv"]  # no partial file left
+
+
+FSIZE_LIMIT = """
+import resource, runpy, signal, sys
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes beyond the limit: EFBIG
+resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv.pop(1)),) * 2)
+sys.argv[0] = "elastic-gym"
+runpy.run_module("elastic_gym.cli", run_name="__main__")
+"""
+
+
+def compare_with_file_size_limit(tmp_path: Path, limit: int, out: Path, runs: int):
+    import yaml
+
+    (tmp_path / "faulty.py").write_text(USER_CODE)
+    config = tmp_path / "grid.yaml"
+    data = faulty_scenario({"fine": {}}, seeds=range(runs), duration=0.02).to_dict()
+    config.write_text(yaml.safe_dump(data))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
+    args = ["compare", "--config", str(config), "--output", str(out), "--workers", "1"]
+    return subprocess.run(
+        [sys.executable, "-c", FSIZE_LIMIT, str(limit), *args, "--no-progress", "--no-plots"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_compare_on_a_filling_disk_keeps_its_rows_and_says_so(tmp_path):
+    out = tmp_path / "out"
+    done = compare_with_file_size_limit(tmp_path, 1200, out, runs=12)
+    assert done.returncode == 1, done.stderr
+    message = done.stderr.strip().splitlines()[-1]
+    assert message.startswith("elastic-gym compare: error: disk full: "), done.stderr
+    kept = int(message.split("disk full: ")[1].split()[0])
+    assert f"rows kept in {out}/runs.csv" in message
+    assert 1 <= kept < 12 and len(rows_of(out / "runs.csv")) == kept
+    assert "Traceback" not in done.stderr
+
+
+def test_a_disk_full_before_the_run_leaves_nothing_that_blocks_a_rerun(tmp_path):
+    out = tmp_path / "out"
+    done = compare_with_file_size_limit(tmp_path, 50, out, runs=1)
+    assert done.returncode == 1, done.stderr
+    assert f"disk full: nothing written in {out}/" in done.stderr
+    assert not out.exists()
+    rerun = compare_with_file_size_limit(tmp_path, 10**7, out, runs=1)
+    assert rerun.returncode == 0, rerun.stderr
+    assert rows_of(out / "runs.csv")[0]["status"] == "ok"

@@ -165,7 +165,10 @@ def _compare(
     if overwrite:
         clear_results(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / "scenario.yaml", yaml.safe_dump(scenario.to_dict(), sort_keys=False))
+    try:
+        write_atomic(out / "scenario.yaml", yaml.safe_dump(scenario.to_dict(), sort_keys=False))
+    except OSError as exc:
+        raise ResultsWriteError(f"{write_problem(exc)}: nothing written in {out}/") from exc
     sink = _Sink(out, runs, plots)
     try:
         for_each_result(
