@@ -20,6 +20,7 @@ from elastic_gym.evaluation import Scenario, ScenarioError, compare
 
 ROOT = Path(__file__).resolve().parents[1]
 QUIET = Console(quiet=True)
+TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 USER_CODE = '''
 import ctypes
 import multiprocessing
@@ -378,3 +379,118 @@ def test_a_disk_full_before_the_run_leaves_nothing_that_blocks_a_rerun(tmp_path)
     rerun = compare_with_file_size_limit(tmp_path, 10**7, out, runs=1)
     assert rerun.returncode == 0, rerun.stderr
     assert rows_of(out / "runs.csv")[0]["status"] == "ok"
+
+
+# ------------------------------------------------------------ a second writer
+def test_a_second_writer_of_an_output_folder_is_refused_with_the_holders_pid(tmp_path):
+    from elastic_gym.folder_lock import LOCK_FILE, FolderLockedError, folder_lock
+
+    folder = tmp_path / "out"
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time\nfrom elastic_gym.folder_lock import folder_lock\n"
+            f"with folder_lock({str(folder)!r}):\n    print('locked', flush=True)\n"
+            "    time.sleep(60)",
+        ],
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        locked = pytest.raises(FolderLockedError, match=rf"in use by process {holder.pid} ")
+        with locked, folder_lock(folder):
+            pass
+        scenario = faulty_scenario({"fine": {}})
+        with pytest.raises(FolderLockedError, match=str(folder)):
+            compare(scenario, output_dir=folder, workers=1, progress=False, console=QUIET)
+        assert sorted(p.name for p in folder.iterdir()) == [LOCK_FILE]  # nothing written
+    finally:
+        holder.kill()  # SIGKILL: the kernel drops its lock
+        holder.wait()
+    assert (folder / LOCK_FILE).exists()  # a killed holder cannot remove its lock file
+    with folder_lock(folder):  # but it does not block the next one
+        pass
+    assert list(folder.iterdir()) == []
+
+
+def test_train_refuses_a_run_folder_that_another_training_writes(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from elastic_gym.cli import main
+    from elastic_gym.folder_lock import folder_lock
+
+    out = tmp_path / "run"
+    with folder_lock(out), pytest.raises(SystemExit) as stopped:
+        main(["train", "--state", "true", "--steps", "8", "--out", str(out), "--no-progress"])
+    assert stopped.value.code == 2
+    assert not out.exists()
+
+
+def test_train_on_a_read_only_folder_is_refused_before_building_anything(tmp_path, capsys):
+    pytest.importorskip("stable_baselines3")
+    from elastic_gym.cli import main
+
+    if os.geteuid() == 0:
+        if not os.path.isdir("/sys"):
+            pytest.skip("no read-only folder to test with")
+        out = Path("/sys/elastic-gym-run")  # sysfs refuses new files, even to root
+    else:
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        out = locked / "run"
+    start = time.monotonic()
+    with pytest.raises(SystemExit) as stopped:
+        main(["train", "--state", "true", "--steps", "8", "--out", str(out), "--no-progress"])
+    assert stopped.value.code == 2
+    assert "cannot write in" in capsys.readouterr().err
+    assert time.monotonic() - start < 5.0  # no env, no model built
+
+
+# ------------------------------------------------------------ unbounded episodes, big batches
+def test_training_with_episodes_that_never_end_is_refused_not_hung(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "run"
+    args = ["train", "--state", "true", "--steps", "64", "--out", str(out), "--no-progress"]
+    done = subprocess.run(
+        [sys.executable, "-m", "elastic_gym.cli", *args, "--env-kwargs", "{episode_time: null}"],
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert done.returncode == 2, done.stderr
+    assert "env_kwargs.episode_time: None (episodes that never end)" in done.stderr
+    assert not out.exists()
+
+
+def urdf_of(env_id: str) -> str:
+    from elastic_gym.evaluation.runner import env_robot
+
+    return env_robot(f"elastic_gym/{env_id}", {}).urdf
+
+
+def test_a_batch_too_large_for_the_memory_is_refused_before_it_is_built(monkeypatch):
+    import gymnasium as gym
+
+    from elastic_gym.envs import memory
+
+    start = time.monotonic()
+    with pytest.raises(ValueError, match=r"n_arms=100000000: a batch of 100000000 .* GiB"):
+        gym.make_vec(
+            "elastic_gym/TwoLinkElastic-v0", 10**8, vectorization_mode="vector_entry_point"
+        )
+    assert time.monotonic() - start < 5.0
+    monkeypatch.setattr(memory, "available_bytes", lambda: 1024**3)  # a 1 GiB machine
+    needed = memory.batch_bytes(urdf_of("TwoLinkElastic-v0"), 20_000) / 1024**3
+    with pytest.raises(ValueError, match=rf"needs about {needed:.1f} GiB .* and 1.0 GiB"):
+        gym.make_vec(
+            "elastic_gym/TwoLinkElastic-v0", 20_000, vectorization_mode="vector_entry_point"
+        )
+    # the estimate is linear in the arms and counts each byte of mesh MESH_FACTOR times
+    urdf = urdf_of("IiwaElastic-v0")
+    assert memory.mesh_bytes(urdf) > 0
+    assert memory.batch_bytes(urdf, 7) == 7 * (
+        memory.ARM_BYTES + memory.MESH_FACTOR * memory.mesh_bytes(urdf)
+    )
