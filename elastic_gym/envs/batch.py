@@ -38,9 +38,10 @@ simulated seconds.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import ClassVar
 
 import numpy as np
@@ -408,6 +409,19 @@ class ArmBatch:
         return self._time
 
     # ------------------------------------------------------------------ episodes
+    @contextlib.contextmanager
+    def generators_kept_on_error(self, arms: np.ndarray) -> Iterator[None]:
+        """If the block raises (a refused reset), the generators of ``arms`` are the same
+        objects in the same states as before it: a refused reset changes no stream."""
+        saved = [(i, self.rngs[i], self.rngs[i].bit_generator.state) for i in arms]
+        try:
+            yield
+        except BaseException:
+            for i, rng, state in saved:
+                rng.bit_generator.state = state
+                self.rngs[i] = rng
+            raise
+
     def reset_arms(self, arms: np.ndarray, options: dict | None = None) -> None:
         """Start new episodes for ``arms`` (indices) at rest, or at ``options["initial_state"]``.
 
