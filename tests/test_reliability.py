@@ -800,3 +800,31 @@ def test_a_run_folder_whose_config_no_longer_matches_its_model_is_refused_before
     ):
         compare(scenario, output_dir=out, workers=1, progress=False, console=QUIET)
     assert not out.exists()
+
+
+# ------------------------------------------------------------ recording a video
+def test_record_video_writes_every_frame_of_an_episode(tmp_path):
+    pytest.importorskip("moviepy")
+    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    import gymnasium as gym
+    import numpy as np
+    from gymnasium.wrappers import RecordVideo
+
+    env = gym.make(TWO_LINK, render_mode="rgb_array", episode_time=0.02)
+    env.reset(seed=0)
+    height, width, _ = env.render().shape
+    env = RecordVideo(env, str(tmp_path), episode_trigger=lambda _: True, disable_logger=True)
+    env.reset(seed=0)
+    steps = 0
+    while True:
+        steps += 1
+        _, _, terminated, truncated, _ = env.step(np.zeros(2))
+        if terminated or truncated:
+            break
+    env.close()
+    video = tmp_path / "rl-video-episode-0.mp4"
+    frames, _ = imageio_ffmpeg.count_frames_and_secs(str(video))
+    assert steps == 20 and frames == steps + 1  # the reset's frame and one per step
+    reader = imageio_ffmpeg.read_frames(str(video))
+    assert next(reader)["size"] == (width, height)
+    reader.close()
