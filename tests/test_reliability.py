@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from rich.console import Console
+from test_interrupts import alive, children
 
 from elastic_gym.evaluation import Scenario, ScenarioError, compare
 
@@ -175,25 +176,6 @@ def os_exit_on_two(job: int) -> int:
     return job
 
 
-def processes_with_parent(pid: int) -> list[int]:
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] != "Z":
-            found.append(int(stat.parent.name))
-    return found
-
-
-def alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 def cli(args: list[str], tmp_path: Path, **kwargs) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
     return subprocess.Popen(
@@ -222,12 +204,12 @@ def test_workers_end_when_compare_is_killed(tmp_path):
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
     process = cli([*args, "--workers", "2", "--no-progress", "--no-plots"], tmp_path)
     deadline = time.monotonic() + 120
-    while len(processes_with_parent(process.pid)) < 3:  # 2 workers + the resource tracker
+    while len(children(process.pid)) < 3:  # 2 workers + the resource tracker
         assert process.poll() is None, process.communicate()
         assert time.monotonic() < deadline
         time.sleep(0.1)
     time.sleep(1.0)  # the workers run their first episodes
-    left = processes_with_parent(process.pid)
+    left = children(process.pid)
     process.kill()
     process.communicate()
     deadline = time.monotonic() + 5.0
@@ -239,29 +221,19 @@ def test_workers_end_when_compare_is_killed(tmp_path):
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_the_ray_runtime_ends_when_compare_is_killed(tmp_path):
     pytest.importorskip("ray")
+    from elastic_gym.orphan_reaper import ray_descendants
 
-    def ray_processes() -> list[int]:
-        found = []
-        for path in Path("/proc").glob("[0-9]*/cmdline"):
-            try:
-                command = path.read_bytes()
-            except OSError:
-                continue
-            if b"/ray/" in command or command.startswith(b"ray::"):
-                found.append(int(path.parent.name))
-        return [pid for pid in found if alive(pid)]
-
-    before = set(ray_processes())
     out = tmp_path / "out"
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
     process = cli([*args, "--workers", "2", "--backend", "ray", "--no-progress"], tmp_path)
     deadline = time.monotonic() + 180
-    while not (out / "scenario.yaml").exists() or len(set(ray_processes()) - before) < 5:
+    while not (out / "scenario.yaml").exists():  # the runs are being submitted to Ray
         assert process.poll() is None, process.communicate()
         assert time.monotonic() < deadline
         time.sleep(0.2)
-    time.sleep(3.0)  # the agents and the workers are up
-    started = set(ray_processes()) - before
+    time.sleep(5.0)  # the agents and the workers start
+    started = ray_descendants(process.pid)  # GCS, raylet, agents, workers
+    assert len(started) >= 5
     process.kill()
     process.communicate()
     deadline = time.monotonic() + 15.0
