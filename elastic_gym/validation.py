@@ -14,6 +14,14 @@ T = TypeVar("T")
 ENV_NAMESPACE = "elastic_gym/"
 
 
+def is_real(value: Any) -> bool:
+    """Whether ``value`` is a real number: Python's ``int`` / ``float`` or a numpy scalar
+    (``np.float32(1e-3)``, ``np.int64(3)``); not a bool."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, (bool, np.bool_)
+    )
+
+
 def registered_env_id(value: Any) -> str:
     """A registered Gymnasium env id; a bare name (``TwoLinkElastic-v0``) is looked up in
     the ``elastic_gym/`` namespace. ``ValueError`` lists the package's ids otherwise."""
@@ -118,6 +126,13 @@ class ConfigModel(StrictModel):
     model_config = ConfigDict(frozen=True)
     section: ClassVar[str] = ""
 
+    def __init__(self, **data: Any) -> None:
+        """Keyword construction refuses bad fields in the package's error form too."""
+        try:
+            super().__init__(**data)
+        except ValidationError as error:
+            raise ConfigError(format_validation_error(error, self.section, type(self))) from None
+
     @classmethod
     def from_config(cls, config: Any) -> Self:
         return validated(cls, config, cls.section)
@@ -150,6 +165,11 @@ def field_path(loc: Sequence[int | str], prefix: str = "") -> str:
         else:
             path += f".{part}" if path else str(part)
     return path or "(top level)"
+
+
+class ConfigError(ValueError):
+    """A configuration refused with its message already in the package's form (the field
+    path first): what a :class:`ConfigModel` raises."""
 
 
 class FieldError(ValueError):
@@ -208,6 +228,9 @@ def format_validation_error(
             continue  # a list left short by its own invalid items
         message = item["msg"]
         cause = item.get("ctx", {}).get("error")
+        if isinstance(cause, ConfigError):  # a nested config's own, already formatted
+            lines.append(f"{field_path(loc, prefix)}.{cause}" if loc else str(cause))
+            continue
         if item["type"] == "extra_forbidden":
             valid = field_names(model, item["loc"][:-1]) if model else []
             message = "unexpected field" + (f"; valid: {valid}" if valid else "")

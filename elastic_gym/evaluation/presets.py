@@ -5,9 +5,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-import yaml
-
 from elastic_gym.evaluation.scenario import Scenario, ScenarioError
+from elastic_gym.yaml_io import YAMLInputError, load_yaml
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
 DEFAULT_PRESET = "default"
@@ -35,9 +34,9 @@ def load_scenario(path: str | Path, name: str | None = None) -> Scenario:
     if not path.is_file():
         raise FileNotFoundError(f"scenario file {str(path)!r} does not exist")
     try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ScenarioError(str(path), f"invalid YAML: {exc}") from None
+        data = load_yaml(path)
+    except YAMLInputError as exc:
+        raise ScenarioError(exc.where, exc.problem) from None
     if not isinstance(data, Mapping):
         raise ScenarioError(str(path), "the file must contain a mapping of scenario fields")
     return Scenario.from_dict(data, name or data.get("name") or path.stem)

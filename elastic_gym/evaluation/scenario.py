@@ -68,14 +68,11 @@ every closed loop's tracking; comparisons default to ``COMPARISON_PHYSICS_DT`` =
 (:mod:`~elastic_gym.evaluation.convergence` checks a scenario at a finer step). An env
 entry's or axis value's own ``physics_dt`` kwarg takes precedence.
 
-Loading validates structure, types and registry names (the pydantic models of
-:mod:`~elastic_gym.evaluation.scenario_models`; ``elastic-gym schema scenario`` prints
-their JSON Schema) and raises :class:`ScenarioError` (a ``ValueError``) naming the
-offending field, e.g. ``controllers[1].name``. Whether the module behind a registered
-name is available, and whether an observer or controller applies to an env's arm
-(elastic or rigid), is decided when the runs are planned
-(:func:`elastic_gym.evaluation.runner.plan_runs`): inapplicable combinations are
-skipped, not errors.
+Loading validates the fields (the models of :mod:`~elastic_gym.evaluation.scenario_models`,
+whose JSON Schema ``elastic-gym schema scenario`` prints) and raises :class:`ScenarioError`
+(a ``ValueError``) naming the offending field, e.g. ``controllers[1].name``. Whether an
+observer or controller module is available and applies to an env's arm is decided when
+the runs are planned (:func:`elastic_gym.evaluation.runner.plan_runs`).
 """
 
 from __future__ import annotations
@@ -328,9 +325,17 @@ def resolve_class(cls: type | str, path: str) -> type:
         return cls
     module, _, attr = cls.partition(":")
     try:
-        return getattr(importlib.import_module(module), attr)
+        found = getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError) as exc:
         raise ScenarioError(path, f"cannot import class {cls!r}: {exc}") from None
+    except (Exception, SystemExit) as exc:  # the module's own code failed or does not compile
+        message = " ".join(str(exc).split())
+        raise ScenarioError(
+            path, f"importing module {module!r} failed: {type(exc).__name__}: {message}"
+        ) from None
+    if not isinstance(found, type):
+        raise ScenarioError(path, f"{cls!r} is not a class but {type(found).__name__} {found!r}")
+    return found
 
 
 def merge(base: Mapping, override: Mapping) -> dict:

@@ -38,6 +38,7 @@ from pydantic import (
     Field,
     RootModel,
     StrictBool,
+    StrictInt,
     StrictStr,
     model_validator,
 )
@@ -45,7 +46,14 @@ from pydantic import (
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import check_state_source
-from elastic_gym.validation import ConfigModel, StrictModel, registered_env_id, validated
+from elastic_gym.validation import (
+    ConfigModel,
+    StrictModel,
+    is_real,
+    registered_env_id,
+    validated,
+)
+from elastic_gym.yaml_io import load_yaml
 
 ALGORITHMS = ("ppo", "sac", "td3", "recurrentppo")
 RECURRENT = {"recurrentppo"}  # sb3-contrib's RecurrentPPO: an LSTM in actor and critic
@@ -79,6 +87,7 @@ def _count(value: Any) -> Any:
 
 
 Count = Annotated[int, Field(ge=1), BeforeValidator(_count)]
+PositiveInt = Annotated[StrictInt, Field(ge=1)]  # numpy integers count (StrictModel)
 EnvKwargs = dict[str, Any]
 
 
@@ -118,10 +127,7 @@ class HyperparameterFile(RootModel[dict[str, HyperparameterEntry]]):
 
 def load_hyperparams_file(path: str | Path) -> dict:
     """Parse a hyper-parameter YAML file; errors name the file and the problem."""
-    try:
-        data = yaml.safe_load(Path(path).read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f"invalid YAML in {path}: {exc}") from None
+    data = load_yaml(Path(path))
     if not isinstance(data, dict):
         raise ValueError(f"{path}: top level must map env ids (or 'default') to settings")
     validated(HyperparameterFile, data, prefix=str(path))
@@ -220,7 +226,7 @@ def _check_critic_state(algo: str, merged: dict) -> None:
 
 
 def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+    return is_real(value) and not isinstance(value, bool)
 
 
 def linear_schedule(initial: float, progress_remaining: float) -> float:
@@ -295,18 +301,18 @@ class TrainConfig(ConfigModel):
     )
     algo: Literal[ALGORITHMS] = "ppo"  # type: ignore[valid-type]
     state: Annotated[StrictStr, AfterValidator(_state_source)] = "deluca"
-    total_steps: Count | None = None
-    seed: Annotated[int, Field(ge=0), BeforeValidator(_count)] = 0
+    total_steps: PositiveInt | None = None
+    seed: Annotated[StrictInt, Field(ge=0)] = 0
     out_dir: StrictStr = "runs/ppo-twolink"
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
-    frame_stack: Count = 4
+    frame_stack: PositiveInt = 4
     env_kwargs: EnvKwargs = Field(default_factory=dict)
     observer_options: dict[str, Any] = Field(default_factory=dict)
     hyperparams: dict[str, Any] = Field(default_factory=dict)
     hyperparams_file: StrictStr | None = None
-    eval_freq: Count = 20000
-    eval_episodes: Count = 3
+    eval_freq: PositiveInt = 20000
+    eval_episodes: PositiveInt = 3
 
     @model_validator(mode="after")
     def _policy_fields(self) -> TrainConfig:
