@@ -107,6 +107,59 @@ def test_heterogeneous_arms_equal_their_single_envs_bit_for_bit(env_id):
     assert_arms_equal_single_envs(env_id, SHARED, PER_ARM[env_id])
 
 
+def _features(env_id: str) -> tuple[dict, list[dict]]:
+    """Shared randomization and per-arm plant features (pulses, payload, delays)."""
+    limit = np.asarray(gym.spec(env_id).make().unwrapped.torque_limit)
+    random_pulses = {
+        "random": {
+            "count": 2,
+            "window": [0.0, 0.02],
+            "duration": {"low": 0.002, "high": 0.006},
+            "amplitude": {"low": 0.005, "high": 0.02},
+        }
+    }
+    given = {
+        "times": [0.004, 0.01],
+        "durations": [0.003, 0.002],
+        "amplitudes": [0.01 * limit, -0.01 * limit[0]],
+    }
+    shared = {
+        **SHARED,
+        "randomize": {
+            "plant_scaling.link_mass": {"low": 0.8, "high": 1.2},
+            "sensor_delay": {"low": 0, "high": 2},
+            "encoder.noise_std": {"low": 0.0, "high": 1e-4},
+        },
+    }
+    per_arm = [
+        {"torque_pulses": random_pulses},
+        {
+            "torque_pulses": given,
+            "payload": {"mass": 0.5, "change": {"time": 0.015, "mass": 0.1}},
+            "actuator_delay": 2,
+        },
+        {
+            "torque_pulses": random_pulses,
+            "randomize": {
+                "plant_scaling.link_mass": {"low": 1.0, "high": 1.5, "log": True},
+                "payload.mass": {"low": 0.0, "high": 0.3},
+                "actuator_delay": {"low": 0, "high": 3},
+            },
+        },
+    ]
+    return shared, per_arm
+
+
+@pytest.mark.parametrize("env_id", elastic_gym.ENV_IDS)
+def test_randomized_arms_with_plant_features_equal_their_single_envs(env_id):
+    shared, per_arm = _features(env_id)
+    info = assert_arms_equal_single_envs(env_id, shared, per_arm, steps=80)
+    plant = info["plant"]
+    assert plant["actuator_delay"][1] == 2
+    assert np.isfinite(plant["plant_scaling.link_mass"]).all()
+    assert plant["torque_pulses.amplitudes"].shape == (3, 2, len(plant["torque_pulse"][0]))
+
+
 def test_per_arm_plants_differ_in_pybullet_and_in_the_chain():
     envs = gym.make_vec(
         "elastic_gym/KR15Elastic-v0",

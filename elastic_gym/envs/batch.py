@@ -49,7 +49,7 @@ from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, arm_kwargs
 from elastic_gym.envs.config import PER_ARM_KEYS, EnvConfig, Range
 from elastic_gym.envs.plant import PlantArray
 from elastic_gym.envs.plant_state import PlantState
-from elastic_gym.envs.randomization import check_ranges
+from elastic_gym.envs.randomization import check_ranges, with_values
 from elastic_gym.envs.reward import RewardConfig, batch_reward
 from elastic_gym.envs.sensors import (
     AccelerometerArray,
@@ -301,6 +301,9 @@ class ArmBatch:
                 for path, spec in (arm.get("randomize") or {}).items()
             }
             corners = check_ranges(ranges, arm, resolver, where)
+            if "payload.mass" in ranges and settings.payload is None:  # a payload link is needed
+                low = {"payload.mass": ranges["payload.mass"].low}
+                settings = resolver.settings(with_values(arm, low))
             self.settings.append(settings)
             self.ranges.append(ranges)
             models.append(resolver.plant_model(settings))

@@ -128,14 +128,13 @@ class PlantState:
         """``info["plant"]`` of ``arms`` (an int: one arm's plain values)."""
         one = isinstance(arms, (int, np.integer))
         out = {
-            "actuator_delay": self.batch.actuator_delay[arms].copy()
-            if not one
-            else int(self.batch.actuator_delay[arms]),
-            "payload.mass": float(self.payload_mass[arms])
-            if one
-            else self.payload_mass[arms].copy(),
-            "torque_pulse": self.pulses.current[arms].copy(),
+            path: values[arms].item() if one else values[arms].copy()
+            for path, values in self.drawn.items()
         }
+        delay, mass = self.batch.actuator_delay[arms], self.payload_mass[arms]
+        out["actuator_delay"] = int(delay) if one else delay.copy()
+        out["payload.mass"] = float(mass) if one else mass.copy()  # the current mass
+        out["torque_pulse"] = self.pulses.current[arms].copy()
         pulses = self.pulses
         if pulses.start.shape[1]:
             unused = ~np.isfinite(pulses.start[arms])
@@ -146,8 +145,6 @@ class PlantState:
             out["torque_pulses.amplitudes"] = np.where(
                 unused[..., None], np.nan, pulses.amplitude[arms]
             )
-        for path, values in self.drawn.items():
-            out[path] = values[arms].item() if one else values[arms].copy()
         return out
 
     def __getstate__(self) -> dict:

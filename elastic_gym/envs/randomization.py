@@ -103,8 +103,9 @@ def check_ranges(
         if PATHS[path] and (spec.low != int(spec.low) or spec.high != int(spec.high)):
             raise ValueError(f"{where}[{path!r}]: {path} takes integers, got {spec}")
         for end in ("low", "high"):
+            value = int(getattr(spec, end)) if PATHS[path] else getattr(spec, end)
             try:
-                resolver.settings(with_values(kwargs, {path: getattr(spec, end)}))
+                resolver.settings(with_values(kwargs, {path: value}))
             except ValueError as error:
                 raise ValueError(f"{where}[{path!r}].{end}: {error}") from None
     modes = [p for p in MODE_PATHS if p in ranges]
