@@ -313,7 +313,6 @@ class ArmBatch:
                     key = (option.scaling, repr(option.payload), mass)
                     if key not in checked:
                         checked[key] = self._check_stability(resolver.plant_model(option, mass))
-        self.plant_model = models[0]
         return models
 
     @staticmethod
@@ -428,6 +427,11 @@ class ArmBatch:
         """Truncate episodes after ``steps`` control periods (instead of ``episode_time``)."""
         self.max_steps = int(steps)
         self.episode_time = self.max_steps * self.control_dt
+
+    @property
+    def plant_model(self) -> RobotModel:
+        """The exact model of arm 0's simulated plant (of every arm's when they share one)."""
+        return self.sim.plants.models[0]
 
     @property
     def position_key(self) -> str:
