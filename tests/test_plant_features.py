@@ -167,7 +167,8 @@ def test_rigid_arm_pulse_and_payload():
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        ({"actuator_delay": -1}, "actuator_delay must be an integer >= 0"),
+        ({"actuator_delay": -1}, "actuator_delay: Input should be greater than or equal to 0"),
+        ({"actuator_delay": 1.0}, "actuator_delay: Input should be a valid integer"),
         ({"actuator_delay": 2000}, "actuator_delay of 2000 control periods is more than 1.0 s"),
         ({"payload": {"mass": -1.0}}, r"payload\.mass: Input should be greater than or equal to 0"),
         ({"payload": {"mass": 1.0, "where": 2}}, r"payload\.where: unexpected field"),

@@ -590,7 +590,8 @@ class ArmBatch:
             force = chain.specific_forces(sim.q[arms], sim.dq[arms], self.ddq[arms])
             readings["acceleration"] = self.accelerometer_array.measure(force, rngs, arms)
         length = self._sensor_line
-        oldest = (self._slot - self.sensor_delay[arms]) % length
+        if length > 1:
+            oldest = (self._slot - self.sensor_delay[arms]) % length
         for key, value in readings.items():
             if length > 1:
                 line = self._measured[key]
