@@ -28,10 +28,11 @@ reset (:mod:`elastic_gym.envs.randomization`).
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, StrictFloat, StrictInt, field_validator, model_validator
 
+from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
 from elastic_gym.validation import StrictModel
 
 PER_ARM_KEYS = (
@@ -155,8 +156,8 @@ class ArmOptions(StrictModel):
 
     plant_scaling: Any = None
     unmodelled_friction: Any = None
-    encoder: Any = None
-    accelerometer: Any = None
+    encoder: EncoderConfig | None = None
+    accelerometer: AccelerometerConfig | Literal["ideal"] | None = None
     sensor_delay: Periods | None = None
     actuator_delay: Periods | None = None
     payload: PayloadConfig | None = None
@@ -167,17 +168,19 @@ class ArmOptions(StrictModel):
 class EnvConfig(StrictModel):
     """Every env kwarg of :class:`~elastic_gym.envs.batch.ArmBatch` (see its docstring).
 
-    Typed here: what needs no robot. The sensor error models, the plant scaling and the
-    reward keep their own config classes; the task options are checked by the task; the
-    robot-dependent limits (joint counts, a delay longer than 1 s, a physics step too
+    Typed here: what needs no robot. The plant scaling
+    (:class:`~elastic_gym.model.ParameterScaling`) and the reward
+    (:class:`~elastic_gym.envs.reward.RewardConfig`) keep their own config classes, the
+    task options are checked by the task, the robot-dependent limits (joint counts, a
+    delay longer than 1 s, friction in fractions of the torque limits, a physics step too
     coarse for the stiffest joint) by the batch."""
 
     task: str = "tracking"
     task_options: dict | None = None
     physics_dt: Annotated[PositiveNumber, Field(le=MAX_PHYSICS_DT)] | None = None
     control_dt: Annotated[PositiveNumber, Field(le=MAX_CONTROL_DT)] | None = None
-    encoder: Any = None
-    accelerometer: Any = None
+    encoder: EncoderConfig | None = None
+    accelerometer: AccelerometerConfig | Literal["ideal"] | None = None
     accelerometers: list | None = None
     plant_scaling: Any = None
     unmodelled_friction: Any = None

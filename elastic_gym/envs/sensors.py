@@ -7,47 +7,44 @@ Only these reach the observation. Noise is drawn from the environment's
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import AfterValidator, ConfigDict, StrictFloat
 
-from elastic_gym.validation import config_from
+from elastic_gym.validation import StrictModel, validated
 
 GRAVITY = 9.81
 
 
-def _check_range(
-    owner: str, key: str, value, low: float, high: float, zero: bool = True, none: bool = True
-) -> None:
-    """``value`` in [low, high] (or 0 / None where allowed): limits beyond which a sensor
-    setting would overflow the observation or mean nothing physical."""
-    if value is None and none:
-        return
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if number and ((value == 0 and zero) or low <= value <= high):
-        return
-    allowed = f"{'0 or ' if zero else ''}a number in [{low:g}, {high:g}]"
-    raise ValueError(f"{owner}.{key} must be {allowed}, got {value!r}")
+def _within(low: float, high: float, zero: bool = True) -> AfterValidator:
+    """A value in [low, high] (or 0 where allowed): limits beyond which a sensor setting
+    would overflow the observation or mean nothing physical."""
+
+    def check(value: float) -> float:
+        if (value == 0 and zero) or low <= value <= high:
+            return value
+        allowed = f"{'0 or ' if zero else ''}a number in [{low:g}, {high:g}]"
+        raise ValueError(f"must be {allowed}, got {value!r}")
+
+    return AfterValidator(check)
 
 
-@dataclass(frozen=True)
-class EncoderConfig:
+class EncoderConfig(StrictModel):
     """Position encoder: quantization ``resolution`` (rad, 0 = ideal) and Gaussian noise.
 
     ``None`` fields take the robot's defaults (``RobotSpec.encoder_resolution`` and
     ``encoder_noise_std``).
     """
 
-    resolution: float | None = None
-    noise_std: float | None = None
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self) -> None:
-        _check_range("encoder", "resolution", self.resolution, 1e-12, 1.0)
-        _check_range("encoder", "noise_std", self.noise_std, 1e-12, 1.0)
+    resolution: Annotated[StrictFloat, _within(1e-12, 1.0)] | None = None
+    noise_std: Annotated[StrictFloat, _within(1e-12, 1.0)] | None = None
 
     @classmethod
     def from_config(cls, config) -> EncoderConfig:
-        return config_from(cls, config, "encoder")
+        return validated(cls, config, "encoder")
 
 
 class GaussianNoise:
@@ -146,8 +143,7 @@ class Encoder:
         return _quantized(y, self.resolution, resolution, arms)
 
 
-@dataclass(frozen=True)
-class AccelerometerConfig:
+class AccelerometerConfig(StrictModel):
     """Error model of every 3-axis accelerometer of the arm.
 
     Defaults are those of a good industrial MEMS part sampled at the control rate:
@@ -160,22 +156,17 @@ class AccelerometerConfig:
     * ``resolution`` None: optional output quantization (m/s^2).
     """
 
-    noise_density: float = 1.5e-3
-    bias_std: float = 0.02
-    range: float = 16.0 * GRAVITY
-    cutoff_hz: float | None = None
-    resolution: float | None = None
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self) -> None:
-        _check_range("accelerometer", "noise_density", self.noise_density, 1e-12, 10.0, none=False)
-        _check_range("accelerometer", "bias_std", self.bias_std, 1e-12, 100.0, none=False)
-        _check_range("accelerometer", "resolution", self.resolution, 1e-9, 100.0)
-        _check_range("accelerometer", "range", self.range, 1e-3, 1e9, zero=False, none=False)
-        _check_range("accelerometer", "cutoff_hz", self.cutoff_hz, 1e-3, 1e6, zero=False)
+    noise_density: Annotated[StrictFloat, _within(1e-12, 10.0)] = 1.5e-3
+    bias_std: Annotated[StrictFloat, _within(1e-12, 100.0)] = 0.02
+    range: Annotated[StrictFloat, _within(1e-3, 1e9, zero=False)] = 16.0 * GRAVITY
+    cutoff_hz: Annotated[StrictFloat, _within(1e-3, 1e6, zero=False)] | None = None
+    resolution: Annotated[StrictFloat, _within(1e-9, 100.0)] | None = None
 
     @classmethod
     def from_config(cls, config) -> AccelerometerConfig:
-        return config_from(cls, config, "accelerometer")
+        return validated(cls, config, "accelerometer")
 
     @classmethod
     def ideal(cls) -> AccelerometerConfig:
