@@ -131,21 +131,21 @@ class TorquePulsesConfig(StrictModel):
 
     @model_validator(mode="after")
     def _one_form(self) -> TorquePulsesConfig:
-        given = [self.times, self.durations, self.amplitudes]
+        times, durations, amplitudes = self.times, self.durations, self.amplitudes
         if self.random is not None:
-            if any(x is not None for x in given):
+            if times is not None or durations is not None or amplitudes is not None:
                 raise ValueError("give either times/durations/amplitudes or random, not both")
             return self
-        if any(x is None for x in given):
+        if times is None or durations is None or amplitudes is None:
             raise ValueError("give times, durations and amplitudes (or random)")
-        if not len(self.times) == len(self.durations) == len(self.amplitudes):
+        if not len(times) == len(durations) == len(amplitudes):
             raise ValueError("times, durations and amplitudes need one entry per pulse")
-        if len(self.times) > MAX_PULSES:
+        if len(times) > MAX_PULSES:
             raise ValueError(f"at most {MAX_PULSES} pulses")
-        if any(not (math.isfinite(t) and t >= 0.0) for t in self.times):
-            raise ValueError(f"times must be finite and >= 0 s, got {self.times}")
-        if any(not (math.isfinite(d) and d > 0.0) for d in self.durations):
-            raise ValueError(f"durations must be finite and > 0 s, got {self.durations}")
+        if any(not (math.isfinite(t) and t >= 0.0) for t in times):
+            raise ValueError(f"times must be finite and >= 0 s, got {times}")
+        if any(not (math.isfinite(d) and d > 0.0) for d in durations):
+            raise ValueError(f"durations must be finite and > 0 s, got {durations}")
         return self
 
 
