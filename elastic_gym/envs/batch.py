@@ -9,10 +9,12 @@ leading arm axis: the simulator (:mod:`elastic_gym.envs.simulator`), the sensors
 vector env; there is no second copy of the physics.
 
 Exactness: arm i draws every random number (task sampling, encoder noise, accelerometer
-bias and noise) from its own generator ``rngs[i]``, and every computation on it depends
-only on its own rows, with the same operations in the same order whatever N. So arm i of
-a batch whose generator is seeded with s + i is bit for bit the single env reset with
-seed s + i under the same actions (``tests/test_batch.py``).
+bias and noise) from its own generator ``rngs[i]`` (its plant draws from its own plant
+stream, :mod:`elastic_gym.envs.randomization`), and every computation on it depends only
+on its own rows and its own plant, with the same operations in the same order whatever N.
+So arm i of a batch whose generator is seeded with s + i is bit for bit the single env
+reset with seed s + i under the same actions, and with ``per_arm`` the single env made
+with arm i's merged kwargs (``tests/test_batch.py``, ``tests/test_plants.py``).
 
 Observation of one arm (a ``spaces.Dict``, float64), only what a real arm measures:
 
@@ -24,7 +26,8 @@ Observation of one arm (a ``spaces.Dict``, float64), only what a real arm measur
 Info of one arm (the same keys at every step, terminal steps included): ``time``,
 ``true_state`` (``q``, ``dq``, ``theta``, ``dtheta``, ``ddq``, ``x``), ``torque`` (the
 applied, clipped motor torque), ``torque_saturated``, ``reference`` (``q`` .. ``d4q``),
-``termination_reason`` (None while the episode runs).
+``termination_reason`` (None while the episode runs), ``plant`` (the simulated plant's
+own parameters, see :class:`ArmBatch`).
 
 Reward: :mod:`elastic_gym.envs.reward` (bounded multi-scale tracking kernels, torque and
 torque-rate penalties; every step pays >= 0). An episode whose physics breaks (non-finite
