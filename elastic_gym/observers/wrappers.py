@@ -10,8 +10,8 @@ the ground truth, so one controller or policy runs unchanged on estimated or tru
 :mod:`elastic_gym.observers.vector` has the twins for vector envs.
 
 An estimate that stops being finite (a diverged observer), or an update that raises a
-numerical error (``ArithmeticError``, ``ValueError``: e.g. scipy refusing a matrix with
-infs or NaNs, a covariance no longer positive definite), ends the episode with
+numerical error of linear algebra (``numpy.linalg.LinAlgError``, e.g. a covariance no
+longer positive definite, or ``FloatingPointError``), ends the episode with
 ``terminated=True`` and ``info["termination_reason"] = "non-finite state estimate"``
 (the error, if any, in ``info["observer_error"]``); the observation keeps the last
 finite estimate and the next ``step`` needs a ``reset``. An estimate that is not a
@@ -77,7 +77,8 @@ def measurement(observer: Observer, obs: Mapping, info: Mapping) -> dict:
     return measured
 
 
-NUMERICAL_ERRORS = (ArithmeticError, ValueError)  # numpy/scipy LinAlgError is a ValueError
+# a diverged estimate; any other exception is the observer's bug (the comparison's failed row)
+NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError)
 
 
 def checked_estimate(observer: Observer, estimate: object, call: str) -> np.ndarray:
