@@ -84,17 +84,19 @@ def _axis_name(name: str) -> str:
 
 
 AxisName = Annotated[str, AfterValidator(_axis_name)]
-ClassPath = Annotated[
-    Any,
-    BeforeValidator(lambda v: _class_field(v)),
-    WithJsonSchema({"type": "string", "pattern": "^[\\w.]+:[\\w.]+$"}),
-]
 
 
 def _class_field(value: Any) -> type | str | None:
     if value is None or isinstance(value, type) or (isinstance(value, str) and ":" in value):
         return value
     raise ValueError(f"must be a class or a 'module:Class' string, got {value!r}")
+
+
+ClassPath = Annotated[
+    Any,
+    BeforeValidator(_class_field),
+    WithJsonSchema({"type": "string", "pattern": "^[\\w.]+:[\\w.]+$"}),
+]
 
 
 def unique_labels(entries: tuple) -> tuple:
@@ -187,6 +189,7 @@ class EnvEntry(BareEntry):
 class _Named(BareEntry):
     """Base of the controller and state-source entries (a bare string is the name)."""
 
+    kind: ClassVar[str]
     name: Name
     label: Label = ""  # the name
     options: dict[Any, Any] = Field(default_factory=dict)
@@ -196,8 +199,9 @@ class _Named(BareEntry):
     def _defaults(self) -> _Named:
         valid = self.registry()
         if self.cls is None and self.name not in valid:
-            kind = "controller" if isinstance(self, ControllerEntry) else "state source"
-            raise FieldError(("name",), f"unknown {kind} {self.name!r}; valid: {sorted(valid)}")
+            raise FieldError(
+                ("name",), f"unknown {self.kind} {self.name!r}; valid: {sorted(valid)}"
+            )
         if not self.label:
             vars(self)["label"] = self.name
         return self
@@ -220,6 +224,7 @@ class ControllerEntry(_Named):
     constructor options; ``sources`` restricts the state sources (by label) it is paired
     with (``None``: all)."""
 
+    kind = "controller"
     sources: tuple[Label, ...] | None = Field(None, min_length=1)
 
     @staticmethod
@@ -231,6 +236,7 @@ class SourceEntry(_Named):
     """A state source: ``"true"`` (the oracle) or an observer with options;
     ``initial_estimate`` (full state vector) is passed to ``observer.reset``."""
 
+    kind = "state source"
     bare_schemas = ({"type": "string"}, {"const": True})
     initial_estimate: tuple[Annotated[StrictFloat, AllowInfNan(False)], ...] | None = Field(
         None, min_length=1
