@@ -31,10 +31,10 @@ def _stat(pid: int) -> tuple[int, int] | None:
     """(parent pid, start time) of a process, ``None`` if it is gone."""
     try:
         text = (PROC / str(pid) / "stat").read_text()
-    except OSError:
+        fields = text[text.rindex(")") + 2 :].split()  # after "pid (comm) "
+        return int(fields[1]), int(fields[19])
+    except (OSError, ValueError, IndexError):  # gone, or caught while it exits
         return None
-    fields = text[text.rindex(")") + 2 :].split()  # after "pid (comm) "
-    return int(fields[1]), int(fields[19])
 
 
 def _is_ray(pid: int) -> bool:
