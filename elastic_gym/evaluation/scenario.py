@@ -302,7 +302,7 @@ class Scenario:
 
     def to_dict(self) -> dict:
         """Plain-data form (YAML-serialisable; classes as ``"module:Class"``)."""
-        return _plain(
+        return plain_data(
             {
                 "name": self.name,
                 "description": self.description,
@@ -723,14 +723,14 @@ def merge(base: Mapping, override: Mapping) -> dict:
     return out
 
 
-def _plain(value: Any) -> Any:
+def plain_data(value: Any) -> Any:
     """Nested lists/dicts/numbers/strings only (tuples and arrays as lists, others as str)."""
     if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return {str(k): plain_data(v) for k, v in value.items()}
     if hasattr(value, "tolist"):  # numpy arrays and scalars
-        return _plain(value.tolist())
+        return plain_data(value.tolist())
     if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
+        return [plain_data(v) for v in value]
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     return str(value)
