@@ -241,12 +241,9 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
 
 
 def _yaml_mapping(text: str, option: str) -> dict:
-    import yaml
+    from elastic_gym.yaml_io import load_yaml
 
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{option}: invalid YAML: {exc}") from None
+    value = load_yaml(text, option)
     if value is None:
         return {}
     if not isinstance(value, dict):

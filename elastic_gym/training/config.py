@@ -36,6 +36,7 @@ from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import check_state_source
 from elastic_gym.validation import registered_env_id
+from elastic_gym.yaml_io import load_yaml
 
 ALGORITHMS = ("ppo", "sac", "td3", "recurrentppo")
 RECURRENT = {"recurrentppo"}  # sb3-contrib's RecurrentPPO: an LSTM in actor and critic
@@ -75,10 +76,7 @@ def default_policy(algo: str) -> str:
 
 def load_hyperparams_file(path: str | Path) -> dict:
     """Parse a hyper-parameter YAML file; errors name the file and the problem."""
-    try:
-        data = yaml.safe_load(Path(path).read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f"invalid YAML in {path}: {exc}") from None
+    data = load_yaml(Path(path))
     if not isinstance(data, dict):
         raise ValueError(f"{path}: top level must map env ids (or 'default') to settings")
     for key, entry in data.items():
