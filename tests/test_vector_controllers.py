@@ -185,3 +185,29 @@ def test_batched_rigid_torque_and_its_derivatives_equal_pinocchio(robot):
         assert _relative(tau[k], expected) < 1e-13
         assert _relative(dtau[k], slope) < 1e-13
         assert _relative(ddtau[k], central) < 1e-9  # a difference quotient: rounding / 2h
+
+
+@pytest.mark.usefixtures("single_thread_torch")
+def test_trained_policy_arms_equal_the_single_controller(tmp_path):
+    """A residual run on eq. (13) (tiny SAC run, on the true state): each arm of its vector
+    twin (features of all arms at once, the base eq. (13) batched) gets the single
+    controller's torque."""
+    from elastic_gym.training import TrainConfig, train
+
+    config = TrainConfig(
+        algo="sac",
+        state="true",
+        total_steps=100,
+        out_dir=str(tmp_path / "run"),
+        env_kwargs={"max_episode_steps": 200},
+        eval_freq=10**9,
+        action={"kind": "residual", "residual": "feedforward-state-feedback"},
+        hyperparams={"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arch": [8]}},
+    )
+    train(config, progress_bar=False)
+    model = gym.make(TWO_LINK).unwrapped.model
+    options = {"run": config.out_dir}
+    batched = make_vector_controller("trained-policy", model, 1e-3, N_ARMS, **options)
+    assert isinstance(batched, ControllerTwin)
+    singles = [make_controller("trained-policy", model, 1e-3, **options) for _ in range(N_ARMS)]
+    assert closed_loop_gap(TWO_LINK, batched, singles) < 1e-12
