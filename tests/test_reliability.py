@@ -20,6 +20,7 @@ from elastic_gym.evaluation import Scenario, ScenarioError, compare
 
 ROOT = Path(__file__).resolve().parents[1]
 QUIET = Console(quiet=True)
+TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 USER_CODE = '''
 import ctypes
 import multiprocessing
@@ -378,3 +379,452 @@ def test_a_disk_full_before_the_run_leaves_nothing_that_blocks_a_rerun(tmp_path)
     rerun = compare_with_file_size_limit(tmp_path, 10**7, out, runs=1)
     assert rerun.returncode == 0, rerun.stderr
     assert rows_of(out / "runs.csv")[0]["status"] == "ok"
+
+
+# ------------------------------------------------------------ a second writer
+def test_a_second_writer_of_an_output_folder_is_refused_with_the_holders_pid(tmp_path):
+    from elastic_gym.folder_lock import LOCK_FILE, FolderLockedError, folder_lock
+
+    folder = tmp_path / "out"
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time\nfrom elastic_gym.folder_lock import folder_lock\n"
+            f"with folder_lock({str(folder)!r}):\n    print('locked', flush=True)\n"
+            "    time.sleep(60)",
+        ],
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        locked = pytest.raises(FolderLockedError, match=rf"in use by process {holder.pid} ")
+        with locked, folder_lock(folder):
+            pass
+        scenario = faulty_scenario({"fine": {}})
+        with pytest.raises(FolderLockedError, match=str(folder)):
+            compare(scenario, output_dir=folder, workers=1, progress=False, console=QUIET)
+        assert sorted(p.name for p in folder.iterdir()) == [LOCK_FILE]  # nothing written
+    finally:
+        holder.kill()  # SIGKILL: the kernel drops its lock
+        holder.wait()
+    assert (folder / LOCK_FILE).exists()  # a killed holder cannot remove its lock file
+    with folder_lock(folder):  # but it does not block the next one
+        pass
+    assert list(folder.iterdir()) == []
+
+
+def test_train_refuses_a_run_folder_that_another_training_writes(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from elastic_gym.cli import main
+    from elastic_gym.folder_lock import folder_lock
+
+    out = tmp_path / "run"
+    with folder_lock(out), pytest.raises(SystemExit) as stopped:
+        main(["train", "--state", "true", "--steps", "8", "--out", str(out), "--no-progress"])
+    assert stopped.value.code == 2
+    assert not out.exists()
+
+
+def test_train_on_a_read_only_folder_is_refused_before_building_anything(tmp_path, capsys):
+    pytest.importorskip("stable_baselines3")
+    from elastic_gym.cli import main
+
+    if os.geteuid() == 0:
+        if not os.path.isdir("/sys"):
+            pytest.skip("no read-only folder to test with")
+        out = Path("/sys/elastic-gym-run")  # sysfs refuses new files, even to root
+    else:
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        out = locked / "run"
+    start = time.monotonic()
+    with pytest.raises(SystemExit) as stopped:
+        main(["train", "--state", "true", "--steps", "8", "--out", str(out), "--no-progress"])
+    assert stopped.value.code == 2
+    assert "cannot write in" in capsys.readouterr().err
+    assert time.monotonic() - start < 5.0  # no env, no model built
+
+
+# ------------------------------------------------------------ unbounded episodes, big batches
+def test_training_with_episodes_that_never_end_is_refused_not_hung(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "run"
+    args = ["train", "--state", "true", "--steps", "64", "--out", str(out), "--no-progress"]
+    done = subprocess.run(
+        [sys.executable, "-m", "elastic_gym.cli", *args, "--env-kwargs", "{episode_time: null}"],
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert done.returncode == 2, done.stderr
+    assert "env_kwargs.episode_time: None (episodes that never end)" in done.stderr
+    assert not out.exists()
+
+
+def urdf_of(env_id: str) -> str:
+    from elastic_gym.evaluation.runner import env_robot
+
+    return env_robot(f"elastic_gym/{env_id}", {}).urdf
+
+
+def test_a_batch_too_large_for_the_memory_is_refused_before_it_is_built(monkeypatch):
+    import gymnasium as gym
+
+    from elastic_gym.envs import memory
+
+    start = time.monotonic()
+    with pytest.raises(ValueError, match=r"n_arms=100000000: a batch of 100000000 .* GiB"):
+        gym.make_vec(
+            "elastic_gym/TwoLinkElastic-v0", 10**8, vectorization_mode="vector_entry_point"
+        )
+    assert time.monotonic() - start < 5.0
+    monkeypatch.setattr(memory, "available_bytes", lambda: 1024**3)  # a 1 GiB machine
+    needed = memory.batch_bytes(urdf_of("TwoLinkElastic-v0"), 20_000) / 1024**3
+    with pytest.raises(ValueError, match=rf"needs about {needed:.1f} GiB .* and 1.0 GiB"):
+        gym.make_vec(
+            "elastic_gym/TwoLinkElastic-v0", 20_000, vectorization_mode="vector_entry_point"
+        )
+    # the estimate is linear in the arms and counts each byte of mesh MESH_FACTOR times
+    urdf = urdf_of("IiwaElastic-v0")
+    assert memory.mesh_bytes(urdf) > 0
+    assert memory.batch_bytes(urdf, 7) == 7 * (
+        memory.ARM_BYTES + memory.MESH_FACTOR * memory.mesh_bytes(urdf)
+    )
+
+
+# ------------------------------------------------------------ diverging observers
+def test_a_diverging_ekf_ends_its_episode_with_the_documented_reason():
+    import gymnasium as gym
+    import numpy as np
+
+    from elastic_gym.observers.wrappers import ObserverWrapper
+
+    env = ObserverWrapper(gym.make(TWO_LINK), "ekf", initial_estimate=np.full(8, 1e300))
+    obs, _ = env.reset(seed=0)
+    with np.errstate(all="ignore"):
+        obs, _, terminated, truncated, info = env.step(np.zeros(2))
+    assert terminated and not truncated
+    assert info["termination_reason"] == "non-finite state estimate"
+    assert np.array_equal(obs["state"], np.full(8, 1e300))  # the last finite estimate
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.step(np.zeros(2))
+    obs, _ = env.reset(seed=0)  # a reset starts afresh
+    env.close()
+
+
+def test_one_diverging_arm_of_a_vector_env_ends_alone_the_others_bit_for_bit():
+    import gymnasium as gym
+    import numpy as np
+
+    from elastic_gym.observers import vector
+    from elastic_gym.observers.wrappers import ObserverWrapper
+
+    initial = np.zeros((3, 8))
+    initial[1] = 1e300
+    envs = vector.ObserverWrapper(
+        gym.make_vec(TWO_LINK, 3, vectorization_mode="vector_entry_point"), "ekf", initial
+    )
+    singles = [
+        ObserverWrapper(gym.make(TWO_LINK), "ekf", initial_estimate=np.zeros(8)) for _ in "ab"
+    ]
+    obs, _ = envs.reset(seed=10)
+    for single, seed in zip(singles, (10, 12), strict=True):
+        single.reset(seed=seed)
+    with np.errstate(all="ignore"):
+        for step in range(4):
+            obs, _, terminated, _, info = envs.step(np.zeros((3, 2)))
+            assert terminated.tolist() == [False, step % 2 == 0, False]  # ends after each reset
+            assert info["termination_reason"][1] == (
+                "non-finite state estimate" if step % 2 == 0 else None
+            )
+            for single, arm in zip(singles, (0, 2), strict=True):
+                single_obs, *_ = single.step(np.zeros(2))
+                assert np.array_equal(obs["state"][arm], single_obs["state"])
+    envs.close()
+
+
+def test_a_numerical_error_in_an_observer_update_ends_the_episode():
+    import gymnasium as gym
+    import numpy as np
+
+    from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
+    from elastic_gym.observers.wrappers import ObserverWrapper
+
+    class Singular(FiniteDifferenceObserver):
+        name = "singular"
+
+        def update(self, obs, torque, dt):
+            raise np.linalg.LinAlgError("the covariance is not positive definite")
+
+    rigid = gym.make("elastic_gym/TwoLinkRigid-v0")
+    observer = Singular(rigid.unwrapped.model, rigid.unwrapped.control_dt)
+    env = ObserverWrapper(rigid, observer)
+    env.reset(seed=0)
+    _, _, terminated, _, info = env.step(np.zeros(2))
+    assert terminated and info["termination_reason"] == "non-finite state estimate"
+    assert info["observer_error"] == "LinAlgError: the covariance is not positive definite"
+
+
+@pytest.mark.parametrize(
+    ("returned", "error", "message"),
+    [
+        (
+            lambda x: list(x),
+            TypeError,
+            r"update returned a list, expected a numpy array of shape \(4,\)",
+        ),
+        (
+            lambda x: x[:3],
+            ValueError,
+            r"update returned an estimate of shape \(3,\), expected \(4,\)",
+        ),
+    ],
+)
+def test_an_observer_returning_the_wrong_thing_is_named(returned, error, message):
+    import gymnasium as gym
+    import numpy as np
+
+    from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
+    from elastic_gym.observers.wrappers import ObserverWrapper
+
+    class Sloppy(FiniteDifferenceObserver):
+        name = "sloppy"
+
+        def update(self, obs, torque, dt):
+            return returned(super().update(obs, torque, dt))
+
+    rigid = gym.make("elastic_gym/TwoLinkRigid-v0")
+    env = ObserverWrapper(rigid, Sloppy(rigid.unwrapped.model, rigid.unwrapped.control_dt))
+    env.reset(seed=0)
+    with pytest.raises(error, match=rf"^observer 'sloppy' \(Sloppy\): {message}"):
+        env.step(np.zeros(2))
+
+
+def test_a_diverging_ekf_in_compare_is_a_terminated_row_not_a_failure(tmp_path):
+    scenario = Scenario.from_dict(
+        {
+            "name": "diverging",
+            "duration": 0.02,
+            "envs": [{"id": "TwoLinkElastic-v0"}],
+            "controllers": ["motor-pd"],
+            "state_sources": [{"name": "ekf", "initial_estimate": [1e300] * 8}],
+        }
+    )
+    result = compare(scenario, output_dir=tmp_path, workers=1, progress=False, console=QUIET)
+    assert result.runs["status"].tolist() == ["terminated: non-finite state estimate"]
+
+
+# ------------------------------------------------------------ sensors and numbers
+def test_an_accelerometer_range_below_g_is_refused_and_saturation_is_flagged():
+    import gymnasium as gym
+    import numpy as np
+
+    with pytest.raises(ValueError, match=r"accelerometer\.range must be .*at least g"):
+        gym.make(TWO_LINK, accelerometer={"range": 5.0})
+    env = gym.make(TWO_LINK, accelerometer={"range": 9.81, "noise_density": np.float32(1e-3)})
+    _, info = env.reset(seed=0)
+    saturated = [info["acceleration_saturated"]]
+    for _ in range(20):
+        obs, *_, info = env.step(np.full(2, 1e3))  # clipped to the torque limits
+        saturated.append(info["acceleration_saturated"])
+        assert saturated[-1] == bool(np.any(np.abs(obs["acceleration"]) >= 9.81))
+    assert any(saturated)
+    _, info = gym.make(TWO_LINK).reset(seed=0)
+    assert info["acceleration_saturated"] is False
+
+
+def test_numpy_scalars_are_accepted_wherever_python_numbers_are():
+    import gymnasium as gym
+    import numpy as np
+
+    from elastic_gym.training import TrainConfig
+
+    env = gym.make(TWO_LINK, encoder={"resolution": np.float32(0.001)})
+    assert env.unwrapped.batch.encoder.resolution == pytest.approx(0.001)
+    with pytest.raises(ValueError, match=r"^eval_episodes must be an integer >= 1, got 0$"):
+        TrainConfig(eval_episodes=0)
+    assert TrainConfig(eval_episodes=np.int64(2)).eval_episodes == 2
+
+
+def test_a_refused_reset_changes_no_random_stream():
+    import gymnasium as gym
+
+    def streams(env) -> list:
+        return [rng.bit_generator.state for rng in env.unwrapped.batch.rngs]
+
+    envs = gym.make_vec(TWO_LINK, 3, vectorization_mode="vector_entry_point")
+    envs.reset(seed=5)
+    before = streams(envs)
+    refused = [
+        ({"seed": 1.5}, TypeError, "seed must be an integer >= 0, a list of 3"),
+        ({"seed": [7, 8, -1]}, ValueError, r"seed\[2\] must be an integer >= 0 or None"),
+        ({"seed": 9, "options": {"bogus": 1}}, ValueError, "unknown reset option"),
+    ]
+    for kwargs, error, message in refused:
+        with pytest.raises(error, match=message):
+            envs.reset(**kwargs)
+        assert streams(envs) == before
+    env = gym.make(TWO_LINK)
+    env.reset(seed=3)
+    before = streams(env)
+    with pytest.raises(ValueError, match="unknown reset option"):
+        env.reset(seed=4, options={"bogus": 1})
+    assert streams(env) == before and env.unwrapped.np_random is env.unwrapped.batch.rngs[0]
+
+
+def test_a_duration_below_the_control_period_is_refused(tmp_path, user_module):
+    scenario = faulty_scenario({"fine": {}}, duration=0.0004)
+    with pytest.raises(ScenarioError, match=r"^duration: 0\.0004 s is shorter than the control"):
+        compare(scenario, output_dir=tmp_path / "out", workers=1, progress=False, console=QUIET)
+    assert not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------ hostile YAML
+BOMB = "".join(
+    f"{name}: &{name} [{', '.join([f'*{prev}'] * 9) if prev else ', '.join(['lol'] * 9)}]\n"
+    for prev, name in zip(["", "a", "b", "c", "d", "e", "f"], "abcdefg", strict=True)
+)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("name: x\nname: y\n", r"scn\.yaml: top level: duplicate key 'name' \(lines 1 and 2\)"),
+        (
+            "envs:\n  - id: TwoLinkRigid-v0\n    kwargs: {task: a, task: b}\n",
+            r"scn\.yaml: envs\[0\]\.kwargs: duplicate key 'task'",
+        ),
+        ("x: " + "[" * 20000 + "]" * 20000, r"scn\.yaml: invalid YAML: nesting deeper than 64"),
+        (BOMB, r"scn\.yaml: f: expands \(through its aliases\) to more than 100000 values"),
+        ("a: &a [*a]\n", r"scn\.yaml: a\[0\]: an alias refers to the node that contains it"),
+    ],
+)
+def test_hostile_scenario_yaml_is_refused_with_file_and_field(tmp_path, text, message):
+    from elastic_gym.evaluation import load_scenario
+
+    path = tmp_path / "scn.yaml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError, match=rf"^{tmp_path}/{message}"):
+        load_scenario(path)
+
+
+def test_yaml_larger_than_the_bound_is_refused(tmp_path):
+    from elastic_gym.yaml_io import MAX_BYTES, YAMLInputError, load_yaml
+
+    path = tmp_path / "big.yaml"
+    path.write_text("x: " + "a" * MAX_BYTES)
+    with pytest.raises(YAMLInputError, match=rf"big\.yaml: larger than {MAX_BYTES} bytes"):
+        load_yaml(path)
+    assert load_yaml("a: 1\nb: [1, 2]\n", "--env-kwargs") == {"a": 1, "b": [1, 2]}
+    with pytest.raises(YAMLInputError, match=r"^--env-kwargs: top level: duplicate key 'a'"):
+        load_yaml("{a: 1, a: 2}", "--env-kwargs")
+
+
+@pytest.mark.parametrize(
+    ("module_text", "cls", "message"),
+    [
+        ("value = 3\n", "m:value", r"'m:value' is not a class but int 3"),
+        ("def broken(:\n", "m:X", r"importing module 'm' failed: SyntaxError: "),
+        (
+            "raise RuntimeError('no licence server')\n",
+            "m:X",
+            r"importing module 'm' failed: RuntimeError: no",
+        ),
+        ("import sys\nsys.exit(4)\n", "m:X", r"importing module 'm' failed: SystemExit: 4"),
+    ],
+)
+def test_a_class_entry_that_cannot_be_imported_names_the_field_and_module(
+    tmp_path, monkeypatch, module_text, cls, message
+):
+    (tmp_path / "m.py").write_text(module_text)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "m", raising=False)
+    scenario = Scenario.from_dict(
+        {
+            "name": "imports",
+            "duration": 0.02,
+            "envs": [{"id": "TwoLinkRigid-v0"}],
+            "controllers": [{"name": "mine", "class": cls}],
+            "state_sources": ["finite-difference"],
+        }
+    )
+    with pytest.raises(ScenarioError, match=rf"^controllers\[0\]\.class: {message}"):
+        compare(scenario, output_dir=tmp_path / "out", workers=1, progress=False, console=QUIET)
+
+
+# ------------------------------------------------------------ run folders
+def test_a_run_folder_whose_config_no_longer_matches_its_model_is_refused_before_any_run(
+    tmp_path, single_thread_torch
+):
+    pytest.importorskip("stable_baselines3")
+    import yaml
+
+    from elastic_gym.training import TrainConfig, train
+
+    run = tmp_path / "run"
+    hyperparams = {"n_envs": 1, "n_steps": 32, "batch_size": 32, "n_epochs": 1}
+    config = TrainConfig(
+        env_id="TwoLinkRigid-v0",
+        algo="ppo",
+        state="true",
+        total_steps=32,
+        out_dir=str(run),
+        env_kwargs={"max_episode_steps": 20},
+        hyperparams=hyperparams,
+        eval_freq=10**6,
+        eval_episodes=1,
+    )
+    train(config, progress_bar=False)
+    data = yaml.safe_load((run / "config.yaml").read_text())
+    data["env_id"] = "elastic_gym/TwoLinkElastic-v0"  # a config.yaml copied from another run
+    (run / "config.yaml").write_text(yaml.safe_dump(data))
+    scenario = Scenario.from_dict(
+        {
+            "name": "policy",
+            "duration": 0.02,
+            "envs": [{"id": "TwoLinkElastic-v0"}],
+            "controllers": [{"name": "trained-policy", "options": {"run": str(run)}}],
+            "state_sources": ["true"],
+        }
+    )
+    out = tmp_path / "out"
+    with pytest.raises(
+        ScenarioError,
+        match=r"^controllers\[0\]\.options: ValueError: .*model\.zip takes observations of "
+        r"shape \(\d+,\), but config\.yaml \(elastic_gym/TwoLinkElastic-v0, state 'true'\) "
+        r"gives \d+ entries",
+    ):
+        compare(scenario, output_dir=out, workers=1, progress=False, console=QUIET)
+    assert not out.exists()
+
+
+# ------------------------------------------------------------ recording a video
+def test_record_video_writes_every_frame_of_an_episode(tmp_path):
+    pytest.importorskip("moviepy")
+    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    import gymnasium as gym
+    import numpy as np
+    from gymnasium.wrappers import RecordVideo
+
+    env = gym.make(TWO_LINK, render_mode="rgb_array", episode_time=0.02)
+    env.reset(seed=0)
+    height, width, _ = env.render().shape
+    env = RecordVideo(env, str(tmp_path), episode_trigger=lambda _: True, disable_logger=True)
+    env.reset(seed=0)
+    steps = 0
+    while True:
+        steps += 1
+        _, _, terminated, truncated, _ = env.step(np.zeros(2))
+        if terminated or truncated:
+            break
+    env.close()
+    video = tmp_path / "rl-video-episode-0.mp4"
+    frames, _ = imageio_ffmpeg.count_frames_and_secs(str(video))
+    assert steps == 20 and frames == steps + 1  # the reset's frame and one per step
+    reader = imageio_ffmpeg.read_frames(str(video))
+    assert next(reader)["size"] == (width, height)
+    reader.close()

@@ -42,6 +42,7 @@ from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP, TIME_TOLERANCE
 from elastic_gym.controllers.state_feedback import FeedforwardStateFeedback, VectorStateFeedback
 from elastic_gym.controllers.vector import arm_rows, twin_of
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import is_real
 
 DEFAULT_INTEGRAL_WEIGHT = 0.1
 DEFAULT_INTEGRAL_LIMIT = 0.5  # fraction of the torque limit
@@ -76,11 +77,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
         design_configuration=None,
         fd_step: float = DEFAULT_FD_STEP,
     ) -> None:
-        if not (
-            isinstance(integral_limit, (int, float))
-            and np.isfinite(integral_limit)
-            and integral_limit > 0
-        ):
+        if not (is_real(integral_limit) and np.isfinite(integral_limit) and integral_limit > 0):
             raise ValueError(f"integral_limit must be a positive number, got {integral_limit!r}")
         self.integral_weight = integral_weight
         self.integral_bound = float(integral_limit) * np.asarray(model.spec.torque_limit, float)

@@ -99,7 +99,7 @@ from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
 from elastic_gym.evaluation.output import folder_name_problem
 from elastic_gym.model import ParameterScaling
 from elastic_gym.observers.registry import OBSERVERS
-from elastic_gym.validation import ENV_NAMESPACE, registered_env_id
+from elastic_gym.validation import ENV_NAMESPACE, is_real, registered_env_id
 from elastic_gym.yaml_io import YAMLInputError, load_yaml
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
@@ -811,7 +811,7 @@ def _unique_labels(labels: list[str], path: str) -> None:
 
 
 def _number(value: Any, path: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not is_real(value):
         raise ScenarioError(path, f"must be a number, got {value!r}")
     return float(value)
 

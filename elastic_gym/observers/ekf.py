@@ -52,6 +52,7 @@ from scipy.linalg import expm
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, arm_count
 from elastic_gym.observers.integration import rk4
+from elastic_gym.validation import is_real
 
 DEFAULT_ALPHA = 1.0
 """Exponential data weighting alpha of eq. (15), 1/s."""
@@ -84,7 +85,7 @@ def _check_number(
     maximum: float = np.inf,
     why: str = "",
 ) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+    if isinstance(value, bool) or not is_real(value) or not np.isfinite(value):
         raise TypeError(f"EKF option {name!r} must be a finite number, got {value!r}")
     if value < minimum or (strict and value == minimum):
         relation = ">" if strict else ">="
@@ -458,7 +459,7 @@ class ExtendedKalmanFilter(BatchedObserver):
         self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
     ) -> np.ndarray:
         """One predict (eqs. (4)-(8), (15)) and correct (eqs. (9)-(18)) cycle of ``arms``."""
-        if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
+        if not (is_real(dt) and np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a positive number, got {dt!r}")
         arms = np.arange(len(self._x)) if arms is None else np.asarray(arms)
         tau = self.checked_torque(torque, len(self._x))[arms]
@@ -546,7 +547,7 @@ class ExtendedKalmanFilter(BatchedObserver):
     def correct(self, y: np.ndarray, tau: np.ndarray, arms: np.ndarray | None = None) -> None:
         """Gain eq. (18), update eq. (16) with the nonlinear h, Joseph-form eq. (17), for
         ``arms`` (default all) with measurements y and torques tau (one row per arm)."""
-        arms = np.arange(len(self._x)) if arms is None else arms
+        arms = np.arange(len(self._x)) if arms is None else np.asarray(arms)
         m = len(arms)
         y, tau = np.reshape(y, (m, -1)), np.broadcast_to(tau, (m, self.n))
         x, P = self._x[arms], self._P[arms]
@@ -555,6 +556,13 @@ class ExtendedKalmanFilter(BatchedObserver):
         Ht = np.swapaxes(H, 1, 2)
         PHt = P @ Ht
         S = H @ PHt + self.R
+        finite = np.isfinite(S).all(axis=(1, 2))
+        if not finite.all():  # diverged: a NaN estimate (the wrapper ends the arm's episode)
+            self._x[arms[~finite]] = np.nan
+            arms, x, P, H, PHt, S = (a[finite] for a in (arms, x, P, H, PHt, S))
+            innovation = innovation[finite]
+            if not len(arms):
+                return
         solved = solve_spd(S, np.concatenate([np.swapaxes(PHt, 1, 2), innovation[..., None]], 2))
         gain = np.swapaxes(solved[..., :-1], 1, 2)
         x = x + (gain @ innovation[..., None])[..., 0]

@@ -36,6 +36,8 @@ from elastic_gym.observers.wrappers import (
     annotate,
     build_observer,
     check_sensor_space,
+    checked_estimate,
+    guarded_update,
     measurement,
 )
 
@@ -49,6 +51,7 @@ class ObserverArray:
         self.model, self.elastic, self.privileged = first.model, first.elastic, first.privileged
         self.state_dim, self.state_names = first.state_dim, first.state_names
         self._estimates = np.zeros((n_arms, self.state_dim))
+        self.errors: list[str | None] = [None] * n_arms  # of each arm's last update
         self.arm_diagnostics: dict[str, np.ndarray] = {}
 
     def _record(self, arms) -> None:
@@ -66,8 +69,10 @@ class ObserverArray:
             else np.broadcast_to(initial_estimate, (len(arms), self.state_dim))
         )
         for k, i in enumerate(arms):
-            self._estimates[i] = self.observers[i].reset(
-                arm_view(obs, i), None if rows is None else rows[k]
+            self._estimates[i] = checked_estimate(
+                self.observers[i],
+                self.observers[i].reset(arm_view(obs, i), None if rows is None else rows[k]),
+                "reset",
             )
         self._record(arms)
         return self._estimates[arms].copy()
@@ -76,8 +81,10 @@ class ObserverArray:
         self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
     ) -> np.ndarray:
         arms = range(len(self.observers)) if arms is None else arms
-        for i in arms:
-            self._estimates[i] = self.observers[i].update(arm_view(obs, i), torque[i], dt)
+        for i in arms:  # a numerical error in one arm's observer is that arm's NaN estimate
+            self._estimates[i], self.errors[i] = guarded_update(
+                self.observers[i], arm_view(obs, i), torque[i], dt
+            )
         self._record(arms)
         return self._estimates.copy()
 
@@ -141,9 +148,12 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         return info
 
     def _reset_observer(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
+        initial = self.initial_estimate
+        if initial is not None and np.ndim(initial) == 2:  # one row per arm: those reset
+            initial = np.asarray(initial)[arms]
         if len(arms):
             self._estimates[arms] = self.observer.reset_arms(
-                measurement(self.observer, obs, info), arms, self.initial_estimate
+                measurement(self.observer, obs, info), arms, initial
             )
 
     def reset(self, *, seed=None, options: dict | None = None):
