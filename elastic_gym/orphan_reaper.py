@@ -6,9 +6,10 @@ watcher process (this file run as a script with the parent's pid, in its own
 session) that every :data:`SNAPSHOT_PERIOD` seconds notes the parent's descendants
 whose command line is Ray's (``/ray/`` in it, or a ``ray::`` worker). When its stdin
 (a pipe only the parent holds) closes, the parent has ended; if the parent is really
-gone the noted processes still alive (same pid and start time) get SIGTERM, then
-SIGKILL after :data:`GRACE` seconds. Linux only (it reads ``/proc``); elsewhere
-:func:`start_reaper` does nothing.
+gone, the noted processes still alive (same pid and start time) are stopped with
+SIGSTOP together with every Ray process they started meanwhile, then killed with
+SIGKILL (an orphaned runtime has no one to shut down for). Linux only (it reads
+``/proc``); elsewhere :func:`start_reaper` does nothing.
 """
 
 from __future__ import annotations
@@ -19,11 +20,10 @@ import select
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 SNAPSHOT_PERIOD = 0.5  # s between looks at the parent's descendants
-GRACE = 3.0  # s between SIGTERM and SIGKILL
+FREEZE_ROUNDS = 20  # looks for processes started while the others are being frozen
 PROC = Path("/proc")
 
 
@@ -45,16 +45,22 @@ def _is_ray(pid: int) -> bool:
     return b"/ray/" in command or command.startswith(b"ray::")
 
 
-def ray_descendants(parent: int) -> dict[int, int]:
-    """pid -> start time of the Ray processes among ``parent``'s descendants."""
+def _process_table() -> tuple[dict[int, list[int]], dict[int, int]]:
+    """(parent pid -> child pids, pid -> start time) of every process."""
     children: dict[int, list[int]] = {}
     starts: dict[int, int] = {}
     for entry in PROC.iterdir():
         if entry.name.isdigit() and (stat := _stat(int(entry.name))) is not None:
             children.setdefault(stat[0], []).append(int(entry.name))
             starts[int(entry.name)] = stat[1]
+    return children, starts
+
+
+def ray_descendants(*roots: int) -> dict[int, int]:
+    """pid -> start time of the Ray processes among the descendants of ``roots``."""
+    children, starts = _process_table()
     found: dict[int, int] = {}
-    stack = list(children.get(parent, ()))
+    stack = [child for root in roots for child in children.get(root, ())]
     while stack:
         pid = stack.pop()
         if pid != os.getpid() and _is_ray(pid):
@@ -63,15 +69,25 @@ def ray_descendants(parent: int) -> dict[int, int]:
     return found
 
 
-def _signal_alive(noted: dict[int, int], signum: int) -> int:
-    alive = 0
-    for pid, start in noted.items():
-        stat = _stat(pid)
-        if stat is not None and stat[1] == start:
-            alive += 1
+def _alive(noted: dict[int, int]) -> list[int]:
+    """The noted processes still running (same pid and start time)."""
+    return [pid for pid, start in noted.items() if (stat := _stat(pid)) and stat[1] == start]
+
+
+def _end(noted: dict[int, int]) -> None:
+    """Freeze the noted processes and every Ray process they start meanwhile (a raylet
+    respawns its workers), then kill them all."""
+    for _ in range(FREEZE_ROUNDS):
+        for pid in _alive(noted):
             with contextlib.suppress(OSError):
-                os.kill(pid, signum)
-    return alive
+                os.kill(pid, signal.SIGSTOP)
+        more = {p: t for p, t in ray_descendants(*_alive(noted)).items() if p not in noted}
+        if not more:
+            break
+        noted.update(more)
+    for pid in _alive(noted):
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
 
 
 def watch(parent: int) -> None:
@@ -85,11 +101,7 @@ def watch(parent: int) -> None:
         noted = {pid: start for pid, start in noted.items() if _stat(pid) is not None}
     if os.getppid() == parent:
         return  # the parent is alive: it closed the pipe itself
-    if _signal_alive(noted, signal.SIGTERM):
-        deadline = time.monotonic() + GRACE
-        while time.monotonic() < deadline and _signal_alive(noted, 0):
-            time.sleep(0.1)
-        _signal_alive(noted, signal.SIGKILL)
+    _end(noted)
 
 
 _reaper: subprocess.Popen | None = None

@@ -13,8 +13,10 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from rich.console import Console
+from test_interrupts import alive, children
 
 from elastic_gym.evaluation import Scenario, ScenarioError, compare
 
@@ -175,25 +177,6 @@ def os_exit_on_two(job: int) -> int:
     return job
 
 
-def processes_with_parent(pid: int) -> list[int]:
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] != "Z":
-            found.append(int(stat.parent.name))
-    return found
-
-
-def alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 def cli(args: list[str], tmp_path: Path, **kwargs) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
     return subprocess.Popen(
@@ -222,12 +205,12 @@ def test_workers_end_when_compare_is_killed(tmp_path):
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
     process = cli([*args, "--workers", "2", "--no-progress", "--no-plots"], tmp_path)
     deadline = time.monotonic() + 120
-    while len(processes_with_parent(process.pid)) < 3:  # 2 workers + the resource tracker
+    while len(children(process.pid)) < 3:  # 2 workers + the resource tracker
         assert process.poll() is None, process.communicate()
         assert time.monotonic() < deadline
         time.sleep(0.1)
     time.sleep(1.0)  # the workers run their first episodes
-    left = processes_with_parent(process.pid)
+    left = children(process.pid)
     process.kill()
     process.communicate()
     deadline = time.monotonic() + 5.0
@@ -239,29 +222,19 @@ def test_workers_end_when_compare_is_killed(tmp_path):
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_the_ray_runtime_ends_when_compare_is_killed(tmp_path):
     pytest.importorskip("ray")
+    from elastic_gym.orphan_reaper import ray_descendants
 
-    def ray_processes() -> list[int]:
-        found = []
-        for path in Path("/proc").glob("[0-9]*/cmdline"):
-            try:
-                command = path.read_bytes()
-            except OSError:
-                continue
-            if b"/ray/" in command or command.startswith(b"ray::"):
-                found.append(int(path.parent.name))
-        return [pid for pid in found if alive(pid)]
-
-    before = set(ray_processes())
     out = tmp_path / "out"
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
     process = cli([*args, "--workers", "2", "--backend", "ray", "--no-progress"], tmp_path)
     deadline = time.monotonic() + 180
-    while not (out / "scenario.yaml").exists() or len(set(ray_processes()) - before) < 5:
+    while not (out / "scenario.yaml").exists():  # the runs are being submitted to Ray
         assert process.poll() is None, process.communicate()
         assert time.monotonic() < deadline
         time.sleep(0.2)
-    time.sleep(3.0)  # the agents and the workers are up
-    started = set(ray_processes()) - before
+    time.sleep(5.0)  # the agents and the workers start
+    started = ray_descendants(process.pid)  # GCS, raylet, agents, workers
+    assert len(started) >= 5
     process.kill()
     process.communicate()
     deadline = time.monotonic() + 15.0
@@ -499,7 +472,6 @@ def test_a_batch_too_large_for_the_memory_is_refused_before_it_is_built(monkeypa
 # ------------------------------------------------------------ diverging observers
 def test_a_diverging_ekf_ends_its_episode_with_the_documented_reason():
     import gymnasium as gym
-    import numpy as np
 
     from elastic_gym.observers.wrappers import ObserverWrapper
 
@@ -518,7 +490,6 @@ def test_a_diverging_ekf_ends_its_episode_with_the_documented_reason():
 
 def test_one_diverging_arm_of_a_vector_env_ends_alone_the_others_bit_for_bit():
     import gymnasium as gym
-    import numpy as np
 
     from elastic_gym.observers import vector
     from elastic_gym.observers.wrappers import ObserverWrapper
@@ -547,26 +518,37 @@ def test_one_diverging_arm_of_a_vector_env_ends_alone_the_others_bit_for_bit():
     envs.close()
 
 
-def test_a_numerical_error_in_an_observer_update_ends_the_episode():
+@pytest.mark.parametrize(
+    ("error", "ends"),
+    [
+        (np.linalg.LinAlgError("the covariance is not positive definite"), True),
+        (ValueError("array must not contain infs or NaNs"), True),  # scipy's check_finite
+        (FloatingPointError("overflow encountered in multiply"), True),
+        (ZeroDivisionError("division by zero"), False),  # a bug: the run fails
+    ],
+)
+def test_a_numerical_failure_in_an_observer_update_ends_the_episode(error, ends):
     import gymnasium as gym
-    import numpy as np
 
     from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
     from elastic_gym.observers.wrappers import ObserverWrapper
 
-    class Singular(FiniteDifferenceObserver):
-        name = "singular"
+    class Failing(FiniteDifferenceObserver):
+        name = "failing"
 
         def update(self, obs, torque, dt):
-            raise np.linalg.LinAlgError("the covariance is not positive definite")
+            raise error
 
     rigid = gym.make("elastic_gym/TwoLinkRigid-v0")
-    observer = Singular(rigid.unwrapped.model, rigid.unwrapped.control_dt)
-    env = ObserverWrapper(rigid, observer)
+    env = ObserverWrapper(rigid, Failing(rigid.unwrapped.model, rigid.unwrapped.control_dt))
     env.reset(seed=0)
+    if not ends:
+        with pytest.raises(ZeroDivisionError):
+            env.step(np.zeros(2))
+        return
     _, _, terminated, _, info = env.step(np.zeros(2))
     assert terminated and info["termination_reason"] == "non-finite state estimate"
-    assert info["observer_error"] == "LinAlgError: the covariance is not positive definite"
+    assert info["observer_error"] == f"{type(error).__name__}: {error}"
 
 
 @pytest.mark.parametrize(
@@ -586,7 +568,6 @@ def test_a_numerical_error_in_an_observer_update_ends_the_episode():
 )
 def test_an_observer_returning_the_wrong_thing_is_named(returned, error, message):
     import gymnasium as gym
-    import numpy as np
 
     from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
     from elastic_gym.observers.wrappers import ObserverWrapper
@@ -621,7 +602,6 @@ def test_a_diverging_ekf_in_compare_is_a_terminated_row_not_a_failure(tmp_path):
 # ------------------------------------------------------------ sensors and numbers
 def test_an_accelerometer_range_below_g_is_refused_and_saturation_is_flagged():
     import gymnasium as gym
-    import numpy as np
 
     with pytest.raises(ValueError, match=r"accelerometer\.range must be .*at least g"):
         gym.make(TWO_LINK, accelerometer={"range": 5.0})
@@ -639,7 +619,6 @@ def test_an_accelerometer_range_below_g_is_refused_and_saturation_is_flagged():
 
 def test_numpy_scalars_are_accepted_wherever_python_numbers_are():
     import gymnasium as gym
-    import numpy as np
 
     from elastic_gym.training import TrainConfig
 
@@ -807,7 +786,6 @@ def test_record_video_writes_every_frame_of_an_episode(tmp_path):
     pytest.importorskip("moviepy")
     imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
     import gymnasium as gym
-    import numpy as np
     from gymnasium.wrappers import RecordVideo
 
     env = gym.make(TWO_LINK, render_mode="rgb_array", episode_time=0.02)

@@ -23,7 +23,11 @@ run, written as each run finishes), ``summary.csv`` and ``summary.md`` (over see
 figure per env x axis values x model error, written as soon as its runs are done;
 the time series of the runs are not kept in memory after that). A folder holding an
 earlier comparison's files is refused unless ``overwrite`` (which removes those
-files first). A run that fails is a row with status ``failed: <Type>: <message>``.
+files first), and so is a folder another process writes into
+(:mod:`~elastic_gym.folder_lock`). A run that fails (its code raises, calls
+``sys.exit``, or kills its worker process) is a row with status ``failed: <Type>:
+<message>``. When results cannot be written (a full disk),
+:class:`~elastic_gym.evaluation.output.ResultsWriteError` says what ``runs.csv`` kept.
 On SIGINT/SIGTERM the queued runs are cancelled, the workers ended, the tables of the
 finished runs written, and :class:`~elastic_gym.parallel.Interrupted` raised.
 
@@ -76,7 +80,12 @@ from elastic_gym.evaluation.runner import (
 from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
 from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
 from elastic_gym.folder_lock import check_writable, folder_lock
-from elastic_gym.parallel import for_each_result, resolve_workers, with_detail
+from elastic_gym.parallel import (
+    for_each_result,
+    interrupts_raised,
+    resolve_workers,
+    with_detail,
+)
 
 DEFAULT_OUTPUT_ROOT = Path("compare_out")
 
@@ -154,7 +163,8 @@ def _compare(
     check_output_folder(out, overwrite)
     if plots:
         check_plot_names(scenario, runs)
-    estimate = preflight(scenario, runs, n_workers)
+    with interrupts_raised():  # a real Ctrl-C is not taken for the sampled user code's own
+        estimate = preflight(scenario, runs, n_workers)
     skipped_note = _skipped_note(skipped)
     console.print(
         f"[bold]{scenario.name}[/bold]: {len(runs)} runs on {n_workers} "

@@ -7,7 +7,9 @@ in its folder, and nothing elsewhere. Before any run,
 or that holds the results of an earlier comparison (old figures would stay beside the
 new ones) unless ``overwrite`` is given; :func:`clear_results` then removes those
 files (only those). :class:`RunsCsv` writes ``runs.csv`` row by row as runs finish,
-so that an interrupted or crashed comparison keeps every finished run on disk.
+so that an interrupted or crashed comparison keeps every finished run on disk, and
+never leaves a partial file: what is rewritten is written beside and renamed over
+(:func:`write_atomic`), so a full disk costs at most the rows it could not take.
 """
 
 from __future__ import annotations

@@ -11,7 +11,9 @@ Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserv
 Luca with ideal or accelerometer-based q'', finite differences, the truth) estimate all
 arms at once; the others (EKF, rigid-arm observers, your own) run one copy per arm
 behind the same interface (:class:`ObserverArray`). Either way each arm's estimate is
-the single-env observer's (``tests/test_vector_observers.py``). Autoresets are followed:
+the single-env observer's (``tests/test_vector_observers.py``), and an arm whose
+estimate is no longer finite (for :class:`ObserverArray` also: whose update raised a
+numerical error) ends its episode alone, ``"non-finite state estimate"``. Autoresets are followed:
 an arm reset by the env is re-initialised from its first observation; with
 ``SAME_STEP`` the terminal observation is estimated first (``info["final_obs"]``).
 """
@@ -51,7 +53,6 @@ class ObserverArray:
         self.model, self.elastic, self.privileged = first.model, first.elastic, first.privileged
         self.state_dim, self.state_names = first.state_dim, first.state_names
         self._estimates = np.zeros((n_arms, self.state_dim))
-        self.errors: list[str | None] = [None] * n_arms  # of each arm's last update
         self.arm_diagnostics: dict[str, np.ndarray] = {}
 
     def _record(self, arms) -> None:
@@ -82,7 +83,7 @@ class ObserverArray:
     ) -> np.ndarray:
         arms = range(len(self.observers)) if arms is None else arms
         for i in arms:  # a numerical error in one arm's observer is that arm's NaN estimate
-            self._estimates[i], self.errors[i] = guarded_update(
+            self._estimates[i], _ = guarded_update(
                 self.observers[i], arm_view(obs, i), torque[i], dt
             )
         self._record(arms)
