@@ -233,12 +233,19 @@ def compute_metrics(series: TimeSeries, tracking: bool = True) -> dict[str, floa
     return compute_arm_metrics(ArmSeries.of(series), tracking)[0]
 
 
-def _masked_rms(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Per arm: sqrt(mean over the rows k with mask[k] of |x_k|^2); x (K, N, d), mask (K, N)."""
-    squares = np.where(mask, np.sum(x**2, axis=2), 0.0)
-    count = np.sum(mask, axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(count > 0, np.sqrt(np.sum(squares, axis=0) / count), np.nan)
+def _window_rms(x: np.ndarray, starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """Per arm i: sqrt(mean over k in [starts[i], stops[i]) of |x_k,i|^2) (NaN for no
+    samples); x (K, N, d). The arms with the same window are summed together, each row
+    alone and contiguous, so an arm's value is the same bit for bit whatever arms share
+    its series (and equal to :func:`rms_norm` of its own samples)."""
+    squares = np.sum(x**2, axis=2).T  # (N, K)
+    out = np.full(len(starts), np.nan)
+    for start, stop in {(int(a), int(b)) for a, b in zip(starts, stops, strict=True)}:
+        if stop > start:
+            arms = np.flatnonzero((starts == start) & (stops == stop))
+            block = np.ascontiguousarray(squares[arms, start:stop])
+            out[arms] = np.sqrt(np.sum(block, axis=1) / (stop - start))
+    return out
 
 
 def compute_arm_metrics(series: ArmSeries, tracking: bool = True) -> list[dict[str, float]]:
@@ -253,25 +260,25 @@ def compute_arm_metrics(series: ArmSeries, tracking: bool = True) -> list[dict[s
     lengths = series.lengths
     rows = np.arange(K)[:, None]
     valid = rows < lengths  # (K, N)
+    zero = np.zeros_like(lengths)
     arms: list[dict[str, float]] = [{} for _ in range(N)]
     with np.errstate(invalid="ignore", over="ignore"):
         columns: dict[str, np.ndarray] = {}
         if tracking:
             error = series.q - series.q_ref
-            columns["track_rms"] = _masked_rms(error, valid)
+            columns["track_rms"] = _window_rms(error, zero, lengths)
             norm = np.where(valid, np.sqrt(np.sum(error**2, axis=2)), -np.inf)
             columns["track_max"] = np.max(norm, axis=0)
         if series.theta is not None:
             torsion = np.where(valid[..., None], np.abs(series.theta - series.q), -np.inf)
             columns["torsion_max"] = np.max(torsion, axis=(0, 2))
-        columns["torque_rms"] = _masked_rms(series.torque, valid)
+        columns["torque_rms"] = _window_rms(series.torque, zero, lengths)
         last_time = series.time[np.maximum(lengths - 1, 0)]
         start = np.searchsorted(series.time, np.minimum(ESTIMATION_TRANSIENT, last_time / 2))
-        steady = valid & (rows >= start)
         n_blocks = len(series.state_names)
         blocks = series.estimation_error.reshape(K, N, n_blocks, -1)
         for b, name in enumerate(series.state_names):
-            columns[f"est_rms_{name}"] = _masked_rms(blocks[:, :, b], steady)
+            columns[f"est_rms_{name}"] = _window_rms(blocks[:, :, b], start, lengths)
     for i, metrics in enumerate(arms):
         one = series.arm(i)
         metrics.update(dict.fromkeys(("track_rms", "track_max"), nan))
