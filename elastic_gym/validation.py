@@ -138,15 +138,26 @@ def field_path(loc: Sequence[int | str], prefix: str = "") -> str:
 
 
 def format_validation_error(error: ValidationError, prefix: str = "") -> str:
-    """One line per problem, the field path first: ``controllers[1].options.omega: ...``."""
-    lines = []
+    """One line per problem, the field path first: ``controllers[1].options.omega: ...``.
+
+    pydantic names the failing union member or validator in the path (a class name, a
+    ``literal[...]`` or ``function-...[...]`` tag): those are dropped, and so is the
+    message of a union alternative that failed where another one failed deeper (the
+    deeper one says what is wrong, e.g. ``accelerometer.range: ...`` rather than
+    ``accelerometer: Input should be 'ideal'``)."""
+    problems = []
     for item in error.errors(include_url=False):
-        # pydantic adds the failing union member / validator name to loc; drop function names
-        loc = [part for part in item["loc"] if not (isinstance(part, str) and "[" in part)]
+        loc = tuple(
+            part
+            for part in item["loc"]
+            if not (isinstance(part, str) and ("[" in part or part[:1].isupper()))
+        )
         message = item["msg"]
         if item["type"] == "extra_forbidden":
             message = "unexpected field"
-        lines.append(f"{field_path(loc, prefix)}: {message}")
+        problems.append((loc, message))
+    deeper = {loc[:k] for loc, _ in problems for k in range(len(loc))}
+    lines = [f"{field_path(list(loc), prefix)}: {m}" for loc, m in problems if loc not in deeper]
     return "; ".join(dict.fromkeys(lines))
 
 
