@@ -12,6 +12,7 @@ from test_batch import _arm, _flat
 
 import elastic_gym
 from elastic_gym.envs.arm_config import deep_merge
+from elastic_gym.envs.sensors import AccelerometerConfig
 
 ELASTIC_ARMS = [
     {},
@@ -187,3 +188,24 @@ def test_bad_per_arm_is_refused_with_its_path(per_arm, match):
             vectorization_mode="vector_entry_point",
             per_arm=per_arm,
         )
+
+
+def test_per_arm_mappings_are_deep_merged_into_the_shared_kwargs():
+    envs = gym.make_vec(
+        "elastic_gym/TwoLinkElastic-v0",
+        2,
+        vectorization_mode="vector_entry_point",
+        accelerometer="ideal",
+        plant_scaling={"link_mass": 1.2, "stiffness": 0.9},
+        per_arm=[{"plant_scaling": {"stiffness": 1.1}}, {"accelerometer": {"noise_density": 3e-3}}],
+    )
+    batch = envs.unwrapped.batch
+    scaling = [s.scaling for s in batch.settings]
+    assert (scaling[0].link_mass, scaling[0].stiffness) == (1.2, 1.1)
+    assert (scaling[1].link_mass, scaling[1].stiffness) == (1.2, 0.9)
+    accelerometers = [s.accelerometer for s in batch.settings]
+    assert accelerometers[0] == AccelerometerConfig.ideal()
+    assert accelerometers[1] == AccelerometerConfig.ideal().model_copy(
+        update={"noise_density": 3e-3}
+    )
+    envs.close()

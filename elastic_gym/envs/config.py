@@ -28,9 +28,16 @@ reset (:mod:`elastic_gym.envs.randomization`).
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
-from pydantic import Field, StrictFloat, StrictInt, field_validator, model_validator
+from pydantic import (
+    BeforeValidator,
+    Field,
+    StrictFloat,
+    StrictInt,
+    field_validator,
+    model_validator,
+)
 
 from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
 from elastic_gym.validation import StrictModel
@@ -52,6 +59,20 @@ MAX_PHYSICS_DT = 1e-3 + 1e-15  # s
 MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
 EPISODE_TIME = 3.0  # s
 
+
+def _ideal_accelerometer(value: Any) -> Any:
+    """``"ideal"`` is :meth:`AccelerometerConfig.ideal`; no other string is an error model."""
+    if isinstance(value, str):
+        if value != "ideal":
+            raise ValueError(
+                "must be 'ideal', a mapping of AccelerometerConfig fields or None, "
+                f"got the string {value!r}"
+            )
+        return AccelerometerConfig.ideal()
+    return value
+
+
+Accelerometer = Annotated[AccelerometerConfig | None, BeforeValidator(_ideal_accelerometer)]
 PositiveNumber = Annotated[StrictFloat, Field(gt=0.0, allow_inf_nan=False)]
 Periods = Annotated[StrictInt, Field(ge=0)]  # a count of control periods
 
@@ -131,21 +152,21 @@ class TorquePulsesConfig(StrictModel):
 
     @model_validator(mode="after")
     def _one_form(self) -> TorquePulsesConfig:
-        given = [self.times, self.durations, self.amplitudes]
+        times, durations, amplitudes = self.times, self.durations, self.amplitudes
         if self.random is not None:
-            if any(x is not None for x in given):
+            if times is not None or durations is not None or amplitudes is not None:
                 raise ValueError("give either times/durations/amplitudes or random, not both")
             return self
-        if any(x is None for x in given):
+        if times is None or durations is None or amplitudes is None:
             raise ValueError("give times, durations and amplitudes (or random)")
-        if not len(self.times) == len(self.durations) == len(self.amplitudes):
+        if not len(times) == len(durations) == len(amplitudes):
             raise ValueError("times, durations and amplitudes need one entry per pulse")
-        if len(self.times) > MAX_PULSES:
+        if len(times) > MAX_PULSES:
             raise ValueError(f"at most {MAX_PULSES} pulses")
-        if any(not (math.isfinite(t) and t >= 0.0) for t in self.times):
-            raise ValueError(f"times must be finite and >= 0 s, got {self.times}")
-        if any(not (math.isfinite(d) and d > 0.0) for d in self.durations):
-            raise ValueError(f"durations must be finite and > 0 s, got {self.durations}")
+        if any(not (math.isfinite(t) and t >= 0.0) for t in times):
+            raise ValueError(f"times must be finite and >= 0 s, got {times}")
+        if any(not (math.isfinite(d) and d > 0.0) for d in durations):
+            raise ValueError(f"durations must be finite and > 0 s, got {durations}")
         return self
 
 
@@ -157,7 +178,7 @@ class ArmOptions(StrictModel):
     plant_scaling: Any = None
     unmodelled_friction: Any = None
     encoder: EncoderConfig | None = None
-    accelerometer: AccelerometerConfig | Literal["ideal"] | None = None
+    accelerometer: Accelerometer = None
     sensor_delay: Periods | None = None
     actuator_delay: Periods | None = None
     payload: PayloadConfig | None = None
@@ -180,7 +201,7 @@ class EnvConfig(StrictModel):
     physics_dt: Annotated[PositiveNumber, Field(le=MAX_PHYSICS_DT)] | None = None
     control_dt: Annotated[PositiveNumber, Field(le=MAX_CONTROL_DT)] | None = None
     encoder: EncoderConfig | None = None
-    accelerometer: AccelerometerConfig | Literal["ideal"] | None = None
+    accelerometer: Accelerometer = None
     accelerometers: list | None = None
     plant_scaling: Any = None
     unmodelled_friction: Any = None

@@ -20,7 +20,6 @@ import numpy as np
 
 from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, deep_merge
 from elastic_gym.envs.config import Range
-from elastic_gym.envs.sensors import AccelerometerConfig
 
 PLANT_STREAM = 0x706C616E  # spawn key of the plant stream ("plan")
 # path -> integer-valued
@@ -55,6 +54,8 @@ def plant_stream(rng: np.random.Generator) -> np.random.Generator:
     """The plant stream derived from an arm's task/sensor generator without drawing from it:
     same seed, same stream."""
     seq = rng.bit_generator.seed_seq
+    if not isinstance(seq, np.random.SeedSequence):
+        raise TypeError(f"an arm's generator needs a SeedSequence, got {type(seq).__name__}")
     child = np.random.SeedSequence(seq.entropy, spawn_key=(*seq.spawn_key, PLANT_STREAM))
     return np.random.default_rng(child)
 
@@ -68,8 +69,6 @@ def with_values(kwargs: Mapping, values: Mapping[str, float | int]) -> dict:
             out[key] = value
             continue
         base = out.get(key)
-        if base == "ideal":
-            base = AccelerometerConfig.ideal()
         out[key] = deep_merge({} if base is None else base, {field: value})
     return out
 
