@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import fields
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 T = TypeVar("T")
 ENV_NAMESPACE = "elastic_gym/"
@@ -133,11 +134,18 @@ def format_validation_error(error: ValidationError, prefix: str = "") -> str:
     """One line per problem, the field path first: ``controllers[1].options.omega: ...``."""
     lines = []
     for item in error.errors(include_url=False):
-        # pydantic adds the failing union member / validator name to loc; drop function names
-        loc = [part for part in item["loc"] if not (isinstance(part, str) and "[" in part)]
+        # pydantic adds the failing union member / validator name to loc
+        # ("function-after[...]", "constrained-float"); drop them
+        loc = [
+            part
+            for part in item["loc"]
+            if not (isinstance(part, str) and ("[" in part or "-" in part))
+        ]
         message = item["msg"]
         if item["type"] == "extra_forbidden":
             message = "unexpected field"
+        elif item["type"] == "value_error":  # a custom validator's own message
+            message = str(item["ctx"]["error"])
         lines.append(f"{field_path(loc, prefix)}: {message}")
     return "; ".join(dict.fromkeys(lines))
 
@@ -154,3 +162,34 @@ def validated(model: type[M], data: Any, prefix: str = "") -> M:
         return model.model_validate({} if data is None else plain(data))
     except ValidationError as error:
         raise ValueError(format_validation_error(error, prefix)) from None
+
+
+# ---------------------------------------------------------------- observer / controller options
+Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+"""A finite real number (an int is accepted; a bool or a string is not)."""
+PositiveNumber = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
+NonNegativeNumber = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
+
+
+def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
+    """The options of a constructor validated by their model: ``arguments`` is the
+    constructor's ``locals()`` (only the model's fields are read); errors read
+    ``options.<name>: ...``, a ``TypeError`` when every problem is a value of the wrong
+    type (a string for a number, 1 for a bool), a ``ValueError`` otherwise."""
+    given = {key: value for key, value in arguments.items() if key in model.model_fields}
+    try:
+        return model.model_validate(plain(given))
+    except ValidationError as error:
+        wrong_type = all(item["type"].endswith("_type") for item in error.errors())
+        kind = TypeError if wrong_type else ValueError
+        raise kind(format_validation_error(error, "options")) from None
+
+
+@contextmanager
+def option_checks(name: str) -> Iterator[None]:
+    """A ``ValueError`` raised inside (a check that needs the robot, beyond the option's
+    model) reads ``options.<name>: ...``."""
+    try:
+        yield
+    except ValueError as exc:
+        raise ValueError(f"options.{name}: {exc}") from None
