@@ -31,6 +31,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
+from pydantic import StrictBool
 
 from elastic_gym.controllers.gain_design import (
     closed_loop_poles,
@@ -39,12 +40,28 @@ from elastic_gym.controllers.gain_design import (
     lqr_integral_gain,
 )
 from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP, TIME_TOLERANCE
-from elastic_gym.controllers.state_feedback import FeedforwardStateFeedback, VectorStateFeedback
+from elastic_gym.controllers.state_feedback import (
+    FdStep,
+    FeedforwardStateFeedback,
+    VectorStateFeedback,
+)
 from elastic_gym.controllers.vector import arm_rows, twin_of
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import Number, PositiveNumber, StrictModel, validated_options
 
 DEFAULT_INTEGRAL_WEIGHT = 0.1
 DEFAULT_INTEGRAL_LIMIT = 0.5  # fraction of the torque limit
+
+
+class IntegralOptions(StrictModel):
+    """The options of :class:`IntegralStateFeedback`."""
+
+    omega: PositiveNumber = 30.0
+    integral_weight: PositiveNumber = DEFAULT_INTEGRAL_WEIGHT
+    integral_limit: PositiveNumber = DEFAULT_INTEGRAL_LIMIT
+    feedforward: StrictBool = True
+    design_configuration: list[Number] | None = None
+    fd_step: FdStep = DEFAULT_FD_STEP
 
 
 class IntegralStateFeedback(FeedforwardStateFeedback):
@@ -64,6 +81,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
     """
 
     name = "integral-state-feedback"
+    options_model = IntegralOptions
 
     def __init__(
         self,
@@ -76,12 +94,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
         design_configuration=None,
         fd_step: float = DEFAULT_FD_STEP,
     ) -> None:
-        if not (
-            isinstance(integral_limit, (int, float))
-            and np.isfinite(integral_limit)
-            and integral_limit > 0
-        ):
-            raise ValueError(f"integral_limit must be a positive number, got {integral_limit!r}")
+        validated_options(IntegralOptions, locals())
         self.integral_weight = integral_weight
         self.integral_bound = float(integral_limit) * np.asarray(model.spec.torque_limit, float)
         self.torque_limit = np.asarray(model.spec.torque_limit, dtype=float)

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+from pydantic import StrictBool
 
 from elastic_gym.arms import as_batch
 from elastic_gym.controllers import Controller, make_controller
@@ -25,6 +26,14 @@ from elastic_gym.training.evaluation import PolicyActor
 from elastic_gym.training.observation import ObservationBuilder, ObservationInputs
 from elastic_gym.training.policy_env import SENSORS
 from elastic_gym.training.train import load_run
+from elastic_gym.validation import StrictModel, validated_options
+
+
+class TrainedPolicyOptions(StrictModel):
+    """The options of :class:`TrainedPolicyController`."""
+
+    run: Path
+    best: StrictBool = False
 
 
 class TrainedPolicyController(Controller):
@@ -40,9 +49,11 @@ class TrainedPolicyController(Controller):
     """
 
     name = "trained-policy"
+    options_model = TrainedPolicyOptions
 
     def __init__(self, model: RobotModel, dt: float, run: str | Path, best: bool = False) -> None:
         super().__init__(model, dt)
+        validated_options(TrainedPolicyOptions, locals())
         trained = load_run(run, best=best)
         config = trained.config
         if config.state == SENSORS:
