@@ -31,7 +31,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
-from pydantic import StrictBool
 
 from elastic_gym.controllers.gain_design import (
     closed_loop_poles,
@@ -41,27 +40,24 @@ from elastic_gym.controllers.gain_design import (
 )
 from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP, TIME_TOLERANCE
 from elastic_gym.controllers.state_feedback import (
-    FdStep,
+    FeedforwardOptions,
     FeedforwardStateFeedback,
     VectorStateFeedback,
 )
 from elastic_gym.controllers.vector import arm_rows, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import Number, PositiveNumber, StrictModel, validated_options
+from elastic_gym.validation import PositiveNumber, validated_options
 
 DEFAULT_INTEGRAL_WEIGHT = 0.1
 DEFAULT_INTEGRAL_LIMIT = 0.5  # fraction of the torque limit
 
 
-class IntegralOptions(StrictModel):
+class IntegralOptions(FeedforwardOptions):
     """The options of :class:`IntegralStateFeedback`."""
 
     omega: PositiveNumber = 30.0
     integral_weight: PositiveNumber = DEFAULT_INTEGRAL_WEIGHT
     integral_limit: PositiveNumber = DEFAULT_INTEGRAL_LIMIT
-    feedforward: StrictBool = True
-    design_configuration: list[Number] | None = None
-    fd_step: FdStep = DEFAULT_FD_STEP
 
 
 class IntegralStateFeedback(FeedforwardStateFeedback):

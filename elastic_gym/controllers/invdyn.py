@@ -149,7 +149,7 @@ class RigidTorque:
         """(tau_r, tau_r') of (N, 5, n) references; tau_r' exact (complex-step RNEA
         tangent along (q_d', q_d'', q_d''') plus the friction slope)."""
         q, dq, ddq, d3q = ref[:, 0], ref[:, 1], ref[:, 2], ref[:, 3]
-        tau, dtau = self.model.chain.rnea_tangent(q, dq, ddq, dq, ddq, d3q)
+        tau, dtau = self.model.chain.rnea_tangent((q, dq, ddq), (dq, ddq, d3q))
         friction = self.model.friction
         if friction is not None:
             tau = tau + friction.torque(dq)

@@ -24,12 +24,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from pydantic import StrictBool, ValidationInfo, field_validator
+from pydantic import ValidationInfo, field_validator
 
 from elastic_gym.controllers.gain_design import bandwidth_pd_gains, most_stable_bandwidth, pd_gain
 from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP
 from elastic_gym.controllers.state_feedback import (
-    FdStep,
+    FeedforwardOptions,
     FeedforwardStateFeedback,
     VectorStateFeedback,
 )
@@ -37,9 +37,7 @@ from elastic_gym.controllers.vector import twin_of
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
     NonNegativeNumber,
-    Number,
     PositiveNumber,
-    StrictModel,
     option_checks,
     per_joint_values,
     validated_options,
@@ -51,7 +49,7 @@ DEFAULT_BANDWIDTH = 30.0  # rad/s, as the slowest poles of the eq. (13) design
 PerJointGain = NonNegativeNumber | list[NonNegativeNumber] | None
 
 
-class PDOptions(StrictModel):
+class PDOptions(FeedforwardOptions):
     """The options of :class:`MotorPD` and :class:`LinkPD` (per-joint sizes checked by the
     design)."""
 
@@ -59,9 +57,6 @@ class PDOptions(StrictModel):
     damping_ratio: PositiveNumber = 0.7
     kp: PerJointGain = None
     kd: PerJointGain = None
-    feedforward: StrictBool = True
-    design_configuration: list[Number] | None = None
-    fd_step: FdStep = DEFAULT_FD_STEP
 
     @field_validator("kd")
     @classmethod

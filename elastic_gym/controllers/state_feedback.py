@@ -69,7 +69,15 @@ class LQRWeights(StrictModel):
     R: Any
 
 
-class StateFeedbackOptions(StrictModel):
+class FeedforwardOptions(StrictModel):
+    """The INVDYN and linearization options shared by eq. (13) and its variants."""
+
+    feedforward: StrictBool = True
+    design_configuration: list[Number] | None = None
+    fd_step: FdStep = DEFAULT_FD_STEP
+
+
+class StateFeedbackOptions(FeedforwardOptions):
     """The options of :class:`FeedforwardStateFeedback` (gain shapes checked by its design)."""
 
     omega: PositiveNumber = 30.0
@@ -77,9 +85,6 @@ class StateFeedbackOptions(StrictModel):
     weights: LQRWeights | None = None
     poles: Any = None
     feedback: StrictBool = True
-    feedforward: StrictBool = True
-    design_configuration: list[Number] | None = None
-    fd_step: FdStep = DEFAULT_FD_STEP
 
     @field_validator("poles")
     @classmethod

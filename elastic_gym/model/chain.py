@@ -450,29 +450,6 @@ def _rnea_kernel(q, dq, ddq, fp, ip, w, h):
 
 
 @njit(cache=True)
-def _gravity_kernel(q, fp, ip, w, h):
-    N, n = q.shape
-    chain, bodies_p, _, _, minus_gravity = _unpack(fp, ip)
-    small, links, bodies, (M, _, _) = _workspace(n, w)
-    zero_n = bodies[8]
-    for k in range(N):
-        _mass_and_bias_arm(
-            q[k],
-            zero_n,
-            zero_n,
-            minus_gravity,
-            chain,
-            *bodies_p,
-            M,
-            h[k],
-            links,
-            small,
-            bodies,
-            False,
-        )
-
-
-@njit(cache=True)
 def _cholesky_solve(A, b, out):
     """Solve A x = b for a symmetric positive definite A (A is overwritten by its factor)."""
     n = b.shape[0]
@@ -517,6 +494,8 @@ def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
 
 
 # ---------------------------------------------------------------------------- the chain
+
+Triple = tuple[np.ndarray, np.ndarray, np.ndarray]  # (q, q', q'') or a direction of it
 
 COMPLEX_STEP = 1e-30
 """Imaginary step h of the complex-step derivatives (Squire & Trapp 1998):
@@ -604,14 +583,6 @@ class SerialChain:
         vars(self).update(state)
         self._scratch()
 
-    def _tangent_inputs(self, points, directions) -> list[np.ndarray]:
-        """x + i h t for each (point x, direction t): the complex-step inputs."""
-        n = self.n
-        return [
-            np.ascontiguousarray(_batch(x, n, "point") + (1j * COMPLEX_STEP) * _batch(t, n, "t"))
-            for x, t in zip(points, directions, strict=True)
-        ]
-
     def specific_forces(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """(N, 3 n_sensors) noise-free accelerometer readings, eq. (9) stacked."""
         n = self.n
@@ -685,48 +656,39 @@ class SerialChain:
         _rnea_kernel(q, dq, ddq, self._params, self._ints, self._work, out)
         return out
 
-    def rnea_tangent(
-        self,
-        q: np.ndarray,
-        dq: np.ndarray,
-        ddq: np.ndarray,
-        t_q: np.ndarray,
-        t_dq: np.ndarray,
-        t_ddq: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(tau, d tau): :meth:`rnea` and its derivative along the direction
-        (t_q, t_dq, t_ddq), (N, n) each.
+    def rnea_tangent(self, point: Triple, direction: Triple) -> tuple[np.ndarray, np.ndarray]:
+        """(tau, d tau): :meth:`rnea` at ``point`` = (q, q', q'') and its derivative along
+        ``direction`` = (t_q, t_dq, t_ddq), (N, n) arrays each.
 
         Complex step: d tau = Im rnea(q + i h t_q, q' + i h t_dq, q'' + i h t_ddq) / h,
         exact to rounding (no subtraction; truncation O(h^2), h = :data:`COMPLEX_STEP`).
         Along a trajectory the direction (q', q'', q^(3)) gives the time derivative.
         """
-        z = self._tangent_inputs((q, dq, ddq), (t_q, t_dq, t_ddq))
-        out = np.empty(z[0].shape, dtype=np.complex128)
-        _rnea_kernel(*z, self._params, self._ints, self._work_complex, out)
-        return out.real.copy(), out.imag / COMPLEX_STEP
+        return self._complex_step(_rnea_kernel, self.n, point, direction)
 
     def specific_forces_tangent(
-        self,
-        q: np.ndarray,
-        dq: np.ndarray,
-        ddq: np.ndarray,
-        t_q: np.ndarray,
-        t_dq: np.ndarray,
-        t_ddq: np.ndarray,
+        self, point: Triple, direction: Triple
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(readings, d readings): :meth:`specific_forces` and its derivative along
-        (t_q, t_dq, t_ddq), by the complex step of :meth:`rnea_tangent`."""
-        z = self._tangent_inputs((q, dq, ddq), (t_q, t_dq, t_ddq))
-        out = np.empty((len(z[0]), 3 * self.n_sensors), dtype=np.complex128)
-        _specific_forces_kernel(*z, self._params, self._ints, self._work_complex, out)
+        """(readings, d readings): :meth:`specific_forces` at ``point`` and its derivative
+        along ``direction``, by the complex step of :meth:`rnea_tangent`."""
+        return self._complex_step(_specific_forces_kernel, 3 * self.n_sensors, point, direction)
+
+    def _complex_step(self, kernel, width: int, point: Triple, direction: Triple):
+        n = self.n
+        z = [
+            np.ascontiguousarray(_batch(x, n, "point") + (1j * COMPLEX_STEP) * _batch(t, n, "t"))
+            for x, t in zip(point, direction, strict=True)
+        ]
+        out = np.empty((len(z[0]), width), dtype=np.complex128)
+        kernel(*z, self._params, self._ints, self._work_complex, out)
         return out.real.copy(), out.imag / COMPLEX_STEP
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """g(q) (N, n)."""
         q = _batch(q, self.n, "q")
+        zero = np.zeros(q.shape)
         h = np.empty(q.shape)
-        _gravity_kernel(q, self._params, self._ints, self._work, h)
+        _rnea_kernel(q, zero, zero, self._params, self._ints, self._work, h)
         return h
 
     def forward_dynamics(

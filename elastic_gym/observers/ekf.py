@@ -210,7 +210,8 @@ class ElasticLinearization:
         q, dq = x[:, n : 2 * n], x[:, 3 * n :]
         ddtheta, ddq = self.accelerations(x, tau)
         rows = np.repeat(np.arange(m), 2 * n)
-        _, tangent = self.chain.rnea_tangent(q[rows], dq[rows], ddq[rows], *_unit_directions(m, n))
+        point = (q[rows], dq[rows], ddq[rows])
+        _, tangent = self.chain.rnea_tangent(point, _unit_directions(m, n))
         drnea_dq, drnea_dv = _per_direction(tangent, m, n)
         M = self.chain.mass_and_bias(q, dq)[0]
         dr = np.broadcast_to(self._dr_spring, (m, n, 4 * n)).copy()
@@ -240,9 +241,8 @@ class ElasticLinearization:
         frame included)."""
         n, m = self.model.n, len(q)
         rows = np.repeat(np.arange(m), 2 * n)
-        readings, tangent = self.chain.specific_forces_tangent(
-            q[rows], dq[rows], ddq[rows], *_unit_directions(m, n)
-        )
+        point = (q[rows], dq[rows], ddq[rows])
+        readings, tangent = self.chain.specific_forces_tangent(point, _unit_directions(m, n))
         d_dq, d_dv = _per_direction(tangent, m, n)
         T_A = self.chain.accelerometer_maps(q, dq)[0]
         return readings[:: 2 * n], d_dq, d_dv, T_A
