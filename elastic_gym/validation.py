@@ -145,7 +145,7 @@ def format_validation_error(error: ValidationError, prefix: str = "") -> str:
         if item["type"] == "extra_forbidden":
             message = "unexpected field"
         elif item["type"] == "value_error":  # a custom validator's own message
-            message = str(item["ctx"]["error"])
+            message = str(item.get("ctx", {}).get("error", message))
         lines.append(f"{field_path(loc, prefix)}: {message}")
     return "; ".join(dict.fromkeys(lines))
 

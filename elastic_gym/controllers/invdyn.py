@@ -298,7 +298,8 @@ class TorsionFilter:
             self._delta,
             out,
         )
-        return tuple(out[:, 0]) if self.single else tuple(out)
+        d0, d1, d2, d3 = out[:, 0] if self.single else out
+        return d0, d1, d2, d3
 
 
 class InverseDynamics:

@@ -175,7 +175,7 @@ class PolicyController(Controller):
 
 
 @twin_of(PolicyController)
-class VectorPolicyController(ControllerTwin):
+class VectorPolicyController(ControllerTwin[PolicyController]):
     """:class:`PolicyController` on N arms: each arm has its own recurrent state, call
     count and held action, and the policy is called once per acting arm with that arm's
     observation (a batched call would round differently from the single controller's);
@@ -224,6 +224,7 @@ class VectorPolicyController(ControllerTwin):
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
         c = self.controller
         for i in np.flatnonzero(self._calls % c.decimation == 0):  # acting at 1 / (decimation dt)
+            i = int(i)
             self._held[i] = self.act(i, arm_view(obs, i), arm_view(info, i))
         self._calls += 1
         action = np.clip(self._held, -1.0, 1.0)

@@ -155,7 +155,7 @@ class FeedbackLinearizingController(_RigidTracking):
 
 
 @twin_of(CristofaroTrackingController)
-class VectorCristofaroTracking(StateLaw):
+class VectorCristofaroTracking(StateLaw[CristofaroTrackingController]):
     """Example 3 of Cristofaro & De Luca (2022) on N arms (chain kernels).
 
     C(q, x_hat_2) w comes from the bias n(q, v) = C(q, v) v + g(q), a quadratic form in v
@@ -180,7 +180,7 @@ class VectorCristofaroTracking(StateLaw):
 
 
 @twin_of(FeedbackLinearizingController)
-class VectorFeedbackLinearization(StateLaw):
+class VectorFeedbackLinearization(StateLaw[FeedbackLinearizingController]):
     """Computed torque with friction compensation (Solsona & Puleston) on N arms."""
 
     def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:

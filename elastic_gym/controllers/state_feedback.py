@@ -150,8 +150,8 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
         q0 = self._configuration(design_configuration)
         A, Bu = linearize(model, q0)
         if feedback:
-            weights = options.weights
-            self.gain, method = self._design(A, Bu, q0, omega, gain, weights, poles)
+            lqr = options.weights
+            self.gain, method = self._design(A, Bu, q0, omega, gain, lqr, poles)
         else:
             self.gain, method = np.zeros((self.n, self.dim)), "none (pure feedforward)"
         self.design = {
@@ -196,7 +196,7 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
 
 
 @twin_of(FeedforwardStateFeedback)
-class VectorStateFeedback(StateLaw):
+class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
     """Eq. (13) on N arms: tau_i = K_P (x_d,i - xi_i) + tau_d,i, INVDYN batched.
 
     Also the law of the decentralized PD controllers (eq. (13) with a block gain).

@@ -188,13 +188,9 @@ class DeLucaObserver(BatchedObserver):
         self._sensors = model.copy().chain  # own scratch buffer
 
         K, B, D = model.K, model.B, model.D
-        bandwidth = options.bandwidth
+        radius = DEFAULT_BANDWIDTH if options.bandwidth is None else options.bandwidth
         with option_checks("poles" if poles is not None else "bandwidth"):
-            self.poles = (
-                butterworth_poles(DEFAULT_BANDWIDTH if bandwidth is None else bandwidth, n)
-                if poles is None
-                else validate_poles(poles, n)
-            )
+            self.poles = butterworth_poles(radius, n) if poles is None else validate_poles(poles, n)
             if self.dt * np.abs(self.poles).max() > MAX_POLE_STEP:
                 raise ValueError(
                     f"poles up to {np.abs(self.poles).max():.3g} rad/s are too fast for the "

@@ -86,13 +86,11 @@ class TrainedPolicyController(Controller):
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
         x = state_vector(obs, self._law.state_dim)
         reference = reference_derivatives(info, self.n)
-        return self._law.torques(
-            x[None], reference[None], lambda: self._law.base(as_batch(obs), as_batch(info))
-        )[0]
+        return self._law.torques(x[None], reference[None], as_batch(obs), as_batch(info))[0]
 
 
 @twin_of(TrainedPolicyController)
-class VectorTrainedPolicy(ControllerTwin):
+class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
     """:class:`TrainedPolicyController` on N arms: features and torques of all arms at
     once; the policy acts per arm (its own recurrent memory, and a per-arm call rounds as
     the single controller's does); the residual base is one vector controller."""
@@ -120,9 +118,11 @@ class VectorTrainedPolicy(ControllerTwin):
         for held in (self._action, self._last_action, self._last_base):
             held[arms] = 0.0
 
-    def torques(self, x: np.ndarray, reference: np.ndarray, base_torque) -> np.ndarray:
-        """Torques (N, n) for states (N, dim) and references (N, 5, n); ``base_torque()``
-        gives the residual base's (N, n) torques (called only for a residual policy)."""
+    def torques(
+        self, x: np.ndarray, reference: np.ndarray, obs: Mapping, info: Mapping
+    ) -> np.ndarray:
+        """Torques (N, n) for states (N, dim) and references (N, 5, n); the batched ``obs``
+        and ``info`` feed the residual base controller."""
         c, n = self.controller, self.n
         acting = np.flatnonzero(self._calls % c.decimation == 0)  # at 1 / (decimation dt)
         if len(acting):
@@ -138,10 +138,10 @@ class VectorTrainedPolicy(ControllerTwin):
                 self._action[i] = self.actors[i](features[k])
             self._last_action[acting] = np.clip(self._action[acting], -1.0, 1.0)
         self._calls += 1
-        base = np.zeros((len(x), n)) if self.base is None else base_torque()
+        base = np.zeros((len(x), n)) if self.base is None else self.base(obs, info)
         self._last_base = base
         motor = (x[:, :n], x[:, 2 * n : 3 * n]) if c.elastic else (None, None)
         return c.map.torque(self._action, *motor, reference, base)
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        return self.torques(self.states(obs), self.references(info), lambda: self.base(obs, info))
+        return self.torques(self.states(obs), self.references(info), obs, info)
