@@ -46,7 +46,7 @@ from elastic_gym.controllers.state_feedback import (
 )
 from elastic_gym.controllers.vector import arm_rows, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import PositiveNumber, validated_options
+from elastic_gym.validation import PositiveFinite, validated_options
 
 DEFAULT_INTEGRAL_WEIGHT = 0.1
 DEFAULT_INTEGRAL_LIMIT = 0.5  # fraction of the torque limit
@@ -55,9 +55,9 @@ DEFAULT_INTEGRAL_LIMIT = 0.5  # fraction of the torque limit
 class IntegralOptions(FeedforwardOptions):
     """The options of :class:`IntegralStateFeedback`."""
 
-    omega: PositiveNumber = 30.0
-    integral_weight: PositiveNumber = DEFAULT_INTEGRAL_WEIGHT
-    integral_limit: PositiveNumber = DEFAULT_INTEGRAL_LIMIT
+    omega: PositiveFinite = 30.0
+    integral_weight: PositiveFinite = DEFAULT_INTEGRAL_WEIGHT
+    integral_limit: PositiveFinite = DEFAULT_INTEGRAL_LIMIT
 
 
 class IntegralStateFeedback(FeedforwardStateFeedback):

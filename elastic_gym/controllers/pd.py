@@ -36,8 +36,8 @@ from elastic_gym.controllers.state_feedback import (
 from elastic_gym.controllers.vector import twin_of
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
-    NonNegativeNumber,
-    PositiveNumber,
+    NonNegativeFinite,
+    PositiveFinite,
     option_checks,
     per_joint_values,
     validated_options,
@@ -46,15 +46,15 @@ from elastic_gym.validation import (
 DEFAULT_BANDWIDTH = 30.0  # rad/s, as the slowest poles of the eq. (13) design
 
 
-PerJointGain = NonNegativeNumber | list[NonNegativeNumber] | None
+PerJointGain = NonNegativeFinite | list[NonNegativeFinite] | None
 
 
 class PDOptions(FeedforwardOptions):
     """The options of :class:`MotorPD` and :class:`LinkPD` (per-joint sizes checked by the
     design)."""
 
-    omega: PositiveNumber | None = DEFAULT_BANDWIDTH
-    damping_ratio: PositiveNumber = 0.7
+    omega: PositiveFinite | None = DEFAULT_BANDWIDTH
+    damping_ratio: PositiveFinite = 0.7
     kp: PerJointGain = None
     kd: PerJointGain = None
 

@@ -36,7 +36,7 @@ import numpy as np
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.vector import OneArmLaw, StateLaw, arm_rows, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import PositiveNumber, StrictModel, validated_options
+from elastic_gym.validation import PositiveFinite, StrictModel, validated_options
 
 CRISTOFARO_LAMBDA = 0.5
 CRISTOFARO_KP = (40.0, 60.0)
@@ -114,8 +114,8 @@ class CristofaroTrackingController(_RigidTracking):
 class FeedbackLinearizationOptions(StrictModel):
     """The options of :class:`FeedbackLinearizingController` (gain sizes checked by it)."""
 
-    omega: PositiveNumber = 10.0
-    damping_ratio: PositiveNumber = 1.0
+    omega: PositiveFinite = 10.0
+    damping_ratio: PositiveFinite = 1.0
     K_P: Any = None
     K_D: Any = None
     friction_velocity: Literal["estimate", "desired"] = "estimate"

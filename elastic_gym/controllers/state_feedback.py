@@ -38,8 +38,8 @@ from elastic_gym.controllers.invdyn import (
 from elastic_gym.controllers.vector import OneArmLaw, StateLaw, arm_rows, twin_of
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
-    Number,
-    PositiveNumber,
+    Finite,
+    PositiveFinite,
     StrictModel,
     option_checks,
     validated_options,
@@ -73,14 +73,14 @@ class FeedforwardOptions(StrictModel):
     """The INVDYN and linearization options shared by eq. (13) and its variants."""
 
     feedforward: StrictBool = True
-    design_configuration: list[Number] | None = None
+    design_configuration: list[Finite] | None = None
     fd_step: FdStep = DEFAULT_FD_STEP
 
 
 class StateFeedbackOptions(FeedforwardOptions):
     """The options of :class:`FeedforwardStateFeedback` (gain shapes checked by its design)."""
 
-    omega: PositiveNumber = 30.0
+    omega: PositiveFinite = 30.0
     gain: Any = None
     weights: LQRWeights | None = None
     poles: Any = None

@@ -50,8 +50,9 @@ class ArmEnv(gym.Env):
         render_mode: ``"rgb_array"`` or ``"human"``.
         **kwargs: the options of :class:`~elastic_gym.envs.batch.ArmBatch` (task,
             task_options, physics_dt, control_dt, encoder, accelerometer, accelerometers,
-            plant_scaling, torque_limit, reward_weights, max_velocity, sensor_delay,
-            termination_penalty, episode_time).
+            plant_scaling, unmodelled_friction, torque_limit, reward, max_velocity,
+            sensor_delay, actuator_delay, payload, torque_pulses, randomize, per_arm,
+            episode_time).
 
     Attributes: ``model`` (the nominal :class:`~elastic_gym.model.RobotModel` for
     observers and controllers), ``plant_model`` (the simulated plant's), ``robot``,
@@ -112,9 +113,15 @@ class ArmEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode at rest (or at ``options["initial_state"]``, see ArmBatch)."""
         self.batch._check_open()
-        super().reset(seed=seed)
-        self.batch.rngs[0] = self.np_random
-        self.batch.reset_arms(ARM, options)
+        previous = self._np_random, self._np_random_seed
+        with self.batch.generators_kept_on_error(ARM):
+            try:
+                super().reset(seed=seed)
+                self.batch.rngs[0] = self.np_random
+                self.batch.reset_arms(ARM, options)
+            except BaseException:  # a refused reset changes no random stream
+                self._np_random, self._np_random_seed = previous
+                raise
         return self.batch.observation(0), self.batch.info(0)
 
     def step(self, action):

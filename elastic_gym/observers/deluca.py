@@ -82,7 +82,7 @@ from elastic_gym.observers.deluca_gains import (
     validate_poles,
 )
 from elastic_gym.validation import (
-    PositiveNumber,
+    PositiveFinite,
     StrictModel,
     option_checks,
     validated_options,
@@ -118,11 +118,11 @@ class DeLucaOptions(StrictModel):
 
     acceleration: Literal["ideal", "accelerometer"] = "accelerometer"
     poles: Any = None
-    bandwidth: PositiveNumber | list[PositiveNumber] | None = None
+    bandwidth: PositiveFinite | list[PositiveFinite] | None = None
     use_coupling: StrictBool = True
-    dls_threshold: PositiveNumber = 0.01
-    dls_damping: PositiveNumber = 0.01
-    velocity_saturation: PositiveNumber | None = DEFAULT_VELOCITY_SATURATION
+    dls_threshold: PositiveFinite = 0.01
+    dls_damping: PositiveFinite = 0.01
+    velocity_saturation: PositiveFinite | None = DEFAULT_VELOCITY_SATURATION
 
     @field_validator("bandwidth")
     @classmethod

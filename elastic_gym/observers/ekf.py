@@ -53,7 +53,7 @@ from scipy.linalg import expm
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, arm_count
 from elastic_gym.observers.integration import rk4
-from elastic_gym.validation import NonNegativeNumber, StrictModel, validated_options
+from elastic_gym.validation import NonNegativeFinite, StrictModel, is_real, validated_options
 
 DEFAULT_ALPHA = 1.0
 """Exponential data weighting alpha of eq. (15), 1/s."""
@@ -281,7 +281,7 @@ class EKFOptions(StrictModel):
     covariances Q, R, P0 are checked against the robot's dimensions by
     :func:`covariance_option`, alpha against 1/dt by the filter."""
 
-    alpha: NonNegativeNumber = DEFAULT_ALPHA
+    alpha: NonNegativeFinite = DEFAULT_ALPHA
     Q: Any = None
     P0: Any = None
     use_accelerometers: StrictBool = False
@@ -442,7 +442,7 @@ class ExtendedKalmanFilter(BatchedObserver):
         self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
     ) -> np.ndarray:
         """One predict (eqs. (4)-(8), (15)) and correct (eqs. (9)-(18)) cycle of ``arms``."""
-        if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
+        if not (is_real(dt) and np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a positive number, got {dt!r}")
         arms = np.arange(len(self._x)) if arms is None else np.asarray(arms)
         tau = self.checked_torque(torque, len(self._x))[arms]
