@@ -199,7 +199,6 @@ class AccelerometerArray:
         n_arms: int = 1,
     ) -> None:
         configs = [config] * n_arms if isinstance(config, AccelerometerConfig) else list(config)
-        self.configs = configs
         self.config = max(configs, key=lambda c: c.range)
         self.size = 3 * n_sensors
         self.sample_time = sample_time
@@ -216,7 +215,6 @@ class AccelerometerArray:
     def set(self, arm: int, config: AccelerometerConfig) -> None:
         """Arm ``arm``'s own error model (e.g. drawn at a reset)."""
         dt = self.sample_time
-        self.configs[arm] = config
         self.sample_std[arm] = config.noise_density * np.sqrt(0.5 / dt)
         self.alpha[arm] = (
             float(np.exp(-2.0 * np.pi * config.cutoff_hz * dt))
