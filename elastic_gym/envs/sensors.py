@@ -68,12 +68,16 @@ class GaussianNoise:
 
     def draw(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
         """One sample per arm of ``arms`` (``rngs[k]`` is the generator of ``arms[k]``)."""
-        for k in np.flatnonzero(self.next[arms] == self.BLOCK):
-            arm = arms[k]
-            self.block[arm] = rngs[k].standard_normal(self.block.shape[1:])
-            self.next[arm] = 0
-        sample = self.block[arms, self.next[arms]]
-        self.next[arms] += 1
+        following = self.next[arms]
+        empty = following == self.BLOCK
+        if empty.any():
+            for k in np.flatnonzero(empty):
+                arm = arms[k]
+                self.block[arm] = rngs[k].standard_normal(self.block.shape[1:])
+                self.next[arm] = 0
+            following = self.next[arms]
+        sample = self.block[arms, following]
+        self.next[arms] = following + 1
         return sample
 
 
