@@ -611,11 +611,6 @@ class SerialChain:
         new._scratch()
         return new
 
-    @property
-    def n_rows(self) -> int:
-        """How many parameter sets: 1 (any number of arms) or the N arms of a stack."""
-        return len(self._params)
-
     def set_row(self, arm: int, chain: SerialChain) -> None:
         """Give arm ``arm`` of a stacked chain the parameters of ``chain``."""
         self._params[arm] = chain._params[0]
