@@ -55,8 +55,8 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training import TrainConfig, load_run, train
-from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, evaluate_arms
 from elastic_gym.training.policy_env import make_policy_vec_env
+from elastic_gym.training.rollouts import CURVE_FILE, Evaluation, evaluate_arms
 from elastic_gym.training.train import FINISHED, evaluate_run
 
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"

@@ -56,7 +56,7 @@ def config_from(cls: type[T], config: Any, what: str) -> T:
 
 def check_applies(kind: str, name: str, applies_to: frozenset[str], model) -> None:
     """Refuse an observer/controller built for elastic arms on a rigid robot and vice versa."""
-    arm = "elastic" if model.elastic else "rigid"
+    arm = model.spec.kind
     if arm not in applies_to:
         raise ValueError(
             f"{kind} {name!r} applies to {sorted(applies_to)} arms, "

@@ -20,7 +20,7 @@ from elastic_gym.training import (
     train,
 )
 from elastic_gym.training.config import resolve_hyperparams
-from elastic_gym.training.evaluation import evaluate_policy
+from elastic_gym.training.rollouts import evaluate_policy
 from elastic_gym.training.train import env_factory, split_settings
 
 SHORT_EPISODES = {"max_episode_steps": 200}

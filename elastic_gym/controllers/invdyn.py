@@ -57,9 +57,9 @@ from collections.abc import Mapping
 import numpy as np
 from scipy.special import factorial
 
+from elastic_gym.arms import REFERENCE_KEYS, reference_rows
 from elastic_gym.model import RobotModel
 
-REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 DEFAULT_FD_STEP = 1e-4
 TIME_TOLERANCE = 1e-9  # s; calls closer in time than this count as the same instant
 
@@ -72,7 +72,7 @@ def reference_derivatives(info: Mapping, n: int) -> np.ndarray:
             f"controller needs info['reference'] with keys {REFERENCE_KEYS} "
             "(pass public_info(info) of the env step)"
         )
-    ref = np.array([np.asarray(reference[k], dtype=float) for k in REFERENCE_KEYS])
+    ref = reference_rows(info)
     if ref.shape != (len(REFERENCE_KEYS), n) or not np.all(np.isfinite(ref)):
         raise ValueError(f"info['reference'] must hold 5 finite {n}-vectors, got shape {ref.shape}")
     return ref

@@ -102,7 +102,7 @@ class ArmEnv(gym.Env):
         self.observation_space = batch.single_observation_space
 
     def _check_kind(self, spec: RobotSpec) -> None:
-        kind = "elastic" if spec.elastic else "rigid"
+        kind = spec.kind
         if self.kind is not None and kind != self.kind:
             other = "RigidArmEnv" if spec.elastic else "ElasticArmEnv"
             self.batch.close()

@@ -46,6 +46,7 @@ import numpy as np
 from gymnasium import spaces
 from numba import njit
 
+from elastic_gym.arms import REFERENCE_KEYS
 from elastic_gym.envs.reward import RewardConfig, batch_reward
 from elastic_gym.envs.sensors import (
     AccelerometerArray,
@@ -66,7 +67,6 @@ EPISODE_TIME = 3.0  # s
 MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
 MAX_SENSOR_DELAY = 1.0  # s
 MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
-REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 STATE_KEYS = ("q", "dq", "theta", "dtheta")
 
 

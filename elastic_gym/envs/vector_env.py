@@ -95,7 +95,7 @@ class ArmVectorEnv(VectorEnv):
         self.batch = batch = ArmBatch(robot, num_envs, **kwargs)
         if max_episode_steps is not None:
             batch.limit_episode(max_episode_steps)
-        kind = "elastic" if batch.robot.elastic else "rigid"
+        kind = batch.robot.kind
         if self.kind is not None and kind != self.kind:
             batch.close()
             raise ValueError(f"robot {batch.robot.name!r} has {kind} joints")

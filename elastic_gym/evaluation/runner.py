@@ -27,9 +27,8 @@ import numpy as np
 
 import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.controllers.base import Controller, public_info
-from elastic_gym.controllers.registry import controller_class
+from elastic_gym.evaluation.controllers import comparison_controller
 from elastic_gym.evaluation.metrics import TimeSeries, compute_metrics
-from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
 from elastic_gym.evaluation.scenario import (
     ControllerEntry,
     Scenario,
@@ -103,11 +102,6 @@ def env_robot(env_id: str, env_kwargs: dict) -> RobotSpec:
     return robot if isinstance(robot, RobotSpec) else get_robot(robot)
 
 
-def is_elastic(env_id: str, env_kwargs: dict) -> bool:
-    """Whether the env's robot has elastic joints (from its spec, without building the env)."""
-    return env_robot(env_id, env_kwargs).elastic
-
-
 def _entry_class(
     entry: ControllerEntry | SourceEntry, path: str, base: type, lookup: Callable[[str], type]
 ) -> type:
@@ -125,10 +119,6 @@ def _entry_class(
             f"{base.__name__.lower()} {entry.name!r} is "
             f"registered but not available in this installation ({exc})",
         ) from None
-
-
-def _controller_lookup(name: str) -> type[Controller]:
-    return BUILTIN_CONTROLLERS.get(name) or controller_class(name)
 
 
 def check_options(cls: type, options: dict, path: str, fixed: dict | None = None) -> None:
@@ -170,7 +160,7 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
     """
     controllers, sources = [], []
     for i, entry in enumerate(scenario.controllers):
-        cls = _entry_class(entry, f"controllers[{i}]", Controller, _controller_lookup)
+        cls = _entry_class(entry, f"controllers[{i}]", Controller, comparison_controller)
         check_options(cls, entry.options, f"controllers[{i}]")
         controllers.append((entry, cls))
     for i, entry in enumerate(scenario.state_sources):
@@ -183,7 +173,7 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
     skipped: list[SkippedRun] = []
     for env, variations in itertools.product(scenario.envs, axis_values):
         kwargs = scenario.env_kwargs(env, variations)
-        kind = "elastic" if is_elastic(env.id, kwargs) else "rigid"
+        kind = env_robot(env.id, kwargs).kind
         base_labels = {"env": env.label}
         base_labels.update(
             {name: v.label for (name, _), v in zip(scenario.axes, variations, strict=True)}

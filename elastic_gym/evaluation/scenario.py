@@ -95,8 +95,7 @@ import numpy as np
 import yaml
 
 import elastic_gym  # noqa: F401 - registers the env ids
-from elastic_gym.controllers.registry import CONTROLLERS
-from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
+from elastic_gym.evaluation.controllers import controller_names
 from elastic_gym.evaluation.output import folder_name_problem
 from elastic_gym.model import ParameterScaling
 from elastic_gym.observers.registry import OBSERVERS
@@ -523,7 +522,7 @@ def _controller(item: Any, path: str, source_labels: set[str]) -> ControllerEntr
     _check_keys(item, CONTROLLER_KEYS, path)
     name = _name(item, path)
     cls = _class_field(item.get("class"), f"{path}.class")
-    valid = sorted({*CONTROLLERS, *BUILTIN_CONTROLLERS})
+    valid = controller_names()
     if cls is None and name not in valid:
         raise ScenarioError(f"{path}.name", f"unknown controller {name!r}; valid: {valid}")
     sources = item.get("sources")

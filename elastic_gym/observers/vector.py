@@ -27,6 +27,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from elastic_gym.arms import arm_view
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, Observer
 from elastic_gym.observers.wrappers import (
@@ -37,14 +38,6 @@ from elastic_gym.observers.wrappers import (
     check_sensor_space,
     measurement,
 )
-
-
-def _arm(batched: Mapping, i: int) -> dict:
-    return {
-        key: _arm(value, i) if isinstance(value, Mapping) else value[i]
-        for key, value in batched.items()
-        if not key.startswith("_")
-    }
 
 
 class ObserverArray:
@@ -74,7 +67,7 @@ class ObserverArray:
         )
         for k, i in enumerate(arms):
             self._estimates[i] = self.observers[i].reset(
-                _arm(obs, i), None if rows is None else rows[k]
+                arm_view(obs, i), None if rows is None else rows[k]
             )
         self._record(arms)
         return self._estimates[arms].copy()
@@ -84,7 +77,7 @@ class ObserverArray:
     ) -> np.ndarray:
         arms = range(len(self.observers)) if arms is None else arms
         for i in arms:
-            self._estimates[i] = self.observers[i].update(_arm(obs, i), torque[i], dt)
+            self._estimates[i] = self.observers[i].update(arm_view(obs, i), torque[i], dt)
         self._record(arms)
         return self._estimates.copy()
 

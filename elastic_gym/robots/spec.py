@@ -144,6 +144,11 @@ class LinkFriction:
         )
 
 
+def joint_kind(elastic: bool) -> str:
+    """``"elastic"`` for elastic joints, ``"rigid"`` otherwise."""
+    return "elastic" if elastic else "rigid"
+
+
 @dataclass(frozen=True)
 class RobotSpec:
     """Everything needed to simulate and model one arm.
@@ -200,6 +205,12 @@ class RobotSpec:
     @property
     def n_joints(self) -> int:
         return len(self.joint_names)
+
+    @property
+    def kind(self) -> str:
+        """``"elastic"`` or ``"rigid"``: the joint kind, as observers and controllers name
+        the arms they apply to (``applies_to``)."""
+        return joint_kind(self.elastic)
 
     def __post_init__(self) -> None:
         n = self.n_joints

@@ -1,5 +1,11 @@
-"""RL training on the estimated state: stable-baselines3 pipeline (``elastic-gym train``)."""
+"""RL training on the estimated state: stable-baselines3 pipeline (``elastic-gym train``).
 
+Importing the package registers the ``trained-policy`` controller: a run folder as a
+controller of the comparison
+(:class:`~elastic_gym.training.policy_controller.TrainedPolicyController`).
+"""
+
+from elastic_gym.controllers.registry import register_controller
 from elastic_gym.training.actions import ActionConfig, ActionMap
 from elastic_gym.training.config import ALGORITHMS, TrainConfig, parse_overrides
 from elastic_gym.training.observation import ObservationBuilder, ObservationConfig
@@ -13,6 +19,10 @@ from elastic_gym.training.train import (
     train_many,
 )
 from elastic_gym.training.wrappers import ActionRepeat, PolicyAction, PolicyObservation
+
+register_controller(
+    "trained-policy", "elastic_gym.training.policy_controller:TrainedPolicyController"
+)
 
 __all__ = [
     "ALGORITHMS",

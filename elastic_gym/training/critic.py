@@ -16,7 +16,7 @@ source's), and with :class:`PrivilegedCriticPolicy`:
   entries only: no weight multiplies a privileged entry;
 * the critic's features extractor passes all m + k entries to ``value_net``.
 
-Deployment (:class:`~elastic_gym.training.evaluation.PolicyActor`: ``evaluate_run``,
+Deployment (:class:`~elastic_gym.training.rollouts.PolicyActor`: ``evaluate_run``,
 the learning curve, ``elastic-gym compare --policy``) builds the stack without
 ``CriticState`` and pads the k privileged entries with NaN before normalization: the
 actor never reads them (a NaN would poison any action that did).

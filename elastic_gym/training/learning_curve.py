@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
+from elastic_gym.training.rollouts import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
 
 COLUMNS = (
     "policy_steps",

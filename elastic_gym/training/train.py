@@ -49,8 +49,8 @@ from elastic_gym.training.config import (
     merged_hyperparams,
     resolve_hyperparams,
 )
-from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
 from elastic_gym.training.policy_env import SENSORS, make_policy_env
+from elastic_gym.training.rollouts import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.yaml")  # needed to load a run
 RUN_OUTPUTS = (*RUN_FILES, "best_model.zip", "summary.json", "evaluations.npz", CURVE_FILE, "tb")
