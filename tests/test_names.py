@@ -37,7 +37,7 @@ def test_register_controller_refuses_a_taken_name_and_a_bad_target():
     target = "elastic_gym.training.policy_controller:TrainedPolicyController"
     register_controller("trained-policy", target)  # the same target again: nothing changes
     assert before == CONTROLLERS
-    with pytest.raises(ValueError, match="'motor-pd' is taken by elastic_gym.controllers.pd"):
+    with pytest.raises(ValueError, match=r"'motor-pd' is taken by elastic_gym\.controllers\.pd"):
         register_controller("motor-pd", target)
     with pytest.raises(ValueError, match="must be 'module:Class'"):
         register_controller("mine", "elastic_gym.controllers.pd.MotorPD")
@@ -63,3 +63,37 @@ def test_reference_rows_of_a_batch_are_the_rows_of_its_arms():
         np.testing.assert_array_equal(reference_rows(arm), rows[i])
         for k, key in enumerate(REFERENCE_KEYS):
             np.testing.assert_array_equal(rows[i, k], batched["reference"][key][i])
+
+
+def test_residual_means_one_thing_for_the_policy_controller_and_the_action_map():
+    """The callable-level PolicyController and the training's residual action give the
+    same torque bit for bit on the same base torque, deadzone (default) included."""
+    import gymnasium as gym
+
+    from elastic_gym.controllers import make_controller, public_info
+    from elastic_gym.controllers.policy import RESIDUAL_DEADZONE, PolicyController
+    from elastic_gym.observers import TrueStateWrapper
+    from elastic_gym.training import ActionConfig, ActionMap
+
+    env = TrueStateWrapper(gym.make("elastic_gym/TwoLinkElastic-v0"))
+    obs, info = env.reset(seed=4)
+    obs, *_, info = env.step(np.array([0.3, -0.2]))
+    info = public_info(info)
+    model = env.unwrapped.model
+    config = ActionConfig(kind="residual", residual="motor-pd", residual_scale=0.3)
+    assert config.residual_deadzone == RESIDUAL_DEADZONE > 0
+    action_map = ActionMap(config, model)
+    base = make_controller("motor-pd", model, 1e-3)
+    base.reset(obs, info)
+    actions = np.array([[0.1, -0.15], [0.2, -0.2], [0.5, -0.7], [1.0, -1.0], [1.7, -3.0]])
+    for a in actions:
+        policy = PolicyController(
+            model, 1e-3, lambda o, a=a: a, residual="motor-pd", residual_scale=0.3
+        )
+        policy.reset(obs, info)
+        expected = action_map.torque(a[None], base_torque=base(obs, info)[None])[0]
+        np.testing.assert_array_equal(policy(obs, info), expected)
+    inside = PolicyController(model, 1e-3, lambda o: actions[0], residual="motor-pd")
+    inside.reset(obs, info)
+    np.testing.assert_array_equal(inside(obs, info), base(obs, info))  # |a| <= d: no residual
+    env.close()

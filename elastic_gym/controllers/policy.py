@@ -15,8 +15,10 @@ policies enter the same comparisons as the classical laws:
 * actions: with ``scale_actions`` (default) the policy acts in [-1, 1] (clipped), mapped
   to the torque limits; otherwise its output is the torque;
 * residual mode: ``residual`` (a controller or a registry name with
-  ``residual_options``) gives the base torque and the policy adds a bounded correction
-  ``residual_scale * torque_limit * clip(action, -1, 1)``.
+  ``residual_options``) gives the base torque and the policy adds the bounded correction
+  of :func:`residual_torque` (Residual Policy Learning, Silver et al. 2018), the same map
+  as the training's ``residual`` action kind
+  (:class:`~elastic_gym.training.actions.ActionMap`), deadzone included.
 """
 
 from __future__ import annotations
@@ -32,6 +34,24 @@ from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.registry import make_controller
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import per_joint_values
+
+RESIDUAL_DEADZONE = 0.2  # default |a| below which a residual adds exactly nothing
+
+
+def residual_torque(
+    action: np.ndarray, torque_limit: np.ndarray, scale: float, deadzone: float = 0.0
+) -> np.ndarray:
+    """The residual correction added to a base controller's torque.
+
+    ``scale * torque_limit * sign(a) max(|a| - d, 0) / (1 - d)`` with ``a`` the action
+    clipped to [-1, 1] and ``d`` the ``deadzone`` in [0, 1): exactly zero while |a| <= d,
+    continuous at d, and ``scale * torque_limit`` at |a| = 1 (d = 0: linear in a). Works
+    on one arm (n,) or on N arms (N, n).
+    """
+    a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+    if deadzone:
+        a = np.sign(a) * np.maximum(np.abs(a) - deadzone, 0.0) / (1.0 - deadzone)
+    return scale * torque_limit * a
 
 
 def load_sb3_model(path: str | os.PathLike, algorithm: str | type):
@@ -74,7 +94,8 @@ class PolicyController(Controller):
         preprocess: ``f(obs, info) -> policy observation``.
         scale_actions: actions in [-1, 1] scaled to ``torque_limit``.
         torque_limit: N limits (default: the model's).
-        residual, residual_options, residual_scale: residual mode.
+        residual, residual_options, residual_scale, residual_deadzone: residual mode
+            (:func:`residual_torque`).
         deterministic: passed to ``predict``.
         decimation: the policy acts every ``decimation`` calls and its action is held in
             between (the residual base controller still runs at every call).
@@ -95,6 +116,7 @@ class PolicyController(Controller):
         residual: Controller | str | None = None,
         residual_options: Mapping | None = None,
         residual_scale: float = 0.1,
+        residual_deadzone: float = RESIDUAL_DEADZONE,
         deterministic: bool = True,
         decimation: int = 1,
     ) -> None:
@@ -128,6 +150,9 @@ class PolicyController(Controller):
         if not (isinstance(residual_scale, (int, float)) and 0.0 < residual_scale <= 1.0):
             raise ValueError(f"residual_scale must be in (0, 1], got {residual_scale!r}")
         self.residual_scale = float(residual_scale)
+        if not (isinstance(residual_deadzone, (int, float)) and 0.0 <= residual_deadzone < 1.0):
+            raise ValueError(f"residual_deadzone must be in [0, 1), got {residual_deadzone!r}")
+        self.residual_deadzone = float(residual_deadzone)
         self._state = None
         self._episode_start = np.ones(1, dtype=bool)
         self._calls = 0
@@ -184,7 +209,9 @@ class PolicyController(Controller):
         self._calls += 1
         action = self._held
         if self.residual is not None:
-            correction = self.residual_scale * self.torque_limit * np.clip(action, -1.0, 1.0)
+            correction = residual_torque(
+                action, self.torque_limit, self.residual_scale, self.residual_deadzone
+            )
             return self.residual(obs, info) + correction
         if self.scale_actions:
             return self.torque_limit * np.clip(action, -1.0, 1.0)

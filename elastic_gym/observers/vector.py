@@ -1,19 +1,30 @@
-"""Observer wrappers for vector envs: the twins of :mod:`elastic_gym.observers.wrappers`.
+"""Wrappers that put a state estimate (or the truth) in place of the sensor observation
+of every arm of a vector env; the single-env :mod:`elastic_gym.observers.wrappers` are their
+N = 1 case (:mod:`elastic_gym.single_env`).
 
 ``ObserverWrapper(envs, "deluca", **options)`` and ``TrueStateWrapper(envs)`` wrap a
-vector env of N arms (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``)
-the way their single-env twins wrap one env: the observation becomes
-``{"state": (N, dim), "reference": (N, 2n)}`` and ``info`` gets ``estimate``,
-``true_state_vector``, ``estimation_error`` and ``observer_diagnostics`` with a leading
-arm axis (and Gymnasium's ``_key`` masks).
+vector env of N arms (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``):
+the observation becomes ``{"state": (N, dim), "reference": (N, 2n)}``. The observer is
+fed every sample and the torque actually applied (after clipping, ``info["torque"]``),
+and ``info`` gets ``estimate``, ``true_state_vector``, ``estimation_error`` (estimate -
+truth) and the observer's ``observer_diagnostics`` (e.g. the condition number of T_A)
+with a leading arm axis (and Gymnasium's ``_key`` masks) at every step, the terminal one
+included. ``TrueStateWrapper`` gives the same layout from the ground truth, so one
+controller or policy runs unchanged on estimated or true state.
 
 Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserver`: De
 Luca with ideal or accelerometer-based q'', finite differences, the truth) estimate all
-arms at once; the others (EKF, rigid-arm observers, your own) run one copy per arm
+arms at once; the others (EKF, rigid-arm observers, your own, or a batched one whose
+single-arm methods a subclass overrides: :func:`runs_batched`) run one copy per arm
 behind the same interface (:class:`ObserverArray`). Either way each arm's estimate is
-the single-env observer's (``tests/test_vector_observers.py``). Autoresets are followed:
-an arm reset by the env is re-initialised from its first observation; with
-``SAME_STEP`` the terminal observation is estimated first (``info["final_obs"]``).
+the single-env observer's. Autoresets are followed: an arm reset by the env is
+re-initialised from its first observation; with ``SAME_STEP`` the terminal observation is
+estimated first (``info["final_obs"]``).
+
+An estimate that stops being finite (a diverged observer) ends that arm's episode with
+``terminated=True`` and ``info["termination_reason"] = "non-finite state estimate"``
+(:meth:`ObserverWrapper._terminate`); the observation keeps the arm's last finite
+estimate, the other arms go on.
 """
 
 from __future__ import annotations
@@ -30,14 +41,82 @@ from gymnasium.vector.utils import batch_space
 from elastic_gym.arms import arm_view
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, Observer
-from elastic_gym.observers.wrappers import (
-    NON_FINITE_ESTIMATE,
-    NON_FINITE_STATE,
-    annotate,
-    build_observer,
-    check_sensor_space,
-    measurement,
-)
+from elastic_gym.observers.registry import make_observer
+
+NON_FINITE_STATE = "non-finite state"
+NON_FINITE_ESTIMATE = "non-finite state estimate"
+
+
+def build_observer(
+    base, observer: Observer | str, model: RobotModel | None, options: dict
+) -> Observer:
+    """The wrapper's own observer: built by name on ``model`` (default: the env's nominal
+    model), or a private copy of a given instance (envs never share an observer)."""
+    if isinstance(observer, str):
+        return make_observer(observer, model or base.model, base.control_dt, **options)
+    if not isinstance(observer, Observer):
+        raise TypeError(f"observer must be an Observer or a registry name, got {observer!r}")
+    if options or model is not None:
+        raise ValueError("model and observer options apply only when observer is a name")
+    own = observer.model.spec
+    if own.name != base.robot.name or own.n_joints != base.robot.n_joints:
+        raise ValueError(
+            f"the observer was built on the model of robot {own.name!r}, "
+            f"the env simulates {base.robot.name!r}"
+        )
+    return copy.deepcopy(observer)
+
+
+def check_sensor_space(space: spaces.Space, observer: Observer) -> None:
+    """The wrapped env must still give the sensor observation (a Dict)."""
+    key = "motor_position" if observer.elastic else "link_position"
+    if not isinstance(space, spaces.Dict) or key not in space.spaces:
+        raise ValueError(
+            f"ObserverWrapper needs the env's sensor observation (a Dict with {key!r}), got "
+            f"{space}: put the observer wrapper below observation wrappers such as "
+            "FlattenObservation"
+        )
+
+
+def measurement(observer: Observer, obs: Mapping, info: Mapping) -> dict:
+    """The sensor observation plus the ground-truth items the observer is privileged to."""
+    measured = dict(obs)
+    if "link_acceleration" in observer.privileged:
+        measured["link_acceleration"] = info["true_state"]["ddq"]
+    if "true_state" in observer.privileged:
+        measured["true_state"] = info["true_state"]
+    return measured
+
+
+def true_state_vector(info: Mapping, elastic: bool) -> np.ndarray:
+    """The true state in the observer's layout (works for one arm and for a batch)."""
+    truth = info["true_state"]
+    if elastic:
+        return np.asarray(truth["x"])
+    return np.concatenate([truth["q"], truth["dq"]], axis=-1)
+
+
+def annotate(info: dict, estimate: np.ndarray, elastic: bool, diagnostics: dict) -> dict:
+    """Add ``estimate``, ``true_state_vector``, ``estimation_error``, ``observer_diagnostics``."""
+    truth = true_state_vector(info, elastic)
+    info["estimate"] = estimate.copy()
+    info["true_state_vector"] = truth
+    info["estimation_error"] = estimate - truth
+    info["observer_diagnostics"] = dict(diagnostics)
+    return info
+
+
+def runs_batched(observer: Observer) -> bool:
+    """Whether ``observer`` estimates all arms at once: a
+    :class:`~elastic_gym.observers.base.BatchedObserver` whose single-arm ``reset`` and
+    ``update`` are its N = 1 case. A subclass that overrides them runs one copy per arm
+    (:class:`ObserverArray`), so that its own code is what runs."""
+    cls = type(observer)
+    return (
+        isinstance(observer, BatchedObserver)
+        and cls.reset is BatchedObserver.reset
+        and cls.update is BatchedObserver.update
+    )
 
 
 class ObserverArray:
@@ -113,7 +192,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         single = build_observer(base.batch, observer, model, options)
         check_sensor_space(env.single_observation_space, single)
         N = env.num_envs
-        self.observer = single if isinstance(single, BatchedObserver) else ObserverArray(single, N)
+        self.observer = single if runs_batched(single) else ObserverArray(single, N)
         self.initial_estimate = initial_estimate
         dim = single.state_dim
         self.single_observation_space = spaces.Dict(
@@ -191,28 +270,37 @@ class ObserverWrapper(gym.vector.VectorWrapper):
             }
         annotate(final_info, self._estimates, self.observer.elastic, self.observer.arm_diagnostics)
 
+    def _terminate(self, diverged: np.ndarray, terminated: np.ndarray, info: dict) -> np.ndarray:
+        """End the episodes of the ``diverged`` arms (non-finite estimate): ``terminated``
+        and ``info["termination_reason"]`` say so, and the env resets them like any
+        ended episode."""
+        if not len(diverged):
+            return terminated
+        terminated = terminated.copy()
+        terminated[diverged] = True
+        reasons = info["termination_reason"].copy()
+        reasons[diverged] = NON_FINITE_ESTIMATE
+        info["termination_reason"] = reasons
+        info["_termination_reason"] = reasons != None  # noqa: E711
+        self.env.unwrapped.end_episodes(diverged)
+        return terminated
+
     def step(self, actions):
         obs, reward, terminated, truncated, info = self.env.step(actions)
         mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
-        restarted = np.flatnonzero(self._autoreset)  # reset by the env in this step
+        restarted = self._autoreset.copy()  # arms reset by the env in this step
         if mode is AutoresetMode.SAME_STEP and np.any(info.get("_final_obs", False)):
             ended = np.flatnonzero(info["_final_obs"])
             self._final_estimates(obs, info, ended)
-            restarted = np.union1d(restarted, ended)
-        self._reset_observer(obs, info, restarted)
-        diverged = self._update(obs, info, np.setdiff1d(np.arange(self.num_envs), restarted))
-        if len(diverged):
-            terminated = terminated.copy()
-            terminated[diverged] = True
-            reasons = info["termination_reason"].copy()
-            reasons[diverged] = NON_FINITE_ESTIMATE
-            info["termination_reason"] = reasons
-            info["_termination_reason"] = reasons != None  # noqa: E711
-            self.env.unwrapped.end_episodes(diverged)
+            restarted[ended] = True
+        self._reset_observer(obs, info, np.flatnonzero(restarted))
+        diverged = self._update(obs, info, np.flatnonzero(~restarted))
+        terminated = self._terminate(diverged, terminated, info)
         if mode is AutoresetMode.NEXT_STEP:
             self._autoreset = terminated | truncated
         else:  # SAME_STEP resets in the step that ends an episode, except ours (next step)
-            self._autoreset = np.isin(np.arange(self.num_envs), diverged)
+            self._autoreset = np.zeros(self.num_envs, dtype=bool)
+            self._autoreset[diverged] = True
         return self._observation(obs), reward, terminated, truncated, self._annotate(info)
 
 
@@ -223,4 +311,11 @@ class TrueStateWrapper(ObserverWrapper):
         super().__init__(env, "true")
 
 
-__all__ = ["ObserverArray", "ObserverWrapper", "TrueStateWrapper"]
+__all__ = [
+    "NON_FINITE_ESTIMATE",
+    "NON_FINITE_STATE",
+    "ObserverArray",
+    "ObserverWrapper",
+    "TrueStateWrapper",
+    "true_state_vector",
+]

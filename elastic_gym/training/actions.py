@@ -23,11 +23,14 @@ below turns it into a motor torque at every control period (1 kHz), from the sta
   the control rate; the policy's output starts at zero (zeroed mean head, small initial
   standard deviation, see :func:`elastic_gym.training.train`). With the
   ``residual_deadzone`` d (default 0.2; 0 switches it off) the residual is
-  scale * tau_max * sign(a) max(|a| - d, 0) / (1 - d): exactly zero while |a| <= d, so a
-  policy whose mean drifts a little around zero (every PPO update moves it) adds no
-  torque where the base controller needs no help, while the full bound stays reachable
-  (continuous at d). Without it, PPO's updates moved the mean of a residual on eq. (13)
-  by more than eq. (13)'s 2e-5-rad tracking error allows (README, RL study).
+  scale * tau_max * sign(a) max(|a| - d, 0) / (1 - d)
+  (:func:`~elastic_gym.controllers.policy.residual_torque`, also the residual of the
+  callable-level :class:`~elastic_gym.controllers.policy.PolicyController`): exactly zero
+  while |a| <= d, so a policy whose mean drifts a little around zero (every PPO update
+  moves it) adds no torque where the base controller needs no help, while the full bound
+  stays reachable (continuous at d). Without it, PPO's updates moved the mean of a
+  residual on eq. (13) by more than eq. (13)'s 2e-5-rad tracking error allows (README, RL
+  study).
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from elastic_gym.controllers.gain_design import bandwidth_pd_gains, nominal_configuration
+from elastic_gym.controllers.policy import RESIDUAL_DEADZONE, residual_torque
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import config_from, per_joint_values
 
@@ -70,7 +74,7 @@ class ActionConfig:
     residual: str | None = None
     residual_options: dict = field(default_factory=dict)
     residual_scale: float = 0.1
-    residual_deadzone: float = 0.2
+    residual_deadzone: float = RESIDUAL_DEADZONE
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -173,10 +177,10 @@ class ActionMap:
         if kind == "torque":
             return self.torque_limit * a
         if kind == "residual":
-            deadzone = self.config.residual_deadzone
-            if deadzone:
-                a = np.sign(a) * np.maximum(np.abs(a) - deadzone, 0.0) / (1.0 - deadzone)
-            return base_torque + self.config.residual_scale * self.torque_limit * a
+            config = self.config
+            return base_torque + residual_torque(
+                a, self.torque_limit, config.residual_scale, config.residual_deadzone
+            )
         q_d, dq_d = reference[:, 0], reference[:, 1]
         target = q_d + self.config.offset_scale * a
         tau = self.kp * (target - motor_position) + self.kd * (dq_d - motor_velocity)

@@ -328,3 +328,12 @@ class TrainConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def split_settings(config: TrainConfig) -> tuple[dict, dict]:
+    """(our settings, algorithm kwargs) resolved from the hyper-parameter file + overrides."""
+    merged = resolve_hyperparams(
+        config.algo, config.env_id, config.hyperparams, config.hyperparams_file
+    )
+    ours = {k: merged.pop(k) for k in OWN_KEYS if k in merged}
+    return ours, merged

@@ -21,7 +21,7 @@ from elastic_gym.model import RobotModel
 from elastic_gym.training.actions import ActionMap
 from elastic_gym.training.observation import ObservationBuilder, ObservationInputs
 from elastic_gym.training.policy_env import SENSORS
-from elastic_gym.training.train import load_run
+from elastic_gym.training.trained import load_run
 
 
 class TrainedPolicyController(Controller):
@@ -47,7 +47,7 @@ class TrainedPolicyController(Controller):
                 f"the policy in {run} was trained on raw sensors; only policies trained on a "
                 "state source ('true' or an observer) can run in a comparison"
             )
-        action, observation = config.policy_configs(trained.settings)
+        action, observation = trained.stack.action, trained.stack.observation
         self.map = ActionMap(action, model)
         self.builder = ObservationBuilder(
             observation, self.n, model.elastic, False, action.kind == "residual", model.torque_limit

@@ -2,8 +2,8 @@
 observation features.
 
 Stack (bottom to top; :func:`make_policy_vec_env` builds the same stack on N arms of one
-PyBullet world with the twins of :mod:`elastic_gym.training.vector` and
-:mod:`elastic_gym.observers.vector`)::
+PyBullet world with the vector wrappers of :mod:`elastic_gym.training.vector` and
+:mod:`elastic_gym.observers.vector`, whose N = 1 case the single-env ones are)::
 
     gym.make(env_id)                      1 kHz loop, sensors only
     ObserverWrapper / TrueStateWrapper    state source: an observer name or "true"
@@ -11,8 +11,8 @@ PyBullet world with the twins of :mod:`elastic_gym.training.vector` and
     PolicyAction                          a in [-1, 1]^n -> torque at 1 kHz (torque,
                                           motor-offset PD or residual)
     ActionRepeat(decimation)              policy rate = 1 kHz / decimation
-    PolicyObservation                     flat features (error, reference, torsion, ...)
-    (FrameStackObservation + Flatten)     raw sensors: the last frames
+    PolicyObservation                     flat features (error, reference, torsion, ...);
+                                          raw sensors: the last frame_stack frames
     (CriticState)                         critic_state=True (training only): the true
                                           state's features appended for the critic
 """
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import gymnasium as gym
 from gymnasium.vector import AutoresetMode
-from gymnasium.wrappers import FlattenObservation, FrameStackObservation
 
 import elastic_gym  # noqa: F401  (registers the env ids in worker processes)
 from elastic_gym.observers import OBSERVERS, ObserverWrapper, vector
@@ -100,9 +99,7 @@ def wrap_policy_env(
     env = PolicyAction(env, action)
     if decimation > 1:
         env = ActionRepeat(env, decimation)
-    env = PolicyObservation(env, observation)
-    if frame_stack > 1:
-        env = FlattenObservation(FrameStackObservation(env, frame_stack))
+    env = PolicyObservation(env, observation, frame_stack)
     if critic_state:
         env = CriticState(env, observation)
     return env

@@ -1,9 +1,27 @@
-"""Vector-env twins of the policy wrappers of :mod:`elastic_gym.training.wrappers`.
+"""The policy wrappers on all the arms of a vector env at once; the single-env
+:mod:`elastic_gym.training.wrappers` are their N = 1 case (:mod:`elastic_gym.single_env`).
 
-The same logic (:class:`~elastic_gym.training.actions.ActionMap`,
-:class:`~elastic_gym.training.observation.ObservationBuilder`) on all the arms of a vector
-env (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``) at once. Resets of
-some arms — autoresets, or ``reset(options={"reset_mask": ...})`` as
+Stack, bottom to top (:func:`~elastic_gym.training.policy_env.make_policy_vec_env`), on a
+vector env (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``) under an
+observer wrapper (:mod:`elastic_gym.observers.vector`)::
+
+    ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation [-> CriticState]
+
+* :class:`PolicyAction`: the policy's action in [-1, 1]^n becomes a motor torque at
+  every control period (1 kHz) through :class:`~elastic_gym.training.actions.ActionMap`
+  (torque, motor-position offsets through a motor PD, or a residual on a classical
+  controller, which runs at every period).
+* :class:`ActionRepeat` (decimation): the policy acts at a lower rate than the control
+  loop; the action is held for ``k`` periods and the rewards are summed. It sits above
+  the observer, so the observer still sees every sample.
+* :class:`PolicyObservation`: the flat feature vector of
+  :class:`~elastic_gym.training.observation.ObservationBuilder`, with the last action and
+  a preview of the reference.
+* :class:`CriticState` (training only, on top of the stack): the true state's features
+  appended for a critic with privileged information (:mod:`elastic_gym.training.critic`);
+  the policy's observation stays the first entries.
+
+Resets of some arms — autoresets, or ``reset(options={"reset_mask": ...})`` as
 :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv` does — restart their controllers,
 last actions and frame stacks only.
 """
@@ -18,8 +36,10 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
+from elastic_gym.arms import arm_view, reference_rows
 from elastic_gym.controllers import make_controller, public_info
-from elastic_gym.observers.wrappers import true_state_vector
+from elastic_gym.envs.arm_env import validated_actions
+from elastic_gym.observers.vector import true_state_vector
 from elastic_gym.training.actions import ActionConfig, ActionMap
 from elastic_gym.training.observation import (
     ObservationBuilder,
@@ -27,22 +47,6 @@ from elastic_gym.training.observation import (
     ObservationInputs,
     TrueStateFeatures,
 )
-from elastic_gym.training.wrappers import REFERENCE_KEYS
-
-
-def reference_rows(info: Mapping) -> np.ndarray:
-    """``info["reference"]`` of every arm as an (N, 5, n) array: q_d .. q_d^(4)."""
-    reference = info["reference"]
-    return np.stack([reference[key] for key in REFERENCE_KEYS], axis=1).astype(float)
-
-
-def arm_view(batched: Mapping, i: int) -> dict:
-    """Arm i of a batched observation or info (the ``_key`` masks dropped)."""
-    return {
-        key: arm_view(value, i) if isinstance(value, Mapping) else value[i]
-        for key, value in batched.items()
-        if not key.startswith("_")
-    }
 
 
 def wrapper_attribute(env: gym.vector.VectorEnv, name: str):
@@ -53,19 +57,6 @@ def wrapper_attribute(env: gym.vector.VectorEnv, name: str):
         if not hasattr(env, "env"):
             raise AttributeError(f"no wrapper of {env} has {name!r}")
         env = env.env
-
-
-def checked_actions(actions, n_arms: int, n: int) -> np.ndarray:
-    """Finite (N, n) actions, or a clear error (nothing is stepped)."""
-    arr = np.asarray(actions)
-    if arr.dtype.kind not in "fiu":
-        raise TypeError(f"actions must be a real numeric array, got dtype {arr.dtype}")
-    if arr.shape != (n_arms, n):
-        raise ValueError(f"actions must have shape ({n_arms}, {n}), got {arr.shape}")
-    arr = arr.astype(np.float64)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError("actions must be finite")
-    return arr
 
 
 class _ArmResets(gym.vector.VectorWrapper):
@@ -96,8 +87,13 @@ class _ArmResets(gym.vector.VectorWrapper):
 class PolicyAction(_ArmResets):
     """Actions in [-1, 1]^n of every arm -> motor torques at every control period.
 
-    The twin of :class:`elastic_gym.training.wrappers.PolicyAction`; a residual's base
-    controller runs one copy per arm. ``info["base_torque"]`` is (N, n).
+    Args:
+        env: a vector env below an observer wrapper (or raw sensors for the ``torque``
+            and ``motor-offset`` kinds).
+        action: an :class:`ActionConfig` or its fields.
+
+    A residual's base controller runs one copy per arm. ``info["base_torque"]`` (N, n)
+    holds the residual's base torque (zeros for other kinds).
     """
 
     def __init__(
@@ -145,7 +141,7 @@ class PolicyAction(_ArmResets):
         return obs, info
 
     def step(self, actions):
-        a = checked_actions(actions, self.num_envs, self.n)
+        a = validated_actions(actions, self.num_envs, self.n)
         obs, info, n = self._obs, self._info, self.n
         if self.controllers:
             self._base = np.array(
@@ -233,7 +229,7 @@ class PolicyObservation(_ArmResets):
         return self._frames.reshape(self.num_envs, -1).copy(), info
 
     def step(self, actions):
-        a = checked_actions(actions, self.num_envs, self.n)
+        a = validated_actions(actions, self.num_envs, self.n)
         obs, reward, terminated, truncated, info = self.env.step(a)
         self._last_action = np.clip(a, -1.0, 1.0)
         restarted = self._restarted(terminated, truncated)
@@ -248,8 +244,16 @@ class PolicyObservation(_ArmResets):
 
 
 class CriticState(gym.vector.VectorWrapper):
-    """Every arm's flat policy observation with its true state's features appended: the
-    twin of :class:`elastic_gym.training.wrappers.CriticState` (training only)."""
+    """Every arm's flat policy observation with its true state's features appended
+    (:class:`~elastic_gym.training.observation.TrueStateFeatures` of
+    ``info["true_state"]``, the current step only, not frame-stacked): the privileged
+    input of a critic in training. The first entries are the policy's observation,
+    unchanged.
+
+    Args:
+        env: a flat policy stack (``PolicyObservation``, possibly frame-stacked).
+        observation: the stack's :class:`ObservationConfig` (its scales are used).
+    """
 
     def __init__(
         self, env: gym.vector.VectorEnv, observation: ObservationConfig | dict | None = None

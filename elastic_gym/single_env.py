@@ -1,0 +1,168 @@
+"""Single-env wrappers as the N = 1 case of their vector twins.
+
+A wrapper's logic is written once, for N arms with a leading arm axis (a
+``gym.vector.VectorWrapper`` over an elastic_gym vector env); :class:`SingleArmWrapper` runs
+that same code on one env (the reverse of Gymnasium, which derives its vector wrappers
+from the single-env ones). The wrapped env is seen as a vector env of one arm
+(:class:`OneArm`, autoreset disabled): observations and info get a leading axis of length
+1 on the way in and lose it on the way out (Gymnasium's ``_key`` masks dropped; numpy
+scalars of one arm become Python scalars, as a single env gives them). Info items the
+vector logic leaves alone are handed back as the wrapped env made them.
+
+An episode that has ended (terminated, truncated, or ended by the vector logic through
+``end_episodes``) must be reset before the next ``step``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv, VectorWrapper
+from gymnasium.vector.utils import batch_space
+
+
+def batched(value: Any) -> Any:
+    """``value`` of one arm with a leading arm axis of length 1 (mappings item by item;
+    strings and None as object arrays, so that a longer string can replace them)."""
+    if isinstance(value, Mapping):  # arrays inline: a step's info holds about twenty
+        return {
+            key: item[None]
+            if type(item) is np.ndarray and item.dtype.kind not in "OUS"
+            else batched(item)
+            for key, item in value.items()
+        }
+    if isinstance(value, np.ndarray | float | int | np.generic):
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "OUS":  # bool is an int
+            return arr[None]
+    out = np.empty(1, dtype=object)
+    out[0] = value
+    return out
+
+
+def single(value: Any) -> Any:
+    """The one arm of a batched ``value`` (``_key`` masks dropped, numpy scalars as Python
+    scalars)."""
+    if isinstance(value, Mapping):
+        return {
+            key: item[0]
+            if type(item) is np.ndarray and item.ndim > 1 and item.dtype.kind not in "OUS"
+            else single(item)
+            for key, item in value.items()
+            if key[:1] != "_"
+        }
+    item = value[0]
+    return item.item() if isinstance(item, np.generic) else item
+
+
+class OneArm(VectorEnv):
+    """One elastic_gym env (possibly wrapped) as a vector env of one arm.
+
+    Autoreset is ``DISABLED``: stepping an arm whose episode has ended raises
+    ``RuntimeError`` until ``reset``. ``batch`` is the env's
+    :class:`~elastic_gym.envs.batch.ArmBatch` (what vector wrappers read: model, control
+    period, reference preview).
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        batch = getattr(env.unwrapped, "batch", None)
+        if batch is None:
+            raise TypeError(
+                f"this wrapper needs an elastic_gym env (gym.make('elastic_gym/...')), got {env}"
+            )
+        self.env, self.batch = env, batch
+        self.num_envs = 1
+        self.metadata = {**env.metadata, "autoreset_mode": AutoresetMode.DISABLED}
+        self.render_mode = env.render_mode
+        self.single_observation_space = env.observation_space
+        self.single_action_space = env.action_space
+        self.observation_space = batch_space(env.observation_space, 1)
+        self.action_space = batch_space(env.action_space, 1)
+        self.last_info: dict = {}  # the env's info of the last reset or step
+        self._sent: dict = {}
+        self._ended = True
+
+    @property
+    def control_dt(self) -> float:
+        return self.batch.control_dt
+
+    def _batched(self, obs: Any, info: dict) -> tuple[Any, dict]:
+        self.last_info = info
+        self._sent = {key: batched(value) for key, value in info.items()}
+        return batched(obs), dict(self._sent)
+
+    def single_info(self, info: Mapping) -> dict:
+        """The single env's info of the last reset or step, with the items the vector
+        logic added or replaced in ``info`` (its batched form) taken from it."""
+        out = dict(self.last_info)
+        for key, value in info.items():
+            if not key.startswith("_") and self._sent.get(key) is not value:
+                out[key] = single(value)
+        return out
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._ended = False
+        return self._batched(obs, info)
+
+    def step(self, actions):
+        if self._ended:
+            raise RuntimeError("call reset() before step() (and after an episode has ended)")
+        obs, reward, terminated, truncated, info = self.env.step(actions[0])
+        self._ended = bool(terminated or truncated)
+        obs, info = self._batched(obs, info)
+        return (
+            obs,
+            np.array([reward], dtype=float),
+            np.array([terminated]),
+            np.array([truncated]),
+            info,
+        )
+
+    def end_episodes(self, arms: np.ndarray) -> None:
+        """End the episode now (the vector logic terminated it): the next step needs a reset."""
+        if len(arms):
+            self._ended = True
+
+    def render(self):
+        return self.env.render()
+
+
+class SingleArmWrapper(gym.Wrapper):
+    """A vector wrapper's logic on one env (module docstring).
+
+    Args:
+        env: an elastic_gym env, possibly wrapped.
+        vector: builds the vector wrapper on the env seen as one arm (:class:`OneArm`).
+
+    ``vector`` is the vector wrapper doing the work; ``observation_space`` and
+    ``action_space`` are its single-arm spaces.
+    """
+
+    def __init__(self, env: gym.Env, vector: Callable[[OneArm], VectorWrapper]) -> None:
+        gym.Wrapper.__init__(self, env)
+        self.arm = OneArm(env)
+        self.vector = vector(self.arm)
+        self.observation_space = self.vector.single_observation_space
+        self.action_space = self.vector.single_action_space
+
+    def batched_action(self, action: Any) -> np.ndarray:
+        """The action with the arm axis the vector logic expects (checks: subclasses)."""
+        return np.asarray(action)[None]
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = self.vector.reset(seed=seed, options=options)
+        return single(obs), self.arm.single_info(info)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.vector.step(self.batched_action(action))
+        return (
+            single(obs),
+            float(reward[0]),
+            bool(terminated[0]),
+            bool(truncated[0]),
+            self.arm.single_info(info),
+        )

@@ -1,0 +1,123 @@
+"""The envs of a training run, made in one place: the policy stack a run trains and is
+evaluated on (:class:`PolicyStack`), on one env, on the arms of one PyBullet world, or as
+the SB3 vec env of training (:func:`training_vec_env`: arms split over worker processes).
+
+Everything that decides what the policy sees and does — env id and kwargs, state source
+and observer options, action and observation configs, decimation, frame stack — is
+resolved once from the run's config and hyper-parameters (:meth:`PolicyStack.of`), so
+that training, its learning curve, a loaded run's evaluation and the comparison's
+``trained-policy`` build the same stack.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+
+import gymnasium as gym
+from gymnasium.vector import AutoresetMode
+
+from elastic_gym.training.actions import ActionConfig
+from elastic_gym.training.config import TrainConfig, batch_kwargs
+from elastic_gym.training.observation import ObservationConfig
+from elastic_gym.training.policy_env import SENSORS, make_policy_env, make_policy_vec_env
+
+
+@dataclass(frozen=True)
+class PolicyStack:
+    """The policy env of a run (:mod:`elastic_gym.training.policy_env`), resolved.
+
+    Attributes:
+        env_id, env_kwargs: the env and the run's kwargs (hyper-parameter file's updated
+            by the run's, :meth:`TrainConfig.training_env_kwargs`).
+        state, observer_options: the state source the policy sees.
+        action, observation: the policy's action and observation configs.
+        decimation: env steps per policy step.
+        frame_stack: frames of raw sensors the policy sees (1 on a state source).
+    """
+
+    env_id: str
+    state: str
+    action: ActionConfig
+    observation: ObservationConfig
+    decimation: int = 1
+    frame_stack: int = 1
+    env_kwargs: dict = field(default_factory=dict)
+    observer_options: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, config: TrainConfig, settings: dict) -> PolicyStack:
+        """The stack of a run: its config with the resolved hyper-parameters ``settings``
+        (ours, :func:`~elastic_gym.training.config.split_settings`)."""
+        action, observation = config.policy_configs(settings)
+        return cls(
+            env_id=config.env_id,
+            state=config.state,
+            action=action,
+            observation=observation,
+            decimation=int(settings.get("decimation", 1)),
+            frame_stack=config.frame_stack if config.state == SENSORS else 1,
+            env_kwargs=config.training_env_kwargs(settings),
+            observer_options=dict(config.observer_options),
+        )
+
+    def make(
+        self,
+        n_arms: int | None = None,
+        env_kwargs: dict | None = None,
+        critic_state: bool = False,
+        autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
+    ) -> gym.Env | gym.vector.VectorEnv:
+        """The stack on one env (``n_arms`` None) or on ``n_arms`` arms of one PyBullet
+        world (a Gymnasium vector env with ``autoreset_mode``).
+
+        ``env_kwargs`` update the run's key by key (e.g. an evaluation plant);
+        ``critic_state``: the training stack, with the true state appended for the critic.
+        """
+        options = {
+            "state": self.state,
+            "env_kwargs": {**self.env_kwargs, **(env_kwargs or {})},
+            "observer_options": self.observer_options,
+            "decimation": self.decimation,
+            "action": self.action,
+            "observation": self.observation,
+            "frame_stack": self.frame_stack,
+            "critic_state": critic_state,
+        }
+        if n_arms is None:
+            return make_policy_env(self.env_id, **options)
+        return make_policy_vec_env(self.env_id, n_arms, autoreset_mode=autoreset_mode, **options)
+
+    def sb3_vec_env(self, n_arms: int, env_kwargs: dict | None = None, critic_state: bool = False):
+        """The stack on ``n_arms`` arms of one PyBullet world as an SB3 ``VecEnv``."""
+        from elastic_gym.training.sb3_vec_env import SB3VecEnv
+
+        return SB3VecEnv(self.make(n_arms, env_kwargs, critic_state))
+
+
+def training_vec_env(stack: PolicyStack, settings: dict, n_envs: int, seed: int):
+    """What SB3 trains on: one env (``n_envs`` 1), a batch of ``n_envs`` arms, or several
+    batches (hyper-parameter ``batches``, :func:`~elastic_gym.training.config.batch_kwargs`)
+    in worker processes; with the true state appended for the critic if the
+    hyper-parameter ``critic_state`` is set. Seeded with ``seed``, under a ``VecMonitor``."""
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
+
+    from elastic_gym.training.sb3_vec_env import ProcessBatches
+
+    batches = batch_kwargs(settings.get("batches", 1))
+    if n_envs % len(batches):
+        raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs ({n_envs})")
+    critic_state = bool(settings.get("critic_state", False))
+    if n_envs == 1:
+        venv = DummyVecEnv([functools.partial(stack.make, critic_state=critic_state)])
+        venv.action_space.seed(seed)
+    else:
+        factories = [
+            functools.partial(stack.sb3_vec_env, n_envs // len(batches), kwargs, critic_state)
+            for kwargs in batches
+        ]
+        venv = factories[0]() if len(factories) == 1 else ProcessBatches(factories)
+    venv.seed(seed)
+    # Episode returns and lengths, one wrapping whatever the arms' layout (VecNormalize's
+    # statistics sync walks wrapper stacks in parallel).
+    return VecMonitor(venv)
