@@ -16,7 +16,7 @@ An episode that has ended (terminated, truncated, or ended by the vector logic t
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import gymnasium as gym
 import numpy as np
@@ -131,7 +131,10 @@ class OneArm(VectorEnv):
         return self.env.render()
 
 
-class SingleArmWrapper(gym.Wrapper):
+W = TypeVar("W", bound=VectorWrapper)
+
+
+class SingleArmWrapper(gym.Wrapper, Generic[W]):
     """A vector wrapper's logic on one env (module docstring).
 
     Args:
@@ -142,10 +145,10 @@ class SingleArmWrapper(gym.Wrapper):
     ``action_space`` are its single-arm spaces.
     """
 
-    def __init__(self, env: gym.Env, vector: Callable[[OneArm], VectorWrapper]) -> None:
+    def __init__(self, env: gym.Env, vector: Callable[[OneArm], W]) -> None:
         gym.Wrapper.__init__(self, env)
         self.arm = OneArm(env)
-        self.vector = vector(self.arm)
+        self.vector: W = vector(self.arm)
         self.observation_space = self.vector.single_observation_space
         self.action_space = self.vector.single_action_space
 

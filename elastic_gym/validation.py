@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import fields
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
@@ -38,7 +38,7 @@ def checked_fields(cls: type[T], config: Any, what: str) -> dict | T | None:
         return config
     if not isinstance(config, Mapping):
         raise TypeError(f"{what} must be a mapping, got {type(config).__name__}")
-    allowed = {f.name for f in fields(cls)}
+    allowed = {f.name for f in fields(cast(Any, cls))}
     unknown = set(config) - allowed
     if unknown:
         raise ValueError(f"unknown {what} field(s) {sorted(unknown)}; valid: {sorted(allowed)}")

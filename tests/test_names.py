@@ -96,4 +96,7 @@ def test_residual_means_one_thing_for_the_policy_controller_and_the_action_map()
     inside = PolicyController(model, 1e-3, lambda o: actions[0], residual="motor-pd")
     inside.reset(obs, info)
     np.testing.assert_array_equal(inside(obs, info), base(obs, info))  # |a| <= d: no residual
+    for deadzone in (1.0, -0.1, "0.2"):
+        with pytest.raises(ValueError, match=r"residual_deadzone must be in \[0, 1\)"):
+            PolicyController(model, 1e-3, abs, residual="motor-pd", residual_deadzone=deadzone)
     env.close()

@@ -94,7 +94,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
             design_configuration=design_configuration,
             fd_step=fd_step,
         )
-        q0 = self.design["configuration"]
+        q0 = np.asarray(self.design["configuration"])
         self.integral_bound = float(integral_limit) * np.asarray(model.spec.torque_limit, float)
         self.torque_limit = np.asarray(model.spec.torque_limit, dtype=float)
         self._rows = link_position_rows(model)

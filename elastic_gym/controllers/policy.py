@@ -27,6 +27,7 @@ import importlib
 import os
 import pickle
 from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -64,7 +65,8 @@ def load_sb3_model(path: str | os.PathLike, algorithm: str | type):
         if not hasattr(sb3, algorithm):
             raise ValueError(f"unknown stable-baselines3 algorithm {algorithm!r}")
         algorithm = getattr(sb3, algorithm)
-    return algorithm.load(os.fspath(path), device="cpu")
+    cls: Any = algorithm
+    return cls.load(os.fspath(path), device="cpu")
 
 
 def load_normalization(normalization):

@@ -53,7 +53,8 @@ class FeedforwardStateFeedback(Controller):
     Args:
         model: nominal model (INVDYN and the gain design use it).
         dt: control period (s).
-        omega: slowest closed-loop pole magnitude (rad/s) of the default LQR design.
+        omega: slowest closed-loop pole magnitude (rad/s) of the default LQR design (None:
+            a subclass's own default design).
         gain: explicit K_P (N x dim(x)); overrides the design.
         weights: ``{"Q": ..., "R": ...}`` LQR weights (matrices or diagonals).
         poles: all dim(x) closed-loop poles for MIMO pole placement.
@@ -75,7 +76,7 @@ class FeedforwardStateFeedback(Controller):
         self,
         model: RobotModel,
         dt: float,
-        omega: float = 30.0,
+        omega: float | None = 30.0,
         gain=None,
         weights: Mapping | None = None,
         poles=None,

@@ -210,13 +210,13 @@ class ArmSimulator:
             if friction is None
             else (
                 friction._viscous * np.ones(n),
-                empty if friction._pos is None else friction._pos * np.ones(n),
-                empty if friction._neg is None else friction._neg * np.ones(n),
+                empty if friction._coulomb is None else friction._coulomb[0] * np.ones(n),
+                empty if friction._coulomb is None else friction._coulomb[1] * np.ones(n),
                 float(friction.smoothing_velocity),
             )
         )
         self._SBinv = plant.S * plant.B_inv if plant.has_coupling else None
-        self._schur_inertia = -self._SBinv @ plant.S.T if plant.has_coupling else None
+        self._schur_inertia = -self._SBinv @ plant.S.T if self._SBinv is not None else None
         self._ST = plant.S.T.copy()
         self._elastic = elastic
 
@@ -309,7 +309,9 @@ class ArmSimulator:
         self.q, self.dq = states[:, :, 0].copy(), states[:, :, 1].copy()
 
     # ------------------------------------------------------------------ stepping
-    def accelerations(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def accelerations(
+        self, tau: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """(link torque applied to PyBullet, theta'', q'' or None) under motor torque tau.
 
         q'' is computed only where it is needed for the link torque (model (2)).

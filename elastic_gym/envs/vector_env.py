@@ -21,7 +21,7 @@ batched along a leading arm axis.
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -57,7 +57,8 @@ class ArmVectorEnv(VectorEnv):
         **kwargs: the options of :class:`~elastic_gym.envs.batch.ArmBatch`.
     """
 
-    metadata: ClassVar[dict] = {
+    # replaced per instance in __init__ (gymnasium declares metadata per instance)
+    metadata: dict[str, Any] = {  # noqa: RUF012
         "render_modes": ["rgb_array"],
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }

@@ -122,8 +122,8 @@ def find_moves(series: TimeSeries) -> list[Move]:
     """Completed rest-to-rest moves of the reference (see module docstring)."""
     moving = np.any(np.abs(series.dq_ref) > REST_TOLERANCE, axis=1)
     edges = np.diff(moving.astype(np.int8))
-    starts = list(np.flatnonzero(edges == 1) + 1)
-    arrivals = list(np.flatnonzero(edges == -1) + 1)
+    starts: list[int] = (np.flatnonzero(edges == 1) + 1).tolist()
+    arrivals: list[int] = (np.flatnonzero(edges == -1) + 1).tolist()
     if len(moving) and moving[0]:
         starts.insert(0, 0)
     moves = []

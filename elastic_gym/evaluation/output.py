@@ -17,6 +17,7 @@ import re
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TextIO
 
 RESULT_FILES = (
     "runs.csv",
@@ -113,7 +114,7 @@ class RunsCsv:
         self.path = path
         self.rows: dict[int, dict] = {}
         self.fields: list[str] = []
-        self._handle = None
+        self._handle: TextIO | None = None
         self._writer: csv.DictWriter | None = None
 
     def add(self, index: int, row: dict) -> None:
@@ -124,19 +125,21 @@ class RunsCsv:
             self._rewrite(self.rows.values())
         else:
             self._writer.writerow(row)
+        assert self._handle is not None  # opened by the first _rewrite
         self._handle.flush()
 
     def finish(self) -> list[dict]:
         """Rewrite the file in run order, close it, and return the rows in that order."""
         rows = [self.rows[i] for i in sorted(self.rows)]
         self._rewrite(rows)
+        assert self._handle is not None  # opened by _rewrite
         self._handle.close()
         return rows
 
     def _rewrite(self, rows) -> None:
         if self._handle is not None:
             self._handle.close()
-        self._handle = self.path.open("w", newline="")
-        self._writer = csv.DictWriter(self._handle, fieldnames=self.fields, restval="")
+        self._handle = handle = self.path.open("w", newline="")
+        self._writer = csv.DictWriter(handle, fieldnames=self.fields, restval="")
         self._writer.writeheader()
         self._writer.writerows(rows)

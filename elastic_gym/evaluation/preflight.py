@@ -39,6 +39,7 @@ from elastic_gym.controllers.base import public_info
 from elastic_gym.evaluation.output import MAX_NAME_BYTES, plot_file_name
 from elastic_gym.evaluation.runner import (
     RunSpec,
+    arm_env,
     build_controller,
     build_observer,
     run_model,
@@ -151,7 +152,7 @@ def _check_axes(scenario: Scenario, entry, path: str) -> None:
 
 
 def _check_model_errors(env: gym.Env, scenario: Scenario, error_index: dict) -> None:
-    model = env.unwrapped.model
+    model = arm_env(env).model
     for variation in scenario.model_errors:
         if variation.values:
             try:
@@ -192,7 +193,7 @@ def _sample(env: gym.Env, spec: RunSpec, paths: tuple[str, str]) -> float:
             if terminated:
                 break
     step = elapsed / steps if steps else 0.0
-    return setup + step * round(spec.duration / env.unwrapped.control_dt)
+    return setup + step * round(spec.duration / arm_env(env).control_dt)
 
 
 def check_plot_names(scenario: Scenario, runs: Sequence[RunSpec]) -> None:

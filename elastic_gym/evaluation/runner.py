@@ -21,12 +21,14 @@ import itertools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import cast
 
 import gymnasium as gym
 import numpy as np
 
 import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.controllers.base import Controller, public_info
+from elastic_gym.envs.arm_env import ArmEnv
 from elastic_gym.evaluation.controllers import comparison_controller
 from elastic_gym.evaluation.metrics import TimeSeries, compute_metrics
 from elastic_gym.evaluation.scenario import (
@@ -102,6 +104,11 @@ def env_robot(env_id: str, env_kwargs: dict) -> RobotSpec:
     return robot if isinstance(robot, RobotSpec) else get_robot(robot)
 
 
+def arm_env(env: gym.Env) -> ArmEnv:
+    """The elastic_gym env under the wrappers of ``env``."""
+    return cast(ArmEnv, env.unwrapped)
+
+
 def _entry_class(
     entry: ControllerEntry | SourceEntry, path: str, base: type, lookup: Callable[[str], type]
 ) -> type:
@@ -158,16 +165,17 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
     is not available (registry names are checked when the scenario is loaded) or when
     its options do not fit its constructor (:func:`check_options`).
     """
-    controllers, sources = [], []
+    controllers: list[tuple[ControllerEntry, type[Controller]]] = []
+    sources: list[tuple[SourceEntry, type[Observer]]] = []
     for i, entry in enumerate(scenario.controllers):
         cls = _entry_class(entry, f"controllers[{i}]", Controller, comparison_controller)
         check_options(cls, entry.options, f"controllers[{i}]")
         controllers.append((entry, cls))
-    for i, entry in enumerate(scenario.state_sources):
-        cls = _entry_class(entry, f"state_sources[{i}]", Observer, observer_class)
-        fixed = OBSERVERS[entry.name][2] if entry.cls is None else {}
-        check_options(cls, entry.options, f"state_sources[{i}]", fixed)
-        sources.append((entry, cls))
+    for i, source_entry in enumerate(scenario.state_sources):
+        cls = _entry_class(source_entry, f"state_sources[{i}]", Observer, observer_class)
+        fixed = OBSERVERS[source_entry.name][2] if source_entry.cls is None else {}
+        check_options(cls, source_entry.options, f"state_sources[{i}]", fixed)
+        sources.append((source_entry, cls))
     axis_values = itertools.product(*(values for _, values in scenario.axes))
     runs: list[RunSpec] = []
     skipped: list[SkippedRun] = []
@@ -213,7 +221,11 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
 
 
 def _inapplicable(
-    kind: str, c_cls: type, o_cls: type, controller: ControllerEntry, source: SourceEntry
+    kind: str,
+    c_cls: type[Controller],
+    o_cls: type[Observer],
+    controller: ControllerEntry,
+    source: SourceEntry,
 ) -> str:
     if kind not in c_cls.applies_to:
         return f"controller {controller.name!r} applies to {sorted(c_cls.applies_to)} arms"
@@ -269,13 +281,13 @@ class _Recorder:
 
 def run_model(env: gym.Env, spec: RunSpec):
     """The nominal model of the run's controller and observer (with its model error)."""
-    model = env.unwrapped.model
+    model = arm_env(env).model
     return model.perturbed(**spec.model_error) if spec.model_error else model
 
 
 def build_observer(env: gym.Env, spec: RunSpec, model) -> ObserverWrapper:
     """The run's state source on ``model``, wrapped around ``env``."""
-    source, dt = spec.source, env.unwrapped.control_dt
+    source, dt = spec.source, arm_env(env).control_dt
     observer = (
         make_observer(source.name, model.copy(), dt, **source.options)
         if source.cls is None
@@ -291,7 +303,7 @@ def build_observer(env: gym.Env, spec: RunSpec, model) -> ObserverWrapper:
 
 def build_controller(env: gym.Env, spec: RunSpec, model) -> Controller:
     """The run's controller on ``model``."""
-    return spec.controller_cls(model.copy(), env.unwrapped.control_dt, **spec.controller.options)
+    return spec.controller_cls(model.copy(), arm_env(env).control_dt, **spec.controller.options)
 
 
 def run_episode(spec: RunSpec) -> RunResult:
@@ -310,7 +322,7 @@ def run_episode(spec: RunSpec) -> RunResult:
         model = run_model(env, spec)
         wrapped = build_observer(env, spec, model)
         controller = build_controller(env, spec, model)
-        base = env.unwrapped
+        base = arm_env(env)
         steps = round(spec.duration / base.control_dt)
         recorder = _Recorder(steps, base.n_joints, wrapped.observer.state_dim, base.robot.elastic)
         names, tracking = wrapped.state_names, base.task.name != "excitation"

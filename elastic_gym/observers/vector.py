@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping
+from typing import Any, TypeGuard, cast
 
 import gymnasium as gym
 import numpy as np
@@ -78,7 +79,7 @@ def check_sensor_space(space: spaces.Space, observer: Observer) -> None:
         )
 
 
-def measurement(observer: Observer, obs: Mapping, info: Mapping) -> dict:
+def measurement(observer: Observer | ObserverArray, obs: Mapping, info: Mapping) -> dict:
     """The sensor observation plus the ground-truth items the observer is privileged to."""
     measured = dict(obs)
     if "link_acceleration" in observer.privileged:
@@ -106,7 +107,7 @@ def annotate(info: dict, estimate: np.ndarray, elastic: bool, diagnostics: dict)
     return info
 
 
-def runs_batched(observer: Observer) -> bool:
+def runs_batched(observer: Observer) -> TypeGuard[BatchedObserver]:
     """Whether ``observer`` estimates all arms at once: a
     :class:`~elastic_gym.observers.base.BatchedObserver` whose single-arm ``reset`` and
     ``update`` are its N = 1 case. A subclass that overrides them runs one copy per arm
@@ -154,10 +155,10 @@ class ObserverArray:
     def update_arms(
         self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
     ) -> np.ndarray:
-        arms = range(len(self.observers)) if arms is None else arms
-        for i in arms:
+        stepped = range(len(self.observers)) if arms is None else arms
+        for i in stepped:
             self._estimates[i] = self.observers[i].update(arm_view(obs, i), torque[i], dt)
-        self._record(arms)
+        self._record(stepped)
         return self._estimates.copy()
 
 
@@ -183,7 +184,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         **options,
     ) -> None:
         super().__init__(env)
-        base = env.unwrapped
+        base: Any = env.unwrapped  # an elastic_gym vector env (checked below)
         if not hasattr(base, "batch"):
             raise TypeError(
                 "the vector ObserverWrapper needs an elastic_gym vector env "
@@ -192,13 +193,16 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         single = build_observer(base.batch, observer, model, options)
         check_sensor_space(env.single_observation_space, single)
         N = env.num_envs
-        self.observer = single if runs_batched(single) else ObserverArray(single, N)
+        self._base = base
+        self.observer: BatchedObserver | ObserverArray = (
+            single if runs_batched(single) else ObserverArray(single, N)
+        )
         self.initial_estimate = initial_estimate
         dim = single.state_dim
         self.single_observation_space = spaces.Dict(
             {
                 "state": spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float64),
-                "reference": env.single_observation_space["reference"],
+                "reference": cast(spaces.Dict, env.single_observation_space)["reference"],
             }
         )
         self.observation_space = batch_space(self.single_observation_space, N)
@@ -241,7 +245,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         estimates = self.observer.update_arms(
             measurement(self.observer, obs, info),
             info["torque"],
-            self.env.unwrapped.control_dt,
+            self._base.control_dt,
             arms,
         )
         finite = np.isfinite(estimates[arms]).all(axis=1)
@@ -282,7 +286,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         reasons[diverged] = NON_FINITE_ESTIMATE
         info["termination_reason"] = reasons
         info["_termination_reason"] = reasons != None  # noqa: E711
-        self.env.unwrapped.end_episodes(diverged)
+        self._base.end_episodes(diverged)
         return terminated
 
     def step(self, actions):

@@ -22,7 +22,7 @@ from elastic_gym.observers.base import Observer
 from elastic_gym.single_env import SingleArmWrapper
 
 
-class ObserverWrapper(SingleArmWrapper, gym.utils.RecordConstructorArgs):
+class ObserverWrapper(SingleArmWrapper[vector.ObserverWrapper], gym.utils.RecordConstructorArgs):
     """Replace the sensor observation by an observer's state estimate.
 
     Args:

@@ -181,6 +181,7 @@ class ActionMap:
             return base_torque + residual_torque(
                 a, self.torque_limit, config.residual_scale, config.residual_deadzone
             )
+        assert reference is not None and motor_position is not None and motor_velocity is not None
         q_d, dq_d = reference[:, 0], reference[:, 1]
         target = q_d + self.config.offset_scale * a
         tau = self.kp * (target - motor_position) + self.kd * (dq_d - motor_velocity)

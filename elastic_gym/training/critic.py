@@ -33,7 +33,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, MlpExtr
 class ActorSlice(BaseFeaturesExtractor):
     """The first ``size`` entries of a flat observation (the policy's own)."""
 
-    def __init__(self, observation_space: spaces.Box, size: int) -> None:
+    def __init__(self, observation_space: spaces.Space, size: int) -> None:
         super().__init__(observation_space, size)
         self.size = size
 
@@ -87,7 +87,7 @@ class PrivilegedCriticPolicy(ActorCriticPolicy):
     @property
     def actor_size(self) -> int:
         """Observation entries the actor sees (the first ones)."""
-        return self.observation_space.shape[0] - self.privileged_size
+        return spaces.flatdim(self.observation_space) - self.privileged_size
 
     def _build_mlp_extractor(self) -> None:
         # called by ActorCriticPolicy._build after both (full) features extractors exist

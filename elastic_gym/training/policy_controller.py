@@ -58,7 +58,7 @@ class TrainedPolicyController(Controller):
                 "comparison controller cannot read"
             )
         self.base = None
-        if action.kind == "residual":
+        if action.residual is not None:  # kind "residual"
             self.base = make_controller(action.residual, model, dt, **action.residual_options)
         self.trained = trained
         self.decimation = trained.decimation
@@ -96,5 +96,5 @@ class TrainedPolicyController(Controller):
         self._calls += 1
         base = np.zeros(n) if self.base is None else self.base(obs, info)
         self._last_base = base
-        motor = (x[None, :n], x[None, 2 * n : 3 * n]) if self.elastic else (None, None)
-        return self.map.torque(self._action[None], *motor, reference[None], base[None])[0]
+        theta, dtheta = (x[None, :n], x[None, 2 * n : 3 * n]) if self.elastic else (None, None)
+        return self.map.torque(self._action[None], theta, dtheta, reference[None], base[None])[0]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
+from typing import Any
 
 import gymnasium as gym
 from gymnasium.vector import AutoresetMode
@@ -61,20 +62,8 @@ class PolicyStack:
             observer_options=dict(config.observer_options),
         )
 
-    def make(
-        self,
-        n_arms: int | None = None,
-        env_kwargs: dict | None = None,
-        critic_state: bool = False,
-        autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
-    ) -> gym.Env | gym.vector.VectorEnv:
-        """The stack on one env (``n_arms`` None) or on ``n_arms`` arms of one PyBullet
-        world (a Gymnasium vector env with ``autoreset_mode``).
-
-        ``env_kwargs`` update the run's key by key (e.g. an evaluation plant);
-        ``critic_state``: the training stack, with the true state appended for the critic.
-        """
-        options = {
+    def _options(self, env_kwargs: dict | None, critic_state: bool) -> dict[str, Any]:
+        return {
             "state": self.state,
             "env_kwargs": {**self.env_kwargs, **(env_kwargs or {})},
             "observer_options": self.observer_options,
@@ -84,15 +73,34 @@ class PolicyStack:
             "frame_stack": self.frame_stack,
             "critic_state": critic_state,
         }
-        if n_arms is None:
-            return make_policy_env(self.env_id, **options)
-        return make_policy_vec_env(self.env_id, n_arms, autoreset_mode=autoreset_mode, **options)
+
+    def make(self, env_kwargs: dict | None = None, critic_state: bool = False) -> gym.Env:
+        """The stack on one env. ``env_kwargs`` update the run's key by key (e.g. an
+        evaluation plant); ``critic_state``: the training stack, with the true state
+        appended for the critic."""
+        return make_policy_env(self.env_id, **self._options(env_kwargs, critic_state))
+
+    def make_vec(
+        self,
+        n_arms: int,
+        env_kwargs: dict | None = None,
+        critic_state: bool = False,
+        autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
+    ) -> gym.vector.VectorEnv:
+        """The stack on ``n_arms`` arms of one PyBullet world (a Gymnasium vector env with
+        ``autoreset_mode``); ``env_kwargs`` and ``critic_state`` as in :meth:`make`."""
+        return make_policy_vec_env(
+            self.env_id,
+            n_arms,
+            autoreset_mode=autoreset_mode,
+            **self._options(env_kwargs, critic_state),
+        )
 
     def sb3_vec_env(self, n_arms: int, env_kwargs: dict | None = None, critic_state: bool = False):
         """The stack on ``n_arms`` arms of one PyBullet world as an SB3 ``VecEnv``."""
         from elastic_gym.training.sb3_vec_env import SB3VecEnv
 
-        return SB3VecEnv(self.make(n_arms, env_kwargs, critic_state))
+        return SB3VecEnv(self.make_vec(n_arms, env_kwargs, critic_state))
 
 
 def training_vec_env(stack: PolicyStack, settings: dict, n_envs: int, seed: int):
@@ -100,7 +108,7 @@ def training_vec_env(stack: PolicyStack, settings: dict, n_envs: int, seed: int)
     batches (hyper-parameter ``batches``, :func:`~elastic_gym.training.config.batch_kwargs`)
     in worker processes; with the true state appended for the critic if the
     hyper-parameter ``critic_state`` is set. Seeded with ``seed``, under a ``VecMonitor``."""
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor
 
     from elastic_gym.training.sb3_vec_env import ProcessBatches
 
@@ -108,6 +116,7 @@ def training_vec_env(stack: PolicyStack, settings: dict, n_envs: int, seed: int)
     if n_envs % len(batches):
         raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs ({n_envs})")
     critic_state = bool(settings.get("critic_state", False))
+    venv: VecEnv
     if n_envs == 1:
         venv = DummyVecEnv([functools.partial(stack.make, critic_state=critic_state)])
         venv.action_space.seed(seed)

@@ -24,6 +24,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from gymnasium.spaces import flatdim
 from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training.config import (
@@ -110,7 +111,7 @@ def _train(
     stack = PolicyStack.of(config, settings)
     venv = training_vec_env(stack, settings, n_envs, config.seed)
     try:
-        eval_envs = stack.make(config.eval_episodes, autoreset_mode=AutoresetMode.NEXT_STEP)
+        eval_envs = stack.make_vec(config.eval_episodes, autoreset_mode=AutoresetMode.NEXT_STEP)
     except BaseException:
         venv.close()
         raise
@@ -124,8 +125,8 @@ def _train(
             from elastic_gym.training.critic import PrivilegedCriticPolicy
 
             # the evaluation envs are the deployment stack: the actor's observation only
-            privileged = (
-                venv.observation_space.shape[0] - eval_envs.single_observation_space.shape[0]
+            privileged = flatdim(venv.observation_space) - flatdim(
+                eval_envs.single_observation_space
             )
             policy = PrivilegedCriticPolicy
             algo_kwargs["policy_kwargs"] = {

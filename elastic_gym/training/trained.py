@@ -64,7 +64,7 @@ def evaluate_run(
     """The deterministic policy of a run on ``n_episodes`` fresh episodes (seeds
     ``seed``, ``seed + 1``, ...), run as the arms of one batch; ``env_kwargs`` are merged
     into the run's (e.g. ``{"plant_scaling": {"link_mass": 1.3}}``)."""
-    envs = run.stack.make(n_episodes, env_kwargs, autoreset_mode=AutoresetMode.NEXT_STEP)
+    envs = run.stack.make_vec(n_episodes, env_kwargs, autoreset_mode=AutoresetMode.NEXT_STEP)
     try:
         return evaluate_arms(envs, run.act, seed, run.start)
     finally:

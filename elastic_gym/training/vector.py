@@ -29,10 +29,12 @@ last actions and frame stacks only.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.spaces import flatdim
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
@@ -47,6 +49,12 @@ from elastic_gym.training.observation import (
     ObservationInputs,
     TrueStateFeatures,
 )
+
+
+def elastic_batch(env: gym.vector.VectorEnv) -> Any:
+    """The :class:`~elastic_gym.envs.batch.ArmBatch` of an elastic_gym vector env (or of
+    a single env seen as one arm)."""
+    return cast(Any, env.unwrapped).batch
 
 
 def wrapper_attribute(env: gym.vector.VectorEnv, name: str):
@@ -100,13 +108,13 @@ class PolicyAction(_ArmResets):
         self, env: gym.vector.VectorEnv, action: ActionConfig | dict | None = None
     ) -> None:
         super().__init__(env)
-        batch = env.unwrapped.batch
+        batch = elastic_batch(env)
         self.action_config = ActionConfig.from_config(action)
         self.map = ActionMap(self.action_config, batch.model)
         self.n, self.dt = batch.n_joints, batch.control_dt
-        self.sensors = "state" not in env.single_observation_space.spaces
+        self.sensors = "state" not in cast(spaces.Dict, env.single_observation_space).spaces
         self.controllers = []
-        if self.action_config.kind == "residual":
+        if self.action_config.residual is not None:  # kind "residual"
             if self.sensors:
                 raise ValueError("a residual policy needs a state source for its base controller")
             self.controllers = [
@@ -120,7 +128,8 @@ class PolicyAction(_ArmResets):
             ]
         self.single_action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._obs = self._info = None
+        self._obs: dict = {}
+        self._info: dict = {}
         self._previous_motor = np.zeros((self.num_envs, self.n))
         self._base = np.zeros((self.num_envs, self.n))
 
@@ -178,7 +187,7 @@ class PolicyObservation(_ArmResets):
         frame_stack: int = 1,
     ) -> None:
         super().__init__(env)
-        batch = env.unwrapped.batch
+        batch = elastic_batch(env)
         action_config = wrapper_attribute(env, "action_config")
         self.builder = ObservationBuilder.for_observations(
             observation,
@@ -201,7 +210,7 @@ class PolicyObservation(_ArmResets):
     def _features(self, obs: Mapping, info: Mapping) -> np.ndarray:
         preview = None
         if "preview" in self.builder.features:
-            preview = self.env.unwrapped.batch.reference_preview(self.builder.config.preview)[
+            preview = elastic_batch(self.env).reference_preview(self.builder.config.preview)[
                 :, :, 0
             ]
         inputs = ObservationInputs(
@@ -259,12 +268,12 @@ class CriticState(gym.vector.VectorWrapper):
         self, env: gym.vector.VectorEnv, observation: ObservationConfig | dict | None = None
     ) -> None:
         super().__init__(env)
-        batch = env.unwrapped.batch
+        batch = elastic_batch(env)
         self.elastic = batch.robot.elastic
         self.features = TrueStateFeatures(
             ObservationConfig.from_config(observation), batch.n_joints, self.elastic
         )
-        size = env.single_observation_space.shape[0] + self.features.size
+        size = flatdim(env.single_observation_space) + self.features.size
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
 

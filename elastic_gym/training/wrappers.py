@@ -21,9 +21,12 @@ A wrong-shaped or non-finite action is refused before anything is stepped.
 from __future__ import annotations
 
 import functools
+from typing import TypeVar
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.spaces import flatdim
+from gymnasium.vector import VectorWrapper
 
 from elastic_gym.envs.arm_env import validated_actions
 from elastic_gym.single_env import SingleArmWrapper
@@ -31,15 +34,17 @@ from elastic_gym.training import vector
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
 
+W = TypeVar("W", bound=VectorWrapper)
 
-class _CheckedActions(SingleArmWrapper):
+
+class _CheckedActions(SingleArmWrapper[W]):
     """A single-arm policy wrapper: the action is checked with its single-arm shape."""
 
     def batched_action(self, action) -> np.ndarray:
-        return validated_actions(action, 0, self.action_space.shape[0])
+        return validated_actions(action, 0, flatdim(self.action_space))
 
 
-class PolicyAction(_CheckedActions, gym.utils.RecordConstructorArgs):
+class PolicyAction(_CheckedActions[vector.PolicyAction], gym.utils.RecordConstructorArgs):
     """Actions in [-1, 1]^n -> motor torque at every control period.
 
     Args:
@@ -62,7 +67,7 @@ class PolicyAction(_CheckedActions, gym.utils.RecordConstructorArgs):
         return self.arm.last_info
 
 
-class ActionRepeat(SingleArmWrapper, gym.utils.RecordConstructorArgs):
+class ActionRepeat(SingleArmWrapper[vector.ActionRepeat], gym.utils.RecordConstructorArgs):
     """Hold each action for ``repeat`` env steps and sum the rewards."""
 
     def __init__(self, env: gym.Env, repeat: int) -> None:
@@ -71,7 +76,7 @@ class ActionRepeat(SingleArmWrapper, gym.utils.RecordConstructorArgs):
         self.repeat = repeat
 
 
-class PolicyObservation(_CheckedActions, gym.utils.RecordConstructorArgs):
+class PolicyObservation(_CheckedActions[vector.PolicyObservation], gym.utils.RecordConstructorArgs):
     """The policy's flat observation (module docstring of ``observation``).
 
     Args:
@@ -101,7 +106,7 @@ class PolicyObservation(_CheckedActions, gym.utils.RecordConstructorArgs):
         self.builder = self.vector.builder
 
 
-class CriticState(SingleArmWrapper, gym.utils.RecordConstructorArgs):
+class CriticState(SingleArmWrapper[vector.CriticState], gym.utils.RecordConstructorArgs):
     """The flat policy observation with the true state's features appended (training only).
 
     Args:
