@@ -59,6 +59,7 @@ from scipy.special import factorial
 
 from elastic_gym.arms import REFERENCE_KEYS, reference_rows
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import is_real
 
 DEFAULT_FD_STEP = 1e-4
 TIME_TOLERANCE = 1e-9  # s; calls closer in time than this count as the same instant
@@ -108,7 +109,7 @@ class RigidTorque:
     """tau_r = M q'' + C q' + g + d(q') along a trajectory, with its time derivatives."""
 
     def __init__(self, model: RobotModel, fd_step: float = DEFAULT_FD_STEP) -> None:
-        if not (isinstance(fd_step, (int, float)) and 0.0 < fd_step < 0.1):
+        if not (is_real(fd_step) and 0.0 < fd_step < 0.1):
             raise ValueError(f"fd_step must be a number in (0, 0.1) s, got {fd_step!r}")
         self.model = model
         self.fd_step = float(fd_step)

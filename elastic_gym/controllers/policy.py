@@ -34,7 +34,7 @@ import numpy as np
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.registry import make_controller
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import per_joint_values
+from elastic_gym.validation import is_real, per_joint_values
 
 RESIDUAL_DEADZONE = 0.2  # default |a| below which a residual adds exactly nothing
 
@@ -149,7 +149,7 @@ class PolicyController(Controller):
         self.deterministic = deterministic
         self.torque_limit = self._limit(torque_limit)
         self.residual = self._base_controller(residual, residual_options)
-        if not (isinstance(residual_scale, (int, float)) and 0.0 < residual_scale <= 1.0):
+        if not (is_real(residual_scale) and 0.0 < residual_scale <= 1.0):
             raise ValueError(f"residual_scale must be in (0, 1], got {residual_scale!r}")
         self.residual_scale = float(residual_scale)
         if not (isinstance(residual_deadzone, (int, float)) and 0.0 <= residual_deadzone < 1.0):

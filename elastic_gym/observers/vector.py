@@ -21,16 +21,21 @@ the single-env observer's. Autoresets are followed: an arm reset by the env is
 re-initialised from its first observation; with ``SAME_STEP`` the terminal observation is
 estimated first (``info["final_obs"]``).
 
-An estimate that stops being finite (a diverged observer) ends that arm's episode with
+An estimate that stops being finite (a diverged observer), or an update that raises a
+numerical error (``ArithmeticError``, ``ValueError``: e.g. scipy refusing a matrix with
+infs or NaNs, a covariance no longer positive definite), ends that arm's episode with
 ``terminated=True`` and ``info["termination_reason"] = "non-finite state estimate"``
-(:meth:`ObserverWrapper._terminate`); the observation keeps the arm's last finite
-estimate, the other arms go on.
+(:meth:`ObserverWrapper._terminate`; the error, if any, in ``info["observer_error"]``;
+a batched observer's error ends the episodes of all the arms it was updating); the
+observation keeps the arm's last finite estimate, the other arms go on. An estimate
+that is not a numpy array of shape ``(state_dim,)`` is the observer's bug: a
+``TypeError`` / ``ValueError`` naming the observer and the shape.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, TypeGuard, cast
 
 import gymnasium as gym
@@ -89,6 +94,46 @@ def measurement(observer: Observer | ObserverArray, obs: Mapping, info: Mapping)
     return measured
 
 
+NUMERICAL_ERRORS = (ArithmeticError, ValueError)  # numpy/scipy LinAlgError is a ValueError
+
+
+def checked_estimate(observer: Observer, estimate: object, call: str) -> np.ndarray:
+    """``estimate`` if it is a numpy array of shape ``(observer.state_dim,)``, else a
+    ``TypeError`` / ``ValueError`` naming the observer, the call and what it returned."""
+    who = f"observer {observer.name or type(observer).__name__!r} ({type(observer).__name__})"
+    if not isinstance(estimate, np.ndarray):
+        raise TypeError(
+            f"{who}: {call} returned a {type(estimate).__name__}, expected a numpy array "
+            f"of shape ({observer.state_dim},)"
+        )
+    if estimate.shape != (observer.state_dim,):
+        raise ValueError(
+            f"{who}: {call} returned an estimate of shape {estimate.shape}, expected "
+            f"({observer.state_dim},) (state {observer.state_names})"
+        )
+    return estimate
+
+
+def guarded(update: Callable[[], np.ndarray]) -> tuple[np.ndarray | None, str | None]:
+    """``update()`` and None, or None and the text of the numerical error it raised (the
+    episode ends, see the module docstring)."""
+    try:
+        return update(), None
+    except NUMERICAL_ERRORS as exc:
+        return None, f"{type(exc).__name__}: {exc}"
+
+
+def guarded_update(
+    observer: Observer, obs: Mapping, torque: np.ndarray, dt: float
+) -> tuple[np.ndarray, str | None]:
+    """``observer.update``, checked (:func:`checked_estimate`); a numerical error in it
+    gives a NaN estimate and the error's text (:func:`guarded`)."""
+    estimate, error = guarded(lambda: observer.update(obs, torque, dt))
+    if estimate is None:
+        return np.full(observer.state_dim, np.nan), error
+    return checked_estimate(observer, estimate, "update"), None
+
+
 def true_state_vector(info: Mapping, elastic: bool) -> np.ndarray:
     """The true state in the observer's layout (works for one arm and for a batch)."""
     truth = info["true_state"]
@@ -129,6 +174,7 @@ class ObserverArray:
         self.model, self.elastic, self.privileged = first.model, first.elastic, first.privileged
         self.state_dim, self.state_names = first.state_dim, first.state_names
         self._estimates = np.zeros((n_arms, self.state_dim))
+        self.errors: list[str | None] = [None] * n_arms  # of each arm's last update
         self.arm_diagnostics: dict[str, np.ndarray] = {}
 
     def _record(self, arms) -> None:
@@ -146,8 +192,10 @@ class ObserverArray:
             else np.broadcast_to(initial_estimate, (len(arms), self.state_dim))
         )
         for k, i in enumerate(arms):
-            self._estimates[i] = self.observers[i].reset(
-                arm_view(obs, i), None if rows is None else rows[k]
+            self._estimates[i] = checked_estimate(
+                self.observers[i],
+                self.observers[i].reset(arm_view(obs, i), None if rows is None else rows[k]),
+                "reset",
             )
         self._record(arms)
         return self._estimates[arms].copy()
@@ -156,8 +204,10 @@ class ObserverArray:
         self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
     ) -> np.ndarray:
         stepped = range(len(self.observers)) if arms is None else arms
-        for i in stepped:
-            self._estimates[i] = self.observers[i].update(arm_view(obs, i), torque[i], dt)
+        for i in stepped:  # a numerical error in one arm's observer is that arm's NaN estimate
+            self._estimates[i], self.errors[i] = guarded_update(
+                self.observers[i], arm_view(obs, i), torque[i], dt
+            )
         self._record(stepped)
         return self._estimates.copy()
 
@@ -208,6 +258,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         self.observation_space = batch_space(self.single_observation_space, N)
         self._estimates = np.zeros((N, dim))
         self._autoreset = np.zeros(N, dtype=bool)  # arms the env resets at the next step
+        self._errors = np.full(N, None, dtype=object)  # of the last update (_update)
         self._all = np.ones(N, dtype=bool)
 
     @property
@@ -224,9 +275,12 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         return info
 
     def _reset_observer(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
+        initial = self.initial_estimate
+        if initial is not None and np.ndim(initial) == 2:  # one row per arm: those reset
+            initial = np.asarray(initial)[arms]
         if len(arms):
             self._estimates[arms] = self.observer.reset_arms(
-                measurement(self.observer, obs, info), arms, self.initial_estimate
+                measurement(self.observer, obs, info), arms, initial
             )
 
     def reset(self, *, seed=None, options: dict | None = None):
@@ -238,16 +292,24 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         return self._observation(obs), self._annotate(info)
 
     def _update(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> np.ndarray:
-        """Advance the observer on ``arms``; return the arms whose estimate is not finite."""
+        """Advance the observer on ``arms``; return the arms whose estimate is not finite
+        (the text of their numerical errors, if any, in ``self._errors``)."""
+        self._errors = np.full(self.num_envs, None, dtype=object)
         arms = arms[info["termination_reason"][arms] != NON_FINITE_STATE]
         if not len(arms):
             return arms
-        estimates = self.observer.update_arms(
-            measurement(self.observer, obs, info),
-            info["torque"],
-            self._base.control_dt,
-            arms,
-        )
+        measured, dt = measurement(self.observer, obs, info), self._base.control_dt
+        if isinstance(self.observer, ObserverArray):  # guarded arm by arm
+            estimates = self.observer.update_arms(measured, info["torque"], dt, arms)
+            self._errors[arms] = [self.observer.errors[i] for i in arms]
+        else:
+            batched, error = guarded(
+                lambda: self.observer.update_arms(measured, info["torque"], dt, arms)
+            )
+            if batched is None:  # a batched observer's error: every arm it was updating
+                self._errors[arms] = error
+                return arms
+            estimates = batched
         finite = np.isfinite(estimates[arms]).all(axis=1)
         self._estimates[arms[finite]] = estimates[arms[finite]]
         return arms[~finite]
@@ -276,10 +338,15 @@ class ObserverWrapper(gym.vector.VectorWrapper):
 
     def _terminate(self, diverged: np.ndarray, terminated: np.ndarray, info: dict) -> np.ndarray:
         """End the episodes of the ``diverged`` arms (non-finite estimate): ``terminated``
-        and ``info["termination_reason"]`` say so, and the env resets them like any
-        ended episode."""
+        and ``info["termination_reason"]`` say so (``info["observer_error"]``: the errors
+        of :meth:`_update`), and the env resets them like any ended episode."""
         if not len(diverged):
             return terminated
+        if any(error is not None for error in self._errors[diverged]):
+            errors = np.full(self.num_envs, None, dtype=object)
+            errors[diverged] = self._errors[diverged]
+            info["observer_error"] = errors
+            info["_observer_error"] = errors != None  # noqa: E711
         terminated = terminated.copy()
         terminated[diverged] = True
         reasons = info["termination_reason"].copy()

@@ -6,7 +6,9 @@ info and the termination on a non-finite estimate.
 ``ObserverWrapper(env, observer)`` turns the sensor observation into
 ``{"state": estimate, "reference": (q_d, q_d')}``; ``TrueStateWrapper(env)`` gives the
 same layout from the ground truth, so one controller or policy runs unchanged on
-estimated or true state. After an episode has ended, ``step`` needs a ``reset``.
+estimated or true state. A diverged estimate, or an update that raises a numerical
+error, ends the episode (``"non-finite state estimate"``, the error in
+``info["observer_error"]``); after an episode has ended, ``step`` needs a ``reset``.
 """
 
 from __future__ import annotations

@@ -30,7 +30,9 @@ from pathlib import Path
 
 import yaml
 
+from elastic_gym.folder_lock import check_writable, folder_lock
 from elastic_gym.training.config import TrainConfig, algorithm_class
+from elastic_gym.yaml_io import load_yaml
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.yaml")  # needed to load a run
 CURVE_FILE = "learning_curve.csv"  # the learning curve (elastic_gym.training.learning_curve)
@@ -100,10 +102,10 @@ class RunFolder:
 
     def check(self, overwrite: bool = False) -> None:
         """Raise if the folder cannot receive a run (changes nothing): ``NotADirectoryError``
-        if it is a file, ``FileExistsError`` if it holds an earlier run and not
-        ``overwrite``."""
-        if self.path.exists() and not self.path.is_dir():
-            raise NotADirectoryError(f"run folder {str(self.path)!r} is a file")
+        if it is a file, ``PermissionError`` if it cannot be written (a read-only file
+        system, :func:`~elastic_gym.folder_lock.check_writable`), ``FileExistsError`` if it
+        holds an earlier run and not ``overwrite``."""
+        check_writable(self.path)
         earlier = self.earlier_run() if self.path.is_dir() else []
         if earlier and not overwrite:
             shown = ", ".join(earlier[:4]) + (", ..." if len(earlier) > 4 else "")
@@ -112,30 +114,39 @@ class RunFolder:
                 "another --out, or replace it with --overwrite (overwrite=True)"
             )
 
+    def lock(self) -> contextlib.AbstractContextManager:
+        """The folder's writer lock for a ``with`` block
+        (:func:`~elastic_gym.folder_lock.folder_lock`: another writer is refused with
+        :class:`~elastic_gym.folder_lock.FolderLockedError`); checked writable first."""
+        check_writable(self.path)
+        return folder_lock(self.path)
+
     @contextlib.contextmanager
-    def create(self, overwrite: bool = False) -> Iterator[RunFolder]:
+    def create(self, overwrite: bool = False, lock: bool = True) -> Iterator[RunFolder]:
         """The folder, ready to receive a run, for the ``with`` block that writes it.
 
-        Checked first (:meth:`check`); with ``overwrite`` the earlier run's files are
+        Under the folder's writer lock (:meth:`lock`; ``lock=False``: the caller holds
+        it), checked (:meth:`check`); with ``overwrite`` the earlier run's files are
         removed. If the block raises or is interrupted, what the run wrote is removed,
-        and the folders this call made if left empty; a ``KeyboardInterrupt`` becomes
+        and the folders made for it if left empty; a ``KeyboardInterrupt`` becomes
         :class:`~elastic_gym.parallel.Interrupted` saying so.
         """
         from elastic_gym.parallel import Interrupted
 
-        self.check(overwrite)
-        created = missing_folders(self.path)
-        if overwrite:
-            self.clear(keep_folder=True)
-        self.path.mkdir(parents=True, exist_ok=True)
-        try:
-            yield self
-        except BaseException as exc:
-            self.clear(keep_folder=True)
-            remove_empty(created)
-            if isinstance(exc, KeyboardInterrupt):
-                raise Interrupted.of(exc, f"removed the unfinished run {self.path}") from None
-            raise
+        with self.lock() if lock else contextlib.nullcontext():
+            self.check(overwrite)
+            created = missing_folders(self.path)
+            if overwrite:
+                self.clear(keep_folder=True)
+            self.path.mkdir(parents=True, exist_ok=True)
+            try:
+                yield self
+            except BaseException as exc:
+                self.clear(keep_folder=True)
+                remove_empty(created)
+                if isinstance(exc, KeyboardInterrupt):
+                    raise Interrupted.of(exc, f"removed the unfinished run {self.path}") from None
+                raise
 
     def clear(self, keep_folder: bool = False) -> None:
         """Remove the files of a run (and of ``seed*`` sub-runs) from the folder, and the
@@ -174,13 +185,13 @@ class RunFolder:
             raise ValueError(f"{self.path} is not a training run folder: missing {missing}")
         path = self.path / "config.yaml"
         try:
-            data = yaml.safe_load(path.read_text())
+            data = load_yaml(path)
             if not isinstance(data, dict):
                 raise ValueError(f"must hold a mapping, got {type(data).__name__}")
             for migrate in MIGRATIONS:
                 data = migrate(data)
             return TrainConfig.from_dict(data)
-        except (yaml.YAMLError, TypeError, ValueError, UnicodeDecodeError) as exc:
+        except (TypeError, ValueError) as exc:  # YAMLInputError is a ValueError
             raise ValueError(
                 f"{path} is not a valid run configuration: {' '.join(str(exc).split())}"
             ) from None

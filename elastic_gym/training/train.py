@@ -76,20 +76,25 @@ def zero_action_head(model) -> None:
 
 
 def train(
-    config: TrainConfig, progress_bar: bool = True, verbose: int = 0, overwrite: bool = False
+    config: TrainConfig,
+    progress_bar: bool = True,
+    verbose: int = 0,
+    overwrite: bool = False,
+    lock: bool = True,
 ) -> TrainResult:
     """Train one policy; write the run folder; return what happened.
 
-    Raises before training if the folder holds an earlier run (unless ``overwrite``)
-    or the config is invalid; removes what it wrote if training fails or is
-    interrupted (then :class:`~elastic_gym.parallel.Interrupted` says so).
+    Raises before training if the folder holds an earlier run (unless ``overwrite``),
+    is written by another process (:class:`~elastic_gym.folder_lock.FolderLockedError`;
+    ``lock=False``: the caller holds the folder's lock) or the config is invalid;
+    removes what it wrote if training fails or is interrupted (then
+    :class:`~elastic_gym.parallel.Interrupted` says so).
     """
     from elastic_gym.parallel import single_threaded
 
+    settings, algo_kwargs = split_settings(config)  # a bad config changes nothing
     folder = RunFolder(config.out_dir)
-    folder.check(overwrite)
-    settings, algo_kwargs = split_settings(config)
-    with folder.create(overwrite), single_threaded():
+    with folder.create(overwrite, lock), single_threaded():
         return _train(config, settings, algo_kwargs, folder, progress_bar, verbose)
 
 
@@ -224,6 +229,15 @@ def train_many(
     process is interrupted (SIGINT/SIGTERM), the other runs are stopped, the finished
     runs are kept, the unfinished ones removed, and the exception says which is which.
     """
+    with contextlib.ExitStack() as locks:
+        for out in dict.fromkeys(Path(c.out_dir) for c in configs):  # repeats: check_configs
+            locks.enter_context(RunFolder(out).lock())
+        return _train_many_locked(configs, workers, backend, progress, overwrite)
+
+
+def _train_many_locked(
+    configs: list[TrainConfig], workers: int | None, backend: str, progress: bool, overwrite: bool
+) -> list[TrainResult]:
     from elastic_gym.parallel import for_each_result, with_detail
 
     check_configs(configs, overwrite)
@@ -231,7 +245,7 @@ def train_many(
     results: dict[int, TrainResult] = {}
     try:
         for_each_result(
-            functools.partial(train, progress_bar=False, overwrite=overwrite),
+            functools.partial(train, progress_bar=False, overwrite=overwrite, lock=False),
             configs,
             results.__setitem__,
             workers=workers,
