@@ -160,7 +160,7 @@ def cpu_share(workers: int) -> float:
 
 def _check_duration(duration: float, env: gym.Env, path: str) -> None:
     """A run must last at least one control period (else it has no step to measure)."""
-    control_dt = env.unwrapped.control_dt
+    control_dt = arm_env(env).control_dt
     if not duration >= control_dt:
         raise ScenarioError(
             "duration",

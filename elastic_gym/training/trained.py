@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
@@ -20,8 +21,8 @@ class TrainedRun:
     """A run folder loaded back: the SB3 model, its normalization statistics and config;
     ``stack`` is the policy env it was trained on (:class:`PolicyStack`)."""
 
-    model: object
-    normalizer: object | None
+    model: Any  # an SB3 algorithm (duck-typed: no SB3 import here)
+    normalizer: Any  # its VecNormalize, or None
     config: TrainConfig
     settings: dict
     stack: PolicyStack = field(init=False)
