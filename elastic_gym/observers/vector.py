@@ -21,9 +21,9 @@ the single-env observer's. Autoresets are followed: an arm reset by the env is
 re-initialised from its first observation; with ``SAME_STEP`` the terminal observation is
 estimated first (``info["final_obs"]``).
 
-An estimate that stops being finite (a diverged observer), or an update that raises a
-numerical error (``ArithmeticError``, ``ValueError``: e.g. scipy refusing a matrix with
-infs or NaNs, a covariance no longer positive definite), ends that arm's episode with
+An estimate that stops being finite (a diverged observer), or an update that fails the
+way numpy / scipy fail on a diverged estimate (:func:`numerical_failure`: a matrix with
+infs or NaNs refused, a covariance no longer positive definite), ends that arm's episode with
 ``terminated=True`` and ``info["termination_reason"] = "non-finite state estimate"``
 (:meth:`ObserverWrapper._terminate`; the error, if any, in ``info["observer_error"]``;
 a batched observer's error ends the episodes of all the arms it was updating); the
@@ -94,7 +94,18 @@ def measurement(observer: Observer | ObserverArray, obs: Mapping, info: Mapping)
     return measured
 
 
-NUMERICAL_ERRORS = (ArithmeticError, ValueError)  # numpy/scipy LinAlgError is a ValueError
+NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, OverflowError)
+NON_FINITE_INPUT = "infs or NaNs"  # numpy's asarray_chkfinite and scipy's checks say so
+
+
+def numerical_failure(exc: BaseException) -> bool:
+    """Whether ``exc`` is what a diverged estimate makes numpy / scipy raise: a singular
+    or indefinite matrix (``LinAlgError``), a floating-point error or overflow, or a
+    ``ValueError`` refusing an array with infs or NaNs. Other exceptions (a
+    ``ZeroDivisionError`` in a user's code, a ``TypeError``) are bugs, not divergence."""
+    return isinstance(exc, NUMERICAL_ERRORS) or (
+        isinstance(exc, ValueError) and NON_FINITE_INPUT in str(exc)
+    )
 
 
 def checked_estimate(observer: Observer, estimate: object, call: str) -> np.ndarray:
@@ -115,18 +126,21 @@ def checked_estimate(observer: Observer, estimate: object, call: str) -> np.ndar
 
 
 def guarded(update: Callable[[], np.ndarray]) -> tuple[np.ndarray | None, str | None]:
-    """``update()`` and None, or None and the text of the numerical error it raised (the
-    episode ends, see the module docstring)."""
+    """``update()`` and None, or None and the text of the numerical failure it raised
+    (:func:`numerical_failure`; the episode ends, see the module docstring); other
+    exceptions propagate."""
     try:
         return update(), None
-    except NUMERICAL_ERRORS as exc:
+    except Exception as exc:
+        if not numerical_failure(exc):
+            raise
         return None, f"{type(exc).__name__}: {exc}"
 
 
 def guarded_update(
     observer: Observer, obs: Mapping, torque: np.ndarray, dt: float
 ) -> tuple[np.ndarray, str | None]:
-    """``observer.update``, checked (:func:`checked_estimate`); a numerical error in it
+    """``observer.update``, checked (:func:`checked_estimate`); a numerical failure in it
     gives a NaN estimate and the error's text (:func:`guarded`)."""
     estimate, error = guarded(lambda: observer.update(obs, torque, dt))
     if estimate is None:
