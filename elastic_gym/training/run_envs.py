@@ -19,7 +19,7 @@ import gymnasium as gym
 from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training.actions import ActionConfig
-from elastic_gym.training.config import TrainConfig, batch_kwargs
+from elastic_gym.training.config import Settings, TrainConfig
 from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import SENSORS, make_policy_env, make_policy_vec_env
 
@@ -47,16 +47,16 @@ class PolicyStack:
     observer_options: dict = field(default_factory=dict)
 
     @classmethod
-    def of(cls, config: TrainConfig, settings: dict) -> PolicyStack:
-        """The stack of a run: its config with the resolved hyper-parameters ``settings``
-        (ours, :func:`~elastic_gym.training.config.split_settings`)."""
+    def of(cls, config: TrainConfig, settings: Settings) -> PolicyStack:
+        """The stack of a run: its config with its resolved hyper-parameters ``settings``
+        (:meth:`TrainConfig.settings`)."""
         action, observation = config.policy_configs(settings)
         return cls(
             env_id=config.env_id,
             state=config.state,
             action=action,
             observation=observation,
-            decimation=int(settings.get("decimation", 1)),
+            decimation=settings.decimation,
             frame_stack=config.frame_stack if config.state == SENSORS else 1,
             env_kwargs=config.training_env_kwargs(settings),
             observer_options=dict(config.observer_options),
@@ -103,19 +103,20 @@ class PolicyStack:
         return SB3VecEnv(self.make_vec(n_arms, env_kwargs, critic_state))
 
 
-def training_vec_env(stack: PolicyStack, settings: dict, n_envs: int, seed: int):
+def training_vec_env(stack: PolicyStack, settings: Settings, n_envs: int, seed: int):
     """What SB3 trains on: one env (``n_envs`` 1), a batch of ``n_envs`` arms, or several
-    batches (hyper-parameter ``batches``, :func:`~elastic_gym.training.config.batch_kwargs`)
-    in worker processes; with the true state appended for the critic if the
-    hyper-parameter ``critic_state`` is set. Seeded with ``seed``, under a ``VecMonitor``."""
+    batches in worker processes (hyper-parameter ``batches``,
+    :attr:`~elastic_gym.training.config.Settings.batch_kwargs`); with the true state
+    appended for the critic if the hyper-parameter ``critic_state`` is set. Seeded with
+    ``seed``, under a ``VecMonitor``."""
     from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor
 
     from elastic_gym.training.sb3_vec_env import ProcessBatches
 
-    batches = batch_kwargs(settings.get("batches", 1))
+    batches = settings.batch_kwargs
     if n_envs % len(batches):
         raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs ({n_envs})")
-    critic_state = bool(settings.get("critic_state", False))
+    critic_state = settings.critic_state
     venv: VecEnv
     if n_envs == 1:
         venv = DummyVecEnv([functools.partial(stack.make, critic_state=critic_state)])

@@ -28,11 +28,11 @@ from gymnasium.spaces import flatdim
 from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training.config import (
+    Settings,
     TrainConfig,
     algorithm_class,
     default_policy,
     merged_hyperparams,
-    split_settings,
 )
 from elastic_gym.training.run_envs import PolicyStack, training_vec_env
 from elastic_gym.training.run_folder import RunFolder, missing_folders, remove_empty
@@ -92,7 +92,7 @@ def train(
     """
     from elastic_gym.parallel import single_threaded
 
-    settings, algo_kwargs = split_settings(config)  # a bad config changes nothing
+    settings, algo_kwargs = config.settings()  # a bad config changes nothing
     folder = RunFolder(config.out_dir)
     with folder.create(overwrite, lock), single_threaded():
         return _train(config, settings, algo_kwargs, folder, progress_bar, verbose)
@@ -100,7 +100,7 @@ def train(
 
 def _train(
     config: TrainConfig,
-    settings: dict,
+    settings: Settings,
     algo_kwargs: dict,
     folder: RunFolder,
     progress_bar: bool,
@@ -111,8 +111,8 @@ def _train(
     from elastic_gym.training.learning_curve import LearningCurve
 
     out = folder.path
-    total = config.total_steps or int(settings.get("n_timesteps", 100_000))
-    n_envs = int(settings.get("n_envs", 1))
+    total = config.total_steps or settings.n_timesteps
+    n_envs = settings.n_envs
     stack = PolicyStack.of(config, settings)
     venv = training_vec_env(stack, settings, n_envs, config.seed)
     try:
@@ -121,12 +121,12 @@ def _train(
         venv.close()
         raise
     try:
-        normalize = bool(settings.get("normalize", True))
+        normalize = settings.normalize
         gamma = float(algo_kwargs.get("gamma", 0.99))
         venv = VecNormalize(venv, norm_obs=normalize, norm_reward=normalize, gamma=gamma)
 
         policy = algo_kwargs.pop("policy", default_policy(config.algo))
-        if settings.get("critic_state"):
+        if settings.critic_state:
             from elastic_gym.training.critic import PrivilegedCriticPolicy
 
             # the evaluation envs are the deployment stack: the actor's observation only
@@ -171,14 +171,15 @@ def _train(
     # and every field of the action and observation configs (a later release's defaults
     # must not change what a saved policy's actions mean)
     folder.write_config(
-        dataclasses.replace(
-            config,
-            hyperparams_file=None,
-            action=stack.action.to_dict(),
-            observation=stack.observation.to_dict(),
-            hyperparams=merged_hyperparams(
-                config.algo, config.env_id, config.hyperparams, config.hyperparams_file
-            ),
+        config.model_copy(
+            update={
+                "hyperparams_file": None,
+                "action": stack.action.to_dict(),
+                "observation": stack.observation.to_dict(),
+                "hyperparams": merged_hyperparams(
+                    config.algo, config.env_id, config.hyperparams, config.hyperparams_file
+                ),
+            }
         )
     )
     final = curve.evaluations[-1]
@@ -209,8 +210,8 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
     built = set()
     for config in configs:
         RunFolder(config.out_dir).check(overwrite)
-        settings, _ = split_settings(config)
-        setting = dataclasses.replace(config, seed=0, out_dir="").to_dict()
+        settings, _ = config.settings()
+        setting = config.model_copy(update={"seed": 0, "out_dir": ""}).to_dict()
         if repr(setting) not in built:
             built.add(repr(setting))
             PolicyStack.of(config, settings).make().close()

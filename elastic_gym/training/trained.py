@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
-from elastic_gym.training.config import TrainConfig, split_settings
+from elastic_gym.training.config import Settings, TrainConfig
 from elastic_gym.training.rollouts import Evaluation, PolicyActor, evaluate_arms
 from elastic_gym.training.run_envs import PolicyStack
 from elastic_gym.training.run_folder import RunFolder
@@ -24,7 +24,7 @@ class TrainedRun:
     model: Any  # an SB3 algorithm (duck-typed: no SB3 import here)
     normalizer: Any  # its VecNormalize, or None
     config: TrainConfig
-    settings: dict
+    settings: Settings
     stack: PolicyStack = field(init=False)
 
     def __post_init__(self) -> None:
@@ -54,7 +54,7 @@ def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
     """
     folder = RunFolder(run_dir)
     config = folder.read_config()
-    settings, _ = split_settings(config)
+    settings, _ = config.settings()
     model = folder.load_model(config.algo, best)
     return TrainedRun(model, folder.load_normalizer(), config, settings)
 
