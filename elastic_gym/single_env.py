@@ -23,39 +23,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv, VectorWrapper
 from gymnasium.vector.utils import batch_space
 
-
-def batched(value: Any) -> Any:
-    """``value`` of one arm with a leading arm axis of length 1 (mappings item by item;
-    strings and None as object arrays, so that a longer string can replace them)."""
-    if isinstance(value, Mapping):  # arrays inline: a step's info holds about twenty
-        return {
-            key: item[None]
-            if type(item) is np.ndarray and item.dtype.kind not in "OUS"
-            else batched(item)
-            for key, item in value.items()
-        }
-    if isinstance(value, np.ndarray | float | int | np.generic):
-        arr = np.asarray(value)
-        if arr.dtype.kind not in "OUS":  # bool is an int
-            return arr[None]
-    out = np.empty(1, dtype=object)
-    out[0] = value
-    return out
-
-
-def single(value: Any) -> Any:
-    """The one arm of a batched ``value`` (``_key`` masks dropped, numpy scalars as Python
-    scalars)."""
-    if isinstance(value, Mapping):
-        return {
-            key: item[0]
-            if type(item) is np.ndarray and item.ndim > 1 and item.dtype.kind not in "OUS"
-            else single(item)
-            for key, item in value.items()
-            if key[:1] != "_"
-        }
-    item = value[0]
-    return item.item() if isinstance(item, np.generic) else item
+from elastic_gym.arms import as_batch, single_arm
 
 
 class OneArm(VectorEnv):
@@ -89,10 +57,10 @@ class OneArm(VectorEnv):
     def control_dt(self) -> float:
         return self.batch.control_dt
 
-    def _batched(self, obs: Any, info: dict) -> tuple[Any, dict]:
+    def _as_batch(self, obs: Any, info: dict) -> tuple[Any, dict]:
         self.last_info = info
-        self._sent = {key: batched(value) for key, value in info.items()}
-        return batched(obs), dict(self._sent)
+        self._sent = {key: as_batch(value) for key, value in info.items()}
+        return as_batch(obs), dict(self._sent)
 
     def single_info(self, info: Mapping) -> dict:
         """The single env's info of the last reset or step, with the items the vector
@@ -100,20 +68,20 @@ class OneArm(VectorEnv):
         out = dict(self.last_info)
         for key, value in info.items():
             if not key.startswith("_") and self._sent.get(key) is not value:
-                out[key] = single(value)
+                out[key] = single_arm(value)
         return out
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
         self._ended = False
-        return self._batched(obs, info)
+        return self._as_batch(obs, info)
 
     def step(self, actions):
         if self._ended:
             raise RuntimeError("call reset() before step() (and after an episode has ended)")
         obs, reward, terminated, truncated, info = self.env.step(actions[0])
         self._ended = bool(terminated or truncated)
-        obs, info = self._batched(obs, info)
+        obs, info = self._as_batch(obs, info)
         return (
             obs,
             np.array([reward], dtype=float),
@@ -158,12 +126,12 @@ class SingleArmWrapper(gym.Wrapper, Generic[W]):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.vector.reset(seed=seed, options=options)
-        return single(obs), self.arm.single_info(info)
+        return single_arm(obs), self.arm.single_info(info)
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.vector.step(self.batched_action(action))
         return (
-            single(obs),
+            single_arm(obs),
             float(reward[0]),
             bool(terminated[0]),
             bool(truncated[0]),

@@ -8,20 +8,21 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from elastic_gym.arms import as_batch, single_arm
 from elastic_gym.observers import ObserverWrapper, TrueStateWrapper, vector
 from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
-from elastic_gym.single_env import SingleArmWrapper, batched, single
+from elastic_gym.single_env import SingleArmWrapper
 from elastic_gym.training import make_policy_env
 
 ID = "elastic_gym/TwoLinkRigid-v0"
 
 
-def test_batched_and_single_are_inverse_on_a_steps_info():
+def test_as_batch_and_single_arm_are_inverse_on_a_steps_info():
     env = gym.make("elastic_gym/TwoLinkElastic-v0")
     _, info = env.reset(seed=0)
     _, _, _, _, info = env.step(np.array([0.5, -0.5]))
     info["termination_reason"] = "non-finite state"
-    back = single(batched(info))
+    back = single_arm(as_batch(info))
     assert back.keys() == info.keys()
     for key, value in info.items():
         if isinstance(value, dict):
@@ -31,9 +32,9 @@ def test_batched_and_single_are_inverse_on_a_steps_info():
             np.testing.assert_array_equal(back[key], value)
         else:  # Python scalars stay Python scalars
             assert back[key] == value and type(back[key]) is type(value)
-    reasons = batched(info)["termination_reason"]
+    reasons = as_batch(info)["termination_reason"]
     reasons[0] = "non-finite state estimate"  # an object array: no truncation
-    assert single({"r": reasons})["r"] == "non-finite state estimate"
+    assert single_arm({"r": reasons})["r"] == "non-finite state estimate"
     env.close()
 
 
