@@ -28,6 +28,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from elastic_gym.arms import as_batch
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import check_applies, is_real
 
@@ -106,14 +107,6 @@ class Observer(ABC):
 
 
 ARM0 = np.array([0])
-
-
-def as_batch(obs: Mapping) -> dict:
-    """A single-arm observation as a batch of one arm (nested mappings included)."""
-    return {
-        key: as_batch(value) if isinstance(value, Mapping) else np.asarray(value)[None]
-        for key, value in obs.items()
-    }
 
 
 class BatchedObserver(Observer):
