@@ -38,8 +38,9 @@ from gymnasium.spaces import flatdim
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from elastic_gym.arms import arm_view, reference_rows
-from elastic_gym.controllers import make_controller, public_info
+from elastic_gym.arms import reference_rows
+from elastic_gym.controllers import public_info
+from elastic_gym.controllers.vector import make_vector_controller
 from elastic_gym.envs.arm_env import validated_actions
 from elastic_gym.observers.vector import true_state_vector
 from elastic_gym.training.actions import ActionConfig, ActionMap
@@ -100,8 +101,10 @@ class PolicyAction(_ArmResets):
             and ``motor-offset`` kinds).
         action: an :class:`ActionConfig` or its fields.
 
-    A residual's base controller runs one copy per arm. ``info["base_torque"]`` (N, n)
-    holds the residual's base torque (zeros for other kinds).
+    A residual's base controller is a vector controller of all arms
+    (:func:`~elastic_gym.controllers.vector.make_vector_controller`).
+    ``info["base_torque"]`` (N, n) holds the residual's base torque (zeros for other
+    kinds).
     """
 
     def __init__(
@@ -113,19 +116,17 @@ class PolicyAction(_ArmResets):
         self.map = ActionMap(self.action_config, batch.model)
         self.n, self.dt = batch.n_joints, batch.control_dt
         self.sensors = "state" not in cast(spaces.Dict, env.single_observation_space).spaces
-        self.controllers = []
+        self.controller = None
         if self.action_config.residual is not None:  # kind "residual"
             if self.sensors:
                 raise ValueError("a residual policy needs a state source for its base controller")
-            self.controllers = [
-                make_controller(
-                    self.action_config.residual,
-                    batch.model,
-                    self.dt,
-                    **self.action_config.residual_options,
-                )
-                for _ in range(self.num_envs)
-            ]
+            self.controller = make_vector_controller(
+                self.action_config.residual,
+                batch.model,
+                self.dt,
+                self.num_envs,
+                **self.action_config.residual_options,
+            )
         self.single_action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._obs: dict = {}
@@ -134,11 +135,10 @@ class PolicyAction(_ArmResets):
         self._base = np.zeros((self.num_envs, self.n))
 
     def _restart(self, arms, obs: Mapping, info: Mapping) -> None:
-        for i in arms:
-            if self.controllers:
-                self.controllers[i].reset(arm_view(obs, i), public_info(arm_view(info, i)))
-            if self.sensors:
-                self._previous_motor[i] = obs["motor_position"][i]
+        if self.controller is not None and len(arms):
+            self.controller.reset_arms(obs, public_info(info), arms)
+        if self.sensors:
+            self._previous_motor[arms] = obs["motor_position"][arms]
 
     def reset(self, *, seed=None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -152,13 +152,8 @@ class PolicyAction(_ArmResets):
     def step(self, actions):
         a = validated_actions(actions, self.num_envs, self.n)
         obs, info, n = self._obs, self._info, self.n
-        if self.controllers:
-            self._base = np.array(
-                [
-                    controller(arm_view(obs, i), public_info(arm_view(info, i)))
-                    for i, controller in enumerate(self.controllers)
-                ]
-            )
+        if self.controller is not None:
+            self._base = self.controller(obs, public_info(info))
         theta = dtheta = None
         if self.map.needs_motor_state:
             if self.sensors:  # backward difference of the encoders
