@@ -73,7 +73,8 @@ def load_sb3_model(path: str | os.PathLike, algorithm: str | type):
         if not hasattr(sb3, algorithm):
             raise ValueError(f"unknown stable-baselines3 algorithm {algorithm!r}")
         algorithm = getattr(sb3, algorithm)
-    return algorithm.load(os.fspath(path), device="cpu")
+    cls: Any = algorithm
+    return cls.load(os.fspath(path), device="cpu")
 
 
 def load_normalization(normalization):
@@ -247,8 +248,8 @@ class VectorPolicyController(ControllerTwin[PolicyController]):
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
         c = self.controller
-        for i in np.flatnonzero(self._calls % c.decimation == 0):  # acting at 1 / (decimation dt)
-            i = int(i)
+        for arm in np.flatnonzero(self._calls % c.decimation == 0):  # acts at 1/(decimation dt)
+            i = int(arm)
             self._held[i] = self.act(i, arm_view(obs, i), arm_view(info, i))
         self._calls += 1
         action = np.clip(self._held, -1.0, 1.0)

@@ -14,7 +14,7 @@ experiment ("close to the robot natural frequency"). The same law runs on rigid 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 from pydantic import Field, StrictBool, ValidationInfo, field_validator
@@ -128,7 +128,7 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
     """
 
     name = "feedforward-state-feedback"
-    options_model = StateFeedbackOptions
+    options_model: ClassVar[type | None] = StateFeedbackOptions
 
     def __init__(
         self,

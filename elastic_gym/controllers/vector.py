@@ -25,6 +25,7 @@ from collections.abc import Callable, Mapping
 from typing import Any, ClassVar, Generic, TypeVar
 
 import numpy as np
+from typing_extensions import Self
 
 from elastic_gym.arms import arm_view, as_batch
 from elastic_gym.controllers.base import Controller, public_info
@@ -132,7 +133,7 @@ class ControllerTwin(VectorController, Generic[C]):
         self._bind(controller, n_arms)
 
     @classmethod
-    def of(cls, controller: C, n_arms: int) -> ControllerTwin[C]:
+    def of(cls, controller: C, n_arms: int) -> Self:
         twin = cls.__new__(cls)
         twin._bind(controller, n_arms)
         return twin
