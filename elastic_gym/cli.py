@@ -19,6 +19,7 @@ from collections.abc import Sequence
 
 from pydantic import BaseModel
 
+from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
 from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
 from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
 from elastic_gym.parallel import BACKENDS, Interrupted, interrupts_raised
@@ -54,6 +55,14 @@ def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
         help="replace the files of an earlier comparison in the output folder",
     )
     parser.add_argument("--workers", type=int, help="parallel workers (default: one per CPU)")
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        default=DEFAULT_BATCH_SIZE,
+        metavar="N",
+        help="most runs simulated together in one world (vector env, observer, controller; "
+        f"default {DEFAULT_BATCH_SIZE}); 1: every run in a world of its own (the same rows)",
+    )
     parser.add_argument(
         "--backend", choices=BACKENDS, default="process", help="local processes (default) or Ray"
     )
@@ -112,6 +121,7 @@ def run_compare(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         plots=not args.no_plots,
         overwrite=args.overwrite,
+        batch_size=args.batch_size,
     )
     return 0
 

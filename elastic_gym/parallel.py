@@ -159,9 +159,13 @@ def for_each_result(
     label: str = "jobs",
     describe: Callable[[Any], str] = repr,
     crashed: Callable[[Any, WorkerDiedError], Any] | None = None,
+    size: Callable[[Any], int] | None = None,
 ) -> None:
     """Compute ``function(job)`` for every job in parallel and call ``on_result(index,
     result)`` in this process as each one completes (in completion order).
+
+    ``size(job)``: how many items of the progress bar a job counts for (default 1: a
+    batch of runs counts as its runs).
 
     A worker process that dies while running a job (``os._exit``, a segmentation
     fault): with ``crashed``, ``crashed(job, WorkerDiedError)`` is that job's result and the
@@ -182,11 +186,12 @@ def for_each_result(
     """
     workers = resolve_workers(workers, len(jobs), backend)
     with interrupts_raised(), Progress(disable=not progress, transient=False) as bar:
-        task = bar.add_task(label, total=len(jobs))
+        weight = size or (lambda job: 1)
+        task = bar.add_task(label, total=sum(weight(job) for job in jobs))
 
         def deliver(index: int, result: Any) -> None:
             on_result(index, result)
-            bar.advance(task)
+            bar.advance(task, weight(jobs[index]))
 
         def failure(index: int, exc: Exception) -> RuntimeError:
             return RuntimeError(

@@ -18,13 +18,13 @@ observer built once: :mod:`~elastic_gym.evaluation.preflight`), and the run coun
 an estimate of the wall time are printed.
 
 Output folder (default ``./compare_out/<scenario name>``): ``runs.csv`` (one row per
-run, written as each run finishes), ``summary.csv`` and ``summary.md`` (over seeds),
-``scenario.yaml`` (the resolved grid, written first) and ``plots/<group>.png`` (one
-figure per env x axis values x model error, written as soon as its runs are done;
-the time series of the runs are not kept in memory after that). A folder holding an
-earlier comparison's files is refused unless ``overwrite`` (which removes those
-files first), and so is a folder another process writes into
-(:mod:`~elastic_gym.folder_lock`). A run that fails (its code raises, calls
+run, written when its world of runs finishes: :mod:`~elastic_gym.evaluation.groups`),
+``summary.csv`` and ``summary.md`` (over seeds), ``scenario.yaml`` (the resolved grid,
+written first) and ``plots/<group>.png`` (one figure per env x axis values x model
+error, written as soon as its runs are done; the time series of the runs are not kept in
+memory after that). A folder holding an earlier comparison's files is refused unless
+``overwrite`` (which removes those files first), and so is a folder another process
+writes into (:mod:`~elastic_gym.folder_lock`). A run that fails (its code raises, calls
 ``sys.exit``, or kills its worker process) is a row with status ``failed: <Type>:
 <message>``. When results cannot be written (a full disk),
 :class:`~elastic_gym.evaluation.output.ResultsWriteError` says what ``runs.csv`` kept.
@@ -48,6 +48,7 @@ import yaml
 from rich.console import Console
 
 from elastic_gym.evaluation.curves import plot_all_curves
+from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE, plan_groups
 from elastic_gym.evaluation.margins import margin_rows, write_margins
 from elastic_gym.evaluation.output import (
     CURVE_DIR,
@@ -72,10 +73,10 @@ from elastic_gym.evaluation.runner import (
     RunResult,
     RunSpec,
     SkippedRun,
-    crashed_result,
-    describe_run,
+    crashed_results,
+    describe_group,
     plan_runs,
-    run_episode,
+    run_group,
 )
 from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
 from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
@@ -117,6 +118,7 @@ def compare(
     plots: bool = True,
     overwrite: bool = False,
     console: Console | None = None,
+    batch_size: int = DEFAULT_BATCH_SIZE,
 ) -> Comparison:
     """Run every applicable run of ``scenario`` and write the tables (and plots).
 
@@ -130,15 +132,21 @@ def compare(
         overwrite: replace the files of an earlier comparison in ``output_dir``.
         console: where to print the summary table (default: stdout; silence it with
             ``Console(quiet=True)``).
+        batch_size: most arms in one world (:mod:`~elastic_gym.evaluation.groups`);
+            1 runs every run in a world of its own (the same rows).
 
     Raises (before any run, changing nothing): ``ScenarioError`` naming the field that
     cannot work, ``NotADirectoryError`` / ``PermissionError`` / ``FileExistsError`` for
     the output folder, ``ValueError`` for the other arguments.
     """
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"batch_size must be an integer >= 1, got {batch_size!r}")
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / scenario.name
     check_writable(out)
     with folder_lock(out):
-        return _compare(scenario, out, workers, backend, progress, plots, overwrite, console)
+        return _compare(
+            scenario, out, workers, backend, progress, plots, overwrite, console, batch_size
+        )
 
 
 def _compare(
@@ -150,6 +158,7 @@ def _compare(
     plots: bool,
     overwrite: bool,
     console: Console | None,
+    batch_size: int,
 ) -> Comparison:
     """:func:`compare` once the output folder is locked."""
     console = console or Console()
@@ -160,14 +169,16 @@ def _compare(
             f"({len(skipped)} combinations skipped: {skipped[:3]})"
         )
     n_workers = resolve_workers(workers, len(runs), backend)
+    groups = plan_groups(runs, batch_size, n_workers)
     check_output_folder(out, overwrite)
     if plots:
         check_plot_names(scenario, runs)
     with interrupts_raised():  # a real Ctrl-C is not taken for the sampled user code's own
-        estimate = preflight(scenario, runs, n_workers)
+        estimate = preflight(scenario, groups, n_workers)
     skipped_note = _skipped_note(skipped)
     console.print(
-        f"[bold]{scenario.name}[/bold]: {len(runs)} runs on {n_workers} "
+        f"[bold]{scenario.name}[/bold]: {len(runs)} runs in {len(groups)} "
+        f"{'world' if len(groups) == 1 else 'worlds'} on {n_workers} "
         f"{'worker' if n_workers == 1 else 'workers'}, {estimate}"
     )
     console.print(skipped_note, markup=False, end="")
@@ -182,15 +193,16 @@ def _compare(
     sink = _Sink(out, runs, plots)
     try:
         for_each_result(
-            run_episode,
-            runs,
-            sink.add,
+            run_group,
+            groups,
+            sink.add_group,
             workers=n_workers,
             backend=backend,
             progress=progress,
             label="runs",
-            describe=describe_run,
-            crashed=crashed_result,
+            describe=describe_group,
+            crashed=crashed_results,
+            size=len,
         )
     except BaseException as exc:
         rows = sink.csv.finish()
@@ -236,8 +248,12 @@ class _Sink:
         self.waiting: dict[tuple, list[RunResult]] = {}
         self.plots: list[Path] = []
 
-    def add(self, index: int, result: RunResult) -> None:
-        self.csv.add(index, run_row(result))
+    def add_group(self, index: int, results: list[RunResult]) -> None:
+        for result in results:
+            self.add(result)
+
+    def add(self, result: RunResult) -> None:
+        self.csv.add(result.spec.index, run_row(result))
         if self.plot_dir is None or result.spec.labels.get(SWEEP_AXIS, NOMINAL) != NOMINAL:
             return  # a sweep's runs are summarized by its curves
         group = result.spec.group

@@ -10,11 +10,13 @@ is spent. Errors of the closed loop itself (a controller's ``reset`` or call, an
 observer's update) are not setup errors: they are left to the runs, which report
 them in their status.
 
-The estimate: ``SAMPLE_TIME`` of closed loop of each (env, controller, state source)
-combination measures its CPU time per step; with the CPU time of its setup it gives
-the CPU time of every run. Their sum, shared among the workers, is divided by the share
-of a core each worker can expect, cores / (other runnable processes + workers) at most
-1, the others taken from the load average. CPU time, not wall time: a short sample in a
+The estimate: ``SAMPLE_TIME`` of the batched closed loop of each (env, controller,
+state source) combination, in a world of the first ``SAMPLE_ARMS`` arms of its first
+batch (:mod:`~elastic_gym.evaluation.groups`), measures its CPU time per arm and step;
+with the CPU time of its setup per arm it gives the CPU time of every run. Their sum,
+shared among the workers, is divided by the share of a core each worker can expect,
+cores / (other runnable processes + workers) at most 1, the others taken from the load
+average. CPU time, not wall time: a short sample in a
 process that has been idle runs at full speed on a loaded machine (the scheduler's
 credit for sleeping), and measured the default grid's wall time 2.6 times too short at
 a load average of 8.
@@ -35,14 +37,17 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from elastic_gym.controllers.base import public_info
+from elastic_gym.evaluation.groups import RunGroup
 from elastic_gym.evaluation.output import MAX_NAME_BYTES, plot_file_name
 from elastic_gym.evaluation.runner import (
+    ClosedLoop,
     RunSpec,
+    World,
     arm_env,
-    build_controller,
-    build_observer,
+    build_observer_wrapper,
+    build_vector_controller,
     describe_failure,
+    make_group_env,
     run_model,
 )
 from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError
@@ -50,6 +55,7 @@ from elastic_gym.parallel import single_threaded, user_failure
 
 SAMPLE_TIME = 0.05  # CPU s of closed loop timed per (env, controller, source) combination
 SAMPLE_STEPS = (3, 1000)  # fewest and most steps of a sample
+SAMPLE_ARMS = 8  # arms of the world a combination is timed in
 
 
 @dataclass(frozen=True)
@@ -107,43 +113,43 @@ def _make_env(entry_id: str, kwargs: dict, path: str) -> gym.Env:
         raise _error(path, exc) from None
 
 
-def preflight(scenario: Scenario, runs: Sequence[RunSpec], workers: int) -> Estimate:
-    """Build everything the runs need once (see the module docstring); raise
-    :class:`ScenarioError` on the first failure; return the estimated wall time."""
+def _combo(spec: RunSpec) -> tuple:
+    return spec.labels["env"], spec.labels["controller"], spec.labels["source"]
+
+
+def preflight(scenario: Scenario, groups: Sequence[RunGroup], workers: int) -> Estimate:
+    """Build everything the runs of ``groups`` need once (see the module docstring);
+    raise :class:`ScenarioError` on the first failure; return the estimated wall time."""
     controller_index = {c.label: i for i, c in enumerate(scenario.controllers)}
     source_index = {s.label: i for i, s in enumerate(scenario.state_sources)}
     error_index = {v.label: i for i, v in enumerate(scenario.model_errors)}
-    combos: dict[tuple, RunSpec] = {}
-    for spec in runs:
-        combos.setdefault(
-            (spec.labels["env"], spec.labels["controller"], spec.labels["source"]), spec
-        )
+    combos: dict[tuple, RunGroup] = {}
+    for group in groups:
+        combos.setdefault(_combo(group.first), RunGroup(group.runs[:SAMPLE_ARMS]))
     cost: dict[tuple, float] = {}
     with single_threaded():
         for i, entry in enumerate(scenario.envs):
             if not any(key[0] == entry.label for key in combos):
                 continue
             path = f"envs[{i}]"
-            start = time.process_time()
             env = _make_env(entry.id, scenario.env_kwargs(entry), f"{path}.kwargs")
-            make_time = time.process_time() - start
             try:
                 _check_duration(scenario.duration, env, path)
                 _check_reset(env, entry.reset_options, scenario.seeds[0], path)
                 _check_axes(scenario, entry, path)
                 _check_model_errors(env, scenario, error_index)
-                for key, spec in combos.items():
+                for key, sample in combos.items():
                     if key[0] != entry.label:
                         continue
                     paths = (
                         f"controllers[{controller_index[key[1]]}]",
                         f"state_sources[{source_index[key[2]]}]",
                     )
-                    cost[key] = make_time + _sample(env, spec, paths)
+                    cost[key] = _sample(sample, paths, f"{path}.kwargs")
             finally:
                 env.close()
-    total = sum(cost[(s.labels["env"], s.labels["controller"], s.labels["source"])] for s in runs)
-    workers = min(workers, len(runs))
+    total = sum(cost[_combo(spec)] for group in groups for spec in group.runs)
+    workers = min(workers, len(groups))
     return Estimate(total, workers, cpu_share(workers))
 
 
@@ -197,33 +203,40 @@ def _check_model_errors(env: gym.Env, scenario: Scenario, error_index: dict) -> 
                 raise _error(f"model_errors[{error_index[variation.label]}]", exc) from None
 
 
-def _sample(env: gym.Env, spec: RunSpec, paths: tuple[str, str]) -> float:
-    """Build the run's observer and controller on ``env`` (errors name their field) and
-    time ``SAMPLE_TIME`` of closed loop; returns the CPU time of such a run (s) without
-    the env construction."""
+def _sample(group: RunGroup, paths: tuple[str, str], env_path: str) -> float:
+    """Build the world of ``group`` (errors name their field) and time ``SAMPLE_TIME`` of
+    its closed loop; returns the CPU time of one of its runs (s), setup included."""
     controller_path, source_path = paths
+    spec, n_arms = group.first, len(group)
     start = time.process_time()
-    model = run_model(env, spec)
-    with _named(f"{source_path}.options"):
-        wrapped = build_observer(env, spec, model)
-    with _named(f"{controller_path}.options"):
-        controller = build_controller(env, spec, model)
-    with _named(source_path):
-        obs, info = wrapped.reset(seed=spec.seed, options=spec.reset_options or None)
-    setup = time.process_time() - start
-    steps, elapsed = 0, 0.0
-    with np.errstate(all="ignore"), _left_to_the_runs():
-        controller.reset(obs, public_info(info))
-        obs, _, _, _, info = wrapped.step(controller(obs, public_info(info)))  # warms caches up
-        tick = time.process_time()
-        while steps < SAMPLE_STEPS[1] and (steps < SAMPLE_STEPS[0] or elapsed < SAMPLE_TIME):
-            obs, _, terminated, _, info = wrapped.step(controller(obs, public_info(info)))
-            steps += 1
-            elapsed = time.process_time() - tick
-            if terminated:
-                break
+    with _named(env_path):
+        envs = make_group_env(group)
+    try:
+        model = run_model(envs, spec)
+        dt = envs.unwrapped.control_dt
+        with _named(f"{source_path}.options"):
+            wrapped = build_observer_wrapper(envs, spec, model)
+        with _named(f"{controller_path}.options"):
+            controller = build_vector_controller(spec, model, dt, n_arms)
+        loop = ClosedLoop(World(envs, wrapped, controller), group)
+        with _named(source_path):
+            loop.reset()
+        setup = time.process_time() - start
+        steps, elapsed = 0, 0.0
+        with np.errstate(all="ignore"), _left_to_the_runs():
+            loop.reset_controllers()
+            loop.advance()  # warms caches up
+            tick = time.process_time()
+            while steps < SAMPLE_STEPS[1] and (steps < SAMPLE_STEPS[0] or elapsed < SAMPLE_TIME):
+                running = loop.advance()
+                steps += 1
+                elapsed = time.process_time() - tick
+                if not running:
+                    break
+    finally:
+        envs.close()
     step = elapsed / steps if steps else 0.0
-    return setup + step * round(spec.duration / arm_env(env).control_dt)
+    return (setup + step * round(spec.duration / dt)) / n_arms
 
 
 def check_plot_names(scenario: Scenario, runs: Sequence[RunSpec]) -> None:

@@ -73,6 +73,7 @@ from pydantic import StrictBool, ValidationInfo, field_validator
 from scipy.linalg import expm
 
 from elastic_gym.model import RobotModel
+from elastic_gym.model.rows import rows_matmul
 from elastic_gym.observers.base import BatchedObserver, arm_count
 from elastic_gym.observers.deluca_gains import (
     DEFAULT_BANDWIDTH,
@@ -313,11 +314,11 @@ class DeLucaObserver(BatchedObserver):
         if self.acceleration == "ideal":
             ddq = self._link_acceleration(obs, self._xi[arms], arms)
             stack[:, 8 * n :] = ddq
-            xi = stack @ self._step_rows
+            xi = rows_matmul(stack, self._step_rows)
         else:  # predictor-corrector for eq. (12)
             stack[:, 8 * n :] = self._ddq[arms]
-            predicted = stack @ self._step_rows
+            predicted = rows_matmul(stack, self._step_rows)
             ddq = self._link_acceleration(obs, predicted, arms)
-            xi = predicted + (ddq - self._ddq[arms]) @ self._ddq_rows
+            xi = predicted + rows_matmul(ddq - self._ddq[arms], self._ddq_rows)
         self._xi[arms], self._theta[arms], self._ddq[arms] = xi, theta, ddq
         return self._xi.copy()

@@ -13,13 +13,13 @@ included. ``TrueStateWrapper`` gives the same layout from the ground truth, so o
 controller or policy runs unchanged on estimated or true state.
 
 Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserver`: De
-Luca with ideal or accelerometer-based q'', finite differences, the truth) estimate all
-arms at once; the others (EKF, rigid-arm observers, your own, or a batched one whose
-single-arm methods a subclass overrides: :func:`runs_batched`) run one copy per arm
-behind the same interface (:class:`ObserverArray`). Either way each arm's estimate is
-the single-env observer's. Autoresets are followed: an arm reset by the env is
-re-initialised from its first observation; with ``SAME_STEP`` the terminal observation is
-estimated first (``info["final_obs"]``).
+Luca with ideal or accelerometer-based q'', the EKF, finite differences, the truth)
+estimate all arms at once; the others (rigid-arm observers, your own, and a subclass of
+a batched one that overrides ``reset`` or ``update``: :func:`runs_batched`) run one copy
+per arm behind the same interface (:class:`ObserverArray`). Either way each arm's
+estimate is the single-env observer's. Autoresets are followed: an arm reset by the env
+is re-initialised from its first observation; with ``SAME_STEP`` the terminal
+observation is estimated first (``info["final_obs"]``).
 
 An estimate that stops being finite (a diverged observer), or an update that fails the
 way numpy / scipy fail on a diverged estimate (:func:`numerical_failure`: a matrix with
