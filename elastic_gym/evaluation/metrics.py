@@ -122,7 +122,7 @@ class ArmSeries:
     def of(cls, series: TimeSeries) -> ArmSeries:
         """One run's series as the one-arm case."""
 
-        def arm(x: np.ndarray | None) -> np.ndarray | None:
+        def arm(x):  # (K, n) -> (K, 1, n); None stays None
             return None if x is None else x[:, None]
 
         return cls(

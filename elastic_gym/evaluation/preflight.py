@@ -44,6 +44,7 @@ from elastic_gym.evaluation.runner import (
     RunSpec,
     World,
     arm_env,
+    arm_vector_env,
     build_observer_wrapper,
     build_vector_controller,
     describe_failure,
@@ -213,7 +214,7 @@ def _sample(group: RunGroup, paths: tuple[str, str], env_path: str) -> float:
         envs = make_group_env(group)
     try:
         model = run_model(envs, spec)
-        dt = envs.unwrapped.control_dt
+        dt = arm_vector_env(envs).control_dt
         with _named(f"{source_path}.options"):
             wrapped = build_observer_wrapper(envs, spec, model)
         with _named(f"{controller_path}.options"):

@@ -36,6 +36,7 @@ from elastic_gym.controllers.base import Controller, public_info
 from elastic_gym.controllers.registry import CONTROLLERS
 from elastic_gym.controllers.vector import VectorController, make_vector_controller
 from elastic_gym.envs.arm_env import ArmEnv
+from elastic_gym.envs.vector_env import ArmVectorEnv
 from elastic_gym.evaluation.controllers import comparison_controller
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE, RunGroup, plan_groups
 from elastic_gym.evaluation.metrics import ArmSeries, TimeSeries, compute_arm_metrics
@@ -116,6 +117,11 @@ def env_robot(env_id: str, env_kwargs: dict) -> RobotSpec:
 def arm_env(env: gym.Env) -> ArmEnv:
     """The elastic_gym env under the wrappers of ``env``."""
     return cast(ArmEnv, env.unwrapped)
+
+
+def arm_vector_env(envs: gym.vector.VectorEnv) -> ArmVectorEnv:
+    """The elastic_gym vector env under the wrappers of ``envs``."""
+    return cast(ArmVectorEnv, envs.unwrapped)
 
 
 def _entry_class(
@@ -360,7 +366,7 @@ def build_observer_wrapper(
     envs: gym.vector.VectorEnv, spec: RunSpec, model
 ) -> VectorObserverWrapper:
     """The run's state source on ``model`` for every arm of ``envs``."""
-    observer = make_observer_of(spec, model, envs.unwrapped.control_dt)
+    observer = make_observer_of(spec, model, arm_vector_env(envs).control_dt)
     return VectorObserverWrapper(envs, observer, initial_estimate=initial_estimate(spec))
 
 
@@ -371,7 +377,9 @@ def build_world(group: RunGroup) -> World:
     try:
         model = run_model(envs, spec)
         wrapped = build_observer_wrapper(envs, spec, model)
-        controller = build_vector_controller(spec, model, envs.unwrapped.control_dt, len(group))
+        controller = build_vector_controller(
+            spec, model, arm_vector_env(envs).control_dt, len(group)
+        )
     except BaseException:
         envs.close()
         raise
@@ -395,7 +403,7 @@ def run_group(group: RunGroup) -> list[RunResult]:
     wall = 0.0
     try:
         world = build_world(group)
-        base = world.envs.unwrapped
+        base = arm_vector_env(world.envs)
         steps = round(group.first.duration / base.control_dt)
         state_dim = world.wrapped.observer.state_dim
         recorder = _Recorder(steps, len(group), base.n_joints, state_dim, base.batch.robot.elastic)
@@ -418,7 +426,8 @@ def run_group(group: RunGroup) -> list[RunResult]:
             RunResult(spec, status, {}, None, wall)
             for spec, status in zip(group.runs, statuses, strict=True)
         ]
-    tracking = world.envs.unwrapped.batch.task.name != "excitation"
+    assert world is not None  # the recorder has rows
+    tracking = arm_vector_env(world.envs).batch.task.name != "excitation"
     names = world.wrapped.state_names
     return _results(group, statuses, recorder, names, tracking, wall / len(group))
 
