@@ -95,7 +95,7 @@ def make_env(env_id: str, **kwargs) -> gym.Env:
 
 
 def kind(env: gym.Env) -> str:
-    return "elastic" if env.unwrapped.robot.elastic else "rigid"
+    return env.unwrapped.robot.kind
 
 
 def checked_step(env: gym.Env, action: np.ndarray) -> tuple:

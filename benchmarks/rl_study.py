@@ -55,9 +55,10 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training import TrainConfig, load_run, train
-from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, evaluate_arms
 from elastic_gym.training.policy_env import make_policy_vec_env
-from elastic_gym.training.train import FINISHED, evaluate_run
+from elastic_gym.training.rollouts import Evaluation, evaluate_arms
+from elastic_gym.training.run_folder import CURVE_FILE, FINISHED
+from elastic_gym.training.trained import evaluate_run
 
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 KR15 = "elastic_gym/KR15Elastic-v0"

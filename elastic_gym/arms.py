@@ -1,10 +1,20 @@
-"""Helpers for data with a leading arm axis (batched observations and infos)."""
+"""The arm axis: what every layer shares about one arm versus a batch of arms.
+
+Observations and infos of a vector env (and of :class:`~elastic_gym.envs.batch.ArmBatch`)
+carry a leading arm axis on every array and Gymnasium's boolean ``_key`` masks; those of a
+single env have neither. These helpers move between the two layouts (:func:`arm_view`,
+:func:`as_batch`, :func:`single_arm`) and read the desired trajectory q_d .. q_d^(4)
+(``info["reference"]``, keys :data:`REFERENCE_KEYS`) the same way for one arm and for N.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
+
+REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")  # q_d and its first four derivatives
 
 
 def arm_view(batched: Mapping, i: int) -> dict:
@@ -16,9 +26,43 @@ def arm_view(batched: Mapping, i: int) -> dict:
     }
 
 
-def as_batch(single: Mapping) -> dict:
-    """A single-arm observation or info as a batch of one arm (nested mappings included)."""
-    return {
-        key: as_batch(value) if isinstance(value, Mapping) else np.asarray(value)[None]
-        for key, value in single.items()
-    }
+def reference_rows(info: Mapping) -> np.ndarray:
+    """``info["reference"]`` as float rows q_d .. q_d^(4): (5, n) for one arm, (N, 5, n)
+    for a batch."""
+    reference = info["reference"]
+    return np.stack([np.asarray(reference[key], dtype=float) for key in REFERENCE_KEYS], axis=-2)
+
+
+def as_batch(value: Any) -> Any:
+    """``value`` of one arm as a batch of one arm: a leading axis of length 1 (mappings
+    item by item; strings and None as object arrays, so that a longer string can replace
+    them)."""
+    if isinstance(value, Mapping):  # arrays inline: a step's info holds about twenty
+        return {
+            key: item[None]
+            if type(item) is np.ndarray and item.dtype.kind not in "OUS"
+            else as_batch(item)
+            for key, item in value.items()
+        }
+    if isinstance(value, np.ndarray | float | int | np.generic):
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "OUS":  # bool is an int
+            return arr[None]
+    out = np.empty(1, dtype=object)
+    out[0] = value
+    return out
+
+
+def single_arm(value: Any) -> Any:
+    """The one arm of a batch of one arm (:func:`as_batch` reversed: ``_key`` masks
+    dropped, numpy scalars as Python scalars, as a single env gives them)."""
+    if isinstance(value, Mapping):
+        return {
+            key: item[0]
+            if type(item) is np.ndarray and item.ndim > 1 and item.dtype.kind not in "OUS"
+            else single_arm(item)
+            for key, item in value.items()
+            if key[:1] != "_"
+        }
+    item = value[0]
+    return item.item() if isinstance(item, np.generic) else item

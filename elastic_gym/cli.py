@@ -133,9 +133,9 @@ def with_trained_policy(scenario, run_dir: str):
 
     from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry
     from elastic_gym.training.policy_env import SENSORS
-    from elastic_gym.training.train import read_run_config
+    from elastic_gym.training.run_folder import RunFolder
 
-    config = read_run_config(run_dir)
+    config = RunFolder(run_dir).read_config()
     if config.state == SENSORS:
         raise ValueError(
             f"--policy {run_dir}: trained on raw sensors; comparisons need a "
@@ -323,8 +323,7 @@ def run_train(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     require_rl_extra("elastic-gym train")
-    from elastic_gym.training import TrainConfig, parse_overrides, train, train_many
-    from elastic_gym.training.train import check_run_folder
+    from elastic_gym.training import RunFolder, TrainConfig, parse_overrides, train, train_many
 
     duplicates = sorted({s for s in args.seeds if args.seeds.count(s) > 1})
     if duplicates:
@@ -333,7 +332,7 @@ def run_train(args: argparse.Namespace) -> int:
     base = args.out or f"runs/{args.algo}-{name}-{args.state}" + (
         f"-residual-{args.residual}" if args.residual else ""
     )
-    check_run_folder(base, args.overwrite)
+    RunFolder(base).check(args.overwrite)
     configs = [
         TrainConfig(
             env_id=args.env,

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import fields
-from typing import Annotated, Any, ClassVar, TypeVar, get_args
+from typing import Annotated, Any, ClassVar, TypeVar, cast, get_args
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, ValidationError, model_validator
@@ -48,7 +48,7 @@ def checked_fields(cls: type[T], config: Any, what: str) -> dict | T | None:
         return config
     if not isinstance(config, Mapping):
         raise TypeError(f"{what} must be a mapping, got {type(config).__name__}")
-    allowed = {f.name for f in fields(cls)}
+    allowed = {f.name for f in fields(cast(Any, cls))}
     unknown = set(config) - allowed
     if unknown:
         raise ValueError(f"unknown {what} field(s) {sorted(unknown)}; valid: {sorted(allowed)}")
@@ -66,7 +66,7 @@ def config_from(cls: type[T], config: Any, what: str) -> T:
 
 def check_applies(kind: str, name: str, applies_to: frozenset[str], model) -> None:
     """Refuse an observer/controller built for elastic arms on a rigid robot and vice versa."""
-    arm = "elastic" if model.elastic else "rigid"
+    arm = model.spec.kind
     if arm not in applies_to:
         raise ValueError(
             f"{kind} {name!r} applies to {sorted(applies_to)} arms, "

@@ -11,7 +11,6 @@ from elastic_gym.training import TrainConfig, evaluate_run, load_run, make_polic
 from elastic_gym.training.config import resolve_hyperparams
 from elastic_gym.training.critic import PrivilegedCriticPolicy
 from elastic_gym.training.policy_env import make_policy_vec_env
-from elastic_gym.training.train import env_factory
 
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 SHORT_EPISODES = {"max_episode_steps": 200}
@@ -164,8 +163,8 @@ def test_critic_state_run_deploys_without_the_true_state(tmp_path):
     policy = run.model.policy
     assert isinstance(policy, PrivilegedCriticPolicy) and policy.privileged_size == 8
 
-    deployed = env_factory(run.config, run.settings)()  # what compare / evaluate_run build
-    training = env_factory(run.config, run.settings, critic_state=True)()
+    deployed = run.stack.make()  # what compare / evaluate_run build
+    training = run.stack.make(critic_state=True)
     assert deployed.observation_space.shape[0] == policy.actor_size
     obs, _ = deployed.reset(seed=11)
     full, _ = training.reset(seed=11)

@@ -11,9 +11,9 @@ from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training import TrainConfig, evaluate_run, load_run, make_policy_env, train
 from elastic_gym.training.config import resolve_hyperparams
-from elastic_gym.training.evaluation import evaluate_arms, evaluate_policy
 from elastic_gym.training.learning_curve import COLUMNS, CURVE_FILE
 from elastic_gym.training.policy_env import make_policy_vec_env
+from elastic_gym.training.rollouts import evaluate_arms, evaluate_policy
 
 ENV_ID = "elastic_gym/TwoLinkElastic-v0"
 SHORT = {"episode_time": 0.3}

@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from elastic_gym.arms import reference_rows
 from elastic_gym.controllers import make_controller, public_info
 from elastic_gym.observers import TrueStateWrapper
 from elastic_gym.training import (
@@ -18,7 +19,7 @@ from elastic_gym.training import (
     make_policy_env,
 )
 from elastic_gym.training.observation import ObservationInputs
-from elastic_gym.training.wrappers import PolicyAction, reference_rows
+from elastic_gym.training.wrappers import PolicyAction
 
 ENV_ID = "elastic_gym/TwoLinkElastic-v0"
 EXACT = {"encoder": {"resolution": 0.0, "noise_std": 0.0}, "accelerometer": "ideal"}

@@ -19,8 +19,8 @@ from elastic_gym.training import (
     train,
 )
 from elastic_gym.training.config import Settings, resolve_hyperparams
-from elastic_gym.training.evaluation import evaluate_policy
-from elastic_gym.training.train import env_factory
+from elastic_gym.training.rollouts import evaluate_policy
+from elastic_gym.training.run_envs import PolicyStack
 
 SHORT_EPISODES = {"max_episode_steps": 200}
 
@@ -61,7 +61,7 @@ def test_short_run_saves_reloads_and_acts_the_same(tmp_path, algo, hyperparams):
     assert result.policy_steps >= 128 and result.env_steps == 10 * result.policy_steps
 
     first, second = load_run(result.out_dir), load_run(result.out_dir)
-    env = env_factory(first.config, first.settings)()  # the run's own observation and actions
+    env = first.stack.make()  # the run's own observation and actions
     obs, _ = env.reset(seed=0)
     observations = [obs]
     for _ in range(5):
@@ -114,7 +114,7 @@ def test_ppo_learns_to_hold_the_arm_against_gravity(tmp_path):
     assert curve["tracking_rms"][-1] < 0.3 * curve["tracking_rms"][0]
     trained = evaluate_run(load_run(config.out_dir), n_episodes=2)
     settings, _ = config.settings()
-    env = env_factory(config, settings)()
+    env = PolicyStack.of(config, settings).make()
     zero = evaluate_policy(env, lambda obs: np.zeros(2), trained.seeds)
     env.close()
     assert zero.rms > 5e-3
@@ -402,18 +402,18 @@ def test_a_run_saved_before_the_residual_deadzone_keeps_its_actions(tmp_path):
     existed) loads with none, not with today's default; a saved value is kept."""
     import yaml
 
-    from elastic_gym.training.train import read_run_config
+    from elastic_gym.training.run_folder import RunFolder
 
     for name in ("model.zip", "vecnormalize.pkl"):
         (tmp_path / name).write_bytes(b"")
     residual = {"kind": "residual", "residual": "feedforward-state-feedback"}
     config = TrainConfig(algo="ppo", state="deluca", action=residual)
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(config.to_dict()))
-    old = read_run_config(tmp_path)
+    old = RunFolder(tmp_path).read_config()
     assert old.policy_configs(old.settings()[0])[0].residual_deadzone == 0.0
     saved = config.model_copy(update={"action": {**residual, "residual_deadzone": 0.3}})
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(saved.to_dict()))
-    new = read_run_config(tmp_path)
+    new = RunFolder(tmp_path).read_config()
     assert new.policy_configs(new.settings()[0])[0].residual_deadzone == 0.3
     assert ActionConfig(**residual).residual_deadzone == 0.2  # today's default
 
@@ -556,7 +556,7 @@ def test_batches_with_their_own_env_kwargs_train_on_two_plants():
     """``batches: [{}, {plant_scaling: ...}]``: the arms of the second worker batch are the
     single policy env on links 30 % heavier, those of the first the nominal one (arm i
     seeded s + i in both)."""
-    from elastic_gym.training.train import _vec_env
+    from elastic_gym.training.run_envs import training_vec_env
 
     heavy = {"plant_scaling": {"link_mass": 1.3}}
     config = TrainConfig(
@@ -565,7 +565,7 @@ def test_batches_with_their_own_env_kwargs_train_on_two_plants():
         hyperparams={"n_envs": 2, "batches": [{}, heavy]},
     )
     settings, _ = config.settings()
-    venv = _vec_env(config, settings, 2, seed=4)
+    venv = training_vec_env(PolicyStack.of(config, settings), settings, 2, seed=4)
     venv.reset()
     actions = np.array([[0.2, -0.1], [0.2, -0.1]])
     for _ in range(3):

@@ -102,7 +102,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
             design_configuration=design_configuration,
             fd_step=fd_step,
         )
-        q0 = self.design["configuration"]
+        q0 = np.asarray(self.design["configuration"])
         A, Bu = integral_linearization(model, q0)
         self.design["poles"] = closed_loop_poles(A, Bu, np.hstack([self.integral_gain, self.gain]))
 
@@ -120,7 +120,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
 class VectorIntegralStateFeedback(VectorStateFeedback):
     """Eq. (13) with integral action on N arms: one integrator z_i per arm."""
 
-    def _bind(self, controller: IntegralStateFeedback, n_arms: int) -> None:
+    def _bind(self, controller: IntegralStateFeedback, n_arms: int) -> None:  # type: ignore[override]  # the twin of this class only
         super()._bind(controller, n_arms)
         self.integral_gain = controller.integral_gain
         self.integral_bound = controller.integral_bound

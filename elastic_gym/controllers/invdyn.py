@@ -62,28 +62,31 @@ import numpy as np
 from numba import njit
 from scipy.special import factorial
 
+from elastic_gym import arms
+from elastic_gym.arms import REFERENCE_KEYS
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import is_real
 
-REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 DEFAULT_FD_STEP = 1e-4
 TIME_TOLERANCE = 1e-9  # s; calls closer in time than this count as the same instant
 
 
 def reference_derivatives(info: Mapping, n: int) -> np.ndarray:
     """The desired trajectory q_d .. q_d^(4) of ``info["reference"]`` as a (5, N) array."""
-    return reference_rows(info, n, None)
+    return checked_reference_rows(info, n, None)
 
 
-def reference_rows(info: Mapping, n: int, n_arms: int | None) -> np.ndarray:
-    """``info["reference"]`` as (n_arms, 5, n) (batched info) or (5, n) (``n_arms`` None)."""
+def checked_reference_rows(info: Mapping, n: int, n_arms: int | None) -> np.ndarray:
+    """``info["reference"]`` as (n_arms, 5, n) (batched info) or (5, n) (``n_arms`` None)
+    (:func:`elastic_gym.arms.reference_rows`), checked: a clear error for a missing key,
+    a wrong shape or a non-finite entry."""
     reference = info.get("reference") if isinstance(info, Mapping) else None
     if not isinstance(reference, Mapping) or any(k not in reference for k in REFERENCE_KEYS):
         raise ValueError(
             f"controller needs info['reference'] with keys {REFERENCE_KEYS} "
             "(pass public_info(info) of the env step)"
         )
-    ref = np.stack([np.asarray(reference[k], dtype=float) for k in REFERENCE_KEYS], axis=-2)
+    ref = arms.reference_rows(info)
     shape = (len(REFERENCE_KEYS), n) if n_arms is None else (n_arms, len(REFERENCE_KEYS), n)
     if ref.shape != shape or not np.all(np.isfinite(ref)):
         what = f"5 finite {n}-vectors" if n_arms is None else f"finite ({n_arms}, {n}) arrays"

@@ -15,8 +15,10 @@ policies enter the same comparisons as the classical laws:
 * actions: with ``scale_actions`` (default) the policy acts in [-1, 1] (clipped), mapped
   to the torque limits; otherwise its output is the torque;
 * residual mode: ``residual`` (a controller or a registry name with
-  ``residual_options``) gives the base torque and the policy adds a bounded correction
-  ``residual_scale * torque_limit * clip(action, -1, 1)``.
+  ``residual_options``) gives the base torque and the policy adds the bounded correction
+  of :func:`residual_torque` (Residual Policy Learning, Silver et al. 2018), the same map
+  as the training's ``residual`` action kind
+  (:class:`~elastic_gym.training.actions.ActionMap`), deadzone included.
 """
 
 from __future__ import annotations
@@ -42,6 +44,24 @@ from elastic_gym.controllers.vector import (
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import StrictModel, per_joint_values, validated_options
 
+RESIDUAL_DEADZONE = 0.2  # default |a| below which a residual adds exactly nothing
+
+
+def residual_torque(
+    action: np.ndarray, torque_limit: np.ndarray, scale: float, deadzone: float = 0.0
+) -> np.ndarray:
+    """The residual correction added to a base controller's torque.
+
+    ``scale * torque_limit * sign(a) max(|a| - d, 0) / (1 - d)`` with ``a`` the action
+    clipped to [-1, 1] and ``d`` the ``deadzone`` in [0, 1): exactly zero while |a| <= d,
+    continuous at d, and ``scale * torque_limit`` at |a| = 1 (d = 0: linear in a). Works
+    on one arm (n,) or on N arms (N, n).
+    """
+    a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+    if deadzone:
+        a = np.sign(a) * np.maximum(np.abs(a) - deadzone, 0.0) / (1.0 - deadzone)
+    return scale * torque_limit * a
+
 
 def load_sb3_model(path: str | os.PathLike, algorithm: str | type):
     """Load a saved stable-baselines3 model (``algorithm`` a class or its name)."""
@@ -53,7 +73,8 @@ def load_sb3_model(path: str | os.PathLike, algorithm: str | type):
         if not hasattr(sb3, algorithm):
             raise ValueError(f"unknown stable-baselines3 algorithm {algorithm!r}")
         algorithm = getattr(sb3, algorithm)
-    return algorithm.load(os.fspath(path), device="cpu")
+    cls: Any = algorithm
+    return cls.load(os.fspath(path), device="cpu")
 
 
 def load_normalization(normalization):
@@ -79,6 +100,7 @@ class PolicyOptions(StrictModel):
     scale_actions: StrictBool = True
     residual_options: dict[str, Any] | None = None
     residual_scale: Annotated[float, Field(strict=True, gt=0.0, le=1.0)] = 0.1
+    residual_deadzone: Annotated[float, Field(strict=True, ge=0.0, lt=1.0)] = RESIDUAL_DEADZONE
     deterministic: StrictBool = True
     decimation: Annotated[int, Field(strict=True, ge=1)] = 1
 
@@ -94,7 +116,8 @@ class PolicyController(Controller):
         preprocess: ``f(obs, info) -> policy observation``.
         scale_actions: actions in [-1, 1] scaled to ``torque_limit``.
         torque_limit: N limits (default: the model's).
-        residual, residual_options, residual_scale: residual mode.
+        residual, residual_options, residual_scale, residual_deadzone: residual mode
+            (:func:`residual_torque`).
         deterministic: passed to ``predict``.
         decimation: the policy acts every ``decimation`` calls and its action is held in
             between (the residual base controller still runs at every call).
@@ -116,6 +139,7 @@ class PolicyController(Controller):
         residual: Controller | str | None = None,
         residual_options: Mapping | None = None,
         residual_scale: float = 0.1,
+        residual_deadzone: float = RESIDUAL_DEADZONE,
         deterministic: bool = True,
         decimation: int = 1,
     ) -> None:
@@ -143,6 +167,7 @@ class PolicyController(Controller):
         self.torque_limit = self._limit(torque_limit)
         self.residual = self._base_controller(residual, residual_options)
         self.residual_scale = float(residual_scale)
+        self.residual_deadzone = float(residual_deadzone)
         self._law = VectorPolicyController.of(self, 1)
 
     def _limit(self, torque_limit) -> np.ndarray:
@@ -223,13 +248,16 @@ class VectorPolicyController(ControllerTwin[PolicyController]):
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
         c = self.controller
-        for i in np.flatnonzero(self._calls % c.decimation == 0):  # acting at 1 / (decimation dt)
-            i = int(i)
+        for arm in np.flatnonzero(self._calls % c.decimation == 0):  # acts at 1/(decimation dt)
+            i = int(arm)
             self._held[i] = self.act(i, arm_view(obs, i), arm_view(info, i))
         self._calls += 1
         action = np.clip(self._held, -1.0, 1.0)
         if self.base is not None:
-            return self.base(obs, info) + c.residual_scale * c.torque_limit * action
+            correction = residual_torque(
+                self._held, c.torque_limit, c.residual_scale, c.residual_deadzone
+            )
+            return self.base(obs, info) + correction
         if c.scale_actions:
             return c.torque_limit * action
         return self._held.copy()

@@ -1,4 +1,10 @@
-"""Controllers by name: ``make_controller("motor-pd", model, dt, **options)``."""
+"""Controllers by name: ``make_controller("motor-pd", model, dt, **options)``.
+
+The built-ins are listed below; a package above the controllers (e.g.
+:mod:`elastic_gym.training`, whose ``trained-policy`` loads a run folder) adds its own
+with :func:`register_controller` when it is imported, so that nothing here imports
+upward.
+"""
 
 from __future__ import annotations
 
@@ -19,9 +25,23 @@ CONTROLLERS: dict[str, tuple[str, str]] = {
     "cristofaro-tracking": ("elastic_gym.controllers.rigid", "CristofaroTrackingController"),
     "feedback-linearization": ("elastic_gym.controllers.rigid", "FeedbackLinearizingController"),
     "policy": ("elastic_gym.controllers.policy", "PolicyController"),
-    # a folder written by ``elastic-gym train`` (lazy import: training sits above controllers)
-    "trained-policy": ("elastic_gym.training.policy_controller", "TrainedPolicyController"),
 }
+
+
+def register_controller(name: str, target: str) -> None:
+    """Make ``target`` (``"module:Class"``, imported at first use) known as ``name``.
+
+    Registering the same target again does nothing; another target under a taken name
+    raises ``ValueError``.
+    """
+    module, sep, cls = target.partition(":")
+    if not (sep and module and cls):
+        raise ValueError(f"controller target must be 'module:Class', got {target!r}")
+    if CONTROLLERS.get(name, (module, cls)) != (module, cls):
+        raise ValueError(
+            f"controller name {name!r} is taken by {':'.join(CONTROLLERS[name])}, not {target!r}"
+        )
+    CONTROLLERS[name] = (module, cls)
 
 
 def controller_class(name: str) -> type[Controller]:

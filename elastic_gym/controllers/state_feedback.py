@@ -14,7 +14,7 @@ experiment ("close to the robot natural frequency"). The same law runs on rigid 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 from pydantic import Field, StrictBool, ValidationInfo, field_validator
@@ -110,7 +110,8 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
     Args:
         model: nominal model (INVDYN and the gain design use it).
         dt: control period (s).
-        omega: slowest closed-loop pole magnitude (rad/s) of the default LQR design.
+        omega: slowest closed-loop pole magnitude (rad/s) of the default LQR design (None:
+            a subclass's own default design).
         gain: explicit K_P (N x dim(x)); overrides the design.
         weights: ``{"Q": ..., "R": ...}`` LQR weights (matrices or diagonals).
         poles: all dim(x) closed-loop poles for MIMO pole placement.
@@ -127,13 +128,13 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
     """
 
     name = "feedforward-state-feedback"
-    options_model = StateFeedbackOptions
+    options_model: ClassVar[type | None] = StateFeedbackOptions
 
     def __init__(
         self,
         model: RobotModel,
         dt: float,
-        omega: float = 30.0,
+        omega: float | None = 30.0,
         gain=None,
         weights: Mapping | None = None,
         poles=None,

@@ -25,10 +25,11 @@ from collections.abc import Callable, Mapping
 from typing import Any, ClassVar, Generic, TypeVar
 
 import numpy as np
+from typing_extensions import Self
 
 from elastic_gym.arms import arm_view, as_batch
 from elastic_gym.controllers.base import Controller, public_info
-from elastic_gym.controllers.invdyn import info_time, reference_rows, state_vector
+from elastic_gym.controllers.invdyn import checked_reference_rows, info_time, state_vector
 from elastic_gym.controllers.registry import controller_class
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import check_applies
@@ -79,7 +80,7 @@ class VectorController(ABC):
 
     def references(self, info: Mapping) -> np.ndarray:
         """q_d .. q_d^(4) of every arm, (N, 5, n)."""
-        return reference_rows(info, self.n, self.n_arms)
+        return checked_reference_rows(info, self.n, self.n_arms)
 
     def times(self, info: Mapping) -> np.ndarray:
         """``info["time"]`` of every arm, (N,)."""
@@ -132,7 +133,7 @@ class ControllerTwin(VectorController, Generic[C]):
         self._bind(controller, n_arms)
 
     @classmethod
-    def of(cls, controller: C, n_arms: int) -> ControllerTwin[C]:
+    def of(cls, controller: C, n_arms: int) -> Self:
         twin = cls.__new__(cls)
         twin._bind(controller, n_arms)
         return twin
@@ -172,7 +173,7 @@ class OneArmLaw:
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
         x = state_vector(obs, self._law.state_dim)
         t = np.array([info_time(info)])
-        return self._law.torques(t, x[None], reference_rows(info, self.n, None)[None])[0]
+        return self._law.torques(t, x[None], checked_reference_rows(info, self.n, None)[None])[0]
 
 
 def twin_of(single_class: type[Controller]) -> Callable[[type[ControllerTwin]], type]:

@@ -9,7 +9,7 @@ is in ``info["true_state"]``. Action: motor torque (N m), clipped to the torque 
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -59,7 +59,11 @@ class ArmEnv(gym.Env):
     ``torque_limit``, ``control_dt``, ``physics_dt``, ``task``.
     """
 
-    metadata: ClassVar[dict] = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+    # replaced per instance in __init__ (gymnasium declares Env.metadata per instance)
+    metadata: dict[str, Any] = {  # noqa: RUF012
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 30,
+    }
     kind: ClassVar[str | None] = None  # "elastic" / "rigid" for the subclasses
 
     @with_batch_options
@@ -103,7 +107,7 @@ class ArmEnv(gym.Env):
         self.observation_space = batch.single_observation_space
 
     def _check_kind(self, spec: RobotSpec) -> None:
-        kind = "elastic" if spec.elastic else "rigid"
+        kind = spec.kind
         if self.kind is not None and kind != self.kind:
             other = "RigidArmEnv" if spec.elastic else "ElasticArmEnv"
             self.batch.close()

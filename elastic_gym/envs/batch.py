@@ -51,6 +51,7 @@ import numpy as np
 from gymnasium import spaces
 from numba import njit
 
+from elastic_gym.arms import REFERENCE_KEYS
 from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, arm_kwargs
 from elastic_gym.envs.config import EPISODE_TIME, PER_ARM_KEYS, EnvConfig, Range
 from elastic_gym.envs.memory import check_batch_memory
@@ -74,7 +75,6 @@ from elastic_gym.validation import per_joint_values, validated
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
 MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
-REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 STATE_KEYS = ("q", "dq", "theta", "dtheta")
 
 
@@ -282,7 +282,8 @@ class ArmBatch:
         shared_settings = resolver.settings(shared)
         merged = arm_kwargs(shared, per_arm, N)
         self.arm_kwargs = [shared] * N if merged is None else merged
-        self.settings, self.ranges, models, checked = [], [], [], {}
+        self.settings, self.ranges, models = [], [], []
+        checked: set[tuple] = set()  # plants whose stability is checked
         for i, arm in enumerate(self.arm_kwargs):
             where = "" if merged is None else f"per_arm[{i}]."
             try:
@@ -305,12 +306,13 @@ class ArmBatch:
                 for mass in masses:
                     key = (option.scaling, repr(option.payload), mass)
                     if key not in checked:
-                        checked[key] = self._check_stability(resolver.plant_model(option, mass))
+                        checked.add(key)
+                        self._check_stability(resolver.plant_model(option, mass))
         return models
 
     @staticmethod
     def _later_masses(settings: ArmSettings) -> list[float]:
-        change = settings.payload.change
+        change = None if settings.payload is None else settings.payload.change
         return [] if change is None else [change.mass]
 
     def _check_task_points(self) -> None:
@@ -354,9 +356,10 @@ class ArmBatch:
         self._all = np.ones(N, dtype=bool)
         self._arms = np.arange(N)
         self._minus_limit = -self.torque_limit
-        self._time = np.zeros(N)
+        self._time: np.ndarray = np.zeros(N)
         self.obs = {
-            key: np.zeros((N, *space.shape)) for key, space in self.single_observation_space.items()
+            key: np.zeros((N, *(space.shape or ())))
+            for key, space in self.single_observation_space.items()
         }
         self.sensor_delay = np.array([s.sensor_delay for s in self.settings])
         self.actuator_delay = np.array([s.actuator_delay for s in self.settings])
@@ -402,7 +405,9 @@ class ArmBatch:
     def _observation_space(self) -> spaces.Dict:
         n = self.n_joints
         inf = np.full(n, np.inf)
-        entries = {self.position_key: spaces.Box(-inf, inf, dtype=np.float64)}
+        entries: dict[str, spaces.Space] = {
+            self.position_key: spaces.Box(-inf, inf, dtype=np.float64)
+        }
         if self.model.n_sensors:
             r = np.full(3 * self.model.n_sensors, self.accelerometer_array.config.range)
             entries["acceleration"] = spaces.Box(-r, r, dtype=np.float64)
@@ -515,7 +520,7 @@ class ArmBatch:
             terminated = self._no_arm
         else:
             terminated = (reasons != None) & stepping  # noqa: E711 - elementwise test
-            self.reasons = np.where(stepping, reasons, None)
+            self.reasons = np.where(stepping, reasons, np.array(None))
             reward = np.where(terminated, self.reward_config.termination_reward, reward)
             truncated = truncated & ~terminated
         if not every:
@@ -761,8 +766,9 @@ class ArmBatch:
         vars(self.plant_state).update(plant_state)
         for arm, rng_state in enumerate(plant_rngs):
             if rng_state is not None:
-                self.plant_rngs[arm] = np.random.default_rng()
-                self.plant_rngs[arm].bit_generator.state = rng_state
+                rng = np.random.default_rng()
+                rng.bit_generator.state = rng_state
+                self.plant_rngs[arm] = rng
                 self._plant_sources[arm] = self.rngs[arm]
 
     def __setstate__(self, state: dict) -> None:
@@ -773,7 +779,8 @@ class ArmBatch:
             setattr(self, key, value)
         for rng, rng_state in zip(self.rngs, episode["rngs"], strict=True):
             rng.bit_generator.state = rng_state
-        self._restore_plants(*episode["plants"], episode["plant_rngs"])
+        settings, plant_state = episode["plants"]
+        self._restore_plants(settings, plant_state, episode["plant_rngs"])
         acc = self.accelerometer_array
         acc.bias, acc.filtered, acc.fresh = episode["accelerometer"]
         for noise, (block, following) in zip(self._noise_streams(), episode["noise"], strict=True):

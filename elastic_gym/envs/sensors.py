@@ -251,6 +251,6 @@ class AccelerometerArray:
             y = np.where(hold, y, a * self.filtered[arms] + (1.0 - a) * y)
             self.filtered[arms] = y
             self.fresh[arms] = False
-        limit = self.range[arms, None] if limit is None else limit
-        y = np.minimum(np.maximum(y, -limit), limit)
+        bound = self.range[arms, None] if limit is None else limit
+        y = np.minimum(np.maximum(y, -bound), bound)
         return _quantized(y, self.resolution, resolution, arms)

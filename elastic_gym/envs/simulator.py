@@ -209,7 +209,7 @@ class ArmSimulator:
         if missing:
             raise ValueError(f"joints {missing} not found in {spec.urdf}")
         self.joint_indices = [name_to_index[name] for name in spec.joint_names]
-        self._urdf_dynamics = []
+        self._urdf_dynamics: list[dict] = []  # per arm: link -> (joint, mass, inertia)
         for arm, body in enumerate(self.bodies):
             self._configure_dynamics(body)
             self.set_link_scaling(arm, self.plants.models[arm].scaling)
@@ -346,7 +346,7 @@ class ArmSimulator:
     # ------------------------------------------------------------------ stepping
     def accelerations(
         self, tau: np.ndarray, link_torque: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """(link torque applied to PyBullet, theta'', q'' or None) under motor torque tau
         and an external link-side torque ``link_torque`` (N, n) (e.g. a torque pulse).
 

@@ -131,14 +131,12 @@ class TrackingTask(Task):
     def __post_init__(self) -> None:
         self.name = "tracking"
         n = self.spec.n_joints
+        self._given: np.ndarray | None = None
         if self.waypoints is not None:
             self._given = _configs(self.waypoints, n, "waypoints")
-        else:
-            self._given = None
+        self._start: np.ndarray | None = None
         if self.start is not None:
             self._start = _vector(self.start, n, "start")
-        else:
-            self._start = None
         if isinstance(self.n_moves, bool) or not (
             isinstance(self.n_moves, int) and self.n_moves >= 1
         ):
@@ -167,10 +165,10 @@ class TrackingTask(Task):
                 points = np.vstack([self._start, points])
         else:
             first = self._start if self._start is not None else self.sample_configuration(rng)
-            points = [first]
+            moves = [first]
             for _ in range(self.n_moves):
-                points.append(self.sample_move(rng, points[-1], self._max_move))
-            points = np.asarray(points)
+                moves.append(self.sample_move(rng, moves[-1], self._max_move))
+            points = np.asarray(moves)
         self.paths[arm] = points
         return points[0].copy()
 

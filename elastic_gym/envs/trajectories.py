@@ -33,10 +33,10 @@ _POWERS = np.arange(len(TIMING_LAW))
 
 def timing_law(u: np.ndarray | float, order: int = 4) -> np.ndarray:
     """s(u) and its derivatives d^k s / du^k for k = 0..order, shape (order + 1, *u.shape)."""
-    u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
-    if u.ndim == 0:
-        return _COEFFICIENTS[: order + 1] @ (float(u) ** _POWERS)
-    return np.tensordot(_COEFFICIENTS[: order + 1], np.power.outer(u, _POWERS), axes=([1], [-1]))
+    x = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
+    if x.ndim == 0:
+        return _COEFFICIENTS[: order + 1] @ (float(x) ** _POWERS)
+    return np.tensordot(_COEFFICIENTS[: order + 1], np.power.outer(x, _POWERS), axes=([1], [-1]))
 
 
 @njit(cache=True)

@@ -21,7 +21,7 @@ batched along a leading arm axis.
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -64,7 +64,8 @@ class ArmVectorEnv(VectorEnv):
         **kwargs: the options of :class:`~elastic_gym.envs.batch.ArmBatch`.
     """
 
-    metadata: ClassVar[dict] = {
+    # replaced per instance in __init__ (gymnasium declares metadata per instance)
+    metadata: dict[str, Any] = {  # noqa: RUF012
         "render_modes": ["rgb_array"],
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }
@@ -102,7 +103,7 @@ class ArmVectorEnv(VectorEnv):
         self.batch = batch = ArmBatch(robot, num_envs, **kwargs)
         if max_episode_steps is not None:
             batch.limit_episode(max_episode_steps)
-        kind = "elastic" if batch.robot.elastic else "rigid"
+        kind = batch.robot.kind
         if self.kind is not None and kind != self.kind:
             batch.close()
             raise ValueError(f"robot {batch.robot.name!r} has {kind} joints")

@@ -80,7 +80,12 @@ def compare_results(
     """One row per run and metric: labels, both values, relative difference, verdict."""
     rows = []
     for a, b in zip(coarse, fine, strict=True):
-        control_dt = float(a.series.time[1] - a.series.time[0]) if len(a.series) > 1 else 0.0
+        series = a.series
+        control_dt = (
+            float(series.time[1] - series.time[0])
+            if series is not None and len(series) > 1
+            else 0.0
+        )
         for metric in metrics:
             m_a = a.metrics.get(metric, math.nan)
             m_b = b.metrics.get(metric, math.nan)

@@ -118,3 +118,9 @@ class Sweep(Magnitudes):
         if self.nominal is None:
             raise FieldError(("nominal",), "is required: the magnitude of the nominal runs")
         return self
+
+    @property
+    def nominal_magnitude(self) -> float:
+        """``nominal``, which a sweep always has (checked when it is built)."""
+        assert self.nominal is not None
+        return self.nominal

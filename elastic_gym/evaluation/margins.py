@@ -94,10 +94,11 @@ def curve_margin(curve: SweepCurve, criterion: str) -> dict:
             "lower_failed_at": sweep.nominal,
             "upper_failed_at": sweep.nominal,
         }
-    below = [p for p in reversed(curve.points) if p.magnitude < sweep.nominal]
-    above = [p for p in curve.points if p.magnitude > sweep.nominal]
+    center = sweep.nominal_magnitude
+    below = [p for p in reversed(curve.points) if p.magnitude < center]
+    above = [p for p in curve.points if p.magnitude > center]
     for side, points in (("lower", below), ("upper", above)):
-        margin, reason, failed_at = side_margin(points, nominal, sweep.nominal)
+        margin, reason, failed_at = side_margin(points, nominal, center)
         row.update({side: margin, f"{side}_failure": reason, f"{side}_failed_at": failed_at})
     return row
 
@@ -155,7 +156,7 @@ def cell(row: dict) -> str:
 def margins_markdown(rows: Sequence[dict], context_keys: Sequence[str]) -> str:
     """One table per context and criterion: a row per loop, a column per sweep."""
     blocks = []
-    keyed = {}
+    keyed: dict[tuple, list[dict]] = {}
     for row in rows:
         context = tuple(row[k] for k in context_keys)
         keyed.setdefault((context, row["criterion"]), []).append(row)

@@ -122,7 +122,7 @@ class ArmSeries:
     def of(cls, series: TimeSeries) -> ArmSeries:
         """One run's series as the one-arm case."""
 
-        def arm(x: np.ndarray | None) -> np.ndarray | None:
+        def arm(x):  # (K, n) -> (K, 1, n); None stays None
             return None if x is None else x[:, None]
 
         return cls(
@@ -172,8 +172,8 @@ def find_moves(series: TimeSeries) -> list[Move]:
     """Completed rest-to-rest moves of the reference (see module docstring)."""
     moving = np.any(np.abs(series.dq_ref) > REST_TOLERANCE, axis=1)
     edges = np.diff(moving.astype(np.int8))
-    starts = list(np.flatnonzero(edges == 1) + 1)
-    arrivals = list(np.flatnonzero(edges == -1) + 1)
+    starts: list[int] = (np.flatnonzero(edges == 1) + 1).tolist()
+    arrivals: list[int] = (np.flatnonzero(edges == -1) + 1).tolist()
     if len(moving) and moving[0]:
         starts.insert(0, 0)
     moves = []

@@ -56,10 +56,18 @@ PANELS = (
 )
 
 
+def _series(result: RunResult) -> TimeSeries:
+    """The samples of a plotted run (only runs with samples are plotted)."""
+    if result.series is None:
+        raise ValueError(f"run {result.spec.labels} has no samples to plot")
+    return result.series
+
+
 def _stack(results: Sequence[RunResult], panel: Panel) -> np.ndarray | None:
     """(seeds, K, N) values of ``panel``, runs that ended early padded with NaN."""
-    signals = [panel.signal(r.series) for r in results]
-    if any(s is None for s in signals):
+    found = [panel.signal(_series(r)) for r in results]
+    signals = [s for s in found if s is not None]
+    if len(signals) < len(found):
         return None
     length = max(len(s) for s in signals)
     out = np.full((len(signals), length, signals[0].shape[1]), np.nan)
@@ -79,7 +87,7 @@ def _loops(results: Sequence[RunResult]) -> dict[tuple[str, str], list[RunResult
 def plot_scenario(results: Sequence[RunResult], title: str, path: Path) -> Path:
     """One figure of the runs of one scenario (all seeds; see the module docstring)."""
     loops = _loops(results)
-    longest = max(results, key=lambda r: len(r.series)).series
+    longest = max((_series(r) for r in results), key=len)
     n = longest.q.shape[1]
     panels = [p for p in PANELS if p.signal(longest) is not None]
     fig = Figure(figsize=(3.6 * n + LEGEND_WIDTH, 2.0 * len(panels) + 0.8))
@@ -95,10 +103,12 @@ def plot_scenario(results: Sequence[RunResult], title: str, path: Path) -> Path:
         ended = sum(not r.ok for r in members)
         if ended:
             label += f" ({ended} of {len(members)} ended early)"
-        time = max((r.series for r in members), key=len).time
+        time = max((_series(r) for r in members), key=len).time
         stride = max(1, len(time) // MAX_POINTS)
         for row, panel in enumerate(panels):
             values = _stack(members, panel)
+            if values is None:  # the signal is missing in some of the runs
+                continue
             if panel.log:
                 values = np.where(values > 0, values, np.nan)
                 if np.all(np.isnan(values)):
@@ -144,7 +154,7 @@ def plot_scenario(results: Sequence[RunResult], title: str, path: Path) -> Path:
                     )
     for ax in axes[-1]:
         ax.set_xlabel("time [s]")
-    handles = {}
+    handles: dict[str, object] = {}
     for ax in axes.ravel():
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(label, handle)
@@ -192,7 +202,7 @@ def _torque_limit(result: RunResult) -> Sequence[float]:
     limit = spec.env_kwargs.get("torque_limit")
     if limit is None:
         return env_robot(spec.env_id, spec.env_kwargs).torque_limit
-    return np.broadcast_to(np.asarray(limit, dtype=float), (len(result.series.q[0]),))
+    return np.broadcast_to(np.asarray(limit, dtype=float), (len(_series(result).q[0]),)).tolist()
 
 
 def plot_results(results: Sequence[RunResult], directory: Path) -> list[Path]:

@@ -43,6 +43,8 @@ from elastic_gym.evaluation.runner import (
     ClosedLoop,
     RunSpec,
     World,
+    arm_env,
+    arm_vector_env,
     build_observer_wrapper,
     build_vector_controller,
     describe_failure,
@@ -165,7 +167,7 @@ def cpu_share(workers: int) -> float:
 
 def _check_duration(duration: float, env: gym.Env, path: str) -> None:
     """A run must last at least one control period (else it has no step to measure)."""
-    control_dt = env.unwrapped.control_dt
+    control_dt = arm_env(env).control_dt
     if not duration >= control_dt:
         raise ScenarioError(
             "duration",
@@ -193,7 +195,7 @@ def _check_axes(scenario: Scenario, entry, path: str) -> None:
 
 
 def _check_model_errors(env: gym.Env, scenario: Scenario, error_index: dict) -> None:
-    model = env.unwrapped.model
+    model = arm_env(env).model
     for variation in scenario.model_errors:
         if variation.values:
             try:
@@ -212,7 +214,7 @@ def _sample(group: RunGroup, paths: tuple[str, str], env_path: str) -> float:
         envs = make_group_env(group)
     try:
         model = run_model(envs, spec)
-        dt = envs.unwrapped.control_dt
+        dt = arm_vector_env(envs).control_dt
         with _named(f"{source_path}.options"):
             wrapped = build_observer_wrapper(envs, spec, model)
         with _named(f"{controller_path}.options"):

@@ -26,17 +26,20 @@ import itertools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import cast
 
 import gymnasium as gym
 import numpy as np
 
 import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.controllers.base import Controller, public_info
-from elastic_gym.controllers.registry import CONTROLLERS, controller_class
+from elastic_gym.controllers.registry import CONTROLLERS
 from elastic_gym.controllers.vector import VectorController, make_vector_controller
+from elastic_gym.envs.arm_env import ArmEnv
+from elastic_gym.envs.vector_env import ArmVectorEnv
+from elastic_gym.evaluation.controllers import comparison_controller
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE, RunGroup, plan_groups
 from elastic_gym.evaluation.metrics import ArmSeries, TimeSeries, compute_arm_metrics
-from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
 from elastic_gym.evaluation.scenario import (
     ControllerEntry,
     Scenario,
@@ -111,9 +114,14 @@ def env_robot(env_id: str, env_kwargs: dict) -> RobotSpec:
     return robot if isinstance(robot, RobotSpec) else get_robot(robot)
 
 
-def is_elastic(env_id: str, env_kwargs: dict) -> bool:
-    """Whether the env's robot has elastic joints (from its spec, without building the env)."""
-    return env_robot(env_id, env_kwargs).elastic
+def arm_env(env: gym.Env) -> ArmEnv:
+    """The elastic_gym env under the wrappers of ``env``."""
+    return cast(ArmEnv, env.unwrapped)
+
+
+def arm_vector_env(envs: gym.vector.VectorEnv) -> ArmVectorEnv:
+    """The elastic_gym vector env under the wrappers of ``envs``."""
+    return cast(ArmVectorEnv, envs.unwrapped)
 
 
 def _entry_class(
@@ -133,10 +141,6 @@ def _entry_class(
             f"{base.__name__.lower()} {entry.name!r} is "
             f"registered but not available in this installation ({exc})",
         ) from None
-
-
-def _controller_lookup(name: str) -> type[Controller]:
-    return BUILTIN_CONTROLLERS.get(name) or controller_class(name)
 
 
 def check_options(cls: type, options: dict, path: str, fixed: dict | None = None) -> None:
@@ -176,22 +180,23 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
     is not available (registry names are checked when the scenario is loaded) or when
     its options do not fit its constructor (:func:`check_options`).
     """
-    controllers, sources = [], []
+    controllers: list[tuple[ControllerEntry, type[Controller]]] = []
+    sources: list[tuple[SourceEntry, type[Observer]]] = []
     for i, entry in enumerate(scenario.controllers):
-        cls = _entry_class(entry, f"controllers[{i}]", Controller, _controller_lookup)
+        cls = _entry_class(entry, f"controllers[{i}]", Controller, comparison_controller)
         check_options(cls, entry.options, f"controllers[{i}]")
         controllers.append((entry, cls))
-    for i, entry in enumerate(scenario.state_sources):
-        cls = _entry_class(entry, f"state_sources[{i}]", Observer, observer_class)
-        fixed = OBSERVERS[entry.name][2] if entry.cls is None else {}
-        check_options(cls, entry.options, f"state_sources[{i}]", fixed)
-        sources.append((entry, cls))
+    for i, source_entry in enumerate(scenario.state_sources):
+        cls = _entry_class(source_entry, f"state_sources[{i}]", Observer, observer_class)
+        fixed = OBSERVERS[source_entry.name][2] if source_entry.cls is None else {}
+        check_options(cls, source_entry.options, f"state_sources[{i}]", fixed)
+        sources.append((source_entry, cls))
     axis_values = itertools.product(*(values for _, values in scenario.axes))
     runs: list[RunSpec] = []
     skipped: list[SkippedRun] = []
     for env, variations in itertools.product(scenario.envs, axis_values):
         kwargs = scenario.env_kwargs(env, variations)
-        kind = "elastic" if is_elastic(env.id, kwargs) else "rigid"
+        kind = env_robot(env.id, kwargs).kind
         base_labels = {"env": env.label}
         base_labels.update(
             {name: v.label for (name, _), v in zip(scenario.axes, variations, strict=True)}
@@ -231,7 +236,11 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
 
 
 def _inapplicable(
-    kind: str, c_cls: type, o_cls: type, controller: ControllerEntry, source: SourceEntry
+    kind: str,
+    c_cls: type[Controller],
+    o_cls: type[Observer],
+    controller: ControllerEntry,
+    source: SourceEntry,
 ) -> str:
     if kind not in c_cls.applies_to:
         return f"controller {controller.name!r} applies to {sorted(c_cls.applies_to)} arms"
@@ -357,7 +366,7 @@ def build_observer_wrapper(
     envs: gym.vector.VectorEnv, spec: RunSpec, model
 ) -> VectorObserverWrapper:
     """The run's state source on ``model`` for every arm of ``envs``."""
-    observer = make_observer_of(spec, model, envs.unwrapped.control_dt)
+    observer = make_observer_of(spec, model, arm_vector_env(envs).control_dt)
     return VectorObserverWrapper(envs, observer, initial_estimate=initial_estimate(spec))
 
 
@@ -368,7 +377,9 @@ def build_world(group: RunGroup) -> World:
     try:
         model = run_model(envs, spec)
         wrapped = build_observer_wrapper(envs, spec, model)
-        controller = build_vector_controller(spec, model, envs.unwrapped.control_dt, len(group))
+        controller = build_vector_controller(
+            spec, model, arm_vector_env(envs).control_dt, len(group)
+        )
     except BaseException:
         envs.close()
         raise
@@ -392,7 +403,7 @@ def run_group(group: RunGroup) -> list[RunResult]:
     wall = 0.0
     try:
         world = build_world(group)
-        base = world.envs.unwrapped
+        base = arm_vector_env(world.envs)
         steps = round(group.first.duration / base.control_dt)
         state_dim = world.wrapped.observer.state_dim
         recorder = _Recorder(steps, len(group), base.n_joints, state_dim, base.batch.robot.elastic)
@@ -415,7 +426,8 @@ def run_group(group: RunGroup) -> list[RunResult]:
             RunResult(spec, status, {}, None, wall)
             for spec, status in zip(group.runs, statuses, strict=True)
         ]
-    tracking = world.envs.unwrapped.batch.task.name != "excitation"
+    assert world is not None  # the recorder has rows
+    tracking = arm_vector_env(world.envs).batch.task.name != "excitation"
     names = world.wrapped.state_names
     return _results(group, statuses, recorder, names, tracking, wall / len(group))
 

@@ -225,7 +225,7 @@ class Scenario(StrictModel):
                     ("controllers", i, "sources"),
                     f"unknown state source label(s) {missing}; valid: {sorted(labels)}",
                 )
-        tables = {"axes": self.axis_table, "sweeps": self.sweep_table}
+        tables: dict[str, Mapping[str, Any]] = {"axes": self.axis_table, "sweeps": self.sweep_table}
         for table, items in tables.items():
             for name, values in items.items():
                 generated = isinstance(values, Magnitudes)

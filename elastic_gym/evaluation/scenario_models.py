@@ -33,8 +33,7 @@ from pydantic import (
 )
 
 import elastic_gym  # noqa: F401 - registers the env ids
-from elastic_gym.controllers.registry import CONTROLLERS
-from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
+from elastic_gym.evaluation.controllers import controller_names
 from elastic_gym.model import ParameterScaling
 from elastic_gym.observers.registry import OBSERVERS
 from elastic_gym.validation import ENV_NAMESPACE, FieldError, StrictModel, registered_env_id
@@ -119,7 +118,7 @@ def env_parameters(env_id: str) -> set[str]:
     for klass in entry.__mro__ if isinstance(entry, type) else ():
         if "__init__" not in vars(klass):
             continue
-        params = inspect.signature(klass.__init__).parameters.values()
+        params = inspect.signature(vars(klass)["__init__"]).parameters.values()
         names |= {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
         if not any(p.kind is p.VAR_KEYWORD for p in params):
             break
@@ -229,7 +228,7 @@ class ControllerEntry(_Named):
 
     @staticmethod
     def registry() -> set[str]:
-        return {*CONTROLLERS, *BUILTIN_CONTROLLERS}
+        return set(controller_names())
 
 
 class SourceEntry(_Named):

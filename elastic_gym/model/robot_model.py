@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -54,13 +55,13 @@ class ParameterScaling:
 
     @classmethod
     def from_config(cls, config: ParameterScaling | dict | None) -> ParameterScaling:
-        config = checked_fields(cls, config, "parameter scaling")
-        if config is None:
+        checked = checked_fields(cls, config, "parameter scaling")
+        if checked is None:
             return cls()
-        if isinstance(config, cls):
-            return config
-        values = {}
-        for key, value in config.items():
+        if not isinstance(checked, dict):  # an instance already
+            return checked
+        values: dict[str, Any] = {}
+        for key, value in checked.items():
             try:
                 arr = np.asarray(value, dtype=float)
             except (TypeError, ValueError):
@@ -213,7 +214,7 @@ class RobotModel:
         """
         extra = ParameterScaling.from_config(scaling if scaling is not None else kwargs)
         n = self.n
-        combined = {}
+        combined: dict[str, Any] = {}
         for name in ParameterScaling.__dataclass_fields__:
             if name == "friction":
                 combined[name] = self.scaling.friction * extra.friction

@@ -52,7 +52,7 @@ class Observer(ABC):
 
     name: ClassVar[str] = ""
     applies_to: ClassVar[frozenset[str]] = frozenset({"elastic", "rigid"})
-    privileged: ClassVar[tuple[str, ...]] = ()
+    privileged: tuple[str, ...] = ()  # a class default; an instance may set its own
     options_model: ClassVar[type | None] = None
     """The pydantic model (a ``StrictModel``) of the constructor's plain-data options."""
 
@@ -168,7 +168,7 @@ class BatchedObserver(Observer):
             return None
         x = np.asarray(initial_estimate, dtype=float)
         if x.ndim == 1:
-            x = self.check_initial_estimate(x)[None]
+            x = np.asarray(self.check_initial_estimate(x))[None]
         if x.shape not in ((1, self.state_dim), (count, self.state_dim)) or not np.all(
             np.isfinite(x)
         ):

@@ -295,7 +295,7 @@ class DeLucaObserver(BatchedObserver):
         return xi.copy()
 
     def update_arms(
-        self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
+        self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | slice | None = None
     ) -> np.ndarray:
         if abs(dt - self.dt) > DT_TOLERANCE * self.dt:
             raise ValueError(

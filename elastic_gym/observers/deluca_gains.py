@@ -25,7 +25,7 @@ POLES_PER_JOINT = 4
 DEFAULT_BANDWIDTH = 250.0  # rad/s, the value found best on the KR15/2 (Sec. V-A)
 
 
-def butterworth_poles(bandwidth: float | np.ndarray, n_joints: int) -> np.ndarray:
+def butterworth_poles(bandwidth: float | list[float] | np.ndarray, n_joints: int) -> np.ndarray:
     """(N, 4) poles of a 4th-order Butterworth pattern of radius ``bandwidth`` (rad/s).
 
     Poles bandwidth * exp(i (pi/2 + (2j + 1) pi / 8)), j = 0..3: two conjugate pairs with

@@ -59,7 +59,7 @@ class FiniteDifferenceObserver(BatchedObserver):
         return self._estimate(position, arms)
 
     def update_arms(
-        self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
+        self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | slice | None = None
     ) -> np.ndarray:
         arms = slice(None) if arms is None else arms
         position = self.measured_positions(obs, arms)

@@ -6,6 +6,7 @@ import importlib
 
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import Observer
+from elastic_gym.robots.spec import joint_kind
 
 # name -> (module, class, fixed options)
 OBSERVERS: dict[str, tuple[str, str, dict]] = {
@@ -47,5 +48,5 @@ def make_observer(name: str, model: RobotModel, dt: float, **options) -> Observe
 
 def applicable_observers(elastic: bool) -> list[str]:
     """Registry names of the observers that apply to an elastic or a rigid arm."""
-    kind = "elastic" if elastic else "rigid"
+    kind = joint_kind(elastic)
     return [name for name in OBSERVERS if kind in observer_class(name).applies_to]

@@ -91,6 +91,6 @@ def sufficient_gain_bound(
         unit = np.concatenate([np.eye(n), sample / np.linalg.norm(sample, axis=1, keepdims=True)])
     coriolis = np.einsum("kabc,sc->ksab", bounds.tensors, radius * unit)
     viscous = include_viscous and model.friction is not None
-    damping = np.diag(model.friction.viscous) if viscous else np.zeros((n, n))
+    damping = np.diag(model.friction.viscous) if model.friction and viscous else np.zeros((n, n))
     jacobian = np.linalg.solve(bounds.inertia[:, None], 2.0 * coriolis + damping)
     return float(np.linalg.norm(jacobian, ord=2, axis=(-2, -1)).max())

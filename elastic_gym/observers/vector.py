@@ -1,28 +1,42 @@
-"""Observer wrappers for vector envs: the twins of :mod:`elastic_gym.observers.wrappers`.
+"""Wrappers that put a state estimate (or the truth) in place of the sensor observation
+of every arm of a vector env; the single-env :mod:`elastic_gym.observers.wrappers` are their
+N = 1 case (:mod:`elastic_gym.single_env`).
 
 ``ObserverWrapper(envs, "deluca", **options)`` and ``TrueStateWrapper(envs)`` wrap a
-vector env of N arms (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``)
-the way their single-env twins wrap one env: the observation becomes
-``{"state": (N, dim), "reference": (N, 2n)}`` and ``info`` gets ``estimate``,
-``true_state_vector``, ``estimation_error`` and ``observer_diagnostics`` with a leading
-arm axis (and Gymnasium's ``_key`` masks).
+vector env of N arms (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``):
+the observation becomes ``{"state": (N, dim), "reference": (N, 2n)}``. The observer is
+fed every sample and the torque actually applied (after clipping, ``info["torque"]``),
+and ``info`` gets ``estimate``, ``true_state_vector``, ``estimation_error`` (estimate -
+truth) and the observer's ``observer_diagnostics`` (e.g. the condition number of T_A)
+with a leading arm axis (and Gymnasium's ``_key`` masks) at every step, the terminal one
+included. ``TrueStateWrapper`` gives the same layout from the ground truth, so one
+controller or policy runs unchanged on estimated or true state.
 
 Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserver`: De
 Luca with ideal or accelerometer-based q'', the EKF, finite differences, the truth)
 estimate all arms at once; the others (rigid-arm observers, your own, and a subclass of
-a batched one that overrides ``reset`` or ``update``) run one copy per arm behind the
-same interface (:class:`ObserverArray`). Either way each arm's estimate is the single-env
-observer's (``tests/test_vector_observers.py``), and an arm whose estimate is no longer
-finite (for :class:`ObserverArray` also: whose update raised a numerical error) ends its
-episode alone, ``"non-finite state estimate"``. Autoresets are followed:
-an arm reset by the env is re-initialised from its first observation; with
-``SAME_STEP`` the terminal observation is estimated first (``info["final_obs"]``).
+a batched one that overrides ``reset`` or ``update``: :func:`runs_batched`) run one copy
+per arm behind the same interface (:class:`ObserverArray`). Either way each arm's
+estimate is the single-env observer's. Autoresets are followed: an arm reset by the env
+is re-initialised from its first observation; with ``SAME_STEP`` the terminal
+observation is estimated first (``info["final_obs"]``).
+
+An estimate that stops being finite (a diverged observer), or an update that fails the
+way numpy / scipy fail on a diverged estimate (:func:`numerical_failure`: a matrix with
+infs or NaNs refused, a covariance no longer positive definite), ends that arm's episode with
+``terminated=True`` and ``info["termination_reason"] = "non-finite state estimate"``
+(:meth:`ObserverWrapper._terminate`; the error, if any, in ``info["observer_error"]``;
+a batched observer's error ends the episodes of all the arms it was updating); the
+observation keeps the arm's last finite estimate, the other arms go on. An estimate
+that is not a numpy array of shape ``(state_dim,)`` is the observer's bug: a
+``TypeError`` / ``ValueError`` naming the observer and the shape.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import Any, TypeGuard, cast
 
 import gymnasium as gym
 import numpy as np
@@ -33,22 +47,130 @@ from gymnasium.vector.utils import batch_space
 from elastic_gym.arms import arm_view
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, Observer
-from elastic_gym.observers.wrappers import (
-    NON_FINITE_ESTIMATE,
-    NON_FINITE_STATE,
-    annotate,
-    build_observer,
-    check_sensor_space,
-    checked_estimate,
-    guarded_update,
-    measurement,
-)
+from elastic_gym.observers.registry import make_observer
+
+NON_FINITE_STATE = "non-finite state"
+NON_FINITE_ESTIMATE = "non-finite state estimate"
 
 
-def runs_batched(observer: Observer) -> bool:
-    """Whether ``observer`` estimates all arms at once: a :class:`BatchedObserver` whose
-    ``reset`` and ``update`` are still the batched ones (a subclass that overrides them,
-    e.g. a user's variant of a built-in, runs one copy per arm so that its own code runs)."""
+def build_observer(
+    base, observer: Observer | str, model: RobotModel | None, options: dict
+) -> Observer:
+    """The wrapper's own observer: built by name on ``model`` (default: the env's nominal
+    model), or a private copy of a given instance (envs never share an observer)."""
+    if isinstance(observer, str):
+        return make_observer(observer, model or base.model, base.control_dt, **options)
+    if not isinstance(observer, Observer):
+        raise TypeError(f"observer must be an Observer or a registry name, got {observer!r}")
+    if options or model is not None:
+        raise ValueError("model and observer options apply only when observer is a name")
+    own = observer.model.spec
+    if own.name != base.robot.name or own.n_joints != base.robot.n_joints:
+        raise ValueError(
+            f"the observer was built on the model of robot {own.name!r}, "
+            f"the env simulates {base.robot.name!r}"
+        )
+    return copy.deepcopy(observer)
+
+
+def check_sensor_space(space: spaces.Space, observer: Observer) -> None:
+    """The wrapped env must still give the sensor observation (a Dict)."""
+    key = "motor_position" if observer.elastic else "link_position"
+    if not isinstance(space, spaces.Dict) or key not in space.spaces:
+        raise ValueError(
+            f"ObserverWrapper needs the env's sensor observation (a Dict with {key!r}), got "
+            f"{space}: put the observer wrapper below observation wrappers such as "
+            "FlattenObservation"
+        )
+
+
+def measurement(observer: Observer | ObserverArray, obs: Mapping, info: Mapping) -> dict:
+    """The sensor observation plus the ground-truth items the observer is privileged to."""
+    measured = dict(obs)
+    if "link_acceleration" in observer.privileged:
+        measured["link_acceleration"] = info["true_state"]["ddq"]
+    if "true_state" in observer.privileged:
+        measured["true_state"] = info["true_state"]
+    return measured
+
+
+NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, OverflowError)
+NON_FINITE_INPUT = "infs or NaNs"  # numpy's asarray_chkfinite and scipy's checks say so
+
+
+def numerical_failure(exc: BaseException) -> bool:
+    """Whether ``exc`` is what a diverged estimate makes numpy / scipy raise: a singular
+    or indefinite matrix (``LinAlgError``), a floating-point error or overflow, or a
+    ``ValueError`` refusing an array with infs or NaNs. Other exceptions (a
+    ``ZeroDivisionError`` in a user's code, a ``TypeError``) are bugs, not divergence."""
+    return isinstance(exc, NUMERICAL_ERRORS) or (
+        isinstance(exc, ValueError) and NON_FINITE_INPUT in str(exc)
+    )
+
+
+def checked_estimate(observer: Observer, estimate: object, call: str) -> np.ndarray:
+    """``estimate`` if it is a numpy array of shape ``(observer.state_dim,)``, else a
+    ``TypeError`` / ``ValueError`` naming the observer, the call and what it returned."""
+    who = f"observer {observer.name or type(observer).__name__!r} ({type(observer).__name__})"
+    if not isinstance(estimate, np.ndarray):
+        raise TypeError(
+            f"{who}: {call} returned a {type(estimate).__name__}, expected a numpy array "
+            f"of shape ({observer.state_dim},)"
+        )
+    if estimate.shape != (observer.state_dim,):
+        raise ValueError(
+            f"{who}: {call} returned an estimate of shape {estimate.shape}, expected "
+            f"({observer.state_dim},) (state {observer.state_names})"
+        )
+    return estimate
+
+
+def guarded(update: Callable[[], np.ndarray]) -> tuple[np.ndarray | None, str | None]:
+    """``update()`` and None, or None and the text of the numerical failure it raised
+    (:func:`numerical_failure`; the episode ends, see the module docstring); other
+    exceptions propagate."""
+    try:
+        return update(), None
+    except Exception as exc:
+        if not numerical_failure(exc):
+            raise
+        return None, f"{type(exc).__name__}: {exc}"
+
+
+def guarded_update(
+    observer: Observer, obs: Mapping, torque: np.ndarray, dt: float
+) -> tuple[np.ndarray, str | None]:
+    """``observer.update``, checked (:func:`checked_estimate`); a numerical failure in it
+    gives a NaN estimate and the error's text (:func:`guarded`)."""
+    estimate, error = guarded(lambda: observer.update(obs, torque, dt))
+    if estimate is None:
+        return np.full(observer.state_dim, np.nan), error
+    return checked_estimate(observer, estimate, "update"), None
+
+
+def true_state_vector(info: Mapping, elastic: bool) -> np.ndarray:
+    """The true state in the observer's layout (works for one arm and for a batch)."""
+    truth = info["true_state"]
+    if elastic:
+        return np.asarray(truth["x"])
+    return np.concatenate([truth["q"], truth["dq"]], axis=-1)
+
+
+def annotate(info: dict, estimate: np.ndarray, elastic: bool, diagnostics: dict) -> dict:
+    """Add ``estimate``, ``true_state_vector``, ``estimation_error``, ``observer_diagnostics``."""
+    truth = true_state_vector(info, elastic)
+    info["estimate"] = estimate.copy()
+    info["true_state_vector"] = truth
+    info["estimation_error"] = estimate - truth
+    info["observer_diagnostics"] = dict(diagnostics)
+    return info
+
+
+def runs_batched(observer: Observer) -> TypeGuard[BatchedObserver]:
+    """Whether ``observer`` estimates all arms at once: a
+    :class:`~elastic_gym.observers.base.BatchedObserver` whose single-arm ``reset`` and
+    ``update`` are its N = 1 case. A subclass that overrides them runs one copy per arm
+    (:class:`ObserverArray`), so that its own code is what runs."""
     cls = type(observer)
     return (
         isinstance(observer, BatchedObserver)
@@ -66,6 +188,7 @@ class ObserverArray:
         self.model, self.elastic, self.privileged = first.model, first.elastic, first.privileged
         self.state_dim, self.state_names = first.state_dim, first.state_names
         self._estimates = np.zeros((n_arms, self.state_dim))
+        self.errors: list[str | None] = [None] * n_arms  # of each arm's last update
         self.arm_diagnostics: dict[str, np.ndarray] = {}
 
     def _record(self, arms) -> None:
@@ -94,12 +217,12 @@ class ObserverArray:
     def update_arms(
         self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
     ) -> np.ndarray:
-        arms = range(len(self.observers)) if arms is None else arms
-        for i in arms:  # a numerical error in one arm's observer is that arm's NaN estimate
-            self._estimates[i], _ = guarded_update(
+        stepped = range(len(self.observers)) if arms is None else arms
+        for i in stepped:  # a numerical error in one arm's observer is that arm's NaN estimate
+            self._estimates[i], self.errors[i] = guarded_update(
                 self.observers[i], arm_view(obs, i), torque[i], dt
             )
-        self._record(arms)
+        self._record(stepped)
         return self._estimates.copy()
 
 
@@ -125,7 +248,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         **options,
     ) -> None:
         super().__init__(env)
-        base = env.unwrapped
+        base: Any = env.unwrapped  # an elastic_gym vector env (checked below)
         if not hasattr(base, "batch"):
             raise TypeError(
                 "the vector ObserverWrapper needs an elastic_gym vector env "
@@ -134,18 +257,22 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         single = build_observer(base.batch, observer, model, options)
         check_sensor_space(env.single_observation_space, single)
         N = env.num_envs
-        self.observer = single if runs_batched(single) else ObserverArray(single, N)
+        self._base = base
+        self.observer: BatchedObserver | ObserverArray = (
+            single if runs_batched(single) else ObserverArray(single, N)
+        )
         self.initial_estimate = initial_estimate
         dim = single.state_dim
         self.single_observation_space = spaces.Dict(
             {
                 "state": spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float64),
-                "reference": env.single_observation_space["reference"],
+                "reference": cast(spaces.Dict, env.single_observation_space)["reference"],
             }
         )
         self.observation_space = batch_space(self.single_observation_space, N)
         self._estimates = np.zeros((N, dim))
         self._autoreset = np.zeros(N, dtype=bool)  # arms the env resets at the next step
+        self._errors = np.full(N, None, dtype=object)  # of the last update (_update)
         self._all = np.ones(N, dtype=bool)
 
     @property
@@ -179,16 +306,24 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         return self._observation(obs), self._annotate(info)
 
     def _update(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> np.ndarray:
-        """Advance the observer on ``arms``; return the arms whose estimate is not finite."""
+        """Advance the observer on ``arms``; return the arms whose estimate is not finite
+        (the text of their numerical errors, if any, in ``self._errors``)."""
+        self._errors = np.full(self.num_envs, None, dtype=object)
         arms = arms[info["termination_reason"][arms] != NON_FINITE_STATE]
         if not len(arms):
             return arms
-        estimates = self.observer.update_arms(
-            measurement(self.observer, obs, info),
-            info["torque"],
-            self.env.unwrapped.control_dt,
-            arms,
-        )
+        measured, dt = measurement(self.observer, obs, info), self._base.control_dt
+        if isinstance(self.observer, ObserverArray):  # guarded arm by arm
+            estimates = self.observer.update_arms(measured, info["torque"], dt, arms)
+            self._errors[arms] = [self.observer.errors[i] for i in arms]
+        else:
+            batched, error = guarded(
+                lambda: self.observer.update_arms(measured, info["torque"], dt, arms)
+            )
+            if batched is None:  # a batched observer's error: every arm it was updating
+                self._errors[arms] = error
+                return arms
+            estimates = batched
         finite = np.isfinite(estimates[arms]).all(axis=1)
         self._estimates[arms[finite]] = estimates[arms[finite]]
         return arms[~finite]
@@ -215,28 +350,42 @@ class ObserverWrapper(gym.vector.VectorWrapper):
             }
         annotate(final_info, self._estimates, self.observer.elastic, self.observer.arm_diagnostics)
 
+    def _terminate(self, diverged: np.ndarray, terminated: np.ndarray, info: dict) -> np.ndarray:
+        """End the episodes of the ``diverged`` arms (non-finite estimate): ``terminated``
+        and ``info["termination_reason"]`` say so (``info["observer_error"]``: the errors
+        of :meth:`_update`), and the env resets them like any ended episode."""
+        if not len(diverged):
+            return terminated
+        if any(error is not None for error in self._errors[diverged]):
+            errors = np.full(self.num_envs, None, dtype=object)
+            errors[diverged] = self._errors[diverged]
+            info["observer_error"] = errors
+            info["_observer_error"] = errors != None  # noqa: E711
+        terminated = terminated.copy()
+        terminated[diverged] = True
+        reasons = info["termination_reason"].copy()
+        reasons[diverged] = NON_FINITE_ESTIMATE
+        info["termination_reason"] = reasons
+        info["_termination_reason"] = reasons != None  # noqa: E711
+        self._base.end_episodes(diverged)
+        return terminated
+
     def step(self, actions):
         obs, reward, terminated, truncated, info = self.env.step(actions)
         mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
-        restarted = np.flatnonzero(self._autoreset)  # reset by the env in this step
+        restarted = self._autoreset.copy()  # arms reset by the env in this step
         if mode is AutoresetMode.SAME_STEP and np.any(info.get("_final_obs", False)):
             ended = np.flatnonzero(info["_final_obs"])
             self._final_estimates(obs, info, ended)
-            restarted = np.union1d(restarted, ended)
-        self._reset_observer(obs, info, restarted)
-        diverged = self._update(obs, info, np.setdiff1d(np.arange(self.num_envs), restarted))
-        if len(diverged):
-            terminated = terminated.copy()
-            terminated[diverged] = True
-            reasons = info["termination_reason"].copy()
-            reasons[diverged] = NON_FINITE_ESTIMATE
-            info["termination_reason"] = reasons
-            info["_termination_reason"] = reasons != None  # noqa: E711
-            self.env.unwrapped.end_episodes(diverged)
+            restarted[ended] = True
+        self._reset_observer(obs, info, np.flatnonzero(restarted))
+        diverged = self._update(obs, info, np.flatnonzero(~restarted))
+        terminated = self._terminate(diverged, terminated, info)
         if mode is AutoresetMode.NEXT_STEP:
             self._autoreset = terminated | truncated
         else:  # SAME_STEP resets in the step that ends an episode, except ours (next step)
-            self._autoreset = np.isin(np.arange(self.num_envs), diverged)
+            self._autoreset = np.zeros(self.num_envs, dtype=bool)
+            self._autoreset[diverged] = True
         return self._observation(obs), reward, terminated, truncated, self._annotate(info)
 
 
@@ -247,4 +396,11 @@ class TrueStateWrapper(ObserverWrapper):
         super().__init__(env, "true")
 
 
-__all__ = ["ObserverArray", "ObserverWrapper", "TrueStateWrapper"]
+__all__ = [
+    "NON_FINITE_ESTIMATE",
+    "NON_FINITE_STATE",
+    "ObserverArray",
+    "ObserverWrapper",
+    "TrueStateWrapper",
+    "true_state_vector",
+]

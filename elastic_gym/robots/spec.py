@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -80,30 +81,35 @@ class LinkFriction:
     coulomb_pos: tuple[float, ...] | None = None
     coulomb_neg: tuple[float, ...] | None = None
     smoothing_velocity: float = 0.01
+    # arrays of each instance, set once by __post_init__ (not fields)
+    _viscous: ClassVar[np.ndarray]
+    _coulomb: ClassVar[tuple[np.ndarray, np.ndarray] | None]  # (q' > 0, q' < 0)
 
     def __post_init__(self) -> None:
         # arrays once: torque() is called at every physics step
         pos = self.coulomb_pos
         neg = self.coulomb_neg if self.coulomb_neg is not None else pos
         object.__setattr__(self, "_viscous", np.asarray(self.viscous, dtype=float))
-        object.__setattr__(self, "_pos", None if pos is None else np.asarray(pos, dtype=float))
-        object.__setattr__(self, "_neg", None if neg is None else np.asarray(neg, dtype=float))
+        coulomb = (
+            None if pos is None else (np.asarray(pos, dtype=float), np.asarray(neg, dtype=float))
+        )
+        object.__setattr__(self, "_coulomb", coulomb)
 
     def torque(self, dq: np.ndarray) -> np.ndarray:
         """Friction torque opposing the motion (enters the link equation with + sign)."""
         tau = self._viscous * dq
-        if self._pos is not None:
+        if self._coulomb is not None:
             s = np.tanh(dq / self.smoothing_velocity)
-            tau = tau + np.where(s > 0.0, self._pos, self._neg) * s
+            tau = tau + np.where(s > 0.0, *self._coulomb) * s
         return tau
 
     def derivative(self, dq: np.ndarray) -> np.ndarray:
         """Diagonal of d(friction)/d(q') (used by observers that linearize)."""
         d = self._viscous * np.ones_like(dq)
-        if self._pos is not None:
+        if self._coulomb is not None:
             eps = self.smoothing_velocity
             s = np.tanh(dq / eps)
-            d = d + np.where(s > 0.0, self._pos, self._neg) * (1.0 - s**2) / eps
+            d = d + np.where(s > 0.0, *self._coulomb) * (1.0 - s**2) / eps
         return d
 
     def plus(self, other: LinkFriction | None) -> LinkFriction:
@@ -111,7 +117,7 @@ class LinkFriction:
         if other is None:
             return self
 
-        def _add(a: tuple[float, ...] | None, b: tuple[float, ...] | None):
+        def _add(a: tuple[float, ...] | None, b: tuple[float, ...] | None) -> Any:
             if a is None and b is None:
                 return None
             return tuple(
@@ -123,7 +129,7 @@ class LinkFriction:
             )
 
         return LinkFriction(
-            viscous=_add(self.viscous, other.viscous),  # type: ignore[arg-type]
+            viscous=_add(self.viscous, other.viscous),
             coulomb_pos=_add(self.coulomb_pos, other.coulomb_pos),
             coulomb_neg=_add(self._neg_tuple(), other._neg_tuple()),
             smoothing_velocity=self.smoothing_velocity,
@@ -142,6 +148,11 @@ class LinkFriction:
             coulomb_neg=_scale(self.coulomb_neg),
             smoothing_velocity=self.smoothing_velocity,
         )
+
+
+def joint_kind(elastic: bool) -> str:
+    """``"elastic"`` for elastic joints, ``"rigid"`` otherwise."""
+    return "elastic" if elastic else "rigid"
 
 
 @dataclass(frozen=True)
@@ -201,9 +212,15 @@ class RobotSpec:
     def n_joints(self) -> int:
         return len(self.joint_names)
 
+    @property
+    def kind(self) -> str:
+        """``"elastic"`` or ``"rigid"``: the joint kind, as observers and controllers name
+        the arms they apply to (``applies_to``)."""
+        return joint_kind(self.elastic)
+
     def __post_init__(self) -> None:
         n = self.n_joints
-        vectors = {
+        vectors: dict[str, tuple[float, ...] | None] = {
             "torque_limit": self.torque_limit,
             "workspace_low": self.workspace_low,
             "workspace_high": self.workspace_high,
@@ -217,7 +234,9 @@ class RobotSpec:
                 raise ValueError(
                     f"RobotSpec {self.name!r}: {key} must have {n} entries, got {value!r}"
                 )
-        if self.elastic and (min(self.stiffness) <= 0 or min(self.motor_inertia) <= 0):
+        if self.elastic and (
+            min(self.stiffness or ()) <= 0 or min(self.motor_inertia or ()) <= 0
+        ):  # both given (checked above)
             raise ValueError(f"RobotSpec {self.name!r}: stiffness and motor_inertia must be > 0")
         if self.coupling is not None:
             S = np.asarray(self.coupling, dtype=float)

@@ -23,11 +23,14 @@ below turns it into a motor torque at every control period (1 kHz), from the sta
   the control rate; the policy's output starts at zero (zeroed mean head, small initial
   standard deviation, see :func:`elastic_gym.training.train`). With the
   ``residual_deadzone`` d (default 0.2; 0 switches it off) the residual is
-  scale * tau_max * sign(a) max(|a| - d, 0) / (1 - d): exactly zero while |a| <= d, so a
-  policy whose mean drifts a little around zero (every PPO update moves it) adds no
-  torque where the base controller needs no help, while the full bound stays reachable
-  (continuous at d). Without it, PPO's updates moved the mean of a residual on eq. (13)
-  by more than eq. (13)'s 2e-5-rad tracking error allows (README, RL study).
+  scale * tau_max * sign(a) max(|a| - d, 0) / (1 - d)
+  (:func:`~elastic_gym.controllers.policy.residual_torque`, also the residual of the
+  callable-level :class:`~elastic_gym.controllers.policy.PolicyController`): exactly zero
+  while |a| <= d, so a policy whose mean drifts a little around zero (every PPO update
+  moves it) adds no torque where the base controller needs no help, while the full bound
+  stays reachable (continuous at d). Without it, PPO's updates moved the mean of a
+  residual on eq. (13) by more than eq. (13)'s 2e-5-rad tracking error allows (README, RL
+  study).
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import numpy as np
 from pydantic import Field, StrictBool, StrictStr, model_validator
 
 from elastic_gym.controllers.gain_design import bandwidth_pd_gains, nominal_configuration
+from elastic_gym.controllers.policy import RESIDUAL_DEADZONE, residual_torque
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import ConfigModel, Finite, PositiveFinite, per_joint_values
 
@@ -71,7 +75,7 @@ class ActionConfig(ConfigModel):
     residual: StrictStr | None = None
     residual_options: dict[str, Any] = Field(default_factory=dict)
     residual_scale: PositiveFinite = Field(0.1, le=1)
-    residual_deadzone: Finite = Field(0.2, ge=0, lt=1)
+    residual_deadzone: Finite = Field(RESIDUAL_DEADZONE, ge=0, lt=1)
 
     @model_validator(mode="after")
     def _consistent(self) -> ActionConfig:
@@ -140,10 +144,11 @@ class ActionMap:
         if kind == "torque":
             return self.torque_limit * a
         if kind == "residual":
-            deadzone = self.config.residual_deadzone
-            if deadzone:
-                a = np.sign(a) * np.maximum(np.abs(a) - deadzone, 0.0) / (1.0 - deadzone)
-            return base_torque + self.config.residual_scale * self.torque_limit * a
+            config = self.config
+            return base_torque + residual_torque(
+                a, self.torque_limit, config.residual_scale, config.residual_deadzone
+            )
+        assert reference is not None and motor_position is not None and motor_velocity is not None
         q_d, dq_d = reference[:, 0], reference[:, 1]
         target = q_d + self.config.offset_scale * a
         tau = self.kp * (target - motor_position) + self.kd * (dq_d - motor_velocity)

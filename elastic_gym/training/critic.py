@@ -16,7 +16,7 @@ source's), and with :class:`PrivilegedCriticPolicy`:
   entries only: no weight multiplies a privileged entry;
 * the critic's features extractor passes all m + k entries to ``value_net``.
 
-Deployment (:class:`~elastic_gym.training.evaluation.PolicyActor`: ``evaluate_run``,
+Deployment (:class:`~elastic_gym.training.rollouts.PolicyActor`: ``evaluate_run``,
 the learning curve, ``elastic-gym compare --policy``) builds the stack without
 ``CriticState`` and pads the k privileged entries with NaN before normalization: the
 actor never reads them (a NaN would poison any action that did).
@@ -33,7 +33,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, MlpExtr
 class ActorSlice(BaseFeaturesExtractor):
     """The first ``size`` entries of a flat observation (the policy's own)."""
 
-    def __init__(self, observation_space: spaces.Box, size: int) -> None:
+    def __init__(self, observation_space: spaces.Space, size: int) -> None:
         super().__init__(observation_space, size)
         self.size = size
 
@@ -87,7 +87,7 @@ class PrivilegedCriticPolicy(ActorCriticPolicy):
     @property
     def actor_size(self) -> int:
         """Observation entries the actor sees (the first ones)."""
-        return self.observation_space.shape[0] - self.privileged_size
+        return spaces.flatdim(self.observation_space) - self.privileged_size
 
     def _build_mlp_extractor(self) -> None:
         # called by ActorCriticPolicy._build after both (full) features extractors exist

@@ -36,7 +36,8 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
+from elastic_gym.training.rollouts import Evaluation, PolicyActor, evaluate_arms
+from elastic_gym.training.run_folder import CURVE_FILE
 
 COLUMNS = (
     "policy_steps",

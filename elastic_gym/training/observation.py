@@ -105,6 +105,13 @@ def default_features(
     return tuple(f for f in FEATURES if f in chosen)
 
 
+def _given(value: np.ndarray | None, feature: str) -> np.ndarray:
+    """The input a feature is computed from, or a ``ValueError`` naming the feature."""
+    if value is None:
+        raise ValueError(f"observation feature {feature!r}: its input is missing")
+    return value
+
+
 @dataclass
 class ObservationInputs:
     """What the features are computed from, every array with a leading arm axis N.
@@ -212,16 +219,17 @@ class ObservationBuilder:
             rows = ref[:, : c.reference_order + 1] / self._reference_scale[:, None]
             return rows.reshape(len(ref), -1)
         if name == "preview":
-            return ((x.preview - ref[:, None, 0]) / c.preview_scale).reshape(len(ref), -1)
+            preview = _given(x.preview, name)
+            return ((preview - ref[:, None, 0]) / c.preview_scale).reshape(len(ref), -1)
         if name == "last_action":
             return x.last_action
         if name == "base_torque":
-            return x.base_torque / self.torque_limit
+            return _given(x.base_torque, name) / self.torque_limit
         if name == "motor_error":
-            return (x.motor_position - ref[:, 0]) / c.torsion_scale
+            return (_given(x.motor_position, name) - ref[:, 0]) / c.torsion_scale
         if name == "acceleration":
-            return x.acceleration / GRAVITY
-        s = x.state
+            return _given(x.acceleration, name) / GRAVITY
+        s = _given(x.state, name)
         if self.elastic:
             theta, q, dtheta, dq = (s[:, i * n : (i + 1) * n] for i in range(4))
         else:

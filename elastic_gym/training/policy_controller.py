@@ -22,10 +22,10 @@ from elastic_gym.controllers.invdyn import reference_derivatives, state_vector
 from elastic_gym.controllers.vector import ARM0, ControllerTwin, make_vector_controller, twin_of
 from elastic_gym.model import RobotModel
 from elastic_gym.training.actions import ActionMap
-from elastic_gym.training.evaluation import PolicyActor
 from elastic_gym.training.observation import ObservationBuilder, ObservationInputs
 from elastic_gym.training.policy_env import SENSORS
-from elastic_gym.training.train import TrainedRun, load_run
+from elastic_gym.training.rollouts import PolicyActor
+from elastic_gym.training.trained import TrainedRun, load_run
 from elastic_gym.validation import StrictModel, validated_options
 
 
@@ -113,7 +113,7 @@ class TrainedPolicyController(Controller):
         check_robot(config, model, run)
         check_spaces(trained, self.builder.size, self.n, run)
         self.base = None
-        if action.kind == "residual":
+        if action.residual is not None:  # kind "residual"
             self.base = make_controller(action.residual, model, dt, **action.residual_options)
         self.trained = trained
         self.decimation = trained.decimation
@@ -181,8 +181,8 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._calls += 1
         base = np.zeros((len(x), n)) if self.base is None else self.base(obs, info)
         self._last_base = base
-        motor = (x[:, :n], x[:, 2 * n : 3 * n]) if c.elastic else (None, None)
-        return c.map.torque(self._action, *motor, reference, base)
+        theta, dtheta = (x[:, :n], x[:, 2 * n : 3 * n]) if c.elastic else (None, None)
+        return c.map.torque(self._action, theta, dtheta, reference, base)
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
         return self.torques(self.states(obs), self.references(info), obs, info)

@@ -2,8 +2,8 @@
 observation features.
 
 Stack (bottom to top; :func:`make_policy_vec_env` builds the same stack on N arms of one
-PyBullet world with the twins of :mod:`elastic_gym.training.vector` and
-:mod:`elastic_gym.observers.vector`)::
+PyBullet world with the vector wrappers of :mod:`elastic_gym.training.vector` and
+:mod:`elastic_gym.observers.vector`, whose N = 1 case the single-env ones are)::
 
     gym.make(env_id)                      1 kHz loop, sensors only
     ObserverWrapper / TrueStateWrapper    state source: an observer name or "true"
@@ -11,29 +11,28 @@ PyBullet world with the twins of :mod:`elastic_gym.training.vector` and
     PolicyAction                          a in [-1, 1]^n -> torque at 1 kHz (torque,
                                           motor-offset PD or residual)
     ActionRepeat(decimation)              policy rate = 1 kHz / decimation
-    PolicyObservation                     flat features (error, reference, torsion, ...)
-    (FrameStackObservation + Flatten)     raw sensors: the last frames
+    PolicyObservation                     flat features (error, reference, torsion, ...);
+                                          raw sensors: the last frame_stack frames
     (CriticState)                         critic_state=True (training only): the true
                                           state's features appended for the critic
 """
 
 from __future__ import annotations
 
+from types import ModuleType
+from typing import Any
+
 import gymnasium as gym
 from gymnasium.vector import AutoresetMode
-from gymnasium.wrappers import FlattenObservation, FrameStackObservation
 
 import elastic_gym  # noqa: F401  (registers the env ids in worker processes)
-from elastic_gym.observers import OBSERVERS, ObserverWrapper, vector
-from elastic_gym.training import vector as policy_vector
+from elastic_gym.observers import OBSERVERS
+from elastic_gym.observers import vector as vector_observers
+from elastic_gym.observers import wrappers as observers
+from elastic_gym.training import vector as vector_policy
+from elastic_gym.training import wrappers as policy
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
-from elastic_gym.training.wrappers import (
-    ActionRepeat,
-    CriticState,
-    PolicyAction,
-    PolicyObservation,
-)
 
 SENSORS = "sensors"
 
@@ -48,15 +47,31 @@ def check_state_source(state: str) -> None:
         raise ValueError(f"unknown state source {state!r}; valid: {state_sources()}")
 
 
-def _observed(env, state: str, observer_options: dict | None, observer_wrapper):
-    """``env`` under the observer wrapper of ``state`` (single or vector); raw sensors
-    take no observer and no observer options."""
+def _stack(
+    env: Any,
+    observer_wrappers: ModuleType,
+    policy_wrappers: ModuleType,
+    state: str,
+    observer_options: dict | None,
+    decimation: int,
+    action: ActionConfig | dict | None,
+    observation: ObservationConfig | dict | None,
+    frame_stack: int,
+    critic_state: bool,
+) -> Any:
+    """The stack of the module docstring on ``env`` with the wrappers of the modules
+    ``observer_wrappers`` and ``policy_wrappers``: the single-env ones, or their vector
+    twins on a vector env. Raw sensors take no observer and no observer options."""
     check_state_source(state)
-    if state == SENSORS:
-        if observer_options:
-            raise ValueError("observer_options given but the state source is raw 'sensors'")
-        return env
-    return observer_wrapper(env, state, **(observer_options or {}))
+    if state != SENSORS:
+        env = observer_wrappers.ObserverWrapper(env, state, **(observer_options or {}))
+    elif observer_options:
+        raise ValueError("observer_options given but the state source is raw 'sensors'")
+    env = policy_wrappers.PolicyAction(env, action)
+    if decimation > 1:
+        env = policy_wrappers.ActionRepeat(env, decimation)
+    env = policy_wrappers.PolicyObservation(env, observation, frame_stack)
+    return policy_wrappers.CriticState(env, observation) if critic_state else env
 
 
 def make_policy_env(
@@ -96,16 +111,18 @@ def wrap_policy_env(
 ) -> gym.Env:
     """The wrapper stack of the module docstring around an env made by the caller (e.g.
     RL Zoo's ``env_wrapper`` hyper-parameter)."""
-    env = _observed(env, state, observer_options, ObserverWrapper)
-    env = PolicyAction(env, action)
-    if decimation > 1:
-        env = ActionRepeat(env, decimation)
-    env = PolicyObservation(env, observation)
-    if frame_stack > 1:
-        env = FlattenObservation(FrameStackObservation(env, frame_stack))
-    if critic_state:
-        env = CriticState(env, observation)
-    return env
+    return _stack(
+        env,
+        observers,
+        policy,
+        state,
+        observer_options,
+        decimation,
+        action,
+        observation,
+        frame_stack,
+        critic_state,
+    )
 
 
 def make_policy_vec_env(
@@ -134,9 +151,15 @@ def make_policy_vec_env(
         autoreset_mode=autoreset_mode,
         **(env_kwargs or {}),
     )
-    envs = _observed(envs, state, observer_options, vector.ObserverWrapper)
-    envs = policy_vector.PolicyAction(envs, action)
-    if decimation > 1:
-        envs = policy_vector.ActionRepeat(envs, decimation)
-    envs = policy_vector.PolicyObservation(envs, observation, frame_stack)
-    return policy_vector.CriticState(envs, observation) if critic_state else envs
+    return _stack(
+        envs,
+        vector_observers,
+        vector_policy,
+        state,
+        observer_options,
+        decimation,
+        action,
+        observation,
+        frame_stack,
+        critic_state,
+    )

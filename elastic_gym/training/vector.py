@@ -1,9 +1,27 @@
-"""Vector-env twins of the policy wrappers of :mod:`elastic_gym.training.wrappers`.
+"""The policy wrappers on all the arms of a vector env at once; the single-env
+:mod:`elastic_gym.training.wrappers` are their N = 1 case (:mod:`elastic_gym.single_env`).
 
-The same logic (:class:`~elastic_gym.training.actions.ActionMap`,
-:class:`~elastic_gym.training.observation.ObservationBuilder`) on all the arms of a vector
-env (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``) at once. Resets of
-some arms — autoresets, or ``reset(options={"reset_mask": ...})`` as
+Stack, bottom to top (:func:`~elastic_gym.training.policy_env.make_policy_vec_env`), on a
+vector env (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``) under an
+observer wrapper (:mod:`elastic_gym.observers.vector`)::
+
+    ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation [-> CriticState]
+
+* :class:`PolicyAction`: the policy's action in [-1, 1]^n becomes a motor torque at
+  every control period (1 kHz) through :class:`~elastic_gym.training.actions.ActionMap`
+  (torque, motor-position offsets through a motor PD, or a residual on a classical
+  controller, which runs at every period).
+* :class:`ActionRepeat` (decimation): the policy acts at a lower rate than the control
+  loop; the action is held for ``k`` periods and the rewards are summed. It sits above
+  the observer, so the observer still sees every sample.
+* :class:`PolicyObservation`: the flat feature vector of
+  :class:`~elastic_gym.training.observation.ObservationBuilder`, with the last action and
+  a preview of the reference.
+* :class:`CriticState` (training only, on top of the stack): the true state's features
+  appended for a critic with privileged information (:mod:`elastic_gym.training.critic`);
+  the policy's observation stays the first entries.
+
+Resets of some arms — autoresets, or ``reset(options={"reset_mask": ...})`` as
 :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv` does — restart their controllers,
 last actions and frame stacks only.
 """
@@ -11,16 +29,20 @@ last actions and frame stacks only.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.spaces import flatdim
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
+from elastic_gym.arms import reference_rows
 from elastic_gym.controllers import public_info
 from elastic_gym.controllers.vector import make_vector_controller
-from elastic_gym.observers.wrappers import true_state_vector
+from elastic_gym.envs.arm_env import validated_actions
+from elastic_gym.observers.vector import true_state_vector
 from elastic_gym.training.actions import ActionConfig, ActionMap
 from elastic_gym.training.observation import (
     ObservationBuilder,
@@ -28,13 +50,12 @@ from elastic_gym.training.observation import (
     ObservationInputs,
     TrueStateFeatures,
 )
-from elastic_gym.training.wrappers import REFERENCE_KEYS
 
 
-def reference_rows(info: Mapping) -> np.ndarray:
-    """``info["reference"]`` of every arm as an (N, 5, n) array: q_d .. q_d^(4)."""
-    reference = info["reference"]
-    return np.stack([reference[key] for key in REFERENCE_KEYS], axis=1).astype(float)
+def elastic_batch(env: gym.vector.VectorEnv) -> Any:
+    """The :class:`~elastic_gym.envs.batch.ArmBatch` of an elastic_gym vector env (or of
+    a single env seen as one arm)."""
+    return cast(Any, env.unwrapped).batch
 
 
 def wrapper_attribute(env: gym.vector.VectorEnv, name: str):
@@ -45,19 +66,6 @@ def wrapper_attribute(env: gym.vector.VectorEnv, name: str):
         if not hasattr(env, "env"):
             raise AttributeError(f"no wrapper of {env} has {name!r}")
         env = env.env
-
-
-def checked_actions(actions, n_arms: int, n: int) -> np.ndarray:
-    """Finite (N, n) actions, or a clear error (nothing is stepped)."""
-    arr = np.asarray(actions)
-    if arr.dtype.kind not in "fiu":
-        raise TypeError(f"actions must be a real numeric array, got dtype {arr.dtype}")
-    if arr.shape != (n_arms, n):
-        raise ValueError(f"actions must have shape ({n_arms}, {n}), got {arr.shape}")
-    arr = arr.astype(np.float64)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError("actions must be finite")
-    return arr
 
 
 class _ArmResets(gym.vector.VectorWrapper):
@@ -88,23 +96,28 @@ class _ArmResets(gym.vector.VectorWrapper):
 class PolicyAction(_ArmResets):
     """Actions in [-1, 1]^n of every arm -> motor torques at every control period.
 
-    The twin of :class:`elastic_gym.training.wrappers.PolicyAction`; a residual's base
-    controller is a vector controller of all arms
+    Args:
+        env: a vector env below an observer wrapper (or raw sensors for the ``torque``
+            and ``motor-offset`` kinds).
+        action: an :class:`ActionConfig` or its fields.
+
+    A residual's base controller is a vector controller of all arms
     (:func:`~elastic_gym.controllers.vector.make_vector_controller`).
-    ``info["base_torque"]`` is (N, n).
+    ``info["base_torque"]`` (N, n) holds the residual's base torque (zeros for other
+    kinds).
     """
 
     def __init__(
         self, env: gym.vector.VectorEnv, action: ActionConfig | dict | None = None
     ) -> None:
         super().__init__(env)
-        batch = env.unwrapped.batch
+        batch = elastic_batch(env)
         self.action_config = ActionConfig.from_config(action)
         self.map = ActionMap(self.action_config, batch.model)
         self.n, self.dt = batch.n_joints, batch.control_dt
-        self.sensors = "state" not in env.single_observation_space.spaces
+        self.sensors = "state" not in cast(spaces.Dict, env.single_observation_space).spaces
         self.controller = None
-        if self.action_config.kind == "residual":
+        if self.action_config.residual is not None:  # kind "residual"
             if self.sensors:
                 raise ValueError("a residual policy needs a state source for its base controller")
             self.controller = make_vector_controller(
@@ -116,7 +129,8 @@ class PolicyAction(_ArmResets):
             )
         self.single_action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._obs = self._info = None
+        self._obs: dict = {}
+        self._info: dict = {}
         self._previous_motor = np.zeros((self.num_envs, self.n))
         self._base = np.zeros((self.num_envs, self.n))
 
@@ -136,7 +150,7 @@ class PolicyAction(_ArmResets):
         return obs, info
 
     def step(self, actions):
-        a = checked_actions(actions, self.num_envs, self.n)
+        a = validated_actions(actions, self.num_envs, self.n)
         obs, info, n = self._obs, self._info, self.n
         if self.controller is not None:
             self._base = self.controller(obs, public_info(info))
@@ -168,7 +182,7 @@ class PolicyObservation(_ArmResets):
         frame_stack: int = 1,
     ) -> None:
         super().__init__(env)
-        batch = env.unwrapped.batch
+        batch = elastic_batch(env)
         action_config = wrapper_attribute(env, "action_config")
         self.builder = ObservationBuilder.for_observations(
             observation,
@@ -191,7 +205,7 @@ class PolicyObservation(_ArmResets):
     def _features(self, obs: Mapping, info: Mapping) -> np.ndarray:
         preview = None
         if "preview" in self.builder.features:
-            preview = self.env.unwrapped.batch.reference_preview(self.builder.config.preview)[
+            preview = elastic_batch(self.env).reference_preview(self.builder.config.preview)[
                 :, :, 0
             ]
         inputs = ObservationInputs(
@@ -219,7 +233,7 @@ class PolicyObservation(_ArmResets):
         return self._frames.reshape(self.num_envs, -1).copy(), info
 
     def step(self, actions):
-        a = checked_actions(actions, self.num_envs, self.n)
+        a = validated_actions(actions, self.num_envs, self.n)
         obs, reward, terminated, truncated, info = self.env.step(a)
         self._last_action = np.clip(a, -1.0, 1.0)
         restarted = self._restarted(terminated, truncated)
@@ -234,19 +248,27 @@ class PolicyObservation(_ArmResets):
 
 
 class CriticState(gym.vector.VectorWrapper):
-    """Every arm's flat policy observation with its true state's features appended: the
-    twin of :class:`elastic_gym.training.wrappers.CriticState` (training only)."""
+    """Every arm's flat policy observation with its true state's features appended
+    (:class:`~elastic_gym.training.observation.TrueStateFeatures` of
+    ``info["true_state"]``, the current step only, not frame-stacked): the privileged
+    input of a critic in training. The first entries are the policy's observation,
+    unchanged.
+
+    Args:
+        env: a flat policy stack (``PolicyObservation``, possibly frame-stacked).
+        observation: the stack's :class:`ObservationConfig` (its scales are used).
+    """
 
     def __init__(
         self, env: gym.vector.VectorEnv, observation: ObservationConfig | dict | None = None
     ) -> None:
         super().__init__(env)
-        batch = env.unwrapped.batch
+        batch = elastic_batch(env)
         self.elastic = batch.robot.elastic
         self.features = TrueStateFeatures(
             ObservationConfig.from_config(observation), batch.n_joints, self.elastic
         )
-        size = env.single_observation_space.shape[0] + self.features.size
+        size = flatdim(env.single_observation_space) + self.features.size
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
 

@@ -1,69 +1,51 @@
-"""Single-env wrapper shells around the policy-side logic (``actions``, ``observation``).
+"""The policy wrappers on one env: the N = 1 case of :mod:`elastic_gym.training.vector`
+(:mod:`elastic_gym.single_env`), whose module docstring documents what each does.
 
 Stack, bottom to top (``make_policy_env``)::
 
-    env -> ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation
+    env -> ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation [-> CriticState]
 
 * :class:`PolicyAction`: the policy's action in [-1, 1]^n becomes a motor torque at
-  every control period (1 kHz) through :class:`~elastic_gym.training.actions.ActionMap`
-  (torque, motor-position offsets through a motor PD, or a residual on a classical
-  controller, which runs at every period).
-* :class:`ActionRepeat` (decimation): the policy acts at a lower rate than the control
-  loop; the action is held for ``k`` periods and the rewards are summed. It sits above
-  the observer, so the observer still sees every sample.
+  every control period (1 kHz) through :class:`~elastic_gym.training.actions.ActionMap`.
+* :class:`ActionRepeat` (decimation): the action is held for ``k`` periods and the
+  rewards are summed; it sits above the observer, which still sees every sample.
 * :class:`PolicyObservation`: the flat feature vector of
-  :class:`~elastic_gym.training.observation.ObservationBuilder`, with the last action and
-  a preview of the reference.
-* :class:`CriticState` (training only, on top of the stack, frame stack included): the
-  true state's features appended for a critic with privileged information
-  (:mod:`elastic_gym.training.critic`); the policy's observation stays the first entries.
+  :class:`~elastic_gym.training.observation.ObservationBuilder` (optionally the last
+  ``frame_stack`` frames).
+* :class:`CriticState` (training only): the true state's features appended for a critic
+  with privileged information (:mod:`elastic_gym.training.critic`).
+
+A wrong-shaped or non-finite action is refused before anything is stepped.
 """
 
 from __future__ import annotations
 
+import functools
+from typing import TypeVar
+
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
+from gymnasium.spaces import flatdim
+from gymnasium.vector import VectorWrapper
 
-from elastic_gym.controllers import make_controller, public_info
-from elastic_gym.observers.wrappers import true_state_vector
-from elastic_gym.training.actions import ActionConfig, ActionMap
-from elastic_gym.training.observation import (
-    ObservationBuilder,
-    ObservationConfig,
-    ObservationInputs,
-    TrueStateFeatures,
-)
+from elastic_gym.envs.arm_env import validated_actions
+from elastic_gym.single_env import SingleArmWrapper
+from elastic_gym.training import vector
+from elastic_gym.training.actions import ActionConfig
+from elastic_gym.training.observation import ObservationConfig
 
-REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
+W = TypeVar("W", bound=VectorWrapper)
 
 
-def reference_rows(info: dict) -> np.ndarray:
-    """``info["reference"]`` as a (5, n) array: q_d .. q_d^(4)."""
-    reference = info["reference"]
-    return np.array([reference[key] for key in REFERENCE_KEYS], dtype=float)
+class _CheckedActions(SingleArmWrapper[W]):
+    """A single-arm policy wrapper: the action is checked with its single-arm shape."""
+
+    def batched_action(self, action) -> np.ndarray:
+        return validated_actions(action, 0, flatdim(self.action_space))
 
 
-def reference_preview(env: gym.Env, horizons: tuple[float, ...]) -> np.ndarray:
-    """q_d at the env's time + h for each horizon, (H, n): the reference is known ahead."""
-    return env.unwrapped.reference_preview(horizons)[:, 0]
-
-
-def check_action(action, n: int) -> np.ndarray:
-    """A finite (n,) array, or a clear error (nothing is stepped)."""
-    arr = np.asarray(action)
-    if arr.dtype.kind not in "fiu":
-        raise TypeError(f"action must be a real numeric array, got dtype {arr.dtype}")
-    if arr.shape != (n,):
-        raise ValueError(f"action must have shape ({n},), got {arr.shape}")
-    arr = arr.astype(np.float64)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"action must be finite, got {arr}")
-    return arr
-
-
-class PolicyAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
-    """Actions in [-1, 1]^n -> motor torque at every control period (module docstring).
+class PolicyAction(_CheckedActions[vector.PolicyAction], gym.utils.RecordConstructorArgs):
+    """Actions in [-1, 1]^n -> motor torque at every control period.
 
     Args:
         env: an elastic_gym env below an ``ObserverWrapper`` (or raw sensors for the
@@ -75,179 +57,65 @@ class PolicyAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def __init__(self, env: gym.Env, action: ActionConfig | dict | None = None) -> None:
         gym.utils.RecordConstructorArgs.__init__(self, action=action)
-        gym.Wrapper.__init__(self, env)
-        base = env.unwrapped
-        self.action_config = ActionConfig.from_config(action)
-        self.map = ActionMap(self.action_config, base.model)
-        self.n = base.n_joints
-        self.dt = base.control_dt
-        self.sensors = "state" not in env.observation_space.spaces
-        self.controller = None
-        if self.action_config.kind == "residual":
-            if self.sensors:
-                raise ValueError("a residual policy needs a state source for its base controller")
-            self.controller = make_controller(
-                self.action_config.residual,
-                base.model,
-                self.dt,
-                **self.action_config.residual_options,
-            )
-        self.action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
-        self._obs = self._info = None
-        self._previous_motor = None
+        _CheckedActions.__init__(self, env, functools.partial(vector.PolicyAction, action=action))
+        self.action_config = self.vector.action_config
+        self.map = self.vector.map
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = self.env.reset(seed=seed, options=options)
-        if self.controller is not None:
-            self.controller.reset(obs, public_info(info))
-        self._obs, self._info = obs, info
-        self._previous_motor = None
-        info["base_torque"] = np.zeros(self.n)
-        return obs, info
-
-    def _motor_state(self) -> tuple[np.ndarray, np.ndarray]:
-        n, obs = self.n, self._obs
-        if not self.sensors:
-            state = obs["state"]
-            return state[:n], state[2 * n : 3 * n]
-        theta = obs["motor_position"]  # backward difference of the encoder
-        previous = theta if self._previous_motor is None else self._previous_motor
-        return theta, (theta - previous) / self.dt
-
-    def step(self, action):
-        a = check_action(action, self.n)
-        base = np.zeros(self.n)
-        if self.controller is not None:
-            base = self.controller(self._obs, public_info(self._info))
-        theta = dtheta = None
-        if self.map.needs_motor_state:
-            theta, dtheta = self._motor_state()
-        torque = self.map.torque(
-            a[None],
-            None if theta is None else theta[None],
-            None if dtheta is None else dtheta[None],
-            reference_rows(self._info)[None],
-            base[None],
-        )[0]
-        if self.sensors:
-            self._previous_motor = self._obs["motor_position"]
-        obs, reward, terminated, truncated, info = self.env.step(torque)
-        info["base_torque"] = base
-        self._obs, self._info = obs, info
-        return obs, reward, terminated, truncated, info
+    @property
+    def _info(self) -> dict:
+        """The info of the last reset or step of the env below (the state source's)."""
+        return self.arm.last_info
 
 
-class ActionRepeat(gym.Wrapper, gym.utils.RecordConstructorArgs):
+class ActionRepeat(SingleArmWrapper[vector.ActionRepeat], gym.utils.RecordConstructorArgs):
     """Hold each action for ``repeat`` env steps and sum the rewards."""
 
     def __init__(self, env: gym.Env, repeat: int) -> None:
-        if not isinstance(repeat, int) or repeat < 1:
-            raise ValueError(f"decimation (action repeat) must be an integer >= 1, got {repeat!r}")
         gym.utils.RecordConstructorArgs.__init__(self, repeat=repeat)
-        gym.Wrapper.__init__(self, env)
+        SingleArmWrapper.__init__(self, env, functools.partial(vector.ActionRepeat, repeat=repeat))
         self.repeat = repeat
 
-    def step(self, action):
-        total = 0.0
-        for _ in range(self.repeat):
-            obs, reward, terminated, truncated, info = self.env.step(action)
-            total += float(reward)
-            if terminated or truncated:
-                break
-        return obs, total, terminated, truncated, info
 
-
-class PolicyObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
+class PolicyObservation(_CheckedActions[vector.PolicyObservation], gym.utils.RecordConstructorArgs):
     """The policy's flat observation (module docstring of ``observation``).
 
     Args:
         env: a stack with a :class:`PolicyAction` below (its action kind decides whether
             the base torque is available).
         observation: an :class:`ObservationConfig` or its fields.
+        frame_stack: the last ``frame_stack`` feature vectors, oldest first (the first
+            repeated after a reset).
     """
 
-    def __init__(self, env: gym.Env, observation: ObservationConfig | dict | None = None) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, observation=observation)
-        gym.Wrapper.__init__(self, env)
-        base = env.unwrapped
-        action_config = env.get_wrapper_attr("action_config")
-        self.builder = ObservationBuilder.for_observations(
-            observation,
-            env.observation_space,
-            base.n_joints,
-            base.robot.elastic,
-            action_config.kind == "residual",
-            base.torque_limit,
+    def __init__(
+        self,
+        env: gym.Env,
+        observation: ObservationConfig | dict | None = None,
+        frame_stack: int = 1,
+    ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, observation=observation, frame_stack=frame_stack
         )
-        self.n = base.n_joints
-        self.observation_space = spaces.Box(-np.inf, np.inf, (self.builder.size,), dtype=np.float32)
-        self._last_action = np.zeros(self.n)
-        self._vector = np.zeros(self.builder.size, dtype=np.float32)
-
-    def _observation(self, obs: dict, info: dict) -> np.ndarray:
-        if "reference" not in info:  # the step that ended the episode on broken physics
-            return self._vector.copy()
-        config = self.builder.config
-        preview = None
-        if "preview" in self.builder.features:
-            preview = reference_preview(self.env, config.preview)[None]
-        inputs = ObservationInputs(
-            reference=reference_rows(info)[None],
-            last_action=self._last_action[None],
-            state=obs["state"][None] if "state" in obs else None,
-            motor_position=obs["motor_position"][None] if "motor_position" in obs else None,
-            acceleration=obs["acceleration"][None] if "acceleration" in obs else None,
-            preview=preview,
-            base_torque=info["base_torque"][None],
+        _CheckedActions.__init__(
+            self,
+            env,
+            functools.partial(
+                vector.PolicyObservation, observation=observation, frame_stack=frame_stack
+            ),
         )
-        self._vector = self.builder.build(inputs)[0]
-        return self._vector.copy()
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = self.env.reset(seed=seed, options=options)
-        self._last_action = np.zeros(self.n)
-        return self._observation(obs, info), info
-
-    def step(self, action):
-        a = check_action(action, self.n)
-        obs, reward, terminated, truncated, info = self.env.step(a)
-        self._last_action = np.clip(a, -1.0, 1.0)
-        return self._observation(obs, info), reward, terminated, truncated, info
+        self.builder = self.vector.builder
 
 
-class CriticState(gym.Wrapper, gym.utils.RecordConstructorArgs):
-    """The flat policy observation with the true state's features appended
-    (:class:`~elastic_gym.training.observation.TrueStateFeatures` of
-    ``info["true_state"]``, the current step only, not frame-stacked): the privileged
-    input of a critic in training. The first entries are the policy's observation,
-    unchanged.
+class CriticState(SingleArmWrapper[vector.CriticState], gym.utils.RecordConstructorArgs):
+    """The flat policy observation with the true state's features appended (training only).
 
     Args:
-        env: a flat policy stack (``PolicyObservation``, possibly frame-stacked).
+        env: a flat policy stack (``PolicyObservation``).
         observation: the stack's :class:`ObservationConfig` (its scales are used).
     """
 
     def __init__(self, env: gym.Env, observation: ObservationConfig | dict | None = None) -> None:
         gym.utils.RecordConstructorArgs.__init__(self, observation=observation)
-        gym.Wrapper.__init__(self, env)
-        base = env.unwrapped
-        self.elastic = base.robot.elastic
-        self.features = TrueStateFeatures(
-            ObservationConfig.from_config(observation), base.n_joints, self.elastic
+        SingleArmWrapper.__init__(
+            self, env, functools.partial(vector.CriticState, observation=observation)
         )
-        size = env.observation_space.shape[0] + self.features.size
-        self.observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
-
-    def _observation(self, obs: np.ndarray, info: dict) -> np.ndarray:
-        privileged = self.features(
-            true_state_vector(info, self.elastic)[None], reference_rows(info)[None]
-        )[0]
-        return np.concatenate([obs, privileged])
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = self.env.reset(seed=seed, options=options)
-        return self._observation(obs, info), info
-
-    def step(self, action):
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        return self._observation(obs, info), reward, terminated, truncated, info

@@ -22,7 +22,6 @@ import numpy as np
 from elastic_gym.parallel import single_threaded
 
 Act = Callable[[np.ndarray], np.ndarray]
-CURVE_FILE = "learning_curve.csv"  # the learning curve of a run folder
 
 
 @dataclass(frozen=True)
