@@ -31,6 +31,10 @@ over all recorded samples t_0 = 0, ..., t_K):
   ("damping"): full-state feedback damps the link vibration that motor-only control leaves.
 * ``torque_rms`` = sqrt(mean_k |tau_k|^2) (N m), tau the applied (clipped) motor torque,
   including an excitation task's open-loop torque.
+* ``torque_rate_rms`` = sqrt(mean_k |tau_{k+1} - tau_k|^2) / dt_k (N m/s), the RMS rate of
+  change of the applied torque between control steps (chattering shows here).
+* ``saturation_share`` = share of the recorded steps whose applied torque was clipped to a
+  motor torque limit on some joint (the env's ``info["torque_saturated"]``).
 * ``est_rms_<block>`` for each block of the state (theta, q, dtheta, dq for elastic
   arms; q, dq for rigid ones) = sqrt(mean_k |xhat_block - x_block|^2) (rad or rad/s)
   from ``min(ESTIMATION_TRANSIENT, T / 2)`` on (T the recorded time): the observer's
@@ -78,6 +82,7 @@ class TimeSeries:
     estimation_error: np.ndarray  # (K, len(state_names) * N)
     state_names: tuple[str, ...]
     theta: np.ndarray | None = None
+    saturated: np.ndarray | None = None  # (K,) bool: torque clipped at a limit
 
     def __len__(self) -> int:
         return len(self.time)
@@ -93,6 +98,7 @@ class TimeSeries:
             self.estimation_error[:length],
             self.state_names,
             None if self.theta is None else self.theta[:length],
+            None if self.saturated is None else self.saturated[:length],
         )
 
     def estimation_blocks(self) -> dict[str, np.ndarray]:
@@ -192,6 +198,12 @@ def compute_metrics(series: TimeSeries, tracking: bool = True) -> dict[str, floa
     metrics["torsion_max"] = float(np.max(np.abs(series.theta - series.q))) if has_torsion else nan
     metrics["torsion_osc"] = residual_torsion(series) if has_torsion and tracking else nan
     metrics["torque_rms"] = rms_norm(series.torque)
+    metrics["torque_rate_rms"] = rms_norm(
+        np.diff(series.torque, axis=0) / np.diff(series.time)[:, None]
+    )
+    metrics["saturation_share"] = (
+        float(np.mean(series.saturated)) if series.saturated is not None and len(series) else nan
+    )
     start = (
         np.searchsorted(series.time, min(ESTIMATION_TRANSIENT, series.time[-1] / 2))
         if len(series)

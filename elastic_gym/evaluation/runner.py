@@ -242,6 +242,7 @@ class _Recorder:
         self.q, self.q_ref, self.dq_ref, self.torque = (np.zeros((size, n)) for _ in range(4))
         self.theta = np.zeros((size, n)) if elastic else None
         self.error = np.zeros((size, state_dim))
+        self.saturated = np.zeros(size, dtype=bool)
         self.length = 0
         self.diagnostics: dict[str, float] = {}
 
@@ -259,6 +260,7 @@ class _Recorder:
         self.dq_ref[k] = reference["dq"]
         self.torque[k] = info["torque"]
         self.error[k] = info["estimation_error"]
+        self.saturated[k] = bool(info["torque_saturated"])
         if self.theta is not None:
             self.theta[k] = truth["theta"]
         self._track_diagnostics(info.get("observer_diagnostics", {}))
@@ -274,6 +276,7 @@ class _Recorder:
             self.error,
             state_names,
             self.theta,
+            self.saturated,
         ).truncated(self.length)
 
 

@@ -1,0 +1,227 @@
+"""The leaderboard: a table, a CSV and a figure rebuilt from scorecard JSON files, no re-run.
+
+:func:`rebuild_leaderboard` reads every ``*.json`` of ``docs/leaderboard/scorecards/``
+(:func:`~elastic_gym.benchmark.scorecard.read_scorecard` validates each), refuses a card of
+another suite (name, version or hash different from the current suite's) or a duplicate
+label, and writes ``docs/leaderboard.md``, ``docs/leaderboard/leaderboard.csv`` and
+``docs/leaderboard/leaderboard.png``. Implementable entries and oracle references (entries
+whose state source read the ground truth) are separate tables, each ranked by the overall
+score; below them, for each category, the best implementable entry and its lead over the
+next one.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+from elastic_gym.benchmark.scorecard import Scorecard, fmt, read_scorecard
+from elastic_gym.benchmark.scoring import OVERALL, PRECISION
+from elastic_gym.benchmark.suite import DEFAULT_SUITE, SuiteConfig, load_suite
+
+DOCS = Path("docs")
+SCORECARD_DIR = DOCS / "leaderboard" / "scorecards"
+PAGE = DOCS / "leaderboard.md"
+TABLE_DIR = DOCS / "leaderboard"
+
+
+def load_cards(folder: Path, suite: SuiteConfig) -> list[Scorecard]:
+    """The scorecards of ``folder`` (sorted by file name), all of ``suite``."""
+    paths = sorted(Path(folder).glob("*.json"))
+    if not paths:
+        raise FileNotFoundError(f"no scorecard JSON file in {folder}")
+    cards, labels = [], {}
+    for path in paths:
+        card = read_scorecard(path)
+        if (card.suite.name, card.suite.version) != (suite.name, suite.version):
+            raise ValueError(
+                f"{path}: scorecard of suite {card.suite.name} version {card.suite.version}, "
+                f"not of {suite.name} version {suite.version}: re-run the entry on this suite"
+            )
+        if card.suite.hash != suite.hash:
+            raise ValueError(
+                f"{path}: suite hash {card.suite.hash[:12]} differs from {suite.name}'s "
+                f"{suite.hash[:12]} (the suite changed): re-run the entry"
+            )
+        if card.label in labels:
+            raise ValueError(f"{path}: entry label {card.label!r} also in {labels[card.label]}")
+        labels[card.label] = path
+        cards.append(card)
+    return cards
+
+
+def _columns(suite: SuiteConfig) -> list[str]:
+    return [OVERALL, PRECISION, *suite.categories]
+
+
+def _value(card: Scorecard, column: str) -> float | None:
+    if column == OVERALL:
+        return card.scores.overall
+    if column == PRECISION:
+        return card.scores.precision
+    return card.scores.categories.get(column)
+
+
+def _ranked(cards: Sequence[Scorecard]) -> list[Scorecard]:
+    return sorted(cards, key=lambda c: -(c.scores.overall or 0.0))
+
+
+def _table(cards: Sequence[Scorecard], columns: list[str]) -> list[str]:
+    lines = [
+        "| entry | controller | state source | " + " | ".join(columns) + " |",
+        "|---|---|---|" + "---|" * len(columns),
+    ]
+    for card in _ranked(cards):
+        values = " | ".join(fmt(_value(card, c)) for c in columns)
+        lines.append(
+            f"| {card.label} | `{card.entry['controller']}` | `{card.entry['source']}` | {values} |"
+        )
+    return lines
+
+
+def winners(cards: Sequence[Scorecard], columns: list[str]) -> list[str]:
+    """One line per score column: the best implementable entry and its lead."""
+    lines = []
+    for column in columns:
+        ranked = sorted(
+            (c for c in cards if _value(c, column) is not None),
+            key=lambda c: -_value(c, column),
+        )
+        if not ranked:
+            continue
+        best = ranked[0]
+        ties = [c.label for c in ranked if _value(c, column) == _value(best, column)]
+        if len(ties) > 1:
+            lines.append(f"* {column}: {', '.join(ties)} tie at {fmt(_value(best, column))}.")
+            continue
+        lead = ""
+        if len(ranked) > 1:
+            lead = (
+                f", {_value(best, column) - _value(ranked[1], column):.2f} ahead of "
+                f"{ranked[1].label} ({fmt(_value(ranked[1], column))})"
+            )
+        lines.append(f"* {column}: {best.label} ({fmt(_value(best, column))}){lead}.")
+    return lines
+
+
+def leaderboard_markdown(cards: Sequence[Scorecard], suite: SuiteConfig) -> str:
+    columns = _columns(suite)
+    implementable = [c for c in cards if not c.oracle]
+    oracle = [c for c in cards if c.oracle]
+    weights = ", ".join(f"{n} {c.weight:g}" for n, c in suite.categories.items())
+    commits = sorted({(c.package["version"], c.package.get("commit") or "?") for c in cards})
+    lines = [
+        f"# Leaderboard: {suite.name}",
+        "",
+        f"Suite {suite.name} version {suite.version} (sha256 `{suite.hash}`): "
+        f"{len(suite.cells)} cells x {len(suite.seeds)} seeds, {suite.duration:g} s "
+        f"episodes at a {suite.physics_dt * 1e3:g} ms physics step. Scores in [0, 1]: "
+        "a category's score is the share of its episodes that stay stable and within the "
+        "task's tolerances; precision maps the nominal tracking RMS log-linearly from "
+        f"{suite.precision.low:g} rad (1) to {suite.precision.high:g} rad (0); overall is "
+        f"the weighted mean (weights: {weights}, precision {suite.precision.weight:g}). "
+        "How to score and add an entry: [the submission guide](benchmark.md).",
+        "",
+        "Measured with elastic-gym "
+        + ", ".join(f"{v} (commit {c[:10]})" for v, c in commits)
+        + "; rebuilt from the scorecards in `docs/leaderboard/scorecards/` by "
+        "`elastic-gym benchmark --leaderboard`.",
+        "",
+        "## Implementable entries",
+        "",
+        *(_table(implementable, columns) if implementable else ["(none)"]),
+        "",
+        "## Oracle references (read the true state)",
+        "",
+        *(_table(oracle, columns) if oracle else ["(none)"]),
+        "",
+        "## Best implementable entry per score",
+        "",
+        *winners(implementable, columns),
+        "",
+        "![per-category scores](leaderboard/leaderboard.png)",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_csv(cards: Sequence[Scorecard], suite: SuiteConfig, path: Path) -> Path:
+    columns = _columns(suite)
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["entry", "oracle", "controller", "source", *columns, "commit"])
+        for card in [
+            *_ranked([c for c in cards if not c.oracle]),
+            *_ranked([c for c in cards if c.oracle]),
+        ]:
+            writer.writerow(
+                [card.label, card.oracle, card.entry["controller"], card.entry["source"]]
+                + [("" if _value(card, c) is None else f"{_value(card, c):.4f}") for c in columns]
+                + [card.package.get("commit") or ""]
+            )
+    return path
+
+
+def plot_leaderboard(cards: Sequence[Scorecard], suite: SuiteConfig, path: Path) -> Path:
+    """A heat map: entries (implementable, then oracle) x scores."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    columns = _columns(suite)
+    ordered = [
+        *_ranked([c for c in cards if not c.oracle]),
+        *_ranked([c for c in cards if c.oracle]),
+    ]
+    data = np.array(
+        [[math.nan if _value(c, k) is None else _value(c, k) for k in columns] for c in ordered]
+    )
+    fig, ax = plt.subplots(
+        figsize=(1.1 * len(columns) + 3, 0.45 * len(ordered) + 1.5), constrained_layout=True
+    )
+    image = ax.imshow(data, cmap="viridis", vmin=0, vmax=1, aspect="auto")
+    ax.set_xticks(range(len(columns)), columns, rotation=30, ha="right")
+    labels = [f"{c.label} (oracle)" if c.oracle else c.label for c in ordered]
+    ax.set_yticks(range(len(ordered)), labels)
+    for i, row in enumerate(data):
+        for j, value in enumerate(row):
+            if math.isfinite(value):
+                ax.text(
+                    j,
+                    i,
+                    f"{value:.2f}",
+                    ha="center",
+                    va="center",
+                    fontsize=8,
+                    color="white" if value < 0.6 else "black",
+                )
+    fig.colorbar(image, ax=ax, label="score")
+    ax.set_title(f"{suite.name} leaderboard", fontsize=10)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def rebuild_leaderboard(
+    scorecards: str | Path = SCORECARD_DIR,
+    page: str | Path = PAGE,
+    suite: SuiteConfig | str | Path = DEFAULT_SUITE,
+) -> list[Path]:
+    """Rebuild the leaderboard page, CSV and figure from the scorecards (module docstring);
+    the CSV and the figure go to the folder of the scorecards' parent."""
+    if not isinstance(suite, SuiteConfig):
+        suite = load_suite(suite)
+    cards = load_cards(Path(scorecards), suite)
+    page = Path(page)
+    tables = Path(scorecards).parent
+    page.parent.mkdir(parents=True, exist_ok=True)
+    page.write_text(leaderboard_markdown(cards, suite))
+    return [
+        page,
+        write_csv(cards, suite, tables / "leaderboard.csv"),
+        plot_leaderboard(cards, suite, tables / "leaderboard.png"),
+    ]
