@@ -6,6 +6,7 @@ Only these reach the observation. Noise is drawn from the environment's
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -79,27 +80,64 @@ class GaussianNoise:
         return sample
 
 
+def _rows(mask: np.ndarray, arms: np.ndarray, rngs: list) -> tuple[np.ndarray, np.ndarray, list]:
+    """The rows of ``arms`` where ``mask`` holds, their arms and their generators."""
+    rows = np.flatnonzero(mask)
+    return rows, arms[rows], [rngs[r] for r in rows]
+
+
+def _quantized(y: np.ndarray, resolution: np.ndarray) -> np.ndarray:
+    """round(y / r) * r per row, rows with r = 0 unchanged (``resolution`` (k, 1))."""
+    if np.all(resolution > 0.0):
+        return np.round(y / resolution) * resolution
+    if not np.any(resolution > 0.0):
+        return np.array(y, dtype=float)
+    safe = np.where(resolution > 0.0, resolution, 1.0)
+    return np.where(resolution > 0.0, np.round(y / safe) * safe, y)
+
+
+def _add_noise(
+    y: np.ndarray, std: np.ndarray, noise: GaussianNoise, arms: np.ndarray, rngs: list
+) -> np.ndarray:
+    """y + std_k n_k for the rows whose arm has std_k > 0 (only they draw); ``std`` (N,)."""
+    noisy = std[arms] > 0.0
+    if noisy.all():
+        return y + std[arms, None] * noise.draw(arms, rngs)
+    if not noisy.any():
+        return y
+    rows, which, own = _rows(noisy, arms, rngs)
+    y = np.array(y, dtype=float)
+    y[rows] = y[rows] + std[which, None] * noise.draw(which, own)
+    return y
+
+
 class Encoder:
     """Quantized, optionally noisy position measurement: round((x + n) / r) * r.
 
     Positions have a leading arm axis (N, n); arm i draws its noise from ``rngs[i]``.
+    ``resolution`` and ``noise_std`` are one value for every arm or one per arm (N,); an
+    arm without noise draws nothing.
     """
 
-    def __init__(self, resolution: float, noise_std: float, n_joints: int, n_arms: int = 1) -> None:
-        self.resolution = float(resolution)
-        self.noise_std = float(noise_std)
-        self.noise = GaussianNoise(n_arms if self.noise_std > 0.0 else 0, n_joints)
+    def __init__(self, resolution, noise_std, n_joints: int, n_arms: int = 1) -> None:
+        self.resolution = np.broadcast_to(np.asarray(resolution, dtype=float), (n_arms,)).copy()
+        self.noise_std = np.broadcast_to(np.asarray(noise_std, dtype=float), (n_arms,)).copy()
+        self.noise = GaussianNoise(n_arms, n_joints)
+
+    def set(self, arm: int, resolution: float, noise_std: float) -> None:
+        """Arm ``arm``'s own resolution and noise (e.g. drawn at a reset)."""
+        self.resolution[arm], self.noise_std[arm] = resolution, noise_std
+
+    def restart(self, arms: np.ndarray) -> None:
+        """Fresh noise blocks for the arms (at a reset: their generators may be new)."""
+        self.noise.restart(arms)
 
     def measure(
         self, position: np.ndarray, rngs: list[np.random.Generator], arms: np.ndarray
     ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``position``; ``rngs`` are theirs)."""
-        y = position
-        if self.noise_std > 0.0:
-            y = y + self.noise_std * self.noise.draw(arms, rngs)
-        if self.resolution > 0.0:
-            return np.round(y / self.resolution) * self.resolution
-        return np.array(y, dtype=float)
+        y = _add_noise(position, self.noise_std, self.noise, arms, rngs)
+        return _quantized(y, self.resolution[arms, None])
 
 
 @dataclass(frozen=True)
@@ -143,47 +181,65 @@ class AccelerometerArray:
     """Applies the error model of :class:`AccelerometerConfig` to true specific forces.
 
     Readings have a leading arm axis (N, 3 n_sensors); each arm has its own bias and
-    filter state and draws from its own generator.
+    filter state and draws from its own generator. ``config``: one error model for every
+    arm or a sequence of N (arm i's own); ``range`` of the whole array is the largest.
     """
 
     def __init__(
-        self, config: AccelerometerConfig, n_sensors: int, sample_time: float, n_arms: int = 1
+        self,
+        config: AccelerometerConfig | Sequence[AccelerometerConfig],
+        n_sensors: int,
+        sample_time: float,
+        n_arms: int = 1,
     ) -> None:
-        self.config = config
+        configs = [config] * n_arms if isinstance(config, AccelerometerConfig) else list(config)
+        self.configs = configs
+        self.config = max(configs, key=lambda c: c.range)
         self.size = 3 * n_sensors
-        self.sample_std = config.noise_density * np.sqrt(0.5 / sample_time)
-        self.alpha = (
-            float(np.exp(-2.0 * np.pi * config.cutoff_hz * sample_time))
+        self.sample_time = sample_time
+        self.sample_std, self.alpha = np.zeros(n_arms), np.zeros(n_arms)
+        self.bias_std, self.range = np.zeros(n_arms), np.zeros(n_arms)
+        self.resolution = np.zeros(n_arms)
+        for arm, arm_config in enumerate(configs):
+            self.set(arm, arm_config)
+        self.bias = np.zeros((n_arms, self.size))
+        self.noise = GaussianNoise(n_arms, self.size)
+        self.filtered = np.zeros((n_arms, self.size))
+        self.fresh = np.ones(n_arms, dtype=bool)  # the filter starts at the first reading
+
+    def set(self, arm: int, config: AccelerometerConfig) -> None:
+        """Arm ``arm``'s own error model (e.g. drawn at a reset)."""
+        dt = self.sample_time
+        self.configs[arm] = config
+        self.sample_std[arm] = config.noise_density * np.sqrt(0.5 / dt)
+        self.alpha[arm] = (
+            float(np.exp(-2.0 * np.pi * config.cutoff_hz * dt))
             if config.cutoff_hz is not None
             else 0.0
         )
-        self.bias = np.zeros((n_arms, self.size))
-        self.noise = GaussianNoise(n_arms if self.sample_std > 0.0 else 0, self.size)
-        self.filtered = np.zeros((n_arms, self.size))
-        self.fresh = np.ones(n_arms, dtype=bool)  # the filter starts at the first reading
+        self.bias_std[arm], self.range[arm] = config.bias_std, config.range
+        self.resolution[arm] = config.resolution or 0.0
 
     def reset(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> None:
         """New bias for the given arms (drawn from their generators), filters restarted."""
         for i in arms:
-            self.bias[i] = self.config.bias_std * rngs[i].standard_normal(self.size)
+            self.bias[i] = self.bias_std[i] * rngs[i].standard_normal(self.size)
         self.fresh[arms] = True
-        if self.sample_std > 0.0:
-            self.noise.restart(arms)
+        self.noise.restart(arms)
 
     def measure(
         self, specific_force: np.ndarray, rngs: list[np.random.Generator], arms: np.ndarray
     ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``specific_force``; ``rngs`` are theirs)."""
         y = specific_force + self.bias[arms]
-        if self.sample_std > 0.0:
-            y = y + self.sample_std * self.noise.draw(arms, rngs)
-        if self.alpha > 0.0:
-            fresh = self.fresh[arms][:, None]
-            y = np.where(fresh, y, self.alpha * self.filtered[arms] + (1.0 - self.alpha) * y)
+        y = _add_noise(y, self.sample_std, self.noise, arms, rngs)
+        alpha = self.alpha[arms]
+        if np.any(alpha > 0.0):
+            hold = (self.fresh[arms] | (alpha == 0.0))[:, None]
+            a = alpha[:, None]
+            y = np.where(hold, y, a * self.filtered[arms] + (1.0 - a) * y)
             self.filtered[arms] = y
             self.fresh[arms] = False
-        limit = self.config.range
+        limit = self.range[arms, None]
         y = np.minimum(np.maximum(y, -limit), limit)
-        if self.config.resolution:
-            y = np.round(y / self.config.resolution) * self.config.resolution
-        return np.array(y, dtype=float)
+        return _quantized(y, self.resolution[arms, None])
