@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from pydantic import BaseModel
 
 from elastic_gym.envs.config import (
     PER_ARM_KEYS,
@@ -31,10 +32,10 @@ MAX_ACTUATOR_DELAY = 1.0  # s
 
 def as_mapping(value):
     """A dataclass or pydantic config as a plain dict (to be merged); others unchanged."""
+    if isinstance(value, BaseModel):
+        return value.model_dump(exclude_none=True)
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return dataclasses.asdict(value)
-    if hasattr(value, "model_dump"):
-        return value.model_dump(exclude_none=True)
     return value
 
 
@@ -132,12 +133,14 @@ class ArmResolver:
         """The exact model of the arm's plant (payload of ``payload_mass``, default the
         configured initial mass)."""
         model = RobotModel(self.spec, settings.scaling, self.mounts, settings.friction)
-        if settings.payload is None:
+        position = self.payload_position(settings)
+        if settings.payload is None or position is None:
             return model
         mass = settings.payload.mass if payload_mass is None else payload_mass
-        return with_payload(model, mass, self.payload_position(settings))
+        return with_payload(model, mass, position)
 
-    def payload_position(self, settings: ArmSettings) -> tuple[float, float, float] | None:
+    def payload_position(self, settings: ArmSettings) -> tuple[float, ...] | None:
+        """Where the arm's payload sits in the last link's frame (None: no payload)."""
         payload = settings.payload
         if payload is None:
             return None

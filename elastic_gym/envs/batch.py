@@ -46,7 +46,7 @@ from gymnasium import spaces
 from numba import njit
 
 from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, arm_kwargs
-from elastic_gym.envs.config import PER_ARM_KEYS, EnvConfig, Range
+from elastic_gym.envs.config import EPISODE_TIME, PER_ARM_KEYS, EnvConfig, Range
 from elastic_gym.envs.plant import PlantArray
 from elastic_gym.envs.plant_state import PlantState
 from elastic_gym.envs.randomization import check_ranges, with_values
@@ -66,8 +66,6 @@ from elastic_gym.robots.urdf_tools import joint_limits
 from elastic_gym.validation import per_joint_values, validated
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
-EPISODE_TIME = 3.0  # s
-MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
 MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
 REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 STATE_KEYS = ("q", "dq", "theta", "dtheta")
@@ -129,18 +127,6 @@ def with_batch_options(init):
 
     checked.__signature__ = signature
     return checked
-
-
-def _positive_number(value, name: str, allow_none: bool = False) -> float | None:
-    if value is None and allow_none:
-        return None
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not (np.isfinite(value) and value > 0)
-    ):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    return float(value)
 
 
 class ArmBatch:
@@ -244,10 +230,10 @@ class ArmBatch:
         self.init_kwargs = kwargs
         if isinstance(n_arms, bool) or not isinstance(n_arms, (int, np.integer)) or n_arms < 1:
             raise ValueError(f"the number of arms must be an integer >= 1, got {n_arms!r}")
-        validated(EnvConfig, {k: kwargs[k] for k in self.KWARGS})
+        config = validated(EnvConfig, {k: kwargs[k] for k in self.KWARGS})
         spec = robot if isinstance(robot, RobotSpec) else get_robot(robot)
         self.robot, self.n_arms, self.n_joints = spec, int(n_arms), spec.n_joints
-        self.physics_dt, self.control_dt, self.n_substeps = self._timing(physics_dt, control_dt)
+        self.physics_dt, self.control_dt, self.n_substeps = self._timing(config)
         mounts = (
             spec.accelerometers
             if accelerometers is None
@@ -256,8 +242,7 @@ class ArmBatch:
         self.torque_limit = self._torque_limit(torque_limit)
         self.model = RobotModel(spec, accelerometers=mounts)
         models = self._configure_arms(mounts, {k: kwargs[k] for k in PER_ARM_KEYS}, per_arm)
-        self.max_velocity = _positive_number(max_velocity, "max_velocity")
-        self.episode_time = _positive_number(episode_time, "episode_time", allow_none=True)
+        self.max_velocity, self.episode_time = config.max_velocity, config.episode_time
         self.max_steps = (
             None
             if self.episode_time is None
@@ -313,7 +298,6 @@ class ArmBatch:
                     key = (option.scaling, repr(option.payload), mass)
                     if key not in checked:
                         checked[key] = self._check_stability(resolver.plant_model(option, mass))
-        self.plant_model = models[0]
         return models
 
     @staticmethod
@@ -380,15 +364,10 @@ class ArmBatch:
         self._slot = 0  # slot of the newest reading in the delay line
         self.plant_state = PlantState(self)
 
-    def _timing(self, physics_dt, control_dt) -> tuple[float, float, int]:
-        physics = self.robot.physics_dt if physics_dt is None else physics_dt
-        control = self.robot.control_dt if control_dt is None else control_dt
-        for key, value in (("physics_dt", physics), ("control_dt", control)):
-            _positive_number(value, key)
-        if physics > 1e-3 + 1e-15:
-            raise ValueError(f"physics_dt must be <= 1 ms, got {physics}")
-        if control > MAX_CONTROL_DT:
-            raise ValueError(f"control_dt must be <= {MAX_CONTROL_DT} s, got {control}")
+    def _timing(self, config: EnvConfig) -> tuple[float, float, int]:
+        """(physics step, control period, physics steps per control period)."""
+        physics = self.robot.physics_dt if config.physics_dt is None else config.physics_dt
+        control = self.robot.control_dt if config.control_dt is None else config.control_dt
         ratio = control / physics
         if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
             raise ValueError(
@@ -428,6 +407,11 @@ class ArmBatch:
         """Truncate episodes after ``steps`` control periods (instead of ``episode_time``)."""
         self.max_steps = int(steps)
         self.episode_time = self.max_steps * self.control_dt
+
+    @property
+    def plant_model(self) -> RobotModel:
+        """The exact model of arm 0's simulated plant (of every arm's when they share one)."""
+        return self.sim.plants.models[0]
 
     @property
     def position_key(self) -> str:
@@ -606,7 +590,8 @@ class ArmBatch:
             force = chain.specific_forces(sim.q[arms], sim.dq[arms], self.ddq[arms])
             readings["acceleration"] = self.accelerometer_array.measure(force, rngs, arms)
         length = self._sensor_line
-        oldest = (self._slot - self.sensor_delay[arms]) % length
+        if length > 1:
+            oldest = (self._slot - self.sensor_delay[arms]) % length
         for key, value in readings.items():
             if length > 1:
                 line = self._measured[key]

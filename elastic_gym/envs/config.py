@@ -28,10 +28,11 @@ reset (:mod:`elastic_gym.envs.randomization`).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Annotated, Any, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, StrictFloat, StrictInt, field_validator, model_validator
 
+from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
 from elastic_gym.validation import StrictModel
 
 PER_ARM_KEYS = (
@@ -47,6 +48,12 @@ PER_ARM_KEYS = (
 )
 MAX_PAYLOAD = 1e3  # kg
 MAX_PULSES = 1000
+MAX_PHYSICS_DT = 1e-3 + 1e-15  # s
+MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
+EPISODE_TIME = 3.0  # s
+
+PositiveNumber = Annotated[StrictFloat, Field(gt=0.0, allow_inf_nan=False)]
+Periods = Annotated[StrictInt, Field(ge=0)]  # a count of control periods
 
 
 def _finite(value: float) -> float:
@@ -124,21 +131,21 @@ class TorquePulsesConfig(StrictModel):
 
     @model_validator(mode="after")
     def _one_form(self) -> TorquePulsesConfig:
-        given = [self.times, self.durations, self.amplitudes]
+        times, durations, amplitudes = self.times, self.durations, self.amplitudes
         if self.random is not None:
-            if any(x is not None for x in given):
+            if times is not None or durations is not None or amplitudes is not None:
                 raise ValueError("give either times/durations/amplitudes or random, not both")
             return self
-        if any(x is None for x in given):
+        if times is None or durations is None or amplitudes is None:
             raise ValueError("give times, durations and amplitudes (or random)")
-        if not len(self.times) == len(self.durations) == len(self.amplitudes):
+        if not len(times) == len(durations) == len(amplitudes):
             raise ValueError("times, durations and amplitudes need one entry per pulse")
-        if len(self.times) > MAX_PULSES:
+        if len(times) > MAX_PULSES:
             raise ValueError(f"at most {MAX_PULSES} pulses")
-        if any(not (math.isfinite(t) and t >= 0.0) for t in self.times):
-            raise ValueError(f"times must be finite and >= 0 s, got {self.times}")
-        if any(not (math.isfinite(d) and d > 0.0) for d in self.durations):
-            raise ValueError(f"durations must be finite and > 0 s, got {self.durations}")
+        if any(not (math.isfinite(t) and t >= 0.0) for t in times):
+            raise ValueError(f"times must be finite and >= 0 s, got {times}")
+        if any(not (math.isfinite(d) and d > 0.0) for d in durations):
+            raise ValueError(f"durations must be finite and > 0 s, got {durations}")
         return self
 
 
@@ -149,34 +156,41 @@ class ArmOptions(StrictModel):
 
     plant_scaling: Any = None
     unmodelled_friction: Any = None
-    encoder: Any = None
-    accelerometer: Any = None
-    sensor_delay: Any = None
-    actuator_delay: Any = None
+    encoder: EncoderConfig | None = None
+    accelerometer: AccelerometerConfig | Literal["ideal"] | None = None
+    sensor_delay: Periods | None = None
+    actuator_delay: Periods | None = None
     payload: PayloadConfig | None = None
     torque_pulses: TorquePulsesConfig | None = None
     randomize: dict[str, Range] | None = None
 
 
 class EnvConfig(StrictModel):
-    """Every env kwarg of :class:`~elastic_gym.envs.batch.ArmBatch` (see its docstring)."""
+    """Every env kwarg of :class:`~elastic_gym.envs.batch.ArmBatch` (see its docstring).
+
+    Typed here: what needs no robot. The plant scaling
+    (:class:`~elastic_gym.model.ParameterScaling`) and the reward
+    (:class:`~elastic_gym.envs.reward.RewardConfig`) keep their own config classes, the
+    task options are checked by the task, the robot-dependent limits (joint counts, a
+    delay longer than 1 s, friction in fractions of the torque limits, a physics step too
+    coarse for the stiffest joint) by the batch."""
 
     task: str = "tracking"
     task_options: dict | None = None
-    physics_dt: float | None = None
-    control_dt: float | None = None
-    encoder: Any = None
-    accelerometer: Any = None
+    physics_dt: Annotated[PositiveNumber, Field(le=MAX_PHYSICS_DT)] | None = None
+    control_dt: Annotated[PositiveNumber, Field(le=MAX_CONTROL_DT)] | None = None
+    encoder: EncoderConfig | None = None
+    accelerometer: AccelerometerConfig | Literal["ideal"] | None = None
     accelerometers: list | None = None
     plant_scaling: Any = None
     unmodelled_friction: Any = None
-    torque_limit: Any = None
+    torque_limit: PositiveNumber | list[PositiveNumber] | None = None
     reward: Any = None
-    max_velocity: Any = 100.0
-    sensor_delay: Any = 0
-    actuator_delay: Any = 0
+    max_velocity: PositiveNumber = 100.0
+    sensor_delay: Periods = 0
+    actuator_delay: Periods = 0
     payload: PayloadConfig | None = None
     torque_pulses: TorquePulsesConfig | None = None
     randomize: dict[str, Range] | None = None
     per_arm: list[ArmOptions] | None = None
-    episode_time: Any = 3.0
+    episode_time: PositiveNumber | None = EPISODE_TIME

@@ -25,9 +25,11 @@ def draw_pulses(
         times = np.asarray(config.times, dtype=float)
         amplitudes = [
             per_joint_values(a, n, f"torque_pulses.amplitudes[{k}]")
-            for k, a in enumerate(config.amplitudes)
+            for k, a in enumerate(config.amplitudes or ())
         ]
         return times, times + np.asarray(config.durations), np.array(amplitudes).reshape(-1, n)
+    if rng is None:
+        raise ValueError("random torque pulses are drawn from an arm's plant stream")
     spec = config.random
     times = rng.uniform(*spec.window, size=spec.count)
     durations = rng.uniform(spec.duration.low, spec.duration.high, size=spec.count)

@@ -37,7 +37,7 @@ def default_payload_position(model: RobotModel) -> np.ndarray:
     return 2.0 * np.asarray(model.pin_model.inertias[model.n].lever, dtype=float)
 
 
-def with_payload(model: RobotModel, mass: float, position: np.ndarray) -> RobotModel:
+def with_payload(model: RobotModel, mass: float, position: Sequence[float]) -> RobotModel:
     """A copy of ``model`` whose last link carries a point mass ``mass`` at ``position``."""
     new = model.copy()
     n = new.n
@@ -51,13 +51,14 @@ def last_link(spec: RobotSpec) -> str:
     """Name of the URDF link moved by the last actuated joint."""
     root = ET.parse(spec.urdf).getroot()
     for joint in root.iter("joint"):
-        if joint.get("name") == spec.joint_names[-1]:
-            return joint.find("child").get("link")
+        child = joint.find("child")
+        if joint.get("name") == spec.joint_names[-1] and child is not None:
+            return str(child.get("link"))
     raise ValueError(f"joint {spec.joint_names[-1]!r} not in {spec.urdf}")
 
 
 @lru_cache(maxsize=64)
-def payload_urdf(urdf: str, link: str, position: tuple[float, float, float]) -> str:
+def payload_urdf(urdf: str, link: str, position: tuple[float, ...]) -> str:
     """A copy of ``urdf`` with a massless fixed child link of ``link`` at ``position``
     (its mass is set per arm with ``changeDynamics``); cached in the temp folder."""
     root = ET.parse(urdf).getroot()
@@ -113,9 +114,10 @@ class PlantArray:
         self.ST[arm] = model.S.T
         friction, n = model.friction, self.n
         if friction is not None:
-            self.viscous[arm] = friction._viscous * np.ones(n)
-            self.coulomb_pos[arm] = 0.0 if friction._pos is None else friction._pos * np.ones(n)
-            self.coulomb_neg[arm] = 0.0 if friction._neg is None else friction._neg * np.ones(n)
+            positive, negative = friction.coulomb_pos, friction._neg_tuple()
+            self.viscous[arm] = np.asarray(friction.viscous, dtype=float) * np.ones(n)
+            self.coulomb_pos[arm] = 0.0 if positive is None else np.asarray(positive) * np.ones(n)
+            self.coulomb_neg[arm] = 0.0 if negative is None else np.asarray(negative) * np.ones(n)
             self.smoothing[arm] = friction.smoothing_velocity
         else:
             self.viscous[arm] = self.coulomb_pos[arm] = self.coulomb_neg[arm] = 0.0
@@ -125,5 +127,5 @@ class PlantArray:
         self.has_coupling = any(m.has_coupling for m in models)
         self.has_friction = any(m.friction is not None for m in models)
         self.has_coulomb = any(
-            m.friction is not None and m.friction._pos is not None for m in models
+            m.friction is not None and m.friction.coulomb_pos is not None for m in models
         )

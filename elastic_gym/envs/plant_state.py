@@ -115,7 +115,7 @@ class PlantState:
         due = time >= self._change_time
         if due.any():
             batch = self.batch
-            for arm in np.flatnonzero(due):
+            for arm in np.flatnonzero(due).tolist():
                 mass = batch.settings[arm].payload.change.mass
                 batch.sim.plants.set(arm, batch.resolver.plant_model(batch.settings[arm], mass))
                 batch.sim.set_payload_mass(arm, mass)

@@ -55,6 +55,8 @@ def plant_stream(rng: np.random.Generator) -> np.random.Generator:
     """The plant stream derived from an arm's task/sensor generator without drawing from it:
     same seed, same stream."""
     seq = rng.bit_generator.seed_seq
+    if not isinstance(seq, np.random.SeedSequence):
+        raise TypeError(f"an arm's generator needs a SeedSequence, got {type(seq).__name__}")
     child = np.random.SeedSequence(seq.entropy, spawn_key=(*seq.spawn_key, PLANT_STREAM))
     return np.random.default_rng(child)
 

@@ -7,47 +7,44 @@ Only these reach the observation. Noise is drawn from the environment's
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import AfterValidator, ConfigDict, StrictFloat
 
-from elastic_gym.validation import config_from
+from elastic_gym.validation import StrictModel, validated
 
 GRAVITY = 9.81
 
 
-def _check_range(
-    owner: str, key: str, value, low: float, high: float, zero: bool = True, none: bool = True
-) -> None:
-    """``value`` in [low, high] (or 0 / None where allowed): limits beyond which a sensor
-    setting would overflow the observation or mean nothing physical."""
-    if value is None and none:
-        return
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if number and ((value == 0 and zero) or low <= value <= high):
-        return
-    allowed = f"{'0 or ' if zero else ''}a number in [{low:g}, {high:g}]"
-    raise ValueError(f"{owner}.{key} must be {allowed}, got {value!r}")
+def _within(low: float, high: float, zero: bool = True) -> AfterValidator:
+    """A value in [low, high] (or 0 where allowed): limits beyond which a sensor setting
+    would overflow the observation or mean nothing physical."""
+
+    def check(value: float) -> float:
+        if (value == 0 and zero) or low <= value <= high:
+            return value
+        allowed = f"{'0 or ' if zero else ''}a number in [{low:g}, {high:g}]"
+        raise ValueError(f"must be {allowed}, got {value!r}")
+
+    return AfterValidator(check)
 
 
-@dataclass(frozen=True)
-class EncoderConfig:
+class EncoderConfig(StrictModel):
     """Position encoder: quantization ``resolution`` (rad, 0 = ideal) and Gaussian noise.
 
     ``None`` fields take the robot's defaults (``RobotSpec.encoder_resolution`` and
     ``encoder_noise_std``).
     """
 
-    resolution: float | None = None
-    noise_std: float | None = None
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self) -> None:
-        _check_range("encoder", "resolution", self.resolution, 1e-12, 1.0)
-        _check_range("encoder", "noise_std", self.noise_std, 1e-12, 1.0)
+    resolution: Annotated[StrictFloat, _within(1e-12, 1.0)] | None = None
+    noise_std: Annotated[StrictFloat, _within(1e-12, 1.0)] | None = None
 
     @classmethod
     def from_config(cls, config) -> EncoderConfig:
-        return config_from(cls, config, "encoder")
+        return validated(cls, config, "encoder")
 
 
 class GaussianNoise:
@@ -80,34 +77,37 @@ class GaussianNoise:
         return sample
 
 
-def _rows(mask: np.ndarray, arms: np.ndarray, rngs: list) -> tuple[np.ndarray, np.ndarray, list]:
-    """The rows of ``arms`` where ``mask`` holds, their arms and their generators."""
-    rows = np.flatnonzero(mask)
-    return rows, arms[rows], [rngs[r] for r in rows]
+def common(values: np.ndarray) -> float | None:
+    """The value every arm shares (the fast path of a measurement), or None."""
+    return float(values[0]) if len(values) and np.all(values == values[0]) else None
 
 
-def _quantized(y: np.ndarray, resolution: np.ndarray) -> np.ndarray:
-    """round(y / r) * r per row, rows with r = 0 unchanged (``resolution`` (k, 1))."""
-    if np.all(resolution > 0.0):
-        return np.round(y / resolution) * resolution
-    if not np.any(resolution > 0.0):
-        return np.array(y, dtype=float)
-    safe = np.where(resolution > 0.0, resolution, 1.0)
-    return np.where(resolution > 0.0, np.round(y / safe) * safe, y)
+def _quantized(y: np.ndarray, resolution: np.ndarray, shared: float | None, arms) -> np.ndarray:
+    """round(y / r) * r per row with arm k's resolution r_k (r = 0: unchanged)."""
+    if shared is not None:
+        return np.round(y / shared) * shared if shared > 0.0 else np.array(y, dtype=float)
+    r = resolution[arms, None]
+    safe = np.where(r > 0.0, r, 1.0)
+    return np.where(r > 0.0, np.round(y / safe) * safe, y)
 
 
 def _add_noise(
-    y: np.ndarray, std: np.ndarray, noise: GaussianNoise, arms: np.ndarray, rngs: list
+    y: np.ndarray,
+    std: np.ndarray,
+    shared: float | None,
+    noise: GaussianNoise,
+    arms: np.ndarray,
+    rngs: list,
 ) -> np.ndarray:
     """y + std_k n_k for the rows whose arm has std_k > 0 (only they draw); ``std`` (N,)."""
-    noisy = std[arms] > 0.0
-    if noisy.all():
-        return y + std[arms, None] * noise.draw(arms, rngs)
-    if not noisy.any():
+    if shared is not None:
+        return y + shared * noise.draw(arms, rngs) if shared > 0.0 else y
+    rows = np.flatnonzero(std[arms] > 0.0)
+    if not len(rows):
         return y
-    rows, which, own = _rows(noisy, arms, rngs)
+    which = arms[rows]
     y = np.array(y, dtype=float)
-    y[rows] = y[rows] + std[which, None] * noise.draw(which, own)
+    y[rows] = y[rows] + std[which, None] * noise.draw(which, [rngs[r] for r in rows])
     return y
 
 
@@ -123,10 +123,12 @@ class Encoder:
         self.resolution = np.broadcast_to(np.asarray(resolution, dtype=float), (n_arms,)).copy()
         self.noise_std = np.broadcast_to(np.asarray(noise_std, dtype=float), (n_arms,)).copy()
         self.noise = GaussianNoise(n_arms, n_joints)
+        self._shared = common(self.resolution), common(self.noise_std)
 
     def set(self, arm: int, resolution: float, noise_std: float) -> None:
         """Arm ``arm``'s own resolution and noise (e.g. drawn at a reset)."""
         self.resolution[arm], self.noise_std[arm] = resolution, noise_std
+        self._shared = common(self.resolution), common(self.noise_std)
 
     def restart(self, arms: np.ndarray) -> None:
         """Fresh noise blocks for the arms (at a reset: their generators may be new)."""
@@ -136,12 +138,12 @@ class Encoder:
         self, position: np.ndarray, rngs: list[np.random.Generator], arms: np.ndarray
     ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``position``; ``rngs`` are theirs)."""
-        y = _add_noise(position, self.noise_std, self.noise, arms, rngs)
-        return _quantized(y, self.resolution[arms, None])
+        resolution, noise_std = self._shared
+        y = _add_noise(position, self.noise_std, noise_std, self.noise, arms, rngs)
+        return _quantized(y, self.resolution, resolution, arms)
 
 
-@dataclass(frozen=True)
-class AccelerometerConfig:
+class AccelerometerConfig(StrictModel):
     """Error model of every 3-axis accelerometer of the arm.
 
     Defaults are those of a good industrial MEMS part sampled at the control rate:
@@ -154,22 +156,17 @@ class AccelerometerConfig:
     * ``resolution`` None: optional output quantization (m/s^2).
     """
 
-    noise_density: float = 1.5e-3
-    bias_std: float = 0.02
-    range: float = 16.0 * GRAVITY
-    cutoff_hz: float | None = None
-    resolution: float | None = None
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self) -> None:
-        _check_range("accelerometer", "noise_density", self.noise_density, 1e-12, 10.0, none=False)
-        _check_range("accelerometer", "bias_std", self.bias_std, 1e-12, 100.0, none=False)
-        _check_range("accelerometer", "resolution", self.resolution, 1e-9, 100.0)
-        _check_range("accelerometer", "range", self.range, 1e-3, 1e9, zero=False, none=False)
-        _check_range("accelerometer", "cutoff_hz", self.cutoff_hz, 1e-3, 1e6, zero=False)
+    noise_density: Annotated[StrictFloat, _within(1e-12, 10.0)] = 1.5e-3
+    bias_std: Annotated[StrictFloat, _within(1e-12, 100.0)] = 0.02
+    range: Annotated[StrictFloat, _within(1e-3, 1e9, zero=False)] = 16.0 * GRAVITY
+    cutoff_hz: Annotated[StrictFloat, _within(1e-3, 1e6, zero=False)] | None = None
+    resolution: Annotated[StrictFloat, _within(1e-9, 100.0)] | None = None
 
     @classmethod
     def from_config(cls, config) -> AccelerometerConfig:
-        return config_from(cls, config, "accelerometer")
+        return validated(cls, config, "accelerometer")
 
     @classmethod
     def ideal(cls) -> AccelerometerConfig:
@@ -219,6 +216,9 @@ class AccelerometerArray:
         )
         self.bias_std[arm], self.range[arm] = config.bias_std, config.range
         self.resolution[arm] = config.resolution or 0.0
+        self._shared = [
+            common(x) for x in (self.sample_std, self.alpha, self.range, self.resolution)
+        ]
 
     def reset(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> None:
         """New bias for the given arms (drawn from their generators), filters restarted."""
@@ -232,14 +232,14 @@ class AccelerometerArray:
     ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``specific_force``; ``rngs`` are theirs)."""
         y = specific_force + self.bias[arms]
-        y = _add_noise(y, self.sample_std, self.noise, arms, rngs)
-        alpha = self.alpha[arms]
-        if np.any(alpha > 0.0):
-            hold = (self.fresh[arms] | (alpha == 0.0))[:, None]
-            a = alpha[:, None]
+        sample_std, alpha, limit, resolution = self._shared
+        y = _add_noise(y, self.sample_std, sample_std, self.noise, arms, rngs)
+        if alpha is None or alpha > 0.0:
+            a = self.alpha[arms, None] if alpha is None else alpha
+            hold = (self.fresh[arms] | (self.alpha[arms] == 0.0))[:, None]
             y = np.where(hold, y, a * self.filtered[arms] + (1.0 - a) * y)
             self.filtered[arms] = y
             self.fresh[arms] = False
-        limit = self.range[arms, None]
+        limit = self.range[arms, None] if limit is None else limit
         y = np.minimum(np.maximum(y, -limit), limit)
-        return _quantized(y, self.resolution[arms, None])
+        return _quantized(y, self.resolution, resolution, arms)

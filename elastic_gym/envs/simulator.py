@@ -296,7 +296,13 @@ class ArmSimulator:
         link = self.payload_links[arm]
         if link is None:
             raise ValueError(f"arm {arm} was built without a payload link")
-        p.changeDynamics(self.bodies[arm], link, mass=float(mass), physicsClientId=self.client)
+        p.changeDynamics(  # a point mass: no rotational inertia (PyBullet would scale its own)
+            self.bodies[arm],
+            link,
+            mass=float(mass),
+            localInertiaDiagonal=[0.0, 0.0, 0.0],
+            physicsClientId=self.client,
+        )
 
     def _owning_joint(self, body: int, n_links: int) -> dict[int, int]:
         """Map each PyBullet link to the actuated joint that moves it (fixed children inherit)."""

@@ -27,7 +27,9 @@ Algorithms (world-frame vectors, joints in index order, parent before child):
 
 The loops over arms are compiled with numba. Each arm's result depends only on its own
 inputs, computed by the same operations in the same order whatever N: arm i of a batch
-is bit-identical to the same arm evaluated alone. ``tests/test_chain.py`` checks every
+is bit-identical to the same arm evaluated alone. A chain holds one parameter set for
+every arm, or one per arm (:meth:`SerialChain.stack`: arms whose links differ, e.g.
+randomized masses); arm k then reads its own row. ``tests/test_chain.py`` checks every
 quantity against pinocchio to 1e-12 (relative) on every robot of the catalog.
 """
 
