@@ -6,8 +6,9 @@ another suite (name, version or hash different from the current suite's) or a du
 label, and writes ``docs/leaderboard.md``, ``docs/leaderboard/leaderboard.csv`` and
 ``docs/leaderboard/leaderboard.png``. Implementable entries and oracle references (entries
 whose state source read the ground truth) are separate tables, each ranked by the overall
-score; below them, for each category, the best implementable entry and its lead over the
-next one.
+score; below them, for each score, the best implementable entry and its lead over the
+next one, the notes of ``docs/leaderboard/notes.md``, and each task's tolerances beside the
+spread the shipped entries measured.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from elastic_gym.benchmark.suite import DEFAULT_SUITE, SuiteConfig, load_suite
 DOCS = Path("docs")
 SCORECARD_DIR = DOCS / "leaderboard" / "scorecards"
 PAGE = DOCS / "leaderboard.md"
-TABLE_DIR = DOCS / "leaderboard"
+NOTES = "notes.md"  # beside the scorecard folder: what the leaderboard shows, in words
 
 
 def load_cards(folder: Path, suite: SuiteConfig) -> list[Scorecard]:
@@ -106,7 +107,43 @@ def winners(cards: Sequence[Scorecard], columns: list[str]) -> list[str]:
     return lines
 
 
-def leaderboard_markdown(cards: Sequence[Scorecard], suite: SuiteConfig) -> str:
+def spread_table(cards: Sequence[Scorecard], suite: SuiteConfig) -> list[str]:
+    """Per task and tolerance metric: the threshold, and each entry's range (min - max over
+    the completed episodes of the task's unperturbed cells) with its count of episodes
+    beyond the threshold: the measured spread the thresholds sit in."""
+    base = {c.id: c for c in suite.cells if not c.perturbed}
+    ordered = [
+        *_ranked([c for c in cards if not c.oracle]),
+        *_ranked([c for c in cards if c.oracle]),
+    ]
+    lines = [
+        "| task | metric | threshold | " + " | ".join(c.label for c in ordered) + " |",
+        "|---|---|---|" + "---|" * len(ordered),
+    ]
+    for name, task in suite.tasks.items():
+        for metric, limit in task.tolerance.limits().items():
+            cells = []
+            for card in ordered:
+                values = [
+                    e.metrics.get(metric)
+                    for cell in card.cells
+                    if cell.id in base and cell.task == name
+                    for e in cell.episodes
+                    if e.status == "ok"
+                ]
+                finite = [v for v in values if v is not None and math.isfinite(v)]
+                if not values:
+                    cells.append("-")
+                    continue
+                beyond = sum(1 for v in values if v is None or not v <= limit)
+                span = f"{min(finite):.2g} - {max(finite):.2g}" if finite else "n/a"
+                cells.append(f"{span} ({beyond}/{len(values)} over)")
+            lines.append(f"| {name} | {metric} | {limit:g} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def leaderboard_markdown(cards: Sequence[Scorecard], suite: SuiteConfig, notes: str = "") -> str:
+    """The leaderboard page; ``notes`` (markdown) goes under the tables."""
     columns = _columns(suite)
     implementable = [c for c in cards if not c.oracle]
     oracle = [c for c in cards if c.oracle]
@@ -141,7 +178,16 @@ def leaderboard_markdown(cards: Sequence[Scorecard], suite: SuiteConfig) -> str:
         "",
         *winners(implementable, columns),
         "",
+        *([notes.strip(), ""] if notes.strip() else []),
         "![per-category scores](leaderboard/leaderboard.png)",
+        "",
+        "## Tolerances and the measured spread",
+        "",
+        "Each task's thresholds against the range of each entry's completed episodes on the "
+        "task's unperturbed cells (both robots), with the count of those episodes beyond "
+        "the threshold.",
+        "",
+        *spread_table(cards, suite),
         "",
     ]
     return "\n".join(lines)
@@ -211,15 +257,17 @@ def rebuild_leaderboard(
     page: str | Path = PAGE,
     suite: SuiteConfig | str | Path = DEFAULT_SUITE,
 ) -> list[Path]:
-    """Rebuild the leaderboard page, CSV and figure from the scorecards (module docstring);
-    the CSV and the figure go to the folder of the scorecards' parent."""
+    """Rebuild the leaderboard page, CSV and figure from the scorecards (module docstring).
+    The CSV and the figure go to the scorecards' parent folder; a ``notes.md`` there (what the
+    results show, in words) is put under the tables."""
     if not isinstance(suite, SuiteConfig):
         suite = load_suite(suite)
     cards = load_cards(Path(scorecards), suite)
     page = Path(page)
     tables = Path(scorecards).parent
     page.parent.mkdir(parents=True, exist_ok=True)
-    page.write_text(leaderboard_markdown(cards, suite))
+    notes = tables / NOTES
+    page.write_text(leaderboard_markdown(cards, suite, notes.read_text() if notes.exists() else ""))
     return [
         page,
         write_csv(cards, suite, tables / "leaderboard.csv"),

@@ -228,6 +228,7 @@ class Cell:
     env_id: str
     kwargs: dict
     tolerance: Tolerance
+    perturbed: bool = False  # the cell changes the task's plant
 
     @property
     def id(self) -> str:
@@ -248,7 +249,16 @@ def expand_cells(suite: SuiteConfig) -> tuple[Cell, ...]:
                     cell.plant,
                 )
                 cells.append(
-                    Cell(robot, category, cell.label, cell.task, entry.env, kwargs, task.tolerance)
+                    Cell(
+                        robot,
+                        category,
+                        cell.label,
+                        cell.task,
+                        entry.env,
+                        kwargs,
+                        task.tolerance,
+                        bool(cell.plant),
+                    )
                 )
     return tuple(cells)
 
