@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import io
 import re
+import resource
 import sys
 import time
 from collections.abc import Mapping
@@ -84,7 +85,7 @@ def run_benchmark(
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / _slug(entry.name)
     _check_folder(out, overwrite)
     check_output_folder(out / RUNS_DIR, overwrite)
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), _cpu_seconds()
     (out / RUNS_DIR).mkdir(parents=True, exist_ok=True)
     with open(out / RUNS_DIR / "compare.log", "w") as log:
         comparison = compare(
@@ -103,13 +104,22 @@ def run_benchmark(
     scores = compute_scores(suite, episodes)
     used = sorted({c.robot for c in suite.cells if c.id in {e.cell for e in episodes}})
     used.sort(key=list(suite.robots).index)
-    card = build_scorecard(suite, record, used, episodes, scores, time.perf_counter() - start)
+    wall, cpu = time.perf_counter() - start, _cpu_seconds() - cpu_start
+    card = build_scorecard(suite, record, used, episodes, scores, wall, cpu)
     write_scorecard(card, out, figure)
     print(
         f"{card.label}: overall {card.scores.overall:.3f}, {scores.passed} of "
-        f"{scores.episodes} episodes pass; scorecard in {out}/"
+        f"{scores.episodes} episodes pass ({wall:.0f} s, {cpu:.0f} s CPU); scorecard in {out}/"
     )
     return card
+
+
+def _cpu_seconds() -> float:
+    """CPU time of this process and its finished child processes (the workers) so far."""
+    own, children = (
+        resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+    )
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def _slug(label: str) -> str:

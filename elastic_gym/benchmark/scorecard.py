@@ -3,7 +3,8 @@
 JSON fields: ``format``; ``suite`` (name, version, sha256 hash); ``package`` (version, git
 commit of the checkout when there is one); ``entry`` (what was scored and what it read:
 :func:`~elastic_gym.benchmark.entry.describe_entry`); ``robots``; ``created`` (UTC);
-``wall_time`` (s); ``scores`` (overall, precision, per category, per robot); ``cells`` (per
+``wall_time`` and ``cpu_time`` (s, this process and its worker processes; local
+backend); ``scores`` (overall, precision, per category, per robot); ``cells`` (per
 cell: robot, category, label, task, tolerances, pass share, and every episode with its
 seed, status, metrics and the checks it failed). :func:`read_scorecard` validates a file.
 """
@@ -82,6 +83,7 @@ class Scorecard(StrictModel):
     robots: list[str]
     created: str
     wall_time: float
+    cpu_time: float | None = None
     scores: ScoreRecord
     cells: list[CellRecord]
 
@@ -121,6 +123,7 @@ def build_scorecard(
     episodes: list[Episode],
     scores: Scores,
     wall_time: float,
+    cpu_time: float | None = None,
 ) -> Scorecard:
     """The scorecard of scored episodes (:mod:`~elastic_gym.benchmark.scoring`)."""
     cells = []
@@ -157,6 +160,7 @@ def build_scorecard(
         robots=robots,
         created=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         wall_time=round(wall_time, 1),
+        cpu_time=None if cpu_time is None else round(cpu_time, 1),
         scores=ScoreRecord(
             overall=_finite(scores.overall),
             precision=_finite(scores.precision),
@@ -205,7 +209,9 @@ def scorecard_markdown(card: Scorecard) -> str:
         f"suite {card.suite.name} version {card.suite.version} (sha256 "
         f"`{card.suite.hash[:16]}`), elastic-gym {card.package['version']} "
         f"(commit {card.package.get('commit') or 'unknown'}), {card.created}, "
-        f"{card.wall_time:.0f} s wall time; {scores.passed} of {scores.episodes} episodes pass.",
+        f"{card.wall_time:.0f} s wall time"
+        + (f" ({card.cpu_time:.0f} s CPU)" if card.cpu_time is not None else "")
+        + f"; {scores.passed} of {scores.episodes} episodes pass.",
         "",
         "| score | all | " + " | ".join(card.robots) + " |",
         "|---|---|" + "---|" * len(card.robots),
