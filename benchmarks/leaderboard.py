@@ -7,9 +7,10 @@
 
 1. ``--train``: the RL baselines' run folders (``runs/benchmark/<name>``) with
    ``elastic-gym train``'s defaults and fixed training seeds (``RL_BASELINES``): pure PPO
-   on the De Luca estimate, RecurrentPPO on the raw sensors, the residual PPO on eq. (13)
-   (true state, as it was trained in the RL study). Training seeds are 0 .. n_envs - 1
-   (and 10 000 + k for the learning curve): never the suite's evaluation seeds (90 000 ..).
+   on the De Luca estimate and the residual PPO on eq. (13), also on the De Luca estimate. Training seeds are 0 .. n_envs - 1 (and 10 000 + k for the learning
+   curve): never the suite's evaluation seeds (90 000 ..). RecurrentPPO on the raw sensors
+   is not among them: the comparison runner feeds a controller a state source's estimate,
+   and a policy on raw sensors has none (``trained-policy`` refuses such a run).
 2. Scoring: every entry of ``CLASSICAL`` (and every RL baseline whose run folder exists)
    with :func:`elastic_gym.benchmark.run_benchmark` on the whole suite, one entry after
    the other on all CPUs; each writes ``benchmark_out/<entry>/`` and its scorecard JSON is
@@ -45,15 +46,7 @@ CLASSICAL = {
 RUNS = Path("runs/benchmark")
 RL_BASELINES = {  # name -> elastic-gym train arguments (seed 0, the shipped defaults)
     "ppo@deluca": ["--algo", "ppo", "--state", "deluca"],
-    "recurrentppo@sensors": ["--algo", "recurrentppo", "--state", "sensors"],
-    "residual-ppo@true": [
-        "--algo",
-        "ppo",
-        "--state",
-        "true",
-        "--residual",
-        EQ13,
-    ],
+    "residual-ppo@deluca": ["--algo", "ppo", "--state", "deluca", "--residual", EQ13],
 }
 
 
