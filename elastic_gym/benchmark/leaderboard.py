@@ -71,13 +71,14 @@ def _ranked(cards: Sequence[Scorecard]) -> list[Scorecard]:
 
 def _table(cards: Sequence[Scorecard], columns: list[str]) -> list[str]:
     lines = [
-        "| entry | controller | state source | " + " | ".join(columns) + " |",
-        "|---|---|---|" + "---|" * len(columns),
+        "| entry | controller | state source | robots | " + " | ".join(columns) + " |",
+        "|---|---|---|---|" + "---|" * len(columns),
     ]
     for card in _ranked(cards):
         values = " | ".join(fmt(_value(card, c)) for c in columns)
         lines.append(
-            f"| {card.label} | `{card.entry['controller']}` | `{card.entry['source']}` | {values} |"
+            f"| {card.label} | `{card.entry['controller']}` | `{card.entry['source']}` | "
+            f"{', '.join(card.robots)} | {values} |"
         )
     return lines
 
