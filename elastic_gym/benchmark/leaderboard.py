@@ -18,7 +18,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from elastic_gym.benchmark.scorecard import Scorecard, fmt, read_scorecard
+from elastic_gym.benchmark.scorecard import Scorecard, fmt, read_scorecard, score_value
 from elastic_gym.benchmark.scoring import OVERALL, PRECISION
 from elastic_gym.benchmark.suite import DEFAULT_SUITE, SuiteConfig, load_suite
 
@@ -57,14 +57,6 @@ def _columns(suite: SuiteConfig) -> list[str]:
     return [OVERALL, PRECISION, *suite.categories]
 
 
-def _value(card: Scorecard, column: str) -> float | None:
-    if column == OVERALL:
-        return card.scores.overall
-    if column == PRECISION:
-        return card.scores.precision
-    return card.scores.categories.get(column)
-
-
 def _ranked(cards: Sequence[Scorecard]) -> list[Scorecard]:
     return sorted(cards, key=lambda c: -(c.scores.overall or 0.0))
 
@@ -75,7 +67,7 @@ def _table(cards: Sequence[Scorecard], columns: list[str]) -> list[str]:
         "|---|---|---|---|" + "---|" * len(columns),
     ]
     for card in _ranked(cards):
-        values = " | ".join(fmt(_value(card, c)) for c in columns)
+        values = " | ".join(fmt(score_value(card, c)) for c in columns)
         lines.append(
             f"| {card.label} | `{card.entry['controller']}` | `{card.entry['source']}` | "
             f"{', '.join(card.robots)} | {values} |"
@@ -88,23 +80,23 @@ def winners(cards: Sequence[Scorecard], columns: list[str]) -> list[str]:
     lines = []
     for column in columns:
         ranked = sorted(
-            (c for c in cards if _value(c, column) is not None),
-            key=lambda c: -_value(c, column),
+            (c for c in cards if score_value(c, column) is not None),
+            key=lambda c: -score_value(c, column),
         )
         if not ranked:
             continue
         best = ranked[0]
-        ties = [c.label for c in ranked if _value(c, column) == _value(best, column)]
+        ties = [c.label for c in ranked if score_value(c, column) == score_value(best, column)]
         if len(ties) > 1:
-            lines.append(f"* {column}: {', '.join(ties)} tie at {fmt(_value(best, column))}.")
+            lines.append(f"* {column}: {', '.join(ties)} tie at {fmt(score_value(best, column))}.")
             continue
         lead = ""
         if len(ranked) > 1:
             lead = (
-                f", {_value(best, column) - _value(ranked[1], column):.2f} ahead of "
-                f"{ranked[1].label} ({fmt(_value(ranked[1], column))})"
+                f", {score_value(best, column) - score_value(ranked[1], column):.2f} ahead of "
+                f"{ranked[1].label} ({fmt(score_value(ranked[1], column))})"
             )
-        lines.append(f"* {column}: {best.label} ({fmt(_value(best, column))}){lead}.")
+        lines.append(f"* {column}: {best.label} ({fmt(score_value(best, column))}){lead}.")
     return lines
 
 
@@ -205,7 +197,10 @@ def write_csv(cards: Sequence[Scorecard], suite: SuiteConfig, path: Path) -> Pat
         ]:
             writer.writerow(
                 [card.label, card.oracle, card.entry["controller"], card.entry["source"]]
-                + [("" if _value(card, c) is None else f"{_value(card, c):.4f}") for c in columns]
+                + [
+                    ("" if score_value(card, c) is None else f"{score_value(card, c):.4f}")
+                    for c in columns
+                ]
                 + [card.package.get("commit") or ""]
             )
     return path
@@ -225,7 +220,10 @@ def plot_leaderboard(cards: Sequence[Scorecard], suite: SuiteConfig, path: Path)
         *_ranked([c for c in cards if c.oracle]),
     ]
     data = np.array(
-        [[math.nan if _value(c, k) is None else _value(c, k) for k in columns] for c in ordered]
+        [
+            [math.nan if score_value(c, k) is None else score_value(c, k) for k in columns]
+            for c in ordered
+        ]
     )
     fig, ax = plt.subplots(
         figsize=(1.1 * len(columns) + 3, 0.45 * len(ordered) + 1.5), constrained_layout=True

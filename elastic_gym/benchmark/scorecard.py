@@ -218,7 +218,7 @@ def scorecard_markdown(card: Scorecard) -> str:
     ]
     for name in [*scores.categories, PRECISION, OVERALL]:
         per_robot = [fmt(scores.per_robot.get(r, {}).get(name)) for r in card.robots]
-        lines.append(f"| {name} | {fmt(_total(card, name))} | " + " | ".join(per_robot) + " |")
+        lines.append(f"| {name} | {fmt(score_value(card, name))} | " + " | ".join(per_robot) + " |")
     lines += [
         "",
         "Per cell: the share of its episodes that pass, and means over its completed episodes.",
@@ -254,7 +254,7 @@ def plot_scorecard(card: Scorecard, path: Path) -> Path:
     import numpy as np
 
     names = [*card.scores.categories, PRECISION, OVERALL]
-    series = {"all": [_total(card, n) for n in names]}
+    series = {"all": [score_value(card, n) for n in names]}
     for robot in card.robots:
         series[robot] = [card.scores.per_robot[robot].get(n) for n in names]
     fig, ax = plt.subplots(figsize=(9, 3.8), constrained_layout=True)
@@ -273,7 +273,8 @@ def plot_scorecard(card: Scorecard, path: Path) -> Path:
     return path
 
 
-def _total(card: Scorecard, name: str) -> float | None:
+def score_value(card: Scorecard, name: str) -> float | None:
+    """A score of the card by name: a category, ``precision`` or ``overall``."""
     if name == PRECISION:
         return card.scores.precision
     if name == OVERALL:
