@@ -14,6 +14,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
 from elastic_gym.evaluation.scenario import DEFAULT_PRESET, list_presets
 from elastic_gym.parallel import BACKENDS, Interrupted, interrupts_raised
 
@@ -43,6 +44,14 @@ def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
         help="replace the files of an earlier comparison in the output folder",
     )
     parser.add_argument("--workers", type=int, help="parallel workers (default: one per CPU)")
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        default=DEFAULT_BATCH_SIZE,
+        metavar="N",
+        help="most runs simulated together in one world (vector env, observer, controller; "
+        f"default {DEFAULT_BATCH_SIZE}); 1: every run in a world of its own (the same rows)",
+    )
     parser.add_argument(
         "--backend", choices=BACKENDS, default="process", help="local processes (default) or Ray"
     )
@@ -101,6 +110,7 @@ def run_compare(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         plots=not args.no_plots,
         overwrite=args.overwrite,
+        batch_size=args.batch_size,
     )
     return 0
 
@@ -241,12 +251,9 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
 
 
 def _yaml_mapping(text: str, option: str) -> dict:
-    import yaml
+    from elastic_gym.yaml_io import load_yaml
 
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{option}: invalid YAML: {exc}") from None
+    value = load_yaml(text, option)
     if value is None:
         return {}
     if not isinstance(value, dict):
@@ -479,8 +486,9 @@ USAGE_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryErr
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code.
 
-    2: invalid input (nothing was run); 1: a job could not run (a worker died); 130 / 143:
-    interrupted by SIGINT / SIGTERM (the message says what was kept on disk).
+    2: invalid input (nothing was run); 1: a job could not run, or results could not be
+    written (a full disk: the message says what was kept); 130 / 143: interrupted by
+    SIGINT / SIGTERM (the message says what was kept on disk).
     """
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -494,7 +502,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return interrupted.exit_code
     except USAGE_ERRORS as exc:
         parser.exit(2, f"{prefix}: error: {exc}\n")
-    except RuntimeError as exc:
+    except (RuntimeError, OSError) as exc:  # OSError: e.g. a disk that filled while running
         sys.stderr.write(f"{prefix}: error: {exc}\n")
         return 1
 

@@ -7,6 +7,7 @@ import hashlib
 import itertools
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -317,7 +318,7 @@ def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_p
     assert code == 0
     card = read_scorecard(tmp_path / "a" / "scorecard.json")
     assert card.entry["source"] == observer and card.entry["controller"] == "motor-pd"
-    assert "runs on 1 worker" in capsys.readouterr().out
+    assert re.search(r"20 runs .*on 1 worker, about \d+ s", capsys.readouterr().out)
     for bad, message in [
         (["--class", observer, "--source", "ekf"], "drop --source"),
         (

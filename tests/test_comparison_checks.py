@@ -19,6 +19,7 @@ from rich.console import Console
 from elastic_gym.cli import main
 from elastic_gym.controllers.base import Controller
 from elastic_gym.evaluation import Scenario, ScenarioError, compare, execute, plan_runs
+from elastic_gym.evaluation.groups import plan_groups
 from elastic_gym.evaluation.preflight import preflight
 from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
 
@@ -306,7 +307,14 @@ def test_any_exception_in_a_users_controller_or_observer_is_a_failed_row(tmp_pat
     assert len(list((tmp_path / "plots").glob("*.png"))) == 1
 
 
-def test_rows_and_figures_are_on_disk_as_soon_as_their_runs_finish(tmp_path):
+@pytest.mark.parametrize(
+    ("batch_size", "expected"),
+    [
+        (1, [(0, 0), (1, 0), (2, 1), (3, 1)]),  # one run per world
+        (2, [(0, 0), (0, 0), (2, 1), (2, 1)]),  # the two seeds of a plant share a world
+    ],
+)
+def test_rows_and_figures_are_on_disk_as_soon_as_their_runs_finish(tmp_path, batch_size, expected):
     CountingController.seen.clear()
     scn = scenario(
         seeds=[0, 1],
@@ -315,9 +323,9 @@ def test_rows_and_figures_are_on_disk_as_soon_as_their_runs_finish(tmp_path):
             {"name": "counting", "class": CountingController, "options": {"folder": str(tmp_path)}}
         ],
     )
-    run(scn, tmp_path)
-    # the last 4 resets are the runs (the checks before the first run build it once more)
-    assert CountingController.seen[-4:] == [(0, 0), (1, 0), (2, 1), (3, 1)]
+    run(scn, tmp_path, batch_size=batch_size)
+    # the last 4 resets are the runs' (the checks before the first run build them once more)
+    assert CountingController.seen[-4:] == expected
 
 
 def test_compare_returns_mean_and_spread_over_seeds(tmp_path, monkeypatch):
@@ -345,12 +353,13 @@ def test_compare_returns_mean_and_spread_over_seeds(tmp_path, monkeypatch):
     assert [r["track_rms"] for r in plain.runs] == list(track)
 
 
-def test_run_count_and_time_estimate_are_printed_first_and_hold(tmp_path):
+@pytest.mark.parametrize(("batch_size", "worlds"), [(1, 4), (64, 2)])
+def test_run_count_and_time_estimate_are_printed_first_and_hold(tmp_path, batch_size, worlds):
     scn = scenario(duration=0.2, seeds=[0, 1], state_sources=["finite-difference", "nicosia-tomei"])
     runs, _ = plan_runs(scn)
-    estimate = preflight(scn, runs, workers=1)
+    estimate = preflight(scn, plan_groups(runs, batch_size, 1), workers=1)
     start = time.process_time()
-    execute(runs, workers=1, progress=False)
+    execute(runs, workers=1, progress=False, batch_size=batch_size)
     measured = time.process_time() - start  # CPU time: the machine's load does not enter
     assert 0.5 < estimate.cpu_seconds / measured < 2.0, (estimate.cpu_seconds, measured)
     assert estimate.seconds == estimate.cpu_seconds / estimate.share and 0 < estimate.share <= 1
@@ -363,6 +372,8 @@ def test_run_count_and_time_estimate_are_printed_first_and_hold(tmp_path):
         progress=False,
         plots=False,
         console=Console(file=printed, width=200),
+        batch_size=batch_size,
     )
     first = printed.getvalue().splitlines()[0]
-    assert first.startswith("checks: 4 runs on 1 worker, about ") and first.endswith(" s")
+    assert first.startswith(f"checks: 4 runs in {worlds} worlds on 1 worker, about ")
+    assert first.endswith(" s")

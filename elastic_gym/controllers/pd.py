@@ -25,7 +25,8 @@ import numpy as np
 
 from elastic_gym.controllers.gain_design import bandwidth_pd_gains, most_stable_bandwidth, pd_gain
 from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP
-from elastic_gym.controllers.state_feedback import FeedforwardStateFeedback
+from elastic_gym.controllers.state_feedback import FeedforwardStateFeedback, VectorStateFeedback
+from elastic_gym.controllers.vector import twin_of
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import per_joint_values
 
@@ -111,3 +112,13 @@ class LinkPD(_BlockPD):
         return most_stable_bandwidth(
             self.model, q0, DEFAULT_BANDWIDTH, self.damping_ratio, self.block
         )
+
+
+@twin_of(MotorPD)
+class VectorMotorPD(VectorStateFeedback):
+    """:class:`MotorPD` on N arms (the eq. (13) law with its block gain)."""
+
+
+@twin_of(LinkPD)
+class VectorLinkPD(VectorStateFeedback):
+    """:class:`LinkPD` on N arms (the eq. (13) law with its block gain)."""

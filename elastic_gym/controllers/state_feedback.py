@@ -31,9 +31,9 @@ from elastic_gym.controllers.invdyn import (
     InverseDynamics,
     info_time,
     reference_derivatives,
-    state_vector,
     static_reference,
 )
+from elastic_gym.controllers.vector import OneArmLaw, StateLaw, arm_rows, twin_of
 from elastic_gym.model import RobotModel
 
 
@@ -47,7 +47,7 @@ def _square(value, size: int, name: str) -> np.ndarray:
     return arr
 
 
-class FeedforwardStateFeedback(Controller):
+class FeedforwardStateFeedback(OneArmLaw, Controller):
     """Eq. (13): tau = K_P (x_d - xi) + tau_d.
 
     Args:
@@ -66,7 +66,7 @@ class FeedforwardStateFeedback(Controller):
 
     At most one of ``gain``, ``weights``, ``poles`` may be given.
     ``design`` holds the configuration, method and closed-loop poles of the nominal
-    linearization.
+    linearization. The law runs as :class:`VectorStateFeedback` with one arm.
     """
 
     name = "feedforward-state-feedback"
@@ -90,7 +90,7 @@ class FeedforwardStateFeedback(Controller):
                 raise TypeError(f"{key} must be True or False, got {value!r}")
         self.dim = (4 if self.elastic else 2) * self.n
         self.feedforward = feedforward
-        self.invdyn = InverseDynamics(model, fd_step)
+        self.fd_step = fd_step
         q0 = self._configuration(design_configuration)
         A, Bu = linearize(model, q0)
         if feedback:
@@ -104,6 +104,7 @@ class FeedforwardStateFeedback(Controller):
             "method": method,
             "poles": closed_loop_poles(A, Bu, self.gain),
         }
+        self.bind_law()
 
     # ------------------------------------------------------------ design
     def _configuration(self, q0) -> np.ndarray:
@@ -136,17 +137,35 @@ class FeedforwardStateFeedback(Controller):
         return lqr_bandwidth_gain(self.model, q0, omega), f"LQR, slowest pole {omega} rad/s"
 
     # ------------------------------------------------------------ control
-    def reset(self, obs: Mapping, info: Mapping) -> None:
-        self.invdyn.reset()
-
     def desired(self, info: Mapping) -> tuple[np.ndarray, np.ndarray]:
         """(x_d, tau_d) at the time of ``info``: INVDYN, or the static reference."""
         ref = reference_derivatives(info, self.n)
+        x_d, tau_d = self._law.desired(np.array([info_time(info)]), ref[None])
+        return x_d[0], tau_d[0]
+
+
+@twin_of(FeedforwardStateFeedback)
+class VectorStateFeedback(StateLaw):
+    """Eq. (13) on N arms: tau_i = K_P (x_d,i - xi_i) + tau_d,i, INVDYN batched.
+
+    Also the law of the decentralized PD controllers (eq. (13) with a block gain).
+    """
+
+    def _bind(self, controller: FeedforwardStateFeedback, n_arms: int) -> None:
+        super()._bind(controller, n_arms)
+        self.gain = controller.gain
+        self.feedforward = controller.feedforward
+        self.invdyn = InverseDynamics(controller.model, controller.fd_step, self.n_arms)
+
+    def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
+        self.invdyn.reset(arms)
+
+    def desired(self, t: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(x_d (N, dim), tau_d (N, n)): INVDYN, or the static reference."""
         if self.feedforward:
-            return self.invdyn(info_time(info), ref)
+            return self.invdyn(t, ref)
         return static_reference(self.model, ref)
 
-    def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        x = state_vector(obs, self.dim)
-        x_d, tau_d = self.desired(info)
-        return self.gain @ (x_d - x) + tau_d
+    def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        x_d, tau_d = self.desired(t, ref)
+        return arm_rows(self.gain, x_d - x) + tau_d

@@ -23,8 +23,9 @@ Observation of one arm (a ``spaces.Dict``, float64), only what a real arm measur
 
 Info of one arm (the same keys at every step, terminal steps included): ``time``,
 ``true_state`` (``q``, ``dq``, ``theta``, ``dtheta``, ``ddq``, ``x``), ``torque`` (the
-applied, clipped motor torque), ``torque_saturated``, ``reference`` (``q`` .. ``d4q``),
-``termination_reason`` (None while the episode runs).
+applied, clipped motor torque), ``torque_saturated``, ``acceleration_saturated`` (an
+observed accelerometer reading is at the sensor's ``range``: clipped), ``reference``
+(``q`` .. ``d4q``), ``termination_reason`` (None while the episode runs).
 
 Reward: :mod:`elastic_gym.envs.reward` (bounded multi-scale tracking kernels, torque and
 torque-rate penalties; every step pays >= 0). An episode whose physics breaks (non-finite
@@ -37,8 +38,10 @@ simulated seconds.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
+from collections.abc import Iterator
 from typing import ClassVar
 
 import numpy as np
@@ -47,6 +50,7 @@ from numba import njit
 
 from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, arm_kwargs
 from elastic_gym.envs.config import EPISODE_TIME, PER_ARM_KEYS, EnvConfig, Range
+from elastic_gym.envs.memory import check_batch_memory
 from elastic_gym.envs.plant import PlantArray
 from elastic_gym.envs.plant_state import PlantState
 from elastic_gym.envs.randomization import check_ranges, with_values
@@ -232,6 +236,7 @@ class ArmBatch:
             raise ValueError(f"the number of arms must be an integer >= 1, got {n_arms!r}")
         config = validated(EnvConfig, {k: kwargs[k] for k in self.KWARGS})
         spec = robot if isinstance(robot, RobotSpec) else get_robot(robot)
+        check_batch_memory(spec.urdf, int(n_arms), spec.name)  # PyBullet would segfault
         self.robot, self.n_arms, self.n_joints = spec, int(n_arms), spec.n_joints
         self.physics_dt, self.control_dt, self.n_substeps = self._timing(config)
         mounts = (
@@ -423,6 +428,19 @@ class ArmBatch:
         return self._time
 
     # ------------------------------------------------------------------ episodes
+    @contextlib.contextmanager
+    def generators_kept_on_error(self, arms: np.ndarray) -> Iterator[None]:
+        """If the block raises (a refused reset), the generators of ``arms`` are the same
+        objects in the same states as before it: a refused reset changes no stream."""
+        saved = [(i, self.rngs[i], self.rngs[i].bit_generator.state) for i in arms]
+        try:
+            yield
+        except BaseException:
+            for i, rng, state in saved:
+                rng.bit_generator.state = state
+                self.rngs[i] = rng
+            raise
+
     def reset_arms(self, arms: np.ndarray, options: dict | None = None) -> None:
         """Start new episodes for ``arms`` (indices) at rest, or at ``options["initial_state"]``.
 
@@ -645,10 +663,20 @@ class ArmBatch:
             "true_state": state,
             "torque": self.torque[arms].copy(),
             "torque_saturated": bool(self.saturated[arms]) if one else self.saturated[arms].copy(),
+            "acceleration_saturated": self._acceleration_saturated(arms),
             "reference": {key: reference[..., k, :].copy() for k, key in enumerate(REFERENCE_KEYS)},
             "termination_reason": self.reasons[arms] if one else self.reasons[arms].copy(),
             "plant": self.plant_state.info(arms),
         }
+
+    def _acceleration_saturated(self, arms):
+        """Whether an observed accelerometer reading is at the sensor's range (clipped)."""
+        if not self.model.n_sensors:
+            at_range = np.zeros(np.shape(self._time[arms]), dtype=bool)
+        else:
+            readings = np.abs(self.obs["acceleration"][arms])
+            at_range = np.any(readings >= self.accelerometer_array.config.range, axis=-1)
+        return bool(at_range) if np.ndim(at_range) == 0 else at_range
 
     def reference_preview(self, offsets: np.ndarray) -> np.ndarray:
         """q_d .. q_d^(4) of every arm at its time + each offset (s): (N, H, 5, n).

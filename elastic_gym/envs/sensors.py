@@ -17,15 +17,15 @@ from elastic_gym.validation import StrictModel, validated
 GRAVITY = 9.81
 
 
-def _within(low: float, high: float, zero: bool = True) -> AfterValidator:
+def _within(low: float, high: float, zero: bool = True, why: str = "") -> AfterValidator:
     """A value in [low, high] (or 0 where allowed): limits beyond which a sensor setting
-    would overflow the observation or mean nothing physical."""
+    would overflow the observation or mean nothing physical (``why`` is said)."""
 
     def check(value: float) -> float:
         if (value == 0 and zero) or low <= value <= high:
             return value
         allowed = f"{'0 or ' if zero else ''}a number in [{low:g}, {high:g}]"
-        raise ValueError(f"must be {allowed}, got {value!r}")
+        raise ValueError(f"must be {allowed}{why}, got {value!r}")
 
     return AfterValidator(check)
 
@@ -151,7 +151,8 @@ class AccelerometerConfig(StrictModel):
     * ``noise_density`` 1.5e-3 m/s^2/sqrt(Hz) (~150 ug/sqrt(Hz)); the per-sample standard
       deviation is noise_density * sqrt(f_s / 2);
     * ``bias_std`` 0.02 m/s^2 (~2 mg): a constant bias per axis drawn at each reset;
-    * ``range`` 16 g: readings saturate there;
+    * ``range`` 16 g: readings saturate there (``info["acceleration_saturated"]``); at
+      least g, which a sensor at rest reads;
     * ``cutoff_hz`` None: optional first-order low-pass (anti-aliasing) filter;
     * ``resolution`` None: optional output quantization (m/s^2).
     """
@@ -160,7 +161,15 @@ class AccelerometerConfig(StrictModel):
 
     noise_density: Annotated[StrictFloat, _within(1e-12, 10.0)] = 1.5e-3
     bias_std: Annotated[StrictFloat, _within(1e-12, 100.0)] = 0.02
-    range: Annotated[StrictFloat, _within(1e-3, 1e9, zero=False)] = 16.0 * GRAVITY
+    range: Annotated[
+        StrictFloat,
+        _within(
+            GRAVITY,
+            1e9,
+            zero=False,
+            why=f" (at least g = {GRAVITY} m/s^2: a sensor at rest reads g)",
+        ),
+    ] = 16.0 * GRAVITY
     cutoff_hz: Annotated[StrictFloat, _within(1e-3, 1e6, zero=False)] | None = None
     resolution: Annotated[StrictFloat, _within(1e-9, 100.0)] | None = None
 

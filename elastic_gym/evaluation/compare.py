@@ -23,7 +23,11 @@ run, written as each run finishes), ``summary.csv`` and ``summary.md`` (over see
 figure per env x axis values x model error, written as soon as its runs are done;
 the time series of the runs are not kept in memory after that). A folder holding an
 earlier comparison's files is refused unless ``overwrite`` (which removes those
-files first). A run that fails is a row with status ``failed: <Type>: <message>``.
+files first), and so is a folder another process writes into
+(:mod:`~elastic_gym.folder_lock`). A run that fails (its code raises, calls
+``sys.exit``, or kills its worker process) is a row with status ``failed: <Type>:
+<message>``. When results cannot be written (a full disk),
+:class:`~elastic_gym.evaluation.output.ResultsWriteError` says what ``runs.csv`` kept.
 On SIGINT/SIGTERM the queued runs are cancelled, the workers ended, the tables of the
 finished runs written, and :class:`~elastic_gym.parallel.Interrupted` raised.
 
@@ -44,13 +48,17 @@ import yaml
 from rich.console import Console
 
 from elastic_gym.evaluation.curves import plot_all_curves
+from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE, plan_groups
 from elastic_gym.evaluation.margins import margin_rows, write_margins
 from elastic_gym.evaluation.output import (
     CURVE_DIR,
     PLOT_DIR,
+    ResultsWriteError,
     RunsCsv,
     check_output_folder,
     clear_results,
+    write_atomic,
+    write_problem,
 )
 from elastic_gym.evaluation.plots import plot_results
 from elastic_gym.evaluation.preflight import check_plot_names, preflight
@@ -65,13 +73,20 @@ from elastic_gym.evaluation.runner import (
     RunResult,
     RunSpec,
     SkippedRun,
-    describe_run,
+    crashed_results,
+    describe_group,
     plan_runs,
-    run_episode,
+    run_group,
 )
 from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
 from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
-from elastic_gym.parallel import for_each_result, resolve_workers, with_detail
+from elastic_gym.folder_lock import check_writable, folder_lock
+from elastic_gym.parallel import (
+    for_each_result,
+    interrupts_raised,
+    resolve_workers,
+    with_detail,
+)
 
 DEFAULT_OUTPUT_ROOT = Path("compare_out")
 
@@ -103,6 +118,7 @@ def compare(
     plots: bool = True,
     overwrite: bool = False,
     console: Console | None = None,
+    batch_size: int = DEFAULT_BATCH_SIZE,
 ) -> Comparison:
     """Run every applicable run of ``scenario`` and write the tables (and plots).
 
@@ -116,13 +132,36 @@ def compare(
         overwrite: replace the files of an earlier comparison in ``output_dir``.
         console: where to print the summary table (default: stdout; silence it with
             ``Console(quiet=True)``).
+        batch_size: most arms in one world (:mod:`~elastic_gym.evaluation.groups`);
+            1 runs every run in a world of its own (the same rows).
 
     Raises (before any run, changing nothing): ``ScenarioError`` naming the field that
     cannot work, ``NotADirectoryError`` / ``PermissionError`` / ``FileExistsError`` for
     the output folder, ``ValueError`` for the other arguments.
     """
-    console = console or Console()
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"batch_size must be an integer >= 1, got {batch_size!r}")
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / scenario.name
+    check_writable(out)
+    with folder_lock(out):
+        return _compare(
+            scenario, out, workers, backend, progress, plots, overwrite, console, batch_size
+        )
+
+
+def _compare(
+    scenario: Scenario,
+    out: Path,
+    workers: int | None,
+    backend: str,
+    progress: bool,
+    plots: bool,
+    overwrite: bool,
+    console: Console | None,
+    batch_size: int,
+) -> Comparison:
+    """:func:`compare` once the output folder is locked."""
+    console = console or Console()
     runs, skipped = plan_runs(scenario)
     if not runs:
         raise ValueError(
@@ -130,13 +169,16 @@ def compare(
             f"({len(skipped)} combinations skipped: {skipped[:3]})"
         )
     n_workers = resolve_workers(workers, len(runs), backend)
+    groups = plan_groups(runs, batch_size, n_workers)
     check_output_folder(out, overwrite)
     if plots:
         check_plot_names(scenario, runs)
-    estimate = preflight(scenario, runs, n_workers)
+    with interrupts_raised():  # a real Ctrl-C is not taken for the sampled user code's own
+        estimate = preflight(scenario, groups, n_workers)
     skipped_note = _skipped_note(skipped)
     console.print(
-        f"[bold]{scenario.name}[/bold]: {len(runs)} runs on {n_workers} "
+        f"[bold]{scenario.name}[/bold]: {len(runs)} runs in {len(groups)} "
+        f"{'world' if len(groups) == 1 else 'worlds'} on {n_workers} "
         f"{'worker' if n_workers == 1 else 'workers'}, {estimate}"
     )
     console.print(skipped_note, markup=False, end="")
@@ -144,18 +186,23 @@ def compare(
     if overwrite:
         clear_results(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "scenario.yaml").write_text(yaml.safe_dump(scenario.to_dict(), sort_keys=False))
+    try:
+        write_atomic(out / "scenario.yaml", yaml.safe_dump(scenario.to_dict(), sort_keys=False))
+    except OSError as exc:
+        raise ResultsWriteError(f"{write_problem(exc)}: nothing written in {out}/") from exc
     sink = _Sink(out, runs, plots)
     try:
         for_each_result(
-            run_episode,
-            runs,
-            sink.add,
+            run_group,
+            groups,
+            sink.add_group,
             workers=n_workers,
             backend=backend,
             progress=progress,
             label="runs",
-            describe=describe_run,
+            describe=describe_group,
+            crashed=crashed_results,
+            size=len,
         )
     except BaseException as exc:
         rows = sink.csv.finish()
@@ -201,8 +248,12 @@ class _Sink:
         self.waiting: dict[tuple, list[RunResult]] = {}
         self.plots: list[Path] = []
 
-    def add(self, index: int, result: RunResult) -> None:
-        self.csv.add(index, run_row(result))
+    def add_group(self, index: int, results: list[RunResult]) -> None:
+        for result in results:
+            self.add(result)
+
+    def add(self, result: RunResult) -> None:
+        self.csv.add(result.spec.index, run_row(result))
         if self.plot_dir is None or result.spec.labels.get(SWEEP_AXIS, NOMINAL) != NOMINAL:
             return  # a sweep's runs are summarized by its curves
         group = result.spec.group
@@ -222,10 +273,16 @@ def _write_tables(
     identity = scenario.identity_columns
     summary = summary_rows(rows, identity)
     markdown = markdown_table(summary, identity)
-    write_csv(summary, out / "summary.csv")
-    (out / "summary.md").write_text(
-        f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}\n{note}"
-    )
+    try:
+        write_csv(summary, out / "summary.csv")
+        write_atomic(
+            out / "summary.md", f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}\n{note}"
+        )
+    except OSError as exc:
+        raise ResultsWriteError(
+            f"{write_problem(exc)}: the summary could not be written; {out / 'runs.csv'} "
+            f"keeps all {len(rows)} finished rows"
+        ) from exc
     return summary, markdown
 
 

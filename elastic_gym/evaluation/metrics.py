@@ -108,6 +108,59 @@ class TimeSeries:
         return {name: blocks[:, i] for i, name in enumerate(self.state_names)}
 
 
+@dataclass
+class ArmSeries:
+    """The signals of N arms recorded at the same control steps (row k at time k *
+    control_dt): arrays with a leading time axis and an arm axis, ``(K, N, ...)``; arm i
+    holds samples ``0 .. lengths[i] - 1`` (an arm whose run ended early has fewer)."""
+
+    time: np.ndarray  # (K,)
+    q: np.ndarray  # (K, N, n)
+    q_ref: np.ndarray  # (K, N, n)
+    dq_ref: np.ndarray  # (K, N, n)
+    torque: np.ndarray  # (K, N, n)
+    estimation_error: np.ndarray  # (K, N, len(state_names) * n)
+    state_names: tuple[str, ...]
+    lengths: np.ndarray  # (N,) int
+    theta: np.ndarray | None = None  # (K, N, n)
+    saturated: np.ndarray | None = None  # (K, N) bool: torque clipped at a limit
+
+    @classmethod
+    def of(cls, series: TimeSeries) -> ArmSeries:
+        """One run's series as the one-arm case."""
+
+        def arm(x: np.ndarray | None) -> np.ndarray | None:
+            return None if x is None else x[:, None]
+
+        return cls(
+            series.time,
+            arm(series.q),
+            arm(series.q_ref),
+            arm(series.dq_ref),
+            arm(series.torque),
+            arm(series.estimation_error),
+            series.state_names,
+            np.array([len(series)]),
+            arm(series.theta),
+            arm(series.saturated),
+        )
+
+    def arm(self, i: int) -> TimeSeries:
+        """Arm i's own samples (views)."""
+        k = int(self.lengths[i])
+        return TimeSeries(
+            self.time[:k],
+            self.q[:k, i],
+            self.q_ref[:k, i],
+            self.dq_ref[:k, i],
+            self.torque[:k, i],
+            self.estimation_error[:k, i],
+            self.state_names,
+            None if self.theta is None else self.theta[:k, i],
+            None if self.saturated is None else self.saturated[:k, i],
+        )
+
+
 @dataclass(frozen=True)
 class Move:
     """A rest-to-rest move of the reference (sample indices into the series)."""
@@ -184,31 +237,82 @@ def residual_torsion(series: TimeSeries) -> float:
 
 
 def compute_metrics(series: TimeSeries, tracking: bool = True) -> dict[str, float]:
-    """All metrics of one run (see module docstring); NaN where not applicable."""
+    """All metrics of one run (see module docstring); NaN where not applicable: the
+    one-arm case of :func:`compute_arm_metrics`."""
+    return compute_arm_metrics(ArmSeries.of(series), tracking)[0]
+
+
+def _window_rms(x: np.ndarray, starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """Per arm i: sqrt(mean over k in [starts[i], stops[i]) of |x_k,i|^2) (NaN for no
+    samples); x (K, N, d). The arms with the same window are summed together, each row
+    alone and contiguous, so an arm's value is the same bit for bit whatever arms share
+    its series (and equal to :func:`rms_norm` of its own samples)."""
+    squares = np.sum(x**2, axis=2).T  # (N, K)
+    out = np.full(len(starts), np.nan)
+    for start, stop in {(int(a), int(b)) for a, b in zip(starts, stops, strict=True)}:
+        if stop > start:
+            arms = np.flatnonzero((starts == start) & (stops == stop))
+            block = np.ascontiguousarray(squares[arms, start:stop])
+            out[arms] = np.sqrt(np.sum(block, axis=1) / (stop - start))
+    return out
+
+
+def compute_arm_metrics(series: ArmSeries, tracking: bool = True) -> list[dict[str, float]]:
+    """The metrics of every arm of ``series`` (see module docstring), one dict per arm.
+
+    The norms and means run over all arms at once, each over its own ``lengths[i]``
+    samples; the rest-to-rest moves (overshoot, settling, residual torsion) are found
+    on each arm's own reference.
+    """
     nan = float("nan")
-    metrics: dict[str, float] = dict.fromkeys(
-        ("track_rms", "track_max", "overshoot_pct", "settling_time"), nan
-    )
-    if tracking and len(series):
-        error = series.q - series.q_ref
-        metrics["track_rms"] = rms_norm(error)
-        metrics["track_max"] = float(np.max(np.linalg.norm(error, axis=1)))
-        metrics["overshoot_pct"], metrics["settling_time"] = step_response(series)
-    has_torsion = series.theta is not None and len(series)
-    metrics["torsion_max"] = float(np.max(np.abs(series.theta - series.q))) if has_torsion else nan
-    metrics["torsion_osc"] = residual_torsion(series) if has_torsion and tracking else nan
-    metrics["torque_rms"] = rms_norm(series.torque)
-    metrics["torque_rate_rms"] = rms_norm(
-        np.diff(series.torque, axis=0) / np.diff(series.time)[:, None]
-    )
-    metrics["saturation_share"] = (
-        float(np.mean(series.saturated)) if series.saturated is not None and len(series) else nan
-    )
-    start = (
-        np.searchsorted(series.time, min(ESTIMATION_TRANSIENT, series.time[-1] / 2))
-        if len(series)
-        else 0
-    )
-    for name, block in series.estimation_blocks().items():
-        metrics[f"est_rms_{name}"] = rms_norm(block[start:])
-    return metrics
+    K, N = series.q.shape[:2]
+    lengths = series.lengths
+    rows = np.arange(K)[:, None]
+    valid = rows < lengths  # (K, N)
+    zero = np.zeros_like(lengths)
+    arms: list[dict[str, float]] = [{} for _ in range(N)]
+    with np.errstate(invalid="ignore", over="ignore"):
+        columns: dict[str, np.ndarray] = {}
+        if tracking:
+            error = series.q - series.q_ref
+            columns["track_rms"] = _window_rms(error, zero, lengths)
+            norm = np.where(valid, np.sqrt(np.sum(error**2, axis=2)), -np.inf)
+            columns["track_max"] = np.max(norm, axis=0)
+        if series.theta is not None:
+            torsion = np.where(valid[..., None], np.abs(series.theta - series.q), -np.inf)
+            columns["torsion_max"] = np.max(torsion, axis=(0, 2))
+        columns["torque_rms"] = _window_rms(series.torque, zero, lengths)
+        rate = np.diff(series.torque, axis=0) / np.diff(series.time)[:, None, None]
+        columns["torque_rate_rms"] = _window_rms(rate, zero, np.maximum(lengths - 1, 0))
+        if series.saturated is not None:
+            counts = np.sum(series.saturated & valid, axis=0)
+            columns["saturation_share"] = np.where(
+                lengths > 0, counts / np.maximum(lengths, 1), nan
+            )
+        last_time = series.time[np.maximum(lengths - 1, 0)]
+        start = np.searchsorted(series.time, np.minimum(ESTIMATION_TRANSIENT, last_time / 2))
+        n_blocks = len(series.state_names)
+        blocks = series.estimation_error.reshape(K, N, n_blocks, -1)
+        for b, name in enumerate(series.state_names):
+            columns[f"est_rms_{name}"] = _window_rms(blocks[:, :, b], start, lengths)
+    for i, metrics in enumerate(arms):
+        one = series.arm(i)
+        metrics.update(dict.fromkeys(("track_rms", "track_max"), nan))
+        metrics["overshoot_pct"], metrics["settling_time"] = (
+            step_response(one) if tracking and lengths[i] else (nan, nan)
+        )
+        metrics["torsion_max"] = metrics["torsion_osc"] = nan
+        if tracking and lengths[i]:
+            metrics["track_rms"] = float(columns["track_rms"][i])
+            metrics["track_max"] = float(columns["track_max"][i])
+        if series.theta is not None and lengths[i]:
+            metrics["torsion_max"] = float(columns["torsion_max"][i])
+            metrics["torsion_osc"] = residual_torsion(one) if tracking else nan
+        metrics["torque_rms"] = float(columns["torque_rms"][i])
+        metrics["torque_rate_rms"] = float(columns["torque_rate_rms"][i])
+        metrics["saturation_share"] = (
+            float(columns["saturation_share"][i]) if "saturation_share" in columns else nan
+        )
+        for name in series.state_names:
+            metrics[f"est_rms_{name}"] = float(columns[f"est_rms_{name}"][i])
+    return arms

@@ -10,11 +10,13 @@ is spent. Errors of the closed loop itself (a controller's ``reset`` or call, an
 observer's update) are not setup errors: they are left to the runs, which report
 them in their status.
 
-The estimate: ``SAMPLE_TIME`` of closed loop of each (env, controller, state source)
-combination measures its CPU time per step; with the CPU time of its setup it gives
-the CPU time of every run. Their sum, shared among the workers, is divided by the share
-of a core each worker can expect, cores / (other runnable processes + workers) at most
-1, the others taken from the load average. CPU time, not wall time: a short sample in a
+The estimate: ``SAMPLE_TIME`` of the batched closed loop of each (env, controller,
+state source) combination, in a world of the first ``SAMPLE_ARMS`` arms of its first
+batch (:mod:`~elastic_gym.evaluation.groups`), measures its CPU time per arm and step;
+with the CPU time of its setup per arm it gives the CPU time of every run. Their sum,
+shared among the workers, is divided by the share of a core each worker can expect,
+cores / (other runnable processes + workers) at most 1, the others taken from the load
+average. CPU time, not wall time: a short sample in a
 process that has been idle runs at full speed on a loaded machine (the scheduler's
 credit for sleeping), and measured the default grid's wall time 2.6 times too short at
 a load average of 8.
@@ -29,25 +31,30 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
 
-from elastic_gym.controllers.base import public_info
+from elastic_gym.evaluation.groups import RunGroup
 from elastic_gym.evaluation.output import MAX_NAME_BYTES, plot_file_name
 from elastic_gym.evaluation.runner import (
+    ClosedLoop,
     RunSpec,
-    build_controller,
-    build_observer,
+    World,
+    build_observer_wrapper,
+    build_vector_controller,
+    describe_failure,
+    make_group_env,
     run_model,
 )
 from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError
-from elastic_gym.parallel import single_threaded
+from elastic_gym.parallel import single_threaded, user_failure
 
 SAMPLE_TIME = 0.05  # CPU s of closed loop timed per (env, controller, source) combination
 SAMPLE_STEPS = (3, 1000)  # fewest and most steps of a sample
+SAMPLE_ARMS = 8  # arms of the world a combination is timed in
 
 
 @dataclass(frozen=True)
@@ -71,8 +78,31 @@ class Estimate:
         return f"about {self.seconds / 3600:.1f} h"
 
 
-def _error(path: str, exc: Exception) -> ScenarioError:
-    return ScenarioError(path, f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+def _error(path: str, exc: BaseException) -> ScenarioError:
+    return ScenarioError(path, describe_failure(exc))
+
+
+@contextlib.contextmanager
+def _named(path: str) -> Iterator[None]:
+    """What the code inside raises for itself (:func:`~elastic_gym.parallel.user_failure`:
+    any exception, ``sys.exit``, its own ``KeyboardInterrupt``) becomes a
+    :class:`ScenarioError` naming ``path``."""
+    try:
+        yield
+    except BaseException as exc:
+        if not user_failure(exc):
+            raise
+        raise _error(path, exc) from None
+
+
+@contextlib.contextmanager
+def _left_to_the_runs() -> Iterator[None]:
+    """What the closed loop raises for itself ends the sample; the runs report it."""
+    try:
+        yield
+    except BaseException as exc:
+        if not user_failure(exc):
+            raise
 
 
 def _make_env(entry_id: str, kwargs: dict, path: str) -> gym.Env:
@@ -82,42 +112,43 @@ def _make_env(entry_id: str, kwargs: dict, path: str) -> gym.Env:
         raise _error(path, exc) from None
 
 
-def preflight(scenario: Scenario, runs: Sequence[RunSpec], workers: int) -> Estimate:
-    """Build everything the runs need once (see the module docstring); raise
-    :class:`ScenarioError` on the first failure; return the estimated wall time."""
+def _combo(spec: RunSpec) -> tuple:
+    return spec.labels["env"], spec.labels["controller"], spec.labels["source"]
+
+
+def preflight(scenario: Scenario, groups: Sequence[RunGroup], workers: int) -> Estimate:
+    """Build everything the runs of ``groups`` need once (see the module docstring);
+    raise :class:`ScenarioError` on the first failure; return the estimated wall time."""
     controller_index = {c.label: i for i, c in enumerate(scenario.controllers)}
     source_index = {s.label: i for i, s in enumerate(scenario.state_sources)}
     error_index = {v.label: i for i, v in enumerate(scenario.model_errors)}
-    combos: dict[tuple, RunSpec] = {}
-    for spec in runs:
-        combos.setdefault(
-            (spec.labels["env"], spec.labels["controller"], spec.labels["source"]), spec
-        )
+    combos: dict[tuple, RunGroup] = {}
+    for group in groups:
+        combos.setdefault(_combo(group.first), RunGroup(group.runs[:SAMPLE_ARMS]))
     cost: dict[tuple, float] = {}
     with single_threaded():
         for i, entry in enumerate(scenario.envs):
             if not any(key[0] == entry.label for key in combos):
                 continue
             path = f"envs[{i}]"
-            start = time.process_time()
             env = _make_env(entry.id, scenario.env_kwargs(entry), f"{path}.kwargs")
-            make_time = time.process_time() - start
             try:
+                _check_duration(scenario.duration, env, path)
                 _check_reset(env, entry.reset_options, scenario.seeds[0], path)
                 _check_axes(scenario, entry, path)
                 _check_model_errors(env, scenario, error_index)
-                for key, spec in combos.items():
+                for key, sample in combos.items():
                     if key[0] != entry.label:
                         continue
                     paths = (
                         f"controllers[{controller_index[key[1]]}]",
                         f"state_sources[{source_index[key[2]]}]",
                     )
-                    cost[key] = make_time + _sample(env, spec, paths)
+                    cost[key] = _sample(sample, paths, f"{path}.kwargs")
             finally:
                 env.close()
-    total = sum(cost[(s.labels["env"], s.labels["controller"], s.labels["source"])] for s in runs)
-    workers = min(workers, len(runs))
+    total = sum(cost[_combo(spec)] for group in groups for spec in group.runs)
+    workers = min(workers, len(groups))
     return Estimate(total, workers, cpu_share(workers))
 
 
@@ -130,6 +161,17 @@ def cpu_share(workers: int) -> float:
     except (AttributeError, OSError):
         return 1.0
     return min(1.0, (os.cpu_count() or 1) / (others + workers))
+
+
+def _check_duration(duration: float, env: gym.Env, path: str) -> None:
+    """A run must last at least one control period (else it has no step to measure)."""
+    control_dt = env.unwrapped.control_dt
+    if not duration >= control_dt:
+        raise ScenarioError(
+            "duration",
+            f"{duration!r} s is shorter than the control period {control_dt!r} s of "
+            f"{path}: its runs would have no step",
+        )
 
 
 def _check_reset(env: gym.Env, options: dict, seed: int, path: str) -> None:
@@ -160,39 +202,40 @@ def _check_model_errors(env: gym.Env, scenario: Scenario, error_index: dict) -> 
                 raise _error(f"model_errors[{error_index[variation.label]}]", exc) from None
 
 
-def _sample(env: gym.Env, spec: RunSpec, paths: tuple[str, str]) -> float:
-    """Build the run's observer and controller on ``env`` (errors name their field) and
-    time ``SAMPLE_TIME`` of closed loop; returns the CPU time of such a run (s) without
-    the env construction."""
+def _sample(group: RunGroup, paths: tuple[str, str], env_path: str) -> float:
+    """Build the world of ``group`` (errors name their field) and time ``SAMPLE_TIME`` of
+    its closed loop; returns the CPU time of one of its runs (s), setup included."""
     controller_path, source_path = paths
+    spec, n_arms = group.first, len(group)
     start = time.process_time()
-    model = run_model(env, spec)
+    with _named(env_path):
+        envs = make_group_env(group)
     try:
-        wrapped = build_observer(env, spec, model)
-    except Exception as exc:
-        raise _error(f"{source_path}.options", exc) from None
-    try:
-        controller = build_controller(env, spec, model)
-    except Exception as exc:
-        raise _error(f"{controller_path}.options", exc) from None
-    try:
-        obs, info = wrapped.reset(seed=spec.seed, options=spec.reset_options or None)
-    except Exception as exc:
-        raise _error(source_path, exc) from None
-    setup = time.process_time() - start
-    steps, elapsed = 0, 0.0
-    with np.errstate(all="ignore"), contextlib.suppress(Exception):  # the runs report these
-        controller.reset(obs, public_info(info))
-        obs, _, _, _, info = wrapped.step(controller(obs, public_info(info)))  # warms caches up
-        tick = time.process_time()
-        while steps < SAMPLE_STEPS[1] and (steps < SAMPLE_STEPS[0] or elapsed < SAMPLE_TIME):
-            obs, _, terminated, _, info = wrapped.step(controller(obs, public_info(info)))
-            steps += 1
-            elapsed = time.process_time() - tick
-            if terminated:
-                break
+        model = run_model(envs, spec)
+        dt = envs.unwrapped.control_dt
+        with _named(f"{source_path}.options"):
+            wrapped = build_observer_wrapper(envs, spec, model)
+        with _named(f"{controller_path}.options"):
+            controller = build_vector_controller(spec, model, dt, n_arms)
+        loop = ClosedLoop(World(envs, wrapped, controller), group)
+        with _named(source_path):
+            loop.reset()
+        setup = time.process_time() - start
+        steps, elapsed = 0, 0.0
+        with np.errstate(all="ignore"), _left_to_the_runs():
+            loop.reset_controllers()
+            loop.advance()  # warms caches up
+            tick = time.process_time()
+            while steps < SAMPLE_STEPS[1] and (steps < SAMPLE_STEPS[0] or elapsed < SAMPLE_TIME):
+                running = loop.advance()
+                steps += 1
+                elapsed = time.process_time() - tick
+                if not running:
+                    break
+    finally:
+        envs.close()
     step = elapsed / steps if steps else 0.0
-    return setup + step * round(spec.duration / env.unwrapped.control_dt)
+    return (setup + step * round(spec.duration / dt)) / n_arms
 
 
 def check_plot_names(scenario: Scenario, runs: Sequence[RunSpec]) -> None:

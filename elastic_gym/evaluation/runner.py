@@ -1,16 +1,21 @@
-"""Runs of a comparison: planning the grid, one episode, and the parallel execution.
+"""Runs of a comparison: planning the grid, the closed loop of a world of arms, and the
+parallel execution.
 
 One run = (env id + kwargs, reset options, seed, state source, controller, model
-error of the controller/observer). In :func:`run_episode` the env is wrapped by an
-:class:`~elastic_gym.observers.ObserverWrapper` (the ``"true"`` source is the oracle),
-the observer and the controller are built on the env's nominal model
-``env.unwrapped.model`` — ``.perturbed(**model_error)`` when the run has a model
-error — and the controller sees only the observation ``{"state", "reference"}`` and
-:func:`~elastic_gym.controllers.public_info` of ``info``, never the truth.
+error of the controller/observer). Runs that may share a world
+(:mod:`~elastic_gym.evaluation.groups`) run together in :func:`run_group`: one vector
+env of their arms (``gym.make_vec``, arm i with run i's seed and per-arm plant kwargs),
+wrapped by a vector :class:`~elastic_gym.observers.vector.ObserverWrapper` (the
+``"true"`` source is the oracle), and one vector controller
+(:func:`~elastic_gym.controllers.vector.make_vector_controller`), both built on the
+env's nominal model ``env.unwrapped.model`` — ``.perturbed(**model_error)`` when the
+runs have a model error. The controller sees only the observation ``{"state",
+"reference"}`` and the time and reference of ``info`` (:func:`~elastic_gym.controllers.
+public_info`), never the truth. A run alone (:func:`run_episode`) is a world of one arm.
 
-:func:`execute` runs the episodes with :func:`elastic_gym.parallel.run_jobs`: spawned
-worker processes (every env is created inside its worker) or Ray (``backend="ray"``,
-the same job function), with a progress bar.
+:func:`execute` runs the worlds with :func:`elastic_gym.parallel.for_each_result`:
+spawned worker processes (every env is created inside its worker) or Ray
+(``backend="ray"``, the same job function), with a progress bar counting runs.
 """
 
 from __future__ import annotations
@@ -27,8 +32,10 @@ import numpy as np
 
 import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.controllers.base import Controller, public_info
-from elastic_gym.controllers.registry import controller_class
-from elastic_gym.evaluation.metrics import TimeSeries, compute_metrics
+from elastic_gym.controllers.registry import CONTROLLERS, controller_class
+from elastic_gym.controllers.vector import VectorController, make_vector_controller
+from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE, RunGroup, plan_groups
+from elastic_gym.evaluation.metrics import ArmSeries, TimeSeries, compute_arm_metrics
 from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
 from elastic_gym.evaluation.scenario import (
     ControllerEntry,
@@ -39,8 +46,9 @@ from elastic_gym.evaluation.scenario import (
 )
 from elastic_gym.observers.base import Observer
 from elastic_gym.observers.registry import OBSERVERS, make_observer, observer_class
-from elastic_gym.observers.wrappers import ObserverWrapper
-from elastic_gym.parallel import run_jobs
+from elastic_gym.observers.vector import ObserverWrapper as VectorObserverWrapper
+from elastic_gym.parallel import for_each_result, resolve_workers, user_failure
+from elastic_gym.process_pool import WorkerDiedError
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import RobotSpec
 
@@ -232,149 +240,321 @@ def _inapplicable(
     return ""
 
 
-# ---------------------------------------------------------------------------- one episode
+# ---------------------------------------------------------------------------- one world
 class _Recorder:
-    """Preallocated time series of one episode."""
+    """Preallocated time series of the N arms of one world; arm i's samples stop at
+    ``lengths[i]`` (its run ended)."""
 
-    def __init__(self, steps: int, n: int, state_dim: int, elastic: bool) -> None:
+    def __init__(self, steps: int, n_arms: int, n: int, state_dim: int, elastic: bool) -> None:
         size = steps + 1
         self.time = np.zeros(size)
-        self.q, self.q_ref, self.dq_ref, self.torque = (np.zeros((size, n)) for _ in range(4))
-        self.theta = np.zeros((size, n)) if elastic else None
-        self.error = np.zeros((size, state_dim))
-        self.saturated = np.zeros(size, dtype=bool)
-        self.length = 0
-        self.diagnostics: dict[str, float] = {}
+        self.q, self.q_ref, self.dq_ref, self.torque = (
+            np.zeros((size, n_arms, n)) for _ in range(4)
+        )
+        self.theta = np.zeros((size, n_arms, n)) if elastic else None
+        self.error = np.zeros((size, n_arms, state_dim))
+        self.saturated = np.zeros((size, n_arms), dtype=bool)
+        self.lengths = np.zeros(n_arms, dtype=int)
+        self.row = 0
+        self.diagnostics: list[dict[str, float]] = [{} for _ in range(n_arms)]
 
-    def _track_diagnostics(self, diagnostics: dict) -> None:
+    def _track_diagnostics(self, diagnostics: dict, arms: np.ndarray) -> None:
         for key, value in diagnostics.items():
-            if isinstance(value, (bool, int, float, np.number)):
-                self.diagnostics[key] = max(float(value), self.diagnostics.get(key, -np.inf))
+            column = np.asarray(value)
+            if column.dtype.kind not in "biuf":
+                continue
+            column = np.broadcast_to(column.astype(float), self.lengths.shape)
+            for i in arms:
+                self.diagnostics[i][key] = max(column[i], self.diagnostics[i].get(key, -np.inf))
 
-    def record(self, info: dict) -> None:
-        k = self.length
+    def record(self, info: dict, recording: np.ndarray) -> None:
+        """Row ``row`` of every arm; it counts for the ``recording`` arms only."""
+        k = self.row
         truth, reference = info["true_state"], info["reference"]
-        self.time[k] = info["time"]
+        self.time[k] = info["time"][np.argmax(recording)]  # an ended arm's clock restarted
         self.q[k] = truth["q"]
         self.q_ref[k] = reference["q"]
         self.dq_ref[k] = reference["dq"]
         self.torque[k] = info["torque"]
         self.error[k] = info["estimation_error"]
-        self.saturated[k] = bool(info["torque_saturated"])
+        self.saturated[k] = info["torque_saturated"]
         if self.theta is not None:
             self.theta[k] = truth["theta"]
-        self._track_diagnostics(info.get("observer_diagnostics", {}))
-        self.length = k + 1
+        arms = np.flatnonzero(recording)
+        self._track_diagnostics(info.get("observer_diagnostics", {}), arms)
+        self.lengths[arms] = k + 1
+        self.row = k + 1
 
-    def series(self, state_names: tuple[str, ...]) -> TimeSeries:
-        return TimeSeries(
-            self.time,
-            self.q,
-            self.q_ref,
-            self.dq_ref,
-            self.torque,
-            self.error,
+    def series(self, state_names: tuple[str, ...]) -> ArmSeries:
+        k = self.row
+        return ArmSeries(
+            self.time[:k],
+            self.q[:k],
+            self.q_ref[:k],
+            self.dq_ref[:k],
+            self.torque[:k],
+            self.error[:k],
             state_names,
-            self.theta,
-            self.saturated,
-        ).truncated(self.length)
+            self.lengths.copy(),
+            None if self.theta is None else self.theta[:k],
+            self.saturated[:k],
+        )
 
 
-def run_model(env: gym.Env, spec: RunSpec):
-    """The nominal model of the run's controller and observer (with its model error)."""
+def run_model(env, spec: RunSpec):
+    """The nominal model of the run's controller and observer (with its model error);
+    ``env``: a single or vector env."""
     model = env.unwrapped.model
     return model.perturbed(**spec.model_error) if spec.model_error else model
 
 
-def build_observer(env: gym.Env, spec: RunSpec, model) -> ObserverWrapper:
-    """The run's state source on ``model``, wrapped around ``env``."""
-    source, dt = spec.source, env.unwrapped.control_dt
-    observer = (
-        make_observer(source.name, model.copy(), dt, **source.options)
-        if source.cls is None
-        else spec.observer_cls(model.copy(), dt, **source.options)
-    )
-    estimate = (
-        None
-        if source.initial_estimate is None
-        else np.asarray(source.initial_estimate, dtype=float)
-    )
-    return ObserverWrapper(env, observer, initial_estimate=estimate)
+def make_observer_of(spec: RunSpec, model, dt: float) -> Observer:
+    """The run's state source on ``model`` (one arm's observer)."""
+    source = spec.source
+    if source.cls is None:
+        return make_observer(source.name, model.copy(), dt, **source.options)
+    return spec.observer_cls(model.copy(), dt, **source.options)
 
 
-def build_controller(env: gym.Env, spec: RunSpec, model) -> Controller:
-    """The run's controller on ``model``."""
-    return spec.controller_cls(model.copy(), env.unwrapped.control_dt, **spec.controller.options)
+def initial_estimate(spec: RunSpec) -> np.ndarray | None:
+    estimate = spec.source.initial_estimate
+    return None if estimate is None else np.asarray(estimate, dtype=float)
+
+
+def build_vector_controller(spec: RunSpec, model, dt: float, n_arms: int) -> VectorController:
+    """The run's controller for ``n_arms`` arms: a built-in's batched twin by its registry
+    name, one copy per arm of any other class (:func:`make_vector_controller`)."""
+    named = spec.controller.cls is None and spec.controller.name in CONTROLLERS
+    kind = spec.controller.name if named else spec.controller_cls
+    return make_vector_controller(kind, model.copy(), dt, n_arms, **spec.controller.options)
+
+
+@dataclass
+class World:
+    """The vector env of a group's arms with its vector observer and vector controller."""
+
+    envs: gym.vector.VectorEnv
+    wrapped: VectorObserverWrapper
+    controller: VectorController
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.envs.close()
+
+
+def make_group_env(group: RunGroup) -> gym.vector.VectorEnv:
+    """The vector env of the group's arms (no episode limit: the runs set the duration)."""
+    kwargs = {**group.env_kwargs(), "episode_time": None}
+    return gym.make_vec(
+        group.first.env_id, len(group), vectorization_mode="vector_entry_point", **kwargs
+    )
+
+
+def build_observer_wrapper(
+    envs: gym.vector.VectorEnv, spec: RunSpec, model
+) -> VectorObserverWrapper:
+    """The run's state source on ``model`` for every arm of ``envs``."""
+    observer = make_observer_of(spec, model, envs.unwrapped.control_dt)
+    return VectorObserverWrapper(envs, observer, initial_estimate=initial_estimate(spec))
+
+
+def build_world(group: RunGroup) -> World:
+    """Build the world of ``group`` (exceptions propagate; nothing is left open)."""
+    spec = group.first
+    envs = make_group_env(group)
+    try:
+        model = run_model(envs, spec)
+        wrapped = build_observer_wrapper(envs, spec, model)
+        controller = build_vector_controller(spec, model, envs.unwrapped.control_dt, len(group))
+    except BaseException:
+        envs.close()
+        raise
+    return World(envs, wrapped, controller)
+
+
+def run_group(group: RunGroup) -> list[RunResult]:
+    """Run the group's episodes in one world (:func:`build_world`), ``duration`` seconds
+    each, and compute their metrics; one result per run, in the group's order.
+
+    Never raises for what happens inside a run: an arm whose episode diverges ends early
+    with status ``"terminated: <reason>"`` (the env's or the observer wrapper's
+    termination) while the others go on (it is no longer recorded, its torque is zero);
+    an exception (in the setup, or in a controller or observer during the loop) ends the
+    world, and each of its runs is run again in a world of its own (the same episode,
+    bit for bit), where the one that raises gets status ``"failed: <Type>: <message>"``
+    with the metrics of the samples recorded until then (none, ``series=None``, when the
+    setup failed). ``wall_time`` is the world's loop time divided by its arms.
+    """
+    world = recorder = None
+    wall = 0.0
+    try:
+        world = build_world(group)
+        base = world.envs.unwrapped
+        steps = round(group.first.duration / base.control_dt)
+        state_dim = world.wrapped.observer.state_dim
+        recorder = _Recorder(steps, len(group), base.n_joints, state_dim, base.batch.robot.elastic)
+        start = time.perf_counter()
+        try:
+            statuses = _simulate(world, recorder, group, steps)
+        finally:
+            wall = time.perf_counter() - start
+    except BaseException as exc:
+        if not user_failure(exc):
+            raise
+        if len(group) > 1:
+            return [result for spec in group.runs for result in run_group(RunGroup((spec,)))]
+        statuses = [failed_status(exc)]
+    finally:
+        if world is not None:
+            world.close()
+    if recorder is None or recorder.row == 0:
+        return [
+            RunResult(spec, status, {}, None, wall)
+            for spec, status in zip(group.runs, statuses, strict=True)
+        ]
+    tracking = world.envs.unwrapped.batch.task.name != "excitation"
+    names = world.wrapped.state_names
+    return _results(group, statuses, recorder, names, tracking, wall / len(group))
+
+
+def _results(
+    group: RunGroup,
+    statuses: list[str],
+    recorder: _Recorder,
+    names: tuple[str, ...],
+    tracking: bool,
+    wall: float,
+) -> list[RunResult]:
+    series = recorder.series(names)
+    try:
+        all_metrics = compute_arm_metrics(series, tracking=tracking)
+    except Exception as exc:
+        status = failed_status(exc, "metrics: ")
+        return [
+            RunResult(spec, status, {}, series.arm(i), wall) for i, spec in enumerate(group.runs)
+        ]
+    results = []
+    for i, (spec, status, metrics) in enumerate(
+        zip(group.runs, statuses, all_metrics, strict=True)
+    ):
+        one = series.arm(i)
+        metrics["sim_time"] = float(one.time[-1])
+        metrics["sim_wall_ratio"] = metrics["sim_time"] / wall if wall > 0 else float("nan")
+        results.append(RunResult(spec, status, metrics, one, wall, recorder.diagnostics[i]))
+    return results
 
 
 def run_episode(spec: RunSpec) -> RunResult:
-    """Run one episode of ``spec.duration`` seconds and compute its metrics.
+    """Run one episode alone (a world of one arm, :func:`run_group`)."""
+    return run_group(RunGroup((spec,)))[0]
 
-    Never raises for what happens inside the run: an episode that diverges ends early
-    with status ``"terminated: <reason>"`` (the env's or the wrapper's termination); any
-    exception (in the setup, or in a user's controller or observer during the loop)
-    gives status ``"failed: <Type>: <message>"`` with the metrics of the samples recorded
-    until then (none, ``series=None``, when the setup failed).
-    """
-    env = recorder = None
-    wall = 0.0
-    try:
-        env = gym.make(spec.env_id, **{**spec.env_kwargs, "episode_time": None})
-        model = run_model(env, spec)
-        wrapped = build_observer(env, spec, model)
-        controller = build_controller(env, spec, model)
-        base = env.unwrapped
-        steps = round(spec.duration / base.control_dt)
-        recorder = _Recorder(steps, base.n_joints, wrapped.observer.state_dim, base.robot.elastic)
-        names, tracking = wrapped.state_names, base.task.name != "excitation"
-        start = time.perf_counter()
-        try:
-            status = _simulate(wrapped, controller, recorder, spec, steps)
-        finally:
-            wall = time.perf_counter() - start
-    except Exception as exc:
-        status = failed_status(exc)
-    finally:
-        if env is not None:
-            with contextlib.suppress(Exception):
-                env.close()
-    if recorder is None or recorder.length == 0:
-        return RunResult(spec, status, {}, None, wall)
-    series = recorder.series(names)
-    try:
-        metrics = compute_metrics(series, tracking=tracking)
-    except Exception as exc:
-        return RunResult(spec, failed_status(exc, "metrics: "), {}, series, wall)
-    metrics["sim_time"] = float(series.time[-1])
-    metrics["sim_wall_ratio"] = metrics["sim_time"] / wall if wall > 0 else float("nan")
-    return RunResult(spec, status, metrics, series, wall, recorder.diagnostics)
+
+def describe_failure(exc: BaseException) -> str:
+    """``"<Type>: <message>"`` on one line (``SystemExit``: the exit code it was given;
+    a ``KeyboardInterrupt``: that it came from the code, not from a signal)."""
+    if isinstance(exc, SystemExit):
+        message = f"sys.exit({exc.code!r}) called by the run's code"
+    elif isinstance(exc, KeyboardInterrupt):
+        message = "raised by the run's code (no signal)"
+    else:
+        message = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {message}"
 
 
 def failed_status(exc: BaseException, where: str = "") -> str:
-    """``"failed: <Type>: <message>"`` on one line."""
-    message = " ".join(str(exc).split())
-    return f"failed: {where}{type(exc).__name__}: {message}"
+    """``"failed: <Type>: <message>"`` (:func:`describe_failure`)."""
+    return f"failed: {where}{describe_failure(exc)}"
 
 
-def _simulate(
-    wrapped: ObserverWrapper, controller: Controller, recorder: _Recorder, spec: RunSpec, steps: int
-) -> str:
-    """The closed loop; returns the status. Exceptions of the reset propagate, those of
-    the loop end it with a ``failed`` status (the samples recorded so far are kept)."""
+def crashed_results(group: RunGroup, exc: WorkerDiedError) -> list[RunResult]:
+    """The rows of a world whose worker process died while running it: a run alone gets
+    the failed row (no samples kept); a world of several runs runs each of them again in
+    a worker process of its own, so that only the run that kills its worker fails and
+    its batch mates get their rows."""
+    if len(group) == 1:
+        return [RunResult(group.first, failed_status(exc), {}, None, 0.0)]
+    results: dict[int, RunResult] = {}
+    for_each_result(
+        run_group,
+        [RunGroup((spec,)) for spec in group.runs],
+        lambda _, alone: results.update((r.spec.index, r) for r in alone),
+        workers=min(2, len(group)),
+        progress=False,
+        describe=describe_group,
+        crashed=crashed_results,
+    )
+    return [results[spec.index] for spec in group.runs]
+
+
+def _public(info: dict) -> dict:
+    """The public info of the arms (time and reference, without Gymnasium's masks)."""
+    public = public_info(info)
+    public["reference"] = {
+        key: value for key, value in public["reference"].items() if not key.startswith("_")
+    }
+    return public
+
+
+class ClosedLoop:
+    """The closed loop of a world's arms: each arm's status, and which arms still run.
+
+    An arm whose episode ends (terminated by the env or the observer wrapper) is no
+    longer recorded and gets zero torque; the env restarts it (autoreset) and its
+    controller is reset then, so that it stays finite while its batch mates go on.
+    Exceptions propagate.
+    """
+
+    def __init__(self, world: World, group: RunGroup) -> None:
+        self.world = world
+        self.group = group
+        n_arms = len(group)
+        self.statuses = [STATUS_OK] * n_arms
+        self.running = np.ones(n_arms, dtype=bool)
+        self._ended = np.zeros(n_arms, dtype=bool)  # restarted by the autoreset next step
+        self.info: dict = {}
+        self._obs: dict = {}
+
+    def start(self) -> dict:
+        """Reset every arm and its controller; returns the info."""
+        self.reset()
+        self.reset_controllers()
+        return self.info
+
+    def reset(self) -> None:
+        """Reset every arm with its seed and the reset options (env and observer)."""
+        options = self.group.first.reset_options or None
+        self._obs, self.info = self.world.wrapped.reset(seed=self.group.seeds, options=options)
+
+    def reset_controllers(self) -> None:
+        arms = np.arange(len(self.group))
+        self.world.controller.reset_arms(self._obs, _public(self.info), arms)
+
+    def advance(self) -> bool:
+        """One control period of every arm; returns whether any arm still runs."""
+        controller = self.world.controller
+        restarted = np.flatnonzero(self._ended)
+        if len(restarted):
+            controller.reset_arms(self._obs, _public(self.info), restarted)
+        action = np.where(self.running[:, None], controller(self._obs, _public(self.info)), 0.0)
+        self._obs, _, terminated, truncated, self.info = self.world.wrapped.step(action)
+        self._ended = terminated | truncated
+        for i in np.flatnonzero(self.running & self._ended):
+            reason = self.info["termination_reason"][i]
+            self.statuses[i] = f"terminated: {reason or 'terminated'}"
+        self.running &= ~self._ended
+        return bool(self.running.any())
+
+
+def _simulate(world: World, recorder: _Recorder, group: RunGroup, steps: int) -> list[str]:
+    """Run the closed loop ``steps`` control periods, recording; returns the statuses."""
+    loop = ClosedLoop(world, group)
     with np.errstate(all="ignore"):
-        obs, info = wrapped.reset(seed=spec.seed, options=spec.reset_options or None)
-        controller.reset(obs, public_info(info))
-        recorder.record(info)
+        recorder.record(loop.start(), loop.running)
         for _ in range(steps):
-            try:
-                action = controller(obs, public_info(info))
-                obs, _, terminated, _, info = wrapped.step(action)
-            except Exception as exc:
-                return failed_status(exc)
-            if terminated:
-                return f"terminated: {info.get('termination_reason') or 'terminated'}"
-            recorder.record(info)
-    return STATUS_OK
+            if not loop.advance():
+                break
+            recorder.record(loop.info, loop.running)
+    return loop.statuses
 
 
 # ---------------------------------------------------------------------------- execution
@@ -383,23 +563,33 @@ def execute(
     workers: int | None = None,
     backend: str = "process",
     progress: bool = True,
+    batch_size: int = DEFAULT_BATCH_SIZE,
 ) -> list[RunResult]:
-    """Run all episodes in parallel (:func:`elastic_gym.parallel.run_jobs`), in order.
+    """Run all episodes in parallel, grouped into worlds of at most ``batch_size`` arms
+    (:func:`~elastic_gym.evaluation.groups.plan_groups`, :func:`run_group`); the results
+    in run order.
 
     ``workers=1`` with the process backend runs in this process (single-threaded BLAS
     meanwhile). Every result stays in memory with its time series; :func:`compare
     <elastic_gym.evaluation.compare>` streams them to disk instead.
     """
-    return run_jobs(
-        run_episode,
-        runs,
-        workers=workers,
+    n_workers = resolve_workers(workers, len(runs), backend)
+    results: dict[int, RunResult] = {}
+    for_each_result(
+        run_group,
+        plan_groups(runs, batch_size, n_workers),
+        lambda _, group_results: results.update((r.spec.index, r) for r in group_results),
+        workers=n_workers,
         backend=backend,
         progress=progress,
         label="runs",
-        describe=describe_run,
+        describe=describe_group,
+        crashed=crashed_results,
+        size=len,
     )
+    return [results[spec.index] for spec in runs]
 
 
-def describe_run(spec: RunSpec) -> str:
-    return f"run {spec.labels}"
+def describe_group(group: RunGroup) -> str:
+    first = group.first.labels
+    return f"run {first}" if len(group) == 1 else f"group of {len(group)} runs like {first}"

@@ -92,7 +92,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import yaml
 
 import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.controllers.registry import CONTROLLERS
@@ -100,7 +99,8 @@ from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
 from elastic_gym.evaluation.output import folder_name_problem
 from elastic_gym.model import ParameterScaling
 from elastic_gym.observers.registry import OBSERVERS
-from elastic_gym.validation import ENV_NAMESPACE, registered_env_id
+from elastic_gym.validation import ENV_NAMESPACE, is_real, registered_env_id
+from elastic_gym.yaml_io import YAMLInputError, load_yaml
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
 DEFAULT_PRESET = "default"
@@ -302,7 +302,7 @@ class Scenario:
 
     def to_dict(self) -> dict:
         """Plain-data form (YAML-serialisable; classes as ``"module:Class"``)."""
-        return _plain(
+        return plain_data(
             {
                 "name": self.name,
                 "description": self.description,
@@ -388,9 +388,9 @@ def load_scenario(path: str | Path, name: str | None = None) -> Scenario:
     if not path.is_file():
         raise FileNotFoundError(f"scenario file {str(path)!r} does not exist")
     try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ScenarioError(str(path), f"invalid YAML: {exc}") from None
+        data = load_yaml(path)
+    except YAMLInputError as exc:
+        raise ScenarioError(exc.where, exc.problem) from None
     if not isinstance(data, Mapping):
         raise ScenarioError(str(path), "the file must contain a mapping of scenario fields")
     return _parse(data, name or data.get("name") or path.stem)
@@ -401,11 +401,21 @@ def resolve_class(cls: type | str, path: str) -> type:
     its top-level code: a scenario file is code, load only trusted ones)."""
     if isinstance(cls, type):
         return cls
+    if not isinstance(cls, str):
+        raise ScenarioError(path, f"must be a class or 'module:Class', got {cls!r}")
     module, _, attr = cls.partition(":")
     try:
-        return getattr(importlib.import_module(module), attr)
+        found = getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError) as exc:
         raise ScenarioError(path, f"cannot import class {cls!r}: {exc}") from None
+    except (Exception, SystemExit) as exc:  # the module's own code failed or does not compile
+        message = " ".join(str(exc).split())
+        raise ScenarioError(
+            path, f"importing module {module!r} failed: {type(exc).__name__}: {message}"
+        ) from None
+    if not isinstance(found, type):
+        raise ScenarioError(path, f"{cls!r} is not a class but {type(found).__name__} {found!r}")
+    return found
 
 
 # ---------------------------------------------------------------------------- parsing
@@ -723,14 +733,14 @@ def merge(base: Mapping, override: Mapping) -> dict:
     return out
 
 
-def _plain(value: Any) -> Any:
+def plain_data(value: Any) -> Any:
     """Nested lists/dicts/numbers/strings only (tuples and arrays as lists, others as str)."""
     if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return {str(k): plain_data(v) for k, v in value.items()}
     if hasattr(value, "tolist"):  # numpy arrays and scalars
-        return _plain(value.tolist())
+        return plain_data(value.tolist())
     if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
+        return [plain_data(v) for v in value]
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     return str(value)
@@ -801,7 +811,7 @@ def _unique_labels(labels: list[str], path: str) -> None:
 
 
 def _number(value: Any, path: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not is_real(value):
         raise ScenarioError(path, f"must be a number, got {value!r}")
     return float(value)
 

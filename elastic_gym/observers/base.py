@@ -28,8 +28,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from elastic_gym.arms import as_batch
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import check_applies
+from elastic_gym.validation import check_applies, is_real
 
 ELASTIC_STATE = ("theta", "q", "dtheta", "dq")
 RIGID_STATE = ("q", "dq")
@@ -54,7 +55,7 @@ class Observer(ABC):
     privileged: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, model: RobotModel, dt: float) -> None:
-        if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
+        if not (is_real(dt) and np.isfinite(dt) and dt > 0):
             raise ValueError(f"observer dt must be a positive number, got {dt!r}")
         check_applies("observer", self.name, self.applies_to, model)
         self.model = model
@@ -106,14 +107,6 @@ class Observer(ABC):
 
 
 ARM0 = np.array([0])
-
-
-def as_batch(obs: Mapping) -> dict:
-    """A single-arm observation as a batch of one arm (nested mappings included)."""
-    return {
-        key: as_batch(value) if isinstance(value, Mapping) else np.asarray(value)[None]
-        for key, value in obs.items()
-    }
 
 
 class BatchedObserver(Observer):

@@ -71,6 +71,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from elastic_gym.model import RobotModel
+from elastic_gym.model.rows import rows_matmul
 from elastic_gym.observers.base import BatchedObserver, arm_count
 from elastic_gym.observers.deluca_gains import (
     DEFAULT_BANDWIDTH,
@@ -79,6 +80,7 @@ from elastic_gym.observers.deluca_gains import (
     error_matrix,
     validate_poles,
 )
+from elastic_gym.validation import is_real
 
 ACCELERATION_SOURCES = ("ideal", "accelerometer")
 DEFAULT_VELOCITY_SATURATION = 50.0  # rad/s, see "Peaking" above
@@ -153,13 +155,13 @@ class DeLucaObserver(BatchedObserver):
         for key, value in (("dls_threshold", dls_threshold), ("dls_damping", dls_damping)):
             if (
                 isinstance(value, bool)
-                or not isinstance(value, (int, float))
+                or not is_real(value)
                 or not (np.isfinite(value) and value > 0)
             ):
                 raise ValueError(f"{key} must be a positive number, got {value!r}")
         if velocity_saturation is not None and (
             isinstance(velocity_saturation, bool)
-            or not isinstance(velocity_saturation, (int, float))
+            or not is_real(velocity_saturation)
             or not (np.isfinite(velocity_saturation) and velocity_saturation > 0)
         ):
             raise ValueError(
@@ -310,11 +312,11 @@ class DeLucaObserver(BatchedObserver):
         if self.acceleration == "ideal":
             ddq = self._link_acceleration(obs, self._xi[arms], arms)
             stack[:, 8 * n :] = ddq
-            xi = stack @ self._step_rows
+            xi = rows_matmul(stack, self._step_rows)
         else:  # predictor-corrector for eq. (12)
             stack[:, 8 * n :] = self._ddq[arms]
-            predicted = stack @ self._step_rows
+            predicted = rows_matmul(stack, self._step_rows)
             ddq = self._link_acceleration(obs, predicted, arms)
-            xi = predicted + (ddq - self._ddq[arms]) @ self._ddq_rows
+            xi = predicted + rows_matmul(ddq - self._ddq[arms], self._ddq_rows)
         self._xi[arms], self._theta[arms], self._ddq[arms] = xi, theta, ddq
         return self._xi.copy()

@@ -8,10 +8,13 @@ the way their single-env twins wrap one env: the observation becomes
 arm axis (and Gymnasium's ``_key`` masks).
 
 Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserver`: De
-Luca with ideal or accelerometer-based q'', finite differences, the truth) estimate all
-arms at once; the others (EKF, rigid-arm observers, your own) run one copy per arm
-behind the same interface (:class:`ObserverArray`). Either way each arm's estimate is
-the single-env observer's (``tests/test_vector_observers.py``). Autoresets are followed:
+Luca with ideal or accelerometer-based q'', the EKF, finite differences, the truth)
+estimate all arms at once; the others (rigid-arm observers, your own, and a subclass of
+a batched one that overrides ``reset`` or ``update``) run one copy per arm behind the
+same interface (:class:`ObserverArray`). Either way each arm's estimate is the single-env
+observer's (``tests/test_vector_observers.py``), and an arm whose estimate is no longer
+finite (for :class:`ObserverArray` also: whose update raised a numerical error) ends its
+episode alone, ``"non-finite state estimate"``. Autoresets are followed:
 an arm reset by the env is re-initialised from its first observation; with
 ``SAME_STEP`` the terminal observation is estimated first (``info["final_obs"]``).
 """
@@ -27,6 +30,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from elastic_gym.arms import arm_view
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, Observer
 from elastic_gym.observers.wrappers import (
@@ -35,16 +39,22 @@ from elastic_gym.observers.wrappers import (
     annotate,
     build_observer,
     check_sensor_space,
+    checked_estimate,
+    guarded_update,
     measurement,
 )
 
 
-def _arm(batched: Mapping, i: int) -> dict:
-    return {
-        key: _arm(value, i) if isinstance(value, Mapping) else value[i]
-        for key, value in batched.items()
-        if not key.startswith("_")
-    }
+def runs_batched(observer: Observer) -> bool:
+    """Whether ``observer`` estimates all arms at once: a :class:`BatchedObserver` whose
+    ``reset`` and ``update`` are still the batched ones (a subclass that overrides them,
+    e.g. a user's variant of a built-in, runs one copy per arm so that its own code runs)."""
+    cls = type(observer)
+    return (
+        isinstance(observer, BatchedObserver)
+        and cls.reset is BatchedObserver.reset
+        and cls.update is BatchedObserver.update
+    )
 
 
 class ObserverArray:
@@ -73,8 +83,10 @@ class ObserverArray:
             else np.broadcast_to(initial_estimate, (len(arms), self.state_dim))
         )
         for k, i in enumerate(arms):
-            self._estimates[i] = self.observers[i].reset(
-                _arm(obs, i), None if rows is None else rows[k]
+            self._estimates[i] = checked_estimate(
+                self.observers[i],
+                self.observers[i].reset(arm_view(obs, i), None if rows is None else rows[k]),
+                "reset",
             )
         self._record(arms)
         return self._estimates[arms].copy()
@@ -83,8 +95,10 @@ class ObserverArray:
         self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
     ) -> np.ndarray:
         arms = range(len(self.observers)) if arms is None else arms
-        for i in arms:
-            self._estimates[i] = self.observers[i].update(_arm(obs, i), torque[i], dt)
+        for i in arms:  # a numerical error in one arm's observer is that arm's NaN estimate
+            self._estimates[i], _ = guarded_update(
+                self.observers[i], arm_view(obs, i), torque[i], dt
+            )
         self._record(arms)
         return self._estimates.copy()
 
@@ -120,7 +134,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         single = build_observer(base.batch, observer, model, options)
         check_sensor_space(env.single_observation_space, single)
         N = env.num_envs
-        self.observer = single if isinstance(single, BatchedObserver) else ObserverArray(single, N)
+        self.observer = single if runs_batched(single) else ObserverArray(single, N)
         self.initial_estimate = initial_estimate
         dim = single.state_dim
         self.single_observation_space = spaces.Dict(
@@ -148,9 +162,12 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         return info
 
     def _reset_observer(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
+        initial = self.initial_estimate
+        if initial is not None and np.ndim(initial) == 2:  # one row per arm: those reset
+            initial = np.asarray(initial)[arms]
         if len(arms):
             self._estimates[arms] = self.observer.reset_arms(
-                measurement(self.observer, obs, info), arms, self.initial_estimate
+                measurement(self.observer, obs, info), arms, initial
             )
 
     def reset(self, *, seed=None, options: dict | None = None):

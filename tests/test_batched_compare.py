@@ -1,0 +1,203 @@
+"""Comparisons on batches of arms: metrics over arms, row-stacked products, grouping of
+runs into worlds, and the rows of a grid run batched equal to one arm per world."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from rich.console import Console
+
+from elastic_gym.controllers.base import Controller
+from elastic_gym.evaluation import Scenario, compare, plan_runs
+from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE, plan_groups
+from elastic_gym.evaluation.metrics import (
+    ArmSeries,
+    TimeSeries,
+    compute_arm_metrics,
+    compute_metrics,
+    rms_norm,
+)
+from elastic_gym.model.rows import rows_matmul
+from elastic_gym.observers.registry import OBSERVERS
+
+QUIET = Console(quiet=True)
+
+
+def test_rows_matmul_rows_do_not_depend_on_the_batch():
+    rng = np.random.default_rng(0)
+    A, B = rng.normal(size=(37, 18)), rng.normal(size=(18, 8))
+    full = rows_matmul(A, B)
+    for i in range(len(A)):
+        assert np.array_equal(full[i], rows_matmul(A[i : i + 1], B)[0])
+    np.testing.assert_allclose(full, A @ B, rtol=0, atol=1e-13)
+
+
+def _series(rng: np.random.Generator, length: int, elastic: bool) -> TimeSeries:
+    """A run with a rest-to-rest move of the reference and a noisy response."""
+    time = np.arange(length) * 1e-3
+    s = np.clip((time - 0.05) / 0.2, 0.0, 1.0)
+    profile = s**3 * (10 - 15 * s + 6 * s**2)
+    target = rng.uniform(-0.5, 0.5, 2)
+    q_ref = profile[:, None] * target
+    dq_ref = (30 * s**2 * (1 - s) ** 2 / 0.2)[:, None] * target
+    q = q_ref + 1e-3 * rng.normal(size=q_ref.shape)
+    names = ("theta", "q", "dtheta", "dq") if elastic else ("q", "dq")
+    error = rng.normal(size=(length, 2 * len(names)))
+    theta = q + 0.01 * rng.normal(size=q.shape) if elastic else None
+    return TimeSeries(time, q, q_ref, dq_ref, rng.normal(size=(length, 2)), error, names, theta)
+
+
+@pytest.mark.parametrize("elastic", [True, False])
+@pytest.mark.parametrize("tracking", [True, False])
+def test_metrics_over_arms_equal_each_arms_own(elastic, tracking):
+    """Arms of different lengths (runs that ended early) in one ArmSeries: every metric
+    of every arm equals compute_metrics of that arm's own series, bit for bit."""
+    rng = np.random.default_rng(1)
+    lengths = [600, 600, 137, 1, 420]
+    runs = [_series(rng, k, elastic) for k in lengths]
+    K = max(lengths)
+
+    def stacked(get):
+        if get(runs[0]) is None:
+            return None
+        out = np.full((K, len(runs), get(runs[0]).shape[1]), np.nan)  # garbage past the end
+        for i, run in enumerate(runs):
+            out[: len(run), i] = get(run)
+        return out
+
+    series = ArmSeries(
+        runs[0].time,
+        stacked(lambda r: r.q),
+        stacked(lambda r: r.q_ref),
+        stacked(lambda r: r.dq_ref),
+        stacked(lambda r: r.torque),
+        stacked(lambda r: r.estimation_error),
+        runs[0].state_names,
+        np.array(lengths),
+        stacked(lambda r: r.theta),
+    )
+    for run, metrics in zip(runs, compute_arm_metrics(series, tracking), strict=True):
+        alone = compute_metrics(run, tracking)
+        assert metrics.keys() == alone.keys()
+        for key, value in alone.items():
+            np.testing.assert_array_equal(metrics[key], value, err_msg=key)
+        assert metrics["torque_rms"] == rms_norm(run.torque)  # the definition, on its samples
+        if tracking:
+            assert metrics["track_rms"] == rms_norm(run.q - run.q_ref)
+
+
+# ------------------------------------------------------------------ a grid both ways
+def small_policy(obs: dict) -> np.ndarray:
+    """A deterministic 'policy' (obs -> action in [-1, 1]) for the residual controller."""
+    state = np.asarray(obs["state"])
+    return np.tanh(
+        state[..., : state.shape[-1] // 2] - obs["reference"][..., : state.shape[-1] // 2]
+    )
+
+
+class FullTorque(Controller):
+    """Full torque on every joint: the arm soon exceeds the velocity limit (terminated)."""
+
+    name = "full-torque"
+
+    def __call__(self, obs, info):
+        return np.full(self.n, 1e6)
+
+
+class Picky(Controller):
+    """Zero torque, and an exception from 30 ms on when the reference's last joint is
+    positive (seed 1 of both arms): a run that raises while its batch mates go on."""
+
+    name = "picky"
+
+    def __call__(self, obs, info):
+        if info["time"] >= 0.03 and info["reference"]["q"][-1] > 0:
+            raise RuntimeError("refused")
+        return np.zeros(self.n)
+
+
+ELASTIC_CONTROLLERS = [
+    "feedforward-state-feedback",
+    "integral-state-feedback",
+    "motor-pd",
+    "link-pd",
+]
+RIGID_CONTROLLERS = [
+    "feedforward-state-feedback",
+    "integral-state-feedback",
+    "link-pd",
+    "cristofaro-tracking",
+    "feedback-linearization",
+]
+
+
+def grid() -> Scenario:
+    """Every built-in controller (and a residual policy) on every state source of its arm,
+    two seeds, a plant sweep and a sensor sweep (both per-arm kwargs), an early end."""
+    return Scenario.from_dict(
+        {
+            "name": "both-ways",
+            "duration": 0.1,
+            "physics_dt": None,
+            "seeds": [0, 1],
+            "envs": [
+                {"id": "TwoLinkElastic-v0", "label": "elastic"},
+                {"id": "TwoLinkRigid-v0", "label": "rigid", "kwargs": {"max_velocity": 4.0}},
+            ],
+            "sweeps": {
+                "mass": {"parameter": "plant_scaling.link_mass", "nominal": 1.0, "values": [1.3]},
+                "delay": {"parameter": "sensor_delay", "nominal": 0, "values": [2]},
+            },
+            "controllers": [
+                *sorted(set(ELASTIC_CONTROLLERS) | set(RIGID_CONTROLLERS)),
+                {
+                    "name": "policy",
+                    "label": "residual",
+                    "options": {
+                        "policy": small_policy,
+                        "residual": "feedforward-state-feedback",
+                        "residual_scale": 0.05,
+                    },
+                },
+                {"name": "full-torque", "class": FullTorque, "sources": ["true"]},
+                {"name": "picky", "class": Picky, "sources": ["true", "ekf"]},
+            ],
+            "state_sources": sorted(OBSERVERS),
+        }
+    )
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, float) and isinstance(b, float):
+        return (math.isnan(a) and math.isnan(b)) or a == b or abs(a - b) <= 1e-12 * abs(b)
+    return a == b
+
+
+def test_rows_of_a_grid_batched_equal_one_arm_per_world(tmp_path):
+    scenario = grid()
+    runs, _ = plan_runs(scenario)
+    assert max(len(g) for g in plan_groups(runs, DEFAULT_BATCH_SIZE, 1)) > 2  # really batched
+    results = {}
+    for batch_size in (1, DEFAULT_BATCH_SIZE):
+        results[batch_size] = compare(
+            scenario,
+            output_dir=tmp_path / str(batch_size),
+            workers=1,
+            progress=False,
+            plots=False,
+            console=QUIET,
+            batch_size=batch_size,
+        ).runs.to_dict("records")
+    alone, batched = results[1], results[DEFAULT_BATCH_SIZE]
+    assert len(alone) == len(batched) == len(runs)
+    statuses = {(row["controller"], row["seed"]): row["status"] for row in alone}
+    assert statuses["feedforward-state-feedback", 0] == "ok"
+    assert statuses["full-torque", 0].startswith("terminated: velocity limit")
+    assert statuses["picky", 0] == "ok"
+    assert statuses["picky", 1] == "failed: RuntimeError: refused"
+    for a, b in zip(alone, batched, strict=True):
+        assert a.keys() == b.keys()
+        differ = {k: (a[k], b[k]) for k in a if k != "sim_wall_ratio" and not _same(a[k], b[k])}
+        assert not differ, (a["controller"], a["source"], a["sweep"], a["seed"], differ)
