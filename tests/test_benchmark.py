@@ -56,6 +56,13 @@ def tiny_suite_data() -> dict:
             **data["categories"]["latency"],
             "cells": [{"task": "smooth", "label": "d2", "plant": {"sensor_delay": 2}}],
         },
+        # differs from the nominal cell only in per-arm kwargs: one world runs both
+        "link-model": {
+            **data["categories"]["link-model"],
+            "cells": [
+                {"task": "smooth", "label": "m", "plant": {"plant_scaling": {"link_mass": 1.1}}}
+            ],
+        },
     }
     data["precision"]["tasks"] = ["smooth"]
     return data
@@ -151,7 +158,7 @@ def test_precision_map_is_log_linear_and_monotone():
 
 def test_category_precision_and_overall_scores_are_the_documented_means():
     suite = validated(SuiteConfig, tiny_suite_data())
-    nominal, latency = (c for c in suite.cells)
+    nominal, latency, _ = (c for c in suite.cells)
     episodes = []
     for i, seed in enumerate(suite.seeds):
         rms = 10.0 ** (-2 - i % 3)  # 1e-2 and 1e-3 fail the 5e-4 threshold, 1e-4 passes
@@ -169,6 +176,7 @@ def test_category_precision_and_overall_scores_are_the_documented_means():
     assert scores.categories["latency"] == sum(r <= 5e-4 for r in rms[:3]) / 10 == 0.1
     expected_precision = np.mean([math.log(1e-1 / r) / math.log(1e5) for r in rms])
     assert scores.precision == pytest.approx(expected_precision, abs=1e-12)
+    assert math.isnan(scores.categories["link-model"])  # no episode: left out of the mean
     weights = {"nominal": 1.0, "latency": 1.0, "precision": 1.0}
     values = {**scores.categories, "precision": scores.precision}
     overall = sum(weights[k] * values[k] for k in weights) / sum(weights.values())
@@ -256,6 +264,8 @@ def test_scorecard_holds_the_comparisons_episodes_bit_for_bit(tiny_cards):
     runs, _ = plan_runs(suite_scenario(suite, controller, source))
     assert len(runs) == len(suite.cells) * len(suite.seeds) == card.scores.episodes
     spec = runs[len(suite.seeds) + 3]  # latency cell, fourth seed
+    # the mass cell shares the nominal cell's world (per-arm plants) and is scored too
+    assert [c.pass_share for c in card.cells if c.id == "two-link/link-model/m"]
     direct = run_episode(spec)
     cell = next(c for c in card.cells if c.id == spec.labels["env"])
     episode = next(e for e in cell.episodes if e.seed == spec.seed)
