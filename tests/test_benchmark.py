@@ -328,7 +328,7 @@ def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_p
     assert code == 0
     card = read_scorecard(tmp_path / "a" / "scorecard.json")
     assert card.entry["source"] == observer and card.entry["controller"] == "motor-pd"
-    assert re.search(r"20 runs .*on 1 worker, about \d+ s", capsys.readouterr().out)
+    assert re.search(r"30 runs .*on 1 worker, about \d+ s", capsys.readouterr().out)
     for bad, message in [
         (["--class", observer, "--source", "ekf"], "drop --source"),
         (

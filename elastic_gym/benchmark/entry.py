@@ -107,7 +107,9 @@ def resolve_entry(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
     controller = entry.controller
     if _is_class_path(controller):
         name = _short(controller)
-        c_entry = ControllerEntry(name, name, dict(entry.options), cls=controller)
+        c_entry = ControllerEntry(
+            name=name, label=name, options=dict(entry.options), cls=controller
+        )
     else:
         from elastic_gym.evaluation.runner import _controller_lookup
 
@@ -115,20 +117,20 @@ def resolve_entry(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
             _controller_lookup(controller)
         except ValueError as exc:
             raise ValueError(f"controller: {exc}") from None
-        c_entry = ControllerEntry(controller, controller, dict(entry.options))
+        c_entry = ControllerEntry(name=controller, label=controller, options=dict(entry.options))
     return c_entry, _source_entry(entry.source, entry.source_options)
 
 
 def _source_entry(source: str | type, options: dict) -> SourceEntry:
     if _is_class_path(source):
         name = _short(source)
-        return SourceEntry(name, name, dict(options), cls=source)
+        return SourceEntry(name=name, label=name, options=dict(options), cls=source)
     if source not in OBSERVERS:
         raise ValueError(
             f"source: unknown state source {source!r}; valid: {sorted(OBSERVERS)} or "
             "'module:Class' of an Observer"
         )
-    return SourceEntry(source, source, dict(options))
+    return SourceEntry(name=source, label=source, options=dict(options))
 
 
 def _run_entries(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
@@ -141,7 +143,7 @@ def _run_entries(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
         raise ValueError(f"run: {exc}") from None
     source = _source_entry(config.state, dict(config.observer_options))
     options = {"run": str(run.resolve()), "best": entry.best}
-    return ControllerEntry(TRAINED_POLICY, run.name, options), source
+    return ControllerEntry(name=TRAINED_POLICY, label=run.name, options=options), source
 
 
 def privileged_items(source: SourceEntry) -> tuple[str, ...]:

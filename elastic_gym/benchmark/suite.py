@@ -339,7 +339,7 @@ def suite_scenario(
     cells = [c for c in suite.cells if robots is None or c.robot in robots]
     return Scenario(
         name=name,
-        envs=tuple(EnvEntry(c.env_id, c.id, c.kwargs) for c in cells),
+        envs=tuple(EnvEntry(id=c.env_id, label=c.id, kwargs=c.kwargs) for c in cells),
         controllers=(controller,),
         state_sources=(source,),
         duration=suite.duration,
