@@ -23,7 +23,10 @@ Tables (BLAS single-threaded: "one core"; see ``timing.py`` for the method):
 6. the batched closed loop of the comparisons (``batched.py``): vector env + vector De
    Luca (or batched EKF) + vector eq. (13), 64 arms, per arm-step, at the env's physics
    step and at 1/16 ms, / the bare 64-arm PyBullet loop of the same world and substeps
-   (target <= 2.5x), and the EKF loop / the De Luca loop (target <= 3x).
+   (target <= 2.5x), and the EKF loop / the De Luca loop (target <= 3x);
+7. ``compare`` of one grid (``batched_compare.py``) with one arm per world
+   (``--batch-size 1``) / batched, CPU time of the whole execution, at the env's 0.5 ms
+   physics step and at the comparisons' 1/16 ms (targets >= 8x and >= 2.5x).
 
 ``--tables 1 5`` runs only some tables.
 """
@@ -42,6 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import batched
+import batched_compare
 import gymnasium as gym
 import numpy as np
 import pybullet as p
@@ -546,6 +550,33 @@ def table_batched_loop(vec_id: str, scale: Scale) -> None:
     )
 
 
+def table_compare(scale: Scale) -> None:
+    quick = scale is QUICK
+    seeds = batched_compare.SEEDS // 2 if quick else batched_compare.SEEDS
+    duration = batched_compare.DURATION / 2 if quick else batched_compare.DURATION
+    rows = []
+    for physics_dt, target in batched_compare.TARGET.items():
+        costs = batched_compare.compare_costs(physics_dt, seeds, duration, 2 if quick else 3)
+        ratio = costs["alone"] / costs["batched"]
+        rows.append(
+            (
+                f"{1e3 * physics_dt:g}",
+                costs["runs"],
+                fmt(costs["alone"]),
+                fmt(costs["batched"]),
+                fmt(ratio),
+                f"{target:g}x: {'yes' if ratio >= target else 'no'}",
+            )
+        )
+    print_table(
+        f"7. compare of one grid (TwoLinkElastic, eq. (13) and motor PD on the true state "
+        f"and De Luca, {seeds} seeds, {duration:g} s per run): CPU time with one arm per "
+        f"world / batched (worlds of {seeds} arms)",
+        ("physics step [ms]", "runs", "batch size 1 [s]", "batched [s]", "speed-up", "target"),
+        rows,
+    )
+
+
 def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool, tables: set[int]) -> None:
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     print(
@@ -563,6 +594,8 @@ def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool, tables: se
         table_batched(env_ids, vec_id, scale)
     if 6 in tables:
         table_batched_loop(vec_id, scale)
+    if 7 in tables:
+        table_compare(scale)
     if profile:
         for env_id in env_ids:
             top, per_step = profile_closed_loop(env_id, scale.block, top=15)
@@ -590,8 +623,8 @@ def main(argv: list[str] | None = None) -> int:
         "--tables",
         nargs="+",
         type=int,
-        default=[1, 2, 3, 4, 5, 6],
-        choices=[1, 2, 3, 4, 5, 6],
+        default=[1, 2, 3, 4, 5, 6, 7],
+        choices=[1, 2, 3, 4, 5, 6, 7],
         help="tables to run (default: all)",
     )
     args = parser.parse_args(argv)

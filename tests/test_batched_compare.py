@@ -201,3 +201,34 @@ def test_rows_of_a_grid_batched_equal_one_arm_per_world(tmp_path):
         assert a.keys() == b.keys()
         differ = {k: (a[k], b[k]) for k in a if k != "sim_wall_ratio" and not _same(a[k], b[k])}
         assert not differ, (a["controller"], a["source"], a["sweep"], a["seed"], differ)
+
+
+@pytest.mark.parametrize("batch_size", [0, -1, 2.5, True, "8"])
+def test_a_bad_batch_size_is_refused_before_anything_is_written(tmp_path, batch_size):
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match=r"^batch_size must be an integer >= 1"):
+        compare(grid(), output_dir=out, workers=1, progress=False, batch_size=batch_size)
+    assert not out.exists()
+
+
+def test_groups_share_a_world_only_when_they_may():
+    """Seeds and per-arm kwargs (a sweep's magnitudes) share a world; the controller, the
+    state source and shared kwargs do not; big groups are cut so both workers get work."""
+    runs, _ = plan_runs(grid())
+    for group in plan_groups(runs, DEFAULT_BATCH_SIZE, 1):
+        first = group.first
+        for spec in group.runs:
+            assert (spec.env_id, spec.controller, spec.source) == (
+                first.env_id,
+                first.controller,
+                first.source,
+            )
+    sizes = [len(g) for g in plan_groups(runs, 4, 2)]
+    assert max(sizes) <= 4 and sum(sizes) == len(runs)
+    one = [r for r in runs if r.labels["controller"] == "picky" and r.labels["source"] == "true"]
+    halves = plan_groups(one[:6], DEFAULT_BATCH_SIZE, 2)  # one group of 6 arms, 2 workers
+    assert [len(g) for g in halves] == [2, 1, 2, 1]
+    mixed = plan_groups(one[:6], DEFAULT_BATCH_SIZE, 1)[0]  # nominal seeds 0, 1; mass seed 0
+    per_arm = mixed.env_kwargs()["per_arm"]
+    assert per_arm == [{}, {}, {"plant_scaling": {"link_mass": 1.3}}]
+    assert mixed.seeds == [0, 1, 0]

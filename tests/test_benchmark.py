@@ -115,7 +115,7 @@ def test_cells_merge_robot_task_and_perturbation_kwargs():
             "categories.nominal.cells[0].task: unknown task 'nope'",
         ),
         (lambda d: d.update(seeds=list(range(9))), "seeds: List should have at least 10"),
-        (lambda d: d.update(seeds=[1] * 10), "seeds: Value error, duplicate seed(s) [1]"),
+        (lambda d: d.update(seeds=[1] * 10), "seeds: duplicate seed(s) [1]"),
         (
             lambda d: d["tasks"]["smooth"]["tolerance"].update(track_rms=-1),
             "tasks.smooth.tolerance.track_rms: Input should be greater than 0",
@@ -126,7 +126,7 @@ def test_cells_merge_robot_task_and_perturbation_kwargs():
         ),
         (
             lambda d: d["robots"]["kr15"].update(env="Nope-v0"),
-            "robots.kr15.env: Value error, unknown env id",
+            "robots.kr15.env: unknown env id",
         ),
         (lambda d: d.update(physics_dt=2e-3), "physics_dt: Input should be less than or equal"),
         (lambda d: d["precision"].update(low=1.0), "low (1) must be < high (0.1)"),

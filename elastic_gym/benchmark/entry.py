@@ -108,7 +108,7 @@ def resolve_entry(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
     if _is_class_path(controller):
         name = _short(controller)
         c_entry = ControllerEntry(
-            name=name, label=name, options=dict(entry.options), cls=controller
+            name=name, label=name, options=dict(entry.options), **{"class": controller}
         )
     else:
         from elastic_gym.evaluation.runner import _controller_lookup
@@ -124,7 +124,7 @@ def resolve_entry(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
 def _source_entry(source: str | type, options: dict) -> SourceEntry:
     if _is_class_path(source):
         name = _short(source)
-        return SourceEntry(name=name, label=name, options=dict(options), cls=source)
+        return SourceEntry(name=name, label=name, options=dict(options), **{"class": source})
     if source not in OBSERVERS:
         raise ValueError(
             f"source: unknown state source {source!r}; valid: {sorted(OBSERVERS)} or "

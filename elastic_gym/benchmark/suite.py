@@ -46,9 +46,9 @@ from elastic_gym.evaluation.scenario import (
     EnvEntry,
     Scenario,
     SourceEntry,
-    env_parameters,
     merge,
 )
+from elastic_gym.evaluation.scenario_models import env_parameters
 from elastic_gym.validation import StrictModel, registered_env_id, validated
 
 SUITE_DIR = Path(__file__).resolve().parent / "suites"

@@ -39,13 +39,25 @@ from elastic_gym.controllers.gain_design import (
     lqr_integral_gain,
 )
 from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP, TIME_TOLERANCE
-from elastic_gym.controllers.state_feedback import FeedforwardStateFeedback, VectorStateFeedback
+from elastic_gym.controllers.state_feedback import (
+    FeedforwardOptions,
+    FeedforwardStateFeedback,
+    VectorStateFeedback,
+)
 from elastic_gym.controllers.vector import arm_rows, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import is_real
+from elastic_gym.validation import PositiveFinite, validated_options
 
 DEFAULT_INTEGRAL_WEIGHT = 0.1
 DEFAULT_INTEGRAL_LIMIT = 0.5  # fraction of the torque limit
+
+
+class IntegralOptions(FeedforwardOptions):
+    """The options of :class:`IntegralStateFeedback`."""
+
+    omega: PositiveFinite = 30.0
+    integral_weight: PositiveFinite = DEFAULT_INTEGRAL_WEIGHT
+    integral_limit: PositiveFinite = DEFAULT_INTEGRAL_LIMIT
 
 
 class IntegralStateFeedback(FeedforwardStateFeedback):
@@ -65,6 +77,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
     """
 
     name = "integral-state-feedback"
+    options_model = IntegralOptions
 
     def __init__(
         self,
@@ -77,8 +90,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
         design_configuration=None,
         fd_step: float = DEFAULT_FD_STEP,
     ) -> None:
-        if not (is_real(integral_limit) and np.isfinite(integral_limit) and integral_limit > 0):
-            raise ValueError(f"integral_limit must be a positive number, got {integral_limit!r}")
+        validated_options(IntegralOptions, locals())
         self.integral_weight = integral_weight
         self.integral_bound = float(integral_limit) * np.asarray(model.spec.torque_limit, float)
         self.torque_limit = np.asarray(model.spec.torque_limit, dtype=float)

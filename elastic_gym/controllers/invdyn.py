@@ -59,6 +59,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
+from numba import njit
 from scipy.special import factorial
 
 from elastic_gym.model import RobotModel
@@ -149,7 +150,7 @@ class RigidTorque:
         """(tau_r, tau_r') of (N, 5, n) references; tau_r' exact (complex-step RNEA
         tangent along (q_d', q_d'', q_d''') plus the friction slope)."""
         q, dq, ddq, d3q = ref[:, 0], ref[:, 1], ref[:, 2], ref[:, 3]
-        tau, dtau = self.model.chain.rnea_tangent(q, dq, ddq, dq, ddq, d3q)
+        tau, dtau = self.model.chain.rnea_tangent((q, dq, ddq), (dq, ddq, d3q))
         friction = self.model.friction
         if friction is not None:
             tau = tau + friction.torque(dq)
@@ -187,15 +188,54 @@ class RigidTorque:
         return ddtau[0] if single else ddtau
 
 
+@njit(cache=True)
+def _torsion_kernel(t, u, du, ddu, K, D, viscous, rate, c, clock, v0, dv0, delta, out):
+    """One :meth:`TorsionFilter.update` of N arms (rows), joint by joint (see there)."""
+    N, n = u.shape
+    for i in range(N):
+        first = np.isnan(clock[i])
+        ahead = t[i] > clock[i] + TIME_TOLERANCE  # False when not started (NaN)
+        h = t[i] - clock[i]
+        for j in range(n):
+            k, cj = K[j], c[j]
+            v, dv, ddv = u[i, j] / k, du[i, j] / k, ddu[i, j] / k  # static torsion, derivatives
+            if first:  # quasi-static start, exact at rest
+                d = v - cj * (dv - cj * (ddv - cj * 0.0))
+            elif ahead:  # exact solution for the cubic Hermite interpolant of u over h
+                a0, m0 = v0[i, j], dv0[i, j]
+                slope = (v - a0) / h
+                dd0 = (6.0 * slope - 4.0 * m0 - 2.0 * dv) / h
+                dd1 = (-6.0 * slope + 2.0 * m0 + 4.0 * dv) / h
+                d3 = (6.0 * (m0 + dv) - 12.0 * slope) / h**2
+                start = a0 - cj * (m0 - cj * (dd0 - cj * d3))
+                end = v - cj * (dv - cj * (dd1 - cj * d3))
+                d = end + np.exp(-rate[j] * h) * (delta[i, j] - start)
+            else:  # same instant (up to rounding): no time to integrate over
+                d = delta[i, j]
+            v0[i, j], dv0[i, j] = v, dv
+            if viscous[j]:
+                d1 = (u[i, j] - k * d) / D[j]
+                d2 = (du[i, j] - k * d1) / D[j]
+                d3o = (ddu[i, j] - k * d2) / D[j]
+            else:
+                d, d1, d2, d3o = v, dv, ddv, 0.0
+            delta[i, j] = d
+            out[0, i, j], out[1, i, j], out[2, i, j], out[3, i, j] = d, d1, d2, d3o
+        if first or ahead:
+            clock[i] = t[i]
+
+
 class TorsionFilter:
     """Exact integration of K delta + D delta' = u(t), per joint (D = 0 joints: algebraic).
 
     ``update(t, u, du, ddu)`` advances from the previous call with u the cubic
-    Hermite interpolant of (u, u') at both ends, and returns delta and its first three
-    derivatives (the third is exact for D > 0 joints and zero (neglected) for D = 0).
-    With ``n_arms`` the state holds N arms: u and its derivatives are (N, n), t is one
-    time per arm (N,) and ``reset(arms)`` restarts some of them; without it, u is (n,)
-    and t a number.
+    Hermite interpolant of (u, u') at both ends, for which the ODE has a closed-form
+    solution (the polynomial particular solution sum_k (-1/a)^k v^(k), v = u / K, a = K / D,
+    plus a decaying exponential), and returns delta and its first three derivatives (the
+    third is exact for D > 0 joints and zero (neglected) for D = 0). With ``n_arms`` the
+    state holds N arms: u and its derivatives are (N, n), t is one time per arm (N,) and
+    ``reset(arms)`` restarts some of them; without it, u is (n,) and t a number. The update
+    of all arms is one compiled loop.
     """
 
     def __init__(self, stiffness: np.ndarray, damping: np.ndarray, n_arms: int | None = None):
@@ -205,11 +245,21 @@ class TorsionFilter:
         self.D = np.where(self.viscous, D, 1.0)  # safe divisor; D = 0 joints are masked
         self.rate = np.where(self.viscous, self.K / self.D, 0.0)  # a = K / D
         self.time_constant = np.where(self.viscous, self.D / self.K, 0.0)  # 1 / a
-        self.shape = self.K.shape if n_arms is None else (n_arms, *self.K.shape)
-        self._time = np.full(self.shape[:-1], np.nan)  # NaN: not started
-        self._v = np.zeros(self.shape)
-        self._dv = np.zeros(self.shape)
-        self.delta = np.zeros(self.shape)
+        self.single = n_arms is None
+        shape = (1 if n_arms is None else n_arms, len(self.K))
+        self._time = np.full(shape[0], np.nan)  # NaN: not started
+        self._v = np.zeros(shape)
+        self._dv = np.zeros(shape)
+        self._delta = np.zeros(shape)
+
+    @property
+    def delta(self) -> np.ndarray:
+        """The torsion: (n,) without ``n_arms``, else (N, n)."""
+        return self._delta[0] if self.single else self._delta
+
+    @delta.setter
+    def delta(self, value: np.ndarray) -> None:
+        self._delta[:] = value
 
     def reset(self, arms: np.ndarray | None = None) -> None:
         """Restart every arm (or ``arms``): the next update starts at the quasi-static torsion."""
@@ -217,50 +267,40 @@ class TorsionFilter:
         self._time[index] = np.nan
         self._v[index] = 0.0
         self._dv[index] = 0.0
-        self.delta[index] = 0.0
-
-    def _particular(self, v: np.ndarray, dv: np.ndarray, ddv: np.ndarray, d3v) -> np.ndarray:
-        """Polynomial particular solution sum_k (-1/a)^k v^(k) of delta' = a (v - delta)."""
-        c = self.time_constant
-        return v - c * (dv - c * (ddv - c * d3v))
-
-    def _advance(self, h: np.ndarray, v: np.ndarray, dv: np.ndarray) -> np.ndarray:
-        v0, m0 = self._v, self._dv
-        slope = (v - v0) / h
-        dd0 = (6.0 * slope - 4.0 * m0 - 2.0 * dv) / h
-        dd1 = (-6.0 * slope + 2.0 * m0 + 4.0 * dv) / h
-        d3 = (6.0 * (m0 + dv) - 12.0 * slope) / h**2
-        start = self._particular(v0, m0, dd0, d3)
-        end = self._particular(v, dv, dd1, d3)
-        return end + np.exp(-self.rate * h) * (self.delta - start)
+        self._delta[index] = 0.0
 
     def update(
         self, t, u: np.ndarray, du: np.ndarray, ddu: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        K, D = self.K, self.D
-        v, dv, ddv = u / K, du / K, ddu / K  # the static torsion and its derivatives
-        t = np.broadcast_to(np.asarray(t, dtype=float), self._time.shape)
-        previous = self._time
-        back = t < previous - TIME_TOLERANCE  # False where not started (NaN)
-        if np.any(back):
+        shape = self._delta.shape
+        t = np.ascontiguousarray(t, dtype=np.float64).reshape(shape[0])
+        back = t < self._time - TIME_TOLERANCE  # False where not started (NaN)
+        if back.any():
             raise ValueError(
-                f"controller time went back from {previous[back]} to {t[back]}; call reset()"
+                f"controller time went back from {self._time[back]} to {t[back]}; call reset()"
             )
-        first = np.isnan(previous)[..., None]
-        ahead = t > previous + TIME_TOLERANCE
-        delta = np.where(first, self._particular(v, dv, ddv, 0.0), self.delta)
-        if np.any(ahead):
-            h = np.where(ahead, t - previous, 1.0)[..., None]
-            delta = np.where(ahead[..., None], self._advance(h, v, dv), delta)
-        # same instant (up to rounding): no time to integrate over, the clock stays
-        self._time = np.where(first[..., 0] | ahead, t, previous)
-        self._v, self._dv = v, dv
-        viscous = self.viscous
-        self.delta = delta = np.where(viscous, delta, v)
-        d1 = np.where(viscous, (u - K * delta) / D, dv)
-        d2 = np.where(viscous, (du - K * d1) / D, ddv)
-        d3 = np.where(viscous, (ddu - K * d2) / D, 0.0)
-        return delta, d1, d2, d3
+        u, du, ddu = (
+            np.ascontiguousarray(a, dtype=np.float64).reshape(shape) for a in (u, du, ddu)
+        )
+        out = np.empty((4, *shape))
+        _torsion_kernel(
+            t,
+            u,
+            du,
+            ddu,
+            self.K,
+            self.D,
+            self.viscous,
+            self.rate,
+            self.time_constant,
+            self._time,
+            self._v,
+            self._dv,
+            self._delta,
+            out,
+        )
+        d0, d1, d2, d3 = out[:, 0] if self.single else out
+        return d0, d1, d2, d3
 
 
 class InverseDynamics:

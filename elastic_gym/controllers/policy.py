@@ -25,8 +25,10 @@ import importlib
 import os
 import pickle
 from collections.abc import Callable, Mapping
+from typing import Annotated, Any
 
 import numpy as np
+from pydantic import Field, StrictBool
 
 from elastic_gym.arms import arm_view, as_batch
 from elastic_gym.controllers.base import Controller
@@ -38,7 +40,7 @@ from elastic_gym.controllers.vector import (
     twin_of,
 )
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import is_real, per_joint_values
+from elastic_gym.validation import StrictModel, per_joint_values, validated_options
 
 
 def load_sb3_model(path: str | os.PathLike, algorithm: str | type):
@@ -70,6 +72,17 @@ def load_normalization(normalization):
     return normalization
 
 
+class PolicyOptions(StrictModel):
+    """The plain-data options of :class:`PolicyController` (the policy, its normalization,
+    preprocessing and residual controller are objects, checked by the controller)."""
+
+    scale_actions: StrictBool = True
+    residual_options: dict[str, Any] | None = None
+    residual_scale: Annotated[float, Field(strict=True, gt=0.0, le=1.0)] = 0.1
+    deterministic: StrictBool = True
+    decimation: Annotated[int, Field(strict=True, ge=1)] = 1
+
+
 class PolicyController(Controller):
     """A policy ``obs -> action`` as a controller; see the module docstring.
 
@@ -88,6 +101,7 @@ class PolicyController(Controller):
     """
 
     name = "policy"
+    options_model = PolicyOptions
 
     def __init__(
         self,
@@ -106,8 +120,7 @@ class PolicyController(Controller):
         decimation: int = 1,
     ) -> None:
         super().__init__(model, dt)
-        if not isinstance(decimation, int) or decimation < 1:
-            raise ValueError(f"decimation must be an integer >= 1, got {decimation!r}")
+        validated_options(PolicyOptions, locals())
         self.decimation = decimation
         if isinstance(policy, (str, os.PathLike)):
             if algorithm is None:
@@ -122,9 +135,6 @@ class PolicyController(Controller):
             )
         if preprocess is not None and not callable(preprocess):
             raise TypeError("preprocess must be callable f(obs, info)")
-        for key, value in (("scale_actions", scale_actions), ("deterministic", deterministic)):
-            if not isinstance(value, bool):
-                raise TypeError(f"{key} must be True or False, got {value!r}")
         self.policy = policy
         self.normalization = load_normalization(normalization)
         self.preprocess = preprocess
@@ -132,8 +142,6 @@ class PolicyController(Controller):
         self.deterministic = deterministic
         self.torque_limit = self._limit(torque_limit)
         self.residual = self._base_controller(residual, residual_options)
-        if not (is_real(residual_scale) and 0.0 < residual_scale <= 1.0):
-            raise ValueError(f"residual_scale must be in (0, 1], got {residual_scale!r}")
         self.residual_scale = float(residual_scale)
         self._law = VectorPolicyController.of(self, 1)
 
@@ -167,7 +175,7 @@ class PolicyController(Controller):
 
 
 @twin_of(PolicyController)
-class VectorPolicyController(ControllerTwin):
+class VectorPolicyController(ControllerTwin[PolicyController]):
     """:class:`PolicyController` on N arms: each arm has its own recurrent state, call
     count and held action, and the policy is called once per acting arm with that arm's
     observation (a batched call would round differently from the single controller's);
@@ -216,6 +224,7 @@ class VectorPolicyController(ControllerTwin):
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
         c = self.controller
         for i in np.flatnonzero(self._calls % c.decimation == 0):  # acting at 1 / (decimation dt)
+            i = int(i)
             self._held[i] = self.act(i, arm_view(obs, i), arm_view(info, i))
         self._calls += 1
         action = np.clip(self._held, -1.0, 1.0)

@@ -29,17 +29,18 @@ block, plus the desired q_d, q_d', q_d'' of ``info["reference"]``.
 
 from __future__ import annotations
 
+from typing import Any, Literal
+
 import numpy as np
 
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.vector import OneArmLaw, StateLaw, arm_rows, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import is_real
+from elastic_gym.validation import PositiveFinite, StrictModel, validated_options
 
 CRISTOFARO_LAMBDA = 0.5
 CRISTOFARO_KP = (40.0, 60.0)
 CRISTOFARO_KD = (60.0, 90.0)
-FRICTION_VELOCITIES = ("estimate", "desired")
 
 
 def _gain_matrix(value, n: int, name: str) -> np.ndarray:
@@ -50,9 +51,11 @@ def _gain_matrix(value, n: int, name: str) -> np.ndarray:
     if arr.ndim == 1 and arr.shape == (n,):
         arr = np.diag(arr)
     if arr.shape != (n, n) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be a scalar, {n} numbers or a {n}x{n} matrix, got {value!r}")
+        raise ValueError(
+            f"options.{name}: must be a scalar, {n} numbers or a {n}x{n} matrix, got {value!r}"
+        )
     if np.any(np.linalg.eigvalsh(0.5 * (arr + arr.T)) < 0.0):
-        raise ValueError(f"{name} must be positive semi-definite, got {value!r}")
+        raise ValueError(f"options.{name}: must be positive semi-definite, got {value!r}")
     return arr
 
 
@@ -67,6 +70,14 @@ def _signals(x: np.ndarray, ref: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
     return x[:, :n], x[:, n:], ref[:, 0], ref[:, 1], ref[:, 2]
 
 
+class CristofaroOptions(StrictModel):
+    """The options of :class:`CristofaroTrackingController` (gain sizes checked by it)."""
+
+    Lambda: Any = CRISTOFARO_LAMBDA
+    K_P: Any = None
+    K_D: Any = None
+
+
 class CristofaroTrackingController(_RigidTracking):
     """Example 3 of Cristofaro & De Luca (2022), see the module docstring.
 
@@ -77,6 +88,7 @@ class CristofaroTrackingController(_RigidTracking):
     """
 
     name = "cristofaro-tracking"
+    options_model = CristofaroOptions
 
     def __init__(
         self,
@@ -87,6 +99,7 @@ class CristofaroTrackingController(_RigidTracking):
         K_D=None,
     ) -> None:
         super().__init__(model, dt)
+        validated_options(CristofaroOptions, locals())
         n = self.n
         if (K_P is None or K_D is None) and n != len(CRISTOFARO_KP):
             raise ValueError(
@@ -96,6 +109,16 @@ class CristofaroTrackingController(_RigidTracking):
         self.K_P = _gain_matrix(CRISTOFARO_KP if K_P is None else K_P, n, "K_P")
         self.K_D = _gain_matrix(CRISTOFARO_KD if K_D is None else K_D, n, "K_D")
         self.bind_law()
+
+
+class FeedbackLinearizationOptions(StrictModel):
+    """The options of :class:`FeedbackLinearizingController` (gain sizes checked by it)."""
+
+    omega: PositiveFinite = 10.0
+    damping_ratio: PositiveFinite = 1.0
+    K_P: Any = None
+    K_D: Any = None
+    friction_velocity: Literal["estimate", "desired"] = "estimate"
 
 
 class FeedbackLinearizingController(_RigidTracking):
@@ -110,6 +133,7 @@ class FeedbackLinearizingController(_RigidTracking):
     """
 
     name = "feedback-linearization"
+    options_model = FeedbackLinearizationOptions
 
     def __init__(
         self,
@@ -123,13 +147,7 @@ class FeedbackLinearizingController(_RigidTracking):
     ) -> None:
         super().__init__(model, dt)
         n = self.n
-        for key, value in (("omega", omega), ("damping_ratio", damping_ratio)):
-            if not (is_real(value) and np.isfinite(value) and value > 0):
-                raise ValueError(f"{key} must be a positive number, got {value!r}")
-        if friction_velocity not in FRICTION_VELOCITIES:
-            raise ValueError(
-                f"friction_velocity must be one of {FRICTION_VELOCITIES}, got {friction_velocity!r}"
-            )
+        validated_options(FeedbackLinearizationOptions, locals())
         self.friction_velocity = friction_velocity
         self.K_P = _gain_matrix(omega**2 if K_P is None else K_P, n, "K_P")
         self.K_D = _gain_matrix(2.0 * damping_ratio * omega if K_D is None else K_D, n, "K_D")
@@ -137,7 +155,7 @@ class FeedbackLinearizingController(_RigidTracking):
 
 
 @twin_of(CristofaroTrackingController)
-class VectorCristofaroTracking(StateLaw):
+class VectorCristofaroTracking(StateLaw[CristofaroTrackingController]):
     """Example 3 of Cristofaro & De Luca (2022) on N arms (chain kernels).
 
     C(q, x_hat_2) w comes from the bias n(q, v) = C(q, v) v + g(q), a quadratic form in v
@@ -162,7 +180,7 @@ class VectorCristofaroTracking(StateLaw):
 
 
 @twin_of(FeedbackLinearizingController)
-class VectorFeedbackLinearization(StateLaw):
+class VectorFeedbackLinearization(StateLaw[FeedbackLinearizingController]):
     """Computed torque with friction compensation (Solsona & Puleston) on N arms."""
 
     def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import copy
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
-from typing import ClassVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 
@@ -51,8 +51,8 @@ class VectorController(ABC):
         n_arms: number of arms N.
     """
 
-    name: ClassVar[str] = ""
-    applies_to: ClassVar[frozenset[str]] = frozenset({"elastic", "rigid"})
+    name: str = ""
+    applies_to: frozenset[str] = frozenset({"elastic", "rigid"})
 
     def __init__(self, model: RobotModel, dt: float, n_arms: int) -> None:
         if isinstance(n_arms, bool) or not isinstance(n_arms, (int, np.integer)) or n_arms < 1:
@@ -83,7 +83,7 @@ class VectorController(ABC):
 
     def times(self, info: Mapping) -> np.ndarray:
         """``info["time"]`` of every arm, (N,)."""
-        return info_time(info, self.n_arms)
+        return np.asarray(info_time(info, self.n_arms))
 
 
 class ControllerArray(VectorController):
@@ -112,7 +112,10 @@ class ControllerArray(VectorController):
         return np.array(torques, dtype=float).reshape(self.n_arms, self.n)
 
 
-class ControllerTwin(VectorController):
+C = TypeVar("C", bound=Controller)
+
+
+class ControllerTwin(VectorController, Generic[C]):
     """The batched law of a built-in single-arm controller (its design and options).
 
     ``Twin(model, dt, n_arms, **options)`` designs the single controller
@@ -122,23 +125,25 @@ class ControllerTwin(VectorController):
     """
 
     single_class: ClassVar[type[Controller]]
+    controller: C
 
     def __init__(self, model: RobotModel, dt: float, n_arms: int, **options) -> None:
-        self._bind(self.single_class(model, dt, **options), n_arms)
+        controller: Any = self.single_class(model, dt, **options)
+        self._bind(controller, n_arms)
 
     @classmethod
-    def of(cls, controller: Controller, n_arms: int) -> ControllerTwin:
+    def of(cls, controller: C, n_arms: int) -> ControllerTwin[C]:
         twin = cls.__new__(cls)
         twin._bind(controller, n_arms)
         return twin
 
-    def _bind(self, controller: Controller, n_arms: int) -> None:
+    def _bind(self, controller: C, n_arms: int) -> None:
         self.name, self.applies_to = controller.name, controller.applies_to
         VectorController.__init__(self, controller.model, controller.dt, n_arms)
         self.controller = controller
 
 
-class StateLaw(ControllerTwin):
+class StateLaw(ControllerTwin[C]):
     """A twin whose torque depends on the time, the state and the reference only."""
 
     @abstractmethod
@@ -153,7 +158,9 @@ class OneArmLaw:
     """Mixin of the built-in single-arm controllers: their law is their
     :attr:`~elastic_gym.controllers.base.Controller.vector_twin` run with N = 1."""
 
-    _law: StateLaw
+    _law: Any  # the twin: a StateLaw of this class
+    vector_twin: ClassVar[Any]
+    n: int
 
     def bind_law(self) -> None:
         """Build the one-arm law on this controller's design (end of ``__init__``)."""

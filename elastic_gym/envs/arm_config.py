@@ -31,7 +31,10 @@ MAX_ACTUATOR_DELAY = 1.0  # s
 
 
 def as_mapping(value):
-    """A dataclass or pydantic config as a plain dict (to be merged); others unchanged."""
+    """A dataclass or pydantic config as a plain dict (to be merged), ``"ideal"`` as the
+    ideal accelerometer's fields; others unchanged."""
+    if isinstance(value, str) and value == "ideal":
+        value = AccelerometerConfig.ideal()
     if isinstance(value, BaseModel):
         return value.model_dump(exclude_none=True)
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
@@ -42,8 +45,10 @@ def as_mapping(value):
 def deep_merge(base, override):
     """``override`` merged into ``base``: mappings key by key (recursively), anything else
     replaced."""
+    if not isinstance(override, Mapping):
+        return override
     base, override = as_mapping(base), as_mapping(override)
-    if isinstance(base, Mapping) and isinstance(override, Mapping):
+    if isinstance(base, Mapping):
         merged = dict(base)
         for key, value in override.items():
             merged[key] = deep_merge(base[key], value) if key in base else value

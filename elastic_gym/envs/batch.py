@@ -9,10 +9,12 @@ leading arm axis: the simulator (:mod:`elastic_gym.envs.simulator`), the sensors
 vector env; there is no second copy of the physics.
 
 Exactness: arm i draws every random number (task sampling, encoder noise, accelerometer
-bias and noise) from its own generator ``rngs[i]``, and every computation on it depends
-only on its own rows, with the same operations in the same order whatever N. So arm i of
-a batch whose generator is seeded with s + i is bit for bit the single env reset with
-seed s + i under the same actions (``tests/test_batch.py``).
+bias and noise) from its own generator ``rngs[i]`` (its plant draws from its own plant
+stream, :mod:`elastic_gym.envs.randomization`), and every computation on it depends only
+on its own rows and its own plant, with the same operations in the same order whatever N.
+So arm i of a batch whose generator is seeded with s + i is bit for bit the single env
+reset with seed s + i under the same actions, and with ``per_arm`` the single env made
+with arm i's merged kwargs (``tests/test_batch.py``, ``tests/test_plants.py``).
 
 Observation of one arm (a ``spaces.Dict``, float64), only what a real arm measures:
 
@@ -25,7 +27,8 @@ Info of one arm (the same keys at every step, terminal steps included): ``time``
 ``true_state`` (``q``, ``dq``, ``theta``, ``dtheta``, ``ddq``, ``x``), ``torque`` (the
 applied, clipped motor torque), ``torque_saturated``, ``acceleration_saturated`` (an
 observed accelerometer reading is at the sensor's ``range``: clipped), ``reference``
-(``q`` .. ``d4q``), ``termination_reason`` (None while the episode runs).
+(``q`` .. ``d4q``), ``termination_reason`` (None while the episode runs), ``plant`` (the
+simulated plant's own parameters, see :class:`ArmBatch`).
 
 Reward: :mod:`elastic_gym.envs.reward` (bounded multi-scale tracking kernels, torque and
 torque-rate penalties; every step pays >= 0). An episode whose physics breaks (non-finite
@@ -675,7 +678,8 @@ class ArmBatch:
             at_range = np.zeros(np.shape(self._time[arms]), dtype=bool)
         else:
             readings = np.abs(self.obs["acceleration"][arms])
-            at_range = np.any(readings >= self.accelerometer_array.config.range, axis=-1)
+            limit = np.asarray(self.accelerometer_array.range[arms])[..., None]  # per arm
+            at_range = np.any(readings >= limit, axis=-1)
         return bool(at_range) if np.ndim(at_range) == 0 else at_range
 
     def reference_preview(self, offsets: np.ndarray) -> np.ndarray:

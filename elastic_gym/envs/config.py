@@ -28,9 +28,16 @@ reset (:mod:`elastic_gym.envs.randomization`).
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
-from pydantic import Field, StrictFloat, StrictInt, field_validator, model_validator
+from pydantic import (
+    BeforeValidator,
+    Field,
+    StrictFloat,
+    StrictInt,
+    field_validator,
+    model_validator,
+)
 
 from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
 from elastic_gym.validation import StrictModel
@@ -52,6 +59,20 @@ MAX_PHYSICS_DT = 1e-3 + 1e-15  # s
 MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
 EPISODE_TIME = 3.0  # s
 
+
+def _ideal_accelerometer(value: Any) -> Any:
+    """``"ideal"`` is :meth:`AccelerometerConfig.ideal`; no other string is an error model."""
+    if isinstance(value, str):
+        if value != "ideal":
+            raise ValueError(
+                "must be 'ideal', a mapping of AccelerometerConfig fields or None, "
+                f"got the string {value!r}"
+            )
+        return AccelerometerConfig.ideal()
+    return value
+
+
+Accelerometer = Annotated[AccelerometerConfig | None, BeforeValidator(_ideal_accelerometer)]
 PositiveNumber = Annotated[StrictFloat, Field(gt=0.0, allow_inf_nan=False)]
 Periods = Annotated[StrictInt, Field(ge=0)]  # a count of control periods
 
@@ -157,7 +178,7 @@ class ArmOptions(StrictModel):
     plant_scaling: Any = None
     unmodelled_friction: Any = None
     encoder: EncoderConfig | None = None
-    accelerometer: AccelerometerConfig | Literal["ideal"] | None = None
+    accelerometer: Accelerometer = None
     sensor_delay: Periods | None = None
     actuator_delay: Periods | None = None
     payload: PayloadConfig | None = None
@@ -180,7 +201,7 @@ class EnvConfig(StrictModel):
     physics_dt: Annotated[PositiveNumber, Field(le=MAX_PHYSICS_DT)] | None = None
     control_dt: Annotated[PositiveNumber, Field(le=MAX_CONTROL_DT)] | None = None
     encoder: EncoderConfig | None = None
-    accelerometer: AccelerometerConfig | Literal["ideal"] | None = None
+    accelerometer: Accelerometer = None
     accelerometers: list | None = None
     plant_scaling: Any = None
     unmodelled_friction: Any = None

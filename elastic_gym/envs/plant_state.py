@@ -36,6 +36,7 @@ class PlantState:
         self._arms = np.arange(N)
         self.payload_mass = np.zeros(N)
         self._change_time = np.full(N, np.inf)
+        self._changes = any(s.payload is not None and s.payload.change for s in settings)
         self._stream = [
             bool(r) or (s.pulses is not None and s.pulses.random is not None)
             for s, r in zip(settings, ranges, strict=True)
@@ -93,6 +94,7 @@ class PlantState:
             batch.sim.set_payload_mass(arm, payload.mass)
         self.payload_mass[arm] = payload.mass
         self._change_time[arm] = np.inf if payload.change is None else payload.change.time
+        self._changes = self._changes or payload.change is not None
 
     def reset_commands(self, arms: np.ndarray, torque: np.ndarray) -> None:
         """Fill the actuator delay line of ``arms`` with their reset torque (rows)."""
@@ -112,8 +114,8 @@ class PlantState:
     def before_step(self, time: np.ndarray) -> np.ndarray | None:
         """Apply the payload changes due at ``time`` (N,), the start of the control period;
         returns the period's link torque pulses (N, n) or None."""
-        due = time >= self._change_time
-        if due.any():
+        due = time >= self._change_time if self._changes else None
+        if due is not None and due.any():
             batch = self.batch
             for arm in np.flatnonzero(due).tolist():
                 mass = batch.settings[arm].payload.change.mass

@@ -20,7 +20,6 @@ import numpy as np
 
 from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, deep_merge
 from elastic_gym.envs.config import Range
-from elastic_gym.envs.sensors import AccelerometerConfig
 
 PLANT_STREAM = 0x706C616E  # spawn key of the plant stream ("plan")
 # path -> integer-valued
@@ -70,8 +69,6 @@ def with_values(kwargs: Mapping, values: Mapping[str, float | int]) -> dict:
             out[key] = value
             continue
         base = out.get(key)
-        if base == "ideal":
-            base = AccelerometerConfig.ideal()
         out[key] = deep_merge({} if base is None else base, {field: value})
     return out
 

@@ -18,13 +18,13 @@ observer built once: :mod:`~elastic_gym.evaluation.preflight`), and the run coun
 an estimate of the wall time are printed.
 
 Output folder (default ``./compare_out/<scenario name>``): ``runs.csv`` (one row per
-run, written as each run finishes), ``summary.csv`` and ``summary.md`` (over seeds),
-``scenario.yaml`` (the resolved grid, written first) and ``plots/<group>.png`` (one
-figure per env x axis values x model error, written as soon as its runs are done;
-the time series of the runs are not kept in memory after that). A folder holding an
-earlier comparison's files is refused unless ``overwrite`` (which removes those
-files first), and so is a folder another process writes into
-(:mod:`~elastic_gym.folder_lock`). A run that fails (its code raises, calls
+run, written when its world of runs finishes: :mod:`~elastic_gym.evaluation.groups`),
+``summary.csv`` and ``summary.md`` (over seeds), ``scenario.yaml`` (the resolved grid,
+written first) and ``plots/<group>.png`` (one figure per env x axis values x model
+error, written as soon as its runs are done; the time series of the runs are not kept in
+memory after that). A folder holding an earlier comparison's files is refused unless
+``overwrite`` (which removes those files first), and so is a folder another process
+writes into (:mod:`~elastic_gym.folder_lock`). A run that fails (its code raises, calls
 ``sys.exit``, or kills its worker process) is a row with status ``failed: <Type>:
 <message>``. When results cannot be written (a full disk),
 :class:`~elastic_gym.evaluation.output.ResultsWriteError` says what ``runs.csv`` kept.

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from elastic_gym.envs.config import PER_ARM_KEYS
-from elastic_gym.evaluation.scenario import plain_data
+from elastic_gym.validation import plain
 
 if TYPE_CHECKING:
     from elastic_gym.evaluation.runner import RunSpec
@@ -79,7 +79,7 @@ def group_key(spec: RunSpec) -> str:
     shared = {k: v for k, v in spec.env_kwargs.items() if k not in PER_ARM_KEYS}
     controller, source = spec.controller, spec.source
     return json.dumps(
-        plain_data(
+        plain(
             [
                 spec.env_id,
                 shared,
@@ -95,6 +95,7 @@ def group_key(spec: RunSpec) -> str:
             ]
         ),
         sort_keys=True,
+        default=repr,  # classes and callables in options: the same object, the same text
     )
 
 

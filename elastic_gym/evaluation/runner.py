@@ -256,16 +256,23 @@ class _Recorder:
         self.saturated = np.zeros((size, n_arms), dtype=bool)
         self.lengths = np.zeros(n_arms, dtype=int)
         self.row = 0
-        self.diagnostics: list[dict[str, float]] = [{} for _ in range(n_arms)]
+        self._peaks: dict[str, np.ndarray] = {}
 
-    def _track_diagnostics(self, diagnostics: dict, arms: np.ndarray) -> None:
+    def _track_diagnostics(self, diagnostics: dict, recording: np.ndarray) -> None:
         for key, value in diagnostics.items():
             column = np.asarray(value)
             if column.dtype.kind not in "biuf":
                 continue
-            column = np.broadcast_to(column.astype(float), self.lengths.shape)
-            for i in arms:
-                self.diagnostics[i][key] = max(column[i], self.diagnostics[i].get(key, -np.inf))
+            peak = self._peaks.setdefault(key, np.full(len(self.lengths), -np.inf))
+            np.maximum(peak, np.where(recording, column.astype(float), -np.inf), out=peak)
+
+    @property
+    def diagnostics(self) -> list[dict[str, float]]:
+        """Per arm: the largest value of each numeric observer diagnostic it recorded."""
+        return [
+            {key: float(peak[i]) for key, peak in self._peaks.items() if peak[i] > -np.inf}
+            for i in range(len(self.lengths))
+        ]
 
     def record(self, info: dict, recording: np.ndarray) -> None:
         """Row ``row`` of every arm; it counts for the ``recording`` arms only."""
@@ -280,9 +287,8 @@ class _Recorder:
         self.saturated[k] = info["torque_saturated"]
         if self.theta is not None:
             self.theta[k] = truth["theta"]
-        arms = np.flatnonzero(recording)
-        self._track_diagnostics(info.get("observer_diagnostics", {}), arms)
-        self.lengths[arms] = k + 1
+        self._track_diagnostics(info.get("observer_diagnostics", {}), recording)
+        self.lengths[recording] = k + 1
         self.row = k + 1
 
     def series(self, state_names: tuple[str, ...]) -> ArmSeries:
@@ -434,13 +440,14 @@ def _results(
             RunResult(spec, status, {}, series.arm(i), wall) for i, spec in enumerate(group.runs)
         ]
     results = []
+    diagnostics = recorder.diagnostics
     for i, (spec, status, metrics) in enumerate(
         zip(group.runs, statuses, all_metrics, strict=True)
     ):
         one = series.arm(i)
         metrics["sim_time"] = float(one.time[-1])
         metrics["sim_wall_ratio"] = metrics["sim_time"] / wall if wall > 0 else float("nan")
-        results.append(RunResult(spec, status, metrics, one, wall, recorder.diagnostics[i]))
+        results.append(RunResult(spec, status, metrics, one, wall, diagnostics[i]))
     return results
 
 

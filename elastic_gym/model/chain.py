@@ -445,20 +445,8 @@ def _rnea_kernel(q, dq, ddq, fp, ip, w, h):
     for k in range(N):
         if k and fp.shape[0] > 1:
             chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
-        _mass_and_bias_arm(
-            q[k],
-            dq[k],
-            ddq[k],
-            minus_gravity,
-            chain,
-            *bodies_p,
-            M,
-            h[k],
-            links,
-            small,
-            bodies,
-            False,
-        )
+        arm = (q[k], dq[k], ddq[k], minus_gravity)
+        _mass_and_bias_arm(*arm, chain, *bodies_p, M, h[k], links, small, bodies, False)
 
 
 @njit(cache=True)
@@ -470,20 +458,8 @@ def _gravity_kernel(q, fp, ip, w, h):
     for k in range(N):
         if k and fp.shape[0] > 1:
             chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
-        _mass_and_bias_arm(
-            q[k],
-            zero_n,
-            zero_n,
-            minus_gravity,
-            chain,
-            *bodies_p,
-            M,
-            h[k],
-            links,
-            small,
-            bodies,
-            False,
-        )
+        arm = (q[k], zero_n, zero_n, minus_gravity)
+        _mass_and_bias_arm(*arm, chain, *bodies_p, M, h[k], links, small, bodies, False)
 
 
 @njit(cache=True)
@@ -520,13 +496,11 @@ def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
     chain, bodies_p, _, _, minus_gravity = _unpack(fp[0], ip)
     small, links, bodies, (M, h, rhs) = _workspace(n, w)
     per_arm = added_inertia.shape[0] > 1
-    zero_n = bodies[8]
     for k in range(N):
         if k and fp.shape[0] > 1:
             chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
-        _mass_and_bias_arm(
-            q[k], dq[k], zero_n, minus_gravity, chain, *bodies_p, M, h, links, small, bodies
-        )
+        arm = (q[k], dq[k], bodies[8], minus_gravity)
+        _mass_and_bias_arm(*arm, chain, *bodies_p, M, h, links, small, bodies)
         added = added_inertia[k if per_arm else 0]
         for a in range(n):
             rhs[a] = tau[k, a] - h[a]
@@ -536,6 +510,8 @@ def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
 
 
 # ---------------------------------------------------------------------------- the chain
+
+Triple = tuple[np.ndarray, np.ndarray, np.ndarray]  # (q, q', q'') or a direction of it
 
 COMPLEX_STEP = 1e-30
 """Imaginary step h of the complex-step derivatives (Squire & Trapp 1998):
@@ -611,11 +587,6 @@ class SerialChain:
         self._no_inertia = np.zeros((1, n, n))
         self._scratch()
 
-    def _scratch(self) -> None:
-        work = _layout(self.n, self.n_sensors)[1]
-        self._work = np.empty(work)
-        self._work_complex = np.empty(work, dtype=np.complex128)  # complex-step tangents
-
     @classmethod
     def stack(cls, chains: list[SerialChain] | tuple[SerialChain, ...]) -> SerialChain:
         """One chain whose arm k has the parameters of ``chains[k]`` (same joints and
@@ -640,11 +611,6 @@ class SerialChain:
         new._scratch()
         return new
 
-    @property
-    def n_rows(self) -> int:
-        """How many parameter sets: 1 (any number of arms) or the N arms of a stack."""
-        return len(self._params)
-
     def set_row(self, arm: int, chain: SerialChain) -> None:
         """Give arm ``arm`` of a stacked chain the parameters of ``chain``."""
         self._params[arm] = chain._params[0]
@@ -656,20 +622,17 @@ class SerialChain:
                 "use select(arms) for a subset"
             )
 
+    def _scratch(self) -> None:
+        work = _layout(self.n, self.n_sensors)[1]
+        self._work = np.empty(work)
+        self._work_complex = np.empty(work, dtype=np.complex128)  # complex-step tangents
+
     def __getstate__(self) -> dict:
         return {k: v for k, v in vars(self).items() if k not in ("_work", "_work_complex")}
 
     def __setstate__(self, state: dict) -> None:
         vars(self).update(state)
         self._scratch()
-
-    def _tangent_inputs(self, points, directions) -> list[np.ndarray]:
-        """x + i h t for each (point x, direction t): the complex-step inputs."""
-        n = self.n
-        return [
-            np.ascontiguousarray(_batch(x, n, "point") + (1j * COMPLEX_STEP) * _batch(t, n, "t"))
-            for x, t in zip(points, directions, strict=True)
-        ]
 
     def specific_forces(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """(N, 3 n_sensors) noise-free accelerometer readings, eq. (9) stacked."""
@@ -749,43 +712,32 @@ class SerialChain:
         _rnea_kernel(q, dq, ddq, self._params, self._ints, self._work, out)
         return out
 
-    def rnea_tangent(
-        self,
-        q: np.ndarray,
-        dq: np.ndarray,
-        ddq: np.ndarray,
-        t_q: np.ndarray,
-        t_dq: np.ndarray,
-        t_ddq: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(tau, d tau): :meth:`rnea` and its derivative along the direction
-        (t_q, t_dq, t_ddq), (N, n) each.
+    def rnea_tangent(self, point: Triple, direction: Triple) -> tuple[np.ndarray, np.ndarray]:
+        """(tau, d tau): :meth:`rnea` at ``point`` = (q, q', q'') and its derivative along
+        ``direction`` = (t_q, t_dq, t_ddq), (N, n) arrays each.
 
         Complex step: d tau = Im rnea(q + i h t_q, q' + i h t_dq, q'' + i h t_ddq) / h,
         exact to rounding (no subtraction; truncation O(h^2), h = :data:`COMPLEX_STEP`).
         Along a trajectory the direction (q', q'', q^(3)) gives the time derivative.
         """
-        z = self._tangent_inputs((q, dq, ddq), (t_q, t_dq, t_ddq))
-        self._rows(z[0])
-        out = np.empty(z[0].shape, dtype=np.complex128)
-        _rnea_kernel(*z, self._params, self._ints, self._work_complex, out)
-        return out.real.copy(), out.imag / COMPLEX_STEP
+        return self._complex_step(_rnea_kernel, self.n, point, direction)
 
     def specific_forces_tangent(
-        self,
-        q: np.ndarray,
-        dq: np.ndarray,
-        ddq: np.ndarray,
-        t_q: np.ndarray,
-        t_dq: np.ndarray,
-        t_ddq: np.ndarray,
+        self, point: Triple, direction: Triple
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(readings, d readings): :meth:`specific_forces` and its derivative along
-        (t_q, t_dq, t_ddq), by the complex step of :meth:`rnea_tangent`."""
-        z = self._tangent_inputs((q, dq, ddq), (t_q, t_dq, t_ddq))
+        """(readings, d readings): :meth:`specific_forces` at ``point`` and its derivative
+        along ``direction``, by the complex step of :meth:`rnea_tangent`."""
+        return self._complex_step(_specific_forces_kernel, 3 * self.n_sensors, point, direction)
+
+    def _complex_step(self, kernel, width: int, point: Triple, direction: Triple):
+        n = self.n
+        z = [
+            np.ascontiguousarray(_batch(x, n, "point") + (1j * COMPLEX_STEP) * _batch(t, n, "t"))
+            for x, t in zip(point, direction, strict=True)
+        ]
         self._rows(z[0])
-        out = np.empty((len(z[0]), 3 * self.n_sensors), dtype=np.complex128)
-        _specific_forces_kernel(*z, self._params, self._ints, self._work_complex, out)
+        out = np.empty((len(z[0]), width), dtype=np.complex128)
+        kernel(*z, self._params, self._ints, self._work_complex, out)
         return out.real.copy(), out.imag / COMPLEX_STEP
 
     def gravity(self, q: np.ndarray) -> np.ndarray:

@@ -53,6 +53,8 @@ class Observer(ABC):
     name: ClassVar[str] = ""
     applies_to: ClassVar[frozenset[str]] = frozenset({"elastic", "rigid"})
     privileged: ClassVar[tuple[str, ...]] = ()
+    options_model: ClassVar[type | None] = None
+    """The pydantic model (a ``StrictModel``) of the constructor's plain-data options."""
 
     def __init__(self, model: RobotModel, dt: float) -> None:
         if not (is_real(dt) and np.isfinite(dt) and dt > 0):

@@ -44,15 +44,16 @@ alone (``tests/test_vector_observers.py``).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import NamedTuple
+from typing import Annotated, Any, NamedTuple
 
 import numpy as np
+from pydantic import Field, StrictBool, ValidationInfo, field_validator
 from scipy.linalg import expm
 
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, arm_count
 from elastic_gym.observers.integration import rk4
-from elastic_gym.validation import is_real
+from elastic_gym.validation import NonNegativeFinite, StrictModel, is_real, validated_options
 
 DEFAULT_ALPHA = 1.0
 """Exponential data weighting alpha of eq. (15), 1/s."""
@@ -76,25 +77,7 @@ MAX_SUBSTEPS = 100
 stiffest elastic mode of the package (596 rad/s); more only multiply the cost."""
 
 
-# ----------------------------------------------------------------------------- helpers
-def _check_number(
-    name: str,
-    value,
-    minimum: float = 0.0,
-    strict: bool = False,
-    maximum: float = np.inf,
-    why: str = "",
-) -> float:
-    if isinstance(value, bool) or not is_real(value) or not np.isfinite(value):
-        raise TypeError(f"EKF option {name!r} must be a finite number, got {value!r}")
-    if value < minimum or (strict and value == minimum):
-        relation = ">" if strict else ">="
-        raise ValueError(f"EKF option {name!r} must be {relation} {minimum}, got {value!r}")
-    if value > maximum:
-        raise ValueError(f"EKF option {name!r} must be <= {maximum:g}{why}, got {value!r}")
-    return float(value)
-
-
+# ----------------------------------------------------------------------------- options
 def covariance_option(value, name: str, block_sizes: tuple[int, ...]) -> np.ndarray:
     """A symmetric positive semi-definite covariance from a compact option value.
 
@@ -106,12 +89,12 @@ def covariance_option(value, name: str, block_sizes: tuple[int, ...]) -> np.ndar
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise TypeError(f"EKF option {name!r} must be numeric, got {value!r}") from None
+        raise TypeError(f"options.{name}: must be numeric, got {value!r}") from None
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"EKF option {name!r} must be finite, got {value!r}")
+        raise ValueError(f"options.{name}: must be finite, got {value!r}")
     if np.any(np.abs(arr) > MAX_VARIANCE):
         raise ValueError(
-            f"EKF option {name!r}: entries must be <= {MAX_VARIANCE:g} in SI units "
+            f"options.{name}: entries must be <= {MAX_VARIANCE:g} in SI units "
             f"(larger ones overflow the filter's arithmetic), got {value!r}"
         )
     if arr.ndim == 0:
@@ -120,17 +103,17 @@ def covariance_option(value, name: str, block_sizes: tuple[int, ...]) -> np.ndar
         arr = np.repeat(arr, block_sizes)
     if arr.ndim == 1 and arr.size == dim:
         if np.any(arr < 0.0):
-            raise ValueError(f"EKF option {name!r}: variances must be >= 0, got {value!r}")
+            raise ValueError(f"options.{name}: variances must be >= 0, got {value!r}")
         return np.diag(arr)
     if arr.shape != (dim, dim):
         raise ValueError(
-            f"EKF option {name!r} must be a scalar, {len(block_sizes)} block variances, "
+            f"options.{name}: must be a scalar, {len(block_sizes)} block variances, "
             f"{dim} diagonal entries or a {dim}x{dim} matrix, got shape {arr.shape}"
         )
     symmetric = 0.5 * (arr + arr.T)
     scale = max(1.0, float(np.abs(arr).max()))
     if not np.allclose(arr, arr.T) or np.linalg.eigvalsh(symmetric).min() < -1e-12 * scale:
-        raise ValueError(f"EKF option {name!r} must be symmetric positive semi-definite")
+        raise ValueError(f"options.{name}: must be symmetric positive semi-definite")
     return symmetric
 
 
@@ -227,7 +210,8 @@ class ElasticLinearization:
         q, dq = x[:, n : 2 * n], x[:, 3 * n :]
         ddtheta, ddq = self.accelerations(x, tau)
         rows = np.repeat(np.arange(m), 2 * n)
-        _, tangent = self.chain.rnea_tangent(q[rows], dq[rows], ddq[rows], *_unit_directions(m, n))
+        point = (q[rows], dq[rows], ddq[rows])
+        _, tangent = self.chain.rnea_tangent(point, _unit_directions(m, n))
         drnea_dq, drnea_dv = _per_direction(tangent, m, n)
         M = self.chain.mass_and_bias(q, dq)[0]
         dr = np.broadcast_to(self._dr_spring, (m, n, 4 * n)).copy()
@@ -257,9 +241,8 @@ class ElasticLinearization:
         frame included)."""
         n, m = self.model.n, len(q)
         rows = np.repeat(np.arange(m), 2 * n)
-        readings, tangent = self.chain.specific_forces_tangent(
-            q[rows], dq[rows], ddq[rows], *_unit_directions(m, n)
-        )
+        point = (q[rows], dq[rows], ddq[rows])
+        readings, tangent = self.chain.specific_forces_tangent(point, _unit_directions(m, n))
         d_dq, d_dv = _per_direction(tangent, m, n)
         T_A = self.chain.accelerometer_maps(q, dq)[0]
         return readings[:: 2 * n], d_dq, d_dv, T_A
@@ -290,6 +273,37 @@ def solve_spd(S: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------- the filter
+Deviation = Annotated[float, Field(strict=True, ge=0, le=MAX_STD, allow_inf_nan=False)]
+
+
+class EKFOptions(StrictModel):
+    """The plain-data options of :class:`ExtendedKalmanFilter` (see its arguments); the
+    covariances Q, R, P0 are checked against the robot's dimensions by
+    :func:`covariance_option`, alpha against 1/dt by the filter."""
+
+    alpha: NonNegativeFinite = DEFAULT_ALPHA
+    Q: Any = None
+    P0: Any = None
+    use_accelerometers: StrictBool = False
+    encoder_resolution: Deviation | None = None
+    encoder_noise_std: Deviation | None = None
+    accelerometer_std: Annotated[Deviation, Field(gt=0)] = DEFAULT_ACCELEROMETER_STD
+    R: Any = None  # after the sensor options it replaces
+    substeps: Annotated[int, Field(strict=True, ge=1, le=MAX_SUBSTEPS)] = 1
+
+    @field_validator("R")
+    @classmethod
+    def _R_or_sensor_options(cls, R: Any, info: ValidationInfo) -> Any:
+        if R is not None:
+            given = [k for k in ("encoder_resolution", "encoder_noise_std") if info.data.get(k)]
+            if given or info.data.get("accelerometer_std") != DEFAULT_ACCELEROMETER_STD:
+                raise ValueError(
+                    f"replaces the sensor options {given or ['accelerometer_std']}; "
+                    "give one or the other"
+                )
+        return R
+
+
 class ExtendedKalmanFilter(BatchedObserver):
     """EKF with exponential data weighting for elastic arms; see the module docstring.
 
@@ -326,6 +340,7 @@ class ExtendedKalmanFilter(BatchedObserver):
 
     name = "ekf"
     applies_to = frozenset({"elastic"})
+    options_model = EKFOptions
 
     def __init__(
         self,
@@ -343,61 +358,31 @@ class ExtendedKalmanFilter(BatchedObserver):
     ) -> None:
         super().__init__(model, dt)
         n = self.n
-        self.alpha = _check_number(
-            "alpha",
-            alpha,
-            maximum=1.0 / self.dt,
-            why=" = 1/dt (it would discount the past by more than e^2 per sample; measured at "
-            "1/dt: estimation errors of 0.6 - 1.4 rad, at 10/dt: a broken covariance)",
-        )
-        if not isinstance(use_accelerometers, bool):
-            raise TypeError(
-                f"EKF option 'use_accelerometers' must be a bool, got {use_accelerometers!r}"
+        options = validated_options(EKFOptions, locals())
+        if options.alpha > 1.0 / self.dt:
+            raise ValueError(
+                f"options.alpha: must be <= 1/dt = {1.0 / self.dt:g} (it would discount the "
+                f"past by more than e^2 per sample), got {alpha!r}"
             )
         if use_accelerometers and model.n_sensors == 0:
             raise ValueError(
-                f"EKF option 'use_accelerometers': robot {model.spec.name!r} has no accelerometers"
+                f"options.use_accelerometers: robot {model.spec.name!r} has no accelerometers"
             )
-        self.use_accelerometers = use_accelerometers
-        accelerometer_std = _check_number(
-            "accelerometer_std", accelerometer_std, strict=True, maximum=MAX_STD
-        )
-        if (
-            isinstance(substeps, bool)
-            or not isinstance(substeps, int)
-            or not 1 <= substeps <= MAX_SUBSTEPS
-        ):
-            raise ValueError(
-                f"EKF option 'substeps' must be an integer in [1, {MAX_SUBSTEPS}], got {substeps!r}"
-            )
+        self.alpha, self.use_accelerometers = options.alpha, use_accelerometers
         self.substeps = substeps
-
         self.Q = (
             default_process_noise(model, self.dt)
             if Q is None
             else covariance_option(Q, "Q", (n, n))
         )
-        sensor_options = {
-            "encoder_resolution": encoder_resolution,
-            "encoder_noise_std": encoder_noise_std,
-        }
-        if R is not None:
-            given = [key for key, value in sensor_options.items() if value is not None]
-            if given or accelerometer_std != DEFAULT_ACCELEROMETER_STD:
-                raise ValueError(
-                    f"EKF option 'R' replaces the sensor options {given or ['accelerometer_std']}; "
-                    "give one or the other"
-                )
         blocks = (n, 3 * model.n_sensors) if use_accelerometers else (n,)
         self.R = (
-            self._sensor_covariance(encoder_resolution, encoder_noise_std, accelerometer_std)
-            if R is None
-            else covariance_option(R, "R", blocks)
+            self._sensor_covariance(options) if R is None else covariance_option(R, "R", blocks)
         )
         if np.linalg.eigvalsh(self.R).min() <= 0.0:
             raise ValueError(
-                "EKF option 'R' (or the encoder/accelerometer noise it is built from) must be "
-                "positive definite"
+                "options.R: must be positive definite (or the encoder/accelerometer noise it is "
+                "built from)"
             )
         self.P0 = (
             np.diag(np.repeat(np.asarray(DEFAULT_INITIAL_STD) ** 2, n))
@@ -408,17 +393,15 @@ class ExtendedKalmanFilter(BatchedObserver):
         self._derivatives = ElasticLinearization(model)
         self._allocate(1)
 
-    def _sensor_covariance(
-        self, resolution: float | None, noise_std: float | None, accelerometer_std: float
-    ) -> np.ndarray:
+    def _sensor_covariance(self, options: EKFOptions) -> np.ndarray:
         spec = self.model.spec
+        resolution = options.encoder_resolution
         resolution = spec.encoder_resolution if resolution is None else resolution
+        noise_std = options.encoder_noise_std
         noise_std = spec.encoder_noise_std if noise_std is None else noise_std
-        resolution = _check_number("encoder_resolution", resolution, maximum=MAX_STD)
-        noise_std = _check_number("encoder_noise_std", noise_std, maximum=MAX_STD)
         variances = [np.full(self.n, resolution**2 / 12.0 + noise_std**2)]
         if self.use_accelerometers:
-            variances.append(np.full(3 * self.model.n_sensors, accelerometer_std**2))
+            variances.append(np.full(3 * self.model.n_sensors, options.accelerometer_std**2))
         return np.diag(np.concatenate(variances))
 
     def _allocate(self, n_arms: int) -> None:
@@ -547,7 +530,7 @@ class ExtendedKalmanFilter(BatchedObserver):
     def correct(self, y: np.ndarray, tau: np.ndarray, arms: np.ndarray | None = None) -> None:
         """Gain eq. (18), update eq. (16) with the nonlinear h, Joseph-form eq. (17), for
         ``arms`` (default all) with measurements y and torques tau (one row per arm)."""
-        arms = np.arange(len(self._x)) if arms is None else np.asarray(arms)
+        arms = np.arange(len(self._x)) if arms is None else arms
         m = len(arms)
         y, tau = np.reshape(y, (m, -1)), np.broadcast_to(tau, (m, self.n))
         x, P = self._x[arms], self._P[arms]
@@ -556,13 +539,6 @@ class ExtendedKalmanFilter(BatchedObserver):
         Ht = np.swapaxes(H, 1, 2)
         PHt = P @ Ht
         S = H @ PHt + self.R
-        finite = np.isfinite(S).all(axis=(1, 2))
-        if not finite.all():  # diverged: a NaN estimate (the wrapper ends the arm's episode)
-            self._x[arms[~finite]] = np.nan
-            arms, x, P, H, PHt, S = (a[finite] for a in (arms, x, P, H, PHt, S))
-            innovation = innovation[finite]
-            if not len(arms):
-                return
         solved = solve_spd(S, np.concatenate([np.swapaxes(PHt, 1, 2), innovation[..., None]], 2))
         gain = np.swapaxes(solved[..., :-1], 1, 2)
         x = x + (gain @ innovation[..., None])[..., 0]

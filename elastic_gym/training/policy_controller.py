@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+from pydantic import StrictBool
 
 from elastic_gym.arms import as_batch
 from elastic_gym.controllers import Controller, make_controller
@@ -25,6 +26,27 @@ from elastic_gym.training.evaluation import PolicyActor
 from elastic_gym.training.observation import ObservationBuilder, ObservationInputs
 from elastic_gym.training.policy_env import SENSORS
 from elastic_gym.training.train import TrainedRun, load_run
+from elastic_gym.validation import StrictModel, validated_options
+
+
+class TrainedPolicyOptions(StrictModel):
+    """The options of :class:`TrainedPolicyController`."""
+
+    run: Path
+    best: StrictBool = False
+
+
+def check_robot(config, model: RobotModel, run: str | Path) -> None:
+    """Refuse a policy trained (by its ``config.yaml``) on another robot than ``model``'s."""
+    import gymnasium as gym
+
+    robot = config.env_kwargs.get("robot", gym.spec(config.env_id).kwargs.get("robot"))
+    name = getattr(robot, "name", robot)
+    if name != model.spec.name:
+        raise ValueError(
+            f"{run}: config.yaml says the policy was trained on {config.env_id} (robot "
+            f"{name!r}); the comparison runs it on the robot {model.spec.name!r}"
+        )
 
 
 def check_spaces(trained: TrainedRun, features: int, n_joints: int, run: str | Path) -> None:
@@ -66,9 +88,11 @@ class TrainedPolicyController(Controller):
     """
 
     name = "trained-policy"
+    options_model = TrainedPolicyOptions
 
     def __init__(self, model: RobotModel, dt: float, run: str | Path, best: bool = False) -> None:
         super().__init__(model, dt)
+        validated_options(TrainedPolicyOptions, locals())
         trained = load_run(run, best=best)
         config = trained.config
         if config.state == SENSORS:
@@ -86,6 +110,7 @@ class TrainedPolicyController(Controller):
                 f"the policy in {run} sees a preview of the reference, which a "
                 "comparison controller cannot read"
             )
+        check_robot(config, model, run)
         check_spaces(trained, self.builder.size, self.n, run)
         self.base = None
         if action.kind == "residual":
@@ -102,13 +127,11 @@ class TrainedPolicyController(Controller):
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
         x = state_vector(obs, self._law.state_dim)
         reference = reference_derivatives(info, self.n)
-        return self._law.torques(
-            x[None], reference[None], lambda: self._law.base(as_batch(obs), as_batch(info))
-        )[0]
+        return self._law.torques(x[None], reference[None], as_batch(obs), as_batch(info))[0]
 
 
 @twin_of(TrainedPolicyController)
-class VectorTrainedPolicy(ControllerTwin):
+class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
     """:class:`TrainedPolicyController` on N arms: features and torques of all arms at
     once; the policy acts per arm (its own recurrent memory, and a per-arm call rounds as
     the single controller's does); the residual base is one vector controller."""
@@ -136,9 +159,11 @@ class VectorTrainedPolicy(ControllerTwin):
         for held in (self._action, self._last_action, self._last_base):
             held[arms] = 0.0
 
-    def torques(self, x: np.ndarray, reference: np.ndarray, base_torque) -> np.ndarray:
-        """Torques (N, n) for states (N, dim) and references (N, 5, n); ``base_torque()``
-        gives the residual base's (N, n) torques (called only for a residual policy)."""
+    def torques(
+        self, x: np.ndarray, reference: np.ndarray, obs: Mapping, info: Mapping
+    ) -> np.ndarray:
+        """Torques (N, n) for states (N, dim) and references (N, 5, n); the batched ``obs``
+        and ``info`` feed the residual base controller."""
         c, n = self.controller, self.n
         acting = np.flatnonzero(self._calls % c.decimation == 0)  # at 1 / (decimation dt)
         if len(acting):
@@ -154,10 +179,10 @@ class VectorTrainedPolicy(ControllerTwin):
                 self._action[i] = self.actors[i](features[k])
             self._last_action[acting] = np.clip(self._action[acting], -1.0, 1.0)
         self._calls += 1
-        base = np.zeros((len(x), n)) if self.base is None else base_torque()
+        base = np.zeros((len(x), n)) if self.base is None else self.base(obs, info)
         self._last_base = base
         motor = (x[:, :n], x[:, 2 * n : 3 * n]) if c.elastic else (None, None)
         return c.map.torque(self._action, *motor, reference, base)
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        return self.torques(self.states(obs), self.references(info), lambda: self.base(obs, info))
+        return self.torques(self.states(obs), self.references(info), obs, info)
