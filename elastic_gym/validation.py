@@ -190,7 +190,7 @@ def _is_union_tag(part: int | str) -> bool:
     ``function-after[...]``, a model class name): not a field of the user's data."""
     return isinstance(part, str) and (
         "[" in part
-        or "-" in part  # "constrained-float"
+        or part.startswith("constrained-")  # "constrained-float"
         or part in _UNION_TAGS
         or (part.isidentifier() and part[0].isupper())
     )
