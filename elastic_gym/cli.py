@@ -381,6 +381,123 @@ def run_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_benchmark_parser(subcommands: argparse._SubParsersAction) -> None:
+    parser = subcommands.add_parser(
+        "benchmark",
+        help="score a controller + state source, a user's class or a trained policy on the "
+        "elastic-gym benchmark suite; rebuild the leaderboard",
+        description="Run the versioned benchmark suite (elastic-gym-v1: tasks x perturbation "
+        "categories x robots x 10 published seeds) with one entry and write its scorecard "
+        "(JSON, markdown, PNG); or rebuild docs/leaderboard.md from scorecard files.",
+    )
+    parser.add_argument("--controller", metavar="NAME", help="controller registry name")
+    parser.add_argument(
+        "--class",
+        dest="cls",
+        metavar="MODULE:CLASS",
+        help="a user's Controller subclass (with --source, default true) or Observer "
+        "subclass (with --controller, default feedforward-state-feedback)",
+    )
+    parser.add_argument(
+        "--source",
+        metavar="SOURCE",
+        help="state source: 'true' (oracle), an observer name, or an Observer 'module:Class'",
+    )
+    parser.add_argument("--run", metavar="RUN", help="a run folder written by elastic-gym train")
+    parser.add_argument(
+        "--leaderboard",
+        action="store_true",
+        help="rebuild docs/leaderboard.md (+ CSV, PNG) from docs/leaderboard/scorecards/*.json",
+    )
+    parser.add_argument(
+        "--options", default="{}", metavar="YAML", help="controller options (YAML mapping)"
+    )
+    parser.add_argument(
+        "--source-options", default="{}", metavar="YAML", help="observer options (YAML mapping)"
+    )
+    parser.add_argument("--label", help="the entry's name on the leaderboard")
+    parser.add_argument(
+        "--suite", default="elastic-gym-v1", help="shipped suite name or suite YAML file"
+    )
+    parser.add_argument(
+        "--robot", nargs="+", metavar="ROBOT", help="only these robots of the suite"
+    )
+    parser.add_argument("--output", metavar="DIR", help="default: ./benchmark_out/<label>")
+    parser.add_argument("--overwrite", action="store_true", help="replace an earlier scorecard")
+    parser.add_argument("--workers", type=int, help="parallel workers (default: one per CPU)")
+    parser.add_argument("--backend", choices=BACKENDS, default="process")
+    parser.add_argument(
+        "--scorecards",
+        metavar="DIR",
+        default="docs/leaderboard/scorecards",
+        help="with --leaderboard: the scorecard folder",
+    )
+    parser.add_argument(
+        "--page", metavar="MD", default="docs/leaderboard.md", help="with --leaderboard"
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=run_benchmark_command)
+
+
+def benchmark_entry(args: argparse.Namespace) -> dict:
+    """The entry fields of ``elastic-gym benchmark``'s arguments."""
+    from elastic_gym.benchmark.entry import DEFAULT_CONTROLLER, TRUE_STATE, class_kind
+
+    options = _yaml_mapping(args.options, "--options")
+    source_options = _yaml_mapping(args.source_options, "--source-options")
+    label = {"label": args.label} if args.label else {}
+    given = [f"--{k}" for k in ("controller", "source", "run") if getattr(args, k)]
+    given += ["--class"] if args.cls else []
+    if args.run:
+        extra = [g for g in given if g != "--run"] + (["--options"] if options else [])
+        if extra or source_options:
+            raise ValueError(f"--run takes no {extra or ['--source-options']}: the run has them")
+        return {"run": args.run, **label}
+    controller, source = args.controller, args.source
+    if args.cls:
+        if class_kind(args.cls, "--class") == "observer":
+            if source:
+                raise ValueError("--class is an Observer, the state source: drop --source")
+            source = args.cls
+        elif controller:
+            raise ValueError("--class is a Controller: drop --controller")
+        else:
+            controller = args.cls
+    if not (controller or source):
+        raise ValueError("give --controller, --class, --run or --leaderboard")
+    return {
+        "controller": controller or DEFAULT_CONTROLLER,
+        "options": options,
+        "source": source or TRUE_STATE,
+        "source_options": source_options,
+        **label,
+    }
+
+
+def run_benchmark_command(args: argparse.Namespace) -> int:
+    from elastic_gym.benchmark import rebuild_leaderboard, run_benchmark
+
+    if args.leaderboard:
+        if args.controller or args.cls or args.run or args.source:
+            raise ValueError("--leaderboard runs nothing: drop --controller/--class/--run/--source")
+        files = rebuild_leaderboard(args.scorecards, args.page, args.suite)
+        print("written: " + ", ".join(str(f) for f in files))
+        return 0
+    if args.run:
+        require_rl_extra("benchmark --run")
+    run_benchmark(
+        benchmark_entry(args),
+        suite=args.suite,
+        robots=args.robot,
+        output_dir=args.output,
+        workers=args.workers,
+        backend=args.backend,
+        progress=not args.no_progress,
+        overwrite=args.overwrite,
+    )
+    return 0
+
+
 def add_schema_parser(subcommands: argparse._SubParsersAction) -> None:
     from elastic_gym.schemas import SCHEMA_DIR, schema_models
 
@@ -420,6 +537,7 @@ def build_parser() -> argparse.ArgumentParser:
     subcommands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     add_compare_parser(subcommands)
     add_train_parser(subcommands)
+    add_benchmark_parser(subcommands)
     add_schema_parser(subcommands)
     return parser
 

@@ -31,6 +31,10 @@ over all recorded samples t_0 = 0, ..., t_K):
   ("damping"): full-state feedback damps the link vibration that motor-only control leaves.
 * ``torque_rms`` = sqrt(mean_k |tau_k|^2) (N m), tau the applied (clipped) motor torque,
   including an excitation task's open-loop torque.
+* ``torque_rate_rms`` = sqrt(mean_k |tau_{k+1} - tau_k|^2) / dt_k (N m/s), the RMS rate of
+  change of the applied torque between control steps (chattering shows here).
+* ``saturation_share`` = share of the recorded steps whose applied torque was clipped to a
+  motor torque limit on some joint (the env's ``info["torque_saturated"]``).
 * ``est_rms_<block>`` for each block of the state (theta, q, dtheta, dq for elastic
   arms; q, dq for rigid ones) = sqrt(mean_k |xhat_block - x_block|^2) (rad or rad/s)
   from ``min(ESTIMATION_TRANSIENT, T / 2)`` on (T the recorded time): the observer's
@@ -78,6 +82,7 @@ class TimeSeries:
     estimation_error: np.ndarray  # (K, len(state_names) * N)
     state_names: tuple[str, ...]
     theta: np.ndarray | None = None
+    saturated: np.ndarray | None = None  # (K,) bool: torque clipped at a limit
 
     def __len__(self) -> int:
         return len(self.time)
@@ -93,6 +98,7 @@ class TimeSeries:
             self.estimation_error[:length],
             self.state_names,
             None if self.theta is None else self.theta[:length],
+            None if self.saturated is None else self.saturated[:length],
         )
 
     def estimation_blocks(self) -> dict[str, np.ndarray]:
@@ -117,6 +123,7 @@ class ArmSeries:
     state_names: tuple[str, ...]
     lengths: np.ndarray  # (N,) int
     theta: np.ndarray | None = None  # (K, N, n)
+    saturated: np.ndarray | None = None  # (K, N) bool: torque clipped at a limit
 
     @classmethod
     def of(cls, series: TimeSeries) -> ArmSeries:
@@ -135,6 +142,7 @@ class ArmSeries:
             series.state_names,
             np.array([len(series)]),
             arm(series.theta),
+            arm(series.saturated),
         )
 
     def arm(self, i: int) -> TimeSeries:
@@ -149,6 +157,7 @@ class ArmSeries:
             self.estimation_error[:k, i],
             self.state_names,
             None if self.theta is None else self.theta[:k, i],
+            None if self.saturated is None else self.saturated[:k, i],
         )
 
 
@@ -273,6 +282,13 @@ def compute_arm_metrics(series: ArmSeries, tracking: bool = True) -> list[dict[s
             torsion = np.where(valid[..., None], np.abs(series.theta - series.q), -np.inf)
             columns["torsion_max"] = np.max(torsion, axis=(0, 2))
         columns["torque_rms"] = _window_rms(series.torque, zero, lengths)
+        rate = np.diff(series.torque, axis=0) / np.diff(series.time)[:, None, None]
+        columns["torque_rate_rms"] = _window_rms(rate, zero, np.maximum(lengths - 1, 0))
+        if series.saturated is not None:
+            counts = np.sum(series.saturated & valid, axis=0)
+            columns["saturation_share"] = np.where(
+                lengths > 0, counts / np.maximum(lengths, 1), nan
+            )
         last_time = series.time[np.maximum(lengths - 1, 0)]
         start = np.searchsorted(series.time, np.minimum(ESTIMATION_TRANSIENT, last_time / 2))
         n_blocks = len(series.state_names)
@@ -293,6 +309,10 @@ def compute_arm_metrics(series: ArmSeries, tracking: bool = True) -> list[dict[s
             metrics["torsion_max"] = float(columns["torsion_max"][i])
             metrics["torsion_osc"] = residual_torsion(one) if tracking else nan
         metrics["torque_rms"] = float(columns["torque_rms"][i])
+        metrics["torque_rate_rms"] = float(columns["torque_rate_rms"][i])
+        metrics["saturation_share"] = (
+            float(columns["saturation_share"][i]) if "saturation_share" in columns else nan
+        )
         for name in series.state_names:
             metrics[f"est_rms_{name}"] = float(columns[f"est_rms_{name}"][i])
     return arms

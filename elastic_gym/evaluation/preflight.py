@@ -149,7 +149,9 @@ def preflight(scenario: Scenario, groups: Sequence[RunGroup], workers: int) -> E
                     cost[key] = _sample(sample, paths, f"{path}.kwargs")
             finally:
                 env.close()
-    total = sum(cost[_combo(spec)] for group in groups for spec in group.runs)
+    # a group's runs may come from several env entries (per-arm plants): its first run's
+    # sample stands for all of them
+    total = sum(cost[_combo(group.first)] * len(group) for group in groups)
     workers = min(workers, len(groups))
     return Estimate(total, workers, cpu_share(workers))
 

@@ -37,6 +37,8 @@ METRIC_COLUMNS = (
     Column("torsion_max", "max torsion [rad]", 3),
     Column("torsion_osc", "torsion osc. [rad]", 3),
     Column("torque_rms", "torque RMS [Nm]", 3),
+    Column("torque_rate_rms", "torque rate RMS [Nm/s]", 3),
+    Column("saturation_share", "saturated share", 2),
     Column("est_rms_theta", "est. RMS theta [rad]", 2),
     Column("est_rms_q", "est. RMS q [rad]", 2),
     Column("est_rms_dtheta", "est. RMS theta' [rad/s]", 2),

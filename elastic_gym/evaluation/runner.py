@@ -262,6 +262,7 @@ class _Recorder:
         )
         self.theta = np.zeros((size, n_arms, n)) if elastic else None
         self.error = np.zeros((size, n_arms, state_dim))
+        self.saturated = np.zeros((size, n_arms), dtype=bool)
         self.lengths = np.zeros(n_arms, dtype=int)
         self.row = 0
         self._peaks: dict[str, np.ndarray] = {}
@@ -292,6 +293,7 @@ class _Recorder:
         self.dq_ref[k] = reference["dq"]
         self.torque[k] = info["torque"]
         self.error[k] = info["estimation_error"]
+        self.saturated[k] = info["torque_saturated"]
         if self.theta is not None:
             self.theta[k] = truth["theta"]
         self._track_diagnostics(info.get("observer_diagnostics", {}), recording)
@@ -310,6 +312,7 @@ class _Recorder:
             state_names,
             self.lengths.copy(),
             None if self.theta is None else self.theta[:k],
+            self.saturated[:k],
         )
 
 

@@ -1,0 +1,36 @@
+"""The elastic-gym benchmark: a versioned suite that scores any controller, observer or policy.
+
+* :mod:`~elastic_gym.benchmark.suite` — the suite as data (``suites/elastic-gym-v1.yaml``),
+  validated and content-hashed, expanded into cells;
+* :mod:`~elastic_gym.benchmark.entry` — what is scored: controller + state source, a
+  training run folder, or a callable policy; oracle references apart;
+* :mod:`~elastic_gym.benchmark.scoring` — pass/fail per episode, category, precision and
+  overall scores;
+* :mod:`~elastic_gym.benchmark.run` — :func:`run_benchmark` on the comparison runner;
+* :mod:`~elastic_gym.benchmark.scorecard` — the scorecard (JSON, markdown, figure);
+* :mod:`~elastic_gym.benchmark.leaderboard` — the leaderboard rebuilt from scorecards.
+
+Python API::
+
+    from elastic_gym.benchmark import run_benchmark
+
+    card = run_benchmark({"controller": "feedforward-state-feedback", "source": "deluca"})
+    card.scores.overall, card.scores.categories
+"""
+
+from elastic_gym.benchmark.entry import Entry
+from elastic_gym.benchmark.leaderboard import rebuild_leaderboard
+from elastic_gym.benchmark.run import run_benchmark
+from elastic_gym.benchmark.scorecard import Scorecard, read_scorecard
+from elastic_gym.benchmark.suite import SuiteConfig, load_suite, suite_schema
+
+__all__ = [
+    "Entry",
+    "Scorecard",
+    "SuiteConfig",
+    "load_suite",
+    "read_scorecard",
+    "rebuild_leaderboard",
+    "run_benchmark",
+    "suite_schema",
+]

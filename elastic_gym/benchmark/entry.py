@@ -1,0 +1,211 @@
+"""Benchmark entries: what is scored, and what it reads.
+
+An entry is a closed loop of the comparison runner:
+
+* a **controller** — a registry name (``feedforward-state-feedback``, ``motor-pd``, ...), a
+  user's :class:`~elastic_gym.controllers.Controller` subclass as ``"module:Class"`` (or the
+  class itself), or any callable policy ``policy(obs) -> action`` through the ``policy``
+  controller (:class:`~elastic_gym.controllers.policy.PolicyController`, options
+  ``{"policy": callable, ...}``) — with its constructor ``options``;
+* paired with a **state source** — ``"true"`` (the oracle), an observer registry name
+  (``deluca``, ``ekf``, ``finite-difference``, ...) or a user's
+  :class:`~elastic_gym.observers.Observer` subclass ``"module:Class"``, with its options;
+* or a **run folder** written by ``elastic-gym train`` (``run``): the trained policy as the
+  ``trained-policy`` controller on the state source it was trained on.
+
+The controller only ever sees the estimate, the reference and the time
+(:func:`~elastic_gym.controllers.public_info`); the observer sees the sensors and the
+applied torque, plus the ground-truth items its class declares in ``privileged``. An entry
+whose state source reads any ground truth (``true``, ``deluca-ideal``, or a user's observer
+with a non-empty ``privileged``) is an **oracle reference**: scored like any entry, listed
+apart from the implementable ones (:func:`describe_entry` records what the entry used).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field, model_validator
+
+from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry, resolve_class
+from elastic_gym.observers.registry import OBSERVERS, observer_class
+from elastic_gym.validation import StrictModel
+
+TRUE_STATE = "true"
+TRAINED_POLICY = "trained-policy"
+DEFAULT_CONTROLLER = "feedforward-state-feedback"
+
+
+class Entry(StrictModel):
+    """One entry (module docstring): ``controller`` + ``source``, or ``run``.
+
+    ``label`` names the entry on the leaderboard (default: ``<controller>@<source>`` or the
+    run folder's name).
+    """
+
+    label: str | None = Field(default=None, min_length=1)
+    controller: Any = None
+    options: dict[str, Any] = Field(default_factory=dict)
+    source: Any = TRUE_STATE
+    source_options: dict[str, Any] = Field(default_factory=dict)
+    run: str | None = None
+    best: bool = False
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> Entry:
+        if (self.controller is None) == (self.run is None):
+            raise ValueError("give either a controller (with a source) or a run folder")
+        if self.run is not None and (self.options or self.source_options):
+            raise ValueError("a run folder takes no options: its run_config.yaml has them")
+        for name in ("controller", "source"):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, (str, type)):
+                raise ValueError(
+                    f"{name}: a registry name, a 'module:Class' string or a class, got {value!r}"
+                )
+        return self
+
+    @property
+    def name(self) -> str:
+        if self.label is not None:
+            return self.label
+        if self.run is not None:
+            return Path(self.run).name
+        return f"{_short(self.controller)}@{_short(self.source)}"
+
+
+def _short(value: str | type) -> str:
+    return value.__name__ if isinstance(value, type) else str(value).rpartition(":")[2]
+
+
+def _is_class_path(value: str | type) -> bool:
+    return isinstance(value, type) or ":" in value
+
+
+def class_kind(path: str, option: str) -> str:
+    """``"controller"`` or ``"observer"``: what the ``"module:Class"`` at ``path`` is."""
+    from elastic_gym.controllers.base import Controller
+    from elastic_gym.observers.base import Observer
+
+    if ":" not in path:
+        raise ValueError(f"{option}: must be 'module:Class', got {path!r}")
+    cls = resolve_class(path, option)
+    if isinstance(cls, type) and issubclass(cls, Controller):
+        return "controller"
+    if isinstance(cls, type) and issubclass(cls, Observer):
+        return "observer"
+    raise ValueError(f"{option}: {path} is neither a Controller nor an Observer subclass")
+
+
+def resolve_entry(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
+    """The comparison's controller and state-source entries of ``entry`` (``ValueError``
+    naming the field for an unknown name or class; options are bound to the constructors
+    when the runs are planned)."""
+    if entry.run is not None:
+        return _run_entries(entry)
+    controller = entry.controller
+    if _is_class_path(controller):
+        name = _short(controller)
+        c_entry = ControllerEntry(
+            name=name, label=name, options=dict(entry.options), **{"class": controller}
+        )
+    else:
+        from elastic_gym.evaluation.runner import _controller_lookup
+
+        try:
+            _controller_lookup(controller)
+        except ValueError as exc:
+            raise ValueError(f"controller: {exc}") from None
+        c_entry = ControllerEntry(name=controller, label=controller, options=dict(entry.options))
+    return c_entry, _source_entry(entry.source, entry.source_options)
+
+
+def _source_entry(source: str | type, options: dict) -> SourceEntry:
+    if _is_class_path(source):
+        name = _short(source)
+        return SourceEntry(name=name, label=name, options=dict(options), **{"class": source})
+    if source not in OBSERVERS:
+        raise ValueError(
+            f"source: unknown state source {source!r}; valid: {sorted(OBSERVERS)} or "
+            "'module:Class' of an Observer"
+        )
+    return SourceEntry(name=source, label=source, options=dict(options))
+
+
+def _run_entries(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
+    from elastic_gym.training.train import read_run_config
+
+    run = Path(entry.run)
+    try:
+        config = read_run_config(run)
+    except (FileNotFoundError, ValueError) as exc:
+        raise ValueError(f"run: {exc}") from None
+    source = _source_entry(config.state, dict(config.observer_options))
+    options = {"run": str(run.resolve()), "best": entry.best}
+    return ControllerEntry(name=TRAINED_POLICY, label=run.name, options=options), source
+
+
+def privileged_items(source: SourceEntry) -> tuple[str, ...]:
+    """The ground-truth items the state source reads (empty: implementable)."""
+    if source.cls is not None:
+        cls = resolve_class(source.cls, "source")
+        return tuple(getattr(cls, "privileged", ()))
+    if source.name == TRUE_STATE:
+        return ("true_state",)
+    fixed = OBSERVERS[source.name][2]
+    if fixed.get("acceleration") == "ideal":
+        return ("link_acceleration",)
+    return tuple(getattr(observer_class(source.name), "privileged", ()))
+
+
+def describe_entry(entry: Entry) -> dict:
+    """What the scorecard records about an entry: controller and source (name or class
+    path, options), the run folder and what it was trained on, the ground truth it read
+    (``privileged``) and whether it is an ``oracle`` reference."""
+    controller, source = resolve_entry(entry)
+    privileged = privileged_items(source)
+    record: dict[str, Any] = {
+        "label": entry.name,
+        "kind": "run" if entry.run is not None else "controller",
+        "controller": _described(controller.cls, controller.name),
+        "controller_options": _plain_options(controller.options),
+        "source": _described(source.cls, source.name),
+        "source_options": _plain_options(source.options),
+        "privileged": list(privileged),
+        "oracle": bool(privileged),
+    }
+    if entry.run is not None:
+        from elastic_gym.training.train import read_run_config
+
+        config = read_run_config(entry.run)
+        record["run"] = {
+            "folder": Path(entry.run).name,
+            "env_id": config.env_id,
+            "algo": config.algo,
+            "state": config.state,
+            "seed": config.seed,
+            "total_steps": config.total_steps,
+            "env_kwargs": _plain_options(config.env_kwargs),
+        }
+    return record
+
+
+def _described(cls: type | str | None, name: str) -> str:
+    if cls is None:
+        return name
+    return cls if isinstance(cls, str) else f"{cls.__module__}:{cls.__qualname__}"
+
+
+def _plain_options(options: dict) -> dict:
+    """Options as JSON data: objects (a callable policy) by their qualified name."""
+    out: dict[str, Any] = {}
+    for key, value in options.items():
+        if isinstance(value, dict):
+            out[key] = _plain_options(value)
+        elif value is None or isinstance(value, (bool, int, float, str, list)):
+            out[key] = value
+        else:
+            name = getattr(value, "__qualname__", type(value).__name__)
+            out[key] = f"{getattr(value, '__module__', '?')}:{name}"
+    return out
