@@ -9,7 +9,7 @@
 #
 # With `ELASTIC_GYM_TUTORIAL_QUICK=1`: one magnitude per side and sweep, the robots' own
 # 0.5 ms physics step, 0.6 s runs (seconds). Without it: five mass magnitudes, three delays,
-# the comparisons' converged 1/16 ms step, 1.2 s runs (a few minutes of one core).
+# the comparisons' converged 1/16 ms step, 1.2 s runs (under a minute of CPU).
 
 # %%
 import csv
@@ -98,17 +98,23 @@ for row in result.runs.to_dict("records"):
 print((work / "margins.md").read_text())
 
 # %% [markdown]
-# How to read them:
+# How to read them (the numbers are those of the full run):
 #
 # * A margin is relative to the loop's **own** nominal precision. Eq. (13) with the link
-#   velocity tracks the move to about 1e-4 rad, so a 10 % mass error already doubles its
-#   error and its tracking margin is small: it says how well the model must be known to
-#   keep that precision, not where the loop fails. Motor PD on encoder differences starts
-#   tens of times worse and keeps a "large" margin. Read the absolute values beside them.
-# * The estimation margins separate the observers: De Luca's velocity error does not
-#   depend on the link parameters (Theorem 1), so it passes every mass tested; the EKF
-#   predicts with the nominal link model and fails early.
-# * One control period of measurement delay (1 ms) already breaks the observer-based loops.
+#   velocity tracks the move to about 1e-4 rad; without integral action a 10 % mass error
+#   multiplies that by about 40, so its tracking margin is `>0.9 .. <1.1`: it says how well
+#   the model must be known to keep that precision, not where the loop fails. Motor PD on
+#   encoder differences starts 50× worse (5e-3 rad) and reads `0.9 .. 1.1`; in absolute
+#   terms it stays close to eq. (13) at every mass (9e-3 against 1.2e-2 rad at 1.3×). Read
+#   the absolute values beside the margins.
+# * The estimation margins separate the observers. De Luca's error dynamics do not depend
+#   on the link parameters (Theorem 1): its velocity error stays within 1.8e-3 – 3.3e-3
+#   rad/s from 0.7× to 1.6× the masses, and it passes every heavier mass (at 0.7× its
+#   position error is 2.1× nominal, just past the 2× rule). The EKF predicts with the
+#   nominal link model and fails at the first magnitude on each side: its velocity error
+#   grows tenfold at ±10 %.
+# * One control period of measurement delay (1 ms) already breaks the observer-based
+#   loops (4e-2 and 5e-3 rad against 1e-4), and eq. (13) on the true state sees no delay.
 
 # %% [markdown]
 # `margins.csv` has the same margins as numbers (`upper`, `upper_failed_at`, the failure's
