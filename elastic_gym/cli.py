@@ -241,12 +241,9 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
 
 
 def _yaml_mapping(text: str, option: str) -> dict:
-    import yaml
+    from elastic_gym.yaml_io import load_yaml
 
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{option}: invalid YAML: {exc}") from None
+    value = load_yaml(text, option)
     if value is None:
         return {}
     if not isinstance(value, dict):
@@ -361,8 +358,9 @@ USAGE_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryErr
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code.
 
-    2: invalid input (nothing was run); 1: a job could not run (a worker died); 130 / 143:
-    interrupted by SIGINT / SIGTERM (the message says what was kept on disk).
+    2: invalid input (nothing was run); 1: a job could not run, or results could not be
+    written (a full disk: the message says what was kept); 130 / 143: interrupted by
+    SIGINT / SIGTERM (the message says what was kept on disk).
     """
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -376,7 +374,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return interrupted.exit_code
     except USAGE_ERRORS as exc:
         parser.exit(2, f"{prefix}: error: {exc}\n")
-    except RuntimeError as exc:
+    except (RuntimeError, OSError) as exc:  # OSError: e.g. a disk that filled while running
         sys.stderr.write(f"{prefix}: error: {exc}\n")
         return 1
 

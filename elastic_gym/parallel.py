@@ -21,22 +21,22 @@ group, and the parent alone decides what to stop.
 from __future__ import annotations
 
 import contextlib
-import multiprocessing
 import os
 import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any
 
 from rich.progress import Progress
 from threadpoolctl import threadpool_limits
 
+from elastic_gym.orphan_reaper import start_reaper
+from elastic_gym.process_pool import WorkerDiedError, WorkerPool
+
 BACKENDS = ("process", "ray")
 SINGLE_THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-STOP_TIMEOUT = 5.0  # s a terminated worker gets before it is killed
 RAY_POLL = 0.5  # s between checks for signals while waiting on Ray
 RAY_IN_FLIGHT = 4  # Ray tasks submitted per worker; the rest wait here (cancelled for free)
 
@@ -63,6 +63,16 @@ class Interrupted(KeyboardInterrupt):
     @property
     def exit_code(self) -> int:
         return 128 + self.signum
+
+
+def user_failure(exc: BaseException) -> bool:
+    """Whether ``exc``, raised by a job's own code, is that job's failure rather than a
+    reason to stop everything: any ``Exception``, ``SystemExit`` (``sys.exit()`` in a
+    user's code) and a ``KeyboardInterrupt`` raised by the code itself; not the
+    :class:`Interrupted` of a real SIGINT/SIGTERM."""
+    return isinstance(exc, (Exception, SystemExit)) or (
+        isinstance(exc, KeyboardInterrupt) and not isinstance(exc, Interrupted)
+    )
 
 
 def with_detail(exc: BaseException, detail: str) -> BaseException:
@@ -148,9 +158,16 @@ def for_each_result(
     progress: bool = True,
     label: str = "jobs",
     describe: Callable[[Any], str] = repr,
+    crashed: Callable[[Any, WorkerDiedError], Any] | None = None,
 ) -> None:
     """Compute ``function(job)`` for every job in parallel and call ``on_result(index,
     result)`` in this process as each one completes (in completion order).
+
+    A worker process that dies while running a job (``os._exit``, a segmentation
+    fault): with ``crashed``, ``crashed(job, WorkerDiedError)`` is that job's result and the
+    other jobs go on (a fresh worker replaces the dead one); without it, a
+    ``RuntimeError`` naming that job. Workers end when this process ends, however it
+    ends (:mod:`~elastic_gym.process_pool`; Ray: :mod:`~elastic_gym.orphan_reaper`).
 
     ``backend="process"``: spawned worker processes (``workers=1``: in this process).
     ``backend="ray"``: a local Ray runtime with ``workers`` CPUs is started unless
@@ -176,8 +193,13 @@ def for_each_result(
                 f"{describe(jobs[index])} could not run: {type(exc).__name__}: {exc}"
             )
 
+        def died(index: int, exc: WorkerDiedError) -> None:
+            if crashed is None:
+                raise failure(index, exc) from exc
+            deliver(index, crashed(jobs[index], exc))
+
         if backend == "ray":
-            _run_ray(function, jobs, workers, deliver, failure)
+            _run_ray(function, jobs, workers, deliver, failure, died)
         elif workers == 1:
             with single_threaded():
                 for index, job in enumerate(jobs):
@@ -187,7 +209,7 @@ def for_each_result(
                         raise failure(index, exc) from exc
                     deliver(index, result)
         else:
-            _run_processes(function, jobs, workers, deliver, failure)
+            _run_processes(function, jobs, workers, deliver, failure, died)
 
 
 def run_jobs(
@@ -198,6 +220,7 @@ def run_jobs(
     progress: bool = True,
     label: str = "jobs",
     describe: Callable[[Any], str] = repr,
+    crashed: Callable[[Any, WorkerDiedError], Any] | None = None,
 ) -> list[Any]:
     """``[function(job) for job in jobs]`` computed in parallel (:func:`for_each_result`)."""
     results: dict[int, Any] = {}
@@ -210,6 +233,7 @@ def run_jobs(
         progress=progress,
         label=label,
         describe=describe,
+        crashed=crashed,
     )
     return [results[i] for i in range(len(jobs))]
 
@@ -241,45 +265,18 @@ def _call(function: Callable[[Any], Any], job: Any) -> Any:
     return function(job)
 
 
-def _worker_init() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def _run_processes(function, jobs, workers, deliver, failure, died) -> None:
+    with WorkerPool(function, workers, spawn_env=single_threaded) as pool:
+        for index, ok, outcome in pool.results(list(jobs)):
+            if ok:
+                deliver(index, outcome)
+            elif isinstance(outcome, WorkerDiedError):
+                died(index, outcome)
+            else:
+                raise failure(index, outcome) from outcome
 
 
-def _run_processes(function, jobs, workers, deliver, failure) -> None:
-    context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_init)
-    try:
-        with single_threaded():  # the workers are spawned by the first submissions
-            futures: dict[Future, int] = {
-                pool.submit(function, job): i for i, job in enumerate(jobs)
-            }
-        for future in as_completed(futures):
-            index = futures[future]
-            try:
-                result = future.result()
-            except Exception as exc:
-                raise failure(index, exc) from exc
-            deliver(index, result)
-    except BaseException:
-        _stop(pool)
-        raise
-    pool.shutdown()
-
-
-def _stop(pool: ProcessPoolExecutor) -> None:
-    """Cancel the queued jobs and end the worker processes now (terminate, then kill)."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        process.terminate()
-    for process in processes:
-        process.join(STOP_TIMEOUT)
-        if process.is_alive():
-            process.kill()
-            process.join()
-
-
-def _run_ray(function, jobs, workers, deliver, failure) -> None:
+def _run_ray(function, jobs, workers, deliver, failure, died) -> None:
     try:
         import ray
     except ImportError:
@@ -301,9 +298,12 @@ def _run_ray(function, jobs, workers, deliver, failure) -> None:
             log_to_driver=False,
             runtime_env={"env_vars": SINGLE_THREAD_ENV},
         )
+    if started and not os.environ.get("RAY_ADDRESS"):
+        start_reaper()  # ends the local runtime if this process dies without shutting it down
     if started and _handlers_depth and threading.current_thread() is threading.main_thread():
         _install_handlers()  # ray.init installs a SIGTERM handler of its own
-    remote = ray.remote(num_cpus=1)(_call)  # _call: ray.remote takes plain functions only
+    # _call: ray.remote takes plain functions only; a crashed worker fails its task
+    remote = ray.remote(num_cpus=1, max_retries=0)(_call)
     queue = iter(enumerate(jobs))
     pending: dict = {}
     try:
@@ -317,6 +317,9 @@ def _run_ray(function, jobs, workers, deliver, failure) -> None:
                 index = pending.pop(ref)
                 try:
                     result = ray.get(ref)
+                except ray.exceptions.WorkerCrashedError as exc:
+                    died(index, WorkerDiedError(None, f"the Ray worker crashed: {exc}"))
+                    continue
                 except Exception as exc:
                     raise failure(index, exc) from exc
                 deliver(index, result)

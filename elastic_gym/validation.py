@@ -13,6 +13,14 @@ T = TypeVar("T")
 ENV_NAMESPACE = "elastic_gym/"
 
 
+def is_real(value: Any) -> bool:
+    """Whether ``value`` is a real number: Python's ``int`` / ``float`` or a numpy scalar
+    (``np.float32(1e-3)``, ``np.int64(3)``); not a bool."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, (bool, np.bool_)
+    )
+
+
 def registered_env_id(value: Any) -> str:
     """A registered Gymnasium env id; a bare name (``TwoLinkElastic-v0``) is looked up in
     the ``elastic_gym/`` namespace. ``ValueError`` lists the package's ids otherwise."""

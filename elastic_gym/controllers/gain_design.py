@@ -40,6 +40,7 @@ from scipy.optimize import brentq
 from scipy.signal import place_poles
 
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import is_real
 
 BANDWIDTH_SEARCH = (0.1, 20.0)  # bracket of w / omega for the bisection
 
@@ -104,7 +105,7 @@ def _bandwidth_weights(model: RobotModel, J: np.ndarray, w: float) -> np.ndarray
 
 
 def _check_omega(omega: float, key: str = "omega") -> None:
-    if not (isinstance(omega, (int, float)) and np.isfinite(omega) and omega > 0):
+    if not (is_real(omega) and np.isfinite(omega) and omega > 0):
         raise ValueError(f"{key} must be a positive number (rad/s), got {omega!r}")
 
 
@@ -166,11 +167,7 @@ def lqr_integral_gain(
     0.33 w and leaves the other two within 4 % of the design without integral
     (0.84 +- 0.50j vs 0.87 +- 0.50j).
     """
-    if not (
-        isinstance(integral_weight, (int, float))
-        and np.isfinite(integral_weight)
-        and integral_weight > 0
-    ):
+    if not (is_real(integral_weight) and np.isfinite(integral_weight) and integral_weight > 0):
         raise ValueError(f"integral_weight must be a positive number, got {integral_weight!r}")
     w = bandwidth_weight(model, q0, omega)
     J = rigid_inertia(model, q0)

@@ -46,6 +46,7 @@ from elastic_gym.controllers.invdyn import (
 )
 from elastic_gym.controllers.state_feedback import FeedforwardStateFeedback
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import is_real
 
 DEFAULT_INTEGRAL_WEIGHT = 0.1
 DEFAULT_INTEGRAL_LIMIT = 0.5  # fraction of the torque limit
@@ -79,11 +80,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
         design_configuration=None,
         fd_step: float = DEFAULT_FD_STEP,
     ) -> None:
-        if not (
-            isinstance(integral_limit, (int, float))
-            and np.isfinite(integral_limit)
-            and integral_limit > 0
-        ):
+        if not (is_real(integral_limit) and np.isfinite(integral_limit) and integral_limit > 0):
             raise ValueError(f"integral_limit must be a positive number, got {integral_limit!r}")
         self.integral_weight = integral_weight
         super().__init__(

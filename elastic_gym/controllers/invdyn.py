@@ -58,6 +58,7 @@ import numpy as np
 from scipy.special import factorial
 
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import is_real
 
 REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 DEFAULT_FD_STEP = 1e-4
@@ -108,7 +109,7 @@ class RigidTorque:
     """tau_r = M q'' + C q' + g + d(q') along a trajectory, with its time derivatives."""
 
     def __init__(self, model: RobotModel, fd_step: float = DEFAULT_FD_STEP) -> None:
-        if not (isinstance(fd_step, (int, float)) and 0.0 < fd_step < 0.1):
+        if not (is_real(fd_step) and 0.0 < fd_step < 0.1):
             raise ValueError(f"fd_step must be a number in (0, 0.1) s, got {fd_step!r}")
         self.model = model
         self.fd_step = float(fd_step)

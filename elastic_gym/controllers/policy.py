@@ -31,7 +31,7 @@ import numpy as np
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.registry import make_controller
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import per_joint_values
+from elastic_gym.validation import is_real, per_joint_values
 
 
 def load_sb3_model(path: str | os.PathLike, algorithm: str | type):
@@ -125,7 +125,7 @@ class PolicyController(Controller):
         self.deterministic = deterministic
         self.torque_limit = self._limit(torque_limit)
         self.residual = self._base_controller(residual, residual_options)
-        if not (isinstance(residual_scale, (int, float)) and 0.0 < residual_scale <= 1.0):
+        if not (is_real(residual_scale) and 0.0 < residual_scale <= 1.0):
             raise ValueError(f"residual_scale must be in (0, 1], got {residual_scale!r}")
         self.residual_scale = float(residual_scale)
         self._state = None

@@ -36,6 +36,7 @@ import numpy as np
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.invdyn import reference_derivatives, state_vector
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import is_real
 
 CRISTOFARO_LAMBDA = 0.5
 CRISTOFARO_KP = (40.0, 60.0)
@@ -136,7 +137,7 @@ class FeedbackLinearizingController(_RigidTracking):
         super().__init__(model, dt)
         n = self.n
         for key, value in (("omega", omega), ("damping_ratio", damping_ratio)):
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+            if not (is_real(value) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{key} must be a positive number, got {value!r}")
         if friction_velocity not in FRICTION_VELOCITIES:
             raise ValueError(

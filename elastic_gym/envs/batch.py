@@ -23,8 +23,9 @@ Observation of one arm (a ``spaces.Dict``, float64), only what a real arm measur
 
 Info of one arm (the same keys at every step, terminal steps included): ``time``,
 ``true_state`` (``q``, ``dq``, ``theta``, ``dtheta``, ``ddq``, ``x``), ``torque`` (the
-applied, clipped motor torque), ``torque_saturated``, ``reference`` (``q`` .. ``d4q``),
-``termination_reason`` (None while the episode runs).
+applied, clipped motor torque), ``torque_saturated``, ``acceleration_saturated`` (an
+observed accelerometer reading is at the sensor's ``range``: clipped), ``reference``
+(``q`` .. ``d4q``), ``termination_reason`` (None while the episode runs).
 
 Reward: :mod:`elastic_gym.envs.reward` (bounded multi-scale tracking kernels, torque and
 torque-rate penalties; every step pays >= 0). An episode whose physics breaks (non-finite
@@ -37,15 +38,17 @@ simulated seconds.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import ClassVar
 
 import numpy as np
 from gymnasium import spaces
 from numba import njit
 
+from elastic_gym.envs.memory import check_batch_memory
 from elastic_gym.envs.reward import RewardConfig, batch_reward
 from elastic_gym.envs.sensors import (
     AccelerometerArray,
@@ -59,7 +62,7 @@ from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, LinkFriction, RobotSpec
 from elastic_gym.robots.urdf_tools import joint_limits
-from elastic_gym.validation import per_joint_values
+from elastic_gym.validation import is_real, per_joint_values
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
 EPISODE_TIME = 3.0  # s
@@ -131,11 +134,7 @@ def with_batch_options(init):
 def _positive_number(value, name: str, allow_none: bool = False) -> float | None:
     if value is None and allow_none:
         return None
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not (np.isfinite(value) and value > 0)
-    ):
+    if isinstance(value, bool) or not is_real(value) or not (np.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a positive finite number, got {value!r}")
     return float(value)
 
@@ -212,6 +211,7 @@ class ArmBatch:
         if isinstance(n_arms, bool) or not isinstance(n_arms, (int, np.integer)) or n_arms < 1:
             raise ValueError(f"the number of arms must be an integer >= 1, got {n_arms!r}")
         spec = robot if isinstance(robot, RobotSpec) else get_robot(robot)
+        check_batch_memory(spec.urdf, int(n_arms), spec.name)  # PyBullet would segfault
         self.robot = spec
         self.n_arms = N = int(n_arms)
         self.n_joints = n = spec.n_joints
@@ -409,6 +409,19 @@ class ArmBatch:
         return self._time
 
     # ------------------------------------------------------------------ episodes
+    @contextlib.contextmanager
+    def generators_kept_on_error(self, arms: np.ndarray) -> Iterator[None]:
+        """If the block raises (a refused reset), the generators of ``arms`` are the same
+        objects in the same states as before it: a refused reset changes no stream."""
+        saved = [(i, self.rngs[i], self.rngs[i].bit_generator.state) for i in arms]
+        try:
+            yield
+        except BaseException:
+            for i, rng, state in saved:
+                rng.bit_generator.state = state
+                self.rngs[i] = rng
+            raise
+
     def reset_arms(self, arms: np.ndarray, options: dict | None = None) -> None:
         """Start new episodes for ``arms`` (indices) at rest, or at ``options["initial_state"]``.
 
@@ -625,9 +638,19 @@ class ArmBatch:
             "true_state": state,
             "torque": self.torque[arms].copy(),
             "torque_saturated": bool(self.saturated[arms]) if one else self.saturated[arms].copy(),
+            "acceleration_saturated": self._acceleration_saturated(arms),
             "reference": {key: reference[..., k, :].copy() for k, key in enumerate(REFERENCE_KEYS)},
             "termination_reason": self.reasons[arms] if one else self.reasons[arms].copy(),
         }
+
+    def _acceleration_saturated(self, arms):
+        """Whether an observed accelerometer reading is at the sensor's range (clipped)."""
+        if not self.model.n_sensors:
+            at_range = np.zeros(np.shape(self._time[arms]), dtype=bool)
+        else:
+            readings = np.abs(self.obs["acceleration"][arms])
+            at_range = np.any(readings >= self.accelerometer_array.config.range, axis=-1)
+        return bool(at_range) if np.ndim(at_range) == 0 else at_range
 
     def reference_preview(self, offsets: np.ndarray) -> np.ndarray:
         """q_d .. q_d^(4) of every arm at its time + each offset (s): (N, H, 5, n).

@@ -38,7 +38,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numba import njit
 
-from elastic_gym.validation import config_from
+from elastic_gym.validation import config_from, is_real
 
 DEFAULT_SIGMAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # rad, one kernel per decade
 DEFAULT_VELOCITY_SIGMAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)  # rad/s
@@ -138,7 +138,7 @@ class RewardConfig:
 
 
 def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    return is_real(value) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _kernel_mean(x: np.ndarray, inverse_sigmas: np.ndarray) -> np.ndarray:

@@ -16,17 +16,26 @@ GRAVITY = 9.81
 
 
 def _check_range(
-    owner: str, key: str, value, low: float, high: float, zero: bool = True, none: bool = True
+    owner: str,
+    key: str,
+    value,
+    low: float,
+    high: float,
+    zero: bool = True,
+    none: bool = True,
+    why: str = "",
 ) -> None:
     """``value`` in [low, high] (or 0 / None where allowed): limits beyond which a sensor
-    setting would overflow the observation or mean nothing physical."""
+    setting would overflow the observation or mean nothing physical (``why`` is said)."""
     if value is None and none:
         return
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, bool
+    )
     if number and ((value == 0 and zero) or low <= value <= high):
         return
     allowed = f"{'0 or ' if zero else ''}a number in [{low:g}, {high:g}]"
-    raise ValueError(f"{owner}.{key} must be {allowed}, got {value!r}")
+    raise ValueError(f"{owner}.{key} must be {allowed}{why}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -111,7 +120,8 @@ class AccelerometerConfig:
     * ``noise_density`` 1.5e-3 m/s^2/sqrt(Hz) (~150 ug/sqrt(Hz)); the per-sample standard
       deviation is noise_density * sqrt(f_s / 2);
     * ``bias_std`` 0.02 m/s^2 (~2 mg): a constant bias per axis drawn at each reset;
-    * ``range`` 16 g: readings saturate there;
+    * ``range`` 16 g: readings saturate there (``info["acceleration_saturated"]``); at
+      least g, which a sensor at rest reads;
     * ``cutoff_hz`` None: optional first-order low-pass (anti-aliasing) filter;
     * ``resolution`` None: optional output quantization (m/s^2).
     """
@@ -126,7 +136,16 @@ class AccelerometerConfig:
         _check_range("accelerometer", "noise_density", self.noise_density, 1e-12, 10.0, none=False)
         _check_range("accelerometer", "bias_std", self.bias_std, 1e-12, 100.0, none=False)
         _check_range("accelerometer", "resolution", self.resolution, 1e-9, 100.0)
-        _check_range("accelerometer", "range", self.range, 1e-3, 1e9, zero=False, none=False)
+        _check_range(
+            "accelerometer",
+            "range",
+            self.range,
+            GRAVITY,
+            1e9,
+            zero=False,
+            none=False,
+            why=f" (at least g = {GRAVITY} m/s^2: a sensor at rest reads g)",
+        )
         _check_range("accelerometer", "cutoff_hz", self.cutoff_hz, 1e-3, 1e6, zero=False)
 
     @classmethod

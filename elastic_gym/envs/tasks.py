@@ -18,7 +18,7 @@ import numpy as np
 from elastic_gym.envs.trajectories import RestToRestPath, rest_to_rest
 from elastic_gym.model import RobotModel
 from elastic_gym.robots.spec import RobotSpec
-from elastic_gym.validation import per_joint_values
+from elastic_gym.validation import is_real, per_joint_values
 
 REFERENCE_ORDER = 4
 
@@ -30,11 +30,7 @@ def _vector(value, n: int, name: str) -> np.ndarray:
 def _max_move(value, spec: RobotSpec) -> float:
     if value is None:
         return spec.max_move
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not (np.isfinite(value) and value > 0)
-    ):
+    if isinstance(value, bool) or not is_real(value) or not (np.isfinite(value) and value > 0):
         raise ValueError(f"task option 'max_move' must be a number > 0, got {value!r}")
     return float(value)
 
@@ -151,7 +147,7 @@ class TrackingTask(Task):
             value = getattr(self, key)
             if (
                 isinstance(value, bool)
-                or not isinstance(value, (int, float))
+                or not is_real(value)
                 or not (np.isfinite(value) and value >= 0)
             ):
                 raise ValueError(f"task option {key!r} must be a number >= 0, got {value!r}")

@@ -44,6 +44,13 @@ def masked_info(info: dict, mask: np.ndarray) -> dict:
     return out
 
 
+def _generator(seed: object, where: str) -> np.random.Generator:
+    """The generator of an integer seed >= 0; ``ValueError`` naming ``where`` otherwise."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"{where} must be an integer >= 0 or None, got {seed!r}")
+    return seeding.np_random(int(seed))[0]
+
+
 class ArmVectorEnv(VectorEnv):
     """N arms of a robot of the catalog in one PyBullet client.
 
@@ -148,14 +155,19 @@ class ArmVectorEnv(VectorEnv):
             mask = np.asarray(mask)
             if mask.dtype != np.bool_ or mask.shape != (self.num_envs,):
                 raise ValueError(f"reset_mask must be a bool array of shape ({self.num_envs},)")
-        seeds = self._seeds(seed)
         arms = np.flatnonzero(mask)
-        if isinstance(seed, int):
-            super().reset(seed=seed)
-        for i in arms:
-            if seeds[i] is not None:  # else the arm's generator continues, as env.reset() does
-                batch.rngs[i] = seeding.np_random(seeds[i])[0]
-        batch.reset_arms(arms, options)
+        seeds = self._seeds(seed)
+        generators = {  # checked before anything changes; unseeded arms continue their stream
+            i: _generator(seeds[i], f"seed[{i}]" if isinstance(seed, list) else "seed")
+            for i in arms
+            if seeds[i] is not None
+        }
+        with batch.generators_kept_on_error(arms):
+            for i, generator in generators.items():
+                batch.rngs[i] = generator
+            batch.reset_arms(arms, options)
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            super().reset(seed=int(seed))
         self._autoreset[arms] = False
         return batch.observation(), masked_info(batch.info(), mask)
 
@@ -165,6 +177,11 @@ class ArmVectorEnv(VectorEnv):
             return [None] * N
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             return [int(seed) + i for i in range(N)]
+        if not isinstance(seed, (list, tuple, np.ndarray)):
+            raise TypeError(
+                f"seed must be an integer >= 0, a list of {N} such integers (or None "
+                f"per arm) or None, got {seed!r}"
+            )
         seeds = list(seed)
         if len(seeds) != N:
             raise ValueError(f"give one seed or {N} seeds, got {len(seeds)}")

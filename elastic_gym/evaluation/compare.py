@@ -23,7 +23,11 @@ run, written as each run finishes), ``summary.csv`` and ``summary.md`` (over see
 figure per env x axis values x model error, written as soon as its runs are done;
 the time series of the runs are not kept in memory after that). A folder holding an
 earlier comparison's files is refused unless ``overwrite`` (which removes those
-files first). A run that fails is a row with status ``failed: <Type>: <message>``.
+files first), and so is a folder another process writes into
+(:mod:`~elastic_gym.folder_lock`). A run that fails (its code raises, calls
+``sys.exit``, or kills its worker process) is a row with status ``failed: <Type>:
+<message>``. When results cannot be written (a full disk),
+:class:`~elastic_gym.evaluation.output.ResultsWriteError` says what ``runs.csv`` kept.
 On SIGINT/SIGTERM the queued runs are cancelled, the workers ended, the tables of the
 finished runs written, and :class:`~elastic_gym.parallel.Interrupted` raised.
 
@@ -48,9 +52,12 @@ from elastic_gym.evaluation.margins import margin_rows, write_margins
 from elastic_gym.evaluation.output import (
     CURVE_DIR,
     PLOT_DIR,
+    ResultsWriteError,
     RunsCsv,
     check_output_folder,
     clear_results,
+    write_atomic,
+    write_problem,
 )
 from elastic_gym.evaluation.plots import plot_results
 from elastic_gym.evaluation.preflight import check_plot_names, preflight
@@ -65,13 +72,20 @@ from elastic_gym.evaluation.runner import (
     RunResult,
     RunSpec,
     SkippedRun,
+    crashed_result,
     describe_run,
     plan_runs,
     run_episode,
 )
 from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
 from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
-from elastic_gym.parallel import for_each_result, resolve_workers, with_detail
+from elastic_gym.folder_lock import check_writable, folder_lock
+from elastic_gym.parallel import (
+    for_each_result,
+    interrupts_raised,
+    resolve_workers,
+    with_detail,
+)
 
 DEFAULT_OUTPUT_ROOT = Path("compare_out")
 
@@ -121,8 +135,24 @@ def compare(
     cannot work, ``NotADirectoryError`` / ``PermissionError`` / ``FileExistsError`` for
     the output folder, ``ValueError`` for the other arguments.
     """
-    console = console or Console()
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / scenario.name
+    check_writable(out)
+    with folder_lock(out):
+        return _compare(scenario, out, workers, backend, progress, plots, overwrite, console)
+
+
+def _compare(
+    scenario: Scenario,
+    out: Path,
+    workers: int | None,
+    backend: str,
+    progress: bool,
+    plots: bool,
+    overwrite: bool,
+    console: Console | None,
+) -> Comparison:
+    """:func:`compare` once the output folder is locked."""
+    console = console or Console()
     runs, skipped = plan_runs(scenario)
     if not runs:
         raise ValueError(
@@ -133,7 +163,8 @@ def compare(
     check_output_folder(out, overwrite)
     if plots:
         check_plot_names(scenario, runs)
-    estimate = preflight(scenario, runs, n_workers)
+    with interrupts_raised():  # a real Ctrl-C is not taken for the sampled user code's own
+        estimate = preflight(scenario, runs, n_workers)
     skipped_note = _skipped_note(skipped)
     console.print(
         f"[bold]{scenario.name}[/bold]: {len(runs)} runs on {n_workers} "
@@ -144,7 +175,10 @@ def compare(
     if overwrite:
         clear_results(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "scenario.yaml").write_text(yaml.safe_dump(scenario.to_dict(), sort_keys=False))
+    try:
+        write_atomic(out / "scenario.yaml", yaml.safe_dump(scenario.to_dict(), sort_keys=False))
+    except OSError as exc:
+        raise ResultsWriteError(f"{write_problem(exc)}: nothing written in {out}/") from exc
     sink = _Sink(out, runs, plots)
     try:
         for_each_result(
@@ -156,6 +190,7 @@ def compare(
             progress=progress,
             label="runs",
             describe=describe_run,
+            crashed=crashed_result,
         )
     except BaseException as exc:
         rows = sink.csv.finish()
@@ -222,10 +257,16 @@ def _write_tables(
     identity = scenario.identity_columns
     summary = summary_rows(rows, identity)
     markdown = markdown_table(summary, identity)
-    write_csv(summary, out / "summary.csv")
-    (out / "summary.md").write_text(
-        f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}\n{note}"
-    )
+    try:
+        write_csv(summary, out / "summary.csv")
+        write_atomic(
+            out / "summary.md", f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}\n{note}"
+        )
+    except OSError as exc:
+        raise ResultsWriteError(
+            f"{write_problem(exc)}: the summary could not be written; {out / 'runs.csv'} "
+            f"keeps all {len(rows)} finished rows"
+        ) from exc
     return summary, markdown
 
 

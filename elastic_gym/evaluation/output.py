@@ -7,16 +7,23 @@ in its folder, and nothing elsewhere. Before any run,
 or that holds the results of an earlier comparison (old figures would stay beside the
 new ones) unless ``overwrite`` is given; :func:`clear_results` then removes those
 files (only those). :class:`RunsCsv` writes ``runs.csv`` row by row as runs finish,
-so that an interrupted or crashed comparison keeps every finished run on disk.
+so that an interrupted or crashed comparison keeps every finished run on disk, and
+never leaves a partial file: what is rewritten is written beside and renamed over
+(:func:`write_atomic`), so a full disk costs at most the rows it could not take.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import errno
+import io
+import os
 import re
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+
+from elastic_gym.folder_lock import check_writable
 
 RESULT_FILES = (
     "runs.csv",
@@ -67,22 +74,8 @@ def check_output_folder(folder: Path, overwrite: bool) -> None:
     be created in it (or in the parent it would be created in). ``FileExistsError``: it
     holds the files of an earlier comparison and ``overwrite`` is false.
     """
-    existing = folder
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise NotADirectoryError(
-            f"output folder {str(folder)!r}: {str(existing)!r} is a file, not a folder"
-        )
-    try:
-        with tempfile.TemporaryFile(dir=existing):
-            pass
-    except OSError as exc:
-        raise PermissionError(
-            f"output folder {str(folder)!r}: cannot write in "
-            f"{str(existing)!r} ({exc.strerror or exc})"
-        ) from None
-    if existing == folder and not overwrite:
+    check_writable(folder)
+    if folder.is_dir() and not overwrite:
         earlier = earlier_results(folder)
         if earlier:
             shown = ", ".join(earlier[:5]) + (", ..." if len(earlier) > 5 else "")
@@ -102,41 +95,121 @@ def clear_results(folder: Path) -> None:
             (folder / figures).rmdir()
 
 
-class RunsCsv:
-    """``runs.csv`` written as rows arrive (any order), flushed after each row.
+class ResultsWriteError(RuntimeError):
+    """Results could not be written (a full disk, an I/O error); the message says what
+    was kept on disk."""
 
-    A row with a column not seen before (the diagnostics of another observer) rewrites
-    the file with the wider header; :meth:`finish` rewrites it in run order.
+
+def write_problem(exc: OSError) -> str:
+    """``"disk full"`` for ENOSPC (and EDQUOT, EFBIG), else ``"cannot write (<error>)"``."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+        return "disk full"
+    return f"cannot write ({exc})"
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to a new file beside ``path`` and rename it over ``path``: either
+    the whole new content is there or the old file (or none) is left untouched."""
+    partial = path.with_name(f".{path.name}.partial")
+    try:
+        fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+        try:
+            write_all(fd, text.encode())
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(partial, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            partial.unlink()
+        raise
+
+
+def write_all(fd: int, data: bytes) -> None:
+    """``os.write`` until every byte is written (a full disk raises ``OSError``)."""
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
+
+
+class RunsCsv:
+    """``runs.csv`` written as rows arrive (any order): each row appended and flushed.
+
+    A row with a column not seen before (the diagnostics of another observer) writes
+    the file anew with the wider header, beside the old one, and renames it over it
+    (:func:`write_atomic`); :meth:`finish` does the same in run order. So the file on
+    disk always holds complete rows. When a write fails (e.g. the disk is full), the
+    partial row is cut off again and :class:`ResultsWriteError` says how many rows the
+    file keeps; later calls raise it again.
     """
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self.rows: dict[int, dict] = {}
         self.fields: list[str] = []
-        self._handle = None
-        self._writer: csv.DictWriter | None = None
+        self._fd: int | None = None  # appending
+        self._written = 0  # complete rows in the file
+        self._error: ResultsWriteError | None = None
 
     def add(self, index: int, row: dict) -> None:
+        if self._error is not None:
+            raise self._error
         self.rows[index] = row
         new = [key for key in row if key not in self.fields]
-        if new or self._writer is None:
+        if new or self._fd is None:
             self.fields += new
-            self._rewrite(self.rows.values())
+            self._replace(list(self.rows.values()))
         else:
-            self._writer.writerow(row)
-        self._handle.flush()
+            self._append(row)
 
     def finish(self) -> list[dict]:
-        """Rewrite the file in run order, close it, and return the rows in that order."""
+        """Write the file in run order, close it, and return the rows in that order."""
+        if self._error is not None:
+            raise self._error
         rows = [self.rows[i] for i in sorted(self.rows)]
-        self._rewrite(rows)
-        self._handle.close()
+        self._replace(rows)
+        self._close()
         return rows
 
-    def _rewrite(self, rows) -> None:
-        if self._handle is not None:
-            self._handle.close()
-        self._handle = self.path.open("w", newline="")
-        self._writer = csv.DictWriter(self._handle, fieldnames=self.fields, restval="")
-        self._writer.writeheader()
-        self._writer.writerows(rows)
+    def _text(self, rows: list[dict]) -> str:
+        buffer = io.StringIO()
+        writer = csv.DictWriter(buffer, fieldnames=self.fields, restval="")
+        writer.writeheader()
+        writer.writerows(rows)
+        return buffer.getvalue()
+
+    def _replace(self, rows: list[dict]) -> None:
+        try:
+            write_atomic(self.path, self._text(rows))
+        except OSError as exc:
+            self._fail(exc)
+        self._close()
+        self._written = len(rows)
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
+
+    def _append(self, row: dict) -> None:
+        assert self._fd is not None
+        buffer = io.StringIO()
+        csv.DictWriter(buffer, fieldnames=self.fields, restval="").writerow(row)
+        size = os.fstat(self._fd).st_size
+        try:
+            write_all(self._fd, buffer.getvalue().encode())
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, size)  # cut the partial row off (frees space)
+            self._fail(exc)
+        self._written += 1
+
+    def _close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    def _fail(self, exc: OSError) -> None:
+        reason = write_problem(exc)
+        where = self.path if self._written else self.path.parent
+        self._error = ResultsWriteError(
+            f"{reason}: {self._written} of {len(self.rows)} finished rows kept in {where}"
+        )
+        self._close()
+        raise self._error from exc

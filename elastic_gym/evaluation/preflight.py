@@ -29,7 +29,7 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -41,10 +41,11 @@ from elastic_gym.evaluation.runner import (
     RunSpec,
     build_controller,
     build_observer,
+    describe_failure,
     run_model,
 )
 from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError
-from elastic_gym.parallel import single_threaded
+from elastic_gym.parallel import single_threaded, user_failure
 
 SAMPLE_TIME = 0.05  # CPU s of closed loop timed per (env, controller, source) combination
 SAMPLE_STEPS = (3, 1000)  # fewest and most steps of a sample
@@ -71,8 +72,31 @@ class Estimate:
         return f"about {self.seconds / 3600:.1f} h"
 
 
-def _error(path: str, exc: Exception) -> ScenarioError:
-    return ScenarioError(path, f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+def _error(path: str, exc: BaseException) -> ScenarioError:
+    return ScenarioError(path, describe_failure(exc))
+
+
+@contextlib.contextmanager
+def _named(path: str) -> Iterator[None]:
+    """What the code inside raises for itself (:func:`~elastic_gym.parallel.user_failure`:
+    any exception, ``sys.exit``, its own ``KeyboardInterrupt``) becomes a
+    :class:`ScenarioError` naming ``path``."""
+    try:
+        yield
+    except BaseException as exc:
+        if not user_failure(exc):
+            raise
+        raise _error(path, exc) from None
+
+
+@contextlib.contextmanager
+def _left_to_the_runs() -> Iterator[None]:
+    """What the closed loop raises for itself ends the sample; the runs report it."""
+    try:
+        yield
+    except BaseException as exc:
+        if not user_failure(exc):
+            raise
 
 
 def _make_env(entry_id: str, kwargs: dict, path: str) -> gym.Env:
@@ -103,6 +127,7 @@ def preflight(scenario: Scenario, runs: Sequence[RunSpec], workers: int) -> Esti
             env = _make_env(entry.id, scenario.env_kwargs(entry), f"{path}.kwargs")
             make_time = time.process_time() - start
             try:
+                _check_duration(scenario.duration, env, path)
                 _check_reset(env, entry.reset_options, scenario.seeds[0], path)
                 _check_axes(scenario, entry, path)
                 _check_model_errors(env, scenario, error_index)
@@ -130,6 +155,17 @@ def cpu_share(workers: int) -> float:
     except (AttributeError, OSError):
         return 1.0
     return min(1.0, (os.cpu_count() or 1) / (others + workers))
+
+
+def _check_duration(duration: float, env: gym.Env, path: str) -> None:
+    """A run must last at least one control period (else it has no step to measure)."""
+    control_dt = env.unwrapped.control_dt
+    if not duration >= control_dt:
+        raise ScenarioError(
+            "duration",
+            f"{duration!r} s is shorter than the control period {control_dt!r} s of "
+            f"{path}: its runs would have no step",
+        )
 
 
 def _check_reset(env: gym.Env, options: dict, seed: int, path: str) -> None:
@@ -167,21 +203,15 @@ def _sample(env: gym.Env, spec: RunSpec, paths: tuple[str, str]) -> float:
     controller_path, source_path = paths
     start = time.process_time()
     model = run_model(env, spec)
-    try:
+    with _named(f"{source_path}.options"):
         wrapped = build_observer(env, spec, model)
-    except Exception as exc:
-        raise _error(f"{source_path}.options", exc) from None
-    try:
+    with _named(f"{controller_path}.options"):
         controller = build_controller(env, spec, model)
-    except Exception as exc:
-        raise _error(f"{controller_path}.options", exc) from None
-    try:
+    with _named(source_path):
         obs, info = wrapped.reset(seed=spec.seed, options=spec.reset_options or None)
-    except Exception as exc:
-        raise _error(source_path, exc) from None
     setup = time.process_time() - start
     steps, elapsed = 0, 0.0
-    with np.errstate(all="ignore"), contextlib.suppress(Exception):  # the runs report these
+    with np.errstate(all="ignore"), _left_to_the_runs():
         controller.reset(obs, public_info(info))
         obs, _, _, _, info = wrapped.step(controller(obs, public_info(info)))  # warms caches up
         tick = time.process_time()

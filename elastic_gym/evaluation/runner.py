@@ -40,7 +40,8 @@ from elastic_gym.evaluation.scenario import (
 from elastic_gym.observers.base import Observer
 from elastic_gym.observers.registry import OBSERVERS, make_observer, observer_class
 from elastic_gym.observers.wrappers import ObserverWrapper
-from elastic_gym.parallel import run_jobs
+from elastic_gym.parallel import run_jobs, user_failure
+from elastic_gym.process_pool import WorkerDiedError
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import RobotSpec
 
@@ -329,7 +330,9 @@ def run_episode(spec: RunSpec) -> RunResult:
             status = _simulate(wrapped, controller, recorder, spec, steps)
         finally:
             wall = time.perf_counter() - start
-    except Exception as exc:
+    except BaseException as exc:
+        if not user_failure(exc):
+            raise
         status = failed_status(exc)
     finally:
         if env is not None:
@@ -347,10 +350,26 @@ def run_episode(spec: RunSpec) -> RunResult:
     return RunResult(spec, status, metrics, series, wall, recorder.diagnostics)
 
 
+def describe_failure(exc: BaseException) -> str:
+    """``"<Type>: <message>"`` on one line (``SystemExit``: the exit code it was given;
+    a ``KeyboardInterrupt``: that it came from the code, not from a signal)."""
+    if isinstance(exc, SystemExit):
+        message = f"sys.exit({exc.code!r}) called by the run's code"
+    elif isinstance(exc, KeyboardInterrupt):
+        message = "raised by the run's code (no signal)"
+    else:
+        message = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {message}"
+
+
 def failed_status(exc: BaseException, where: str = "") -> str:
-    """``"failed: <Type>: <message>"`` on one line."""
-    message = " ".join(str(exc).split())
-    return f"failed: {where}{type(exc).__name__}: {message}"
+    """``"failed: <Type>: <message>"`` (:func:`describe_failure`)."""
+    return f"failed: {where}{describe_failure(exc)}"
+
+
+def crashed_result(spec: RunSpec, exc: WorkerDiedError) -> RunResult:
+    """The row of a run whose worker process died while running it (no samples kept)."""
+    return RunResult(spec, failed_status(exc), {}, None, 0.0)
 
 
 def _simulate(
@@ -366,7 +385,9 @@ def _simulate(
             try:
                 action = controller(obs, public_info(info))
                 obs, _, terminated, _, info = wrapped.step(action)
-            except Exception as exc:
+            except BaseException as exc:
+                if not user_failure(exc):
+                    raise
                 return failed_status(exc)
             if terminated:
                 return f"terminated: {info.get('termination_reason') or 'terminated'}"
@@ -395,6 +416,7 @@ def execute(
         progress=progress,
         label="runs",
         describe=describe_run,
+        crashed=crashed_result,
     )
 
 

@@ -92,7 +92,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import yaml
 
 import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.controllers.registry import CONTROLLERS
@@ -100,7 +99,8 @@ from elastic_gym.evaluation.open_loop import BUILTIN_CONTROLLERS
 from elastic_gym.evaluation.output import folder_name_problem
 from elastic_gym.model import ParameterScaling
 from elastic_gym.observers.registry import OBSERVERS
-from elastic_gym.validation import ENV_NAMESPACE, registered_env_id
+from elastic_gym.validation import ENV_NAMESPACE, is_real, registered_env_id
+from elastic_gym.yaml_io import YAMLInputError, load_yaml
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
 DEFAULT_PRESET = "default"
@@ -388,9 +388,9 @@ def load_scenario(path: str | Path, name: str | None = None) -> Scenario:
     if not path.is_file():
         raise FileNotFoundError(f"scenario file {str(path)!r} does not exist")
     try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ScenarioError(str(path), f"invalid YAML: {exc}") from None
+        data = load_yaml(path)
+    except YAMLInputError as exc:
+        raise ScenarioError(exc.where, exc.problem) from None
     if not isinstance(data, Mapping):
         raise ScenarioError(str(path), "the file must contain a mapping of scenario fields")
     return _parse(data, name or data.get("name") or path.stem)
@@ -401,11 +401,21 @@ def resolve_class(cls: type | str, path: str) -> type:
     its top-level code: a scenario file is code, load only trusted ones)."""
     if isinstance(cls, type):
         return cls
+    if not isinstance(cls, str):
+        raise ScenarioError(path, f"must be a class or 'module:Class', got {cls!r}")
     module, _, attr = cls.partition(":")
     try:
-        return getattr(importlib.import_module(module), attr)
+        found = getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError) as exc:
         raise ScenarioError(path, f"cannot import class {cls!r}: {exc}") from None
+    except (Exception, SystemExit) as exc:  # the module's own code failed or does not compile
+        message = " ".join(str(exc).split())
+        raise ScenarioError(
+            path, f"importing module {module!r} failed: {type(exc).__name__}: {message}"
+        ) from None
+    if not isinstance(found, type):
+        raise ScenarioError(path, f"{cls!r} is not a class but {type(found).__name__} {found!r}")
+    return found
 
 
 # ---------------------------------------------------------------------------- parsing
@@ -801,7 +811,7 @@ def _unique_labels(labels: list[str], path: str) -> None:
 
 
 def _number(value: Any, path: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not is_real(value):
         raise ScenarioError(path, f"must be a number, got {value!r}")
     return float(value)
 

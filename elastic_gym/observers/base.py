@@ -29,7 +29,7 @@ from typing import ClassVar
 import numpy as np
 
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import check_applies
+from elastic_gym.validation import check_applies, is_real
 
 ELASTIC_STATE = ("theta", "q", "dtheta", "dq")
 RIGID_STATE = ("q", "dq")
@@ -54,7 +54,7 @@ class Observer(ABC):
     privileged: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, model: RobotModel, dt: float) -> None:
-        if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
+        if not (is_real(dt) and np.isfinite(dt) and dt > 0):
             raise ValueError(f"observer dt must be a positive number, got {dt!r}")
         check_applies("observer", self.name, self.applies_to, model)
         self.model = model

@@ -79,6 +79,7 @@ from elastic_gym.observers.deluca_gains import (
     error_matrix,
     validate_poles,
 )
+from elastic_gym.validation import is_real
 
 ACCELERATION_SOURCES = ("ideal", "accelerometer")
 DEFAULT_VELOCITY_SATURATION = 50.0  # rad/s, see "Peaking" above
@@ -153,13 +154,13 @@ class DeLucaObserver(BatchedObserver):
         for key, value in (("dls_threshold", dls_threshold), ("dls_damping", dls_damping)):
             if (
                 isinstance(value, bool)
-                or not isinstance(value, (int, float))
+                or not is_real(value)
                 or not (np.isfinite(value) and value > 0)
             ):
                 raise ValueError(f"{key} must be a positive number, got {value!r}")
         if velocity_saturation is not None and (
             isinstance(velocity_saturation, bool)
-            or not isinstance(velocity_saturation, (int, float))
+            or not is_real(velocity_saturation)
             or not (np.isfinite(velocity_saturation) and velocity_saturation > 0)
         ):
             raise ValueError(

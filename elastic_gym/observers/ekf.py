@@ -47,6 +47,7 @@ from scipy.linalg import cho_factor, cho_solve, expm
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import Observer
 from elastic_gym.observers.integration import rk4
+from elastic_gym.validation import is_real
 
 DEFAULT_ALPHA = 1.0
 """Exponential data weighting alpha of eq. (15), 1/s."""
@@ -79,7 +80,7 @@ def _check_number(
     maximum: float = np.inf,
     why: str = "",
 ) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+    if isinstance(value, bool) or not is_real(value) or not np.isfinite(value):
         raise TypeError(f"EKF option {name!r} must be a finite number, got {value!r}")
     if value < minimum or (strict and value == minimum):
         relation = ">" if strict else ">="
@@ -379,7 +380,7 @@ class ExtendedKalmanFilter(Observer):
         tau = np.asarray(torque, dtype=float)
         if tau.shape != (self.n,):
             raise ValueError(f"torque must have shape ({self.n},), got {tau.shape}")
-        if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
+        if not (is_real(dt) and np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a positive number, got {dt!r}")
         y = self._measurement_vector(obs)
         self.predict(tau, dt)
@@ -447,6 +448,9 @@ class ExtendedKalmanFilter(Observer):
         innovation = y - h
         PHt = self.P @ H.T
         S = H @ PHt + self.R
+        if not np.all(np.isfinite(S)):  # diverged: a NaN estimate (the wrapper ends the episode)
+            self.x = np.full_like(self.x, np.nan)
+            return
         factor = cho_factor(S)
         gain = cho_solve(factor, PHt.T).T
         self.x = self.x + gain @ innovation

@@ -16,6 +16,7 @@ import numpy as np
 
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, arm_count
+from elastic_gym.validation import is_real
 
 
 class FiniteDifferenceObserver(BatchedObserver):
@@ -27,7 +28,7 @@ class FiniteDifferenceObserver(BatchedObserver):
         super().__init__(model, dt)
         if (
             isinstance(cutoff_hz, bool)
-            or not isinstance(cutoff_hz, (int, float))
+            or not is_real(cutoff_hz)
             or not (np.isfinite(cutoff_hz) and cutoff_hz > 0)
         ):
             raise ValueError(f"cutoff_hz must be > 0 (a finite number), got {cutoff_hz!r}")

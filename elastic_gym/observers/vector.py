@@ -11,7 +11,9 @@ Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserv
 Luca with ideal or accelerometer-based q'', finite differences, the truth) estimate all
 arms at once; the others (EKF, rigid-arm observers, your own) run one copy per arm
 behind the same interface (:class:`ObserverArray`). Either way each arm's estimate is
-the single-env observer's (``tests/test_vector_observers.py``). Autoresets are followed:
+the single-env observer's (``tests/test_vector_observers.py``), and an arm whose
+estimate is no longer finite (for :class:`ObserverArray` also: whose update raised a
+numerical error) ends its episode alone, ``"non-finite state estimate"``. Autoresets are followed:
 an arm reset by the env is re-initialised from its first observation; with
 ``SAME_STEP`` the terminal observation is estimated first (``info["final_obs"]``).
 """
@@ -35,6 +37,8 @@ from elastic_gym.observers.wrappers import (
     annotate,
     build_observer,
     check_sensor_space,
+    checked_estimate,
+    guarded_update,
     measurement,
 )
 
@@ -73,8 +77,10 @@ class ObserverArray:
             else np.broadcast_to(initial_estimate, (len(arms), self.state_dim))
         )
         for k, i in enumerate(arms):
-            self._estimates[i] = self.observers[i].reset(
-                _arm(obs, i), None if rows is None else rows[k]
+            self._estimates[i] = checked_estimate(
+                self.observers[i],
+                self.observers[i].reset(_arm(obs, i), None if rows is None else rows[k]),
+                "reset",
             )
         self._record(arms)
         return self._estimates[arms].copy()
@@ -83,8 +89,8 @@ class ObserverArray:
         self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
     ) -> np.ndarray:
         arms = range(len(self.observers)) if arms is None else arms
-        for i in arms:
-            self._estimates[i] = self.observers[i].update(_arm(obs, i), torque[i], dt)
+        for i in arms:  # a numerical error in one arm's observer is that arm's NaN estimate
+            self._estimates[i], _ = guarded_update(self.observers[i], _arm(obs, i), torque[i], dt)
         self._record(arms)
         return self._estimates.copy()
 
@@ -148,9 +154,12 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         return info
 
     def _reset_observer(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
+        initial = self.initial_estimate
+        if initial is not None and np.ndim(initial) == 2:  # one row per arm: those reset
+            initial = np.asarray(initial)[arms]
         if len(arms):
             self._estimates[arms] = self.observer.reset_arms(
-                measurement(self.observer, obs, info), arms, self.initial_estimate
+                measurement(self.observer, obs, info), arms, initial
             )
 
     def reset(self, *, seed=None, options: dict | None = None):

@@ -9,9 +9,14 @@ step, the terminal one included. ``TrueStateWrapper(env)`` gives the same layout
 the ground truth, so one controller or policy runs unchanged on estimated or true state.
 :mod:`elastic_gym.observers.vector` has the twins for vector envs.
 
-An estimate that stops being finite (a diverged observer) ends the episode with
-``terminated=True`` and ``info["termination_reason"] = "non-finite state estimate"``; the
-observation keeps the last finite estimate and the next ``step`` needs a ``reset``.
+An estimate that stops being finite (a diverged observer), or an update that raises a
+numerical error (``ArithmeticError``, ``ValueError``: e.g. scipy refusing a matrix with
+infs or NaNs, a covariance no longer positive definite), ends the episode with
+``terminated=True`` and ``info["termination_reason"] = "non-finite state estimate"``
+(the error, if any, in ``info["observer_error"]``); the observation keeps the last
+finite estimate and the next ``step`` needs a ``reset``. An estimate that is not a
+numpy array of shape ``(state_dim,)`` is the observer's bug: a ``TypeError`` /
+``ValueError`` naming the observer and the shape.
 """
 
 from __future__ import annotations
@@ -70,6 +75,38 @@ def measurement(observer: Observer, obs: Mapping, info: Mapping) -> dict:
     if "true_state" in observer.privileged:
         measured["true_state"] = info["true_state"]
     return measured
+
+
+NUMERICAL_ERRORS = (ArithmeticError, ValueError)  # numpy/scipy LinAlgError is a ValueError
+
+
+def checked_estimate(observer: Observer, estimate: object, call: str) -> np.ndarray:
+    """``estimate`` if it is a numpy array of shape ``(observer.state_dim,)``, else a
+    ``TypeError`` / ``ValueError`` naming the observer, the call and what it returned."""
+    who = f"observer {observer.name or type(observer).__name__!r} ({type(observer).__name__})"
+    if not isinstance(estimate, np.ndarray):
+        raise TypeError(
+            f"{who}: {call} returned a {type(estimate).__name__}, expected a numpy array "
+            f"of shape ({observer.state_dim},)"
+        )
+    if estimate.shape != (observer.state_dim,):
+        raise ValueError(
+            f"{who}: {call} returned an estimate of shape {estimate.shape}, expected "
+            f"({observer.state_dim},) (state {observer.state_names})"
+        )
+    return estimate
+
+
+def guarded_update(
+    observer: Observer, obs: Mapping, torque: np.ndarray, dt: float
+) -> tuple[np.ndarray, str | None]:
+    """``observer.update``, checked (:func:`checked_estimate`); a numerical error in it
+    gives a NaN estimate and the error's text (the episode ends, see the module doc)."""
+    try:
+        estimate = observer.update(obs, torque, dt)
+    except NUMERICAL_ERRORS as exc:
+        return np.full(observer.state_dim, np.nan), f"{type(exc).__name__}: {exc}"
+    return checked_estimate(observer, estimate, "update"), None
 
 
 def true_state_vector(info: Mapping, elastic: bool) -> np.ndarray:
@@ -146,8 +183,10 @@ class ObserverWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
-        self._estimate = self.observer.reset(
-            measurement(self.observer, obs, info), self.initial_estimate
+        self._estimate = checked_estimate(
+            self.observer,
+            self.observer.reset(measurement(self.observer, obs, info), self.initial_estimate),
+            "reset",
         )
         self._needs_reset = False
         return self._observation(obs), self._annotate(info)
@@ -157,7 +196,8 @@ class ObserverWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise RuntimeError("call reset() before step() (and after an episode has ended)")
         obs, reward, terminated, truncated, info = self.env.step(action)
         if info.get("termination_reason") != NON_FINITE_STATE:
-            estimate = self.observer.update(
+            estimate, error = guarded_update(
+                self.observer,
                 measurement(self.observer, obs, info),
                 info["torque"],
                 self.env.unwrapped.control_dt,
@@ -166,6 +206,8 @@ class ObserverWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 self._estimate = estimate
             else:
                 info["termination_reason"] = NON_FINITE_ESTIMATE
+                if error is not None:
+                    info["observer_error"] = error
                 terminated = True
         self._needs_reset = terminated or truncated
         return self._observation(obs), reward, terminated, truncated, self._annotate(info)

@@ -39,7 +39,7 @@ import numpy as np
 
 from elastic_gym.controllers.gain_design import bandwidth_pd_gains, nominal_configuration
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import config_from, per_joint_values
+from elastic_gym.validation import config_from, is_real, per_joint_values
 
 KINDS = ("torque", "motor-offset", "residual")
 
@@ -78,7 +78,7 @@ class ActionConfig:
         for name in ("offset_scale", "bandwidth", "damping_ratio", "residual_scale"):
             value = getattr(self, name)
             if (
-                not isinstance(value, (int, float))
+                not is_real(value)
                 or isinstance(value, bool)
                 or not math.isfinite(value)
                 or value <= 0
@@ -89,11 +89,7 @@ class ActionConfig:
                 f"action 'residual_scale' must be in (0, 1], got {self.residual_scale!r}"
             )
         deadzone = self.residual_deadzone
-        if (
-            not isinstance(deadzone, (int, float))
-            or isinstance(deadzone, bool)
-            or not 0 <= deadzone < 1
-        ):
+        if not is_real(deadzone) or isinstance(deadzone, bool) or not 0 <= deadzone < 1:
             raise ValueError(
                 f"action 'residual_deadzone' must be a number in [0, 1), got {deadzone!r}"
             )

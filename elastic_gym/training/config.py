@@ -30,12 +30,14 @@ from dataclasses import asdict, dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import check_state_source
-from elastic_gym.validation import registered_env_id
+from elastic_gym.validation import is_real, registered_env_id
+from elastic_gym.yaml_io import load_yaml
 
 ALGORITHMS = ("ppo", "sac", "td3", "recurrentppo")
 RECURRENT = {"recurrentppo"}  # sb3-contrib's RecurrentPPO: an LSTM in actor and critic
@@ -75,10 +77,7 @@ def default_policy(algo: str) -> str:
 
 def load_hyperparams_file(path: str | Path) -> dict:
     """Parse a hyper-parameter YAML file; errors name the file and the problem."""
-    try:
-        data = yaml.safe_load(Path(path).read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f"invalid YAML in {path}: {exc}") from None
+    data = load_yaml(Path(path))
     if not isinstance(data, dict):
         raise ValueError(f"{path}: top level must map env ids (or 'default') to settings")
     for key, entry in data.items():
@@ -185,7 +184,7 @@ def _check_critic_state(algo: str, merged: dict) -> None:
 
 
 def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+    return is_real(value) and not isinstance(value, bool)
 
 
 def batch_kwargs(batches) -> list[dict]:
@@ -286,9 +285,9 @@ class TrainConfig:
         algorithm_class(self.algo)
         check_state_source(self.state)
         for key in ("seed", "eval_freq", "eval_episodes", "frame_stack"):
-            value = getattr(self, key)
-            if not isinstance(value, int) or value < (0 if key == "seed" else 1):
-                raise ValueError(f"{key} must be a non-negative integer, got {value!r}")
+            value, least = getattr(self, key), 0 if key == "seed" else 1
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
+                raise ValueError(f"{key} must be an integer >= {least}, got {value!r}")
         for key in ("action", "observation"):
             if not isinstance(getattr(self, key), dict):
                 raise ValueError(
@@ -296,7 +295,9 @@ class TrainConfig:
                 )
         self.policy_configs({})
         if self.total_steps is not None and (
-            not isinstance(self.total_steps, int) or self.total_steps < 1
+            isinstance(self.total_steps, bool)
+            or not isinstance(self.total_steps, (int, np.integer))
+            or self.total_steps < 1
         ):
             raise ValueError(f"total_steps must be a positive integer, got {self.total_steps!r}")
 

@@ -53,7 +53,8 @@ COLUMNS = (
 
 class LearningCurve(BaseCallback):
     """Evaluations during training -> ``learning_curve.csv``, ``evaluations.npz`` and
-    ``best_model.zip`` in ``out_dir`` (module docstring).
+    ``best_model.zip`` in ``out_dir`` (module docstring). Refuses (``ValueError``) an
+    evaluation batch whose episodes never end (``episode_time=None``, no step limit).
 
     Args:
         envs: the evaluation batch (policy vector env, autoreset ``NEXT_STEP``).
@@ -70,6 +71,12 @@ class LearningCurve(BaseCallback):
         super().__init__()
         if every < 1:
             raise ValueError(f"evaluation interval must be >= 1 policy step, got {every}")
+        if envs.unwrapped.batch.episode_time is None:
+            raise ValueError(
+                "env_kwargs.episode_time: None (episodes that never end) leaves the "
+                "learning curve's evaluation episodes unbounded; give a finite "
+                "episode_time or max_episode_steps"
+            )
         self.envs, self.normalizer = envs, normalizer
         self.out = Path(out_dir)
         self.every, self.seed, self.decimation = every, seed, decimation

@@ -38,7 +38,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from elastic_gym.validation import config_from
+from elastic_gym.validation import config_from, is_real
 
 FEATURES = (
     "error",
@@ -126,12 +126,7 @@ class ObservationConfig:
 
 
 def _positive(value) -> bool:
-    return (
-        isinstance(value, (int, float))
-        and not isinstance(value, bool)
-        and math.isfinite(value)
-        and value > 0
-    )
+    return is_real(value) and not isinstance(value, bool) and math.isfinite(value) and value > 0
 
 
 def default_features(

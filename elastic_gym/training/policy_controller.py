@@ -21,7 +21,33 @@ from elastic_gym.model import RobotModel
 from elastic_gym.training.actions import ActionMap
 from elastic_gym.training.observation import ObservationBuilder, ObservationInputs
 from elastic_gym.training.policy_env import SENSORS
-from elastic_gym.training.train import load_run
+from elastic_gym.training.train import TrainedRun, load_run
+
+
+def check_spaces(trained: TrainedRun, features: int, n_joints: int, run: str | Path) -> None:
+    """Refuse a run folder whose ``model.zip`` (or ``vecnormalize.pkl``) does not take the
+    observations its ``config.yaml`` rebuilds (``features`` entries, plus the critic's
+    privileged ones) or does not give ``n_joints`` actions: e.g. a ``config.yaml`` edited
+    or copied from another run."""
+    model = trained.model
+    expected = features + getattr(model.policy, "privileged_size", 0)
+    shapes = {"model.zip": tuple(model.observation_space.shape)}
+    statistics = getattr(getattr(trained.normalizer, "obs_rms", None), "mean", None)
+    if statistics is not None:
+        shapes["vecnormalize.pkl"] = tuple(np.shape(statistics))
+    for name, shape in shapes.items():
+        if shape != (expected,):
+            raise ValueError(
+                f"{run}: {name} takes observations of shape {shape}, but config.yaml "
+                f"({trained.config.env_id}, state {trained.config.state!r}) gives {expected} "
+                "entries: the folder's config.yaml does not match its model"
+            )
+    actions = tuple(model.action_space.shape)
+    if actions != (n_joints,):
+        raise ValueError(
+            f"{run}: model.zip gives actions of shape {actions}, the comparison's robot has "
+            f"{n_joints} joints: the folder's config.yaml does not match its model"
+        )
 
 
 class TrainedPolicyController(Controller):
@@ -57,6 +83,7 @@ class TrainedPolicyController(Controller):
                 f"the policy in {run} sees a preview of the reference, which a "
                 "comparison controller cannot read"
             )
+        check_spaces(trained, self.builder.size, self.n, run)
         self.base = None
         if action.kind == "residual":
             self.base = make_controller(action.residual, model, dt, **action.residual_options)

@@ -40,6 +40,7 @@ import numpy as np
 import yaml
 from gymnasium.vector import AutoresetMode
 
+from elastic_gym.folder_lock import check_writable, folder_lock
 from elastic_gym.training.config import (
     OWN_KEYS,
     TrainConfig,
@@ -51,6 +52,7 @@ from elastic_gym.training.config import (
 )
 from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
 from elastic_gym.training.policy_env import SENSORS, make_policy_env
+from elastic_gym.yaml_io import load_yaml
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.yaml")  # needed to load a run
 RUN_OUTPUTS = (*RUN_FILES, "best_model.zip", "summary.json", "evaluations.npz", CURVE_FILE, "tb")
@@ -207,10 +209,10 @@ def earlier_run(folder: Path) -> list[str]:
 
 def check_run_folder(folder: str | Path, overwrite: bool = False) -> None:
     """Raise if ``folder`` cannot receive a run (changes nothing): ``NotADirectoryError``
-    if it is a file, ``FileExistsError`` if it holds an earlier run and not ``overwrite``."""
+    if it is a file, ``PermissionError`` if it cannot be written (a read-only file
+    system), ``FileExistsError`` if it holds an earlier run and not ``overwrite``."""
     folder = Path(folder)
-    if folder.exists() and not folder.is_dir():
-        raise NotADirectoryError(f"run folder {str(folder)!r} is a file")
+    check_writable(folder)
     earlier = earlier_run(folder) if folder.is_dir() else []
     if earlier and not overwrite:
         shown = ", ".join(earlier[:4]) + (", ..." if len(earlier) > 4 else "")
@@ -241,14 +243,28 @@ def clear_run(folder: str | Path, keep_folder: bool = False) -> None:
 
 
 def train(
-    config: TrainConfig, progress_bar: bool = True, verbose: int = 0, overwrite: bool = False
+    config: TrainConfig,
+    progress_bar: bool = True,
+    verbose: int = 0,
+    overwrite: bool = False,
+    lock: bool = True,
 ) -> TrainResult:
     """Train one policy; write the run folder; return what happened.
 
-    Raises before training if the folder holds an earlier run (unless ``overwrite``)
-    or the config is invalid; removes what it wrote if training fails or is
-    interrupted (then :class:`~elastic_gym.parallel.Interrupted` says so).
+    Raises before training if the folder holds an earlier run (unless ``overwrite``),
+    is written by another process (:class:`~elastic_gym.folder_lock.FolderLockedError`;
+    ``lock=False``: the caller holds the folder's lock) or the config is invalid;
+    removes what it wrote if training fails or is interrupted (then
+    :class:`~elastic_gym.parallel.Interrupted` says so).
     """
+    check_writable(config.out_dir)
+    with folder_lock(config.out_dir) if lock else contextlib.nullcontext():
+        return _train_locked(config, progress_bar, verbose, overwrite)
+
+
+def _train_locked(
+    config: TrainConfig, progress_bar: bool, verbose: int, overwrite: bool
+) -> TrainResult:
     from elastic_gym.parallel import Interrupted, single_threaded
 
     out = Path(config.out_dir)
@@ -402,11 +418,11 @@ def read_run_config(run_dir: str | Path) -> TrainConfig:
         raise ValueError(f"{folder} is not a training run folder: missing {missing}")
     path = folder / "config.yaml"
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml(path)
         if not isinstance(data, dict):
             raise ValueError(f"must hold a mapping, got {type(data).__name__}")
         return TrainConfig.from_dict(_before_the_deadzone(data))
-    except (yaml.YAMLError, TypeError, ValueError, UnicodeDecodeError) as exc:
+    except (TypeError, ValueError) as exc:
         raise ValueError(
             f"{path} is not a valid run configuration: {' '.join(str(exc).split())}"
         ) from None
@@ -504,6 +520,18 @@ def train_many(
     process is interrupted (SIGINT/SIGTERM), the other runs are stopped, the finished
     runs are kept, the unfinished ones removed, and the exception says which is which.
     """
+    folders = dict.fromkeys(Path(c.out_dir) for c in configs)  # repeats: check_configs
+    for folder in folders:
+        check_writable(folder)
+    with contextlib.ExitStack() as locks:
+        for folder in folders:
+            locks.enter_context(folder_lock(folder))
+        return _train_many_locked(configs, workers, backend, progress, overwrite)
+
+
+def _train_many_locked(
+    configs: list[TrainConfig], workers: int | None, backend: str, progress: bool, overwrite: bool
+) -> list[TrainResult]:
     from elastic_gym.parallel import for_each_result, with_detail
 
     check_configs(configs, overwrite)
@@ -516,7 +544,7 @@ def train_many(
     results: dict[int, TrainResult] = {}
     try:
         for_each_result(
-            functools.partial(train, progress_bar=False, overwrite=overwrite),
+            functools.partial(train, progress_bar=False, overwrite=overwrite, lock=False),
             configs,
             results.__setitem__,
             workers=workers,
