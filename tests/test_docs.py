@@ -58,7 +58,7 @@ def test_mkdocs_build_is_strict_and_clean(tmp_path):
     )
 
 
-@pytest.mark.parametrize("page", ["README.md", "docs/getting-started.md"])
+@pytest.mark.parametrize("page", ["README.md", "docs/getting-started.md", "docs/batched.md"])
 def test_python_blocks_run(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the comparison writes compare_out/ here
     blocks = code_blocks(ROOT / page, "python")
@@ -128,6 +128,14 @@ def test_custom_controller_and_observer_example(tmp_path):
     labels = {(row["controller"], row["source"]) for row in result.runs.to_dict("records")}
     assert ("torsion-damping", "static") in labels
     assert all(row["status"] == "ok" for row in result.runs.to_dict("records"))
+
+
+def test_batched_page_lists_every_randomizable_path():
+    from elastic_gym.envs.randomization import PATHS
+
+    section = (DOCS / "batched.md").read_text().split("Paths that can be randomized:")[1]
+    listed = re.findall(r"`([\w.]+)`", section.split("\n\n")[0])
+    assert listed == list(PATHS)
 
 
 def test_version_changelog_and_citation_agree():

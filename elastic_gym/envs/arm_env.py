@@ -50,8 +50,9 @@ class ArmEnv(gym.Env):
         render_mode: ``"rgb_array"`` or ``"human"``.
         **kwargs: the options of :class:`~elastic_gym.envs.batch.ArmBatch` (task,
             task_options, physics_dt, control_dt, encoder, accelerometer, accelerometers,
-            plant_scaling, torque_limit, reward_weights, max_velocity, sensor_delay,
-            termination_penalty, episode_time).
+            plant_scaling, unmodelled_friction, torque_limit, reward, max_velocity,
+            sensor_delay, actuator_delay, payload, torque_pulses, randomize, per_arm,
+            episode_time).
 
     Attributes: ``model`` (the nominal :class:`~elastic_gym.model.RobotModel` for
     observers and controllers), ``plant_model`` (the simulated plant's), ``robot``,

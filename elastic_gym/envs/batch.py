@@ -9,10 +9,12 @@ leading arm axis: the simulator (:mod:`elastic_gym.envs.simulator`), the sensors
 vector env; there is no second copy of the physics.
 
 Exactness: arm i draws every random number (task sampling, encoder noise, accelerometer
-bias and noise) from its own generator ``rngs[i]``, and every computation on it depends
-only on its own rows, with the same operations in the same order whatever N. So arm i of
-a batch whose generator is seeded with s + i is bit for bit the single env reset with
-seed s + i under the same actions (``tests/test_batch.py``).
+bias and noise) from its own generator ``rngs[i]`` (its plant draws from its own plant
+stream, :mod:`elastic_gym.envs.randomization`), and every computation on it depends only
+on its own rows and its own plant, with the same operations in the same order whatever N.
+So arm i of a batch whose generator is seeded with s + i is bit for bit the single env
+reset with seed s + i under the same actions, and with ``per_arm`` the single env made
+with arm i's merged kwargs (``tests/test_batch.py``, ``tests/test_plants.py``).
 
 Observation of one arm (a ``spaces.Dict``, float64), only what a real arm measures:
 
@@ -25,7 +27,8 @@ Info of one arm (the same keys at every step, terminal steps included): ``time``
 ``true_state`` (``q``, ``dq``, ``theta``, ``dtheta``, ``ddq``, ``x``), ``torque`` (the
 applied, clipped motor torque), ``torque_saturated``, ``acceleration_saturated`` (an
 observed accelerometer reading is at the sensor's ``range``: clipped), ``reference``
-(``q`` .. ``d4q``), ``termination_reason`` (None while the episode runs).
+(``q`` .. ``d4q``), ``termination_reason`` (None while the episode runs), ``plant`` (the
+simulated plant's own parameters, see :class:`ArmBatch`).
 
 Reward: :mod:`elastic_gym.envs.reward` (bounded multi-scale tracking kernels, torque and
 torque-rate penalties; every step pays >= 0). An episode whose physics breaks (non-finite
@@ -41,14 +44,19 @@ from __future__ import annotations
 import contextlib
 import functools
 import inspect
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from typing import ClassVar
 
 import numpy as np
 from gymnasium import spaces
 from numba import njit
 
+from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, arm_kwargs
+from elastic_gym.envs.config import EPISODE_TIME, PER_ARM_KEYS, EnvConfig, Range
 from elastic_gym.envs.memory import check_batch_memory
+from elastic_gym.envs.plant import PlantArray
+from elastic_gym.envs.plant_state import PlantState
+from elastic_gym.envs.randomization import check_ranges, with_values
 from elastic_gym.envs.reward import RewardConfig, batch_reward
 from elastic_gym.envs.sensors import (
     AccelerometerArray,
@@ -60,14 +68,11 @@ from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.envs.tasks import make_task
 from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
-from elastic_gym.robots.spec import AccelerometerMount, LinkFriction, RobotSpec
+from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
 from elastic_gym.robots.urdf_tools import joint_limits
-from elastic_gym.validation import is_real, per_joint_values
+from elastic_gym.validation import per_joint_values, validated
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
-EPISODE_TIME = 3.0  # s
-MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
-MAX_SENSOR_DELAY = 1.0  # s
 MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
 REFERENCE_KEYS = ("q", "dq", "ddq", "d3q", "d4q")
 STATE_KEYS = ("q", "dq", "theta", "dtheta")
@@ -131,14 +136,6 @@ def with_batch_options(init):
     return checked
 
 
-def _positive_number(value, name: str, allow_none: bool = False) -> float | None:
-    if value is None and allow_none:
-        return None
-    if isinstance(value, bool) or not is_real(value) or not (np.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    return float(value)
-
-
 class ArmBatch:
     """N arms of a robot of the catalog: simulation, sensors, task, reward, termination.
 
@@ -166,8 +163,27 @@ class ArmBatch:
         max_velocity: |q'| or |theta'| above this ends the episode (rad/s).
         sensor_delay: measurement delay in control periods (encoders and accelerometers;
             the reference is not delayed).
+        actuator_delay: the motor torque is applied this many control periods late.
+        payload: a point mass at the end effector, ``{"mass", "position", "change":
+            {"time", "mass"}}`` (see :mod:`elastic_gym.envs.config`).
+        torque_pulses: link-side torque pulses, given or random (see
+            :mod:`elastic_gym.envs.config` and :mod:`elastic_gym.envs.disturbances`).
+        randomize: parameter path -> range drawn by each arm at every reset (see
+            :mod:`elastic_gym.envs.randomization`).
+        per_arm: None or N mappings of the per-arm kwargs (``plant_scaling``,
+            ``unmodelled_friction``, ``encoder``, ``accelerometer``, ``sensor_delay``,
+            ``actuator_delay``, ``payload``, ``torque_pulses``, ``randomize``): arm i's
+            kwargs are the shared ones deep-merged with mapping i, and arm i is bit for bit
+            the single env made with them.
         episode_time: simulated seconds after which an episode is truncated (None: never).
         gui: show the PyBullet GUI (render_mode="human").
+
+    ``info["plant"]`` is a flat mapping path -> value of the simulated plant's own
+    parameters: ``actuator_delay``, ``payload.mass`` (0 without a payload, the current
+    mass after a change), ``torque_pulse`` (the link torque of the last control period),
+    the pulse schedule ``torque_pulses.times`` / ``.durations`` / ``.amplitudes`` when an
+    arm has pulses (padded with NaN to the batch's largest pulse count) and every
+    randomized path's drawn value (NaN for an arm that does not randomize it).
     """
 
     KWARGS: ClassVar[tuple[str, ...]] = (
@@ -184,6 +200,11 @@ class ArmBatch:
         "reward",
         "max_velocity",
         "sensor_delay",
+        "actuator_delay",
+        "payload",
+        "torque_pulses",
+        "randomize",
+        "per_arm",
         "episode_time",
     )
 
@@ -204,38 +225,95 @@ class ArmBatch:
         reward: dict | RewardConfig | None = None,
         max_velocity: float = 100.0,
         sensor_delay: int = 0,
+        actuator_delay: int = 0,
+        payload: dict | None = None,
+        torque_pulses: dict | None = None,
+        randomize: dict | None = None,
+        per_arm: list | None = None,
         episode_time: float | None = EPISODE_TIME,
         gui: bool = False,
     ) -> None:
-        self.init_kwargs = {k: v for k, v in locals().items() if k not in ("self", "__class__")}
+        kwargs = {k: v for k, v in locals().items() if k not in ("self", "__class__")}
+        self.init_kwargs = kwargs
         if isinstance(n_arms, bool) or not isinstance(n_arms, (int, np.integer)) or n_arms < 1:
             raise ValueError(f"the number of arms must be an integer >= 1, got {n_arms!r}")
+        config = validated(EnvConfig, {k: kwargs[k] for k in self.KWARGS})
         spec = robot if isinstance(robot, RobotSpec) else get_robot(robot)
         check_batch_memory(spec.urdf, int(n_arms), spec.name)  # PyBullet would segfault
-        self.robot = spec
-        self.n_arms = N = int(n_arms)
-        self.n_joints = n = spec.n_joints
-        self.physics_dt, self.control_dt, self.n_substeps = self._timing(physics_dt, control_dt)
+        self.robot, self.n_arms, self.n_joints = spec, int(n_arms), spec.n_joints
+        self.physics_dt, self.control_dt, self.n_substeps = self._timing(config)
         mounts = (
             spec.accelerometers
             if accelerometers is None
             else tuple(AccelerometerMount.from_config(m) for m in accelerometers)
         )
-        self._check_scaling(plant_scaling)
         self.torque_limit = self._torque_limit(torque_limit)
         self.model = RobotModel(spec, accelerometers=mounts)
-        self.plant_model = RobotModel(
-            spec, plant_scaling, mounts, self._unmodelled_friction(unmodelled_friction)
+        models = self._configure_arms(mounts, {k: kwargs[k] for k in PER_ARM_KEYS}, per_arm)
+        self.max_velocity, self.episode_time = config.max_velocity, config.episode_time
+        self.max_steps = (
+            None
+            if self.episode_time is None
+            else max(1, round(self.episode_time / self.control_dt))
         )
-        self._check_stability()
-        self.max_velocity = _positive_number(max_velocity, "max_velocity")
-        self.sensor_delay = self._sensor_delay(sensor_delay)
-        episode = _positive_number(episode_time, "episode_time", allow_none=True)
-        self.episode_time = episode
-        self.max_steps = None if episode is None else max(1, round(episode / self.control_dt))
         self.joint_lower, self.joint_upper = joint_limits(spec.urdf, spec.joint_names)
         self.reward_config = RewardConfig.from_config(reward)
-        self.task = make_task(task, spec, self.model, task_options, n_arms=N)
+        self.task = make_task(task, spec, self.model, task_options, n_arms=self.n_arms)
+        self._check_task_points()
+        self._make_sensors()
+        self.sim = ArmSimulator(
+            spec,
+            PlantArray(models),
+            self.physics_dt,
+            self.n_arms,
+            gui=gui,
+            payload_positions=[self.resolver.payload_position(s) for s in self.settings],
+        )
+        self._make_state()
+
+    # ------------------------------------------------------------------ setup
+    def _configure_arms(self, mounts, shared: dict, per_arm) -> list[RobotModel]:
+        """Each arm's settings (``per_arm`` merged in), randomization ranges and plant
+        model; every plant a range can reach is checked for stability."""
+        N = self.n_arms
+        self.resolver = resolver = ArmResolver(
+            self.robot, mounts, self.torque_limit, self.control_dt
+        )
+        shared_settings = resolver.settings(shared)
+        merged = arm_kwargs(shared, per_arm, N)
+        self.arm_kwargs = [shared] * N if merged is None else merged
+        self.settings, self.ranges, models, checked = [], [], [], {}
+        for i, arm in enumerate(self.arm_kwargs):
+            where = "" if merged is None else f"per_arm[{i}]."
+            try:
+                settings = shared_settings if merged is None else resolver.settings(arm)
+            except ValueError as error:
+                raise ValueError(f"per_arm[{i}]: {error}") from None
+            ranges = {
+                path: validated(Range, spec, f"{where}randomize[{path!r}]")
+                for path, spec in (arm.get("randomize") or {}).items()
+            }
+            corners = check_ranges(ranges, arm, resolver, where)
+            if "payload.mass" in ranges and settings.payload is None:  # a payload link is needed
+                low = {"payload.mass": ranges["payload.mass"].low}
+                settings = resolver.settings(with_values(arm, low))
+            self.settings.append(settings)
+            self.ranges.append(ranges)
+            models.append(resolver.plant_model(settings))
+            for option in (settings, *corners):
+                masses = [None] if option.payload is None else [None, *self._later_masses(option)]
+                for mass in masses:
+                    key = (option.scaling, repr(option.payload), mass)
+                    if key not in checked:
+                        checked[key] = self._check_stability(resolver.plant_model(option, mass))
+        return models
+
+    @staticmethod
+    def _later_masses(settings: ArmSettings) -> list[float]:
+        change = settings.payload.change
+        return [] if change is None else [change.mass]
+
+    def _check_task_points(self) -> None:
         for name, points in self.task.configured_points().items():
             if np.any(points < self.joint_lower) or np.any(points > self.joint_upper):
                 raise ValueError(
@@ -243,33 +321,25 @@ class ArmBatch:
                     f"joint limits [{self.joint_lower}, {self.joint_upper}]"
                 )
 
-        encoder_cfg = EncoderConfig.from_config(encoder)
+    def _make_sensors(self) -> None:
+        N, n = self.n_arms, self.n_joints
+        settings = self.settings
         self.encoder = Encoder(
-            spec.encoder_resolution if encoder_cfg.resolution is None else encoder_cfg.resolution,
-            spec.encoder_noise_std if encoder_cfg.noise_std is None else encoder_cfg.noise_std,
-            n,
-            N,
-        )
-        if isinstance(accelerometer, str) and accelerometer != "ideal":
-            raise ValueError(
-                f"accelerometer must be 'ideal', a mapping of AccelerometerConfig fields or None, "
-                f"got the string {accelerometer!r}"
-            )
-        accel_cfg = (
-            AccelerometerConfig.ideal()
-            if accelerometer == "ideal"
-            else AccelerometerConfig.from_config(accelerometer)
+            [s.encoder[0] for s in settings], [s.encoder[1] for s in settings], n, N
         )
         self.accelerometer_array = AccelerometerArray(
-            accel_cfg, self.model.n_sensors, self.control_dt, N
+            [s.accelerometer for s in settings], self.model.n_sensors, self.control_dt, N
         )
         self.single_observation_space = self._observation_space()
         self.single_action_space = spaces.Box(
             -self.torque_limit, self.torque_limit, dtype=np.float64
         )
 
-        self.sim = ArmSimulator(spec, self.plant_model, self.physics_dt, N, gui=gui)
+    def _make_state(self) -> None:
+        N, n = self.n_arms, self.n_joints
         self.rngs = [np.random.default_rng() for _ in range(N)]
+        self.plant_rngs: list[np.random.Generator | None] = [None] * N
+        self._plant_sources: list[np.random.Generator | None] = [None] * N
         self.steps = np.zeros(N, dtype=np.int64)
         self.running = np.zeros(N, dtype=bool)  # an episode is under way (reset, not ended)
         self.torque = np.zeros((N, n))
@@ -288,23 +358,24 @@ class ArmBatch:
         self.obs = {
             key: np.zeros((N, *space.shape)) for key, space in self.single_observation_space.items()
         }
+        self.sensor_delay = np.array([s.sensor_delay for s in self.settings])
+        self.actuator_delay = np.array([s.actuator_delay for s in self.settings])
+        highs = [s.sensor_delay for s in self.settings] + [
+            int(r["sensor_delay"].high) for r in self.ranges if "sensor_delay" in r
+        ]
+        self._sensor_line = 1 + max(highs)
         self._measured = {
-            key: np.zeros((self.sensor_delay + 1, *value.shape))
+            key: np.zeros((self._sensor_line, *value.shape))
             for key, value in self.obs.items()
             if key != "reference"
         }
         self._slot = 0  # slot of the newest reading in the delay line
+        self.plant_state = PlantState(self)
 
-    # ------------------------------------------------------------------ setup
-    def _timing(self, physics_dt, control_dt) -> tuple[float, float, int]:
-        physics = self.robot.physics_dt if physics_dt is None else physics_dt
-        control = self.robot.control_dt if control_dt is None else control_dt
-        for key, value in (("physics_dt", physics), ("control_dt", control)):
-            _positive_number(value, key)
-        if physics > 1e-3 + 1e-15:
-            raise ValueError(f"physics_dt must be <= 1 ms, got {physics}")
-        if control > MAX_CONTROL_DT:
-            raise ValueError(f"control_dt must be <= {MAX_CONTROL_DT} s, got {control}")
+    def _timing(self, config: EnvConfig) -> tuple[float, float, int]:
+        """(physics step, control period, physics steps per control period)."""
+        physics = self.robot.physics_dt if config.physics_dt is None else config.physics_dt
+        control = self.robot.control_dt if config.control_dt is None else config.control_dt
         ratio = control / physics
         if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
             raise ValueError(
@@ -312,70 +383,16 @@ class ArmBatch:
             )
         return float(physics), float(control), round(ratio)
 
-    def _sensor_delay(self, delay) -> int:
-        if isinstance(delay, bool) or not isinstance(delay, (int, np.integer)) or delay < 0:
-            raise ValueError(
-                f"sensor_delay must be an integer >= 0 (control periods), got {delay!r}"
-            )
-        if delay * self.control_dt > MAX_SENSOR_DELAY:
-            raise ValueError(
-                f"sensor_delay of {delay} control periods is more than {MAX_SENSOR_DELAY} s"
-            )
-        return int(delay)
-
-    def _check_scaling(self, plant_scaling) -> None:
-        """Refuse scaling a part the robot does not have (it would silently do nothing)."""
-        scaling = ParameterScaling.from_config(plant_scaling)
-        spec = self.robot
-        absent = {
-            "stiffness": not spec.elastic,
-            "motor_inertia": not spec.elastic,
-            "damping": not spec.elastic,
-            "friction": spec.friction is None,
-        }
-        for key, missing in absent.items():
-            if missing and np.any(np.asarray(getattr(scaling, key)) != 1.0):
-                raise ValueError(
-                    f"plant_scaling {key!r}: robot {spec.name!r} has no "
-                    f"{'elastic joints' if key != 'friction' else 'link friction'} to scale"
-                )
-
-    def _check_stability(self) -> None:
+    def _check_stability(self, plant: RobotModel) -> None:
         if not self.robot.elastic:
             return
         q = 0.5 * (np.asarray(self.robot.workspace_low) + np.asarray(self.robot.workspace_high))
-        omega = self.plant_model.natural_frequencies(q)[0].max()
+        omega = plant.natural_frequencies(q)[0].max()
         if self.physics_dt * omega > STABILITY_LIMIT:
             raise ValueError(
                 f"physics_dt={self.physics_dt} too coarse for the stiffest joint mode "
                 f"({omega:.0f} rad/s): need physics_dt * omega <= {STABILITY_LIMIT}"
             )
-
-    def _unmodelled_friction(self, config) -> LinkFriction | None:
-        """The ``unmodelled_friction`` kwarg as a :class:`LinkFriction` in N m."""
-        if config is None:
-            return None
-        if not isinstance(config, Mapping) or set(config) - {"coulomb", "viscous"}:
-            raise ValueError(
-                "unmodelled_friction must be a mapping with 'coulomb' and/or "
-                f"'viscous' (fractions of the torque limit), got {config!r}"
-            )
-        n, limit = self.n_joints, self.torque_limit
-        coulomb = per_joint_values(
-            config.get("coulomb", 0.0), n, "unmodelled_friction.coulomb", 0.0
-        )
-        viscous = per_joint_values(
-            config.get("viscous", 0.0), n, "unmodelled_friction.viscous", 0.0
-        )
-        if np.any(coulomb >= 1.0) or np.any(viscous > 1.0):
-            raise ValueError(
-                "unmodelled_friction: coulomb must stay below 1 (the motor could "
-                "not move the joint) and viscous at most 1 s/rad, got "
-                f"{config!r}"
-            )
-        return LinkFriction(
-            viscous=tuple((limit * viscous).tolist()), coulomb_pos=tuple((limit * coulomb).tolist())
-        )
 
     def _torque_limit(self, torque_limit) -> np.ndarray:
         if torque_limit is None:
@@ -398,6 +415,11 @@ class ArmBatch:
         """Truncate episodes after ``steps`` control periods (instead of ``episode_time``)."""
         self.max_steps = int(steps)
         self.episode_time = self.max_steps * self.control_dt
+
+    @property
+    def plant_model(self) -> RobotModel:
+        """The exact model of arm 0's simulated plant (of every arm's when they share one)."""
+        return self.sim.plants.models[0]
 
     @property
     def position_key(self) -> str:
@@ -437,18 +459,19 @@ class ArmBatch:
             raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: ['initial_state']")
         given = self._initial_state_options(options.get("initial_state"))
         q0 = self.task.reset(arms, self.rngs)
-        q, dq, theta, dtheta = self._initial_state(q0, given)
+        self.plant_state.reset(arms)
+        q, dq, theta, dtheta = self._initial_state(q0, given, arms)
         self.sim.reset_state(arms, q, dq, theta, dtheta)
         self.accelerometer_array.reset(arms, self.rngs)
-        if self.encoder.noise_std > 0.0:
-            self.encoder.noise.restart(arms)
+        self.encoder.restart(arms)
         self.steps[arms] = 0
         self._time = self.steps * self.control_dt
         self.running[arms] = True
         self.reasons[arms] = None
         self.saturated[arms] = False
-        self.torque[arms] = self._equilibrium_torque(q, theta)
+        self.torque[arms] = self._equilibrium_torque(q, theta, arms)
         self.previous_torque[arms] = self.torque[arms]
+        self.plant_state.reset_commands(arms, self.torque[arms])
         self.ddq[arms] = self.sim.link_acceleration(self.torque)[arms]
         self.reference[arms] = self.task.reference(self.time[arms], arms)
         self._observe(arms, first=True)
@@ -467,19 +490,21 @@ class ArmBatch:
         stepping = self._all if stepping is None else stepping
         sim = self.sim
         command = actions if every else np.where(stepping[:, None], actions, 0.0)
+        command = self.plant_state.delayed(command)
         external = self.task.external_torque(self._time, sim.q)
         if external is not None:
             command = command + (external if every else np.where(stepping[:, None], external, 0.0))
         tau = np.minimum(np.maximum(command, self._minus_limit), self.torque_limit)
         self.saturated = (tau != command).any(axis=1)
-        sim.step(tau, self.n_substeps)
+        pulse = self.plant_state.before_step(self._time)
+        sim.step(tau, self.n_substeps, pulse)
         self.steps += stepping
         self._time = self.steps * self.control_dt
         self.previous_torque, self.torque = self.torque, tau
-        self.ddq = sim.link_acceleration(tau)
+        self.ddq = sim.link_acceleration(tau, pulse)
         self.reference = self.task.reference(self._time)
         reasons = self._termination_reasons()
-        self._slot = (self._slot + 1) % (self.sensor_delay + 1)
+        self._slot = (self._slot + 1) % self._sensor_line
         self._observe(
             self._arms if every else np.flatnonzero(stepping), first=False, finite=reasons is None
         )
@@ -531,7 +556,7 @@ class ArmBatch:
             values[key] = arr
         return values
 
-    def _initial_state(self, q0: np.ndarray, given: dict[str, np.ndarray]):
+    def _initial_state(self, q0: np.ndarray, given: dict[str, np.ndarray], arms: np.ndarray):
         q = np.broadcast_to(given["q"], q0.shape).copy() if "q" in given else q0
         dq = np.broadcast_to(given.get("dq", np.zeros(self.n_joints)), q.shape).copy()
         if not self.robot.elastic:
@@ -539,15 +564,17 @@ class ArmBatch:
         if "theta" in given:
             theta = np.broadcast_to(given["theta"], q.shape).copy()
         else:  # static equilibrium theta = q + K^-1 g(q)
-            theta = q + self.plant_model.chain.gravity(q) / self.plant_model.K
+            plants = self.sim.plants
+            theta = q + plants.chain.select(arms).gravity(q) / plants.K[arms]
         dtheta = np.broadcast_to(given["dtheta"], q.shape).copy() if "dtheta" in given else dq
         return q, dq, theta, dtheta.copy()
 
-    def _equilibrium_torque(self, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    def _equilibrium_torque(self, q: np.ndarray, theta: np.ndarray, arms: np.ndarray) -> np.ndarray:
         """Motor torque that keeps a static state static (used for the reset reading)."""
+        plants = self.sim.plants
         if self.robot.elastic:
-            return self.plant_model.K * (theta - q)
-        return self.plant_model.chain.gravity(q)
+            return plants.K[arms] * (theta - q)
+        return plants.chain.select(arms).gravity(q)
 
     def _termination_reasons(self) -> np.ndarray | None:
         """Why each arm's physics broke (None entries where it did not), or None if no arm's."""
@@ -579,14 +606,15 @@ class ArmBatch:
         position = sim.theta if self.robot.elastic else sim.q
         readings = {self.position_key: self.encoder.measure(position[arms], rngs, arms)}
         if self.model.n_sensors:
-            force = self.plant_model.chain.specific_forces(
-                sim.q[arms], sim.dq[arms], self.ddq[arms]
-            )
+            chain = sim.plants.chain
+            chain = chain if len(arms) == self.n_arms else chain.select(arms)
+            force = chain.specific_forces(sim.q[arms], sim.dq[arms], self.ddq[arms])
             readings["acceleration"] = self.accelerometer_array.measure(force, rngs, arms)
-        delay = self.sensor_delay
-        oldest = (self._slot + 1) % (delay + 1)
+        length = self._sensor_line
+        if length > 1:
+            oldest = (self._slot - self.sensor_delay[arms]) % length
         for key, value in readings.items():
-            if delay:
+            if length > 1:
                 line = self._measured[key]
                 if first:
                     line[:, arms] = value
@@ -641,6 +669,7 @@ class ArmBatch:
             "acceleration_saturated": self._acceleration_saturated(arms),
             "reference": {key: reference[..., k, :].copy() for k, key in enumerate(REFERENCE_KEYS)},
             "termination_reason": self.reasons[arms] if one else self.reasons[arms].copy(),
+            "plant": self.plant_state.info(arms),
         }
 
     def _acceleration_saturated(self, arms):
@@ -649,7 +678,8 @@ class ArmBatch:
             at_range = np.zeros(np.shape(self._time[arms]), dtype=bool)
         else:
             readings = np.abs(self.obs["acceleration"][arms])
-            at_range = np.any(readings >= self.accelerometer_array.config.range, axis=-1)
+            limit = np.asarray(self.accelerometer_array.range[arms])[..., None]  # per arm
+            at_range = np.any(readings >= limit, axis=-1)
         return bool(at_range) if np.ndim(at_range) == 0 else at_range
 
     def reference_preview(self, offsets: np.ndarray) -> np.ndarray:
@@ -707,6 +737,8 @@ class ArmBatch:
                 )
             },
             "rngs": [rng.bit_generator.state for rng in self.rngs],
+            "plant_rngs": [None if r is None else r.bit_generator.state for r in self.plant_rngs],
+            "plants": (list(self.settings), self.plant_state.__getstate__()),
             "accelerometer": (
                 self.accelerometer_array.bias,
                 self.accelerometer_array.filtered,
@@ -717,6 +749,22 @@ class ArmBatch:
         }
         return {"init": self.init_kwargs, "episode": episode}
 
+    def _restore_plants(self, settings: list, plant_state: dict, plant_rngs: list) -> None:
+        """The drawn plants, payload masses and plant streams of a pickled batch."""
+        for arm, (arm_settings, original) in enumerate(zip(settings, self.settings, strict=True)):
+            if arm_settings != original:
+                self.plant_state.apply(arm, arm_settings)
+        for arm, mass in enumerate(plant_state["payload_mass"]):
+            if mass != self.plant_state.payload_mass[arm]:
+                self.sim.plants.set(arm, self.resolver.plant_model(settings[arm], mass))
+                self.sim.set_payload_mass(arm, mass)
+        vars(self.plant_state).update(plant_state)
+        for arm, rng_state in enumerate(plant_rngs):
+            if rng_state is not None:
+                self.plant_rngs[arm] = np.random.default_rng()
+                self.plant_rngs[arm].bit_generator.state = rng_state
+                self._plant_sources[arm] = self.rngs[arm]
+
     def __setstate__(self, state: dict) -> None:
         type(self).__init__(self, **state["init"])
         episode = state["episode"]
@@ -725,6 +773,7 @@ class ArmBatch:
             setattr(self, key, value)
         for rng, rng_state in zip(self.rngs, episode["rngs"], strict=True):
             rng.bit_generator.state = rng_state
+        self._restore_plants(*episode["plants"], episode["plant_rngs"])
         acc = self.accelerometer_array
         acc.bias, acc.filtered, acc.fresh = episode["accelerometer"]
         for noise, (block, following) in zip(self._noise_streams(), episode["noise"], strict=True):

@@ -6,56 +6,45 @@ Only these reach the observation. Noise is drawn from the environment's
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from typing import Annotated
 
 import numpy as np
+from pydantic import AfterValidator, ConfigDict, StrictFloat
 
-from elastic_gym.validation import config_from
+from elastic_gym.validation import StrictModel, validated
 
 GRAVITY = 9.81
 
 
-def _check_range(
-    owner: str,
-    key: str,
-    value,
-    low: float,
-    high: float,
-    zero: bool = True,
-    none: bool = True,
-    why: str = "",
-) -> None:
-    """``value`` in [low, high] (or 0 / None where allowed): limits beyond which a sensor
-    setting would overflow the observation or mean nothing physical (``why`` is said)."""
-    if value is None and none:
-        return
-    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
-        value, bool
-    )
-    if number and ((value == 0 and zero) or low <= value <= high):
-        return
-    allowed = f"{'0 or ' if zero else ''}a number in [{low:g}, {high:g}]"
-    raise ValueError(f"{owner}.{key} must be {allowed}{why}, got {value!r}")
+def _within(low: float, high: float, zero: bool = True, why: str = "") -> AfterValidator:
+    """A value in [low, high] (or 0 where allowed): limits beyond which a sensor setting
+    would overflow the observation or mean nothing physical (``why`` is said)."""
+
+    def check(value: float) -> float:
+        if (value == 0 and zero) or low <= value <= high:
+            return value
+        allowed = f"{'0 or ' if zero else ''}a number in [{low:g}, {high:g}]"
+        raise ValueError(f"must be {allowed}{why}, got {value!r}")
+
+    return AfterValidator(check)
 
 
-@dataclass(frozen=True)
-class EncoderConfig:
+class EncoderConfig(StrictModel):
     """Position encoder: quantization ``resolution`` (rad, 0 = ideal) and Gaussian noise.
 
     ``None`` fields take the robot's defaults (``RobotSpec.encoder_resolution`` and
     ``encoder_noise_std``).
     """
 
-    resolution: float | None = None
-    noise_std: float | None = None
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self) -> None:
-        _check_range("encoder", "resolution", self.resolution, 1e-12, 1.0)
-        _check_range("encoder", "noise_std", self.noise_std, 1e-12, 1.0)
+    resolution: Annotated[StrictFloat, _within(1e-12, 1.0)] | None = None
+    noise_std: Annotated[StrictFloat, _within(1e-12, 1.0)] | None = None
 
     @classmethod
     def from_config(cls, config) -> EncoderConfig:
-        return config_from(cls, config, "encoder")
+        return validated(cls, config, "encoder")
 
 
 class GaussianNoise:
@@ -88,31 +77,73 @@ class GaussianNoise:
         return sample
 
 
+def common(values: np.ndarray) -> float | None:
+    """The value every arm shares (the fast path of a measurement), or None."""
+    return float(values[0]) if len(values) and np.all(values == values[0]) else None
+
+
+def _quantized(y: np.ndarray, resolution: np.ndarray, shared: float | None, arms) -> np.ndarray:
+    """round(y / r) * r per row with arm k's resolution r_k (r = 0: unchanged)."""
+    if shared is not None:
+        return np.round(y / shared) * shared if shared > 0.0 else np.array(y, dtype=float)
+    r = resolution[arms, None]
+    safe = np.where(r > 0.0, r, 1.0)
+    return np.where(r > 0.0, np.round(y / safe) * safe, y)
+
+
+def _add_noise(
+    y: np.ndarray,
+    std: np.ndarray,
+    shared: float | None,
+    noise: GaussianNoise,
+    arms: np.ndarray,
+    rngs: list,
+) -> np.ndarray:
+    """y + std_k n_k for the rows whose arm has std_k > 0 (only they draw); ``std`` (N,)."""
+    if shared is not None:
+        return y + shared * noise.draw(arms, rngs) if shared > 0.0 else y
+    rows = np.flatnonzero(std[arms] > 0.0)
+    if not len(rows):
+        return y
+    which = arms[rows]
+    y = np.array(y, dtype=float)
+    y[rows] = y[rows] + std[which, None] * noise.draw(which, [rngs[r] for r in rows])
+    return y
+
+
 class Encoder:
     """Quantized, optionally noisy position measurement: round((x + n) / r) * r.
 
     Positions have a leading arm axis (N, n); arm i draws its noise from ``rngs[i]``.
+    ``resolution`` and ``noise_std`` are one value for every arm or one per arm (N,); an
+    arm without noise draws nothing.
     """
 
-    def __init__(self, resolution: float, noise_std: float, n_joints: int, n_arms: int = 1) -> None:
-        self.resolution = float(resolution)
-        self.noise_std = float(noise_std)
-        self.noise = GaussianNoise(n_arms if self.noise_std > 0.0 else 0, n_joints)
+    def __init__(self, resolution, noise_std, n_joints: int, n_arms: int = 1) -> None:
+        self.resolution = np.broadcast_to(np.asarray(resolution, dtype=float), (n_arms,)).copy()
+        self.noise_std = np.broadcast_to(np.asarray(noise_std, dtype=float), (n_arms,)).copy()
+        self.noise = GaussianNoise(n_arms, n_joints)
+        self._shared = common(self.resolution), common(self.noise_std)
+
+    def set(self, arm: int, resolution: float, noise_std: float) -> None:
+        """Arm ``arm``'s own resolution and noise (e.g. drawn at a reset)."""
+        self.resolution[arm], self.noise_std[arm] = resolution, noise_std
+        self._shared = common(self.resolution), common(self.noise_std)
+
+    def restart(self, arms: np.ndarray) -> None:
+        """Fresh noise blocks for the arms (at a reset: their generators may be new)."""
+        self.noise.restart(arms)
 
     def measure(
         self, position: np.ndarray, rngs: list[np.random.Generator], arms: np.ndarray
     ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``position``; ``rngs`` are theirs)."""
-        y = position
-        if self.noise_std > 0.0:
-            y = y + self.noise_std * self.noise.draw(arms, rngs)
-        if self.resolution > 0.0:
-            return np.round(y / self.resolution) * self.resolution
-        return np.array(y, dtype=float)
+        resolution, noise_std = self._shared
+        y = _add_noise(position, self.noise_std, noise_std, self.noise, arms, rngs)
+        return _quantized(y, self.resolution, resolution, arms)
 
 
-@dataclass(frozen=True)
-class AccelerometerConfig:
+class AccelerometerConfig(StrictModel):
     """Error model of every 3-axis accelerometer of the arm.
 
     Defaults are those of a good industrial MEMS part sampled at the control rate:
@@ -126,31 +157,25 @@ class AccelerometerConfig:
     * ``resolution`` None: optional output quantization (m/s^2).
     """
 
-    noise_density: float = 1.5e-3
-    bias_std: float = 0.02
-    range: float = 16.0 * GRAVITY
-    cutoff_hz: float | None = None
-    resolution: float | None = None
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self) -> None:
-        _check_range("accelerometer", "noise_density", self.noise_density, 1e-12, 10.0, none=False)
-        _check_range("accelerometer", "bias_std", self.bias_std, 1e-12, 100.0, none=False)
-        _check_range("accelerometer", "resolution", self.resolution, 1e-9, 100.0)
-        _check_range(
-            "accelerometer",
-            "range",
-            self.range,
+    noise_density: Annotated[StrictFloat, _within(1e-12, 10.0)] = 1.5e-3
+    bias_std: Annotated[StrictFloat, _within(1e-12, 100.0)] = 0.02
+    range: Annotated[
+        StrictFloat,
+        _within(
             GRAVITY,
             1e9,
             zero=False,
-            none=False,
             why=f" (at least g = {GRAVITY} m/s^2: a sensor at rest reads g)",
-        )
-        _check_range("accelerometer", "cutoff_hz", self.cutoff_hz, 1e-3, 1e6, zero=False)
+        ),
+    ] = 16.0 * GRAVITY
+    cutoff_hz: Annotated[StrictFloat, _within(1e-3, 1e6, zero=False)] | None = None
+    resolution: Annotated[StrictFloat, _within(1e-9, 100.0)] | None = None
 
     @classmethod
     def from_config(cls, config) -> AccelerometerConfig:
-        return config_from(cls, config, "accelerometer")
+        return validated(cls, config, "accelerometer")
 
     @classmethod
     def ideal(cls) -> AccelerometerConfig:
@@ -162,47 +187,68 @@ class AccelerometerArray:
     """Applies the error model of :class:`AccelerometerConfig` to true specific forces.
 
     Readings have a leading arm axis (N, 3 n_sensors); each arm has its own bias and
-    filter state and draws from its own generator.
+    filter state and draws from its own generator. ``config``: one error model for every
+    arm or a sequence of N (arm i's own); ``range`` of the whole array is the largest.
     """
 
     def __init__(
-        self, config: AccelerometerConfig, n_sensors: int, sample_time: float, n_arms: int = 1
+        self,
+        config: AccelerometerConfig | Sequence[AccelerometerConfig],
+        n_sensors: int,
+        sample_time: float,
+        n_arms: int = 1,
     ) -> None:
-        self.config = config
+        configs = [config] * n_arms if isinstance(config, AccelerometerConfig) else list(config)
+        self.configs = configs
+        self.config = max(configs, key=lambda c: c.range)
         self.size = 3 * n_sensors
-        self.sample_std = config.noise_density * np.sqrt(0.5 / sample_time)
-        self.alpha = (
-            float(np.exp(-2.0 * np.pi * config.cutoff_hz * sample_time))
+        self.sample_time = sample_time
+        self.sample_std, self.alpha = np.zeros(n_arms), np.zeros(n_arms)
+        self.bias_std, self.range = np.zeros(n_arms), np.zeros(n_arms)
+        self.resolution = np.zeros(n_arms)
+        for arm, arm_config in enumerate(configs):
+            self.set(arm, arm_config)
+        self.bias = np.zeros((n_arms, self.size))
+        self.noise = GaussianNoise(n_arms, self.size)
+        self.filtered = np.zeros((n_arms, self.size))
+        self.fresh = np.ones(n_arms, dtype=bool)  # the filter starts at the first reading
+
+    def set(self, arm: int, config: AccelerometerConfig) -> None:
+        """Arm ``arm``'s own error model (e.g. drawn at a reset)."""
+        dt = self.sample_time
+        self.configs[arm] = config
+        self.sample_std[arm] = config.noise_density * np.sqrt(0.5 / dt)
+        self.alpha[arm] = (
+            float(np.exp(-2.0 * np.pi * config.cutoff_hz * dt))
             if config.cutoff_hz is not None
             else 0.0
         )
-        self.bias = np.zeros((n_arms, self.size))
-        self.noise = GaussianNoise(n_arms if self.sample_std > 0.0 else 0, self.size)
-        self.filtered = np.zeros((n_arms, self.size))
-        self.fresh = np.ones(n_arms, dtype=bool)  # the filter starts at the first reading
+        self.bias_std[arm], self.range[arm] = config.bias_std, config.range
+        self.resolution[arm] = config.resolution or 0.0
+        self._shared = [
+            common(x) for x in (self.sample_std, self.alpha, self.range, self.resolution)
+        ]
 
     def reset(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> None:
         """New bias for the given arms (drawn from their generators), filters restarted."""
         for i in arms:
-            self.bias[i] = self.config.bias_std * rngs[i].standard_normal(self.size)
+            self.bias[i] = self.bias_std[i] * rngs[i].standard_normal(self.size)
         self.fresh[arms] = True
-        if self.sample_std > 0.0:
-            self.noise.restart(arms)
+        self.noise.restart(arms)
 
     def measure(
         self, specific_force: np.ndarray, rngs: list[np.random.Generator], arms: np.ndarray
     ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``specific_force``; ``rngs`` are theirs)."""
         y = specific_force + self.bias[arms]
-        if self.sample_std > 0.0:
-            y = y + self.sample_std * self.noise.draw(arms, rngs)
-        if self.alpha > 0.0:
-            fresh = self.fresh[arms][:, None]
-            y = np.where(fresh, y, self.alpha * self.filtered[arms] + (1.0 - self.alpha) * y)
+        sample_std, alpha, limit, resolution = self._shared
+        y = _add_noise(y, self.sample_std, sample_std, self.noise, arms, rngs)
+        if alpha is None or alpha > 0.0:
+            a = self.alpha[arms, None] if alpha is None else alpha
+            hold = (self.fresh[arms] | (self.alpha[arms] == 0.0))[:, None]
+            y = np.where(hold, y, a * self.filtered[arms] + (1.0 - a) * y)
             self.filtered[arms] = y
             self.fresh[arms] = False
-        limit = self.config.range
+        limit = self.range[arms, None] if limit is None else limit
         y = np.minimum(np.maximum(y, -limit), limit)
-        if self.config.resolution:
-            y = np.round(y / self.config.resolution) * self.config.resolution
-        return np.array(y, dtype=float)
+        return _quantized(y, self.resolution, resolution, arms)

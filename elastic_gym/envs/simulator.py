@@ -35,12 +35,14 @@ import numpy as np
 import pybullet as p
 from numba import njit
 
-from elastic_gym.model import RobotModel
+from elastic_gym.envs.plant import PAYLOAD_LINK, PlantArray, last_link, payload_urdf
+from elastic_gym.model import RobotModel, SerialChain
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_without_limits
 
 ARM_SPACING = 8.0  # m between the bases of neighbouring arms (well beyond any arm's reach)
 X11_TIMEOUT = 1.0  # s to reach the X server before the PyBullet GUI is started
+PAYLOAD_BYTES = PAYLOAD_LINK.encode()
 
 
 @njit(cache=True)
@@ -57,30 +59,31 @@ def _transmission_kernel(
     coulomb_pos,
     coulomb_neg,
     smoothing,
+    has_friction,
+    has_coulomb,
     elastic,
     link,
     tau_j,
     ddtheta,
 ):
-    """Per arm and joint: tau_J = K (theta - q) + D (theta' - q'), the link torque
+    """Per arm k and joint j: tau_J = K (theta - q) + D (theta' - q'), the link torque
     tau_J - d(q') (rigid: tau - d(q')) and theta'' = B^-1 (tau - tau_J) of model (1);
-    d(q') = F_v q' + c tanh(q' / smoothing), c = coulomb_pos or coulomb_neg by the sign."""
+    d(q') = F_v q' + c tanh(q' / smoothing), c = coulomb_pos or coulomb_neg by the sign.
+    Every coefficient has a leading arm axis (arm k's own plant)."""
     N, n = q.shape
-    has_friction = viscous.shape[0] > 0
-    has_coulomb = coulomb_pos.shape[0] > 0
     for k in range(N):
         for j in range(n):
             friction = 0.0
             if has_friction:
-                friction = viscous[j] * dq[k, j]
+                friction = viscous[k, j] * dq[k, j]
                 if has_coulomb:
-                    s = np.tanh(dq[k, j] / smoothing)
-                    friction += (coulomb_pos[j] if s > 0.0 else coulomb_neg[j]) * s
+                    s = np.tanh(dq[k, j] / smoothing[k])
+                    friction += (coulomb_pos[k, j] if s > 0.0 else coulomb_neg[k, j]) * s
             if elastic:
-                torque = K[j] * (theta[k, j] - q[k, j]) + D[j] * (dtheta[k, j] - dq[k, j])
+                torque = K[k, j] * (theta[k, j] - q[k, j]) + D[k, j] * (dtheta[k, j] - dq[k, j])
                 tau_j[k, j] = torque
                 link[k, j] = torque - friction
-                ddtheta[k, j] = B_inv[j] * (tau[k, j] - torque)
+                ddtheta[k, j] = B_inv[k, j] * (tau[k, j] - torque)
             else:
                 link[k, j] = tau[k, j] - friction
 
@@ -96,11 +99,12 @@ def _integrate_motors(theta, dtheta, ddtheta, dt):
 
 
 def rowwise_matvec(A: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """(A @ x_k for each row x_k of X), summed in a fixed order: bit-identical per row
-    whatever the number of rows (a BLAS call may change its summation with the shape)."""
-    out = X[:, :1] * A[:, 0]
-    for j in range(1, A.shape[1]):
-        out = out + X[:, j : j + 1] * A[:, j]
+    """(A_k @ x_k for each row x_k of X and matrix A_k of A (N, n, n)), summed in a fixed
+    order: bit-identical per row whatever the number of rows (a BLAS call may change its
+    summation with the shape)."""
+    out = X[:, :1] * A[:, :, 0]
+    for j in range(1, A.shape[2]):
+        out = out + X[:, j : j + 1] * A[:, :, j]
     return out
 
 
@@ -139,11 +143,15 @@ class ArmSimulator:
     Args:
         spec: the robot.
         plant: the exact model of the simulated plant (same URDF and the same parameter
-            scaling); its :class:`~elastic_gym.model.SerialChain` gives model (2)'s q''
-            and the true q''.
+            scaling), or a :class:`~elastic_gym.envs.plant.PlantArray` of one plant per
+            arm; its :class:`~elastic_gym.model.SerialChain` gives model (2)'s q'' and
+            the true q''.
         physics_dt: physics step (s).
         n_arms: number of arms.
         gui: connect with ``p.GUI`` instead of ``p.DIRECT`` (render_mode="human").
+        payload_positions: per arm, None or the point (last link's frame) of the arm's
+            payload link (:func:`~elastic_gym.envs.plant.payload_urdf`); its mass is set
+            with :meth:`set_payload_mass`.
 
     State arrays have a leading arm axis: ``q``, ``dq``, ``theta``, ``dtheta`` (N, n).
     """
@@ -151,14 +159,14 @@ class ArmSimulator:
     def __init__(
         self,
         spec: RobotSpec,
-        plant: RobotModel,
+        plant: RobotModel | PlantArray,
         physics_dt: float,
         n_arms: int = 1,
         gui: bool = False,
+        payload_positions: list | None = None,
     ):
         self.spec = spec
-        self.plant = plant
-        self.chain = plant.chain
+        self.plants = plant if isinstance(plant, PlantArray) else PlantArray([plant] * n_arms)
         self.n = n = spec.n_joints
         self.n_arms = n_arms
         self.physics_dt = float(physics_dt)
@@ -176,16 +184,21 @@ class ArmSimulator:
         p.setTimeStep(self.physics_dt, physicsClientId=c)
         p.setPhysicsEngineParameter(numSubSteps=0, physicsClientId=c)
         urdf = urdf_without_limits(spec.urdf)
+        positions = payload_positions or [None] * n_arms
         self.base_positions = self._grid(n_arms)
         self.bodies = [
             p.loadURDF(
-                urdf,
+                urdf if at is None else payload_urdf(urdf, last_link(spec), tuple(at)),
                 basePosition=base.tolist(),
                 useFixedBase=True,
                 flags=p.URDF_USE_INERTIA_FROM_FILE,
                 physicsClientId=c,
             )
-            for base in self.base_positions
+            for base, at in zip(self.base_positions, positions, strict=True)
+        ]
+        self.payload_links = [
+            None if at is None else self._link_index(body, PAYLOAD_LINK)
+            for body, at in zip(self.bodies, positions, strict=True)
         ]
         first = self.bodies[0]
         name_to_index = {
@@ -196,29 +209,26 @@ class ArmSimulator:
         if missing:
             raise ValueError(f"joints {missing} not found in {spec.urdf}")
         self.joint_indices = [name_to_index[name] for name in spec.joint_names]
-        for body in self.bodies:
+        self._urdf_dynamics = []
+        for arm, body in enumerate(self.bodies):
             self._configure_dynamics(body)
+            self.set_link_scaling(arm, self.plants.models[arm].scaling)
 
         shape = (n_arms, n)
         self.q, self.dq = np.zeros(shape), np.zeros(shape)
         self.theta, self.dtheta = np.zeros(shape), np.zeros(shape)
-        elastic = spec.elastic
-        friction = plant.friction
-        empty = np.zeros(0)
-        self._friction = (
-            (empty, empty, empty, 1.0)
-            if friction is None
-            else (
-                friction._viscous * np.ones(n),
-                empty if friction._pos is None else friction._pos * np.ones(n),
-                empty if friction._neg is None else friction._neg * np.ones(n),
-                float(friction.smoothing_velocity),
-            )
-        )
-        self._SBinv = plant.S * plant.B_inv if plant.has_coupling else None
-        self._schur_inertia = -self._SBinv @ plant.S.T if plant.has_coupling else None
-        self._ST = plant.S.T.copy()
-        self._elastic = elastic
+        self._elastic = spec.elastic
+        self._no_link_torque = np.zeros(shape)
+
+    @property
+    def plant(self) -> RobotModel:
+        """The plant model of arm 0 (every arm's when they share one)."""
+        return self.plants.models[0]
+
+    @property
+    def chain(self) -> SerialChain:
+        """The plants' chain, stacked per arm."""
+        return self.plants.chain
 
     @staticmethod
     def _grid(n_arms: int) -> np.ndarray:
@@ -229,14 +239,23 @@ class ArmSimulator:
             [ARM_SPACING * (index % side), ARM_SPACING * (index // side), np.zeros(n_arms)], axis=1
         )
 
+    def _link_index(self, body: int, name: str) -> int:
+        c = self.client
+        for j in range(p.getNumJoints(body, physicsClientId=c)):
+            if p.getJointInfo(body, j, physicsClientId=c)[12].decode() == name:
+                return j
+        raise ValueError(f"link {name!r} not in the URDF")
+
     # ------------------------------------------------------------------ setup
     def _configure_dynamics(self, body: int) -> None:
-        """Zero all damping, disable default motors, apply the plant's link scaling."""
+        """Zero all damping, disable default motors, remember the URDF's link inertias."""
         c = self.client
         n_links = p.getNumJoints(body, physicsClientId=c)
-        owner = self._owning_joint(body, n_links)
-        mass_scale = self.plant.scaling.per_joint("link_mass", self.n)
-        inertia_scale = self.plant.scaling.per_joint("link_inertia", self.n)
+        links = {}
+        for link, j in self._owning_joint(body, n_links).items():
+            info = p.getDynamicsInfo(body, link, physicsClientId=c)
+            links[link] = (j, info[0], np.asarray(info[2]))
+        self._urdf_dynamics.append(links)
         for link in range(-1, n_links):
             # One property per call: PyBullet 3.2.7 silently drops jointDamping when it is
             # passed together with other properties (measured: URDF damping stayed active).
@@ -247,21 +266,43 @@ class ArmSimulator:
                 {"maxJointVelocity": 1e4},
             ):
                 p.changeDynamics(body, link, **prop, physicsClientId=c)
-            j = owner.get(link)
-            if j is not None and (mass_scale[j] != 1.0 or inertia_scale[j] != 1.0):
-                info = p.getDynamicsInfo(body, link, physicsClientId=c)
-                mass, inertia = info[0], np.asarray(info[2])
-                p.changeDynamics(
-                    body,
-                    link,
-                    mass=mass * mass_scale[j],
-                    localInertiaDiagonal=(inertia * mass_scale[j] * inertia_scale[j]).tolist(),
-                    physicsClientId=c,
-                )
         for j in range(n_links):
             p.setJointMotorControl2(
                 body, j, p.VELOCITY_CONTROL, targetVelocity=0.0, force=0.0, physicsClientId=c
             )
+
+    def set_link_scaling(self, arm: int, scaling) -> None:
+        """Masses and inertias of arm ``arm``'s links: the URDF's scaled by ``scaling``
+        (a :class:`~elastic_gym.model.ParameterScaling`); only links whose value changes
+        are touched, so a body's dynamics depend on the scaling alone."""
+        c, body = self.client, self.bodies[arm]
+        mass_scale = scaling.per_joint("link_mass", self.n)
+        inertia_scale = scaling.per_joint("link_inertia", self.n)
+        for link, (j, mass, inertia) in self._urdf_dynamics[arm].items():
+            target = mass * mass_scale[j]
+            diagonal = inertia * mass_scale[j] * inertia_scale[j]
+            info = p.getDynamicsInfo(body, link, physicsClientId=c)
+            if info[0] != target or not np.array_equal(info[2], diagonal):
+                p.changeDynamics(
+                    body,
+                    link,
+                    mass=target,
+                    localInertiaDiagonal=diagonal.tolist(),
+                    physicsClientId=c,
+                )
+
+    def set_payload_mass(self, arm: int, mass: float) -> None:
+        """The mass (kg) of arm ``arm``'s payload link (a point mass)."""
+        link = self.payload_links[arm]
+        if link is None:
+            raise ValueError(f"arm {arm} was built without a payload link")
+        p.changeDynamics(  # a point mass: no rotational inertia (PyBullet would scale its own)
+            self.bodies[arm],
+            link,
+            mass=float(mass),
+            localInertiaDiagonal=[0.0, 0.0, 0.0],
+            physicsClientId=self.client,
+        )
 
     def _owning_joint(self, body: int, n_links: int) -> dict[int, int]:
         """Map each PyBullet link to the actuated joint that moves it (fixed children inherit)."""
@@ -272,7 +313,7 @@ class ArmSimulator:
             j = link
             while j >= 0 and j not in actuated:
                 j = p.getJointInfo(body, j, physicsClientId=c)[16]
-            if j >= 0:
+            if j >= 0 and p.getJointInfo(body, link, physicsClientId=c)[12] != PAYLOAD_BYTES:
                 owner[link] = actuated[j]
         return owner
 
@@ -309,14 +350,17 @@ class ArmSimulator:
         self.q, self.dq = states[:, :, 0].copy(), states[:, :, 1].copy()
 
     # ------------------------------------------------------------------ stepping
-    def accelerations(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(link torque applied to PyBullet, theta'', q'' or None) under motor torque tau.
+    def accelerations(
+        self, tau: np.ndarray, link_torque: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(link torque applied to PyBullet, theta'', q'' or None) under motor torque tau
+        and an external link-side torque ``link_torque`` (N, n) (e.g. a torque pulse).
 
         q'' is computed only where it is needed for the link torque (model (2)).
         """
-        plant = self.plant
-        if not self._elastic and plant.friction is None:
-            return tau, None, None
+        plants = self.plants
+        if not self._elastic and not plants.has_friction:
+            return (tau if link_torque is None else tau + link_torque), None, None
         shape = self.q.shape
         link, tau_j, ddtheta = np.empty(shape), np.empty(shape), np.empty(shape)
         _transmission_kernel(
@@ -325,31 +369,39 @@ class ArmSimulator:
             self.q,
             self.dq,
             tau,
-            plant.K,
-            plant.D,
-            plant.B_inv,
-            *self._friction,
+            plants.K,
+            plants.D,
+            plants.B_inv,
+            plants.viscous,
+            plants.coulomb_pos,
+            plants.coulomb_neg,
+            plants.smoothing,
+            plants.has_friction,
+            plants.has_coulomb,
             self._elastic,
             link,
             tau_j,
             ddtheta,
         )
+        if link_torque is not None:
+            link += link_torque
         if not self._elastic:
             return link, None, None
-        if self._SBinv is None:
+        if not plants.has_coupling:
             return link, ddtheta, None
-        rhs = link - rowwise_matvec(self._SBinv, tau - tau_j)
-        ddq = self.chain.forward_dynamics(self.q, self.dq, rhs, self._schur_inertia)
-        ddtheta = plant.B_inv * (tau - tau_j - rowwise_matvec(self._ST, ddq))
-        return link - rowwise_matvec(plant.S, ddtheta), ddtheta, ddq
+        rhs = link - rowwise_matvec(plants.SBinv, tau - tau_j)
+        ddq = plants.chain.forward_dynamics(self.q, self.dq, rhs, plants.schur_inertia)
+        ddtheta = plants.B_inv * (tau - tau_j - rowwise_matvec(plants.ST, ddq))
+        return link - rowwise_matvec(plants.S, ddtheta), ddtheta, ddq
 
-    def step(self, tau: np.ndarray, n_substeps: int) -> None:
-        """Advance ``n_substeps`` physics steps holding the motor torques ``tau`` (N, n)."""
+    def step(self, tau: np.ndarray, n_substeps: int, link_torque: np.ndarray | None = None) -> None:
+        """Advance ``n_substeps`` physics steps holding the motor torques ``tau`` (N, n) and
+        the external link-side torques ``link_torque`` (N, n, default none)."""
         c, dt, joints, bodies = self.client, self.physics_dt, self.joint_indices, self.bodies
         control, set_torques = p.TORQUE_CONTROL, p.setJointMotorControlArray
         tau = np.ascontiguousarray(tau, dtype=np.float64)
         for _ in range(n_substeps):
-            link_tau, ddtheta, _ = self.accelerations(tau)
+            link_tau, ddtheta, _ = self.accelerations(tau, link_torque)
             for body, forces in zip(bodies, link_tau.tolist(), strict=True):
                 set_torques(body, joints, control, forces=forces, physicsClientId=c)
             p.stepSimulation(physicsClientId=c)
@@ -359,12 +411,15 @@ class ArmSimulator:
             if not self._elastic:
                 self.theta, self.dtheta = self.q, self.dq
 
-    def link_acceleration(self, tau: np.ndarray) -> np.ndarray:
-        """True q'' (N, n) at the current state under motor torques tau (plant model, exact)."""
-        link_tau, _, ddq = self.accelerations(tau)
+    def link_acceleration(
+        self, tau: np.ndarray, link_torque: np.ndarray | None = None
+    ) -> np.ndarray:
+        """True q'' (N, n) at the current state under motor torques tau and external link
+        torques ``link_torque`` (plant models, exact)."""
+        link_tau, _, ddq = self.accelerations(tau, link_torque)
         if ddq is not None:
             return ddq
-        return self.chain.forward_dynamics(self.q, self.dq, link_tau)
+        return self.plants.chain.forward_dynamics(self.q, self.dq, link_tau)
 
     def link_pose(self, link_name: str, arm: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Position (from the arm's base) and rotation of a URDF link frame, from PyBullet."""

@@ -27,7 +27,9 @@ Algorithms (world-frame vectors, joints in index order, parent before child):
 
 The loops over arms are compiled with numba. Each arm's result depends only on its own
 inputs, computed by the same operations in the same order whatever N: arm i of a batch
-is bit-identical to the same arm evaluated alone. ``tests/test_chain.py`` checks every
+is bit-identical to the same arm evaluated alone. A chain holds one parameter set for
+every arm, or one per arm (:meth:`SerialChain.stack`: arms whose links differ, e.g.
+randomized masses); arm k then reads its own row. ``tests/test_chain.py`` checks every
 quantity against pinocchio to 1e-12 (relative) on every robot of the catalog.
 """
 
@@ -265,10 +267,12 @@ def _sensor_reading(i, s_joint, s_rot, s_trans, gravity, links, small, out, row)
 @njit(cache=True)
 def _specific_forces_kernel(q, dq, ddq, fp, ip, w, out):
     N, n = q.shape
-    chain, _, sensors, gravity, _ = _unpack(fp, ip)
+    chain, _, sensors, gravity, _ = _unpack(fp[0], ip)
     small, links, _, _ = _workspace(n, w)
     zero = small[6]
     for k in range(N):
+        if k and fp.shape[0] > 1:
+            chain, _, sensors, gravity, _ = _unpack(fp[k], ip)
         _forward_kinematics(q[k], dq[k], ddq[k], zero, *chain, links, small)
         for i in range(sensors[0].shape[0]):
             _sensor_reading(i, *sensors, gravity, links, small, out[k], 3 * i)
@@ -301,9 +305,11 @@ def _maps_arm(q, dq, chain, sensors, gravity, links, small, bodies, T, W):
 @njit(cache=True)
 def _accelerometer_maps_kernel(q, dq, fp, ip, w, T, W):
     N, n = q.shape
-    chain, _, sensors, gravity, _ = _unpack(fp, ip)
+    chain, _, sensors, gravity, _ = _unpack(fp[0], ip)
     small, links, bodies, _ = _workspace(n, w)
     for k in range(N):
+        if k and fp.shape[0] > 1:
+            chain, _, sensors, gravity, _ = _unpack(fp[k], ip)
         _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T[k], W[k])
 
 
@@ -313,12 +319,14 @@ def _acceleration_from_readings_kernel(
 ):
     N, n = q.shape
     m = readings.shape[1]
-    chain, _, sensors, gravity, _ = _unpack(fp, ip)
+    chain, _, sensors, gravity, _ = _unpack(fp[0], ip)
     small, links, bodies, _ = _workspace(n, w)
     T = np.empty((m, n))
     W = np.empty(m)
     residual = np.empty(m)
     for k in range(N):
+        if k and fp.shape[0] > 1:
+            chain, _, sensors, gravity, _ = _unpack(fp[k], ip)
         _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T, W)
         finite = True
         for i in range(m):
@@ -418,9 +426,11 @@ def _mass_and_bias_arm(
 @njit(cache=True)
 def _mass_and_bias_kernel(q, dq, fp, ip, w, M, h):
     N, n = q.shape
-    chain, bodies_p, _, _, minus_gravity = _unpack(fp, ip)
+    chain, bodies_p, _, _, minus_gravity = _unpack(fp[0], ip)
     small, links, bodies, _ = _workspace(n, w)
     for k in range(N):
+        if k and fp.shape[0] > 1:
+            chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
         _mass_and_bias_arm(
             q[k], dq[k], minus_gravity, chain, *bodies_p, M[k], h[k], links, small, bodies
         )
@@ -429,10 +439,12 @@ def _mass_and_bias_kernel(q, dq, fp, ip, w, M, h):
 @njit(cache=True)
 def _gravity_kernel(q, fp, ip, w, h):
     N, n = q.shape
-    chain, bodies_p, _, _, minus_gravity = _unpack(fp, ip)
+    chain, bodies_p, _, _, minus_gravity = _unpack(fp[0], ip)
     small, links, bodies, (M, _, _) = _workspace(n, w)
     zero_n = bodies[8]
     for k in range(N):
+        if k and fp.shape[0] > 1:
+            chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
         _mass_and_bias_arm(
             q[k], zero_n, minus_gravity, chain, *bodies_p, M, h[k], links, small, bodies, False
         )
@@ -467,15 +479,20 @@ def _cholesky_solve(A, b, out):
 
 @njit(cache=True)
 def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
+    """(M + M_a) q'' = tau - n per arm; ``added_inertia`` (1 or N, n, n)."""
     N, n = q.shape
-    chain, bodies_p, _, _, minus_gravity = _unpack(fp, ip)
+    chain, bodies_p, _, _, minus_gravity = _unpack(fp[0], ip)
     small, links, bodies, (M, h, rhs) = _workspace(n, w)
+    per_arm = added_inertia.shape[0] > 1
     for k in range(N):
+        if k and fp.shape[0] > 1:
+            chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
         _mass_and_bias_arm(q[k], dq[k], minus_gravity, chain, *bodies_p, M, h, links, small, bodies)
+        added = added_inertia[k if per_arm else 0]
         for a in range(n):
             rhs[a] = tau[k, a] - h[a]
             for c in range(n):
-                M[a, c] += added_inertia[a, c]
+                M[a, c] += added[a, c]
         _cholesky_solve(M, rhs, out[k])
 
 
@@ -541,14 +558,54 @@ class SerialChain:
             [f.placement.rotation for f in frames],
             [f.placement.translation for f in frames],
         ]
-        self._params = np.concatenate([np.asarray(x, dtype=float).ravel() for x in pieces])
+        self._params = np.concatenate([np.asarray(x, dtype=float).ravel() for x in pieces])[None]
         self._ints = np.array(
             [n, self.n_sensors, *parent, *(f.parentJoint - 1 for f in frames)], dtype=np.int64
         )
         size, work = _layout(n, self.n_sensors)
-        assert self._params.size == size
+        assert self._params.shape == (1, size)
         self._work = np.empty(work)
-        self._no_inertia = np.zeros((n, n))
+        self._no_inertia = np.zeros((1, n, n))
+
+    @classmethod
+    def stack(cls, chains: list[SerialChain] | tuple[SerialChain, ...]) -> SerialChain:
+        """One chain whose arm k has the parameters of ``chains[k]`` (same joints and
+        sensors, e.g. link inertias that differ per arm): its methods then take exactly
+        ``len(chains)`` rows, row k computed bit for bit as ``chains[k]`` computes it."""
+        first = chains[0]
+        if any(not np.array_equal(c._ints, first._ints) for c in chains):
+            raise ValueError("stacked chains must share their joints and sensors")
+        new = cls.__new__(cls)
+        vars(new).update(vars(first))
+        new._params = np.concatenate([c._params for c in chains])
+        new._work = np.empty(_layout(first.n, first.n_sensors)[1])
+        return new
+
+    def select(self, arms: np.ndarray) -> SerialChain:
+        """The chain of the rows ``arms`` of a stacked chain (itself when not stacked)."""
+        if len(self._params) == 1:
+            return self
+        new = SerialChain.__new__(SerialChain)
+        vars(new).update(vars(self))
+        new._params = self._params[np.asarray(arms, dtype=np.int64)]
+        new._work = np.empty(_layout(self.n, self.n_sensors)[1])
+        return new
+
+    @property
+    def n_rows(self) -> int:
+        """How many parameter sets: 1 (any number of arms) or the N arms of a stack."""
+        return len(self._params)
+
+    def set_row(self, arm: int, chain: SerialChain) -> None:
+        """Give arm ``arm`` of a stacked chain the parameters of ``chain``."""
+        self._params[arm] = chain._params[0]
+
+    def _rows(self, x: np.ndarray) -> None:
+        if len(self._params) > 1 and len(x) != len(self._params):
+            raise ValueError(
+                f"a chain stacked for {len(self._params)} arms got {len(x)} rows; "
+                "use select(arms) for a subset"
+            )
 
     def __getstate__(self) -> dict:
         return {k: v for k, v in vars(self).items() if k != "_work"}
@@ -561,6 +618,7 @@ class SerialChain:
         """(N, 3 n_sensors) noise-free accelerometer readings, eq. (9) stacked."""
         n = self.n
         q, dq, ddq = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(ddq, n, "ddq")
+        self._rows(q)
         out = np.empty((len(q), 3 * self.n_sensors))
         _specific_forces_kernel(q, dq, ddq, self._params, self._ints, self._work, out)
         return out
@@ -569,6 +627,7 @@ class SerialChain:
         """(T_A (N, 3 n_sensors, n), W_A (N, 3 n_sensors)) of eq. (10)."""
         n = self.n
         q, dq = _batch(q, n, "q"), _batch(dq, n, "dq")
+        self._rows(q)
         T = np.empty((len(q), 3 * self.n_sensors, n))
         W = np.empty((len(q), 3 * self.n_sensors))
         _accelerometer_maps_kernel(q, dq, self._params, self._ints, self._work, T, W)
@@ -592,6 +651,7 @@ class SerialChain:
         """
         n = self.n
         q, dq = _batch(q, n, "q"), _batch(dq, n, "dq")
+        self._rows(q)
         readings = np.ascontiguousarray(readings, dtype=np.float64)
         if readings.shape != (len(q), 3 * self.n_sensors):
             raise ValueError(
@@ -617,6 +677,7 @@ class SerialChain:
         """(M(q) (N, n, n), n(q, q') = C q' + g (N, n))."""
         n = self.n
         q, dq = _batch(q, n, "q"), _batch(dq, n, "dq")
+        self._rows(q)
         M = np.empty((len(q), n, n))
         h = np.empty((len(q), n))
         _mass_and_bias_kernel(q, dq, self._params, self._ints, self._work, M, h)
@@ -625,6 +686,7 @@ class SerialChain:
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """g(q) (N, n)."""
         q = _batch(q, self.n, "q")
+        self._rows(q)
         h = np.empty(q.shape)
         _gravity_kernel(q, self._params, self._ints, self._work, h)
         return h
@@ -636,13 +698,15 @@ class SerialChain:
         tau: np.ndarray,
         added_inertia: np.ndarray | None = None,
     ) -> np.ndarray:
-        """q'' solving (M(q) + M_a) q'' + n(q, q') = tau, (N, n); M_a constant (n, n)."""
+        """q'' solving (M(q) + M_a) q'' + n(q, q') = tau, (N, n); M_a constant, (n, n) for
+        every arm or (N, n, n) one per arm."""
         n = self.n
         q, dq, tau = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(tau, n, "tau")
+        self._rows(q)
         extra = (
             self._no_inertia
             if added_inertia is None
-            else np.ascontiguousarray(added_inertia, dtype=np.float64)
+            else np.ascontiguousarray(added_inertia, dtype=np.float64).reshape(-1, n, n)
         )
         out = np.empty((len(q), n))
         _forward_dynamics_kernel(q, dq, tau, extra, self._params, self._ints, self._work, out)

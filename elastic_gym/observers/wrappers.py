@@ -9,9 +9,9 @@ step, the terminal one included. ``TrueStateWrapper(env)`` gives the same layout
 the ground truth, so one controller or policy runs unchanged on estimated or true state.
 :mod:`elastic_gym.observers.vector` has the twins for vector envs.
 
-An estimate that stops being finite (a diverged observer), or an update that raises a
-numerical error (``ArithmeticError``, ``ValueError``: e.g. scipy refusing a matrix with
-infs or NaNs, a covariance no longer positive definite), ends the episode with
+An estimate that stops being finite (a diverged observer), or an update that fails the
+way numpy / scipy fail on a diverged estimate (:func:`numerical_failure`: a matrix with
+infs or NaNs refused, a covariance no longer positive definite), ends the episode with
 ``terminated=True`` and ``info["termination_reason"] = "non-finite state estimate"``
 (the error, if any, in ``info["observer_error"]``); the observation keeps the last
 finite estimate and the next ``step`` needs a ``reset``. An estimate that is not a
@@ -77,7 +77,18 @@ def measurement(observer: Observer, obs: Mapping, info: Mapping) -> dict:
     return measured
 
 
-NUMERICAL_ERRORS = (ArithmeticError, ValueError)  # numpy/scipy LinAlgError is a ValueError
+NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, OverflowError)
+NON_FINITE_INPUT = "infs or NaNs"  # numpy's asarray_chkfinite and scipy's checks say so
+
+
+def numerical_failure(exc: BaseException) -> bool:
+    """Whether ``exc`` is what a diverged estimate makes numpy / scipy raise: a singular
+    or indefinite matrix (``LinAlgError``), a floating-point error or overflow, or a
+    ``ValueError`` refusing an array with infs or NaNs. Other exceptions (a
+    ``ZeroDivisionError`` in a user's code, a ``TypeError``) are bugs, not divergence."""
+    return isinstance(exc, NUMERICAL_ERRORS) or (
+        isinstance(exc, ValueError) and NON_FINITE_INPUT in str(exc)
+    )
 
 
 def checked_estimate(observer: Observer, estimate: object, call: str) -> np.ndarray:
@@ -100,11 +111,14 @@ def checked_estimate(observer: Observer, estimate: object, call: str) -> np.ndar
 def guarded_update(
     observer: Observer, obs: Mapping, torque: np.ndarray, dt: float
 ) -> tuple[np.ndarray, str | None]:
-    """``observer.update``, checked (:func:`checked_estimate`); a numerical error in it
-    gives a NaN estimate and the error's text (the episode ends, see the module doc)."""
+    """``observer.update``, checked (:func:`checked_estimate`); a numerical failure in it
+    (:func:`numerical_failure`) gives a NaN estimate and the error's text (the episode
+    ends, see the module doc)."""
     try:
         estimate = observer.update(obs, torque, dt)
-    except NUMERICAL_ERRORS as exc:
+    except Exception as exc:
+        if not numerical_failure(exc):
+            raise
         return np.full(observer.state_dim, np.nan), f"{type(exc).__name__}: {exc}"
     return checked_estimate(observer, estimate, "update"), None
 

@@ -1,0 +1,114 @@
+"""Domain randomization: each arm draws its plant at every reset (the ``randomize`` kwarg).
+
+``randomize`` maps a parameter path to a :class:`~elastic_gym.envs.config.Range`, e.g.
+``{"plant_scaling.link_mass": {"low": 0.7, "high": 1.3}, "sensor_delay": {"low": 0,
+"high": 2}}``. At every reset each arm draws, from its own plant stream, one value per path
+in the order of :data:`PATHS`: uniform in [low, high], log-uniform (``log: true``:
+exp(U(log low, log high))) or, for the integer paths, an integer uniform in
+{low, ..., high}. The value replaces the arm's own setting of that path (a scalar: every
+joint gets it). The plant stream of an arm is a generator seeded from its reset seed's
+``SeedSequence`` with its own spawn key, apart from the task and sensor stream: turning
+randomization on changes no task draw, and the same seed gives the same draws.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Mapping
+
+import numpy as np
+
+from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, deep_merge
+from elastic_gym.envs.config import Range
+
+PLANT_STREAM = 0x706C616E  # spawn key of the plant stream ("plan")
+# path -> integer-valued
+PATHS: dict[str, bool] = {
+    "plant_scaling.link_mass": False,
+    "plant_scaling.link_inertia": False,
+    "plant_scaling.stiffness": False,
+    "plant_scaling.motor_inertia": False,
+    "plant_scaling.damping": False,
+    "plant_scaling.friction": False,
+    "unmodelled_friction.coulomb": False,
+    "unmodelled_friction.viscous": False,
+    "encoder.resolution": False,
+    "encoder.noise_std": False,
+    "accelerometer.noise_density": False,
+    "accelerometer.bias_std": False,
+    "sensor_delay": True,
+    "actuator_delay": True,
+    "payload.mass": False,
+}
+# paths that change the plant's vibration frequencies (checked for stability at their ends)
+MODE_PATHS = (
+    "plant_scaling.link_mass",
+    "plant_scaling.link_inertia",
+    "plant_scaling.stiffness",
+    "plant_scaling.motor_inertia",
+    "payload.mass",
+)
+
+
+def plant_stream(rng: np.random.Generator) -> np.random.Generator:
+    """The plant stream derived from an arm's task/sensor generator without drawing from it:
+    same seed, same stream."""
+    seq = rng.bit_generator.seed_seq
+    if not isinstance(seq, np.random.SeedSequence):
+        raise TypeError(f"an arm's generator needs a SeedSequence, got {type(seq).__name__}")
+    child = np.random.SeedSequence(seq.entropy, spawn_key=(*seq.spawn_key, PLANT_STREAM))
+    return np.random.default_rng(child)
+
+
+def with_values(kwargs: Mapping, values: Mapping[str, float | int]) -> dict:
+    """``kwargs`` with each path of ``values`` set to its value."""
+    out = dict(kwargs)
+    for path, value in values.items():
+        key, _, field = path.partition(".")
+        if not field:
+            out[key] = value
+            continue
+        base = out.get(key)
+        out[key] = deep_merge({} if base is None else base, {field: value})
+    return out
+
+
+def draw(ranges: Mapping[str, Range], rng: np.random.Generator) -> dict[str, float | int]:
+    """One value per path of ``ranges``, in the order of :data:`PATHS`."""
+    values: dict[str, float | int] = {}
+    for path, integer in PATHS.items():
+        spec = ranges.get(path)
+        if spec is None:
+            continue
+        if integer:
+            values[path] = int(rng.integers(int(spec.low), int(spec.high) + 1))
+        elif spec.log:
+            values[path] = float(np.exp(rng.uniform(np.log(spec.low), np.log(spec.high))))
+        else:
+            values[path] = float(rng.uniform(spec.low, spec.high))
+    return values
+
+
+def check_ranges(
+    ranges: Mapping[str, Range], kwargs: Mapping, resolver: ArmResolver, prefix: str = ""
+) -> list[ArmSettings]:
+    """Refuse unknown paths, non-integer ends of integer paths and ends outside a
+    parameter's admissible range; returns the settings of the corners of the
+    frequency-changing paths (whose stability the caller checks)."""
+    where = f"{prefix}randomize"
+    for path, spec in ranges.items():
+        if path not in PATHS:
+            raise ValueError(f"{where}: unknown parameter path {path!r}; valid: {list(PATHS)}")
+        if PATHS[path] and (spec.low != int(spec.low) or spec.high != int(spec.high)):
+            raise ValueError(f"{where}[{path!r}]: {path} takes integers, got {spec}")
+        for end in ("low", "high"):
+            value = int(getattr(spec, end)) if PATHS[path] else getattr(spec, end)
+            try:
+                resolver.settings(with_values(kwargs, {path: value}))
+            except ValueError as error:
+                raise ValueError(f"{where}[{path!r}].{end}: {error}") from None
+    modes = [p for p in MODE_PATHS if p in ranges]
+    corners = itertools.product(*[(ranges[p].low, ranges[p].high) for p in modes])
+    return [
+        resolver.settings(with_values(kwargs, dict(zip(modes, c, strict=True)))) for c in corners
+    ]
