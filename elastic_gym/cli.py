@@ -3,7 +3,10 @@
 ``elastic-gym compare`` runs a comparison grid (the built-in default, a shipped
 ``--preset`` or a ``--config`` YAML file) and prints its table; ``--policy RUN`` adds
 trained policies as controllers. ``elastic-gym train`` trains a stable-baselines3
-policy on the estimated (or true, or raw-sensor) state. A subcommand is a
+policy on the estimated (or true, or raw-sensor) state. ``elastic-gym schema NAME``
+prints the JSON Schema of a kind of YAML file. Defaults come from the config models
+(:class:`~elastic_gym.training.TrainConfig`, :class:`~elastic_gym.evaluation.Scenario`),
+not from this module. A subcommand is a
 function ``add_<name>_parser(subcommands)`` that adds its parser and sets
 ``handler`` (a function ``args -> exit code``); :func:`build_parser` lists them.
 """
@@ -14,8 +17,16 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from elastic_gym.evaluation.scenario import DEFAULT_PRESET, list_presets
+from pydantic import BaseModel
+
+from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
+from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
 from elastic_gym.parallel import BACKENDS, Interrupted, interrupts_raised
+
+
+def default(model: type[BaseModel], field: str):
+    """The default of a config model's field (the one place it is written)."""
+    return model.model_fields[field].get_default(call_default_factory=True)
 
 
 def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
@@ -55,7 +66,7 @@ def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="a fast look at the grid: first seed only, at most 0.5 s per run, "
+        help=f"a fast look at the grid: first seed only, at most {QUICK_DURATION:g} s per run, "
         "each sweep thinned to its farthest magnitude on each side of the nominal "
         "(--seeds/--duration apply after it)",
     )
@@ -63,7 +74,7 @@ def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
         "--physics-dt",
         type=float,
         metavar="SECONDS",
-        help="override the scenario's physics step (default 1/16 ms)",
+        help=f"override the scenario's physics step (default {COMPARISON_PHYSICS_DT:g} s)",
     )
     parser.add_argument(
         "--policy",
@@ -108,7 +119,6 @@ def run_compare(args: argparse.Namespace) -> int:
 def with_trained_policy(scenario, run_dir: str):
     """The scenario with a ``trained-policy`` controller for a run folder, paired with the
     state source it was trained on (added to the scenario if missing)."""
-    import dataclasses
     from pathlib import Path
 
     from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry
@@ -133,21 +143,30 @@ def with_trained_policy(scenario, run_dir: str):
         None,
     )
     if source is None:
-        source = SourceEntry(config.state, f"{config.state}-policy", dict(config.observer_options))
+        source = SourceEntry.model_validate(
+            {
+                "name": config.state,
+                "label": f"{config.state}-policy",
+                "options": config.observer_options,
+            }
+        )
         sources.append(source)
-    controller = ControllerEntry(
-        "trained-policy",
-        f"policy:{Path(run_dir).name}",
-        {"run": str(Path(run_dir).resolve())},
-        (source.label,),
+    controller = ControllerEntry.model_validate(
+        {
+            "name": "trained-policy",
+            "label": f"policy:{Path(run_dir).name}",
+            "options": {"run": str(Path(run_dir).resolve())},
+            "sources": [source.label],
+        }
     )
-    return dataclasses.replace(
-        scenario, controllers=(*scenario.controllers, controller), state_sources=tuple(sources)
+    return scenario.with_overrides(
+        controllers=(*scenario.controllers, controller), state_sources=tuple(sources)
     )
 
 
 def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
-    from elastic_gym.training.config import ALGORITHMS
+    from elastic_gym.training.actions import KINDS
+    from elastic_gym.training.config import ALGORITHMS, TrainConfig
     from elastic_gym.training.policy_env import state_sources
 
     parser = subcommands.add_parser(
@@ -159,13 +178,13 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--env",
-        default="elastic_gym/TwoLinkElastic-v0",
-        help="env id (the elastic_gym/ prefix is optional)",
+        default=default(TrainConfig, "env_id"),
+        help="env id (the elastic_gym/ prefix is optional; default: %(default)s)",
     )
-    parser.add_argument("--algo", default="ppo", choices=ALGORITHMS)
+    parser.add_argument("--algo", default=default(TrainConfig, "algo"), choices=ALGORITHMS)
     parser.add_argument(
         "--state",
-        default="deluca",
+        default=default(TrainConfig, "state"),
         choices=state_sources(),
         help="what the policy sees: an observer's estimate, 'true', or raw "
         "'sensors' (frame-stacked)",
@@ -173,7 +192,9 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--steps", type=int, help="policy steps (default: n_timesteps of the hyper-parameter file)"
     )
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0], metavar="SEED")
+    parser.add_argument(
+        "--seeds", type=int, nargs="+", default=[default(TrainConfig, "seed")], metavar="SEED"
+    )
     parser.add_argument(
         "--out",
         metavar="DIR",
@@ -185,7 +206,7 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--action",
-        choices=("torque", "motor-offset", "residual"),
+        choices=KINDS,
         help="action parameterization (default: the hyper-parameter file's)",
     )
     parser.add_argument(
@@ -211,7 +232,12 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
         type=float,
         help="bound of the residual torque as a fraction of the torque limit",
     )
-    parser.add_argument("--frame-stack", type=int, default=4, help="frames for 'sensors'")
+    parser.add_argument(
+        "--frame-stack",
+        type=int,
+        default=default(TrainConfig, "frame_stack"),
+        help="frames for 'sensors' (default: %(default)s)",
+    )
     parser.add_argument(
         "--env-kwargs",
         default="{}",
@@ -227,8 +253,13 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
         help="override hyper-parameters, e.g. learning_rate=1e-4 n_envs=2",
     )
     parser.add_argument("--hyperparams-file", metavar="YAML")
-    parser.add_argument("--eval-freq", type=int, default=20000, help="policy steps between evals")
-    parser.add_argument("--eval-episodes", type=int, default=3)
+    parser.add_argument(
+        "--eval-freq",
+        type=int,
+        default=default(TrainConfig, "eval_freq"),
+        help="policy steps between evals (default: %(default)s)",
+    )
+    parser.add_argument("--eval-episodes", type=int, default=default(TrainConfig, "eval_episodes"))
     parser.add_argument(
         "--backend",
         choices=BACKENDS,
@@ -341,6 +372,37 @@ def run_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_schema_parser(subcommands: argparse._SubParsersAction) -> None:
+    from elastic_gym.schemas import SCHEMA_DIR, schema_models
+
+    parser = subcommands.add_parser(
+        "schema",
+        help="print the JSON Schema of a YAML file kind (scenario, train, ...)",
+        description="Print the JSON Schema of a kind of YAML file: 'scenario' (presets, "
+        "compare --config), 'train' (hyper-parameter files). YAML editors complete and "
+        "check a file whose first line is '# yaml-language-server: $schema=<schema.json>'.",
+    )
+    parser.add_argument("name", nargs="?", choices=sorted(schema_models()))
+    parser.add_argument(
+        "--write",
+        action="store_true",
+        help=f"regenerate the shipped schema files in {SCHEMA_DIR} instead",
+    )
+    parser.set_defaults(handler=run_schema)
+
+
+def run_schema(args: argparse.Namespace) -> int:
+    from elastic_gym.schemas import schema_text, write_schemas
+
+    if args.write:
+        print("\n".join(str(path) for path in write_schemas()))
+    elif args.name is None:
+        raise ValueError("give a schema name, or --write")
+    else:
+        sys.stdout.write(schema_text(args.name))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastic-gym",
@@ -349,6 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
     subcommands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     add_compare_parser(subcommands)
     add_train_parser(subcommands)
+    add_schema_parser(subcommands)
     return parser
 
 

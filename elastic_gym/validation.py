@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import fields
-from typing import Any, TypeVar
+from typing import Annotated, Any, ClassVar, TypeVar, get_args
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, ValidationError, model_validator
+from typing_extensions import Self
 
 T = TypeVar("T")
 ENV_NAMESPACE = "elastic_gym/"
@@ -112,6 +113,35 @@ class StrictModel(BaseModel):
         return data
 
 
+Finite = Annotated[StrictFloat, Field(allow_inf_nan=False)]  # a number, not a bool or a string
+PositiveFinite = Annotated[Finite, Field(gt=0)]
+NonNegativeFinite = Annotated[Finite, Field(ge=0)]
+
+
+class ConfigModel(StrictModel):
+    """A frozen plain-data configuration, built by :meth:`from_config` from ``None`` (the
+    defaults), an instance (itself) or a mapping of its fields; errors are prefixed with
+    its ``section`` (``reward.sigmas: ...``)."""
+
+    model_config = ConfigDict(frozen=True)
+    section: ClassVar[str] = ""
+
+    def __init__(self, **data: Any) -> None:
+        """Keyword construction refuses bad fields in the package's error form too."""
+        try:
+            super().__init__(**data)
+        except ValidationError as error:
+            raise ConfigError(format_validation_error(error, self.section, type(self))) from None
+
+    @classmethod
+    def from_config(cls, config: Any) -> Self:
+        return validated(cls, config, cls.section)
+
+    def to_dict(self) -> dict:
+        """Plain data (lists, not tuples): YAML- and JSON-serialisable."""
+        return self.model_dump(mode="json")
+
+
 def plain(value: Any) -> Any:
     """numpy scalars and arrays as Python numbers and lists (recursively through mappings and
     sequences), so that ``np.float32(1e-3)`` validates like ``1e-3``."""
@@ -137,15 +167,78 @@ def field_path(loc: Sequence[int | str], prefix: str = "") -> str:
     return path or "(top level)"
 
 
-def format_validation_error(error: ValidationError, prefix: str = "") -> str:
-    """One line per problem, the field path first: ``controllers[1].options.omega: ...``."""
+class ConfigError(ValueError):
+    """A configuration refused with its message already in the package's form (the field
+    path first): what a :class:`ConfigModel` raises."""
+
+
+class FieldError(ValueError):
+    """Raised by a validator to refuse a part of its value: ``loc`` (field names and list
+    indices) is appended to the validator's own path in the error message."""
+
+    def __init__(self, loc: Sequence[int | str], message: str) -> None:
+        super().__init__(message)
+        self.loc = tuple(loc)
+
+
+_UNION_TAGS = frozenset({"int", "float", "str", "bool", "list", "dict", "tuple", "none"})
+
+
+def _is_union_tag(part: int | str) -> bool:
+    """pydantic names the failing member of a union in ``loc`` (``int``, ``list[str]``,
+    ``function-after[...]``, a model class name): not a field of the user's data."""
+    return isinstance(part, str) and (
+        "[" in part or part in _UNION_TAGS or (part.isidentifier() and part[0].isupper())
+    )
+
+
+def _models_in(annotation: Any) -> list[type[BaseModel]]:
+    """The pydantic models in an annotation (through Annotated, unions, containers)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return [model for arg in get_args(annotation) for model in _models_in(arg)]
+
+
+def field_names(model: type[BaseModel], loc: Sequence[int | str]) -> list[str]:
+    """The field names (aliases) of the model reached from ``model`` along ``loc`` (a
+    union member named in ``loc`` is followed; none: ``[]``)."""
+    models = [model]
+    for part in loc:
+        named = [m for m in models if m.__name__ == part]
+        fields = [f for m in models for n, f in m.model_fields.items() if part in (n, f.alias)]
+        if named:
+            models = named
+        elif fields:
+            models = _models_in(fields[0].annotation)
+    return [f.alias or name for name, f in models[0].model_fields.items()] if models else []
+
+
+def format_validation_error(
+    error: ValidationError, prefix: str = "", model: type[BaseModel] | None = None
+) -> str:
+    """One line per problem, the field path first: ``controllers[1].options.omega: ...``;
+    an unknown field lists the valid ones when the validated ``model`` is given."""
     lines = []
-    for item in error.errors(include_url=False):
-        # pydantic adds the failing union member / validator name to loc; drop function names
-        loc = [part for part in item["loc"] if not (isinstance(part, str) and "[" in part)]
+    items = error.errors(include_url=False)
+    for item in items:
+        loc = [part for part in item["loc"] if not _is_union_tag(part)]
+        if item["type"] == "too_short" and any(
+            other["loc"][: len(item["loc"])] == item["loc"] and other is not item for other in items
+        ):
+            continue  # a list left short by its own invalid items
         message = item["msg"]
+        cause = item.get("ctx", {}).get("error")
+        if isinstance(cause, ConfigError):  # a nested config's own, already formatted
+            lines.append(f"{field_path(loc, prefix)}.{cause}" if loc else str(cause))
+            continue
         if item["type"] == "extra_forbidden":
-            message = "unexpected field"
+            valid = field_names(model, item["loc"][:-1]) if model else []
+            message = "unexpected field" + (f"; valid: {valid}" if valid else "")
+        elif isinstance(cause, ValueError):  # a validator's own message, without "Value error, "
+            loc += list(getattr(cause, "loc", ()))
+            message = str(cause)
+        elif item["type"] != "missing" and isinstance(item["input"], (str, int, float, type(None))):
+            message += f", got {item['input']!r}"
         lines.append(f"{field_path(loc, prefix)}: {message}")
     return "; ".join(dict.fromkeys(lines))
 
@@ -161,4 +254,4 @@ def validated(model: type[M], data: Any, prefix: str = "") -> M:
     try:
         return model.model_validate({} if data is None else plain(data))
     except ValidationError as error:
-        raise ValueError(format_validation_error(error, prefix)) from None
+        raise ValueError(format_validation_error(error, prefix, model)) from None

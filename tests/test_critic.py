@@ -84,7 +84,7 @@ def test_bad_privileged_size_and_shared_extractor_are_refused():
             {"critic_state": True, "policy_kwargs": {"share_features_extractor": True}},
             "share_features_extractor",
         ),
-        ("ppo", {"critic_state": "yes"}, "critic_state must be true or false"),
+        ("ppo", {"critic_state": "yes"}, "critic_state: Input should be a valid boolean"),
     ],
 )
 def test_critic_state_is_refused_where_it_does_not_apply(algo, overrides, match):

@@ -23,9 +23,7 @@ from rich.console import Console
 
 import elastic_gym
 from elastic_gym.evaluation import Scenario, compare
-from elastic_gym.evaluation import scenario as scenario_module
 from elastic_gym.evaluation.runner import plan_runs
-from elastic_gym.model import ParameterScaling
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -85,22 +83,28 @@ def test_tutorials_are_jupytext_percent_scripts():
         assert "ELASTIC_GYM_TUTORIAL_QUICK" in text, tutorial.name
 
 
-def test_scenario_reference_documents_every_field():
-    text = (DOCS / "scenario-reference.md").read_text()
-    sections = dict(
-        (m.group(1), m.group(2))
-        for m in re.finditer(r"^## .*?(?:\{ #([\w-]+) \})?\n(.*?)(?=^## |\Z)", text, re.M | re.S)
-    )
-    documented = {
-        anchor: set(re.findall(r"^\| `(\w+)` \|", body, re.M)) for anchor, body in sections.items()
+def test_field_references_cover_exactly_the_schemas_fields():
+    """docs/scripts/fields.yaml gives a meaning to every field of every rendered schema."""
+    from elastic_gym.schemas import json_schema
+
+    spec = importlib.util.spec_from_file_location("hooks", DOCS / "scripts" / "mkdocs_hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    meanings = hooks.field_meanings()
+    rendered = {
+        m.group(1)
+        for page in DOCS.rglob("*.md")
+        for m in hooks.MARKER.finditer(page.read_text())
     }
-    assert documented["top-level"] == set(scenario_module.TOP_LEVEL_KEYS)
-    assert documented["envs"] == set(scenario_module.ENV_KEYS)
-    assert documented["sweeps"] == set(scenario_module.SWEEP_KEYS)
-    assert documented["controllers"] == set(scenario_module.CONTROLLER_KEYS)
-    assert documented["state-sources"] == set(scenario_module.SOURCE_KEYS)
-    for name in ParameterScaling.__dataclass_fields__:
-        assert f"`{name}`" in sections["model-errors"], name
+    assert rendered == set(meanings) >= {"scenario", "train"}
+    for name, models in meanings.items():
+        schema_models = hooks.schema_models(json_schema(name))
+        assert set(schema_models) == set(models), name
+        for title, (model, _) in schema_models.items():
+            assert set(model["properties"]) == set(models[title]) - {"_"}, (name, title)
+        text = hooks.schema_markdown(name, json_schema(name), models)
+        for title in models:
+            assert f"### `{title}` {{ #{title.lower()} }}" in text
 
 
 @pytest.mark.parametrize("page", ["docs/comparison.md", "docs/scenario-reference.md"])

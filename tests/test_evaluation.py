@@ -465,7 +465,7 @@ def test_cli_errors_name_the_field(tmp_path, capsys):
     with pytest.raises(SystemExit) as info:
         main(["compare", "--config", str(path)])
     assert info.value.code == 2
-    assert "duraton: unknown field" in capsys.readouterr().err
+    assert "duraton: unexpected field" in capsys.readouterr().err
     assert main(["compare", "--list-presets"]) == 0
     assert "default" in capsys.readouterr().out.split()
 

@@ -9,8 +9,6 @@ well by both), on the nominal arm and on a 30 % heavier one.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 from rich.console import Console
@@ -22,8 +20,7 @@ from elastic_gym.evaluation.metrics import TimeSeries, residual_torsion
 @pytest.fixture(scope="module")
 def kr15_step_rows(tmp_path_factory):
     preset = load_preset("deluca-kr15")
-    scenario = dataclasses.replace(
-        preset,
+    scenario = preset.with_overrides(
         envs=tuple(e for e in preset.envs if e.label == "KR15-axis1-5deg-step"),
         duration=1.5,
     )

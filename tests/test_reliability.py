@@ -624,7 +624,9 @@ def test_numpy_scalars_are_accepted_wherever_python_numbers_are():
 
     env = gym.make(TWO_LINK, encoder={"resolution": np.float32(0.001)})
     assert env.unwrapped.batch.encoder.resolution == pytest.approx(0.001)
-    with pytest.raises(ValueError, match=r"^eval_episodes must be an integer >= 1, got 0$"):
+    with pytest.raises(
+        ValueError, match=r"^eval_episodes: Input should be greater than or equal to 1, got 0$"
+    ):
         TrainConfig(eval_episodes=0)
     assert TrainConfig(eval_episodes=np.int64(2)).eval_episodes == 2
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +18,9 @@ from elastic_gym.training import (
     parse_overrides,
     train,
 )
-from elastic_gym.training.config import resolve_hyperparams
+from elastic_gym.training.config import Settings, resolve_hyperparams
 from elastic_gym.training.evaluation import evaluate_policy
-from elastic_gym.training.train import env_factory, split_settings
+from elastic_gym.training.train import env_factory
 
 SHORT_EPISODES = {"max_episode_steps": 200}
 
@@ -114,7 +113,7 @@ def test_ppo_learns_to_hold_the_arm_against_gravity(tmp_path):
     assert curve["eval_return"][-1] > curve["eval_return"][0]
     assert curve["tracking_rms"][-1] < 0.3 * curve["tracking_rms"][0]
     trained = evaluate_run(load_run(config.out_dir), n_episodes=2)
-    settings, _ = split_settings(config)
+    settings, _ = config.settings()
     env = env_factory(config, settings)()
     zero = evaluate_policy(env, lambda obs: np.zeros(2), trained.seeds)
     env.close()
@@ -177,8 +176,8 @@ def test_bad_hyperparameters(tmp_path):
         ({"n_steps": "abc"}, "n_steps must be a finite number"),
         ({"learning_rate": float("nan")}, "learning_rate must be a finite number"),
         ({"n_steps": 64.5}, "n_steps must be an integer"),
-        ({"n_envs": 0}, "n_envs must be a positive integer"),
-        ({"normalize": "yes"}, "normalize must be true or false"),
+        ({"n_envs": 0}, "n_envs: Input should be greater than or equal to 1"),
+        ({"normalize": "yes"}, "normalize: Input should be a valid boolean, got 'yes'"),
         ({"use_sde": "no"}, "use_sde must be true or false"),
     ]
     for overrides, match in wrong_kinds:  # refused before any env exists, not inside SB3
@@ -206,9 +205,10 @@ def test_shipped_hyperparameters_are_valid():
     for env_id in elastic_gym.ENV_IDS:
         env = gym.make(env_id)
         for algo in ("ppo", "sac", "td3"):
-            settings = resolve_hyperparams(algo, env_id)
-            assert settings["n_timesteps"] > 0 and settings["decimation"] >= 1
-            action, _ = TrainConfig(env_id=env_id, algo=algo).policy_configs(settings)
+            config = TrainConfig(env_id=env_id, algo=algo)
+            settings, _ = config.settings()
+            assert settings.n_timesteps > 0 and settings.decimation >= 1
+            action, _ = config.policy_configs(settings)
             ActionMap(action, env.unwrapped.model)
         env.close()
 
@@ -410,11 +410,11 @@ def test_a_run_saved_before_the_residual_deadzone_keeps_its_actions(tmp_path):
     config = TrainConfig(algo="ppo", state="deluca", action=residual)
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(config.to_dict()))
     old = read_run_config(tmp_path)
-    assert old.policy_configs(split_settings(old)[0])[0].residual_deadzone == 0.0
-    saved = dataclasses.replace(config, action={**residual, "residual_deadzone": 0.3})
+    assert old.policy_configs(old.settings()[0])[0].residual_deadzone == 0.0
+    saved = config.model_copy(update={"action": {**residual, "residual_deadzone": 0.3}})
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(saved.to_dict()))
     new = read_run_config(tmp_path)
-    assert new.policy_configs(split_settings(new)[0])[0].residual_deadzone == 0.3
+    assert new.policy_configs(new.settings()[0])[0].residual_deadzone == 0.3
     assert ActionConfig(**residual).residual_deadzone == 0.2  # today's default
 
 
@@ -517,7 +517,7 @@ def test_corrupted_run_folder_is_named(tmp_path):
     with pytest.raises(
         ValueError,
         match=r"config\.yaml is not a valid run configuration: "
-        r"unknown training config field\(s\) \['learning_rate'\]",
+        r"learning_rate: unexpected field",
     ):
         load_run(tmp_path / "run")
 
@@ -538,14 +538,15 @@ def test_training_on_batches_in_worker_processes(tmp_path):
     result = train(config, progress_bar=False)
     assert result.policy_steps == 128
     run = load_run(config.out_dir)
-    assert run.settings["batches"] == 2
+    assert run.settings.batches == 2
     assert np.load(Path(config.out_dir) / "evaluations.npz")["results"].shape[1] == 2
     with pytest.raises(ValueError, match="batches"):
         train(
-            dataclasses.replace(
-                config,
-                out_dir=str(tmp_path / "bad"),
-                hyperparams={**config.hyperparams, "batches": 3},
+            config.model_copy(
+                update={
+                    "out_dir": str(tmp_path / "bad"),
+                    "hyperparams": {**config.hyperparams, "batches": 3},
+                }
             ),
             progress_bar=False,
         )
@@ -563,7 +564,7 @@ def test_batches_with_their_own_env_kwargs_train_on_two_plants():
         env_kwargs={"episode_time": 0.05},
         hyperparams={"n_envs": 2, "batches": [{}, heavy]},
     )
-    settings, _ = split_settings(config)
+    settings, _ = config.settings()
     venv = _vec_env(config, settings, 2, seed=4)
     venv.reset()
     actions = np.array([[0.2, -0.1], [0.2, -0.1]])
@@ -590,7 +591,7 @@ def test_batches_with_their_own_env_kwargs_train_on_two_plants():
         other = expected[1] if kwargs == {} else expected[0]
         assert np.array_equal(obs[arm], mine)
         assert not np.allclose(obs[arm], other, rtol=0, atol=1e-6)
-    with pytest.raises(ValueError, match="batches must be an integer >= 1 or a non-empty list"):
+    with pytest.raises(ValueError, match=r"batches\[0\]: Input should be a valid dictionary"):
         resolve_hyperparams("ppo", config.env_id, {"batches": [3]})
 
 
@@ -598,7 +599,7 @@ def test_env_kwargs_of_the_file_and_of_the_run():
     """The hyper-parameter file's ``env_kwargs`` apply unless the run sets the same key;
     a run that names its own task drops the file's task options (they belong to the
     file's task)."""
-    settings = {"env_kwargs": {"task_options": {"move_time": 0.8}, "episode_time": 2.0}}
+    settings = Settings(env_kwargs={"task_options": {"move_time": 0.8}, "episode_time": 2.0})
     own = TrainConfig(env_kwargs={"episode_time": 1.0})
     assert own.training_env_kwargs(settings) == {
         "task_options": {"move_time": 0.8},
@@ -606,5 +607,5 @@ def test_env_kwargs_of_the_file_and_of_the_run():
     }
     regulation = TrainConfig(env_kwargs={"task": "regulation"})
     assert regulation.training_env_kwargs(settings) == {"episode_time": 2.0, "task": "regulation"}
-    with pytest.raises(ValueError, match="env_kwargs must be a mapping"):
+    with pytest.raises(ValueError, match="env_kwargs: Input should be a valid dictionary"):
         resolve_hyperparams("ppo", own.env_id, {"env_kwargs": "fast"})

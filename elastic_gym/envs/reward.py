@@ -32,22 +32,22 @@ with tau' = (tau - tau_prev) / dt and tau'_max = tau_max / rate_time.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields
+from functools import cached_property
+from typing import Annotated
 
 import numpy as np
 from numba import njit
+from pydantic import Field
 
-from elastic_gym.validation import config_from, is_real
+from elastic_gym.validation import ConfigModel, NonNegativeFinite, PositiveFinite
 
 DEFAULT_SIGMAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # rad, one kernel per decade
 DEFAULT_VELOCITY_SIGMAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)  # rad/s
 TERM_NAMES = ("track", "velocity", "torque", "rate", "torsion", "offset")
-_WEIGHTS = ("track", "velocity", "torque", "rate", "torsion")
+Widths = Annotated[tuple[PositiveFinite, ...], Field(min_length=1)]
 
 
-@dataclass(frozen=True)
-class RewardConfig:
+class RewardConfig(ConfigModel):
     """Weights and scales of the tracking reward (module docstring).
 
     Attributes:
@@ -64,59 +64,31 @@ class RewardConfig:
         termination: seconds of the best reward lost when the physics breaks.
     """
 
-    track: float = 1.0
-    sigmas: tuple[float, ...] = DEFAULT_SIGMAS
-    velocity: float = 0.0
-    velocity_sigmas: tuple[float, ...] = DEFAULT_VELOCITY_SIGMAS
-    torque: float = 0.01
-    rate: float = 0.05
-    rate_time: float = 0.002
-    torsion: float = 0.0
-    torsion_scale: float = 0.05
-    termination: float = 1.0
+    section = "reward"
+    track: NonNegativeFinite = 1.0
+    sigmas: Widths = DEFAULT_SIGMAS
+    velocity: NonNegativeFinite = 0.0
+    velocity_sigmas: Widths = DEFAULT_VELOCITY_SIGMAS
+    torque: NonNegativeFinite = 0.01
+    rate: NonNegativeFinite = 0.05
+    rate_time: PositiveFinite = 0.002
+    torsion: NonNegativeFinite = 0.0
+    torsion_scale: PositiveFinite = 0.05
+    termination: NonNegativeFinite = 1.0
 
-    def __post_init__(self) -> None:
-        for name in (*_WEIGHTS, "termination"):
-            value = getattr(self, name)
-            if not _is_number(value) or value < 0:
-                raise ValueError(f"reward {name!r} must be a finite number >= 0, got {value!r}")
-        for name in ("rate_time", "torsion_scale"):
-            value = getattr(self, name)
-            if not _is_number(value) or value <= 0:
-                raise ValueError(f"reward {name!r} must be a finite number > 0, got {value!r}")
-        for name in ("sigmas", "velocity_sigmas"):
-            value = getattr(self, name)
-            if (
-                not isinstance(value, (tuple, list))
-                or not value
-                or not all(_is_number(s) and s > 0 for s in value)
-            ):
-                raise ValueError(
-                    f"reward {name!r} must be a non-empty list of numbers > 0, got {value!r}"
-                )
-            object.__setattr__(self, name, tuple(float(s) for s in value))
-        # 1/sigma as arrays, computed once (not dataclass fields)
-        object.__setattr__(self, "_inverse_sigmas", 1.0 / np.array(self.sigmas))
-        object.__setattr__(self, "_inverse_velocity_sigmas", 1.0 / np.array(self.velocity_sigmas))
-        object.__setattr__(
-            self,
-            "_weights",
-            np.array(
-                [
-                    self.track,
-                    self.velocity,
-                    self.torque,
-                    self.rate,
-                    self.torsion,
-                    self.penalty_bound,
-                ]
-            ),
-        )
+    @cached_property
+    def _inverse_sigmas(self) -> np.ndarray:
+        return 1.0 / np.array(self.sigmas)
 
-    @classmethod
-    def from_config(cls, config: dict | RewardConfig | None) -> RewardConfig:
-        """A config from a mapping of field names (unknown keys: ``ValueError``)."""
-        return config_from(cls, config, "reward")
+    @cached_property
+    def _inverse_velocity_sigmas(self) -> np.ndarray:
+        return 1.0 / np.array(self.velocity_sigmas)
+
+    @cached_property
+    def _weights(self) -> np.ndarray:
+        """track, velocity, torque, rate, torsion, penalty bound (the kernel's order)."""
+        c = self
+        return np.array([c.track, c.velocity, c.torque, c.rate, c.torsion, c.penalty_bound])
 
     @property
     def penalty_bound(self) -> float:
@@ -132,13 +104,6 @@ class RewardConfig:
     def termination_reward(self) -> float:
         """Reward of the step that ends an episode on broken physics (< 0)."""
         return -self.termination * self.max_rate
-
-    def to_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-
-def _is_number(value) -> bool:
-    return is_real(value) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _kernel_mean(x: np.ndarray, inverse_sigmas: np.ndarray) -> np.ndarray:

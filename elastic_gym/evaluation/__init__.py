@@ -1,7 +1,10 @@
 """Evaluation: compare controllers on full-state control with estimated versus true state.
 
 * :mod:`~elastic_gym.evaluation.scenario` — the grid (envs x robustness axes x model
-  errors x seeds x controllers x state sources), YAML loading and validation, presets;
+  errors x seeds x controllers x state sources) and its validation, on the models of
+  :mod:`~elastic_gym.evaluation.scenario_models` and
+  :mod:`~elastic_gym.evaluation.magnitudes`; :mod:`~elastic_gym.evaluation.presets` —
+  the shipped presets and YAML files;
 * :mod:`~elastic_gym.evaluation.runner` — one episode and the parallel execution;
 * :mod:`~elastic_gym.evaluation.metrics` — metric definitions;
 * :mod:`~elastic_gym.evaluation.report` and :mod:`~elastic_gym.evaluation.plots` — tables, PNGs;
@@ -10,6 +13,7 @@
 
 from elastic_gym.evaluation.compare import Comparison, compare
 from elastic_gym.evaluation.metrics import TimeSeries, compute_metrics
+from elastic_gym.evaluation.presets import list_presets, load_preset, load_scenario
 from elastic_gym.evaluation.runner import RunResult, RunSpec, execute, plan_runs, run_episode
 from elastic_gym.evaluation.scenario import (
     ControllerEntry,
@@ -18,9 +22,6 @@ from elastic_gym.evaluation.scenario import (
     ScenarioError,
     SourceEntry,
     Variation,
-    list_presets,
-    load_preset,
-    load_scenario,
 )
 
 __all__ = [

@@ -1,6 +1,6 @@
 """The runs of a scenario's one-at-a-time sweeps, arranged as curves.
 
-A scenario with ``sweeps`` (:class:`~elastic_gym.evaluation.scenario.Sweep`) has an axis
+A scenario with ``sweeps`` (:class:`~elastic_gym.evaluation.magnitudes.Sweep`) has an axis
 ``sweep`` whose values are ``nominal`` and ``<sweep>=<magnitude>``. :func:`sweep_curves`
 groups the result rows (one per run, as in ``runs.csv``) into one :class:`SweepCurve`
 per context (env, the other axes, model error), loop (controller x state source) and

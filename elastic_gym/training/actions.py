@@ -32,20 +32,20 @@ below turns it into a motor torque at every control period (1 kHz), from the sta
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field, fields
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import Field, StrictBool, StrictStr, model_validator
 
 from elastic_gym.controllers.gain_design import bandwidth_pd_gains, nominal_configuration
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import config_from, is_real, per_joint_values
+from elastic_gym.validation import ConfigModel, Finite, PositiveFinite, per_joint_values
 
 KINDS = ("torque", "motor-offset", "residual")
+Gains = Finite | list[Finite] | None  # one or n numbers; checked against n by ActionMap
 
 
-@dataclass(frozen=True)
-class ActionConfig:
+class ActionConfig(ConfigModel):
     """How actions in [-1, 1]^n become torques (module docstring).
 
     Attributes:
@@ -60,57 +60,28 @@ class ActionConfig:
         residual_deadzone: |a| below which the residual is exactly zero, in [0, 1).
     """
 
-    kind: str = "torque"
-    offset_scale: float = 0.05
-    bandwidth: float = 60.0
-    damping_ratio: float = 0.7
-    kp: float | list | None = None
-    kd: float | list | None = None
-    gravity_compensation: bool = False
-    residual: str | None = None
-    residual_options: dict = field(default_factory=dict)
-    residual_scale: float = 0.1
-    residual_deadzone: float = 0.2
+    section = "action"
+    kind: Literal[KINDS] = "torque"  # type: ignore[valid-type]
+    offset_scale: PositiveFinite = 0.05
+    bandwidth: PositiveFinite = 60.0
+    damping_ratio: PositiveFinite = 0.7
+    kp: Gains = None
+    kd: Gains = None
+    gravity_compensation: StrictBool = False
+    residual: StrictStr | None = None
+    residual_options: dict[str, Any] = Field(default_factory=dict)
+    residual_scale: PositiveFinite = Field(0.1, le=1)
+    residual_deadzone: Finite = Field(0.2, ge=0, lt=1)
 
-    def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise ValueError(f"unknown action kind {self.kind!r}; valid: {list(KINDS)}")
-        for name in ("offset_scale", "bandwidth", "damping_ratio", "residual_scale"):
-            value = getattr(self, name)
-            if (
-                not is_real(value)
-                or isinstance(value, bool)
-                or not math.isfinite(value)
-                or value <= 0
-            ):
-                raise ValueError(f"action {name!r} must be a finite number > 0, got {value!r}")
-        if self.residual_scale > 1:
-            raise ValueError(
-                f"action 'residual_scale' must be in (0, 1], got {self.residual_scale!r}"
-            )
-        deadzone = self.residual_deadzone
-        if not is_real(deadzone) or isinstance(deadzone, bool) or not 0 <= deadzone < 1:
-            raise ValueError(
-                f"action 'residual_deadzone' must be a number in [0, 1), got {deadzone!r}"
-            )
+    @model_validator(mode="after")
+    def _consistent(self) -> ActionConfig:
         if (self.kp is None) != (self.kd is None):
-            raise ValueError("give both action 'kp' and 'kd', or neither (bandwidth rule)")
-        if not isinstance(self.gravity_compensation, bool):
-            raise ValueError("action 'gravity_compensation' must be true or false")
+            raise ValueError("give both 'kp' and 'kd', or neither (bandwidth rule)")
         if (self.kind == "residual") != (self.residual is not None):
             raise ValueError(
-                "action kind 'residual' needs 'residual' (a controller name), and only it takes one"
+                "kind 'residual' needs 'residual' (a controller name), and only it takes one"
             )
-        if not isinstance(self.residual_options, dict):
-            raise ValueError("action 'residual_options' must be a mapping")
-
-    @classmethod
-    def from_config(cls, config: dict | ActionConfig | None) -> ActionConfig:
-        """A config from a mapping of field names (unknown keys: ``ValueError``)."""
-        return config_from(cls, config, "action")
-
-    def to_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return self
 
     @property
     def model_free(self) -> bool:

@@ -26,33 +26,37 @@ import contextlib
 import functools
 import inspect
 import math
-from dataclasses import asdict, dataclass, field, fields
 from importlib import resources
 from pathlib import Path
+from typing import Annotated, Any, Literal
 
-import numpy as np
 import yaml
+from pydantic import (
+    AfterValidator,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    RootModel,
+    StrictBool,
+    StrictInt,
+    StrictStr,
+    model_validator,
+)
 
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import check_state_source
-from elastic_gym.validation import is_real, registered_env_id
+from elastic_gym.validation import (
+    ConfigModel,
+    StrictModel,
+    is_real,
+    registered_env_id,
+    validated,
+)
 from elastic_gym.yaml_io import load_yaml
 
 ALGORITHMS = ("ppo", "sac", "td3", "recurrentppo")
 RECURRENT = {"recurrentppo"}  # sb3-contrib's RecurrentPPO: an LSTM in actor and critic
-OWN_KEYS = {
-    "n_timesteps",
-    "n_envs",
-    "batches",
-    "decimation",
-    "normalize",
-    "critic_state",
-    "action",
-    "observation",
-    "env_kwargs",
-}
-OWN_BOOLEANS = ("normalize", "critic_state")
 SCHEDULED = ("learning_rate", "clip_range")  # may be "lin_<value>" (RL Zoo)
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 
@@ -75,14 +79,58 @@ def default_policy(algo: str) -> str:
     return "MlpLstmPolicy" if algo in RECURRENT else "MlpPolicy"
 
 
+def _count(value: Any) -> Any:
+    """An integer or an integral float (YAML's ``!!float 1e6``), not a bool or a string."""
+    if isinstance(value, (bool, str)):
+        raise ValueError(f"must be an integer, got {value!r}")
+    return value
+
+
+Count = Annotated[int, Field(ge=1), BeforeValidator(_count)]
+PositiveInt = Annotated[StrictInt, Field(ge=1)]  # numpy integers count (StrictModel)
+EnvKwargs = dict[str, Any]
+
+
+class Settings(StrictModel):
+    """Our own keys of a hyper-parameter entry (module docstring), resolved once per run;
+    the other keys are the algorithm's constructor arguments."""
+
+    model_config = ConfigDict(frozen=True)
+    n_timesteps: Count = 100_000
+    n_envs: Count = 1
+    batches: Count | Annotated[list[EnvKwargs], Field(min_length=1)] = 1
+    decimation: Count = 1
+    normalize: StrictBool = True
+    critic_state: StrictBool = False
+    action: dict[str, Any] = Field(default_factory=dict)
+    observation: dict[str, Any] = Field(default_factory=dict)
+    env_kwargs: EnvKwargs = Field(default_factory=dict)
+
+    @property
+    def batch_kwargs(self) -> list[dict]:
+        """One env-kwargs update per batch: ``batches`` k gives k identical batches, a list
+        of mappings (e.g. ``[{}, {plant_scaling: {link_mass: 1.3}}]``: half the arms on the
+        nominal plant, half on links 30 % heavier) one batch each."""
+        return [{}] * self.batches if isinstance(self.batches, int) else self.batches
+
+
+class HyperparameterEntry(Settings):
+    """One entry of a hyper-parameter file: our keys (typed) and the algorithm's
+    constructor arguments (checked against its signature by :func:`resolve_settings`)."""
+
+    model_config = ConfigDict(extra="allow")
+
+
+class HyperparameterFile(RootModel[dict[str, HyperparameterEntry]]):
+    """A hyper-parameter file: env ids (or ``default``) -> entry."""
+
+
 def load_hyperparams_file(path: str | Path) -> dict:
     """Parse a hyper-parameter YAML file; errors name the file and the problem."""
     data = load_yaml(Path(path))
     if not isinstance(data, dict):
         raise ValueError(f"{path}: top level must map env ids (or 'default') to settings")
-    for key, entry in data.items():
-        if not isinstance(entry, dict):
-            raise ValueError(f"{path}: entry {key!r} must be a mapping, got {type(entry).__name__}")
+    validated(HyperparameterFile, data, prefix=str(path))
     return data
 
 
@@ -100,68 +148,62 @@ def merged_hyperparams(
     return {**table.get("default", {}), **table.get(env_id, {}), **(overrides or {})}
 
 
-def resolve_hyperparams(
+EXCLUDED_ARGUMENTS = {"self", "env", "seed", "tensorboard_log", "verbose", "device"}
+
+
+def resolve_settings(
     algo: str, env_id: str, overrides: dict | None = None, file: str | Path | None = None
-) -> dict:
-    """Merged settings for one run (:func:`merged_hyperparams`), validated, ready for SB3."""
+) -> tuple[Settings, dict]:
+    """(our settings, the algorithm's keyword arguments, ready for SB3) of one run, from
+    :func:`merged_hyperparams`."""
     merged = merged_hyperparams(algo, env_id, overrides, file)
-    allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters) - {
-        "self",
-        "env",
-        "policy_kwargs",
-        "seed",
-        "tensorboard_log",
-        "verbose",
-        "device",
-        "_init_setup_model",
-    }
-    allowed |= OWN_KEYS | {"policy_kwargs"}
+    ours = {key: merged.pop(key) for key in Settings.model_fields if key in merged}
+    settings = validated(Settings, ours)
+    allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters)
+    allowed -= EXCLUDED_ARGUMENTS | {"_init_setup_model"}
     unknown = set(merged) - allowed
     if unknown:
         raise ValueError(
-            f"unknown hyper-parameter(s) {sorted(unknown)} for {algo}; valid: {sorted(allowed)}"
+            f"unknown hyper-parameter(s) {sorted(unknown)} for {algo}; "
+            f"valid: {sorted(allowed | set(Settings.model_fields))}"
         )
     for key in SCHEDULED:
         if isinstance(merged.get(key), str):
             merged[key] = _schedule(key, merged[key])
     _check_values(algo, merged)
-    if merged.get("critic_state"):
+    if settings.critic_state:
         _check_critic_state(algo, merged)
     if "policy_kwargs" in merged:
         merged["policy_kwargs"] = _policy_kwargs(merged["policy_kwargs"])
-    for key in ("env_kwargs", "action", "observation"):
-        if not isinstance(merged.get(key, {}), dict):
-            raise ValueError(f"hyper-parameter {key} must be a mapping, got {merged[key]!r}")
-    batch_kwargs(merged.get("batches", 1))
-    return merged
+    return settings, merged
 
 
-POSITIVE_INTEGERS = ("n_timesteps", "n_envs", "decimation")  # our own count settings
+def resolve_hyperparams(
+    algo: str, env_id: str, overrides: dict | None = None, file: str | Path | None = None
+) -> dict:
+    """Merged settings for one run (:func:`resolve_settings`) as one mapping: the keys
+    given (ours validated) and the algorithm's arguments."""
+    settings, algo_kwargs = resolve_settings(algo, env_id, overrides, file)
+    return {**settings.model_dump(exclude_unset=True), **algo_kwargs}
 
 
 def _check_values(algo: str, merged: dict) -> None:
-    """Refuse a value of the wrong kind before any env is built: our own counts must be
-    positive integers and ``normalize`` a boolean; an algorithm argument whose default is
-    a number must be a finite number (an integer where the default is one) unless it is
-    a schedule or a tuple (``train_freq``), and a boolean default needs a boolean.
-    Integral floats (``!!float 1e6``) become integers where one is needed."""
+    """Bind the algorithm's arguments to its signature before any env is built: an
+    argument whose default is a number must be a finite number (an integer where the
+    default is one) unless it is a schedule or a tuple (``train_freq``), and a boolean
+    default needs a boolean. Integral floats (``!!float 1e6``) become integers."""
     params = inspect.signature(algorithm_class(algo).__init__).parameters
     for key, value in merged.items():
         default = getattr(params.get(key), "default", None)
-        if key in OWN_BOOLEANS or isinstance(default, bool):
+        if isinstance(default, bool):
             if not isinstance(value, bool):
                 raise ValueError(f"hyper-parameter {key} must be true or false, got {value!r}")
-        elif key in POSITIVE_INTEGERS or (
-            key in params
-            and _is_number(default)
-            and not (callable(value) or isinstance(value, (list, tuple)))
-        ):
+        elif _is_number(default) and not (callable(value) or isinstance(value, (list, tuple))):
             if not _is_number(value) or not math.isfinite(value):
                 raise ValueError(f"hyper-parameter {key} must be a finite number, got {value!r}")
-            if key in POSITIVE_INTEGERS or isinstance(default, int):
-                if value != int(value) or (key in POSITIVE_INTEGERS and value < 1):
-                    kind = "a positive integer" if key in POSITIVE_INTEGERS else "an integer"
-                    raise ValueError(f"hyper-parameter {key} must be {kind}, got {value!r}")
+            if isinstance(default, int):
+                if value != int(value):
+                    raise ValueError(f"hyper-parameter {key} must be an integer, got {value!r}")
                 merged[key] = int(value)
 
 
@@ -185,20 +227,6 @@ def _check_critic_state(algo: str, merged: dict) -> None:
 
 def _is_number(value) -> bool:
     return is_real(value) and not isinstance(value, bool)
-
-
-def batch_kwargs(batches) -> list[dict]:
-    """The ``batches`` hyper-parameter as one env-kwargs update per batch: an integer k
-    (k identical batches) or a list of mappings (e.g. ``[{}, {plant_scaling: {link_mass:
-    1.3}}]``: half the arms on the nominal plant, half on links 30 % heavier)."""
-    if isinstance(batches, int) and not isinstance(batches, bool) and batches >= 1:
-        return [{}] * batches
-    if isinstance(batches, list) and batches and all(isinstance(entry, dict) for entry in batches):
-        return batches
-    raise ValueError(
-        f"batches must be an integer >= 1 or a non-empty list of env-kwargs "
-        f"mappings, got {batches!r}"
-    )
 
 
 def linear_schedule(initial: float, progress_remaining: float) -> float:
@@ -250,8 +278,12 @@ def parse_overrides(items: list[str]) -> dict:
     return out
 
 
-@dataclass
-class TrainConfig:
+def _state_source(state: str) -> str:
+    check_state_source(state)
+    return state
+
+
+class TrainConfig(ConfigModel):
     """One training run.
 
     ``env_id``: a registered id; a bare name (``TwoLinkElastic-v0``) means
@@ -264,68 +296,50 @@ class TrainConfig:
     ``n_timesteps`` from the hyper-parameter file.
     """
 
-    env_id: str = "elastic_gym/TwoLinkElastic-v0"
-    algo: str = "ppo"
-    state: str = "deluca"
-    total_steps: int | None = None
-    seed: int = 0
-    out_dir: str = "runs/ppo-twolink"
-    action: dict = field(default_factory=dict)
-    observation: dict = field(default_factory=dict)
-    frame_stack: int = 4
-    env_kwargs: dict = field(default_factory=dict)
-    observer_options: dict = field(default_factory=dict)
-    hyperparams: dict = field(default_factory=dict)
-    hyperparams_file: str | None = None
-    eval_freq: int = 20000
-    eval_episodes: int = 3
+    env_id: Annotated[StrictStr, AfterValidator(registered_env_id)] = (
+        "elastic_gym/TwoLinkElastic-v0"
+    )
+    algo: Literal[ALGORITHMS] = "ppo"  # type: ignore[valid-type]
+    state: Annotated[StrictStr, AfterValidator(_state_source)] = "deluca"
+    total_steps: PositiveInt | None = None
+    seed: Annotated[StrictInt, Field(ge=0)] = 0
+    out_dir: StrictStr = "runs/ppo-twolink"
+    action: dict[str, Any] = Field(default_factory=dict)
+    observation: dict[str, Any] = Field(default_factory=dict)
+    frame_stack: PositiveInt = 4
+    env_kwargs: EnvKwargs = Field(default_factory=dict)
+    observer_options: dict[str, Any] = Field(default_factory=dict)
+    hyperparams: dict[str, Any] = Field(default_factory=dict)
+    hyperparams_file: StrictStr | None = None
+    eval_freq: PositiveInt = 20000
+    eval_episodes: PositiveInt = 3
 
-    def __post_init__(self) -> None:
-        self.env_id = registered_env_id(self.env_id)
-        algorithm_class(self.algo)
-        check_state_source(self.state)
-        for key in ("seed", "eval_freq", "eval_episodes", "frame_stack"):
-            value, least = getattr(self, key), 0 if key == "seed" else 1
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
-                raise ValueError(f"{key} must be an integer >= {least}, got {value!r}")
-        for key in ("action", "observation"):
-            if not isinstance(getattr(self, key), dict):
-                raise ValueError(
-                    f"{key} must be a mapping of its fields, got {getattr(self, key)!r}"
-                )
-        self.policy_configs({})
-        if self.total_steps is not None and (
-            isinstance(self.total_steps, bool)
-            or not isinstance(self.total_steps, (int, np.integer))
-            or self.total_steps < 1
-        ):
-            raise ValueError(f"total_steps must be a positive integer, got {self.total_steps!r}")
+    @model_validator(mode="after")
+    def _policy_fields(self) -> TrainConfig:
+        self.policy_configs(Settings())
+        return self
 
     @classmethod
     def from_dict(cls, data: dict) -> TrainConfig:
-        allowed = {f.name for f in fields(cls)}
-        unknown = set(data) - allowed
-        if unknown:
-            raise ValueError(
-                f"unknown training config field(s) {sorted(unknown)}; valid: {sorted(allowed)}"
-            )
-        return cls(**data)
+        """A run's config from a mapping of its fields (``ValueError`` naming the field)."""
+        return validated(cls, data)
 
-    def policy_configs(self, settings: dict) -> tuple[ActionConfig, ObservationConfig]:
-        """The action and observation configs: ``settings`` (resolved hyper-parameters)
+    def settings(self) -> tuple[Settings, dict]:
+        """(our settings, the algorithm's arguments) of this run (:func:`resolve_settings`)."""
+        return resolve_settings(self.algo, self.env_id, self.hyperparams, self.hyperparams_file)
+
+    def policy_configs(self, settings: Settings) -> tuple[ActionConfig, ObservationConfig]:
+        """The action and observation configs: the hyper-parameter ``settings``'
         overridden field by field by the run's own."""
-        action = {**settings.get("action", {}), **self.action}
-        observation = {**settings.get("observation", {}), **self.observation}
+        action = {**settings.action, **self.action}
+        observation = {**settings.observation, **self.observation}
         return ActionConfig.from_config(action), ObservationConfig.from_config(observation)
 
-    def training_env_kwargs(self, settings: dict) -> dict:
+    def training_env_kwargs(self, settings: Settings) -> dict:
         """The env kwargs of the run: the hyper-parameter file's ``env_kwargs`` (in
         ``settings``) updated key by key with the run's own; the file's ``task_options``
         are dropped when the run names its own ``task``."""
-        shipped = dict(settings.get("env_kwargs") or {})
+        shipped = dict(settings.env_kwargs)
         if "task" in self.env_kwargs:
             shipped.pop("task_options", None)
         return {**shipped, **self.env_kwargs}
-
-    def to_dict(self) -> dict:
-        return asdict(self)

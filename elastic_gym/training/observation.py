@@ -32,13 +32,13 @@ critic trained with privileged information sees besides the policy's observation
 
 from __future__ import annotations
 
-import dataclasses
-import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import AfterValidator, Field, StrictInt
 
-from elastic_gym.validation import config_from, is_real
+from elastic_gym.validation import ConfigModel, PositiveFinite
 
 FEATURES = (
     "error",
@@ -56,77 +56,35 @@ STATE_FEATURES = frozenset({"error", "error_rate", "torsion", "torsion_rate"})
 ELASTIC_FEATURES = frozenset({"torsion", "torsion_rate", "motor_error"})
 SENSOR_FEATURES = frozenset({"motor_error", "acceleration"})
 GRAVITY = 9.81
-_SCALES = (
-    "error_scale",
-    "error_rate_scale",
-    "torsion_scale",
-    "torsion_rate_scale",
-    "preview_scale",
-)
 
 
-@dataclass(frozen=True)
-class ObservationConfig:
+def _in_order(features: tuple[str, ...] | None) -> tuple[str, ...] | None:
+    """Features repeat nowhere and are kept in the order of :data:`FEATURES`."""
+    if features is not None and len(set(features)) != len(features):
+        raise ValueError(f"observation features repeat: {list(features)}")
+    return features and tuple(f for f in FEATURES if f in features)
+
+
+class ObservationConfig(ConfigModel):
     """Which features the policy sees and their scales (module docstring).
 
     ``features=None`` selects the defaults of :func:`default_features` for the state
     source and action kind.
     """
 
-    features: tuple[str, ...] | None = None
-    reference_order: int = 2
-    preview: tuple[float, ...] = ()
-    error_scale: float = 0.01
-    error_rate_scale: float = 0.1
-    torsion_scale: float = 0.05
-    torsion_rate_scale: float = 1.0
-    preview_scale: float = 0.1
-
-    def __post_init__(self) -> None:
-        if self.features is not None:
-            if not isinstance(self.features, (list, tuple)) or not self.features:
-                raise ValueError(
-                    f"observation 'features' must be a non-empty list, got {self.features!r}"
-                )
-            unknown = [f for f in self.features if f not in FEATURES]
-            if unknown:
-                raise ValueError(
-                    f"unknown observation feature(s) {unknown}; valid: {list(FEATURES)}"
-                )
-            if len(set(self.features)) != len(self.features):
-                raise ValueError(f"observation features repeat: {list(self.features)}")
-            ordered = tuple(f for f in FEATURES if f in self.features)
-            object.__setattr__(self, "features", ordered)
-        order = self.reference_order
-        if not isinstance(order, int) or isinstance(order, bool) or not 0 <= order <= 4:
-            raise ValueError(f"observation 'reference_order' must be 0 .. 4, got {order!r}")
-        if not isinstance(self.preview, (list, tuple)) or not all(
-            _positive(h) for h in self.preview
-        ):
-            raise ValueError(
-                f"observation 'preview' must be a list of horizons > 0 (s), got {self.preview!r}"
-            )
-        object.__setattr__(self, "preview", tuple(float(h) for h in self.preview))
-        for name in _SCALES:
-            if not _positive(getattr(self, name)):
-                raise ValueError(
-                    f"observation {name!r} must be a finite number > 0, got {getattr(self, name)!r}"
-                )
-
-    @classmethod
-    def from_config(cls, config: dict | ObservationConfig | None) -> ObservationConfig:
-        """A config from a mapping of field names (unknown keys: ``ValueError``)."""
-        return config_from(cls, config, "observation")
-
-    def to_dict(self) -> dict:
-        out = {f.name: getattr(self, f.name) for f in fields(self)}
-        out["features"] = None if self.features is None else list(self.features)
-        out["preview"] = list(self.preview)
-        return out
-
-
-def _positive(value) -> bool:
-    return is_real(value) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    section = "observation"
+    features: Annotated[
+        tuple[Literal[FEATURES], ...] | None,  # type: ignore[valid-type]
+        Field(min_length=1),
+        AfterValidator(_in_order),
+    ] = None
+    reference_order: StrictInt = Field(2, ge=0, le=4)
+    preview: tuple[PositiveFinite, ...] = ()  # horizons (s)
+    error_scale: PositiveFinite = 0.01
+    error_rate_scale: PositiveFinite = 0.1
+    torsion_scale: PositiveFinite = 0.05
+    torsion_rate_scale: PositiveFinite = 1.0
+    preview_scale: PositiveFinite = 0.1
 
 
 def default_features(
@@ -289,7 +247,7 @@ class TrueStateFeatures:
             f for f in FEATURES if f in STATE_FEATURES and (elastic or f not in ELASTIC_FEATURES)
         )
         self.builder = ObservationBuilder(
-            dataclasses.replace(config, features=features), n, elastic, False, False, np.ones(n)
+            config.model_copy(update={"features": features}), n, elastic, False, False, np.ones(n)
         )
         self.n, self.size = n, self.builder.size
 

@@ -27,7 +27,6 @@ from it, so load only run folders from trusted sources.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import functools
 import json
 import pickle
@@ -42,13 +41,11 @@ from gymnasium.vector import AutoresetMode
 
 from elastic_gym.folder_lock import check_writable, folder_lock
 from elastic_gym.training.config import (
-    OWN_KEYS,
+    Settings,
     TrainConfig,
     algorithm_class,
-    batch_kwargs,
     default_policy,
     merged_hyperparams,
-    resolve_hyperparams,
 )
 from elastic_gym.training.evaluation import CURVE_FILE, Evaluation, PolicyActor, evaluate_arms
 from elastic_gym.training.policy_env import SENSORS, make_policy_env
@@ -69,7 +66,7 @@ class TrainResult:
     eval_tracking_rms: float
 
 
-def env_factory(config: TrainConfig, settings: dict, critic_state: bool = False):
+def env_factory(config: TrainConfig, settings: Settings, critic_state: bool = False):
     """A picklable constructor of the policy env of a config (for vec envs and workers);
     ``critic_state``: the training stack with the true state appended for the critic."""
     action, observation = config.policy_configs(settings)
@@ -79,7 +76,7 @@ def env_factory(config: TrainConfig, settings: dict, critic_state: bool = False)
         state=config.state,
         env_kwargs=config.training_env_kwargs(settings),
         observer_options=config.observer_options,
-        decimation=int(settings.get("decimation", 1)),
+        decimation=settings.decimation,
         action=action,
         observation=observation,
         frame_stack=config.frame_stack if config.state == SENSORS else 1,
@@ -89,7 +86,7 @@ def env_factory(config: TrainConfig, settings: dict, critic_state: bool = False)
 
 def policy_vec_env(
     config: TrainConfig,
-    settings: dict,
+    settings: Settings,
     n_arms: int,
     autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
     env_kwargs: dict | None = None,
@@ -107,7 +104,7 @@ def policy_vec_env(
         state=config.state,
         env_kwargs={**config.training_env_kwargs(settings), **(env_kwargs or {})},
         observer_options=config.observer_options,
-        decimation=int(settings.get("decimation", 1)),
+        decimation=settings.decimation,
         action=action,
         observation=observation,
         frame_stack=config.frame_stack if config.state == SENSORS else 1,
@@ -118,7 +115,7 @@ def policy_vec_env(
 
 def vec_env_factory(
     config: TrainConfig,
-    settings: dict,
+    settings: Settings,
     n_arms: int,
     env_kwargs: dict | None = None,
     critic_state: bool = False,
@@ -132,18 +129,18 @@ def vec_env_factory(
     )
 
 
-def _vec_env(config: TrainConfig, settings: dict, n_envs: int, seed: int):
+def _vec_env(config: TrainConfig, settings: Settings, n_envs: int, seed: int):
     """One env (n_envs = 1), a batch of n_envs arms, or several batches (hyper-parameter
-    ``batches``, :func:`batch_kwargs`) in worker processes; with the true state appended
+    ``batches``, :attr:`Settings.batch_kwargs`) in worker processes; with the true state appended
     for the critic if the hyper-parameter ``critic_state`` is set."""
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
     from elastic_gym.training.sb3_vec_env import ProcessBatches
 
-    batches = batch_kwargs(settings.get("batches", 1))
+    batches = settings.batch_kwargs
     if n_envs % len(batches):
         raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs ({n_envs})")
-    critic_state = bool(settings.get("critic_state", False))
+    critic_state = settings.critic_state
     if n_envs == 1:
         venv = DummyVecEnv([env_factory(config, settings, critic_state)])
         venv.action_space.seed(seed)
@@ -184,15 +181,6 @@ def zero_action_head(model) -> None:
         for head in heads:
             head.weight.zero_()
             head.bias.zero_()
-
-
-def split_settings(config: TrainConfig) -> tuple[dict, dict]:
-    """(our settings, algorithm kwargs) resolved from the hyper-parameter file + overrides."""
-    merged = resolve_hyperparams(
-        config.algo, config.env_id, config.hyperparams, config.hyperparams_file
-    )
-    ours = {k: merged.pop(k) for k in OWN_KEYS if k in merged}
-    return ours, merged
 
 
 def earlier_run(folder: Path) -> list[str]:
@@ -269,7 +257,7 @@ def _train_locked(
 
     out = Path(config.out_dir)
     check_run_folder(out, overwrite)
-    settings, algo_kwargs = split_settings(config)
+    settings, algo_kwargs = config.settings()
     created = [folder for folder in (out, *out.parents) if not folder.exists()]
     if overwrite:
         clear_run(out, keep_folder=True)
@@ -289,7 +277,7 @@ def _train_locked(
 
 def _train(
     config: TrainConfig,
-    settings: dict,
+    settings: Settings,
     algo_kwargs: dict,
     out: Path,
     progress_bar: bool,
@@ -299,9 +287,8 @@ def _train(
 
     from elastic_gym.training.learning_curve import LearningCurve
 
-    total = config.total_steps or int(settings.get("n_timesteps", 100_000))
-    n_envs = int(settings.get("n_envs", 1))
-    decimation = int(settings.get("decimation", 1))
+    total = config.total_steps or settings.n_timesteps
+    n_envs, decimation = settings.n_envs, settings.decimation
     action, observation = config.policy_configs(settings)
     venv = _vec_env(config, settings, n_envs, config.seed)
     try:
@@ -310,12 +297,12 @@ def _train(
         venv.close()
         raise
     try:
-        normalize = bool(settings.get("normalize", True))
+        normalize = settings.normalize
         gamma = float(algo_kwargs.get("gamma", 0.99))
         venv = VecNormalize(venv, norm_obs=normalize, norm_reward=normalize, gamma=gamma)
 
         policy = algo_kwargs.pop("policy", default_policy(config.algo))
-        if settings.get("critic_state"):
+        if settings.critic_state:
             from elastic_gym.training.critic import PrivilegedCriticPolicy
 
             # the evaluation envs are the deployment stack: the actor's observation only
@@ -359,14 +346,15 @@ def _train(
     # the run folder is self-contained: the hyper-parameters used, not a pointer to a file,
     # and every field of the action and observation configs (a later release's defaults
     # must not change what a saved policy's actions mean)
-    frozen = dataclasses.replace(
-        config,
-        hyperparams_file=None,
-        action=action.to_dict(),
-        observation=observation.to_dict(),
-        hyperparams=merged_hyperparams(
-            config.algo, config.env_id, config.hyperparams, config.hyperparams_file
-        ),
+    frozen = config.model_copy(
+        update={
+            "hyperparams_file": None,
+            "action": action.to_dict(),
+            "observation": observation.to_dict(),
+            "hyperparams": merged_hyperparams(
+                config.algo, config.env_id, config.hyperparams, config.hyperparams_file
+            ),
+        }
     )
     (out / "config.yaml").write_text(yaml.safe_dump(frozen.to_dict(), sort_keys=False))
     final = curve.evaluations[-1]
@@ -389,14 +377,14 @@ class TrainedRun:
     model: object
     normalizer: object | None
     config: TrainConfig
-    settings: dict
+    settings: Settings
 
     def __post_init__(self) -> None:
         self._actor = PolicyActor(self.model, self.normalizer)
 
     @property
     def decimation(self) -> int:
-        return int(self.settings.get("decimation", 1))
+        return self.settings.decimation
 
     def start(self) -> None:
         """A new episode: a recurrent policy forgets its memory."""
@@ -450,7 +438,7 @@ def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
     """
     folder = Path(run_dir)
     config = read_run_config(folder)
-    settings, _ = split_settings(config)
+    settings, _ = config.settings()
     model_path = folder / (
         "best_model.zip" if best and (folder / "best_model.zip").exists() else "model.zip"
     )
@@ -500,8 +488,8 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
     built = set()
     for config in configs:
         check_run_folder(config.out_dir, overwrite)
-        settings, _ = split_settings(config)
-        setting = dataclasses.replace(config, seed=0, out_dir="").to_dict()
+        settings, _ = config.settings()
+        setting = config.model_copy(update={"seed": 0, "out_dir": ""}).to_dict()
         if repr(setting) not in built:
             built.add(repr(setting))
             env_factory(config, settings)().close()

@@ -1,0 +1,63 @@
+"""JSON Schemas of the YAML files the package reads, for editor completion and checks.
+
+:data:`SCHEMAS` maps a schema name to the pydantic model that validates those files
+(``"module:Model"``; a model whose module is not installed is left out). The generated
+schemas ship beside this module as ``<name>.json``, and every shipped YAML file names
+its schema in its first line, ``# yaml-language-server: $schema=<relative path>``.
+Regenerate them after changing a model with::
+
+    elastic-gym schema --write
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+from pathlib import Path
+
+from pydantic import BaseModel
+
+SCHEMA_DIR = Path(__file__).resolve().parent
+SCHEMAS = {
+    "scenario": "elastic_gym.evaluation.scenario:Scenario",  # presets, compare --config
+    "train": "elastic_gym.training.config:HyperparameterFile",  # hyper-parameter files
+    "suite": "elastic_gym.benchmark.suite:SuiteConfig",
+}
+
+
+def schema_models() -> dict[str, type[BaseModel]]:
+    """The models of :data:`SCHEMAS` that can be imported here."""
+    models = {}
+    for name, target in SCHEMAS.items():
+        module, _, attr = target.partition(":")
+        try:
+            models[name] = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError):
+            continue
+    return models
+
+
+def json_schema(name: str) -> dict:
+    """The JSON Schema (draft 2020-12) of the files validated by model ``name``."""
+    models = schema_models()
+    if name not in models:
+        raise ValueError(f"unknown schema {name!r}; valid: {sorted(models)}")
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        **models[name].model_json_schema(by_alias=True),
+    }
+
+
+def schema_text(name: str) -> str:
+    """:func:`json_schema` as the text of the shipped file."""
+    return json.dumps(json_schema(name), indent=2, sort_keys=True) + "\n"
+
+
+def write_schemas(directory: Path = SCHEMA_DIR) -> list[Path]:
+    """Write every schema as ``<name>.json`` into ``directory``; return the paths."""
+    paths = []
+    for name in schema_models():
+        path = Path(directory) / f"{name}.json"
+        path.write_text(schema_text(name))
+        paths.append(path)
+    return paths
