@@ -20,9 +20,11 @@ import select
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 SNAPSHOT_PERIOD = 0.5  # s between looks at the parent's descendants
+EXIT_WAIT = 5.0  # s for the parent to finish dying once its end of the pipe is closed
 FREEZE_ROUNDS = 20  # looks for processes started while the others are being frozen
 PROC = Path("/proc")
 
@@ -31,10 +33,10 @@ def _stat(pid: int) -> tuple[int, int] | None:
     """(parent pid, start time) of a process, ``None`` if it is gone."""
     try:
         text = (PROC / str(pid) / "stat").read_text()
-    except OSError:
+        fields = text[text.rindex(")") + 2 :].split()  # after "pid (comm) "
+        return int(fields[1]), int(fields[19])
+    except (OSError, ValueError, IndexError):  # gone, or caught while it exits
         return None
-    fields = text[text.rindex(")") + 2 :].split()  # after "pid (comm) "
-    return int(fields[1]), int(fields[19])
 
 
 def _is_ray(pid: int) -> bool:
@@ -99,8 +101,11 @@ def watch(parent: int) -> None:
             break
         noted.update(ray_descendants(parent))
         noted = {pid: start for pid, start in noted.items() if _stat(pid) is not None}
-    if os.getppid() == parent:
-        return  # the parent is alive: it closed the pipe itself
+    deadline = time.monotonic() + EXIT_WAIT  # a dying parent closes its files before its
+    while os.getppid() == parent:  # children are handed to another parent
+        if time.monotonic() > deadline:
+            return  # the parent lives on: it closed the pipe itself
+        time.sleep(0.01)
     _end(noted)
 
 

@@ -292,14 +292,13 @@ def _run_ray(function, jobs, workers, deliver, failure, died) -> None:
         )
         workers = max(1, int(ray.cluster_resources().get("CPU", workers)))
     elif started:
+        start_reaper()  # first: ends the local runtime if this process dies, even mid-start
         ray.init(
             num_cpus=workers,
             include_dashboard=False,
             log_to_driver=False,
             runtime_env={"env_vars": SINGLE_THREAD_ENV},
         )
-    if started and not os.environ.get("RAY_ADDRESS"):
-        start_reaper()  # ends the local runtime if this process dies without shutting it down
     if started and _handlers_depth and threading.current_thread() is threading.main_thread():
         _install_handlers()  # ray.init installs a SIGTERM handler of its own
     # _call: ray.remote takes plain functions only; a crashed worker fails its task

@@ -781,6 +781,13 @@ def test_a_run_folder_whose_config_no_longer_matches_its_model_is_refused_before
     ):
         compare(scenario, output_dir=out, workers=1, progress=False, console=QUIET)
     assert not out.exists()
+    on_the_trained_robot = Scenario.from_dict({**scenario.to_dict(), "envs": ["TwoLinkRigid-v0"]})
+    with pytest.raises(
+        ScenarioError,
+        match=r"config\.yaml says the policy was trained on elastic_gym/TwoLinkElastic-v0 "
+        r"\(robot 'two_link_elastic'\); the comparison runs it on the robot 'two_link_rigid'",
+    ):
+        compare(on_the_trained_robot, output_dir=out, workers=1, progress=False, console=QUIET)
 
 
 # ------------------------------------------------------------ recording a video

@@ -24,6 +24,19 @@ from elastic_gym.training.policy_env import SENSORS
 from elastic_gym.training.train import TrainedRun, load_run
 
 
+def check_robot(config, model: RobotModel, run: str | Path) -> None:
+    """Refuse a policy trained (by its ``config.yaml``) on another robot than ``model``'s."""
+    import gymnasium as gym
+
+    robot = config.env_kwargs.get("robot", gym.spec(config.env_id).kwargs.get("robot"))
+    name = getattr(robot, "name", robot)
+    if name != model.spec.name:
+        raise ValueError(
+            f"{run}: config.yaml says the policy was trained on {config.env_id} (robot "
+            f"{name!r}); the comparison runs it on the robot {model.spec.name!r}"
+        )
+
+
 def check_spaces(trained: TrainedRun, features: int, n_joints: int, run: str | Path) -> None:
     """Refuse a run folder whose ``model.zip`` (or ``vecnormalize.pkl``) does not take the
     observations its ``config.yaml`` rebuilds (``features`` entries, plus the critic's
@@ -83,6 +96,7 @@ class TrainedPolicyController(Controller):
                 f"the policy in {run} sees a preview of the reference, which a "
                 "comparison controller cannot read"
             )
+        check_robot(config, model, run)
         check_spaces(trained, self.builder.size, self.n, run)
         self.base = None
         if action.kind == "residual":
