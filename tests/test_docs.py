@@ -142,6 +142,19 @@ def test_batched_page_lists_every_randomizable_path():
     assert listed == list(PATHS)
 
 
+def test_module_docstrings_state_contracts_in_at_most_15_lines():
+    """Long derivations and measured stories live on the docs' pages, not in modules."""
+    import ast
+
+    long = {}
+    for path in sorted((ROOT / "elastic_gym").rglob("*.py")):
+        doc = ast.get_docstring(ast.parse(path.read_text()), clean=False)
+        assert doc, f"{path.relative_to(ROOT)} has no module docstring"
+        if len(doc.strip().splitlines()) > 15:
+            long[str(path.relative_to(ROOT))] = len(doc.strip().splitlines())
+    assert not long, long
+
+
 def test_version_changelog_and_citation_agree():
     version = elastic_gym.__version__
     assert re.fullmatch(r"\d+\.\d+\.\d+", version)

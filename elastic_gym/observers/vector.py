@@ -1,21 +1,14 @@
 """Observer wrappers for vector envs: the twins of :mod:`elastic_gym.observers.wrappers`.
 
 ``ObserverWrapper(envs, "deluca", **options)`` and ``TrueStateWrapper(envs)`` wrap a
-vector env of N arms (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``)
-the way their single-env twins wrap one env: the observation becomes
+vector env of N arms as their single-env twins wrap one env: the observation becomes
 ``{"state": (N, dim), "reference": (N, 2n)}`` and ``info`` gets ``estimate``,
 ``true_state_vector``, ``estimation_error`` and ``observer_diagnostics`` with a leading
-arm axis (and Gymnasium's ``_key`` masks).
-
-Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserver`: De
-Luca with ideal or accelerometer-based q'', finite differences, the truth) estimate all
-arms at once; the others (EKF, rigid-arm observers, your own) run one copy per arm
-behind the same interface (:class:`ObserverArray`). Either way each arm's estimate is
-the single-env observer's (``tests/test_vector_observers.py``), and an arm whose
-estimate is no longer finite (for :class:`ObserverArray` also: whose update raised a
-numerical error) ends its episode alone, ``"non-finite state estimate"``. Autoresets are followed:
-an arm reset by the env is re-initialised from its first observation; with
-``SAME_STEP`` the terminal observation is estimated first (``info["final_obs"]``).
+arm axis. Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserver`)
+estimate all arms at once; the others run one copy per arm (:class:`ObserverArray`).
+Each arm's estimate is the single-env observer's; an arm whose estimate is no longer
+finite (or, in an :class:`ObserverArray`, whose update failed numerically) ends its
+episode alone ("non-finite state estimate"). Autoresets are followed.
 """
 
 from __future__ import annotations

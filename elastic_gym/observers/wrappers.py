@@ -1,22 +1,16 @@
 """Wrappers that put a state estimate (or the truth) in place of the sensor observation.
 
 ``ObserverWrapper(env, observer)`` turns the sensor observation into
-``{"state": estimate, "reference": (q_d, q_d')}``. The observer is fed every sample
-and the torque actually applied (after clipping, ``info["torque"]``), and ``info``
-gets ``estimate``, ``true_state_vector``, ``estimation_error`` (estimate - truth) and
-the observer's ``observer_diagnostics`` (e.g. the condition number of T_A) at every
-step, the terminal one included. ``TrueStateWrapper(env)`` gives the same layout from
-the ground truth, so one controller or policy runs unchanged on estimated or true state.
-:mod:`elastic_gym.observers.vector` has the twins for vector envs.
-
-An estimate that stops being finite (a diverged observer), or an update that fails the
-way numpy / scipy fail on a diverged estimate (:func:`numerical_failure`: a matrix with
-infs or NaNs refused, a covariance no longer positive definite), ends the episode with
-``terminated=True`` and ``info["termination_reason"] = "non-finite state estimate"``
-(the error, if any, in ``info["observer_error"]``); the observation keeps the last
-finite estimate and the next ``step`` needs a ``reset``. An estimate that is not a
-numpy array of shape ``(state_dim,)`` is the observer's bug: a ``TypeError`` /
-``ValueError`` naming the observer and the shape.
+``{"state": estimate, "reference": (q_d, q_d')}``, feeds the observer every sample and the
+torque actually applied (``info["torque"]``), and adds ``estimate``, ``true_state_vector``,
+``estimation_error`` (estimate - truth) and ``observer_diagnostics`` to ``info`` at every
+step. ``TrueStateWrapper(env)`` gives the same layout from the ground truth.
+:mod:`elastic_gym.observers.vector` has the twins for vector envs. An estimate that stops
+being finite, or an update that fails as numpy / scipy fail on a diverged estimate
+(:func:`numerical_failure`), ends the episode (``terminated``, ``"non-finite state
+estimate"``, the error in ``info["observer_error"]``); the observation keeps the last
+finite estimate. An estimate that is not an array of shape ``(state_dim,)`` is the
+observer's bug: a ``TypeError`` / ``ValueError`` naming the observer and the shape.
 """
 
 from __future__ import annotations

@@ -1,27 +1,15 @@
 """Train stable-baselines3 policies on the estimated (or true, or raw-sensor) state.
 
-Vectorized envs: with ``n_envs > 1`` the arms share one PyBullet world (the batched
-env, :func:`~elastic_gym.training.policy_env.make_policy_vec_env`, through
-:class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`), or ``batches`` such worlds in
-worker processes (:class:`~elastic_gym.training.sb3_vec_env.ProcessBatches`, one per
-core; or batches with different env kwargs, e.g. plants); ``VecNormalize`` whose
-statistics are saved beside the model, a learning curve
-(:class:`~elastic_gym.training.learning_curve.LearningCurve`: deterministic evaluation
-episodes on the arms of one batch at the start, every ``eval_freq`` policy steps and at
-the end) that keeps the best model, TensorBoard logs and a progress bar. A run folder
-holds::
-
-    model.zip  vecnormalize.pkl  best_model.zip  config.yaml  summary.json  tb/
-    evaluations.npz  learning_curve.csv
-
-``summary.json`` is written last: a folder with it holds a finished run. A folder that
-already holds a run is refused unless ``overwrite`` (which first removes the files of
-that run, and only those: a stale ``best_model.zip`` would otherwise load with the new
-config); a run that fails or is interrupted removes what it wrote. Training runs with
-single-threaded torch and BLAS (:func:`elastic_gym.parallel.single_threaded`).
-
-``model.zip`` and ``vecnormalize.pkl`` are pickles: loading a run folder runs code
-from it, so load only run folders from trusted sources.
+With ``n_envs > 1`` the arms share one PyBullet world
+(:class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`), or ``batches`` worlds in worker
+processes (:class:`~elastic_gym.training.sb3_vec_env.ProcessBatches`); ``VecNormalize``,
+a learning curve that keeps the best model, TensorBoard logs. A run folder holds
+``model.zip``, ``vecnormalize.pkl``, ``best_model.zip``, ``config.yaml``,
+``summary.json`` (written last: a folder with it holds a finished run),
+``learning_curve.csv``, ``evaluations.npz`` and ``tb/``. A folder holding a run is refused
+unless ``overwrite`` (which removes that run's files only); a failed or interrupted run
+removes what it wrote. Training is single-threaded. ``model.zip`` and
+``vecnormalize.pkl`` are pickles: load only run folders from trusted sources.
 """
 
 from __future__ import annotations

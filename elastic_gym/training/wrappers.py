@@ -4,19 +4,14 @@ Stack, bottom to top (``make_policy_env``)::
 
     env -> ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation
 
-* :class:`PolicyAction`: the policy's action in [-1, 1]^n becomes a motor torque at
-  every control period (1 kHz) through :class:`~elastic_gym.training.actions.ActionMap`
-  (torque, motor-position offsets through a motor PD, or a residual on a classical
-  controller, which runs at every period).
-* :class:`ActionRepeat` (decimation): the policy acts at a lower rate than the control
-  loop; the action is held for ``k`` periods and the rewards are summed. It sits above
-  the observer, so the observer still sees every sample.
-* :class:`PolicyObservation`: the flat feature vector of
-  :class:`~elastic_gym.training.observation.ObservationBuilder`, with the last action and
-  a preview of the reference.
-* :class:`CriticState` (training only, on top of the stack, frame stack included): the
-  true state's features appended for a critic with privileged information
-  (:mod:`elastic_gym.training.critic`); the policy's observation stays the first entries.
+* :class:`PolicyAction`: the action in [-1, 1]^n becomes a torque at every control period
+  (:class:`~elastic_gym.training.actions.ActionMap`);
+* :class:`ActionRepeat`: the action is held for ``k`` periods and the rewards summed,
+  above the observer, which still sees every sample;
+* :class:`PolicyObservation`: the features of
+  :class:`~elastic_gym.training.observation.ObservationBuilder`;
+* :class:`CriticState` (training only): the true state's features appended for a
+  privileged critic.
 """
 
 from __future__ import annotations
