@@ -8,6 +8,10 @@
   (target >= 3 at N = 64);
 * the batched closed loop: vector env + vector De Luca observer, per arm-step, and the
   same loop of one arm (single env + De Luca);
+* the batched closed loop of the comparisons: vector env + vector De Luca observer (or
+  the batched EKF) + vector eq. (13), per arm-step at N = 64, at the env's physics step
+  and at 1/16 ms, against the bare N-arm PyBullet loop of the same world and substeps
+  (target <= 2.5), and the EKF loop against the De Luca loop (target <= 3);
 * PPO policy steps/s end to end (rollouts + updates) on one batch of arms
   (:class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`) and on SB3's ``SubprocVecEnv``
   with one worker per core, with the same stack (true state, action repeat 10,
@@ -27,6 +31,8 @@ from gymnasium.wrappers import FlattenObservation, RescaleAction
 from gymnasium.wrappers import vector as vector_wrappers
 from timing import interleaved_best, seconds_per_call
 
+from elastic_gym.controllers import public_info
+from elastic_gym.controllers.vector import make_vector_controller
 from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.observers import ObserverWrapper, TrueStateWrapper, vector
 from elastic_gym.training import vector as training_vector
@@ -35,6 +41,10 @@ from elastic_gym.training.wrappers import ActionRepeat
 AT_REST = {"task": "excitation", "task_options": {"amplitude": 0.0}, "episode_time": None}
 TARGET_BATCH_RATIO = 2.0
 TARGET_THROUGHPUT = 3.0
+TARGET_LOOP_RATIO = 2.5  # vector env + De Luca + eq. (13) / bare PyBullet, N = 64
+TARGET_EKF_RATIO = 3.0  # the same loop with the EKF / with De Luca
+FINE_PHYSICS_DT = 1.0 / 16000.0  # the comparisons' physics step
+LOOP_CONTROLLER = "feedforward-state-feedback"  # eq. (13)
 PPO_DECIMATION = 10
 PPO_ROLLOUT = 1024  # policy steps per rollout, whatever the number of envs
 
@@ -141,6 +151,51 @@ def throughput_and_loop(env_id: str, n_arms: int, block: int, repeats: int) -> d
     )
     for env in (single, envs, single_loop, batch_loop):
         env.close()
+    return costs
+
+
+class ClosedLoop:
+    """N arms under a vector observer and vector eq. (13): one control period per step."""
+
+    def __init__(self, env_id: str, n_arms: int, observer: str, **kwargs) -> None:
+        self.envs = vector.ObserverWrapper(vector_env(env_id, n_arms, **kwargs), observer)
+        batch = self.envs.unwrapped.batch
+        self.controller = make_vector_controller(
+            LOOP_CONTROLLER, batch.model, batch.control_dt, n_arms
+        )
+        obs, info = self.envs.reset(seed=0)
+        self.controller.reset_arms(obs, public_info(info), np.arange(n_arms))
+        self.obs, self.info = obs, public_info(info)
+
+    def step(self) -> None:
+        obs, _, _, _, info = self.envs.step(self.controller(self.obs, self.info))
+        self.obs, self.info = obs, public_info(info)
+
+    def close(self) -> None:
+        self.envs.close()
+
+
+def closed_loop_costs(
+    env_id: str, n_arms: int, physics_dt: float | None, block: int, repeats: int
+) -> dict[str, float]:
+    """Seconds per arm-step of the batched closed loop with De Luca and with the EKF, and
+    of the bare N-arm PyBullet loop of the same world and substeps."""
+    kwargs = {} if physics_dt is None else {"physics_dt": physics_dt}
+    loops = {name: ClosedLoop(env_id, n_arms, name, **kwargs) for name in ("deluca", "ekf")}
+    bare = BareBatch(loops["deluca"].envs)
+    steps = max(5, block // n_arms)
+    timed = {"bare": bare.step, **{name: loop.step for name, loop in loops.items()}}
+    costs = interleaved_best(
+        {
+            name: (lambda f=f: seconds_per_call(f, [()] * steps) / n_arms)
+            for name, f in timed.items()
+        },
+        repeats,
+    )
+    costs["substeps"] = loops["deluca"].envs.unwrapped.batch.n_substeps
+    for loop in loops.values():
+        loop.close()
+    bare.close()
     return costs
 
 

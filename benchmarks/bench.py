@@ -19,7 +19,11 @@ Tables (BLAS single-threaded: "one core"; see ``timing.py`` for the method):
 5. batched arms (``batched.py``): the vector env of N arms in one PyBullet world / a bare
    N-arm PyBullet loop per arm-step (target <= 2x at N = 64), its throughput / one env
    (target >= 3x), the batched closed loop with the vector De Luca observer, and PPO
-   policy steps/s on a batch vs ``SubprocVecEnv``.
+   policy steps/s on a batch vs ``SubprocVecEnv``;
+6. the batched closed loop of the comparisons (``batched.py``): vector env + vector De
+   Luca (or batched EKF) + vector eq. (13), 64 arms, per arm-step, at the env's physics
+   step and at 1/16 ms, / the bare 64-arm PyBullet loop of the same world and substeps
+   (target <= 2.5x), and the EKF loop / the De Luca loop (target <= 3x).
 
 ``--tables 1 5`` runs only some tables.
 """
@@ -504,6 +508,44 @@ def table_batched(env_ids: list[str], vec_id: str, scale: Scale) -> None:
     )
 
 
+def table_batched_loop(vec_id: str, scale: Scale) -> None:
+    rows = []
+    for physics_dt in (None, batched.FINE_PHYSICS_DT):
+        costs = batched.closed_loop_costs(
+            vec_id, BATCH_ARMS, physics_dt, scale.block * 4, scale.repeats
+        )
+        loop_ratio = costs["deluca"] / costs["bare"]
+        ekf_ratio = costs["ekf"] / costs["deluca"]
+        rows.append(
+            (
+                f"{costs['substeps']}",
+                fmt(1e6 * costs["bare"]),
+                fmt(1e6 * costs["deluca"]),
+                fmt(loop_ratio),
+                fmt(1e6 * costs["ekf"]),
+                fmt(ekf_ratio),
+                f"{'yes' if loop_ratio <= batched.TARGET_LOOP_RATIO else 'no'} / "
+                f"{'yes' if ekf_ratio <= batched.TARGET_EKF_RATIO else 'no'}",
+            )
+        )
+    print_table(
+        f"6. batched closed loop, {vec_id}, {BATCH_ARMS} arms: vector env + vector observer + "
+        f"vector eq. (13), per arm-step (targets: De Luca loop <= "
+        f"{batched.TARGET_LOOP_RATIO:g}x the bare loop, EKF loop <= "
+        f"{batched.TARGET_EKF_RATIO:g}x the De Luca loop)",
+        (
+            "substeps per ms",
+            "bare PyBullet [us]",
+            "De Luca loop [us]",
+            "vs bare",
+            "EKF loop [us]",
+            "vs De Luca loop",
+            "targets met",
+        ),
+        rows,
+    )
+
+
 def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool, tables: set[int]) -> None:
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     print(
@@ -519,6 +561,8 @@ def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool, tables: se
         table_vector(vec_id, scale)
     if 5 in tables:
         table_batched(env_ids, vec_id, scale)
+    if 6 in tables:
+        table_batched_loop(vec_id, scale)
     if profile:
         for env_id in env_ids:
             top, per_step = profile_closed_loop(env_id, scale.block, top=15)
@@ -546,8 +590,8 @@ def main(argv: list[str] | None = None) -> int:
         "--tables",
         nargs="+",
         type=int,
-        default=[1, 2, 3, 4, 5],
-        choices=[1, 2, 3, 4, 5],
+        default=[1, 2, 3, 4, 5, 6],
+        choices=[1, 2, 3, 4, 5, 6],
         help="tables to run (default: all)",
     )
     args = parser.parse_args(argv)

@@ -18,6 +18,7 @@ import contextlib
 import ctypes
 import multiprocessing
 import os
+import pickle
 import signal
 import sys
 from collections.abc import Callable, Iterator
@@ -62,8 +63,7 @@ def die_with_parent(parent_pid: int) -> None:
 
 
 def _picklable_error(exc: BaseException) -> BaseException:
-    import pickle
-
+    """``exc`` if it survives pickling, else a ``RuntimeError`` with its text."""
     try:
         pickle.loads(pickle.dumps(exc))
     except Exception:

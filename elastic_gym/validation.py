@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import fields
 from typing import Annotated, Any, ClassVar, TypeVar, get_args
 
@@ -188,7 +189,10 @@ def _is_union_tag(part: int | str) -> bool:
     """pydantic names the failing member of a union in ``loc`` (``int``, ``list[str]``,
     ``function-after[...]``, a model class name): not a field of the user's data."""
     return isinstance(part, str) and (
-        "[" in part or part in _UNION_TAGS or (part.isidentifier() and part[0].isupper())
+        "[" in part
+        or part.startswith("constrained-")  # "constrained-float"
+        or part in _UNION_TAGS
+        or (part.isidentifier() and part[0].isupper())
     )
 
 
@@ -213,6 +217,16 @@ def field_names(model: type[BaseModel], loc: Sequence[int | str]) -> list[str]:
     return [f.alias or name for name, f in models[0].model_fields.items()] if models else []
 
 
+def _data_path(loc: Sequence[int | str], model: type[BaseModel] | None) -> list[int | str]:
+    """``loc`` without pydantic's union-member tags: a field name of the model reached so
+    far is kept even when it looks like a tag (``R``, ``K_P``, ``Lambda``)."""
+    return [
+        part
+        for i, part in enumerate(loc)
+        if not _is_union_tag(part) or (model is not None and part in field_names(model, loc[:i]))
+    ]
+
+
 def format_validation_error(
     error: ValidationError, prefix: str = "", model: type[BaseModel] | None = None
 ) -> str:
@@ -221,7 +235,7 @@ def format_validation_error(
     lines = []
     items = error.errors(include_url=False)
     for item in items:
-        loc = [part for part in item["loc"] if not _is_union_tag(part)]
+        loc = _data_path(item["loc"], model)
         if item["type"] == "too_short" and any(
             other["loc"][: len(item["loc"])] == item["loc"] and other is not item for other in items
         ):
@@ -255,3 +269,28 @@ def validated(model: type[M], data: Any, prefix: str = "") -> M:
         return model.model_validate({} if data is None else plain(data))
     except ValidationError as error:
         raise ValueError(format_validation_error(error, prefix, model)) from None
+
+
+# ---------------------------------------------------------------- observer / controller options
+def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
+    """The options of a constructor validated by their model: ``arguments`` is the
+    constructor's ``locals()`` (only the model's fields are read); errors read
+    ``options.<name>: ...``, a ``TypeError`` when every problem is a value of the wrong
+    type (a string for a number, 1 for a bool), a ``ValueError`` otherwise."""
+    given = {key: value for key, value in arguments.items() if key in model.model_fields}
+    try:
+        return model.model_validate(plain(given))
+    except ValidationError as error:
+        wrong_type = all(item["type"].endswith("_type") for item in error.errors())
+        kind = TypeError if wrong_type else ValueError
+        raise kind(format_validation_error(error, "options", model)) from None
+
+
+@contextmanager
+def option_checks(name: str) -> Iterator[None]:
+    """A ``ValueError`` raised inside (a check that needs the robot, beyond the option's
+    model) reads ``options.<name>: ...``."""
+    try:
+        yield
+    except ValueError as exc:
+        raise ValueError(f"options.{name}: {exc}") from None

@@ -329,7 +329,7 @@ def test_policy_controller_scaling_residual_and_recurrent_state():
     np.testing.assert_allclose(controller(obs, info), [60.0, -60.0])  # clipped, scaled
     controller(obs, info)
     assert policy.starts == [True, False]
-    assert controller._state == 1
+    assert controller._law._states[0] == 1  # the recurrent state of its one arm
     raw = PolicyController(model, 1e-3, lambda o: np.array([3.0, 4.0]), scale_actions=False)
     np.testing.assert_allclose(raw(obs, info), [3.0, 4.0])
     base = make_controller("motor-pd", model, 1e-3)

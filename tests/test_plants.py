@@ -209,3 +209,30 @@ def test_per_arm_mappings_are_deep_merged_into_the_shared_kwargs():
         update={"noise_density": 3e-3}
     )
     envs.close()
+
+
+def test_a_stacked_chain_computes_each_row_as_its_own_chain_bit_for_bit():
+    from elastic_gym.model import RobotModel, SerialChain
+    from elastic_gym.robots.catalog import get_robot
+
+    spec = get_robot("kr15_elastic")
+    models = [RobotModel(spec, {"link_mass": m, "link_inertia": 2.0 - m}) for m in (0.7, 1.0, 1.4)]
+    chains = [m.chain for m in models]
+    stacked = SerialChain.stack(chains)
+    rng = np.random.default_rng(0)
+    q, dq, tau = (rng.uniform(-1, 1, (3, 3)) for _ in range(3))
+    M, h = stacked.mass_and_bias(q, dq)
+    ddq = stacked.forward_dynamics(q, dq, tau, np.stack([0.1 * np.eye(3) * k for k in range(3)]))
+    for k, chain in enumerate(chains):
+        Mk, hk = chain.mass_and_bias(q[k : k + 1], dq[k : k + 1])
+        assert np.array_equal(M[k], Mk[0]) and np.array_equal(h[k], hk[0])
+        alone = chain.forward_dynamics(
+            q[k : k + 1], dq[k : k + 1], tau[k : k + 1], 0.1 * k * np.eye(3)
+        )
+        assert np.array_equal(ddq[k], alone[0])
+        assert np.allclose(Mk[0], models[k].mass_matrix(q[k]), rtol=1e-12)
+    assert not np.allclose(M[0], M[2])
+    subset = stacked.select(np.array([2, 0]))
+    assert np.array_equal(subset.gravity(q[[2, 0]]), stacked.gravity(q)[[2, 0]])
+    with pytest.raises(ValueError, match="stacked for 3 arms got 2 rows"):
+        stacked.gravity(q[:2])

@@ -17,7 +17,9 @@ CASES = [
     ("elastic_gym/KR15Elastic-v0", "deluca", {"bandwidth": 200.0}),
     ("elastic_gym/IiwaElastic-v0", "deluca-ideal", {}),
     ("elastic_gym/TwoLinkElastic-v0", "finite-difference", {}),
-    ("elastic_gym/TwoLinkElastic-v0", "ekf", {}),  # per-arm fallback
+    ("elastic_gym/TwoLinkElastic-v0", "ekf", {}),
+    ("elastic_gym/KR15Elastic-v0", "ekf", {"use_accelerometers": True}),
+    ("elastic_gym/TwoLinkRigid-v0", "solsona-puleston", {}),  # per-arm fallback
     ("elastic_gym/TwoLinkRigid-v0", "reduced-order", {}),
     ("elastic_gym/TwoLinkRigid-v0", "true", {}),
 ]
@@ -36,7 +38,7 @@ def test_each_arm_estimate_equals_the_single_observer(env_id, name, options):
         **options,
     )
     singles = [ObserverWrapper(gym.make(env_id, **kwargs), name, **options) for _ in range(N_ARMS)]
-    batched = name in ("deluca", "deluca-ideal", "finite-difference", "true")
+    batched = name in ("deluca", "deluca-ideal", "finite-difference", "true", "ekf")
     assert isinstance(envs.observer, BatchedObserver) == batched
     obs, info = envs.reset(seed=5)
     worst = max(

@@ -46,6 +46,11 @@ class Controller(ABC):
 
     name: ClassVar[str] = ""
     applies_to: ClassVar[frozenset[str]] = frozenset({"elastic", "rigid"})
+    vector_twin: ClassVar[type | None] = None
+    options_model: ClassVar[type | None] = None
+    """The pydantic model (a ``StrictModel``) of the constructor's plain-data options."""
+    """The batched law (a ``ControllerTwin`` of :mod:`elastic_gym.controllers.vector`) that
+    built-ins run with N = 1 and that ``make_vector_controller`` runs for N arms."""
 
     def __init__(self, model: RobotModel, dt: float) -> None:
         check_applies("controller", self.name, self.applies_to, model)

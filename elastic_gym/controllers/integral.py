@@ -26,18 +26,26 @@ from elastic_gym.controllers.gain_design import (
     link_position_rows,
     lqr_integral_gain,
 )
-from elastic_gym.controllers.invdyn import (
-    DEFAULT_FD_STEP,
-    TIME_TOLERANCE,
-    info_time,
-    state_vector,
+from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP, TIME_TOLERANCE
+from elastic_gym.controllers.state_feedback import (
+    FeedforwardOptions,
+    FeedforwardStateFeedback,
+    VectorStateFeedback,
 )
-from elastic_gym.controllers.state_feedback import FeedforwardStateFeedback
+from elastic_gym.controllers.vector import arm_rows, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import is_real
+from elastic_gym.validation import PositiveFinite, validated_options
 
 DEFAULT_INTEGRAL_WEIGHT = 0.1
 DEFAULT_INTEGRAL_LIMIT = 0.5  # fraction of the torque limit
+
+
+class IntegralOptions(FeedforwardOptions):
+    """The options of :class:`IntegralStateFeedback`."""
+
+    omega: PositiveFinite = 30.0
+    integral_weight: PositiveFinite = DEFAULT_INTEGRAL_WEIGHT
+    integral_limit: PositiveFinite = DEFAULT_INTEGRAL_LIMIT
 
 
 class IntegralStateFeedback(FeedforwardStateFeedback):
@@ -52,10 +60,12 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
         feedforward, design_configuration, fd_step: as for eq. (13).
 
     ``design`` holds the configuration, the method and the poles of the augmented
-    nominal closed loop (dimension N + dim(x)); ``integral`` is the state z.
+    nominal closed loop (dimension N + dim(x)); ``integral`` is the state z. The law
+    runs as :class:`VectorIntegralStateFeedback` with one arm.
     """
 
     name = "integral-state-feedback"
+    options_model = IntegralOptions
 
     def __init__(
         self,
@@ -68,9 +78,10 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
         design_configuration=None,
         fd_step: float = DEFAULT_FD_STEP,
     ) -> None:
-        if not (is_real(integral_limit) and np.isfinite(integral_limit) and integral_limit > 0):
-            raise ValueError(f"integral_limit must be a positive number, got {integral_limit!r}")
+        validated_options(IntegralOptions, locals())
         self.integral_weight = integral_weight
+        self.integral_bound = float(integral_limit) * np.asarray(model.spec.torque_limit, float)
+        self.torque_limit = np.asarray(model.spec.torque_limit, dtype=float)
         super().__init__(
             model,
             dt,
@@ -80,40 +91,54 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
             fd_step=fd_step,
         )
         q0 = self.design["configuration"]
-        self.integral_bound = float(integral_limit) * np.asarray(model.spec.torque_limit, float)
-        self.torque_limit = np.asarray(model.spec.torque_limit, dtype=float)
-        self._rows = link_position_rows(model)
         A, Bu = integral_linearization(model, q0)
         self.design["poles"] = closed_loop_poles(A, Bu, np.hstack([self.integral_gain, self.gain]))
-        self.integral = np.zeros(self.n)
-        self._time: float | None = None
-        self._saturated = False
 
     def _design(self, A, Bu, q0, omega, gain, weights, poles) -> tuple[np.ndarray, str]:
         K_x, self.integral_gain = lqr_integral_gain(self.model, q0, omega, self.integral_weight)
         return K_x, f"LQR with integral action, slowest pole of eq. (13) {omega} rad/s"
 
-    def reset(self, obs: Mapping, info: Mapping) -> None:
-        super().reset(obs, info)
-        self.integral = np.zeros(self.n)
-        self._time = None
-        self._saturated = False
+    @property
+    def integral(self) -> np.ndarray:
+        """The integrator state z (n,)."""
+        return self._law.integral[0]
 
-    def _integrate(self, error: np.ndarray, elapsed: float) -> None:
-        z = self.integral + elapsed * error
-        torque = np.clip(self.integral_gain @ z, -self.integral_bound, self.integral_bound)
-        self.integral = np.linalg.solve(self.integral_gain, torque)
 
-    def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        t = info_time(info)
-        x = state_vector(obs, self.dim)
-        x_d, tau_d = self.desired(info)
-        if self._time is None:
-            self._time = t
-        elif t > self._time + TIME_TOLERANCE:
-            if not self._saturated:
-                self._integrate(x[self._rows] - x_d[self._rows], t - self._time)
-            self._time = t
-        tau = self.gain @ (x_d - x) - self.integral_gain @ self.integral + tau_d
-        self._saturated = bool(np.any(np.abs(tau) > self.torque_limit))
+@twin_of(IntegralStateFeedback)
+class VectorIntegralStateFeedback(VectorStateFeedback):
+    """Eq. (13) with integral action on N arms: one integrator z_i per arm."""
+
+    def _bind(self, controller: IntegralStateFeedback, n_arms: int) -> None:
+        super()._bind(controller, n_arms)
+        self.integral_gain = controller.integral_gain
+        self.integral_bound = controller.integral_bound
+        self.torque_limit = controller.torque_limit
+        self._rows = link_position_rows(controller.model)
+        self.integral = np.zeros((self.n_arms, self.n))
+        self._time = np.full(self.n_arms, np.nan)  # NaN: no call since the reset
+        self._saturated = np.zeros(self.n_arms, dtype=bool)
+
+    def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
+        super().reset_arms(obs, info, arms)
+        self.integral[arms] = 0.0
+        self._time[arms] = np.nan
+        self._saturated[arms] = False
+
+    def _integrate(self, arms: np.ndarray, error: np.ndarray, elapsed: np.ndarray) -> None:
+        z = self.integral[arms] + elapsed[:, None] * error
+        K_I, bound = self.integral_gain, self.integral_bound
+        torque = np.clip(arm_rows(K_I, z), -bound, bound)
+        self.integral[arms] = np.linalg.solve(K_I, torque[..., None])[..., 0]
+
+    def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        x_d, tau_d = self.desired(t, ref)
+        previous = self._time
+        ahead = t > previous + TIME_TOLERANCE  # False right after a reset (NaN)
+        arms = np.flatnonzero(ahead & ~self._saturated)
+        if len(arms):
+            rows = self._rows
+            self._integrate(arms, x[arms][:, rows] - x_d[arms][:, rows], (t - previous)[arms])
+        self._time = np.where(ahead | np.isnan(previous), t, previous)
+        tau = arm_rows(self.gain, x_d - x) - arm_rows(self.integral_gain, self.integral) + tau_d
+        self._saturated = np.any(np.abs(tau) > self.torque_limit, axis=1)
         return tau

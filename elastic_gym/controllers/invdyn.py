@@ -8,9 +8,10 @@ link equation reads K delta + D delta' = tau_J, tau_J = tau_r + S theta_d'',
 tau_r = M(q_d) q_d'' + C(q_d, q_d') q_d' + g(q_d) + d(q_d'), and the motor equation gives
 tau_d = B theta_d'' + S^T q_d'' + tau_J. For D = 0, delta = K^-1 tau_J is algebraic (q_d^(4)
 needed); for D > 0 :class:`TorsionFilter` integrates the internal dynamics exactly for a
-cubic Hermite tau_J over each period. tau_r' comes from pinocchio's RNEA derivatives,
-tau_r'' by a central difference of it (O(h^2)). The S terms are exact when S^2 = 0 (the
-KR15). For rigid arms INVDYN is the computed torque: x_d = (q_d, q_d'), tau_d = tau_r.
+cubic Hermite tau_J over each period. tau_r' is exact, by the complex step of the compiled
+RNEA (:meth:`~elastic_gym.model.SerialChain.rnea_tangent`), tau_r'' a central difference
+of it (O(h^2)). The S terms are exact when S^2 = 0 (the KR15). For rigid arms INVDYN is
+the computed torque. Every class runs N arms at once (the single arm: N = 1).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
+from numba import njit
 from scipy.special import factorial
 
 from elastic_gym.model import RobotModel
@@ -30,35 +32,49 @@ TIME_TOLERANCE = 1e-9  # s; calls closer in time than this count as the same ins
 
 def reference_derivatives(info: Mapping, n: int) -> np.ndarray:
     """The desired trajectory q_d .. q_d^(4) of ``info["reference"]`` as a (5, N) array."""
+    return reference_rows(info, n, None)
+
+
+def reference_rows(info: Mapping, n: int, n_arms: int | None) -> np.ndarray:
+    """``info["reference"]`` as (n_arms, 5, n) (batched info) or (5, n) (``n_arms`` None)."""
     reference = info.get("reference") if isinstance(info, Mapping) else None
     if not isinstance(reference, Mapping) or any(k not in reference for k in REFERENCE_KEYS):
         raise ValueError(
             f"controller needs info['reference'] with keys {REFERENCE_KEYS} "
             "(pass public_info(info) of the env step)"
         )
-    ref = np.array([np.asarray(reference[k], dtype=float) for k in REFERENCE_KEYS])
-    if ref.shape != (len(REFERENCE_KEYS), n) or not np.all(np.isfinite(ref)):
-        raise ValueError(f"info['reference'] must hold 5 finite {n}-vectors, got shape {ref.shape}")
+    ref = np.stack([np.asarray(reference[k], dtype=float) for k in REFERENCE_KEYS], axis=-2)
+    shape = (len(REFERENCE_KEYS), n) if n_arms is None else (n_arms, len(REFERENCE_KEYS), n)
+    if ref.shape != shape or not np.all(np.isfinite(ref)):
+        what = f"5 finite {n}-vectors" if n_arms is None else f"finite ({n_arms}, {n}) arrays"
+        raise ValueError(f"info['reference'] must hold {what}, got shape {ref.shape}")
     return ref
 
 
-def state_vector(obs: Mapping, dim: int) -> np.ndarray:
-    """``obs["state"]`` (from an ObserverWrapper / TrueStateWrapper) as a checked vector."""
+def state_vector(obs: Mapping, dim: int, n_arms: int | None = None) -> np.ndarray:
+    """``obs["state"]`` (from an ObserverWrapper / TrueStateWrapper) checked: (dim,), or
+    (n_arms, dim) for a batch."""
     if not isinstance(obs, Mapping) or "state" not in obs:
         raise ValueError(
             "controller needs obs['state']: wrap the env in ObserverWrapper or TrueStateWrapper"
         )
     x = np.asarray(obs["state"], dtype=float)
-    if x.shape != (dim,):
-        raise ValueError(f"obs['state'] must have {dim} entries, got shape {x.shape}")
+    shape = (dim,) if n_arms is None else (n_arms, dim)
+    if x.shape != shape:
+        raise ValueError(f"obs['state'] must have shape {shape}, got {x.shape}")
     return x
 
 
-def info_time(info: Mapping) -> float:
-    """``info["time"]`` as a float, with a clear error when missing."""
+def info_time(info: Mapping, n_arms: int | None = None) -> float | np.ndarray:
+    """``info["time"]``: a float, or (n_arms,) times for a batch."""
     if not isinstance(info, Mapping) or "time" not in info:
         raise ValueError("controller needs info['time'] (pass public_info(info) of the env step)")
-    return float(info["time"])
+    if n_arms is None:
+        return float(info["time"])
+    t = np.asarray(info["time"], dtype=float)
+    if t.shape != (n_arms,) or not np.all(np.isfinite(t)):
+        raise ValueError(f"info['time'] must hold {n_arms} finite times, got shape {t.shape}")
+    return t
 
 
 def taylor_matrix(h: float, order: int = len(REFERENCE_KEYS)) -> np.ndarray:
@@ -68,8 +84,19 @@ def taylor_matrix(h: float, order: int = len(REFERENCE_KEYS)) -> np.ndarray:
     return np.triu(h**power / factorial(power))
 
 
+def _arms_first(ref: np.ndarray) -> tuple[np.ndarray, bool]:
+    """A reference (5, n) or (N, 5, n) as (N, 5, n), and whether it was a single arm."""
+    ref = np.asarray(ref, dtype=float)
+    return (ref[None], True) if ref.ndim == 2 else (ref, False)
+
+
 class RigidTorque:
-    """tau_r = M q'' + C q' + g + d(q') along a trajectory, with its time derivatives."""
+    """tau_r = M q'' + C q' + g + d(q') along a trajectory, with its time derivatives.
+
+    Every method takes the reference q_d .. q_d^(4) of one arm (5, n) or of N arms
+    (N, 5, n) and evaluates all arms in one call of the model's
+    :class:`~elastic_gym.model.SerialChain` kernels.
+    """
 
     def __init__(self, model: RobotModel, fd_step: float = DEFAULT_FD_STEP) -> None:
         if not (is_real(fd_step) and 0.0 < fd_step < 0.1):
@@ -79,131 +106,220 @@ class RigidTorque:
         self._ahead = taylor_matrix(self.fd_step)
         self._behind = taylor_matrix(-self.fd_step)
 
+    def _with_derivative(self, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(tau_r, tau_r') of (N, 5, n) references; tau_r' exact (complex-step RNEA
+        tangent along (q_d', q_d'', q_d''') plus the friction slope)."""
+        q, dq, ddq, d3q = ref[:, 0], ref[:, 1], ref[:, 2], ref[:, 3]
+        tau, dtau = self.model.chain.rnea_tangent((q, dq, ddq), (dq, ddq, d3q))
+        friction = self.model.friction
+        if friction is not None:
+            tau = tau + friction.torque(dq)
+            dtau = dtau + friction.derivative(dq) * ddq
+        return tau, dtau
+
+    def derivatives(self, ref: np.ndarray, second: bool = True) -> tuple[np.ndarray, ...]:
+        """(tau_r, tau_r', tau_r'') of (N, 5, n) references in one kernel call; tau_r'' is
+        the central difference (tau_r'(t + h) - tau_r'(t - h)) / 2h of the exact tau_r'
+        along the Taylor expansion of the reference (zero when ``second`` is False)."""
+        N = len(ref)
+        if not second:
+            return (*self._with_derivative(ref), np.zeros((N, self.model.n)))
+        points = np.concatenate([ref, self._ahead @ ref, self._behind @ ref])
+        tau, dtau = self._with_derivative(points)
+        ddtau = (dtau[N : 2 * N] - dtau[2 * N :]) / (2.0 * self.fd_step)
+        return tau[:N], dtau[:N], ddtau
+
     def torque(self, ref: np.ndarray) -> np.ndarray:
-        model = self.model
-        return model.rnea(ref[0], ref[1], ref[2]) + model.link_friction(ref[1])
+        arms, single = _arms_first(ref)
+        q, dq, ddq = arms[:, 0], arms[:, 1], arms[:, 2]
+        tau = self.model.chain.rnea(q, dq, ddq) + self.model.link_friction(dq)
+        return tau[0] if single else tau
 
     def first_derivative(self, ref: np.ndarray) -> np.ndarray:
-        """Exact tau_r' from the analytic RNEA derivatives."""
-        model = self.model
-        dtau_dq, dtau_dv, M = model.rnea_derivatives(ref[0], ref[1], ref[2])
-        dtau = dtau_dq @ ref[1] + dtau_dv @ ref[2] + M @ ref[3]
-        if model.friction is not None:
-            dtau = dtau + model.friction.derivative(ref[1]) * ref[2]
-        return dtau
+        """Exact tau_r'."""
+        arms, single = _arms_first(ref)
+        dtau = self._with_derivative(arms)[1]
+        return dtau[0] if single else dtau
 
     def second_derivative(self, ref: np.ndarray) -> np.ndarray:
         """tau_r'' by a central difference of the exact tau_r' (error O(fd_step^2))."""
-        ahead = self.first_derivative(self._ahead @ ref)
-        behind = self.first_derivative(self._behind @ ref)
-        return (ahead - behind) / (2.0 * self.fd_step)
+        arms, single = _arms_first(ref)
+        ddtau = self.derivatives(arms)[2]
+        return ddtau[0] if single else ddtau
+
+
+@njit(cache=True)
+def _torsion_kernel(t, u, du, ddu, K, D, viscous, rate, c, clock, v0, dv0, delta, out):
+    """One :meth:`TorsionFilter.update` of N arms (rows), joint by joint (see there)."""
+    N, n = u.shape
+    for i in range(N):
+        first = np.isnan(clock[i])
+        ahead = t[i] > clock[i] + TIME_TOLERANCE  # False when not started (NaN)
+        h = t[i] - clock[i]
+        for j in range(n):
+            k, cj = K[j], c[j]
+            v, dv, ddv = u[i, j] / k, du[i, j] / k, ddu[i, j] / k  # static torsion, derivatives
+            if first:  # quasi-static start, exact at rest
+                d = v - cj * (dv - cj * (ddv - cj * 0.0))
+            elif ahead:  # exact solution for the cubic Hermite interpolant of u over h
+                a0, m0 = v0[i, j], dv0[i, j]
+                slope = (v - a0) / h
+                dd0 = (6.0 * slope - 4.0 * m0 - 2.0 * dv) / h
+                dd1 = (-6.0 * slope + 2.0 * m0 + 4.0 * dv) / h
+                d3 = (6.0 * (m0 + dv) - 12.0 * slope) / h**2
+                start = a0 - cj * (m0 - cj * (dd0 - cj * d3))
+                end = v - cj * (dv - cj * (dd1 - cj * d3))
+                d = end + np.exp(-rate[j] * h) * (delta[i, j] - start)
+            else:  # same instant (up to rounding): no time to integrate over
+                d = delta[i, j]
+            v0[i, j], dv0[i, j] = v, dv
+            if viscous[j]:
+                d1 = (u[i, j] - k * d) / D[j]
+                d2 = (du[i, j] - k * d1) / D[j]
+                d3o = (ddu[i, j] - k * d2) / D[j]
+            else:
+                d, d1, d2, d3o = v, dv, ddv, 0.0
+            delta[i, j] = d
+            out[0, i, j], out[1, i, j], out[2, i, j], out[3, i, j] = d, d1, d2, d3o
+        if first or ahead:
+            clock[i] = t[i]
 
 
 class TorsionFilter:
     """Exact integration of K delta + D delta' = u(t), per joint (D = 0 joints: algebraic).
 
     ``update(t, u, du, ddu)`` advances from the previous call with u the cubic
-    Hermite interpolant of (u, u') at both ends, and returns delta and its first three
-    derivatives (the third is exact for D > 0 joints and zero (neglected) for D = 0).
+    Hermite interpolant of (u, u') at both ends, for which the ODE has a closed-form
+    solution (the polynomial particular solution sum_k (-1/a)^k v^(k), v = u / K, a = K / D,
+    plus a decaying exponential), and returns delta and its first three derivatives (the
+    third is exact for D > 0 joints and zero (neglected) for D = 0). With ``n_arms`` the
+    state holds N arms: u and its derivatives are (N, n), t is one time per arm (N,) and
+    ``reset(arms)`` restarts some of them; without it, u is (n,) and t a number. The update
+    of all arms is one compiled loop.
     """
 
-    def __init__(self, stiffness: np.ndarray, damping: np.ndarray) -> None:
+    def __init__(self, stiffness: np.ndarray, damping: np.ndarray, n_arms: int | None = None):
         self.K = np.asarray(stiffness, dtype=float)
         D = np.asarray(damping, dtype=float)
         self.viscous = D > 0.0
         self.D = np.where(self.viscous, D, 1.0)  # safe divisor; D = 0 joints are masked
         self.rate = np.where(self.viscous, self.K / self.D, 0.0)  # a = K / D
         self.time_constant = np.where(self.viscous, self.D / self.K, 0.0)  # 1 / a
-        self.reset()
+        self.single = n_arms is None
+        shape = (1 if n_arms is None else n_arms, len(self.K))
+        self._time = np.full(shape[0], np.nan)  # NaN: not started
+        self._v = np.zeros(shape)
+        self._dv = np.zeros(shape)
+        self._delta = np.zeros(shape)
 
-    def reset(self) -> None:
-        self._time: float | None = None
-        self._v = np.zeros_like(self.K)
-        self._dv = np.zeros_like(self.K)
-        self.delta = np.zeros_like(self.K)
+    @property
+    def delta(self) -> np.ndarray:
+        """The torsion: (n,) without ``n_arms``, else (N, n)."""
+        return self._delta[0] if self.single else self._delta
 
-    def _particular(self, v: np.ndarray, dv: np.ndarray, ddv: np.ndarray, d3v) -> np.ndarray:
-        """Polynomial particular solution sum_k (-1/a)^k v^(k) of delta' = a (v - delta)."""
-        c = self.time_constant
-        return v - c * (dv - c * (ddv - c * d3v))
+    @delta.setter
+    def delta(self, value: np.ndarray) -> None:
+        self._delta[:] = value
 
-    def _advance(self, h: float, v: np.ndarray, dv: np.ndarray) -> None:
-        v0, m0 = self._v, self._dv
-        slope = (v - v0) / h
-        dd0 = (6.0 * slope - 4.0 * m0 - 2.0 * dv) / h
-        dd1 = (-6.0 * slope + 2.0 * m0 + 4.0 * dv) / h
-        d3 = (6.0 * (m0 + dv) - 12.0 * slope) / h**2
-        start = self._particular(v0, m0, dd0, d3)
-        end = self._particular(v, dv, dd1, d3)
-        self.delta = end + np.exp(-self.rate * h) * (self.delta - start)
+    def reset(self, arms: np.ndarray | None = None) -> None:
+        """Restart every arm (or ``arms``): the next update starts at the quasi-static torsion."""
+        index = ... if arms is None else arms
+        self._time[index] = np.nan
+        self._v[index] = 0.0
+        self._dv[index] = 0.0
+        self._delta[index] = 0.0
 
     def update(
-        self, t: float, u: np.ndarray, du: np.ndarray, ddu: np.ndarray
+        self, t, u: np.ndarray, du: np.ndarray, ddu: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        K, D = self.K, self.D
-        v, dv, ddv = u / K, du / K, ddu / K  # the static torsion and its derivatives
-        if self._time is None:
-            self.delta = self._particular(v, dv, ddv, 0.0)  # quasi-static start, exact at rest
-        elif t < self._time - TIME_TOLERANCE:
-            raise ValueError(f"controller time went back from {self._time} to {t}; call reset()")
-        elif t > self._time + TIME_TOLERANCE:
-            self._advance(t - self._time, v, dv)
-        else:  # same instant (up to rounding): no time to integrate over
-            t = self._time
-        self._time, self._v, self._dv = t, v, dv
-        viscous = self.viscous
-        self.delta = delta = np.where(viscous, self.delta, v)
-        d1 = np.where(viscous, (u - K * delta) / D, dv)
-        d2 = np.where(viscous, (du - K * d1) / D, ddv)
-        d3 = np.where(viscous, (ddu - K * d2) / D, 0.0)
-        return delta, d1, d2, d3
+        shape = self._delta.shape
+        t = np.ascontiguousarray(t, dtype=np.float64).reshape(shape[0])
+        back = t < self._time - TIME_TOLERANCE  # False where not started (NaN)
+        if back.any():
+            raise ValueError(
+                f"controller time went back from {self._time[back]} to {t[back]}; call reset()"
+            )
+        u, du, ddu = (
+            np.ascontiguousarray(a, dtype=np.float64).reshape(shape) for a in (u, du, ddu)
+        )
+        out = np.empty((4, *shape))
+        _torsion_kernel(
+            t,
+            u,
+            du,
+            ddu,
+            self.K,
+            self.D,
+            self.viscous,
+            self.rate,
+            self.time_constant,
+            self._time,
+            self._v,
+            self._dv,
+            self._delta,
+            out,
+        )
+        d0, d1, d2, d3 = out[:, 0] if self.single else out
+        return d0, d1, d2, d3
 
 
 class InverseDynamics:
     """INVDYN of De Luca et al. (Sec. V-B) for model (1), model (2) and rigid arms.
 
-    Call ``invdyn(t, ref)`` with ``ref`` the (5, N) array q_d .. q_d^(4) at time t,
+    Call ``invdyn(t, ref)`` with ``ref`` the (5, n) array q_d .. q_d^(4) at time t,
     once per control period in increasing time (the torsion filter has memory);
     ``reset()`` at the start of every episode. Returns (x_d, tau_d).
-    See the module docstring for how D and S are handled.
+    With ``n_arms`` it runs N arms at once: ``ref`` (N, 5, n), ``t`` (N,), returns
+    (N, dim) and (N, n), ``reset(arms)`` restarts some arms; each arm's result is the
+    single-arm one. See the module docstring for how D and S are handled.
     """
 
-    def __init__(self, model: RobotModel, fd_step: float = DEFAULT_FD_STEP) -> None:
+    def __init__(
+        self, model: RobotModel, fd_step: float = DEFAULT_FD_STEP, n_arms: int | None = None
+    ) -> None:
         self.model = model
         self.n = model.n
+        self.single = n_arms is None
+        arms = 1 if n_arms is None else n_arms
         self.rigid_torque = RigidTorque(model, fd_step)
         if model.elastic:
-            self.filter = TorsionFilter(model.K, model.D)
+            self.filter = TorsionFilter(model.K, model.D, arms)
             # torsion of the uncoupled model (1), used inside the S theta_d'' term
-            self.uncoupled_filter = TorsionFilter(model.K, model.D) if model.has_coupling else None
+            self.uncoupled_filter = (
+                TorsionFilter(model.K, model.D, arms) if model.has_coupling else None
+            )
             self.needs_second = model.has_coupling or bool(np.any(model.D == 0.0))
 
-    def reset(self) -> None:
+    def reset(self, arms: np.ndarray | None = None) -> None:
         if self.model.elastic:
-            self.filter.reset()
+            self.filter.reset(arms)
             if self.uncoupled_filter is not None:
-                self.uncoupled_filter.reset()
+                self.uncoupled_filter.reset(arms)
 
-    def __call__(self, t: float, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        model, rt = self.model, self.rigid_torque
-        tau_r = rt.torque(ref)
+    def __call__(self, t, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ref = np.asarray(ref, dtype=float)
+        x_d, tau_d = self._arms(t, ref[None] if self.single else ref)
+        return (x_d[0], tau_d[0]) if self.single else (x_d, tau_d)
+
+    def _arms(self, t, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        model = self.model
+        q, dq, ddq = ref[:, 0], ref[:, 1], ref[:, 2]
         if not model.elastic:
-            return np.concatenate([ref[0], ref[1]]), tau_r
-        dtau_r = rt.first_derivative(ref)
-        ddtau_r = rt.second_derivative(ref) if self.needs_second else np.zeros(self.n)
+            return np.concatenate([q, dq], axis=1), self.rigid_torque.torque(ref)
+        tau_r, dtau_r, ddtau_r = self.rigid_torque.derivatives(ref, self.needs_second)
         if self.uncoupled_filter is None:
             tau_j = tau_r
             delta, d1, d2, _ = self.filter.update(t, tau_r, dtau_r, ddtau_r)
         else:
-            S = model.S
+            S_T = model.S.T
             _, _, c2, c3 = self.uncoupled_filter.update(t, tau_r, dtau_r, ddtau_r)
-            tau_j = tau_r + S @ (ref[2] + c2)
-            dtau_j = dtau_r + S @ (ref[3] + c3)
-            ddtau_j = ddtau_r + S @ ref[4]  # S delta0 neglected (used only if D = 0)
+            tau_j = tau_r + (ddq + c2) @ S_T
+            dtau_j = dtau_r + (ref[:, 3] + c3) @ S_T
+            ddtau_j = ddtau_r + ref[:, 4] @ S_T  # S delta0 neglected (used only if D = 0)
             delta, d1, d2, _ = self.filter.update(t, tau_j, dtau_j, ddtau_j)
-        ddtheta = ref[2] + d2
-        x_d = np.concatenate([ref[0] + delta, ref[0], ref[1] + d1, ref[1]])
-        tau_d = model.B * ddtheta + model.S.T @ ref[2] + tau_j
+        ddtheta = ddq + d2
+        x_d = np.concatenate([q + delta, q, dq + d1, dq], axis=1)
+        tau_d = model.B * ddtheta + ddq @ model.S + tau_j
         return x_d, tau_d
 
 
@@ -211,9 +327,11 @@ def static_reference(model: RobotModel, ref: np.ndarray) -> tuple[np.ndarray, np
     """Reference without INVDYN: the gravity-compensated static state at q_d.
 
     Elastic: x_d = (q_d + K^-1 g(q_d), q_d, q_d', q_d'), tau_d = g(q_d);
-    rigid: x_d = (q_d, q_d'), tau_d = g(q_d).
+    rigid: x_d = (q_d, q_d'), tau_d = g(q_d). ``ref`` (5, n) or (N, 5, n).
     """
-    g = model.gravity(ref[0])
-    if not model.elastic:
-        return np.concatenate([ref[0], ref[1]]), g
-    return np.concatenate([ref[0] + g / model.K, ref[0], ref[1], ref[1]]), g
+    arms, single = _arms_first(ref)
+    q, dq = arms[:, 0], arms[:, 1]
+    g = model.chain.gravity(q)
+    blocks = [q, dq] if not model.elastic else [q + g / model.K, q, dq, dq]
+    x_d = np.concatenate(blocks, axis=1)
+    return (x_d[0], g[0]) if single else (x_d, g)

@@ -16,21 +16,56 @@ the bandwidth <= omega with the largest stability margin
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+from pydantic import ValidationInfo, field_validator
 
 from elastic_gym.controllers.gain_design import bandwidth_pd_gains, most_stable_bandwidth, pd_gain
 from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP
-from elastic_gym.controllers.state_feedback import FeedforwardStateFeedback
+from elastic_gym.controllers.state_feedback import (
+    FeedforwardOptions,
+    FeedforwardStateFeedback,
+    VectorStateFeedback,
+)
+from elastic_gym.controllers.vector import twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import per_joint_values
+from elastic_gym.validation import (
+    NonNegativeFinite,
+    PositiveFinite,
+    option_checks,
+    per_joint_values,
+    validated_options,
+)
 
 DEFAULT_BANDWIDTH = 30.0  # rad/s, as the slowest poles of the eq. (13) design
+
+
+PerJointGain = NonNegativeFinite | list[NonNegativeFinite] | None
+
+
+class PDOptions(FeedforwardOptions):
+    """The options of :class:`MotorPD` and :class:`LinkPD` (per-joint sizes checked by the
+    design)."""
+
+    omega: PositiveFinite | None = DEFAULT_BANDWIDTH
+    damping_ratio: PositiveFinite = 0.7
+    kp: PerJointGain = None
+    kd: PerJointGain = None
+
+    @field_validator("kd")
+    @classmethod
+    def _both_gains(cls, kd: Any, info: ValidationInfo) -> Any:
+        if (info.data.get("kp") is None) != (kd is None):
+            raise ValueError("give both kp and kd, or neither (bandwidth design)")
+        return kd
 
 
 class _BlockPD(FeedforwardStateFeedback):
     """PD on one block of the state (``block``) with the eq. (13) feedforward."""
 
     block = "motor"
+    options_model = PDOptions
 
     def __init__(
         self,
@@ -44,15 +79,14 @@ class _BlockPD(FeedforwardStateFeedback):
         design_configuration=None,
         fd_step: float = DEFAULT_FD_STEP,
     ) -> None:
-        if (kp is None) != (kd is None):
-            raise ValueError("give both kp and kd, or neither (bandwidth design)")
+        validated_options(PDOptions, locals())
         self.damping_ratio = damping_ratio
         self._kp, self._kd = kp, kd
-        self.bandwidth = omega
+        self.bandwidth = omega  # None: default_bandwidth() at the design configuration
         super().__init__(
             model,
             dt,
-            omega=omega,
+            omega=DEFAULT_BANDWIDTH if omega is None else omega,
             feedforward=feedforward,
             design_configuration=design_configuration,
             fd_step=fd_step,
@@ -62,10 +96,11 @@ class _BlockPD(FeedforwardStateFeedback):
         model, n = self.model, self.n
         kp, kd = self._kp, self._kd
         if kp is None:
-            if omega is None:
-                self.bandwidth = omega = self.default_bandwidth(q0)
-            kp, kd = bandwidth_pd_gains(model, q0, omega, self.damping_ratio)
-        kp, kd = per_joint_values(kp, n, "kp", 0.0), per_joint_values(kd, n, "kd", 0.0)
+            if self.bandwidth is None:
+                self.bandwidth = self.default_bandwidth(q0)
+            kp, kd = bandwidth_pd_gains(model, q0, self.bandwidth, self.damping_ratio)
+        with option_checks("kp" if self._kp is not None else "omega"):
+            kp, kd = per_joint_values(kp, n, "kp", 0.0), per_joint_values(kd, n, "kd", 0.0)
         gain = pd_gain(model, kp, kd, self.block)
         return gain, f"{self.block} PD"
 
@@ -106,3 +141,13 @@ class LinkPD(_BlockPD):
         return most_stable_bandwidth(
             self.model, q0, DEFAULT_BANDWIDTH, self.damping_ratio, self.block
         )
+
+
+@twin_of(MotorPD)
+class VectorMotorPD(VectorStateFeedback):
+    """:class:`MotorPD` on N arms (the eq. (13) law with its block gain)."""
+
+
+@twin_of(LinkPD)
+class VectorLinkPD(VectorStateFeedback):
+    """:class:`LinkPD` on N arms (the eq. (13) law with its block gain)."""

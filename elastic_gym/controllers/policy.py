@@ -17,13 +17,22 @@ import importlib
 import os
 import pickle
 from collections.abc import Callable, Mapping
+from typing import Annotated, Any
 
 import numpy as np
+from pydantic import Field, StrictBool
 
+from elastic_gym.arms import arm_view, as_batch
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.registry import make_controller
+from elastic_gym.controllers.vector import (
+    ARM0,
+    ControllerTwin,
+    make_vector_controller,
+    twin_of,
+)
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import is_real, per_joint_values
+from elastic_gym.validation import StrictModel, per_joint_values, validated_options
 
 
 def load_sb3_model(path: str | os.PathLike, algorithm: str | type):
@@ -55,6 +64,17 @@ def load_normalization(normalization):
     return normalization
 
 
+class PolicyOptions(StrictModel):
+    """The plain-data options of :class:`PolicyController` (the policy, its normalization,
+    preprocessing and residual controller are objects, checked by the controller)."""
+
+    scale_actions: StrictBool = True
+    residual_options: dict[str, Any] | None = None
+    residual_scale: Annotated[float, Field(strict=True, gt=0.0, le=1.0)] = 0.1
+    deterministic: StrictBool = True
+    decimation: Annotated[int, Field(strict=True, ge=1)] = 1
+
+
 class PolicyController(Controller):
     """A policy ``obs -> action`` as a controller; see the module docstring.
 
@@ -73,6 +93,7 @@ class PolicyController(Controller):
     """
 
     name = "policy"
+    options_model = PolicyOptions
 
     def __init__(
         self,
@@ -91,8 +112,7 @@ class PolicyController(Controller):
         decimation: int = 1,
     ) -> None:
         super().__init__(model, dt)
-        if not isinstance(decimation, int) or decimation < 1:
-            raise ValueError(f"decimation must be an integer >= 1, got {decimation!r}")
+        validated_options(PolicyOptions, locals())
         self.decimation = decimation
         if isinstance(policy, (str, os.PathLike)):
             if algorithm is None:
@@ -107,9 +127,6 @@ class PolicyController(Controller):
             )
         if preprocess is not None and not callable(preprocess):
             raise TypeError("preprocess must be callable f(obs, info)")
-        for key, value in (("scale_actions", scale_actions), ("deterministic", deterministic)):
-            if not isinstance(value, bool):
-                raise TypeError(f"{key} must be True or False, got {value!r}")
         self.policy = policy
         self.normalization = load_normalization(normalization)
         self.preprocess = preprocess
@@ -117,13 +134,8 @@ class PolicyController(Controller):
         self.deterministic = deterministic
         self.torque_limit = self._limit(torque_limit)
         self.residual = self._base_controller(residual, residual_options)
-        if not (is_real(residual_scale) and 0.0 < residual_scale <= 1.0):
-            raise ValueError(f"residual_scale must be in (0, 1], got {residual_scale!r}")
         self.residual_scale = float(residual_scale)
-        self._state = None
-        self._episode_start = np.ones(1, dtype=bool)
-        self._calls = 0
-        self._held = np.zeros(self.n)
+        self._law = VectorPolicyController.of(self, 1)
 
     def _limit(self, torque_limit) -> np.ndarray:
         if torque_limit is None:
@@ -144,40 +156,72 @@ class PolicyController(Controller):
         return residual
 
     def reset(self, obs: Mapping, info: Mapping) -> None:
-        self._state = None
-        self._episode_start = np.ones(1, dtype=bool)
-        self._calls = 0
-        if self.residual is not None:
-            self.residual.reset(obs, info)
+        self._law.reset_arms(as_batch(obs), as_batch(info), ARM0)
 
     def action(self, obs: Mapping, info: Mapping) -> np.ndarray:
         """The raw policy output for this observation (after preprocessing/normalization)."""
-        policy_obs = self.preprocess(obs, info) if self.preprocess is not None else obs
-        if self.normalization is not None:
-            policy_obs = self.normalization.normalize_obs(policy_obs)
-        if self._predict:
-            action, self._state = self.policy.predict(
+        return self._law.act(0, obs, info)
+
+    def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
+        return self._law(as_batch(obs), as_batch(info))[0]
+
+
+@twin_of(PolicyController)
+class VectorPolicyController(ControllerTwin[PolicyController]):
+    """:class:`PolicyController` on N arms: each arm has its own recurrent state, call
+    count and held action, and the policy is called once per acting arm with that arm's
+    observation (a batched call would round differently from the single controller's);
+    the residual base runs as one vector controller for all arms."""
+
+    def _bind(self, controller: PolicyController, n_arms: int) -> None:
+        super()._bind(controller, n_arms)
+        N, residual = self.n_arms, controller.residual
+        self.base = (
+            None if residual is None else make_vector_controller(residual, self.model, self.dt, N)
+        )
+        self._states: list = [None] * N
+        self._episode_start = np.ones(N, dtype=bool)
+        self._calls = np.zeros(N, dtype=np.int64)
+        self._held = np.zeros((N, self.n))
+
+    def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
+        for i in arms:
+            self._states[i] = None
+        self._episode_start[arms] = True
+        self._calls[arms] = 0
+        if self.base is not None:
+            self.base.reset_arms(obs, info, arms)
+
+    def act(self, i: int, obs: Mapping, info: Mapping) -> np.ndarray:
+        """The raw policy output (n,) of arm i for its own observation and info."""
+        c = self.controller
+        policy_obs = c.preprocess(obs, info) if c.preprocess is not None else obs
+        if c.normalization is not None:
+            policy_obs = c.normalization.normalize_obs(policy_obs)
+        if c._predict:
+            action, self._states[i] = c.policy.predict(
                 policy_obs,
-                state=self._state,
-                episode_start=self._episode_start,
-                deterministic=self.deterministic,
+                state=self._states[i],
+                episode_start=self._episode_start[i : i + 1].copy(),
+                deterministic=c.deterministic,
             )
-            self._episode_start = np.zeros(1, dtype=bool)
+            self._episode_start[i] = False
         else:
-            action = self.policy(policy_obs)
+            action = c.policy(policy_obs)
         action = np.asarray(action, dtype=float)
         if action.size != self.n or not np.all(np.isfinite(action)):
             raise ValueError(f"policy must return {self.n} finite numbers, got {action!r}")
         return action.reshape(self.n)
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        if self._calls % self.decimation == 0:  # the policy acts at 1 / (decimation dt)
-            self._held = self.action(obs, info)
+        c = self.controller
+        for i in np.flatnonzero(self._calls % c.decimation == 0):  # acting at 1 / (decimation dt)
+            i = int(i)
+            self._held[i] = self.act(i, arm_view(obs, i), arm_view(info, i))
         self._calls += 1
-        action = self._held
-        if self.residual is not None:
-            correction = self.residual_scale * self.torque_limit * np.clip(action, -1.0, 1.0)
-            return self.residual(obs, info) + correction
-        if self.scale_actions:
-            return self.torque_limit * np.clip(action, -1.0, 1.0)
-        return action
+        action = np.clip(self._held, -1.0, 1.0)
+        if self.base is not None:
+            return self.base(obs, info) + c.residual_scale * c.torque_limit * action
+        if c.scale_actions:
+            return c.torque_limit * action
+        return self._held.copy()

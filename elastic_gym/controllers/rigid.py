@@ -15,19 +15,18 @@ from ``info["reference"]``:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from typing import Any, Literal
 
 import numpy as np
 
 from elastic_gym.controllers.base import Controller
-from elastic_gym.controllers.invdyn import reference_derivatives, state_vector
+from elastic_gym.controllers.vector import OneArmLaw, StateLaw, arm_rows, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import is_real
+from elastic_gym.validation import PositiveFinite, StrictModel, validated_options
 
 CRISTOFARO_LAMBDA = 0.5
 CRISTOFARO_KP = (40.0, 60.0)
 CRISTOFARO_KD = (60.0, 90.0)
-FRICTION_VELOCITIES = ("estimate", "desired")
 
 
 def _gain_matrix(value, n: int, name: str) -> np.ndarray:
@@ -38,21 +37,31 @@ def _gain_matrix(value, n: int, name: str) -> np.ndarray:
     if arr.ndim == 1 and arr.shape == (n,):
         arr = np.diag(arr)
     if arr.shape != (n, n) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be a scalar, {n} numbers or a {n}x{n} matrix, got {value!r}")
+        raise ValueError(
+            f"options.{name}: must be a scalar, {n} numbers or a {n}x{n} matrix, got {value!r}"
+        )
     if np.any(np.linalg.eigvalsh(0.5 * (arr + arr.T)) < 0.0):
-        raise ValueError(f"{name} must be positive semi-definite, got {value!r}")
+        raise ValueError(f"options.{name}: must be positive semi-definite, got {value!r}")
     return arr
 
 
-class _RigidTracking(Controller):
-    """Shared reading of (q, x_hat_2) and of the reference."""
+class _RigidTracking(OneArmLaw, Controller):
+    """Rigid-arm tracking laws; they run as their twins with one arm."""
 
     applies_to = frozenset({"rigid"})
 
-    def signals(self, obs: Mapping, info: Mapping) -> tuple[np.ndarray, ...]:
-        x = state_vector(obs, 2 * self.n)
-        ref = reference_derivatives(info, self.n)
-        return x[: self.n], x[self.n :], ref[0], ref[1], ref[2]
+
+def _signals(x: np.ndarray, ref: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
+    """(q, x_hat_2, q_d, q_d', q_d'') of N arms from states (N, 2n) and references."""
+    return x[:, :n], x[:, n:], ref[:, 0], ref[:, 1], ref[:, 2]
+
+
+class CristofaroOptions(StrictModel):
+    """The options of :class:`CristofaroTrackingController` (gain sizes checked by it)."""
+
+    Lambda: Any = CRISTOFARO_LAMBDA
+    K_P: Any = None
+    K_D: Any = None
 
 
 class CristofaroTrackingController(_RigidTracking):
@@ -65,6 +74,7 @@ class CristofaroTrackingController(_RigidTracking):
     """
 
     name = "cristofaro-tracking"
+    options_model = CristofaroOptions
 
     def __init__(
         self,
@@ -75,6 +85,7 @@ class CristofaroTrackingController(_RigidTracking):
         K_D=None,
     ) -> None:
         super().__init__(model, dt)
+        validated_options(CristofaroOptions, locals())
         n = self.n
         if (K_P is None or K_D is None) and n != len(CRISTOFARO_KP):
             raise ValueError(
@@ -83,18 +94,17 @@ class CristofaroTrackingController(_RigidTracking):
         self.Lambda = _gain_matrix(Lambda, n, "Lambda")
         self.K_P = _gain_matrix(CRISTOFARO_KP if K_P is None else K_P, n, "K_P")
         self.K_D = _gain_matrix(CRISTOFARO_KD if K_D is None else K_D, n, "K_D")
+        self.bind_law()
 
-    def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        q, v, q_d, dq_d, ddq_d = self.signals(obs, info)
-        model, L = self.model, self.Lambda
-        e, de = q_d - q, dq_d - v
-        return (
-            model.mass_matrix(q) @ (ddq_d + L @ de)
-            + model.coriolis_matrix(q, v) @ (dq_d + L @ e)
-            + model.gravity(q)
-            + self.K_P @ e
-            + self.K_D @ de
-        )
+
+class FeedbackLinearizationOptions(StrictModel):
+    """The options of :class:`FeedbackLinearizingController` (gain sizes checked by it)."""
+
+    omega: PositiveFinite = 10.0
+    damping_ratio: PositiveFinite = 1.0
+    K_P: Any = None
+    K_D: Any = None
+    friction_velocity: Literal["estimate", "desired"] = "estimate"
 
 
 class FeedbackLinearizingController(_RigidTracking):
@@ -109,6 +119,7 @@ class FeedbackLinearizingController(_RigidTracking):
     """
 
     name = "feedback-linearization"
+    options_model = FeedbackLinearizationOptions
 
     def __init__(
         self,
@@ -122,19 +133,45 @@ class FeedbackLinearizingController(_RigidTracking):
     ) -> None:
         super().__init__(model, dt)
         n = self.n
-        for key, value in (("omega", omega), ("damping_ratio", damping_ratio)):
-            if not (is_real(value) and np.isfinite(value) and value > 0):
-                raise ValueError(f"{key} must be a positive number, got {value!r}")
-        if friction_velocity not in FRICTION_VELOCITIES:
-            raise ValueError(
-                f"friction_velocity must be one of {FRICTION_VELOCITIES}, got {friction_velocity!r}"
-            )
+        validated_options(FeedbackLinearizationOptions, locals())
         self.friction_velocity = friction_velocity
         self.K_P = _gain_matrix(omega**2 if K_P is None else K_P, n, "K_P")
         self.K_D = _gain_matrix(2.0 * damping_ratio * omega if K_D is None else K_D, n, "K_D")
+        self.bind_law()
 
-    def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        q, v, q_d, dq_d, ddq_d = self.signals(obs, info)
-        a = ddq_d + self.K_D @ (dq_d - v) + self.K_P @ (q_d - q)
-        v_friction = v if self.friction_velocity == "estimate" else dq_d
-        return self.model.rnea(q, v, a) + self.model.link_friction(v_friction)
+
+@twin_of(CristofaroTrackingController)
+class VectorCristofaroTracking(StateLaw[CristofaroTrackingController]):
+    """Example 3 of Cristofaro & De Luca (2022) on N arms (chain kernels).
+
+    C(q, x_hat_2) w comes from the bias n(q, v) = C(q, v) v + g(q), a quadratic form in v
+    with the Christoffel-symbol C (symmetric in its two velocity arguments), by
+    polarization: C(q, v) w = (n(q, v + w) - n(q, v - w)) / 4.
+    """
+
+    def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        c, chain = self.controller, self.model.chain
+        q, v, q_d, dq_d, ddq_d = _signals(x, ref, self.n)
+        e, de = q_d - q, dq_d - v
+        w = dq_d + arm_rows(c.Lambda, e)
+        M, bias = chain.mass_and_bias(np.concatenate([q, q]), np.concatenate([v + w, v - w]))
+        N = len(q)
+        return (
+            arm_rows(M[:N], ddq_d + arm_rows(c.Lambda, de))
+            + (bias[:N] - bias[N:]) / 4.0
+            + chain.gravity(q)
+            + arm_rows(c.K_P, e)
+            + arm_rows(c.K_D, de)
+        )
+
+
+@twin_of(FeedbackLinearizingController)
+class VectorFeedbackLinearization(StateLaw[FeedbackLinearizingController]):
+    """Computed torque with friction compensation (Solsona & Puleston) on N arms."""
+
+    def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        c, model = self.controller, self.model
+        q, v, q_d, dq_d, ddq_d = _signals(x, ref, self.n)
+        a = ddq_d + arm_rows(c.K_D, dq_d - v) + arm_rows(c.K_P, q_d - q)
+        v_friction = v if c.friction_velocity == "estimate" else dq_d
+        return model.chain.rnea(q, v, a) + model.link_friction(v_friction)

@@ -14,8 +14,10 @@ experiment ("close to the robot natural frequency"). The same law runs on rigid 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Annotated, Any
 
 import numpy as np
+from pydantic import Field, StrictBool, ValidationInfo, field_validator
 
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.gain_design import (
@@ -31,10 +33,17 @@ from elastic_gym.controllers.invdyn import (
     InverseDynamics,
     info_time,
     reference_derivatives,
-    state_vector,
     static_reference,
 )
+from elastic_gym.controllers.vector import OneArmLaw, StateLaw, arm_rows, twin_of
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import (
+    Finite,
+    PositiveFinite,
+    StrictModel,
+    option_checks,
+    validated_options,
+)
 
 
 def _square(value, size: int, name: str) -> np.ndarray:
@@ -43,11 +52,59 @@ def _square(value, size: int, name: str) -> np.ndarray:
     if arr.ndim <= 1:
         arr = np.diag(np.broadcast_to(arr, (size,)))
     if arr.shape != (size, size) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"weights[{name!r}] must be a {size}x{size} matrix or {size} numbers")
+        raise ValueError(
+            f"options.weights.{name}: must be a {size}x{size} matrix or {size} numbers"
+        )
     return arr
 
 
-class FeedforwardStateFeedback(Controller):
+FdStep = Annotated[float, Field(strict=True, gt=0.0, lt=0.1, allow_inf_nan=False)]
+"""The central-difference step (s) of tau_r'' inside INVDYN."""
+
+
+class LQRWeights(StrictModel):
+    """LQR weights: matrices, diagonals or scalars (checked against the state size)."""
+
+    Q: Any
+    R: Any
+
+
+class FeedforwardOptions(StrictModel):
+    """The INVDYN and linearization options shared by eq. (13) and its variants."""
+
+    feedforward: StrictBool = True
+    design_configuration: list[Finite] | None = None
+    fd_step: FdStep = DEFAULT_FD_STEP
+
+
+class StateFeedbackOptions(FeedforwardOptions):
+    """The options of :class:`FeedforwardStateFeedback` (gain shapes checked by its design)."""
+
+    omega: PositiveFinite = 30.0
+    gain: Any = None
+    weights: LQRWeights | None = None
+    poles: Any = None
+    feedback: StrictBool = True
+
+    @field_validator("poles")
+    @classmethod
+    def _one_design(cls, poles: Any, info: ValidationInfo) -> Any:
+        given = [k for k in ("gain", "weights") if info.data.get(k) is not None]
+        given += ["poles"] if poles is not None else []
+        if len(given) > 1:
+            raise ValueError(f"give at most one of gain, weights, poles; got {given}")
+        return poles
+
+    @field_validator("feedback")
+    @classmethod
+    def _pure_feedforward(cls, feedback: bool, info: ValidationInfo) -> bool:
+        designs = [info.data.get(k) for k in ("gain", "weights", "poles")]
+        if not feedback and any(d is not None for d in designs):
+            raise ValueError("False (pure feedforward) takes no gain, weights or poles")
+        return feedback
+
+
+class FeedforwardStateFeedback(OneArmLaw, Controller):
     """Eq. (13): tau = K_P (x_d - xi) + tau_d.
 
     Args:
@@ -66,10 +123,11 @@ class FeedforwardStateFeedback(Controller):
 
     At most one of ``gain``, ``weights``, ``poles`` may be given.
     ``design`` holds the configuration, method and closed-loop poles of the nominal
-    linearization.
+    linearization. The law runs as :class:`VectorStateFeedback` with one arm.
     """
 
     name = "feedforward-state-feedback"
+    options_model = StateFeedbackOptions
 
     def __init__(
         self,
@@ -85,18 +143,15 @@ class FeedforwardStateFeedback(Controller):
         fd_step: float = DEFAULT_FD_STEP,
     ) -> None:
         super().__init__(model, dt)
-        for key, value in (("feedback", feedback), ("feedforward", feedforward)):
-            if not isinstance(value, bool):
-                raise TypeError(f"{key} must be True or False, got {value!r}")
+        options = validated_options(StateFeedbackOptions, locals())
         self.dim = (4 if self.elastic else 2) * self.n
         self.feedforward = feedforward
-        self.invdyn = InverseDynamics(model, fd_step)
+        self.fd_step = fd_step
         q0 = self._configuration(design_configuration)
         A, Bu = linearize(model, q0)
         if feedback:
-            self.gain, method = self._design(A, Bu, q0, omega, gain, weights, poles)
-        elif gain is not None or weights is not None or poles is not None:
-            raise ValueError("feedback=False (pure feedforward) takes no gain, weights or poles")
+            lqr = options.weights
+            self.gain, method = self._design(A, Bu, q0, omega, gain, lqr, poles)
         else:
             self.gain, method = np.zeros((self.n, self.dim)), "none (pure feedforward)"
         self.design = {
@@ -104,49 +159,64 @@ class FeedforwardStateFeedback(Controller):
             "method": method,
             "poles": closed_loop_poles(A, Bu, self.gain),
         }
+        self.bind_law()
 
     # ------------------------------------------------------------ design
     def _configuration(self, q0) -> np.ndarray:
         if q0 is None:
             return nominal_configuration(self.model)
         arr = np.asarray(q0, dtype=float)
-        if arr.shape != (self.n,) or not np.all(np.isfinite(arr)):
-            raise ValueError(f"design_configuration must be {self.n} finite numbers, got {q0!r}")
+        if arr.shape != (self.n,):
+            raise ValueError(f"options.design_configuration: must be {self.n} numbers, got {q0!r}")
         return arr
 
     def _design(self, A, Bu, q0, omega, gain, weights, poles) -> tuple[np.ndarray, str]:
-        given = [
-            k for k, v in (("gain", gain), ("weights", weights), ("poles", poles)) if v is not None
-        ]
-        if len(given) > 1:
-            raise ValueError(f"give at most one of gain, weights, poles; got {given}")
         if gain is not None:
             K = np.asarray(gain, dtype=float)
             if K.shape != (self.n, self.dim) or not np.all(np.isfinite(K)):
-                raise ValueError(f"gain must be a finite {self.n}x{self.dim} matrix, got {K.shape}")
+                raise ValueError(
+                    f"options.gain: must be a finite {self.n}x{self.dim} matrix, got {K.shape}"
+                )
             return K.copy(), "explicit gain"
         if weights is not None:
-            if not isinstance(weights, Mapping) or set(weights) != {"Q", "R"}:
-                raise ValueError("weights must be a mapping with exactly the keys 'Q' and 'R'")
-            Q = _square(weights["Q"], self.dim, "Q")
-            R = _square(weights["R"], self.n, "R")
+            Q = _square(weights.Q, self.dim, "Q")
+            R = _square(weights.R, self.n, "R")
             return lqr_gain(A, Bu, Q, R), "LQR (given weights)"
         if poles is not None:
-            return pole_placement_gain(A, Bu, poles), "pole placement"
+            with option_checks("poles"):
+                return pole_placement_gain(A, Bu, poles), "pole placement"
         return lqr_bandwidth_gain(self.model, q0, omega), f"LQR, slowest pole {omega} rad/s"
 
     # ------------------------------------------------------------ control
-    def reset(self, obs: Mapping, info: Mapping) -> None:
-        self.invdyn.reset()
-
     def desired(self, info: Mapping) -> tuple[np.ndarray, np.ndarray]:
         """(x_d, tau_d) at the time of ``info``: INVDYN, or the static reference."""
         ref = reference_derivatives(info, self.n)
+        x_d, tau_d = self._law.desired(np.array([info_time(info)]), ref[None])
+        return x_d[0], tau_d[0]
+
+
+@twin_of(FeedforwardStateFeedback)
+class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
+    """Eq. (13) on N arms: tau_i = K_P (x_d,i - xi_i) + tau_d,i, INVDYN batched.
+
+    Also the law of the decentralized PD controllers (eq. (13) with a block gain).
+    """
+
+    def _bind(self, controller: FeedforwardStateFeedback, n_arms: int) -> None:
+        super()._bind(controller, n_arms)
+        self.gain = controller.gain
+        self.feedforward = controller.feedforward
+        self.invdyn = InverseDynamics(controller.model, controller.fd_step, self.n_arms)
+
+    def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
+        self.invdyn.reset(arms)
+
+    def desired(self, t: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(x_d (N, dim), tau_d (N, n)): INVDYN, or the static reference."""
         if self.feedforward:
-            return self.invdyn(info_time(info), ref)
+            return self.invdyn(t, ref)
         return static_reference(self.model, ref)
 
-    def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        x = state_vector(obs, self.dim)
-        x_d, tau_d = self.desired(info)
-        return self.gain @ (x_d - x) + tau_d
+    def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        x_d, tau_d = self.desired(t, ref)
+        return arm_rows(self.gain, x_d - x) + tau_d

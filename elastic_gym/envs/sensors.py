@@ -68,12 +68,16 @@ class GaussianNoise:
 
     def draw(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
         """One sample per arm of ``arms`` (``rngs[k]`` is the generator of ``arms[k]``)."""
-        for k in np.flatnonzero(self.next[arms] == self.BLOCK):
-            arm = arms[k]
-            self.block[arm] = rngs[k].standard_normal(self.block.shape[1:])
-            self.next[arm] = 0
-        sample = self.block[arms, self.next[arms]]
-        self.next[arms] += 1
+        following = self.next[arms]
+        empty = following == self.BLOCK
+        if empty.any():
+            for k in np.flatnonzero(empty):
+                arm = arms[k]
+                self.block[arm] = rngs[k].standard_normal(self.block.shape[1:])
+                self.next[arm] = 0
+            following = self.next[arms]
+        sample = self.block[arms, following]
+        self.next[arms] = following + 1
         return sample
 
 
@@ -199,7 +203,6 @@ class AccelerometerArray:
         n_arms: int = 1,
     ) -> None:
         configs = [config] * n_arms if isinstance(config, AccelerometerConfig) else list(config)
-        self.configs = configs
         self.config = max(configs, key=lambda c: c.range)
         self.size = 3 * n_sensors
         self.sample_time = sample_time
@@ -216,7 +219,6 @@ class AccelerometerArray:
     def set(self, arm: int, config: AccelerometerConfig) -> None:
         """Arm ``arm``'s own error model (e.g. drawn at a reset)."""
         dt = self.sample_time
-        self.configs[arm] = config
         self.sample_std[arm] = config.noise_density * np.sqrt(0.5 / dt)
         self.alpha[arm] = (
             float(np.exp(-2.0 * np.pi * config.cutoff_hz * dt))

@@ -209,12 +209,6 @@ class ArmSimulator:
         self.q, self.dq = np.zeros(shape), np.zeros(shape)
         self.theta, self.dtheta = np.zeros(shape), np.zeros(shape)
         self._elastic = spec.elastic
-        self._no_link_torque = np.zeros(shape)
-
-    @property
-    def plant(self) -> RobotModel:
-        """The plant model of arm 0 (every arm's when they share one)."""
-        return self.plants.models[0]
 
     @property
     def chain(self) -> SerialChain:

@@ -337,16 +337,16 @@ def _acceleration_from_readings_kernel(
 
 @njit(cache=True)
 def _mass_and_bias_arm(
-    q, dq, base_acc, chain, mass, com, inertia, M, h, links, small, bodies, with_mass=True
+    q, dq, ddq, base_acc, chain, mass, com, inertia, M, h, links, small, bodies, with_mass=True
 ):
-    """M(q) (if ``with_mass``) and n(q, q') of one arm (Newton-Euler with a_0 = -g_W,
-    composite Jacobians)."""
+    """M(q) (if ``with_mass``) and M(q) q'' + n(q, q') of one arm (Newton-Euler with
+    a_0 = -g_W, composite Jacobians); ``ddq`` zero gives the bias n(q, q')."""
     n = q.shape[0]
     R, p, z, omega, alpha, acc = links
-    com_w, inertia_w, force, moment, Jv, r, t1, t2, zero_n = bodies
+    com_w, inertia_w, force, moment, Jv, r, t1, t2, _ = bodies
     tmp, a_c, Iw = small[1], small[2], small[3]
     parent = chain[0]
-    _forward_kinematics(q, dq, zero_n, base_acc, *chain, links, small)
+    _forward_kinematics(q, dq, ddq, base_acc, *chain, links, small)
     for b in range(n):
         _matvec(R[b], com[b], r)  # c_b - p_b
         for c in range(3):
@@ -407,12 +407,25 @@ def _mass_and_bias_kernel(q, dq, fp, ip, w, M, h):
     N, n = q.shape
     chain, bodies_p, _, _, minus_gravity = _unpack(fp[0], ip)
     small, links, bodies, _ = _workspace(n, w)
+    zero_n = bodies[8]
     for k in range(N):
         if k and fp.shape[0] > 1:
             chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
         _mass_and_bias_arm(
-            q[k], dq[k], minus_gravity, chain, *bodies_p, M[k], h[k], links, small, bodies
+            q[k], dq[k], zero_n, minus_gravity, chain, *bodies_p, M[k], h[k], links, small, bodies
         )
+
+
+@njit(cache=True)
+def _rnea_kernel(q, dq, ddq, fp, ip, w, h):
+    N, n = q.shape
+    chain, bodies_p, _, _, minus_gravity = _unpack(fp[0], ip)
+    small, links, bodies, (M, _, _) = _workspace(n, w)
+    for k in range(N):
+        if k and fp.shape[0] > 1:
+            chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
+        arm = (q[k], dq[k], ddq[k], minus_gravity)
+        _mass_and_bias_arm(*arm, chain, *bodies_p, M, h[k], links, small, bodies, False)
 
 
 @njit(cache=True)
@@ -424,9 +437,8 @@ def _gravity_kernel(q, fp, ip, w, h):
     for k in range(N):
         if k and fp.shape[0] > 1:
             chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
-        _mass_and_bias_arm(
-            q[k], zero_n, minus_gravity, chain, *bodies_p, M, h[k], links, small, bodies, False
-        )
+        arm = (q[k], zero_n, zero_n, minus_gravity)
+        _mass_and_bias_arm(*arm, chain, *bodies_p, M, h[k], links, small, bodies, False)
 
 
 @njit(cache=True)
@@ -466,7 +478,8 @@ def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
     for k in range(N):
         if k and fp.shape[0] > 1:
             chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
-        _mass_and_bias_arm(q[k], dq[k], minus_gravity, chain, *bodies_p, M, h, links, small, bodies)
+        arm = (q[k], dq[k], bodies[8], minus_gravity)
+        _mass_and_bias_arm(*arm, chain, *bodies_p, M, h, links, small, bodies)
         added = added_inertia[k if per_arm else 0]
         for a in range(n):
             rhs[a] = tau[k, a] - h[a]
@@ -476,6 +489,13 @@ def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
 
 
 # ---------------------------------------------------------------------------- the chain
+
+Triple = tuple[np.ndarray, np.ndarray, np.ndarray]  # (q, q', q'') or a direction of it
+
+COMPLEX_STEP = 1e-30
+"""Imaginary step h of the complex-step derivatives (Squire & Trapp 1998):
+f'(x) t = Im f(x + i h t) / h + O(h^2) for the analytic kernels above (sums, products,
+sin, cos)."""
 
 
 def _batch(x: np.ndarray, n: int, name: str) -> np.ndarray:
@@ -543,8 +563,8 @@ class SerialChain:
         )
         size, work = _layout(n, self.n_sensors)
         assert self._params.shape == (1, size)
-        self._work = np.empty(work)
         self._no_inertia = np.zeros((1, n, n))
+        self._scratch()
 
     @classmethod
     def stack(cls, chains: list[SerialChain] | tuple[SerialChain, ...]) -> SerialChain:
@@ -557,7 +577,7 @@ class SerialChain:
         new = cls.__new__(cls)
         vars(new).update(vars(first))
         new._params = np.concatenate([c._params for c in chains])
-        new._work = np.empty(_layout(first.n, first.n_sensors)[1])
+        new._scratch()
         return new
 
     def select(self, arms: np.ndarray) -> SerialChain:
@@ -567,13 +587,8 @@ class SerialChain:
         new = SerialChain.__new__(SerialChain)
         vars(new).update(vars(self))
         new._params = self._params[np.asarray(arms, dtype=np.int64)]
-        new._work = np.empty(_layout(self.n, self.n_sensors)[1])
+        new._scratch()
         return new
-
-    @property
-    def n_rows(self) -> int:
-        """How many parameter sets: 1 (any number of arms) or the N arms of a stack."""
-        return len(self._params)
 
     def set_row(self, arm: int, chain: SerialChain) -> None:
         """Give arm ``arm`` of a stacked chain the parameters of ``chain``."""
@@ -586,12 +601,17 @@ class SerialChain:
                 "use select(arms) for a subset"
             )
 
+    def _scratch(self) -> None:
+        work = _layout(self.n, self.n_sensors)[1]
+        self._work = np.empty(work)
+        self._work_complex = np.empty(work, dtype=np.complex128)  # complex-step tangents
+
     def __getstate__(self) -> dict:
-        return {k: v for k, v in vars(self).items() if k != "_work"}
+        return {k: v for k, v in vars(self).items() if k not in ("_work", "_work_complex")}
 
     def __setstate__(self, state: dict) -> None:
         vars(self).update(state)
-        self._work = np.empty(_layout(self.n, self.n_sensors)[1])
+        self._scratch()
 
     def specific_forces(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """(N, 3 n_sensors) noise-free accelerometer readings, eq. (9) stacked."""
@@ -661,6 +681,43 @@ class SerialChain:
         h = np.empty((len(q), n))
         _mass_and_bias_kernel(q, dq, self._params, self._ints, self._work, M, h)
         return M, h
+
+    def rnea(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """Inverse dynamics M(q) q'' + C(q, q') q' + g(q) (N, n), without friction."""
+        n = self.n
+        q, dq, ddq = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(ddq, n, "ddq")
+        self._rows(q)
+        out = np.empty(q.shape)
+        _rnea_kernel(q, dq, ddq, self._params, self._ints, self._work, out)
+        return out
+
+    def rnea_tangent(self, point: Triple, direction: Triple) -> tuple[np.ndarray, np.ndarray]:
+        """(tau, d tau): :meth:`rnea` at ``point`` = (q, q', q'') and its derivative along
+        ``direction`` = (t_q, t_dq, t_ddq), (N, n) arrays each.
+
+        Complex step: d tau = Im rnea(q + i h t_q, q' + i h t_dq, q'' + i h t_ddq) / h,
+        exact to rounding (no subtraction; truncation O(h^2), h = :data:`COMPLEX_STEP`).
+        Along a trajectory the direction (q', q'', q^(3)) gives the time derivative.
+        """
+        return self._complex_step(_rnea_kernel, self.n, point, direction)
+
+    def specific_forces_tangent(
+        self, point: Triple, direction: Triple
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(readings, d readings): :meth:`specific_forces` at ``point`` and its derivative
+        along ``direction``, by the complex step of :meth:`rnea_tangent`."""
+        return self._complex_step(_specific_forces_kernel, 3 * self.n_sensors, point, direction)
+
+    def _complex_step(self, kernel, width: int, point: Triple, direction: Triple):
+        n = self.n
+        z = [
+            np.ascontiguousarray(_batch(x, n, "point") + (1j * COMPLEX_STEP) * _batch(t, n, "t"))
+            for x, t in zip(point, direction, strict=True)
+        ]
+        self._rows(z[0])
+        out = np.empty((len(z[0]), width), dtype=np.complex128)
+        kernel(*z, self._params, self._ints, self._work_complex, out)
+        return out.real.copy(), out.imag / COMPLEX_STEP
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """g(q) (N, n)."""

@@ -18,6 +18,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from elastic_gym.arms import as_batch
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import check_applies, is_real
 
@@ -42,6 +43,8 @@ class Observer(ABC):
     name: ClassVar[str] = ""
     applies_to: ClassVar[frozenset[str]] = frozenset({"elastic", "rigid"})
     privileged: ClassVar[tuple[str, ...]] = ()
+    options_model: ClassVar[type | None] = None
+    """The pydantic model (a ``StrictModel``) of the constructor's plain-data options."""
 
     def __init__(self, model: RobotModel, dt: float) -> None:
         if not (is_real(dt) and np.isfinite(dt) and dt > 0):
@@ -96,14 +99,6 @@ class Observer(ABC):
 
 
 ARM0 = np.array([0])
-
-
-def as_batch(obs: Mapping) -> dict:
-    """A single-arm observation as a batch of one arm (nested mappings included)."""
-    return {
-        key: as_batch(value) if isinstance(value, Mapping) else np.asarray(value)[None]
-        for key, value in obs.items()
-    }
 
 
 class BatchedObserver(Observer):

@@ -18,8 +18,10 @@ paper's observer). Initial estimate at rest (Sec. IV); batched over N arms.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import StrictBool, ValidationInfo, field_validator
 from scipy.linalg import expm
 
 from elastic_gym.model import RobotModel
@@ -31,9 +33,13 @@ from elastic_gym.observers.deluca_gains import (
     error_matrix,
     validate_poles,
 )
-from elastic_gym.validation import is_real
+from elastic_gym.validation import (
+    PositiveFinite,
+    StrictModel,
+    option_checks,
+    validated_options,
+)
 
-ACCELERATION_SOURCES = ("ideal", "accelerometer")
 DEFAULT_VELOCITY_SATURATION = 50.0  # rad/s, see "Peaking" above
 DT_TOLERANCE = 1e-9  # relative mismatch of the update period tolerated
 MAX_POLE_STEP = 10.0  # largest |lambda| dt: faster poles overflow the matrix exponential
@@ -56,6 +62,26 @@ def foh_discretization(
     ex = expm(aug)
     phi, gamma0, gamma1 = ex[:nx, :nx], ex[:nx, nx : nx + nw], ex[:nx, nx + nw :]
     return phi, gamma0 - gamma1, gamma1
+
+
+class DeLucaOptions(StrictModel):
+    """The plain-data options of :class:`DeLucaObserver` (see its arguments); the poles
+    and the per-joint bandwidth are checked against the robot by the observer."""
+
+    acceleration: Literal["ideal", "accelerometer"] = "accelerometer"
+    poles: Any = None
+    bandwidth: PositiveFinite | list[PositiveFinite] | None = None
+    use_coupling: StrictBool = True
+    dls_threshold: PositiveFinite = 0.01
+    dls_damping: PositiveFinite = 0.01
+    velocity_saturation: PositiveFinite | None = DEFAULT_VELOCITY_SATURATION
+
+    @field_validator("bandwidth")
+    @classmethod
+    def _poles_or_bandwidth(cls, bandwidth: Any, info: ValidationInfo) -> Any:
+        if bandwidth is not None and info.data.get("poles") is not None:
+            raise ValueError("give either poles or bandwidth, not both")
+        return bandwidth
 
 
 class DeLucaObserver(BatchedObserver):
@@ -82,6 +108,7 @@ class DeLucaObserver(BatchedObserver):
 
     name = "deluca"
     applies_to = frozenset({"elastic"})
+    options_model = DeLucaOptions
 
     def __init__(
         self,
@@ -97,57 +124,32 @@ class DeLucaObserver(BatchedObserver):
     ) -> None:
         super().__init__(model, dt)
         n = self.n
-        if acceleration not in ACCELERATION_SOURCES:
-            raise ValueError(
-                f"acceleration must be one of {ACCELERATION_SOURCES}, got {acceleration!r}"
-            )
-        if not isinstance(use_coupling, bool):
-            raise TypeError(f"use_coupling must be a bool, got {use_coupling!r}")
-        for key, value in (("dls_threshold", dls_threshold), ("dls_damping", dls_damping)):
-            if (
-                isinstance(value, bool)
-                or not is_real(value)
-                or not (np.isfinite(value) and value > 0)
-            ):
-                raise ValueError(f"{key} must be a positive number, got {value!r}")
-        if velocity_saturation is not None and (
-            isinstance(velocity_saturation, bool)
-            or not is_real(velocity_saturation)
-            or not (np.isfinite(velocity_saturation) and velocity_saturation > 0)
-        ):
-            raise ValueError(
-                "velocity_saturation must be a positive number or None, "
-                f"got {velocity_saturation!r}"
-            )
-        if poles is not None and bandwidth is not None:
-            raise ValueError("give either poles or bandwidth, not both")
-        self.acceleration = acceleration
-        self.use_coupling = use_coupling
-        self.dls_threshold = float(dls_threshold)
-        self.dls_damping = float(dls_damping)
-        self.velocity_saturation = velocity_saturation
+        options = validated_options(DeLucaOptions, locals())
+        self.acceleration = options.acceleration
+        self.use_coupling = options.use_coupling
+        self.dls_threshold = options.dls_threshold
+        self.dls_damping = options.dls_damping
+        self.velocity_saturation = options.velocity_saturation
         # instance attribute: only the ideal variant needs the true q'' (Theorem 1)
         self.privileged = ("link_acceleration",) if acceleration == "ideal" else ()
         if acceleration == "accelerometer" and 3 * model.n_sensors < n:
             raise ValueError(
-                f"acceleration='accelerometer' needs at least {n} measured directions "
+                f"options.acceleration: 'accelerometer' needs at least {n} measured directions "
                 f"(eq. (10), M >= N); robot {model.spec.name!r} has {3 * model.n_sensors}"
             )
         self._sensors = model.copy().chain  # own scratch buffer
 
         K, B, D = model.K, model.B, model.D
-        self.poles = (
-            butterworth_poles(DEFAULT_BANDWIDTH if bandwidth is None else bandwidth, n)
-            if poles is None
-            else validate_poles(poles, n)
-        )
+        radius = DEFAULT_BANDWIDTH if options.bandwidth is None else options.bandwidth
+        with option_checks("poles" if poles is not None else "bandwidth"):
+            self.poles = butterworth_poles(radius, n) if poles is None else validate_poles(poles, n)
+            if self.dt * np.abs(self.poles).max() > MAX_POLE_STEP:
+                raise ValueError(
+                    f"poles up to {np.abs(self.poles).max():.3g} rad/s are too fast for the "
+                    f"sampling period {self.dt} s (|lambda| dt must be <= {MAX_POLE_STEP})"
+                )
         self.gains = deluca_gains(self.poles, K, B, D)
         self.A_obs = error_matrix(self.gains, K, B, D)
-        if self.dt * np.abs(self.poles).max() > MAX_POLE_STEP:
-            raise ValueError(
-                f"poles up to {np.abs(self.poles).max():.3g} rad/s are too fast for the "
-                f"sampling period {self.dt} s (|lambda| dt must be <= {MAX_POLE_STEP})"
-            )
 
         phi, p0, p1 = foh_discretization(self.A_obs, self._input_matrix(), self.dt)
         self.phi = phi

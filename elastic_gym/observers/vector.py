@@ -22,6 +22,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from elastic_gym.arms import arm_view
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, Observer
 from elastic_gym.observers.wrappers import (
@@ -34,14 +35,6 @@ from elastic_gym.observers.wrappers import (
     guarded_update,
     measurement,
 )
-
-
-def _arm(batched: Mapping, i: int) -> dict:
-    return {
-        key: _arm(value, i) if isinstance(value, Mapping) else value[i]
-        for key, value in batched.items()
-        if not key.startswith("_")
-    }
 
 
 class ObserverArray:
@@ -72,7 +65,7 @@ class ObserverArray:
         for k, i in enumerate(arms):
             self._estimates[i] = checked_estimate(
                 self.observers[i],
-                self.observers[i].reset(_arm(obs, i), None if rows is None else rows[k]),
+                self.observers[i].reset(arm_view(obs, i), None if rows is None else rows[k]),
                 "reset",
             )
         self._record(arms)
@@ -83,7 +76,9 @@ class ObserverArray:
     ) -> np.ndarray:
         arms = range(len(self.observers)) if arms is None else arms
         for i in arms:  # a numerical error in one arm's observer is that arm's NaN estimate
-            self._estimates[i], _ = guarded_update(self.observers[i], _arm(obs, i), torque[i], dt)
+            self._estimates[i], _ = guarded_update(
+                self.observers[i], arm_view(obs, i), torque[i], dt
+            )
         self._record(arms)
         return self._estimates.copy()
 

@@ -14,14 +14,26 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+from pydantic import StrictBool
 
+from elastic_gym.arms import as_batch
 from elastic_gym.controllers import Controller, make_controller
 from elastic_gym.controllers.invdyn import reference_derivatives, state_vector
+from elastic_gym.controllers.vector import ARM0, ControllerTwin, make_vector_controller, twin_of
 from elastic_gym.model import RobotModel
 from elastic_gym.training.actions import ActionMap
+from elastic_gym.training.evaluation import PolicyActor
 from elastic_gym.training.observation import ObservationBuilder, ObservationInputs
 from elastic_gym.training.policy_env import SENSORS
 from elastic_gym.training.train import TrainedRun, load_run
+from elastic_gym.validation import StrictModel, validated_options
+
+
+class TrainedPolicyOptions(StrictModel):
+    """The options of :class:`TrainedPolicyController`."""
+
+    run: Path
+    best: StrictBool = False
 
 
 def check_robot(config, model: RobotModel, run: str | Path) -> None:
@@ -76,9 +88,11 @@ class TrainedPolicyController(Controller):
     """
 
     name = "trained-policy"
+    options_model = TrainedPolicyOptions
 
     def __init__(self, model: RobotModel, dt: float, run: str | Path, best: bool = False) -> None:
         super().__init__(model, dt)
+        validated_options(TrainedPolicyOptions, locals())
         trained = load_run(run, best=best)
         config = trained.config
         if config.state == SENSORS:
@@ -105,37 +119,70 @@ class TrainedPolicyController(Controller):
         self.decimation = trained.decimation
         self.state_source = config.state
         self.run = str(run)
-        self._clear()
-
-    def _clear(self) -> None:
-        self._calls = 0
-        self._action = np.zeros(self.n)
-        self._last_action = np.zeros(self.n)
-        self._last_base = np.zeros(self.n)
+        self._law = VectorTrainedPolicy.of(self, 1)
 
     def reset(self, obs: Mapping, info: Mapping) -> None:
-        if self.base is not None:
-            self.base.reset(obs, info)
-        self.trained.start()
-        self._clear()
+        self._law.reset_arms(as_batch(obs), as_batch(info), ARM0)
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        n = self.n
-        x = state_vector(obs, 4 * n if self.elastic else 2 * n)
-        reference = reference_derivatives(info, n)
-        if self._calls % self.decimation == 0:  # the policy acts at 1 / (decimation dt)
-            features = self.builder.build(
+        x = state_vector(obs, self._law.state_dim)
+        reference = reference_derivatives(info, self.n)
+        return self._law.torques(x[None], reference[None], as_batch(obs), as_batch(info))[0]
+
+
+@twin_of(TrainedPolicyController)
+class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
+    """:class:`TrainedPolicyController` on N arms: features and torques of all arms at
+    once; the policy acts per arm (its own recurrent memory, and a per-arm call rounds as
+    the single controller's does); the residual base is one vector controller."""
+
+    def _bind(self, controller: TrainedPolicyController, n_arms: int) -> None:
+        super()._bind(controller, n_arms)
+        N, n, trained = self.n_arms, self.n, controller.trained
+        self.base = (
+            None
+            if controller.base is None
+            else make_vector_controller(controller.base, self.model, self.dt, N)
+        )
+        self.actors = [PolicyActor(trained.model, trained.normalizer) for _ in range(N)]
+        self._calls = np.zeros(N, dtype=np.int64)
+        self._action = np.zeros((N, n))
+        self._last_action = np.zeros((N, n))
+        self._last_base = np.zeros((N, n))
+
+    def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
+        if self.base is not None:
+            self.base.reset_arms(obs, info, arms)
+        for i in arms:
+            self.actors[i].start()
+        self._calls[arms] = 0
+        for held in (self._action, self._last_action, self._last_base):
+            held[arms] = 0.0
+
+    def torques(
+        self, x: np.ndarray, reference: np.ndarray, obs: Mapping, info: Mapping
+    ) -> np.ndarray:
+        """Torques (N, n) for states (N, dim) and references (N, 5, n); the batched ``obs``
+        and ``info`` feed the residual base controller."""
+        c, n = self.controller, self.n
+        acting = np.flatnonzero(self._calls % c.decimation == 0)  # at 1 / (decimation dt)
+        if len(acting):
+            features = c.builder.build(
                 ObservationInputs(
-                    reference=reference[None],
-                    last_action=self._last_action[None],
-                    state=x[None],
-                    base_torque=self._last_base[None],
+                    reference=reference[acting],
+                    last_action=self._last_action[acting],
+                    state=x[acting],
+                    base_torque=self._last_base[acting],
                 )
             )
-            self._action = self.trained.act(features[0])
-            self._last_action = np.clip(self._action, -1.0, 1.0)
+            for k, i in enumerate(acting):
+                self._action[i] = self.actors[i](features[k])
+            self._last_action[acting] = np.clip(self._action[acting], -1.0, 1.0)
         self._calls += 1
-        base = np.zeros(n) if self.base is None else self.base(obs, info)
+        base = np.zeros((len(x), n)) if self.base is None else self.base(obs, info)
         self._last_base = base
-        motor = (x[None, :n], x[None, 2 * n : 3 * n]) if self.elastic else (None, None)
-        return self.map.torque(self._action[None], *motor, reference[None], base[None])[0]
+        motor = (x[:, :n], x[:, 2 * n : 3 * n]) if c.elastic else (None, None)
+        return c.map.torque(self._action, *motor, reference, base)
+
+    def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
+        return self.torques(self.states(obs), self.references(info), obs, info)

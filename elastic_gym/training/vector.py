@@ -18,7 +18,8 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from elastic_gym.controllers import make_controller, public_info
+from elastic_gym.controllers import public_info
+from elastic_gym.controllers.vector import make_vector_controller
 from elastic_gym.observers.wrappers import true_state_vector
 from elastic_gym.training.actions import ActionConfig, ActionMap
 from elastic_gym.training.observation import (
@@ -34,15 +35,6 @@ def reference_rows(info: Mapping) -> np.ndarray:
     """``info["reference"]`` of every arm as an (N, 5, n) array: q_d .. q_d^(4)."""
     reference = info["reference"]
     return np.stack([reference[key] for key in REFERENCE_KEYS], axis=1).astype(float)
-
-
-def arm_view(batched: Mapping, i: int) -> dict:
-    """Arm i of a batched observation or info (the ``_key`` masks dropped)."""
-    return {
-        key: arm_view(value, i) if isinstance(value, Mapping) else value[i]
-        for key, value in batched.items()
-        if not key.startswith("_")
-    }
 
 
 def wrapper_attribute(env: gym.vector.VectorEnv, name: str):
@@ -97,7 +89,9 @@ class PolicyAction(_ArmResets):
     """Actions in [-1, 1]^n of every arm -> motor torques at every control period.
 
     The twin of :class:`elastic_gym.training.wrappers.PolicyAction`; a residual's base
-    controller runs one copy per arm. ``info["base_torque"]`` is (N, n).
+    controller is a vector controller of all arms
+    (:func:`~elastic_gym.controllers.vector.make_vector_controller`).
+    ``info["base_torque"]`` is (N, n).
     """
 
     def __init__(
@@ -109,19 +103,17 @@ class PolicyAction(_ArmResets):
         self.map = ActionMap(self.action_config, batch.model)
         self.n, self.dt = batch.n_joints, batch.control_dt
         self.sensors = "state" not in env.single_observation_space.spaces
-        self.controllers = []
+        self.controller = None
         if self.action_config.kind == "residual":
             if self.sensors:
                 raise ValueError("a residual policy needs a state source for its base controller")
-            self.controllers = [
-                make_controller(
-                    self.action_config.residual,
-                    batch.model,
-                    self.dt,
-                    **self.action_config.residual_options,
-                )
-                for _ in range(self.num_envs)
-            ]
+            self.controller = make_vector_controller(
+                self.action_config.residual,
+                batch.model,
+                self.dt,
+                self.num_envs,
+                **self.action_config.residual_options,
+            )
         self.single_action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._obs = self._info = None
@@ -129,11 +121,10 @@ class PolicyAction(_ArmResets):
         self._base = np.zeros((self.num_envs, self.n))
 
     def _restart(self, arms, obs: Mapping, info: Mapping) -> None:
-        for i in arms:
-            if self.controllers:
-                self.controllers[i].reset(arm_view(obs, i), public_info(arm_view(info, i)))
-            if self.sensors:
-                self._previous_motor[i] = obs["motor_position"][i]
+        if self.controller is not None and len(arms):
+            self.controller.reset_arms(obs, public_info(info), arms)
+        if self.sensors:
+            self._previous_motor[arms] = obs["motor_position"][arms]
 
     def reset(self, *, seed=None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -147,13 +138,8 @@ class PolicyAction(_ArmResets):
     def step(self, actions):
         a = checked_actions(actions, self.num_envs, self.n)
         obs, info, n = self._obs, self._info, self.n
-        if self.controllers:
-            self._base = np.array(
-                [
-                    controller(arm_view(obs, i), public_info(arm_view(info, i)))
-                    for i, controller in enumerate(self.controllers)
-                ]
-            )
+        if self.controller is not None:
+            self._base = self.controller(obs, public_info(info))
         theta = dtheta = None
         if self.map.needs_motor_state:
             if self.sensors:  # backward difference of the encoders
