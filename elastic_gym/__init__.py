@@ -10,7 +10,7 @@ Importing the package registers the environments (namespace ``elastic_gym``)::
 
 from gymnasium.envs.registration import register, registry
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 # id -> (joint kind, robot). Episodes end after the env kwarg ``episode_time`` (3 s by
 # default) of simulated time, whatever the control period, so no TimeLimit is registered.

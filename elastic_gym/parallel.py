@@ -1,21 +1,13 @@
 """Run independent jobs in parallel: local worker processes or a Ray cluster, one code path.
 
-Used by the comparison runner (one job = one episode) and by multi-seed training (one
-job = one training run). :func:`for_each_result` hands every result to the caller as
-soon as it arrives (so that it can be written to disk at once and dropped);
-:func:`run_jobs` collects them in order.
-
-Threads: workers run single-threaded BLAS and torch (:func:`single_threaded`). On small
-matrices, OpenBLAS threads competing for 2 cores made ``scipy.linalg.expm`` of a 16 x 16
-matrix 300 x slower, and 150 SAC steps took 95 s with 2 torch threads against 1.4 s
-with 1 on a loaded 2-core machine.
-
-Interruption: while jobs run, SIGINT (Ctrl-C) and SIGTERM raise :class:`Interrupted`
-(a ``KeyboardInterrupt``) in the main thread. Queued jobs are cancelled, the worker
-processes are terminated (none survives the call; Ray is shut down if this call
-started it), and the exception propagates; the results delivered before it stay with
-the caller. Workers ignore SIGINT: a Ctrl-C in a terminal reaches the whole process
-group, and the parent alone decides what to stop.
+Used by the comparison (one job = one episode) and multi-seed training (one job = one
+run). :func:`for_each_result` hands every result to the caller as soon as it arrives;
+:func:`run_jobs` collects them in order. Workers run single-threaded BLAS and torch
+(:func:`single_threaded`: competing threads slow small matrices by orders of magnitude).
+While jobs run, SIGINT and SIGTERM raise :class:`Interrupted` (a ``KeyboardInterrupt``)
+in the main thread: queued jobs are cancelled, the workers terminated (Ray shut down if
+this call started it), and the results delivered before stay with the caller. Workers
+ignore SIGINT: the parent alone decides what to stop.
 """
 
 from __future__ import annotations

@@ -1,24 +1,119 @@
-"""The README's Python snippets and the examples run as documented."""
+"""The documentation: the site builds strictly, its code runs, its references match the code.
+
+* ``mkdocs build --strict`` (broken links, missing pages or anchors fail) into a temp dir;
+* every Python block of the README and of the getting-started page runs;
+* every tutorial (``docs/tutorials/*.py``) runs with ``ELASTIC_GYM_TUTORIAL_QUICK=1``;
+* the scenario file reference documents every field the scenario loader knows, and the
+  YAML blocks of the docs are valid scenarios;
+* the version, the changelog and the citation agree; the README is a front page.
+"""
 
 from __future__ import annotations
 
 import importlib.util
 import re
+import runpy
+import subprocess
+import sys
 from pathlib import Path
 
+import pytest
+import yaml
 from rich.console import Console
 
-from elastic_gym.evaluation import compare
+import elastic_gym
+from elastic_gym.evaluation import Scenario, compare
+from elastic_gym.evaluation.runner import plan_runs
 
 ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+TUTORIALS = sorted((DOCS / "tutorials").glob("*.py"))
 
 
-def test_readme_python_snippets_run():
-    text = (ROOT / "README.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
+def code_blocks(path: Path, language: str) -> list[str]:
+    return re.findall(rf"```{language}\n(.*?)```", path.read_text(), flags=re.DOTALL)
+
+
+def test_mkdocs_build_is_strict_and_clean(tmp_path):
+    pytest.importorskip("mkdocs")
+    site = tmp_path / "site"
+    done = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env={"NO_MKDOCS_2_WARNING": "1", **__import__("os").environ},
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    for page in ("index.html", "getting-started/index.html", "api/observers/index.html"):
+        assert (site / page).is_file(), page
+    for tutorial in TUTORIALS:
+        html = (site / "tutorials" / tutorial.stem / "index.html").read_text()
+        assert "<code>" in html and tutorial.name in html
+    assert (
+        "elastic_gym.observers.deluca.DeLucaObserver"
+        in (site / "api/observers/index.html").read_text()
+    )
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/getting-started.md", "docs/batched.md"])
+def test_python_blocks_run(page, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the comparison writes compare_out/ here
+    blocks = code_blocks(ROOT / page, "python")
+    assert blocks
+    namespace = {"__name__": "docs"}
+    for block in blocks:  # one namespace: a page's blocks build on each other
+        exec(compile(block, page, "exec"), namespace)
+
+
+@pytest.mark.parametrize("tutorial", TUTORIALS, ids=[t.stem for t in TUTORIALS])
+def test_tutorials_run_with_short_settings(tutorial, tmp_path, monkeypatch):
+    if tutorial.stem == "ppo_vs_eq13":
+        pytest.importorskip("stable_baselines3")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("ELASTIC_GYM_TUTORIAL_QUICK", "1")
+    runpy.run_path(str(tutorial), run_name="__main__")
+
+
+def test_tutorials_are_jupytext_percent_scripts():
+    assert len(TUTORIALS) >= 3
+    for tutorial in TUTORIALS:
+        text = tutorial.read_text()
+        assert text.startswith("# %% [markdown]\n# # "), tutorial.name  # a titled first cell
+        assert "ELASTIC_GYM_TUTORIAL_QUICK" in text, tutorial.name
+
+
+def test_field_references_cover_exactly_the_schemas_fields():
+    """docs/scripts/fields.yaml gives a meaning to every field of every rendered schema."""
+    from elastic_gym.schemas import json_schema
+
+    spec = importlib.util.spec_from_file_location("hooks", DOCS / "scripts" / "mkdocs_hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    meanings = hooks.field_meanings()
+    rendered = {
+        m.group(1)
+        for page in DOCS.rglob("*.md")
+        for m in hooks.MARKER.finditer(page.read_text())
+    }
+    assert rendered == set(meanings) >= {"scenario", "train"}
+    for name, models in meanings.items():
+        schema_models = hooks.schema_models(json_schema(name))
+        assert set(schema_models) == set(models), name
+        for title, (model, _) in schema_models.items():
+            assert set(model["properties"]) == set(models[title]) - {"_"}, (name, title)
+        text = hooks.schema_markdown(name, json_schema(name), models)
+        for title in models:
+            assert f"### `{title}` {{ #{title.lower()} }}" in text
+
+
+@pytest.mark.parametrize("page", ["docs/comparison.md", "docs/scenario-reference.md"])
+def test_scenario_yaml_blocks_are_valid(page):
+    blocks = [b for b in code_blocks(ROOT / page, "yaml") if "state_sources" in b]
     assert blocks
     for block in blocks:
-        exec(compile(block, "README.md", "exec"), {"__name__": "readme"})
+        runs, _ = plan_runs(Scenario.from_dict(yaml.safe_load(block)))
+        assert runs
 
 
 def test_custom_controller_and_observer_example(tmp_path):
@@ -39,17 +134,44 @@ def test_custom_controller_and_observer_example(tmp_path):
     assert all(row["status"] == "ok" for row in result.runs.to_dict("records"))
 
 
-def test_readme_scenario_yaml_is_valid():
-    import yaml
+def test_batched_page_lists_every_randomizable_path():
+    from elastic_gym.envs.randomization import PATHS
 
-    from elastic_gym.evaluation import Scenario
-    from elastic_gym.evaluation.runner import plan_runs
+    section = (DOCS / "batched.md").read_text().split("Paths that can be randomized:")[1]
+    listed = re.findall(r"`([\w.]+)`", section.split("\n\n")[0])
+    assert listed == list(PATHS)
 
-    text = (ROOT / "README.md").read_text()
-    blocks = [
-        b for b in re.findall(r"```yaml\n(.*?)```", text, flags=re.DOTALL) if "state_sources" in b
-    ]
-    assert blocks
-    for block in blocks:
-        runs, _ = plan_runs(Scenario.from_dict(yaml.safe_load(block)))
-        assert runs
+
+def test_module_docstrings_state_contracts_in_at_most_15_lines():
+    """Long derivations and measured stories live on the docs' pages, not in modules."""
+    import ast
+
+    long = {}
+    for path in sorted((ROOT / "elastic_gym").rglob("*.py")):
+        doc = ast.get_docstring(ast.parse(path.read_text()), clean=False)
+        assert doc, f"{path.relative_to(ROOT)} has no module docstring"
+        if len(doc.strip().splitlines()) > 15:
+            long[str(path.relative_to(ROOT))] = len(doc.strip().splitlines())
+    assert not long, long
+
+
+def test_version_changelog_and_citation_agree():
+    version = elastic_gym.__version__
+    assert re.fullmatch(r"\d+\.\d+\.\d+", version)
+    changelog = (ROOT / "CHANGELOG.md").read_text()
+    releases = re.findall(r"^## \[(\d+\.\d+\.\d+)\] - \d{4}-\d{2}-\d{2}$", changelog, re.M)
+    assert releases[0] == version
+    assert f"\nversion: {version}\n" in (ROOT / "CITATION.cff").read_text()
+    assert yaml.safe_load((ROOT / "CITATION.cff").read_text())["cff-version"] == "1.2.0"
+
+
+def test_readme_is_a_front_page_with_the_ci_test_command():
+    readme = (ROOT / "README.md").read_text()
+    assert len(readme.splitlines()) <= 150
+    ci_command = (ROOT / ".ci" / "run").read_text().strip().splitlines()[-1]
+    assert ci_command in readme  # the test command CI runs is the README's, literally
+    main = "pip install . && elastic-gym compare"
+    assert f"python -m venv .venv && . .venv/bin/activate && {main}" in readme
+    assert not re.search(r"load average|issue \d+|#\d+", readme)
+    for link in re.findall(r"\]\(((?:docs/|[A-Z]+\.)[^)#]*)", readme):
+        assert (ROOT / link).exists(), link

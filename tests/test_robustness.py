@@ -1,6 +1,6 @@
 """Robustness: bit-for-bit determinism for every env id and wrapper, isolation of many envs
 in one process, ``close()`` twice, pickling for ``SubprocVecEnv``, and the rows of the
-README "Bad input" table that no other test file covers (every row names its test; the
+bad-input reference (docs/bad-input.md) that no other test file covers (every row names its test; the
 last test checks that those tests exist)."""
 
 from __future__ import annotations
@@ -294,14 +294,13 @@ def test_singular_accelerometer_placement_is_flagged_by_the_observer():
     assert errors["singular"] > 5.0 * errors["default"]
 
 
-def test_every_row_of_the_readme_bad_input_table_names_an_existing_test():
-    text = (ROOT / "README.md").read_text()
-    section = text.split("\n## Bad input", 1)[1].split("\n## ", 1)[0]
-    rows = [line for line in section.splitlines() if line.startswith("| ")][1:]  # no header
+def test_every_row_of_the_bad_input_reference_names_an_existing_test():
+    text = (ROOT / "docs" / "bad-input.md").read_text()
+    rows = [line for line in text.splitlines() if line.startswith("| ")][1:]  # no header
     assert len(rows) >= 15
     for row in rows:
         cell = row.rstrip(" |").rsplit("|", 1)[1]
         references = re.findall(r"(test_\w+\.py)::(test_\w+)", cell)
-        assert references, f"README bad-input row without a test: {row}"
+        assert references, f"bad-input row without a test: {row}"
         for file, name in references:
             assert f"def {name}(" in (ROOT / "tests" / file).read_text(), (file, name)

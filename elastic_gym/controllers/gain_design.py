@@ -1,34 +1,17 @@
 """Full-state feedback gains on the *coupled* linearization of the arm.
 
-The gain K_P of eq. (13) (De Luca et al., ICRA 2007) is an N x 4N matrix acting on
-the state error x_d - x, x = (theta, q, theta', q'). Per-joint designs using M_ii
-were measured unstable on strongly coupled arms (a two-link arm with a heavy outer
-link, as in Cristofaro & De Luca, has M_12 / sqrt(M_11 M_22) of about 0.9: pole
-placement per joint on M_ii destabilised the coupled plant), so the gain is
-designed on the linearization of the complete model (1)/(2) at rest at a nominal
-configuration q0 (static equilibrium theta0 = q0 + K^-1 g(q0)):
+The gain K_P of eq. (13) (De Luca et al., ICRA 2007) is an N x 4N matrix on the state
+error x_d - x, x = (theta, q, theta', q'). It is designed on the linearization of the
+complete model (1)/(2) at rest at a nominal configuration q0 (theta0 = q0 + K^-1 g(q0)),
+not per joint on M_ii, which is unstable on strongly coupled arms:
 
     [B  S^T] [theta'']   [ D  -D] [theta']   [ K   -K     ] [theta]   [I]
     [S  M  ] [q''    ] + [-D   D] [q'    ] + [-K   K + G  ] [q    ] = [0] tau,
 
-G = dg/dq(q0); rigid arms: M q'' + G q = tau. Link friction is left out of the design
-(it only adds damping).
-
-Designs:
-
-* ``lqr_bandwidth_gain``: LQR with Q on the link positions (J^2 w^4) and link
-  velocities (J^2 w^2), R = I, J = B + S + S^T + M(q0) the inertia of the arm moving
-  rigidly (in the coordinates J q a rigid arm would be N decoupled double integrators
-  with identical poles of magnitude w, whatever the coupling); the scalar w is found
-  by bisection so that the slowest closed-loop pole has magnitude ``omega`` (the paper:
-  "slowest frequencies of the closed-loop system around 30 rad/s"). LQR keeps the
-  elastic modes where they are but roughly doubles their damping.
-* ``lqr_integral_gain``: the same bandwidth design augmented with the integral of the
-  link position error (eq. (13) with integral action).
-* ``lqr_gain``: LQR with user weights; ``pole_placement_gain``: MIMO pole placement
-  (``scipy.signal.place_poles``).
-* ``pd_gain``: decentralized PD on the motor block (theta, theta') or on the link block
-  (q, q') as a structured N x 4N matrix, so PD laws reuse the eq. (13) machinery.
+G = dg/dq(q0); rigid arms: M q'' + G q = tau. Designs: :func:`lqr_bandwidth_gain`
+(slowest closed-loop pole at ``omega``), :func:`lqr_integral_gain` (augmented with the
+integral of the link error), :func:`lqr_gain`, :func:`pole_placement_gain` and
+:func:`pd_gain` (decentralized PD as a structured N x 4N matrix).
 """
 
 from __future__ import annotations

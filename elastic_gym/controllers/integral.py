@@ -1,29 +1,17 @@
 """Eq. (13) with integral action: the classical remedy for static offsets under model error.
 
-De Luca, Schroeder & Thuemmel (ICRA 2007), eq. (13), tau = K_P (x_d - xi) + tau_d, has
-no integral term: when the model behind INVDYN is wrong (e.g. heavier links, so that
-the feedforward tau_d misses part of the gravity torque), the loop settles where the
-state feedback balances the missing torque, a static link offset
-e_q = (static stiffness of the loop)^-1 * (torque error). Adding the integral of the
+De Luca, Schroeder & Thuemmel (ICRA 2007), eq. (13), has no integral term: with a wrong
+model behind INVDYN the loop settles at a static link offset. With the integral of the
 link position error,
 
     z' = q_hat - q_d,        tau = K_P (x_d - xi) - K_I z + tau_d,
 
-removes it whenever the estimate q_hat is unbiased at rest (the true state, or the
-De Luca observer, whose error dynamics do not depend on the link parameters,
-Theorem 1). With a biased estimate (a model-based observer under model error) the
-integrator drives q_hat, not q, to q_d.
-
-Gains: LQR on the linearization augmented with z
-(:func:`~elastic_gym.controllers.gain_design.lqr_integral_gain`), the same bandwidth
-weights as eq. (13)'s default design plus ``integral_weight`` J^2 w^6 on z (integral
-pole near w / 3).
-
-Anti-windup: (i) conditional integration: z is frozen while the last torque exceeded
-the model's torque limit; (ii) the integral torque K_I z is kept within
-``integral_limit`` times the torque limit per joint by projecting z back
-(z <- K_I^-1 clip(K_I z)). z is integrated with the elapsed simulated time between
-calls (backward Euler), so repeated calls at one instant do not integrate twice.
+the offset goes whenever the estimate q_hat is unbiased at rest (the true state, or the
+De Luca observer, Theorem 1); with a biased estimate the integrator drives q_hat, not q,
+to q_d. Gains: LQR on the linearization augmented with z
+(:func:`~elastic_gym.controllers.gain_design.lqr_integral_gain`, integral pole near
+omega / 3). Anti-windup: z frozen while the last torque exceeded the limit, and the
+integral torque K_I z kept within ``integral_limit`` times the torque limit.
 """
 
 from __future__ import annotations

@@ -2,56 +2,16 @@
 
 De Luca, Schroeder & Thuemmel (ICRA 2007), Sec. V-B: the controller (13) needs
 ``(x_d, tau_d) = INVDYN(q_d, q_d', q_d'', q_d''', q_d'''')``, the state x_d =
-(theta_d, q_d, theta_d', q_d') and the motor torque tau_d under which the nominal
-model (1) or (2) moves its links exactly along q_d(t).
-
-Flatness. With the torsion delta = theta - q, the link equation of (1)/(2) reads
-
-    K delta + D delta' = tau_J,   tau_J = tau_r + S theta_d'',
-    tau_r = M(q_d) q_d'' + C(q_d, q_d') q_d' + g(q_d) + d(q_d')
-
-and the motor equation gives tau_d = B theta_d'' + S^T q_d'' + tau_J with
-theta_d = q_d + delta.
-
-* D = 0 (purely elastic joints): delta = K^-1 tau_J is algebraic and
-  theta_d'' = q_d'' + K^-1 tau_J'' needs the second time derivative of tau_J, hence
-  q_d^(4).
-* D > 0 (visco-elastic joints, ref. [19] of the paper): K delta + D delta' = tau_J(t)
-  is a stable first-order internal dynamics (time constant D/K, a few ms), not an
-  algebraic relation. :class:`TorsionFilter` integrates it inside the controller
-  with an exact discretization: over each control period tau_J is the cubic Hermite
-  interpolant of its values and exact derivatives at both ends, for which the ODE has
-  a closed-form solution (particular polynomial solution + decaying exponential); the
-  only approximation is the O(h^4) interpolation of tau_J. It starts at the
-  quasi-static torsion (at rest: delta = K^-1 tau_J, the equilibrium the env resets
-  to). Then delta' = D^-1 (tau_J - K delta) and delta'' = D^-1 (tau_J' - K delta')
-  follow exactly from the ODE, so model (1) with D > 0 needs only tau_r and tau_r'.
-
-Time derivatives of tau_r. tau_r' = (d tau/d q) q_d' + (d tau/d q') q_d'' + M q_d'''
-+ d'(q_d') q_d'' is the derivative of the RNEA along the direction (q_d', q_d'', q_d^(3)),
-computed exactly (to rounding) for N arms at once by the complex step of the compiled
-RNEA (:meth:`~elastic_gym.model.SerialChain.rnea_tangent`; equal to pinocchio's analytic
-RNEA derivatives to 1e-13, ``tests/test_vector_controllers.py``). tau_r'' is the central
-difference (tau_r'(t + h) - tau_r'(t - h)) / 2h of that exact first derivative along
-the Taylor expansion of the reference to order 4; the error is O(h^2) (it misses
-q_d^(5), q_d^(6) terms) with h = ``fd_step`` (default 1e-4 s).
-tau_r'' is only computed when it is used (D = 0 joints, or S != 0).
-
-Coupling S (model (2), constant, strictly upper triangular). tau_J = tau_r + S q_d''
-+ S delta''. The torsion inside the S term is taken from a first filter driven by
-tau_r alone (the torsion delta0 of the uncoupled model (1)), a second filter driven by
-tau_J = tau_r + S (q_d'' + delta0'') then gives delta. The difference
-S (delta'' - delta0'') involves S (K + D s)^-1 S, which vanishes when S^2 = 0
-(structurally): exact for the KR15 (only S23, joint 3 has no coupling term) and for
-any arm with a single coupled motor/link pair. With D > 0 the terms S delta0'' and
-S delta0''' come exactly from the filter; with D = 0 they would need q_d^(5), q_d^(6):
-S K^-1 tau_r''' (in theta_d') and S K^-1 tau_r'''' (in theta_d'') are then neglected,
-both of second order in the compliance K^-1 (quantified in ``tests/test_controllers.py``).
-
-For rigid arms INVDYN reduces to the computed torque: x_d = (q_d, q_d'), tau_d = tau_r.
-
-Every class here runs N arms at once on arrays with a leading arm axis (references
-(N, 5, n), one time per arm); the single-arm call is the case N = 1.
+(theta_d, q_d, theta_d', q_d') and the motor torque tau_d under which the nominal model
+(1) or (2) moves its links exactly along q_d(t). With the torsion delta = theta - q the
+link equation reads K delta + D delta' = tau_J, tau_J = tau_r + S theta_d'',
+tau_r = M(q_d) q_d'' + C(q_d, q_d') q_d' + g(q_d) + d(q_d'), and the motor equation gives
+tau_d = B theta_d'' + S^T q_d'' + tau_J. For D = 0, delta = K^-1 tau_J is algebraic (q_d^(4)
+needed); for D > 0 :class:`TorsionFilter` integrates the internal dynamics exactly for a
+cubic Hermite tau_J over each period. tau_r' is exact, by the complex step of the compiled
+RNEA (:meth:`~elastic_gym.model.SerialChain.rnea_tangent`), tau_r'' a central difference
+of it (O(h^2)). The S terms are exact when S^2 = 0 (the KR15). For rigid arms INVDYN is
+the computed torque. Every class runs N arms at once (the single arm: N = 1).
 """
 
 from __future__ import annotations

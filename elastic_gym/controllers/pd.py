@@ -1,22 +1,17 @@
 """Decentralized PD laws with the INVDYN feedforward: the comparisons of eq. (13).
 
-Both are eq. (13) with a structured (diagonal-block) gain, so they share INVDYN and the
-static-reference fallback with :class:`FeedforwardStateFeedback`:
+Both are eq. (13) with a structured (diagonal-block) gain, so they share INVDYN with
+:class:`FeedforwardStateFeedback`:
 
-* :class:`MotorPD`, the "motion control law using only motor states" the paper compares
-  with (De Luca et al., Sec. V-B): tau = Kp (theta_d - theta) + Kd (theta_d' - theta')
-  + tau_d, with (theta_d, theta_d', tau_d) from INVDYN, or, with ``feedforward=False``,
-  theta_d = q_d + K^-1 g(q_d) and tau_d = g(q_d) (PD + gravity compensation).
+* :class:`MotorPD`, the "motion control law using only motor states" of De Luca et al.,
+  Sec. V-B: tau = Kp (theta_d - theta) + Kd (theta_d' - theta') + tau_d (with
+  ``feedforward=False``: PD + gravity compensation);
 * :class:`LinkPD`: the same on the (estimated) link state (q, q').
 
-Gains (comparable bandwidth): each joint is tuned as if the arm moved rigidly,
-kp = J w^2, kd = 2 zeta J w with J = B + M_ii(q0), w = ``omega`` (30 rad/s, like the
-slowest poles of the state-feedback design) and zeta = 0.7. Collocated motor PD is
-stable for any positive gains; its elastic modes keep little damping (nominal
-linearization: slowest poles 24 rad/s with zeta 0.32 on the two-link arm, see
-``design["poles"]``). Link PD on elastic arms is non-collocated and unstable at that
-bandwidth; by default it uses the bandwidth <= omega with the largest stability
-margin (:func:`~elastic_gym.controllers.gain_design.most_stable_bandwidth`).
+Gains: per joint as if the arm moved rigidly, kp = J w^2, kd = 2 zeta J w, J = B + M_ii(q0),
+w = ``omega``, zeta = 0.7. Link PD on elastic arms is non-collocated: by default it uses
+the bandwidth <= omega with the largest stability margin
+(:func:`~elastic_gym.controllers.gain_design.most_stable_bandwidth`).
 """
 
 from __future__ import annotations

@@ -1,30 +1,16 @@
 """Tracking controllers of the rigid-arm observer papers, fed by a velocity estimate.
 
-Both read q from the position block of ``obs["state"]`` (an observer passes the
-measured link position through) and the velocity estimate x_hat_2 from its velocity
-block, plus the desired q_d, q_d', q_d'' of ``info["reference"]``.
+Both read q and the velocity estimate x_hat_2 from ``obs["state"]`` and q_d, q_d', q_d''
+from ``info["reference"]``:
 
-* :class:`CristofaroTrackingController`: Cristofaro & De Luca (IEEE L-CSS 2022),
-  Example 3, exactly as printed (Lambda = 0.5 I, K_P = diag(40, 60), K_D = diag(60, 90)):
-
-      tau = M(q) (q_d'' + Lambda (q_d' - x_hat_2))
-            + C(q, x_hat_2) (q_d' + Lambda (q_d - q)) + g(q)
-            + K_P (q_d - q) + K_D (q_d' - x_hat_2).
-
-  (The printed law mixes Lambda into a velocity error in the inertial term and a
-  position error in the Coriolis term; it is implemented as printed. It has no
-  friction compensation: the arm's viscous damping F is left to the feedback.)
-* :class:`FeedbackLinearizingController`: computed torque with friction compensation,
-  the controller of Solsona & Puleston's simulation (Sec. 4, "controlled through
-  feedback linearization"):
-
-      tau = M(q) a + C(q, x_hat_2) x_hat_2 + g(q) + f_r(v_f),
-      a = q_d'' + K_D (q_d' - x_hat_2) + K_P (q_d - q),
-
-  with f_r the model's viscous + Coulomb friction evaluated at v_f = x_hat_2
-  (``friction_velocity="estimate"``) or at q_d' (``"desired"``, insensitive to
-  estimation noise). Gains K_P = w^2, K_D = 2 zeta w (error dynamics
-  e'' + K_D e' + K_P e = 0 with the exact model and velocity).
+* :class:`CristofaroTrackingController`: Cristofaro & De Luca (IEEE L-CSS 2022), Example 3,
+  exactly as printed (Lambda = 0.5 I, K_P = diag(40, 60), K_D = diag(60, 90)):
+  tau = M(q) (q_d'' + Lambda (q_d' - x_hat_2)) + C(q, x_hat_2) (q_d' + Lambda (q_d - q))
+  + g(q) + K_P (q_d - q) + K_D (q_d' - x_hat_2);
+* :class:`FeedbackLinearizingController`: computed torque with friction compensation, the
+  controller of Solsona & Puleston's simulation (Sec. 4): tau = M(q) a + C(q, x_hat_2) x_hat_2
+  + g(q) + f_r(v_f), a = q_d'' + K_D (q_d' - x_hat_2) + K_P (q_d - q), with the model's
+  friction f_r at v_f = x_hat_2 or q_d'.
 """
 
 from __future__ import annotations

@@ -1,14 +1,11 @@
 """Vector controllers: the torques of N arms from arrays with a leading arm axis.
 
 A :class:`VectorController` is the batched twin of the single-arm interface of
-:mod:`elastic_gym.controllers.base`:
-
-* ``obs["state"]`` (N, dim) and ``obs["reference"]`` (N, 2n), as a vector
-  :class:`~elastic_gym.observers.vector.ObserverWrapper` gives them;
-* ``info``: the batched public info, ``info["time"]`` (N,) and ``info["reference"]``
-  with (N, n) arrays ``q``, ``dq``, ``ddq``, ``d3q``, ``d4q``;
-* ``reset_arms(obs, info, arms)`` restarts the arms ``arms`` (an env reset or autoreset),
-  ``controller(obs, info)`` returns the (N, n) motor torques.
+:mod:`elastic_gym.controllers.base`: ``obs["state"]`` (N, dim) and ``obs["reference"]``
+(N, 2n), as a vector :class:`~elastic_gym.observers.vector.ObserverWrapper` gives them;
+``info["time"]`` (N,) and ``info["reference"]`` with (N, n) arrays ``q`` .. ``d4q``;
+``reset_arms(obs, info, arms)`` restarts the arms ``arms`` (an env reset or autoreset),
+``controller(obs, info)`` returns the (N, n) motor torques.
 
 Every built-in controller has a batched twin computing all arms in one pass (INVDYN
 through the :class:`~elastic_gym.model.SerialChain` kernels); the single-arm controller

@@ -1,42 +1,18 @@
 """N arms of one robot in one PyBullet world: the simulation core of every env.
 
 :class:`ArmBatch` holds everything an episode needs, for N arms at once, in arrays with a
-leading arm axis: the simulator (:mod:`elastic_gym.envs.simulator`), the sensors
-(:mod:`elastic_gym.envs.sensors`), the task and its reference
-(:mod:`elastic_gym.envs.tasks`), the reward, the termination checks and the info.
-:class:`~elastic_gym.envs.arm_env.ArmEnv` is its N = 1 case and
-:class:`~elastic_gym.envs.vector_env.ArmVectorEnv` exposes all N arms as a Gymnasium
-vector env; there is no second copy of the physics.
+leading arm axis: the simulator, the sensors, the task and its reference, the reward, the
+termination checks and the info. :class:`~elastic_gym.envs.arm_env.ArmEnv` is its N = 1
+case and :class:`~elastic_gym.envs.vector_env.ArmVectorEnv` exposes all N arms as a
+Gymnasium vector env; there is no second copy of the physics.
 
-Exactness: arm i draws every random number (task sampling, encoder noise, accelerometer
-bias and noise) from its own generator ``rngs[i]`` (its plant draws from its own plant
-stream, :mod:`elastic_gym.envs.randomization`), and every computation on it depends only
-on its own rows and its own plant, with the same operations in the same order whatever N.
-So arm i of a batch whose generator is seeded with s + i is bit for bit the single env
-reset with seed s + i under the same actions, and with ``per_arm`` the single env made
-with arm i's merged kwargs (``tests/test_batch.py``, ``tests/test_plants.py``).
-
-Observation of one arm (a ``spaces.Dict``, float64), only what a real arm measures:
-
-* elastic arms: ``motor_position`` (N, quantized motor encoders), ``acceleration``
-  (3 per accelerometer: specific force in the sensor frame, gravity included),
-  ``reference`` (q_d, q_d');
-* rigid arms: ``link_position`` (N, link encoders), ``reference``.
-
-Info of one arm (the same keys at every step, terminal steps included): ``time``,
-``true_state`` (``q``, ``dq``, ``theta``, ``dtheta``, ``ddq``, ``x``), ``torque`` (the
-applied, clipped motor torque), ``torque_saturated``, ``acceleration_saturated`` (an
-observed accelerometer reading is at the sensor's ``range``: clipped), ``reference``
-(``q`` .. ``d4q``), ``termination_reason`` (None while the episode runs), ``plant`` (the
-simulated plant's own parameters, see :class:`ArmBatch`).
-
-Reward: :mod:`elastic_gym.envs.reward` (bounded multi-scale tracking kernels, torque and
-torque-rate penalties; every step pays >= 0). An episode whose physics breaks (non-finite
-state, a velocity above ``max_velocity``, or a link position beyond the URDF joint
-limits) ends with ``terminated=True``, the reward's (negative) termination reward and
-``info["termination_reason"]``; the observation is the final one (the last finite one
-when the state is no longer finite). An episode is truncated after ``episode_time``
-simulated seconds.
+Exactness: arm i draws every random number from its own generator (its plant from its own
+plant stream, :mod:`~elastic_gym.envs.randomization`), and every computation on it depends
+only on its own rows, with the same operations in the same order whatever N. So arm i of a
+batch seeded s + i is bit for bit the single env reset with seed s + i under the same
+actions, and with ``per_arm`` the single env made with arm i's merged kwargs. The
+observation holds only what a real arm measures; the truth, the applied torque, the
+reference and the plant's own parameters are in ``info`` (see :class:`ArmBatch`).
 """
 
 from __future__ import annotations

@@ -4,25 +4,13 @@
 unknown keys are refused and every error names its field path
 (``per_arm[1].payload.mass: ...``). What pydantic cannot know — a robot's joint count,
 its torque limits, which parts it has — is checked where the robot is known
-(:mod:`elastic_gym.envs.arm_config`).
-
-Plant features of the simulated plant only (no model knows them):
-
-* ``actuator_delay``: the motor torque is applied k control periods after it is
-  commanded (the first k periods of an episode apply the reset's equilibrium torque);
-* ``torque_pulses``: link-side torque pulses, given (``times``, ``durations`` (s) and
-  ``amplitudes`` (N m, a scalar or one per joint) of each pulse) or drawn at every reset
-  from the arm's plant stream (``random``: ``count`` pulses with start times uniform in
-  ``window``, durations uniform in ``duration``, and per joint an amplitude
-  s_j a_j tau_max,j with a_j uniform in ``amplitude`` and a sign s_j = +-1 equally likely).
-  A pulse acts on the control periods that start in [time, time + duration);
-* ``payload``: a point mass (kg) at ``position`` of the last actuated link's frame
-  (default: twice that link's centre of mass), optionally changing to ``change.mass`` at
-  ``change.time`` (s).
-
-``per_arm``: N mappings of the per-arm kwargs (:data:`PER_ARM_KEYS`), each deep-merged
-into the shared kwargs for its arm. ``randomize``: parameter path -> range, drawn at every
-reset (:mod:`elastic_gym.envs.randomization`).
+(:mod:`~elastic_gym.envs.arm_config`). Plant features no model knows:
+``actuator_delay`` (the torque acts k control periods late), ``torque_pulses`` (link-side
+pulses, given or drawn at every reset from the arm's plant stream; a pulse acts on the
+control periods that start in [time, time + duration)) and ``payload`` (a point mass at
+the last actuated link, optionally changing at a given time). ``per_arm``: N mappings of
+the per-arm kwargs (:data:`PER_ARM_KEYS`), each deep-merged into the shared kwargs for its
+arm. ``randomize``: parameter path -> :class:`Range`, drawn at every reset.
 """
 
 from __future__ import annotations

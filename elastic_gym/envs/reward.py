@@ -1,9 +1,8 @@
 """The tracking reward of the arm envs, on arrays with a leading arm axis.
 
-Every input has shape ``(N, n)`` (N arms, n joints): the link tracking error
-e = q - q_d, its rate e' = q' - q_d', the applied motor torque tau, the torque of the
-previous control period, the torque limits and the torsion theta - q (zeros for rigid
-arms). The reward of one control period of length dt is, per arm,
+Inputs have shape (N, n): the link tracking error e = q - q_d, its rate e', the applied
+torque tau and the previous one, the torque limits and the torsion theta - q. Per arm
+and control period dt,
 
     r = dt * ( w_track    * mean_{joints, sigmas} exp(-(e / sigma)^2)
              + w_velocity * mean_{joints, sigmas} exp(-(e' / sigma_v)^2)
@@ -12,22 +11,8 @@ arms). The reward of one control period of length dt is, per arm,
              - w_torsion  * mean_joints min(1, ((theta - q) / torsion_scale)^2)
              + (w_torque + w_rate + w_torsion) )
 
-with tau' = (tau - tau_prev) / dt and tau'_max = tau_max / rate_time.
-
-* Tracking ranks precision over many decades: the kernels' widths sigma are one per
-  decade (1e-5 ... 1 rad by default), so the tracking term is a smooth, bounded version
-  of -log10 |e| (each decade of error removed adds about w_track / len(sigmas)); a
-  single quadratic or a single kernel saturates outside one decade.
-* Every penalty is bounded in [0, w] (the torque is clipped to its limit, the rate and
-  torsion terms saturate), and the constant w_torque + w_rate + w_torsion is added, so
-  every step pays r >= 0. The default torque weight (0.01) is below the value of one
-  decade of tracking (1/6): cutting torque can never buy back tracking.
-* The termination reward (an episode whose physics breaks) is
-  ``-termination * (w_track + w_velocity + w_torque + w_rate + w_torsion)``: the best
-  reward of ``termination`` seconds taken away, on top of the (non-negative) rewards the
-  remaining steps would have paid, so ending an episode never pays.
-* The return approximates the time integral of the bracket, independent of the control
-  rate.
+with tau' = (tau - tau_prev) / dt, tau'_max = tau_max / rate_time: every penalty bounded,
+so r >= 0; a broken episode pays ``-termination * (sum of the weights)``.
 """
 
 from __future__ import annotations

@@ -1,27 +1,18 @@
 """PyBullet plant of N arms with elastic transmissions integrated next to each physics step.
 
-All arms of a simulator live in one PyBullet client (``p.DIRECT``, fixed bases spaced
-``ARM_SPACING`` apart so that they never touch, ``URDF_USE_INERTIA_FROM_FILE``, default
-velocity motors disabled, every PyBullet-added damping set to zero, pure torque control).
-Each arm's trajectory is bit-identical to the same arm alone in its own client (PyBullet
-integrates the bodies independently; checked by ``tests/test_batch.py``), so a single env
-is simply the case N = 1.
+All arms live in one PyBullet client (``p.DIRECT``, fixed bases apart, inertias from the
+URDF, no PyBullet damping, pure torque control); each arm's trajectory is bit-identical
+to the same arm alone, so a single env is the case N = 1. The motor side is integrated
+for all arms at once with PyBullet's semi-implicit Euler, one substep at a time:
 
-The motor side of the elastic joints is integrated in numpy, for all arms at once, with
-the same semi-implicit Euler scheme PyBullet uses for the links, one substep at a time:
-
-* model (1): tau_J = K (theta - q) + D (theta' - q') is applied to the link joint,
+* model (1): tau_J = K (theta - q) + D (theta' - q') on the link joint,
   theta'' = B^-1 (tau - tau_J);
-* model (2) (constant S): the coupled accelerations are solved with the plant's model,
-  (M - S B^-1 S^T) q'' = tau_J - S B^-1 (tau - tau_J) - n - d,
-  theta'' = B^-1 (tau - tau_J - S^T q''), and tau_link = tau_J - S theta'' is applied
-  to PyBullet, which then produces that q'' (the rotors' inertial coupling without
-  modelling the rotors as bodies);
+* model (2) (constant S): (M - S B^-1 S^T) q'' = tau_J - S B^-1 (tau - tau_J) - n - d,
+  theta'' = B^-1 (tau - tau_J - S^T q''), and tau_J - S theta'' is applied to PyBullet;
 * rigid joints: the motor torque acts on the link directly.
 
-Link friction d(q') (when the robot has it) is applied explicitly from the state at
-the start of each substep. URDF joint limits are not enforced by PyBullet (they would
-act as hidden constraint forces); the env ends the episode when a limit is crossed.
+Link friction is applied explicitly from the state at the start of each substep. URDF
+joint limits are not enforced by PyBullet; the env ends the episode when one is crossed.
 """
 
 from __future__ import annotations

@@ -1,22 +1,16 @@
 """Many arms in one PyBullet world as a native Gymnasium vector env.
 
 ``gym.make_vec("elastic_gym/<Id>", num_envs=N, vectorization_mode="vector_entry_point")``
-returns an :class:`ArmVectorEnv`: N arms of the id's robot in one PyBullet client, driven
-by the same :class:`~elastic_gym.envs.batch.ArmBatch` as the single env (whose module
-docstring documents observations, info, reward and termination), with every quantity
-batched along a leading arm axis.
+returns an :class:`ArmVectorEnv`: N arms driven by the same
+:class:`~elastic_gym.envs.batch.ArmBatch` as the single env, every quantity on a leading
+arm axis.
 
-* Seeds: ``reset(seed=s)`` seeds arm i with s + i (a list gives one seed per arm), so arm
-  i is bit for bit the single env reset with seed s + i under the same actions, across
-  autoresets too (an autoreset continues the arm's generator, as ``env.reset()`` does).
-* Autoreset (``metadata["autoreset_mode"]``, kwarg ``autoreset_mode``): ``NEXT_STEP``
-  (Gymnasium's default: the step after an episode ends resets that arm, ignores its
-  action, and returns reward 0), ``SAME_STEP`` (the arm is reset in the step that ends
-  its episode; ``info["final_obs"]`` and ``info["final_info"]`` hold the terminal
-  observation and info), or ``DISABLED`` (``reset(options={"reset_mask": mask})``).
-* Info: the single env's keys with a leading arm axis, each with a boolean mask
-  ``info["_key"]`` (Gymnasium's convention); ``termination_reason`` is masked where an
-  arm has one.
+* Seeds: ``reset(seed=s)`` seeds arm i with s + i (a list: one seed per arm); arm i is bit
+  for bit the single env reset with seed s + i, across autoresets too.
+* Autoreset (kwarg ``autoreset_mode``): ``NEXT_STEP`` (Gymnasium's default), ``SAME_STEP``
+  (``info["final_obs"]``, ``info["final_info"]``) or ``DISABLED``
+  (``reset(options={"reset_mask": mask})``).
+* Info: the single env's keys with a leading arm axis and Gymnasium's ``_key`` masks.
 """
 
 from __future__ import annotations

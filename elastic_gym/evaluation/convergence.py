@@ -1,24 +1,16 @@
 """Convergence of a comparison's metrics in the physics step.
 
-The simulator integrates links and elastic transmissions with first-order semi-implicit
-Euler, so every metric carries an O(physics_dt) integration error. A metric m computed
-at the physics step h is called *converged* when
+Links and elastic transmissions are integrated with first-order semi-implicit Euler, so
+every metric carries an O(physics_dt) error. A metric m at the physics step h is
+*converged* when
 
     |m(h) - m(h / r)| <= tolerance * |m(h / r)| + floor(metric)
 
-with the refinement r = 8 and tolerance = 0.2 by default (within 20 % of the value at
-1/8 of the step). ``floor`` is an absolute resolution below which differences carry no
-information: overshoot below ``OVERSHOOT_FLOOR`` % of a move, settling times within
-one control period (they are measured on the control grid), and residual torsion
-oscillations within one count of the default motor encoders (2 pi / 2^20 rad: no
-sensor of the arm resolves less; measured values at rest are ~1e-6 to 1e-5 rad). Two
-infinite settling times (not settled in either run) agree; an infinite and a finite one
-do not.
-
-:func:`check_convergence` runs each planned run of a scenario at its own physics step
-and at 1/r of it (same seed, so the same task and the same sensor noise samples) and
-returns one row per run and metric. ``benchmarks/convergence.py`` does this for a
-shipped preset from the command line.
+(refinement r = 8, tolerance 0.2 by default). ``floor`` is the resolution below which
+differences carry no information: overshoot below ``OVERSHOOT_FLOOR`` %, settling times
+within one control period, residual torsion oscillation within one count of the default
+motor encoders. :func:`check_convergence` runs each planned run at its own step and at
+1/r of it (same seed) and returns one row per run and metric.
 """
 
 from __future__ import annotations

@@ -1,23 +1,13 @@
 """Robustness margins of every loop along every sweep.
 
-For a :class:`~elastic_gym.evaluation.sweeps.SweepCurve` and a criterion metric, walk
-away from the nominal magnitude on each side, in order; a magnitude *passes* when the
-point is stable (every seed completed) and the metric's mean over seeds is at most
-``FACTOR`` (2) times its nominal value. The margin on a side is the largest magnitude
-reached before the first failure: the loop stays stable and within 2x its nominal
-metric over the whole interval [lower, upper] of magnitudes tested.
-
-Two criteria:
-
-* ``tracking``: the link tracking RMS (``track_rms``), for every loop;
-* ``estimation``: the steady estimation RMS of both the link position and the link
-  velocity (``est_rms_q`` and ``est_rms_dq``, after the observer's initial
-  transient, see :mod:`~elastic_gym.evaluation.metrics`), for the loops whose state
-  comes from an observer.
-
-:func:`margin_rows` gives one row per context, loop, sweep and criterion (the CSV);
-:func:`margins_markdown` pivots them into one table per context and criterion, a row
-per loop and a column per sweep.
+For a :class:`~elastic_gym.evaluation.sweeps.SweepCurve` and a criterion, walk away from
+the nominal magnitude on each side, in order; a magnitude *passes* when the point is
+stable (every seed completed) and the metric's mean over seeds is at most ``FACTOR`` (2)
+times its nominal value. The margin on a side is the largest magnitude reached before the
+first failure. Criteria: ``tracking`` (``track_rms``, every loop) and ``estimation``
+(``est_rms_q`` and ``est_rms_dq``, the loops on an observer). :func:`margin_rows` gives
+one row per context, loop, sweep and criterion (the CSV); :func:`margins_markdown` one
+table per context and criterion.
 """
 
 from __future__ import annotations

@@ -5,74 +5,14 @@ A scenario is the product
 
     envs x (values of each robustness axis) x model errors x seeds x controllers x state sources
 
-written in YAML as::
-
-    name: my-study
-    description: free text
-    duration: 4.0                       # simulated seconds per run
-    physics_dt: 6.25e-5                 # physics step of every env (default 1/16 ms; null:
-                                        # each robot's own default), see below
-    seeds: [0, 1]                       # env reset seeds (task sampling and sensor noise)
-    envs:
-      - TwoLinkElastic-v0               # an id (the "elastic_gym/" prefix is optional), or
-      - id: elastic_gym/KR15Elastic-v0
-        label: kr15-5deg
-        kwargs: {task: tracking, task_options: {waypoints: [[0.1, 0.2, -0.3]]}}
-        reset_options: {initial_state: {q: [0, 0.2, -0.3]}}
-    axes:                               # robustness axes: each value is a set of env kwargs
-      plant:                            # (deep-merged into every env entry's kwargs)
-        - {label: nominal}
-        - {label: mass+30%, plant_scaling: {link_mass: 1.3}}
-      encoder:
-        - {}
-        - {encoder: {resolution: 1.0e-3}}
-      mass:                             # an axis generated from magnitudes of one parameter
-        parameter: plant_scaling.link_mass    # dotted path into the env kwargs
-        values: [1.1, 1.3]              # or range: [1.0, 1.5] with num: 6 (log: true: geometric)
-    sweeps:                             # one-at-a-time sweeps (curves and margins): the runs of
-      link_mass:                        # the grid above are the nominal runs, and each sweep
-        parameter: plant_scaling.link_mass    # adds runs that change only its parameter
-        nominal: 1.0                    # the magnitude the nominal runs have
-        range: [1.0, 2.0]
-        num: 6
-      delay: {parameter: sensor_delay, nominal: 0, values: [1, 2, 3, 5]}
-    model_errors:                       # error of the controller's and observer's model:
-      - {}                              # env.unwrapped.model.perturbed(**values)
-      - {label: K-10%, stiffness: 0.9}
-    controllers:
-      - feedforward-state-feedback      # a registry name, or
-      - name: motor-pd
-        label: motor-only
-        options: {}                     # constructor options
-        sources: [finite-difference]    # pair only with these state-source labels
-      - name: my-pd                     # a class not in the registry ("module:Class")
-        class: mypackage.control:MyPD
-    state_sources:
-      - true                            # the truth (oracle); YAML's bare `true` is accepted
-      - deluca                          # an observer registry name, or
-      - name: ekf
-        label: ekf-acc
-        options: {use_accelerometers: true}
-        initial_estimate: [...]         # full state vector, overrides the observer's own
-
-Axes combine as a product. ``sweeps`` do not: they become one more axis named
-``sweep`` whose values are ``nominal`` (the runs as given) and ``<name>=<magnitude>``
-for each magnitude of each sweep (a magnitude equal to the sweep's ``nominal`` is the
-nominal run itself, run once for all sweeps), so N sweeps of k magnitudes cost
-1 + N k runs per loop instead of k^N. :mod:`~elastic_gym.evaluation.curves` and
-:mod:`~elastic_gym.evaluation.margins` turn them into metric-versus-magnitude curves
-and robustness margins.
-
-Physics step. PyBullet's first-order semi-implicit Euler puts an O(physics_dt) error in
-every closed loop's tracking; comparisons default to ``COMPARISON_PHYSICS_DT`` = 1/16 ms
-(:mod:`~elastic_gym.evaluation.convergence` checks a scenario at a finer step). An env
-entry's or axis value's own ``physics_dt`` kwarg takes precedence.
-
-Loading validates the fields (the models of :mod:`~elastic_gym.evaluation.scenario_models`,
-whose JSON Schema ``elastic-gym schema scenario`` prints) and raises :class:`ScenarioError`
-(a ``ValueError``) naming the offending field, e.g. ``controllers[1].name``. Whether an
-observer or controller module is available and applies to an env's arm is decided when
-the runs are planned (:func:`elastic_gym.evaluation.runner.plan_runs`).
+Axes combine as a product; ``sweeps`` become one more axis ``sweep`` whose values are
+``nominal`` (the runs as given) and ``<name>=<magnitude>``, so N sweeps of k magnitudes
+cost 1 + N k runs per loop. Comparisons default to ``COMPARISON_PHYSICS_DT`` = 1/16 ms (an
+env entry's or axis value's ``physics_dt`` kwarg wins). Loading validates the fields (the
+models of :mod:`~elastic_gym.evaluation.scenario_models`; ``elastic-gym schema scenario``
+prints their JSON Schema, the docs' scenario file reference lists every field) and raises
+:class:`ScenarioError` (a ``ValueError``) naming the offending field, e.g.
+``controllers[1].name``; inapplicable observer/controller pairs are skipped at planning.
 """
 
 from __future__ import annotations

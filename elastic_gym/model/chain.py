@@ -2,35 +2,14 @@
 
 :class:`SerialChain` evaluates for N configurations at once what
 :class:`~elastic_gym.model.RobotModel` evaluates with pinocchio for one, from the same
-pinocchio model (joint placements, axes, link inertias, accelerometer frames):
-
-* accelerometer readings, the specific force of each sensor in its own frame
-  f = R_WS^T (a_W - g_W) with a_W the classical acceleration of the sensor point
-  (De Luca, Schroeder & Thuemmel, ICRA 2007, eq. (9));
-* the accelerometer maps of eq. (10), readings = T_A(q) q'' + W_A(q, q');
-* the link inertia matrix M(q) and the bias n(q, q') = C(q, q') q' + g(q) of the link
-  equation of models (1)/(2), and the forward dynamics (M + M_a) q'' = tau - n for a
-  constant added inertia M_a (M_a = -S B^-1 S^T gives the Schur complement of model (2)).
-
-Algorithms (world-frame vectors, joints in index order, parent before child):
-
-* forward recursion of the rigid-body kinematics: R_j = R_p R_Pj Rot(a_j, q_j),
-  p_j = p_p + R_p t_Pj, z_j = R_j a_j, omega_j = omega_p + z_j q'_j,
-  alpha_j = alpha_p + z_j q''_j + omega_p x z_j q'_j,
-  a_j = a_p + alpha_p x r_j + omega_p x (omega_p x r_j), r_j = p_j - p_p, with the base at
-  rest (a_0 = -g_W for Newton-Euler: the gravity trick);
-* recursive Newton-Euler (Luh, Walker & Paul 1980) for n(q, q');
-* M(q) = sum_b J_vb^T m_b J_vb + J_wb^T I_b J_wb with the centre-of-mass Jacobians
-  J_vb[:, k] = z_k x (c_b - p_k), J_wb[:, k] = z_k for the joints k moving link b;
-* T_A[:, k] = R_WS^T (z_k x (p_S - p_k)), W_A = the reading at q'' = 0;
-* a Cholesky solve for the forward dynamics (M + M_a is symmetric positive definite).
-
-The loops over arms are compiled with numba. Each arm's result depends only on its own
-inputs, computed by the same operations in the same order whatever N: arm i of a batch
-is bit-identical to the same arm evaluated alone. A chain holds one parameter set for
-every arm, or one per arm (:meth:`SerialChain.stack`: arms whose links differ, e.g.
-randomized masses); arm k then reads its own row. ``tests/test_chain.py`` checks every
-quantity against pinocchio to 1e-12 (relative) on every robot of the catalog.
+pinocchio model: accelerometer readings f = R_WS^T (a_W - g_W) (De Luca et al., eq. (9)),
+the maps of eq. (10) (readings = T_A(q) q'' + W_A(q, q')), the link inertia M(q), the bias
+n(q, q') = C q' + g by recursive Newton-Euler, and the forward dynamics
+(M + M_a) q'' = tau - n by a Cholesky solve (M_a = -S B^-1 S^T: model (2)'s Schur
+complement). The loops over arms are compiled with numba; each arm's result depends only
+on its own inputs, computed by the same operations in the same order whatever N, so arm i
+of a batch is bit-identical to the same arm alone. A chain holds one parameter set for all
+arms or one per arm (:meth:`SerialChain.stack`: arms whose links differ).
 """
 
 from __future__ import annotations

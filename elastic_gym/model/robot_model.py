@@ -1,23 +1,15 @@
 """Nominal robot model: pinocchio rigid-body dynamics of the URDF plus the elastic joints.
 
-The link dynamics are those of De Luca, Schroeder & Thuemmel (ICRA 2007):
+The models of De Luca, Schroeder & Thuemmel (ICRA 2007), with the joint torque
+tau_J = K (theta - q) + D (theta' - q') and the state x = (theta, q, theta', q') of eq. (3):
 
-* model (1):  M(q) q'' + C(q, q') q' + g(q) + d(q') = tau_J,
-              B theta'' + tau_J = tau,
-* model (2):  M(q) q'' + S theta'' + C q' + g + d = tau_J,
-              S^T q'' + B theta'' + tau_J = tau,
+* model (1):  M(q) q'' + C(q, q') q' + g(q) + d(q') = tau_J,   B theta'' + tau_J = tau;
+* model (2):  M(q) q'' + S theta'' + C q' + g + d = tau_J,   S^T q'' + B theta'' + tau_J = tau.
 
-with the joint (spring + damper) torque tau_J = K (theta - q) + D (theta' - q').
-The state is ordered x = (theta, q, theta', q') as in the paper's eq. (3).
-
-Accelerometer maps follow eqs. (8)-(10): the specific force of a sensor, in its
-own frame, is y'_2 = T_A(q) q'' + W_A(q, q') with
-T_A = R_WS^T J_lin(q) (the linear part of the frame Jacobian in the sensor frame) and
-W_A = R_WS^T (Jdot q' - g_W): a sensor at rest reads +|g| along the upward axis.
-
-Observers and controllers get a :class:`RobotModel` from ``env.unwrapped.model`` and
-never touch the simulator; :meth:`RobotModel.perturbed` gives a copy with parameter
-errors for robustness studies.
+Accelerometer maps, eqs. (8)-(10): a sensor's specific force in its own frame is
+T_A(q) q'' + W_A(q, q'), T_A = R_WS^T J_lin(q), W_A = R_WS^T (Jdot q' - g_W). Observers and
+controllers get a :class:`RobotModel` from ``env.unwrapped.model`` and never touch the
+simulator; :meth:`RobotModel.perturbed` gives a copy with parameter errors.
 """
 
 from __future__ import annotations

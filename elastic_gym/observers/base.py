@@ -1,23 +1,13 @@
 """The observer interface shared by every state estimator of the suite.
 
-An observer sees what a real controller would: the sensor observation of the env
-and the torque actually applied (after clipping), plus the nominal
-:class:`~elastic_gym.model.RobotModel`. It never imports the simulator.
-
-State layout (De Luca et al., eq. (3)):
-
-* elastic arms: x = (theta, q, theta', q'), 4N entries;
-* rigid arms:   x = (q, q'), 2N entries.
-
-Non-implementable observers (the oracle, and Theorem 1 with the *ideal* link
-acceleration) declare the ground-truth items they need in ``privileged``; the
-:class:`~elastic_gym.observers.wrappers.ObserverWrapper` adds exactly those to the
-observation they receive, and nothing else.
-
-:class:`BatchedObserver` subclasses estimate N arms at once (``reset_arms`` /
-``update_arms`` on observations with a leading arm axis, used by the vector wrappers of
-:mod:`elastic_gym.observers.vector`); their single-arm ``reset`` / ``update`` are the
-case N = 1 of the same code.
+An observer sees what a real controller would: the sensor observation, the torque
+actually applied and its nominal :class:`~elastic_gym.model.RobotModel`; it never imports
+the simulator. State layout (De Luca et al., eq. (3)): elastic arms x = (theta, q,
+theta', q'), rigid arms x = (q, q'). Non-implementable observers (the oracle, Theorem 1
+with the ideal link acceleration) declare the ground-truth items they need in
+``privileged``; the wrappers add exactly those. :class:`BatchedObserver` subclasses
+estimate N arms at once (``reset_arms`` / ``update_arms``); their ``reset`` / ``update``
+are the case N = 1 of the same code.
 """
 
 from __future__ import annotations

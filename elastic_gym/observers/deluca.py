@@ -1,66 +1,18 @@
 """De Luca, Schroeder & Thuemmel (ICRA 2007): acceleration-based observer for elastic joints.
 
-State x = (theta, q, theta', q') of eq. (3); measurements: motor position y1 = theta and
-the link acceleration, either ideal (y2 = q'', Theorems 1 and 2) or reconstructed from
-link-mounted accelerometers (eqs. (10)-(12)).
-
-Continuous-time observer, eqs. (6), (7) and (12) written as one linear system
+Measurements: y1 = theta and the link acceleration, ideal (y2 = q'', Theorems 1 and 2) or
+from accelerometers (eqs. (10)-(12)). Eqs. (6), (7) and (12) as one linear system,
 
     xi' = A_obs xi + G u + L y1 + H y2,    A_obs = [A; 0] - L C,
     G = [0; 0; B^-1; 0],   H = [0; 0; -B^-1 S^T; I]
 
-(the -B^-1 S^T block is Theorem 2's, for model (2) with constant S; ``use_coupling=False``
-drops it). The gains L come in closed form from desired poles (Remark 3,
-:mod:`elastic_gym.observers.deluca_gains`); the error obeys e' = A_obs e for ideal q''
-whatever the link dynamics (Remark 1).
-
-Discretization (exact for the assumed inter-sample signals, one augmented ``expm`` at
-construction): the torque u is held over the period (the env applies it so: zero-order
-hold is exact for u), while theta and q'' are treated as linear between the samples k
-and k+1 (first-order hold; sample k+1 is available when xi_{k+1} is computed):
-
-    xi_{k+1} = Phi xi_k + P_u u_k + P_0 m_k + P_1 m_{k+1},    m = (theta, q'').
-
-Holding theta and q'' constant instead (zero-order hold, or RK4 with held inputs) makes
-the error deviate by about 2 % from the continuous error dynamics, and with a stiff
-full-state feedback (gain entries around 5e4) the observer-based closed loop diverged
-within 32 ms; the first-order hold brings the deviation to about 1e-3 and keeps the loop
-stable. Under model (2) q''
-also depends on the torque, which jumps at the sample instants: the sample k (measured
-under u_{k-1}) then differs from the start value under u_k by O(S B^-1 (u_k - u_{k-1})),
-nil for model (1) and negligible for smooth torques.
-
-Implementable observer, eq. (12): q'' = T_A^+(xi_2) (y2' - W_A(xi_2, xi_4)) (eq. (11))
-depends on the estimate at k+1 itself, so each update is a predictor-corrector:
-
-1. predictor: xi^p_{k+1} from the FOH update with q''_{k+1} replaced by q''_k;
-2. q''_{k+1} from eq. (11) at the predicted configuration (xi^p_2, xi^p_4);
-3. corrector: xi_{k+1} = xi^p_{k+1} + P_1^{q''} (q''_{k+1} - q''_k), the exact FOH update
-   with that sample (the map is linear in m_{k+1}). The q''_{k+1} so obtained is the start
-   value of the next period.
-
-T_A^+ is a damped least-squares inverse: with sigma_min the smallest singular value of
-T_A (in m, i.e. (m/s^2) per (rad/s^2)), the damping is
-lambda^2 = (1 - (sigma_min / dls_threshold)^2) dls_damping^2 below ``dls_threshold``, else 0
-(plain pseudo-inverse). ``diagnostics`` reports cond(T_A), sigma_min, the damping and the
-flag ``near_singular`` (sigma_min < dls_threshold) at every update.
-
-Peaking (not in the paper): from a large initial error the high-gain transient of the
-velocity estimate (tens of rad/s) enters the centripetal part of W_A(xi_2, xi_4)
-quadratically, and eq. (12) can escape (measured on KR15 from 9x the e(0) of the tests:
-0.09 rad, 2.7 rad/s; and in 28 % of random-torque stress episodes of the KR15 at
-|q'| ~ 20-40 rad/s). ``velocity_saturation`` clips the xi_4 used in W_A only, the classical
-anti-peaking remedy; the default 50 rad/s is far above any motion of these arms, so it
-acts only on a peaking estimate (with it no stress episode diverged); None is the
-paper's observer exactly.
-
-Initial estimate (Sec. IV, last remark): at rest, theta from the encoders, q from
-theta = q + K^-1 g(q) by fixed-point iteration (only the gravity vector is needed),
-zero velocities.
-
-Batches: the state holds N arms (``reset_arms`` / ``update_arms``); the FOH update of all
-arms is one matrix product and eq. (11) one compiled loop over the arms
-(:meth:`~elastic_gym.model.SerialChain.acceleration_from_readings`).
+(-B^-1 S^T: Theorem 2, model (2); ``use_coupling=False`` drops it), with the closed-form
+gains of Remark 3 (:mod:`~elastic_gym.observers.deluca_gains`). Discretized exactly with
+the torque held and theta, q'' linear between samples (first-order hold); eq. (11),
+q'' = T_A^+(xi_2) (y2' - W_A(xi_2, xi_4)), by a predictor-corrector with a damped
+least-squares T_A^+ (``diagnostics``: cond(T_A), sigma_min, ``near_singular``).
+``velocity_saturation`` clips the velocity entering W_A against peaking (None: the
+paper's observer). Initial estimate at rest (Sec. IV); batched over N arms.
 """
 
 from __future__ import annotations

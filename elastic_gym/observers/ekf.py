@@ -1,44 +1,18 @@
 """Extended Kalman filter for elastic-joint arms with exponential data weighting.
 
 After Abdeetedal (report on Lightcap & Banks, IEEE TCST 2010), eqs. (1)-(18), on the
-elastic-joint models (1)/(2) of De Luca, Schroeder & Thuemmel (ICRA 2007).
+models (1)/(2) of De Luca et al. State x = (theta, q, theta', q'), input tau held over
+the period T.
 
-State x = (theta, q, theta', q') (4N), input u = tau held over the control period T.
-
-* **Dynamics** x' = f(x, u) + G(x) w, eq. (4): f of model (1), or model (2) when the
-  arm has a coupling S (the compiled forward dynamics of the model's
-  :class:`~elastic_gym.model.SerialChain`). The process noise w = (w_motor, w_link) is a torque
-  noise of spectral density Q on the motor and link equations; it reaches the
-  accelerations through the inverse of the complete inertia [[B, S^T], [S, M(q)]],
-  which for S = 0 is eq. (5): B^-1 on the motor and M^-1(q) on the link accelerations.
-* **Jacobian** F = df/dx, eq. (8), from the RNEA derivatives (complex-step tangents of
-  the compiled RNEA, equal to pinocchio's analytic ones to rounding): the link
-  acceleration is the implicit solution of r(x, q'') = 0,
-  r = rnea(q, q', q'') - S B^-1 S^T q'' - (I + S B^-1) tau_J + S B^-1 tau + d(q'),
-  so dq''/dx = -(M - S B^-1 S^T)^-1 dr/dx (implicit-function theorem; for S = 0 this
-  is the ABA derivative), and theta'' = B^-1 (tau - tau_J - S^T q'')
-  (:class:`ElasticLinearization`).
-* **Prediction** over T with tau held (zero-order hold, exact for the input): the mean
-  by classical RK4 (``substeps`` steps per period); the covariance by the discrete
-  form of eq. (15), P^- = e^{2 alpha T} Phi P Phi^T + Q_d, with Phi = expm(F T) and
-  Q_d = int_0^T e^{F s} G Q G^T e^{F^T s} ds, both from one matrix exponential (Van
-  Loan's method) at the estimate of the start of the period. alpha > 0 is the
-  exponential data weighting of eq. (15) (F + alpha I): it discounts old data and
-  prescribes a degree of stability alpha of the error dynamics (Reif et al. 1998).
-* **Measurement**, eqs. (9)-(13) with the sensors of an industrial arm: the motor
-  encoders y_1 = theta (variance resolution^2 / 12 + noise^2) and, with
-  ``use_accelerometers=True``, the accelerometers of De Luca et al. eq. (10),
-  y_2 = T_A(q) q''(x, u) + W_A(q, q'), whose Jacobian combines the derivatives of the
-  compiled specific forces (complex step) with dq''/dx. Kalman gain eq. (18), update eq. (16)
-  with the nonlinear h, covariance eq. (17) in Joseph form (kept symmetric).
-
-The sampled accelerometer reading at the end of a period is the one the env reports
-with the torque of that period, so h is evaluated with the same held torque.
-
-The filter runs N arms at once (:class:`~elastic_gym.observers.base.BatchedObserver`):
-Jacobians, matrix exponentials, gains and covariance updates are stacked over the arms;
-one arm is the case N = 1, and each arm of a batch equals the filter run on that arm
-alone (``tests/test_vector_observers.py``).
+* Dynamics x' = f(x, u) + G(x) w, eq. (4), by the compiled forward dynamics of the model's
+  :class:`~elastic_gym.model.SerialChain`; w a torque noise (density Q) on the motor and
+  link equations, through the inverse of the complete inertia [[B, S^T], [S, M(q)]].
+* Jacobian F = df/dx, eq. (8), from complex-step tangents of the compiled RNEA.
+* Prediction: the mean by RK4 (``substeps``), the covariance by the discrete eq. (15),
+  P^- = e^{2 alpha T} Phi P Phi^T + Q_d (Van Loan), alpha the data weighting.
+* Measurement, eqs. (9)-(13): motor encoders and, with ``use_accelerometers=True``,
+  eq. (10) of De Luca et al.; gain eq. (18), update eq. (16), eq. (17) in Joseph form.
+* N arms at once (stacked Jacobians, exponentials, updates), each equal to its lone filter.
 """
 
 from __future__ import annotations

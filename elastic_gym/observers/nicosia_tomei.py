@@ -1,30 +1,16 @@
 """Full-order observer of Nicosia & Tomei (IEEE TAC 1990), the baseline of Cristofaro & De Luca.
 
-Standard form (the observer is ref. [8] of Cristofaro & De Luca, who compare their
-reduced-order observer with it in Figs. 2-3 without restating its equations),
-q_tilde = q - q_hat:
+With q_tilde = q - q_hat:
 
     q_hat' = z + kD q_tilde,
     z'     = M(q)^-1 [tau - C(q, z) z - F z - g(q) + kP q_tilde],
 
-with the measured q in M, C and g, and F z the model's link friction. It integrates
-2N equations (RK4 over each control period, measured q interpolated linearly,
-torque held; :mod:`rigid_common`).
-
-Velocity estimate: z, not q_hat' = z + kD q_tilde. z is the observer's own velocity
-state and reaches the measurement only through two integrations, so encoder
-quantization and noise are filtered; q_hat' would add kD q_tilde, a direct
-feedthrough of the measurement noise (the term Cristofaro & De Luca blame for the
-reduced-order observer's higher noise sensitivity, Sec. V). The position estimate
-is q_hat.
-
-Gains: kD defaults to k0 of Cristofaro & De Luca eq. (12) (same eta and v_max), so
-the two observers are compared at equal output-injection gain. Linearized at zero
-velocity the error obeys q_tilde'' + kD q_tilde' + kP M(q)^-1 q_tilde = 0; the
-default kP = kD^2 lambda_max(M) / 4 (lambda_max over the sampled configurations)
-makes the heaviest mode critically damped and every mode decay at the rate kD / 2,
-the fastest common envelope a scalar kD allows. The reduced-order observer's
-error decays at ~k0 instead (its error equation is first order).
+with the measured q in M, C and g and F z the model's link friction, integrated by RK4
+over each control period (:mod:`~elastic_gym.observers.rigid_common`). The velocity
+estimate is z (filtered twice), not q_hat' (which feeds the measurement noise through).
+Gains: kD = k0 of Cristofaro & De Luca eq. (12), so both observers are compared at equal
+output-injection gain; kP = kD^2 lambda_max(M) / 4 makes the heaviest mode of the
+linearized error critically damped.
 """
 
 from __future__ import annotations

@@ -5,31 +5,13 @@ Eq. (6) with the linear gain k(y) = k y of eq. (9):
     M(y) z' = -C(y, x_hat_2) x_hat_2 - F x_hat_2 - g(y) - k M(y) x_hat_2 + tau,
     x_hat_2 = z + k y,
 
-integrated by RK4 over each control period (:mod:`rigid_common`). F x_hat_2 is the
-model's link friction (``model.link_friction``).
-
-Constant gain: k0 of eq. (12), max_y [c0(y)(v_max + eta) - lambda_min(F)] / lambda_min(M(y)),
-computed from the model on sampled configurations (:class:`RigidArmBounds`), or given.
-
-Hybrid gain (Sec. IV): the scheduled gain k_r of eq. (16) (v_max + eta replaced by
-eta + r v_bar) with the logic state r of eq. (17). The paper's jump sets (15),
-D_r^+ = {|x_hat_2| >= r v_bar - eta} (r -> r + 1) and
-D_r^- = {|x_hat_2| <= (r - 1) v_bar + eta} (r -> r - 1),
-leave no flow set when v_bar <= 2 eta (Example 2 uses v_bar = 2, eta = 1), and for
-any v_bar a jump up lands in the next level's D^- (r v_bar - eta <= r v_bar + eta), so
-a literal implementation jumps back and forth every sample (``jump_sets="literal"``,
-kept to measure it). The default tolerance layer (``jump_sets="hysteresis"``) keeps
-D_r^+ and replaces D_r^- by
-
-    {|x_hat_2| <= (r - 1) v_bar - eta - tolerance},
-
-i.e. the gain is lowered only when the upper estimate |x_hat_2| + eta of the true
-speed (eq. 14) is below the lower level's bound (r - 1) v_bar by ``tolerance``. The
-band between the down threshold of level r + 1 and the up threshold of level r is
-then ``tolerance`` wide, the flow set of every level is non-empty and r never goes
-below 1 (the paper's r(0) = 1 of Examples 2-3). At most one jump is taken per
-sample. At each jump z is reset, z+ = z + (k_r - k_r+) y, so that x_hat_2 is
-continuous; without the reset x_hat_2 would jump by (k_r+ - k_r) y.
+integrated by RK4 over each control period. Constant gain: k0 of eq. (12) from the
+model's bounds (:class:`~elastic_gym.observers.rigid_common.RigidArmBounds`), or given.
+Hybrid gain (Sec. IV, ``hybrid=True``): k_r of eq. (16) with the logic state r of eq.
+(17). The paper's jump sets (15) leave no flow set for v_bar <= 2 eta and jump every
+sample (``jump_sets="literal"``); the default ``"hysteresis"`` lowers the gain only when
+|x_hat_2| + eta is ``tolerance`` below the lower level's bound, and resets z at each jump
+(z+ = z + (k_r - k_r+) y) so that x_hat_2 is continuous.
 """
 
 from __future__ import annotations

@@ -1,29 +1,15 @@
 """What the rigid-arm velocity observers have in common.
 
-* :func:`rk4_period`: one control period of an observer ODE by classical RK4, the
-  measured position interpolated linearly between the two samples and the torque held.
-* Model bounds of Cristofaro & De Luca (2022): the Christoffel factorization of the
-  Coriolis matrix, c0(q) = max_{|u|=1} ||C(q, u)|| of eq. (4), lambda_min(M(q)) of
-  eqs. (2)/(8), and the injection gain of eqs. (12)/(16), maximised over a set of
-  configurations (:class:`RigidArmBounds`).
-* :class:`ScalarGainReducedObserver`: the reduced-order observer shared by
-  Cristofaro & De Luca eq. (6) with k(y) = k y and Solsona & Puleston eqs. (6)-(7)
-  with G = k I. Both are
-
-      x_hat_2 = z + k y,
-      z' = M(y)^-1 [tau - C(y, x_hat_2) x_hat_2 - d(x_hat_2) - g(y)] - k x_hat_2,
-
-  with d the link friction of the model (Cristofaro: F x_hat_2; Solsona: viscous +
-  smoothed Coulomb), so that the error e = x_2 - x_hat_2 obeys
-  M e' = -C(y, x_2) e - C(y, x_hat_2) e - (d(x_2) - d(x_hat_2)) - k M e.
-
-Configurations for the bounds: M(q) and C(q, .) of a serial arm do not depend on
-the first joint (rotating the whole chain about the first axis leaves the kinetic
-energy unchanged), so joints 2..N are sampled: a full grid of ``points_per_joint``
-values per joint when that has at most ``max_samples`` points, a deterministic Sobol
-sequence of ``max_samples`` points otherwise. Joints with finite URDF limits are
-sampled within them, continuous joints over [-pi, pi]. The paper's maxima over
-q in R^n are thus maxima over these samples (a grid of 2 degrees for the 2-link arms).
+* :func:`rk4_period`: one control period of an observer ODE by RK4, the measured position
+  interpolated linearly and the torque held.
+* :class:`RigidArmBounds`: the bounds of Cristofaro & De Luca (2022), c0(q) =
+  max_{|u|=1} ||C(q, u)|| of eq. (4), lambda_min(M(q)) of eqs. (2)/(8) and the injection
+  gain of eqs. (12)/(16), maximised over sampled configurations of joints 2..N (M and C do
+  not depend on the first joint): a full grid or a deterministic Sobol sequence.
+* :class:`ScalarGainReducedObserver`: x_hat_2 = z + k y,
+  z' = M(y)^-1 [tau - C(y, x_hat_2) x_hat_2 - d(x_hat_2) - g(y)] - k x_hat_2, shared by
+  Cristofaro & De Luca eq. (6) and Solsona & Puleston eqs. (6)-(7) (d the model's link
+  friction).
 """
 
 from __future__ import annotations

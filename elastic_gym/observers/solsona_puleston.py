@@ -5,17 +5,11 @@ Eqs. (6)-(7) with G = g0 I (Sec. 3):
     x_hat_2 = v + G x_1,
     v'      = beta(x_1, x_hat_2) + u(x_1, tau) - G x_hat_2,
 
-beta = H^-1 [-C(x_1, x_hat_2) x_hat_2 - f_r(x_hat_2)], u = H^-1 [tau - tau_g(x_1)]. The
-friction f_r of their simulated arm (Sec. 4: viscous + asymmetric Coulomb) is in the
-observer model, evaluated at the estimate and smoothed as in ``model.link_friction``
-(tanh(q'/0.01)); without it the velocity estimate keeps a large error whenever the
-plant's friction acts.
-This is the same ODE as Cristofaro & De Luca eq. (6) with k = g0, and shares its
-implementation (:class:`ScalarGainReducedObserver`, RK4 over each control period).
-
-Design criterion (eqs. (15)-(17)): g0 > M = sup_{x_1, |xi| <= r2} |d beta / d xi|,
-:func:`sufficient_gain_bound`. Their example's g0 = 3 need not satisfy it and still
-converges; that bound is sufficient, not necessary.
+beta = H^-1 [-C(x_1, x_hat_2) x_hat_2 - f_r(x_hat_2)], u = H^-1 [tau - tau_g(x_1)], with
+the friction f_r of their arm (viscous + asymmetric Coulomb, smoothed as in
+``model.link_friction``) in the model. The same ODE as Cristofaro & De Luca eq. (6) with
+k = g0 (:class:`~elastic_gym.observers.rigid_common.ScalarGainReducedObserver`). Their
+sufficient design criterion, eqs. (15)-(17), g0 > M: :func:`sufficient_gain_bound`.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Elastic parameters are chosen so that the lowest natural frequencies of the arms
 are a few tens of rad/s (industrial arms with cycloidal/harmonic gears: De Luca et al.
 report closed-loop poles at 30 rad/s "close to the robot natural frequency" for the
 KR15/2), and the physics step keeps dt * omega_max <= 0.1 for the stiffest mode.
-The README table lists K, B, D and the resulting natural frequencies.
+The environment pages of the docs list K, B, D and the resulting natural frequencies.
 """
 
 from __future__ import annotations

@@ -177,7 +177,7 @@ class RobotSpec:
         camera: (target, distance, yaw, pitch) of the default render camera.
         physics_dt: default physics step (s); control_dt: default control period (s).
         gravity: world gravity vector (m/s^2).
-        source: where the numbers come from (shown in the README).
+        source: where the numbers come from (shown on the environment pages).
     """
 
     name: str

@@ -1,23 +1,13 @@
 """Training configuration and RL-Zoo-style hyper-parameter files.
 
-Hyper-parameters live in ``hyperparams/<algo>.yaml``, one entry per env id plus a
-``default`` entry, each a mapping of the algorithm's constructor arguments and these
-keys of ours: ``n_timesteps`` (default budget, policy steps), ``n_envs`` (arms; more
-than one share a PyBullet world), ``batches`` (worker processes the arms are split
-over, one PyBullet world each: a number, or a list of env-kwargs updates, one per
-batch, e.g. ``[{}, {plant_scaling: {link_mass: 1.3}}]`` for two plants),
-``decimation`` (env steps per policy step), ``normalize`` (VecNormalize on/off),
-``critic_state`` (PPO only: a critic that also sees the true state, the actor never
-does; :mod:`elastic_gym.training.critic`),
-``action`` (fields of :class:`~elastic_gym.training.actions.ActionConfig`),
-``observation`` (fields of
-:class:`~elastic_gym.training.observation.ObservationConfig`) and ``env_kwargs`` (the
-training env's kwargs, e.g. the task's options). Command-line overrides (``key=value``)
-win over the file, which wins over the defaults; a run's own ``action`` /
-``observation`` fields win over the file's, and its own env kwargs over the file's key
-by key (a run that names its own ``task`` drops the file's ``task_options``, which
-belong to the file's task). ``learning_rate`` and ``clip_range`` may be
-``lin_<value>`` (RL Zoo's linear decay to 0).
+Hyper-parameters live in ``hyperparams/<algo>.yaml``, one entry per env id plus
+``default``: the algorithm's constructor arguments and our keys (``n_timesteps``,
+``n_envs``, ``batches``, ``decimation``, ``normalize``, ``critic_state``, ``action``,
+``observation``, ``env_kwargs``). Command-line overrides (``key=value``) win over the
+file, which wins over the defaults; a run's own ``action`` / ``observation`` fields and
+env kwargs win key by key (a run naming its own ``task`` drops the file's
+``task_options``). ``learning_rate`` and ``clip_range`` may be ``lin_<value>``, a linear
+decay to 0.
 """
 
 from __future__ import annotations

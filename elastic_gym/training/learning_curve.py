@@ -1,30 +1,14 @@
 """Learning curves of a training run: return and tracking RMS versus policy steps and
 wall time, written to the run folder.
 
-:class:`LearningCurve` (an SB3 callback) evaluates the deterministic policy at the start
-of training, every ``every`` policy steps and at the end, on the same episodes each time
-(the arms of one batch, seeds ``seed``, ``seed + 1``, ...; :func:`evaluate_arms`), with
-the observation normalization of that moment. Each evaluation appends a row to
-``learning_curve.csv``:
-
-====================  ==============================================================
-column                value
-====================  ==============================================================
-``policy_steps``      policy steps taken so far (all arms)
-``env_steps``         control periods simulated so far (policy steps x decimation)
-``wall_time``         seconds of training so far, evaluations excluded
-``eval_return``       mean return of the evaluation episodes (reward of the env)
-``eval_return_std``   their standard deviation
-``tracking_rms``      link tracking RMS over all evaluation episodes (rad)
-``tracking_rms_max``  the worst episode's
-``saturated``         share of policy steps with an action at its bound
-``train_return``      mean return of the last 100 training episodes (exploration
-                      noise included; empty before the first one ends)
-====================  ==============================================================
-
-It also keeps the model of the best mean evaluation return (``best_model.zip``) and
-writes ``evaluations.npz`` (``timesteps``, ``results`` = returns, as SB3's
-``EvalCallback`` does, plus ``tracking_rms`` and ``saturated``, one column per episode).
+:class:`LearningCurve` (an SB3 callback) evaluates the deterministic policy at the start,
+every ``every`` policy steps and at the end, on the same episodes each time (the arms of
+one batch, seeds ``seed``, ``seed + 1``, ...), with the normalization of that moment. Each
+evaluation is a row of ``learning_curve.csv``: ``policy_steps``, ``env_steps``,
+``wall_time`` (evaluations excluded), ``eval_return`` and ``eval_return_std``,
+``tracking_rms`` and ``tracking_rms_max`` (rad), ``saturated`` (share of actions at their
+bound), ``train_return`` (last 100 training episodes). It keeps the best model
+(``best_model.zip``) and writes ``evaluations.npz`` as SB3's ``EvalCallback`` does.
 """
 
 from __future__ import annotations

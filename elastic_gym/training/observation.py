@@ -1,32 +1,13 @@
 """What a policy sees: a flat vector of scaled features, built on arrays with a leading
 arm axis (N arms).
 
-Features (``ObservationConfig.features``, in this order when selected), n joints:
-
-=================  ========  ==========================================================
-name               size      value
-=================  ========  ==========================================================
-``error``          n         (q - q_d) / error_scale                         (state)
-``error_rate``     n         (q' - q_d') / error_rate_scale                  (state)
-``reference``      k n       q_d, q_d', ..., q_d^(k-1), row j divided by 10^(j-1) for
-                             j >= 2 (k = reference_order + 1)
-``preview``        h n       (q_d(t + h_i) - q_d(t)) / preview_scale, horizons h_i (s)
-``torsion``        n         (theta - q) / torsion_scale                (elastic state)
-``torsion_rate``   n         (theta' - q') / torsion_rate_scale         (elastic state)
-``motor_error``    n         (theta_measured - q_d) / torsion_scale    (raw sensors)
-``acceleration``   3 m       accelerometer readings / 9.81             (raw sensors)
-``last_action``    n         the previous policy action, in [-1, 1]
-``base_torque``    n         the residual's base torque / tau_max          (residual)
-=================  ========  ==========================================================
-
-"state" features read the state source (an observer's estimate or the truth, layout
-(theta, q, theta', q') or (q, q') for rigid arms); "raw sensors" ones the sensor
-observation. The reference and its preview are known in advance (the task defines
-them), so they are no measurement. ``VecNormalize`` may normalize further.
-
-:class:`TrueStateFeatures` computes every state feature of the TRUE state (error,
-error_rate and, for elastic arms, torsion, torsion_rate, scaled as above): what a
-critic trained with privileged information sees besides the policy's observation
+Features (:class:`ObservationConfig`, in this order when selected; n joints, m
+accelerometers): ``error`` and ``error_rate`` of the state source, ``reference``
+(q_d .. q_d^(k-1), scaled per order), ``preview`` (q_d(t + h) - q_d(t) for horizons h),
+``torsion`` and ``torsion_rate`` (elastic state), ``motor_error`` and ``acceleration``
+(raw sensors), ``last_action`` and ``base_torque`` (residual). The reference and its
+preview are no measurement: the task defines them in advance. :class:`TrueStateFeatures`
+computes the state features of the true state, what a privileged critic sees
 (:mod:`elastic_gym.training.critic`).
 """
 
