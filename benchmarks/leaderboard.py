@@ -8,7 +8,8 @@
 1. ``--train``: the RL baselines' run folders (``runs/benchmark/<name>``) with
    ``elastic-gym train``'s defaults and fixed training seeds (``RL_BASELINES``): pure PPO
    on the De Luca estimate and the residual PPO on eq. (13), also on the De Luca estimate.
-   Training seeds are 0 .. n_envs - 1 (and 10 000 + k for the learning curve): never the suite's evaluation seeds (90 000 ..). RecurrentPPO on the raw sensors
+   Training seeds are 0 .. n_envs - 1 (and 10 000 + k for the learning curve): never the
+   suite's evaluation seeds (90 000 ..). RecurrentPPO on the raw sensors
    is not among them: the comparison runner feeds a controller a state source's estimate,
    and a policy on raw sensors has none (``trained-policy`` refuses such a run).
 2. Scoring: every entry of ``CLASSICAL`` (and every RL baseline whose run folder exists)

@@ -92,9 +92,7 @@ def test_field_references_cover_exactly_the_schemas_fields():
     spec.loader.exec_module(hooks)
     meanings = hooks.field_meanings()
     rendered = {
-        m.group(1)
-        for page in DOCS.rglob("*.md")
-        for m in hooks.MARKER.finditer(page.read_text())
+        m.group(1) for page in DOCS.rglob("*.md") for m in hooks.MARKER.finditer(page.read_text())
     }
     assert rendered == set(meanings) >= {"scenario", "train"}
     for name, models in meanings.items():

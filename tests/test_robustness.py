@@ -1,7 +1,7 @@
 """Robustness: bit-for-bit determinism for every env id and wrapper, isolation of many envs
 in one process, ``close()`` twice, pickling for ``SubprocVecEnv``, and the rows of the
-bad-input reference (docs/bad-input.md) that no other test file covers (every row names its test; the
-last test checks that those tests exist)."""
+bad-input reference (docs/bad-input.md) that no other test file covers (every row names
+its test; the last test checks that those tests exist)."""
 
 from __future__ import annotations
 

@@ -1,21 +1,17 @@
 """The elastic-gym benchmark: a versioned suite that scores any controller, observer or policy.
 
-* :mod:`~elastic_gym.benchmark.suite` — the suite as data (``suites/elastic-gym-v1.yaml``),
-  validated and content-hashed, expanded into cells;
-* :mod:`~elastic_gym.benchmark.entry` — what is scored: controller + state source, a
-  training run folder, or a callable policy; oracle references apart;
-* :mod:`~elastic_gym.benchmark.scoring` — pass/fail per episode, category, precision and
-  overall scores;
+* :mod:`~elastic_gym.benchmark.suite` — the suite as data, validated and content-hashed;
+* :mod:`~elastic_gym.benchmark.entry` — what is scored (controller + state source, a run
+  folder, a callable policy); oracle references apart;
+* :mod:`~elastic_gym.benchmark.scoring` — per-episode pass/fail, category, precision, overall;
 * :mod:`~elastic_gym.benchmark.run` — :func:`run_benchmark` on the comparison runner;
-* :mod:`~elastic_gym.benchmark.scorecard` — the scorecard (JSON, markdown, figure);
-* :mod:`~elastic_gym.benchmark.leaderboard` — the leaderboard rebuilt from scorecards.
+* :mod:`~elastic_gym.benchmark.scorecard` / :mod:`~elastic_gym.benchmark.leaderboard`.
 
 Python API::
 
     from elastic_gym.benchmark import run_benchmark
 
     card = run_benchmark({"controller": "feedforward-state-feedback", "source": "deluca"})
-    card.scores.overall, card.scores.categories
 """
 
 from elastic_gym.benchmark.entry import Entry

@@ -1,24 +1,16 @@
 """Benchmark entries: what is scored, and what it reads.
 
-An entry is a closed loop of the comparison runner:
+An entry is a closed loop of the comparison runner: a **controller** (registry name, a
+user's :class:`~elastic_gym.controllers.Controller` subclass as ``"module:Class"``, or any
+callable policy through the ``policy`` controller) with its ``options``, paired with a
+**state source** (``"true"``, an observer registry name or a user's
+:class:`~elastic_gym.observers.Observer` subclass); or a **run folder** written by
+``elastic-gym train`` (the ``trained-policy`` controller on its own state source).
 
-* a **controller** — a registry name (``feedforward-state-feedback``, ``motor-pd``, ...), a
-  user's :class:`~elastic_gym.controllers.Controller` subclass as ``"module:Class"`` (or the
-  class itself), or any callable policy ``policy(obs) -> action`` through the ``policy``
-  controller (:class:`~elastic_gym.controllers.policy.PolicyController`, options
-  ``{"policy": callable, ...}``) — with its constructor ``options``;
-* paired with a **state source** — ``"true"`` (the oracle), an observer registry name
-  (``deluca``, ``ekf``, ``finite-difference``, ...) or a user's
-  :class:`~elastic_gym.observers.Observer` subclass ``"module:Class"``, with its options;
-* or a **run folder** written by ``elastic-gym train`` (``run``): the trained policy as the
-  ``trained-policy`` controller on the state source it was trained on.
-
-The controller only ever sees the estimate, the reference and the time
-(:func:`~elastic_gym.controllers.public_info`); the observer sees the sensors and the
-applied torque, plus the ground-truth items its class declares in ``privileged``. An entry
-whose state source reads any ground truth (``true``, ``deluca-ideal``, or a user's observer
-with a non-empty ``privileged``) is an **oracle reference**: scored like any entry, listed
-apart from the implementable ones (:func:`describe_entry` records what the entry used).
+The controller sees only the estimate, the reference and the time; the observer sees the
+sensors, the applied torque and the ground-truth items its class declares in
+``privileged``. An entry whose source reads any ground truth is an **oracle reference**,
+scored like any entry and listed apart (:func:`describe_entry` records what it used).
 """
 
 from __future__ import annotations

@@ -1,31 +1,16 @@
 """The benchmark suite: tasks x categories of plant perturbations x robots x fixed seeds, as data.
 
-A suite is a YAML file shipped in ``elastic_gym/benchmark/suites/`` (``elastic-gym-v1.yaml``)
-validated by :class:`SuiteConfig` (pydantic, unknown keys refused, errors naming the field).
-Its content is hashed: :func:`suite_hash` is the sha256 of the canonical JSON form of the
-validated suite (keys sorted, defaults filled in), so comments and formatting do not change
-it and any change of a task, magnitude, seed, tolerance or weight does. A scorecard carries
-the suite's name, version and hash; a leaderboard refuses cards of another suite.
+A suite is a YAML file of ``elastic_gym/benchmark/suites/`` validated by :class:`SuiteConfig`
+(unknown keys refused, errors naming the field). :func:`suite_hash` is the sha256 of the
+canonical JSON form of the validated suite, so comments do not change it and any change of a
+task, magnitude, seed, tolerance or weight does; scorecards carry it.
 
-Structure:
-
-* ``robots``: label -> env id (+ kwargs every cell of that robot gets);
-* ``tasks``: label -> env kwargs (task, task options, plant features such as torque pulses or
-  a payload), optional per-robot kwargs, and the task's tolerances
-  (:class:`Tolerance`: the thresholds an episode must stay within to pass);
-* ``categories``: label -> weight and cells; a cell is one task under one perturbation of
-  the simulated plant only (env kwargs deep-merged over the task's: ``plant_scaling``,
-  ``unmodelled_friction``, ``encoder``, ``accelerometer``, ``sensor_delay``,
-  ``actuator_delay``, ``torque_pulses``, ``payload``): no controller or observer model knows
-  them, so a cell measures what the loop does with a plant that differs from its model;
-* ``precision``: the log-linear map of the tracking RMS on the nominal cells
-  (:mod:`~elastic_gym.benchmark.scoring`);
-* ``seeds``: the published evaluation seeds (every cell runs every seed, on every robot);
-* ``duration`` and ``physics_dt``: simulated seconds per episode and the physics step.
-
-:func:`expand_cells` turns the suite into the :class:`Cell` list; :func:`suite_scenario`
-turns the cells and one entry's controller and state source into the comparison
-:class:`~elastic_gym.evaluation.Scenario` the comparison runner executes.
+``robots`` (label -> env id + kwargs), ``tasks`` (env kwargs and the :class:`Tolerance` an
+episode must stay within), ``categories`` (weight and cells: one task under one perturbation
+of the simulated plant only, which no model knows), ``precision`` (the map of the nominal
+tracking RMS, :mod:`~elastic_gym.benchmark.scoring`), ``seeds``, ``duration``, ``physics_dt``.
+:func:`expand_cells` lists the cells; :func:`suite_scenario` turns them and one entry into
+the comparison :class:`~elastic_gym.evaluation.Scenario` that is executed.
 """
 
 from __future__ import annotations

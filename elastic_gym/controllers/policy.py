@@ -1,24 +1,14 @@
 """Run a learned policy (or any callable) as a controller.
 
 ``PolicyController`` turns ``obs -> action`` into ``(obs, info) -> torque`` so that RL
-policies enter the same comparisons as the classical laws:
-
-* the policy is a callable ``policy(obs) -> action``, an object with the
-  stable-baselines3 interface ``predict(obs, state=None, episode_start=None,
-  deterministic=True) -> (action, state)`` (recurrent state handled), or the path of a
-  saved SB3 model together with ``algorithm`` (e.g. ``"PPO"``, ``"SAC"``);
-* ``normalization``: the observation statistics of training, an SB3 ``VecNormalize``
-  (anything with ``normalize_obs``) or the path of its pickle (``VecNormalize.save``;
-  unpickling runs code, so only load files you trust);
-* ``preprocess(obs, info)``: optional map from the env observation to the policy input
-  (e.g. flattening), applied before the normalization;
-* actions: with ``scale_actions`` (default) the policy acts in [-1, 1] (clipped), mapped
-  to the torque limits; otherwise its output is the torque;
-* residual mode: ``residual`` (a controller or a registry name with
-  ``residual_options``) gives the base torque and the policy adds the bounded correction
-  of :func:`residual_torque` (Residual Policy Learning, Silver et al. 2018), the same map
-  as the training's ``residual`` action kind
-  (:class:`~elastic_gym.training.actions.ActionMap`), deadzone included.
+policies enter the same comparisons as the classical laws. The policy is a callable, an
+object with the stable-baselines3 ``predict`` interface (recurrent state handled), or the
+path of a saved SB3 model with its ``algorithm``; ``normalization`` applies the training's
+observation statistics (a ``VecNormalize`` or its pickle: unpickling runs code, load only
+trusted files); ``preprocess(obs, info)`` maps the env observation to the policy input.
+With ``scale_actions`` the policy acts in [-1, 1], mapped to the torque limits; with
+``residual`` (a controller or a registry name) the policy adds a bounded correction
+``residual_scale * torque_limit * clip(action, -1, 1)`` to the base torque.
 """
 
 from __future__ import annotations

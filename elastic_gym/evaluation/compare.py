@@ -1,40 +1,16 @@
 """The comparison: plan the grid, check it, run it in parallel, write tables and plots.
 
-Python API::
-
-    from elastic_gym.evaluation import compare, load_preset
-
-    result = compare(load_preset("default"), output_dir="compare_out/default")
-    result.summary  # mean and spread over seeds: a pandas DataFrame (list of dicts without pandas)
-
-Workers are started with the ``spawn`` method: a script that calls :func:`compare`
-with more than one worker needs the usual ``if __name__ == "__main__":`` guard, and
-controller/observer classes given directly are pickled by reference (define them at
-module level).
-
-Before the first run, everything that can fail without running is checked (the
-output folder, figure file names, every env, axis value, reset option, controller and
-observer built once: :mod:`~elastic_gym.evaluation.preflight`), and the run count and
-an estimate of the wall time are printed.
-
-Output folder (default ``./compare_out/<scenario name>``): ``runs.csv`` (one row per
-run, written when its world of runs finishes: :mod:`~elastic_gym.evaluation.groups`),
-``summary.csv`` and ``summary.md`` (over seeds), ``scenario.yaml`` (the resolved grid,
-written first) and ``plots/<group>.png`` (one figure per env x axis values x model
-error, written as soon as its runs are done; the time series of the runs are not kept in
-memory after that). A folder holding an earlier comparison's files is refused unless
-``overwrite`` (which removes those files first), and so is a folder another process
-writes into (:mod:`~elastic_gym.folder_lock`). A run that fails (its code raises, calls
-``sys.exit``, or kills its worker process) is a row with status ``failed: <Type>:
-<message>``. When results cannot be written (a full disk),
-:class:`~elastic_gym.evaluation.output.ResultsWriteError` says what ``runs.csv`` kept.
-On SIGINT/SIGTERM the queued runs are cancelled, the workers ended, the tables of the
-finished runs written, and :class:`~elastic_gym.parallel.Interrupted` raised.
-
-A scenario with ``sweeps`` plots the time series of its nominal runs only (the sweeps
-are summarized by their curves), and adds ``margins.csv`` / ``margins.md``
-(:mod:`~elastic_gym.evaluation.margins`) and ``curves/<context>__<metric>.png``
-(:mod:`~elastic_gym.evaluation.curves`), written when all runs are done.
+``compare(load_preset("default"))`` returns the runs and the summary over seeds (pandas
+DataFrames, lists of dicts without pandas). Everything that can fail without running is
+checked first (:mod:`~elastic_gym.evaluation.preflight`). The output folder holds
+``runs.csv`` (a row per run, as it finishes), ``summary.csv`` / ``summary.md``,
+``scenario.yaml`` and ``plots/``; with sweeps also ``margins.csv`` / ``margins.md`` and
+``curves/``. An earlier comparison's folder is refused unless ``overwrite``, a folder
+another process writes into always (:mod:`~elastic_gym.folder_lock`). A run that fails
+(raises, calls ``sys.exit``, kills its worker) is a row ``failed: <Type>: <message>``; a
+full disk raises :class:`~elastic_gym.evaluation.output.ResultsWriteError` saying what
+``runs.csv`` kept. Workers are spawned: scripts with several workers need the
+``__main__`` guard.
 """
 
 from __future__ import annotations

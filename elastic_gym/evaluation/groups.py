@@ -1,19 +1,16 @@
 """Groups of runs that share one world: the batches a comparison runs.
 
-Runs may share a world (one vector env of N arms, one vector observer, one vector
-controller) when everything the world is built from is equal: the env id, its kwargs
-other than the per-arm ones, the reset options, the duration, the controller (class and
-options), the state source (class, options, initial estimate) and the model error.
-What may differ from arm to arm is the seed and the per-arm plant kwargs
-(:data:`~elastic_gym.envs.config.PER_ARM_KEYS`: plant scaling, unmodelled friction,
-sensor error models and delays, payload, torque pulses, randomization), which reach
-the env as its ``per_arm`` kwarg: arm i of the world is bit for bit the single env made
-with run i's kwargs and seed, so a grouped run gives the row it gives alone.
+Runs share a world (one vector env of N arms, one vector observer, one vector controller)
+when everything the world is built from is equal: env id and its kwargs other than the
+per-arm ones, reset options, duration, controller class and options, state source and
+model error. Seeds and the per-arm plant kwargs
+(:data:`~elastic_gym.envs.config.PER_ARM_KEYS`) vary per arm through the env's ``per_arm``
+kwarg: arm i is bit for bit the single env made with run i's kwargs and seed, so a grouped
+run gives the row it gives alone.
 
-:func:`plan_groups` keeps the first-seen order of the runs, cuts each group into
-batches of at most ``batch_size`` arms of nearly equal size, and cuts the largest
-batches further while there are fewer than two batches per worker, so that every worker
-stays busy until the end.
+:func:`plan_groups` keeps the first-seen order, cuts each group into batches of at most
+``batch_size`` arms of nearly equal size, and splits the largest further while there are
+fewer than two batches per worker.
 """
 
 from __future__ import annotations

@@ -1,56 +1,15 @@
 """Metrics of one run, computed from its recorded time series.
 
-Definitions (e = q - q_d the link tracking error, norms Euclidean over joints, means
-over all recorded samples t_0 = 0, ..., t_K):
-
-* ``track_rms`` = sqrt(mean_k |e_k|^2) (rad); ``track_max`` = max_k |e_k| (rad).
-  Not computed for the ``excitation`` task, whose reference is only the start pose.
-* ``overshoot_pct`` and ``settling_time`` per rest-to-rest move of the reference.
-  A move starts when q_d' leaves zero and *arrives* when q_d' is zero again; it goes
-  from the rest value q_a before it to the rest value q_b after it. Its amplitude is
-  A = max_i |q_b,i - q_a,i| (the largest joint motion), and only the joints that move
-  by at least ``MIN_AMPLITUDE`` are scored (a joint's own tiny motion would make a
-  steady offset of a few mrad look like a huge relative overshoot). Its window runs
-  from its start to the start of the next move (or the end of the run). If the run
-  starts away from the reference (max_i |q_i(0) - q_d,i(0)| >= ``MIN_AMPLITUDE``, e.g.
-  the ``regulation`` task), that step is a move from q(0) arriving at t = 0.
-
-  - overshoot: max over scored joints and the window of
-    max(0, sign(q_b,i - q_a,i) (q_i - q_b,i)) / A, in percent;
-  - settling time: time from the arrival of the reference until every scored joint
-    stays within ``SETTLING_BAND`` A of q_b for the rest of the window; ``inf`` if one
-    is outside that band at the end of the window (did not settle).
-
-  The run's value is the largest over its moves (NaN when there is no move).
-* ``torsion_max`` = max_k max_i |theta_i - q_i| (rad), elastic arms only.
-* ``torsion_osc`` = residual oscillation of the joint torsion after the moves (elastic
-  arms): the standard deviation over time of theta_i - q_i from ``RESIDUAL_DELAY`` after a
-  move's arrival to the end of its window (the static, gravity-loaded torsion is its
-  mean, not an oscillation; the delay leaves out the transient of the move itself), the
-  largest over joints and moves (rad). This is what De Luca et al. compare in Figs. 5-6
-  ("damping"): full-state feedback damps the link vibration that motor-only control leaves.
-* ``torque_rms`` = sqrt(mean_k |tau_k|^2) (N m), tau the applied (clipped) motor torque,
-  including an excitation task's open-loop torque.
-* ``torque_rate_rms`` = sqrt(mean_k |tau_{k+1} - tau_k|^2) / dt_k (N m/s), the RMS rate of
-  change of the applied torque between control steps (chattering shows here).
-* ``saturation_share`` = share of the recorded steps whose applied torque was clipped to a
-  motor torque limit on some joint (the env's ``info["torque_saturated"]``).
-* ``est_rms_<block>`` for each block of the state (theta, q, dtheta, dq for elastic
-  arms; q, dq for rigid ones) = sqrt(mean_k |xhat_block - x_block|^2) (rad or rad/s)
-  from ``min(ESTIMATION_TRANSIENT, T / 2)`` on (T the recorded time): the observer's
-  steady error, its initial transient left out. The transient is the observer's
-  convergence from its initial estimate (from the measured motor position and the
-  static deflection of its *model*, theta - K^-1 g(q), so a wrong link model shows
-  there), and its first milliseconds after a step command are not reproducible: the
-  EKF's velocity error peaks at 0.84 rad/s 4 ms after a TwoLinkElastic step with a
-  1/16 ms physics step and at 0.43 rad/s with 1/128 ms, which doubled a whole-run RMS
-  (0.042 vs 0.019 rad/s) while the steady RMS agreed within 3 % (0.0046 vs 0.0045).
-  The time series (plots) show the transient.
-* ``sim_wall_ratio`` = simulated time / wall-clock time of the episode loop (env,
-  observer and controller); > 1 is faster than real time.
-
-A run that ends early (``terminated``: divergence) keeps the metrics of the samples
-recorded until then; its status says so.
+With e = q - q_d, norms Euclidean over the joints and means over the recorded samples:
+``track_rms`` and ``track_max`` (rad); ``overshoot_pct`` and ``settling_time`` per
+rest-to-rest move of the reference (``SETTLING_BAND`` of the move's amplitude, joints
+moving less than ``MIN_AMPLITUDE`` not scored; the largest over the moves);
+``torsion_max`` and ``torsion_osc`` (the standard deviation of theta - q from
+``RESIDUAL_DELAY`` after each move: De Luca et al.'s "damping", Figs. 5-6);
+``torque_rms`` (N m); ``est_rms_<block>`` per block of the state from
+``ESTIMATION_TRANSIENT`` on (the observer's steady error); ``sim_wall_ratio``. A run that
+ends early keeps the metrics of the samples recorded until then.
+:func:`compute_metrics` states each definition.
 """
 
 from __future__ import annotations

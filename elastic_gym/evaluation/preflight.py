@@ -1,29 +1,14 @@
 """Checks of a comparison before its first run, and an estimate of its duration.
 
-:func:`preflight` builds, in this process and once each, what the runs will build:
-every env of the grid with its kwargs and with each robustness-axis value, its reset
-with the reset options, the perturbed model of each model error, and every
-controller and observer that runs on it (a trained policy is loaded). What fails
-raises :class:`~elastic_gym.evaluation.scenario.ScenarioError` with the field path
-(``envs[0].reset_options: ...``, ``controllers[2].options: ...``) before any compute
-is spent. Errors of the closed loop itself (a controller's ``reset`` or call, an
-observer's update) are not setup errors: they are left to the runs, which report
-them in their status.
-
-The estimate: ``SAMPLE_TIME`` of the batched closed loop of each (env, controller,
-state source) combination, in a world of the first ``SAMPLE_ARMS`` arms of its first
-batch (:mod:`~elastic_gym.evaluation.groups`), measures its CPU time per arm and step;
-with the CPU time of its setup per arm it gives the CPU time of every run. Their sum,
-shared among the workers, is divided by the share of a core each worker can expect,
-cores / (other runnable processes + workers) at most 1, the others taken from the load
-average. CPU time, not wall time: a short sample in a
-process that has been idle runs at full speed on a loaded machine (the scheduler's
-credit for sleeping), and measured the default grid's wall time 2.6 times too short at
-a load average of 8.
-
-:func:`check_plot_names` refuses labels that would give a figure file name longer
-than a file system allows, or two figures the same file name (one would overwrite
-the other).
+:func:`preflight` builds, once each, what the runs will build: every env with its kwargs
+and each axis value, its reset with the reset options, each model error's perturbed
+model, every controller and observer (trained policies loaded). A failure raises
+:class:`~elastic_gym.evaluation.scenario.ScenarioError` with the field path before any
+compute is spent; errors of the closed loop itself are left to the runs' statuses.
+The estimate times ``SAMPLE_TIME`` of closed loop of each (env, controller, state source)
+in CPU time and divides the total by the share of a core each worker can expect (from
+the load average). :func:`check_plot_names` refuses labels whose figure file names would
+be too long or coincide.
 """
 
 from __future__ import annotations

@@ -1,21 +1,15 @@
-"""Runs of a comparison: planning the grid, the closed loop of a world of arms, and the
-parallel execution.
+"""Runs of a comparison: planning the grid, one world of runs, and the parallel execution.
 
-One run = (env id + kwargs, reset options, seed, state source, controller, model
-error of the controller/observer). Runs that may share a world
-(:mod:`~elastic_gym.evaluation.groups`) run together in :func:`run_group`: one vector
-env of their arms (``gym.make_vec``, arm i with run i's seed and per-arm plant kwargs),
-wrapped by a vector :class:`~elastic_gym.observers.vector.ObserverWrapper` (the
-``"true"`` source is the oracle), and one vector controller
-(:func:`~elastic_gym.controllers.vector.make_vector_controller`), both built on the
-env's nominal model ``env.unwrapped.model`` — ``.perturbed(**model_error)`` when the
-runs have a model error. The controller sees only the observation ``{"state",
-"reference"}`` and the time and reference of ``info`` (:func:`~elastic_gym.controllers.
-public_info`), never the truth. A run alone (:func:`run_episode`) is a world of one arm.
+One run = (env id + kwargs, reset options, seed, state source, controller, model error of
+the controller/observer). Runs that may share a world (:mod:`~elastic_gym.evaluation.groups`)
+run as one vector env + vector observer + vector controller (:func:`run_group`), built on the
+env's nominal model (``.perturbed(**model_error)`` with a model error); the controller sees
+only ``{"state", "reference"}`` and the public info, never the truth. An arm that terminates
+gets its status row while its batch mates go on; a world that raises is rerun one run at a
+time, so only the run that raised fails.
 
-:func:`execute` runs the worlds with :func:`elastic_gym.parallel.for_each_result`:
-spawned worker processes (every env is created inside its worker) or Ray
-(``backend="ray"``, the same job function), with a progress bar counting runs.
+:func:`execute` runs the worlds with :func:`elastic_gym.parallel.run_jobs`: spawned worker
+processes or Ray (``backend="ray"``, the same job function), with a progress bar.
 """
 
 from __future__ import annotations

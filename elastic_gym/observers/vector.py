@@ -1,35 +1,14 @@
-"""Wrappers that put a state estimate (or the truth) in place of the sensor observation
-of every arm of a vector env; the single-env :mod:`elastic_gym.observers.wrappers` are their
-N = 1 case (:mod:`elastic_gym.single_env`).
+"""Observer wrappers for vector envs: the twins of :mod:`elastic_gym.observers.wrappers`.
 
 ``ObserverWrapper(envs, "deluca", **options)`` and ``TrueStateWrapper(envs)`` wrap a
-vector env of N arms (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``):
-the observation becomes ``{"state": (N, dim), "reference": (N, 2n)}``. The observer is
-fed every sample and the torque actually applied (after clipping, ``info["torque"]``),
-and ``info`` gets ``estimate``, ``true_state_vector``, ``estimation_error`` (estimate -
-truth) and the observer's ``observer_diagnostics`` (e.g. the condition number of T_A)
-with a leading arm axis (and Gymnasium's ``_key`` masks) at every step, the terminal one
-included. ``TrueStateWrapper`` gives the same layout from the ground truth, so one
-controller or policy runs unchanged on estimated or true state.
-
-Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserver`: De
-Luca with ideal or accelerometer-based q'', the EKF, finite differences, the truth)
-estimate all arms at once; the others (rigid-arm observers, your own, and a subclass of
-a batched one that overrides ``reset`` or ``update``: :func:`runs_batched`) run one copy
-per arm behind the same interface (:class:`ObserverArray`). Either way each arm's
-estimate is the single-env observer's. Autoresets are followed: an arm reset by the env
-is re-initialised from its first observation; with ``SAME_STEP`` the terminal
-observation is estimated first (``info["final_obs"]``).
-
-An estimate that stops being finite (a diverged observer), or an update that fails the
-way numpy / scipy fail on a diverged estimate (:func:`numerical_failure`: a matrix with
-infs or NaNs refused, a covariance no longer positive definite), ends that arm's episode with
-``terminated=True`` and ``info["termination_reason"] = "non-finite state estimate"``
-(:meth:`ObserverWrapper._terminate`; the error, if any, in ``info["observer_error"]``;
-a batched observer's error ends the episodes of all the arms it was updating); the
-observation keeps the arm's last finite estimate, the other arms go on. An estimate
-that is not a numpy array of shape ``(state_dim,)`` is the observer's bug: a
-``TypeError`` / ``ValueError`` naming the observer and the shape.
+vector env of N arms as their single-env twins wrap one env: the observation becomes
+``{"state": (N, dim), "reference": (N, 2n)}`` and ``info`` gets ``estimate``,
+``true_state_vector``, ``estimation_error`` and ``observer_diagnostics`` with a leading
+arm axis. Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserver`)
+estimate all arms at once; the others run one copy per arm (:class:`ObserverArray`).
+Each arm's estimate is the single-env observer's; an arm whose estimate is no longer
+finite (or, in an :class:`ObserverArray`, whose update failed numerically) ends its
+episode alone ("non-finite state estimate"). Autoresets are followed.
 """
 
 from __future__ import annotations

@@ -69,9 +69,13 @@ class ObserverWrapper(SingleArmWrapper[vector.ObserverWrapper], gym.utils.Record
 
     @property
     def observer(self) -> Observer:
-        """The wrapper's own observer."""
+        """The wrapper's own observer (a batched one with its ``diagnostics`` of this arm)."""
         working = self.vector.observer
-        return working.observers[0] if isinstance(working, vector.ObserverArray) else working
+        if isinstance(working, vector.ObserverArray):
+            return working.observers[0]
+        arm = getattr(working, "arm_diagnostics", {})
+        working.diagnostics = {key: np.asarray(value)[0].item() for key, value in arm.items()}
+        return working
 
     @property
     def state_names(self) -> tuple[str, ...]:

@@ -1,36 +1,17 @@
 """What a policy's action means: torque, motor-position offsets through a motor PD, or a
 residual torque on a classical controller. Pure logic on arrays with a leading arm axis.
 
-The policy outputs a in [-1, 1]^n, held for ``decimation`` control periods; the map
-below turns it into a motor torque at every control period (1 kHz), from the state
-(estimated or true) and the reference of that period:
+The action a in [-1, 1]^n, held for ``decimation`` control periods, becomes a torque at
+every period from the state and the reference of that period:
 
-* ``torque``: tau = tau_max * a.
-* ``motor-offset`` (the position-target interface of legged-robot RL, e.g. legged_gym):
-  a constant-gain motor PD at the control rate tracks q_d + offset,
-
-      tau = kp (q_d + offset_scale * a - theta) + kd (q_d' - theta') [+ g(q_d)],
-
-  with the reference velocity in the D term. Without ``gravity_compensation`` there is
-  no model term in the policy path (the policy learns the static deflection
-  K^-1 g and the dynamics as offsets). The gains are constants: explicit ``kp``, ``kd``,
-  or a bandwidth rule kp = J w^2, kd = 2 zeta J w with J the diagonal of the rigid
-  inertia at the middle of the workspace (a design-time choice, like a drive's gains).
-  The motor velocity theta' comes from the state source, or, on raw sensors, from the
-  backward difference of the motor encoder.
+* ``torque``: tau = tau_max * a;
+* ``motor-offset``: a constant-gain motor PD tracks q_d + offset_scale * a,
+  tau = kp (q_d + offset_scale * a - theta) + kd (q_d' - theta') [+ g(q_d)], no model
+  term without ``gravity_compensation``; kp, kd explicit or kp = J w^2, kd = 2 zeta J w;
 * ``residual`` (Residual Policy Learning, Silver et al. 2018): tau = tau_base +
-  residual_scale * tau_max * a, tau_base from a classical controller (e.g. eq. (13)) at
-  the control rate; the policy's output starts at zero (zeroed mean head, small initial
-  standard deviation, see :func:`elastic_gym.training.train`). With the
-  ``residual_deadzone`` d (default 0.2; 0 switches it off) the residual is
-  scale * tau_max * sign(a) max(|a| - d, 0) / (1 - d)
-  (:func:`~elastic_gym.controllers.policy.residual_torque`, also the residual of the
-  callable-level :class:`~elastic_gym.controllers.policy.PolicyController`): exactly zero
-  while |a| <= d, so a policy whose mean drifts a little around zero (every PPO update
-  moves it) adds no torque where the base controller needs no help, while the full bound
-  stays reachable (continuous at d). Without it, PPO's updates moved the mean of a
-  residual on eq. (13) by more than eq. (13)'s 2e-5-rad tracking error allows (README, RL
-  study).
+  residual_scale * tau_max * rho(a), tau_base from a classical controller, with the
+  deadzone rho(a) = sign(a) max(|a| - d, 0) / (1 - d), d = ``residual_deadzone``: exactly
+  zero while |a| <= d, the full bound reachable.
 """
 
 from __future__ import annotations

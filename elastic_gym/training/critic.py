@@ -1,25 +1,13 @@
 """A PPO critic that sees the true state for an actor that never does (asymmetric
-actor-critic, Pinto et al., "Asymmetric Actor Critic for Image-Based Robot Learning",
-RSS 2018, Sec. IV).
+actor-critic, Pinto et al., RSS 2018, Sec. IV).
 
-PPO needs its value function only in training, to estimate advantages; the deployed
-policy is the actor alone. So the critic may see what the deployed actor cannot: here
-the true state. Hyper-parameter ``critic_state: true`` (PPO only) trains on the policy
-stack with :class:`~elastic_gym.training.wrappers.CriticState` on top, whose observation
-is ``[policy observation (size m), true-state features (size k)]`` (k = 4n on elastic
-arms: error, error rate, torsion, torsion rate of the truth, scaled as the ``"true"``
-source's), and with :class:`PrivilegedCriticPolicy`:
-
-* the actor's features extractor (:class:`ActorSlice`) keeps the first m entries; the
-  actor network (``mlp_extractor.policy_net``, ``action_net``) is built for m inputs and
-  ``log_std`` is a parameter, so the action distribution is a function of the first m
-  entries only: no weight multiplies a privileged entry;
-* the critic's features extractor passes all m + k entries to ``value_net``.
-
-Deployment (:class:`~elastic_gym.training.rollouts.PolicyActor`: ``evaluate_run``,
-the learning curve, ``elastic-gym compare --policy``) builds the stack without
-``CriticState`` and pads the k privileged entries with NaN before normalization: the
-actor never reads them (a NaN would poison any action that did).
+PPO needs its value function only in training, so the critic may see what the deployed
+actor cannot. With ``critic_state: true`` (PPO only) the training observation is
+``[policy observation (m), true-state features (k)]``
+(:class:`~elastic_gym.training.wrappers.CriticState`) and :class:`PrivilegedCriticPolicy`
+gives the actor's features extractor (:class:`ActorSlice`) the first m entries only (no
+actor weight multiplies a privileged entry), the critic all m + k. Deployment builds the
+stack without ``CriticState`` and pads the k entries with NaN: the actor never reads them.
 """
 
 from __future__ import annotations

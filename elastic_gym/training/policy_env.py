@@ -1,20 +1,16 @@
 """The env a policy is trained on: state source, action parameterization, decimation,
 observation features.
 
-Stack (bottom to top; :func:`make_policy_vec_env` builds the same stack on N arms of one
-PyBullet world with the vector wrappers of :mod:`elastic_gym.training.vector` and
-:mod:`elastic_gym.observers.vector`, whose N = 1 case the single-env ones are)::
+Stack (bottom to top; :func:`make_policy_vec_env` builds the same on N arms of one
+PyBullet world with the vector twins)::
 
     gym.make(env_id)                      1 kHz loop, sensors only
-    ObserverWrapper / TrueStateWrapper    state source: an observer name or "true"
-                                          ("sensors": the raw observation)
-    PolicyAction                          a in [-1, 1]^n -> torque at 1 kHz (torque,
-                                          motor-offset PD or residual)
+    ObserverWrapper / TrueStateWrapper    state source ("sensors": the raw observation)
+    PolicyAction                          a in [-1, 1]^n -> torque at 1 kHz
     ActionRepeat(decimation)              policy rate = 1 kHz / decimation
-    PolicyObservation                     flat features (error, reference, torsion, ...);
-                                          raw sensors: the last frame_stack frames
-    (CriticState)                         critic_state=True (training only): the true
-                                          state's features appended for the critic
+    PolicyObservation                     flat features
+    (FrameStackObservation + Flatten)     raw sensors: the last frames
+    (CriticState)                         critic_state (training only)
 """
 
 from __future__ import annotations

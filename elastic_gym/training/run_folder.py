@@ -1,22 +1,14 @@
 """The folder of one training run: created, refused or overwritten, removed on failure,
 loaded back, and old folders migrated.
 
-A run folder holds::
-
-    model.zip  vecnormalize.pkl  best_model.zip  config.yaml  summary.json  tb/
-    evaluations.npz  learning_curve.csv
-
-``summary.json`` is written last: a folder with it holds a finished run. A folder that
-already holds a run (or whose ``seed*`` sub-folders do) is refused unless ``overwrite``,
-which first removes the files of that run, and only those: a stale ``best_model.zip``
-would otherwise load with the new config. A run that fails or is interrupted removes
-what it wrote and the folders it made (:meth:`RunFolder.create`).
-
-``config.yaml`` is self-contained (every field of the action and observation configs, the
-hyper-parameters used); a folder written by an earlier release is migrated when read
-(:data:`MIGRATIONS`), so that today's defaults never change what a saved policy's actions
-mean. ``model.zip`` and ``vecnormalize.pkl`` are pickles: loading a run folder runs code
-from it, so load only run folders from trusted sources.
+A run folder holds ``model.zip``, ``vecnormalize.pkl``, ``best_model.zip``, ``config.yaml``,
+``summary.json`` (written last: a folder with it holds a finished run), ``evaluations.npz``,
+``learning_curve.csv`` and ``tb/``. A folder holding a run is refused unless ``overwrite``,
+which removes that run's files and only those. A run that fails or is interrupted removes
+what it wrote (:meth:`RunFolder.create`). ``config.yaml`` is self-contained; a folder of an
+earlier release is migrated when read (:data:`MIGRATIONS`), so that new defaults never change
+what a saved policy's actions mean. ``model.zip`` and ``vecnormalize.pkl`` are pickles: load
+only run folders from trusted sources.
 """
 
 from __future__ import annotations

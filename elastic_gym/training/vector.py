@@ -1,27 +1,9 @@
-"""The policy wrappers on all the arms of a vector env at once; the single-env
-:mod:`elastic_gym.training.wrappers` are their N = 1 case (:mod:`elastic_gym.single_env`).
+"""Vector-env twins of the policy wrappers of :mod:`elastic_gym.training.wrappers`.
 
-Stack, bottom to top (:func:`~elastic_gym.training.policy_env.make_policy_vec_env`), on a
-vector env (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``) under an
-observer wrapper (:mod:`elastic_gym.observers.vector`)::
-
-    ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation [-> CriticState]
-
-* :class:`PolicyAction`: the policy's action in [-1, 1]^n becomes a motor torque at
-  every control period (1 kHz) through :class:`~elastic_gym.training.actions.ActionMap`
-  (torque, motor-position offsets through a motor PD, or a residual on a classical
-  controller, which runs at every period).
-* :class:`ActionRepeat` (decimation): the policy acts at a lower rate than the control
-  loop; the action is held for ``k`` periods and the rewards are summed. It sits above
-  the observer, so the observer still sees every sample.
-* :class:`PolicyObservation`: the flat feature vector of
-  :class:`~elastic_gym.training.observation.ObservationBuilder`, with the last action and
-  a preview of the reference.
-* :class:`CriticState` (training only, on top of the stack): the true state's features
-  appended for a critic with privileged information (:mod:`elastic_gym.training.critic`);
-  the policy's observation stays the first entries.
-
-Resets of some arms — autoresets, or ``reset(options={"reset_mask": ...})`` as
+The same logic (:class:`~elastic_gym.training.actions.ActionMap`,
+:class:`~elastic_gym.training.observation.ObservationBuilder`) on all the arms of a vector
+env (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``) at once. Resets of
+some arms — autoresets, or ``reset(options={"reset_mask": ...})`` as
 :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv` does — restart their controllers,
 last actions and frame stacks only.
 """

@@ -1,21 +1,17 @@
-"""The policy wrappers on one env: the N = 1 case of :mod:`elastic_gym.training.vector`
-(:mod:`elastic_gym.single_env`), whose module docstring documents what each does.
+"""Single-env wrapper shells around the policy-side logic (``actions``, ``observation``).
 
 Stack, bottom to top (``make_policy_env``)::
 
-    env -> ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation [-> CriticState]
+    env -> ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation
 
-* :class:`PolicyAction`: the policy's action in [-1, 1]^n becomes a motor torque at
-  every control period (1 kHz) through :class:`~elastic_gym.training.actions.ActionMap`.
-* :class:`ActionRepeat` (decimation): the action is held for ``k`` periods and the
-  rewards are summed; it sits above the observer, which still sees every sample.
-* :class:`PolicyObservation`: the flat feature vector of
-  :class:`~elastic_gym.training.observation.ObservationBuilder` (optionally the last
-  ``frame_stack`` frames).
-* :class:`CriticState` (training only): the true state's features appended for a critic
-  with privileged information (:mod:`elastic_gym.training.critic`).
-
-A wrong-shaped or non-finite action is refused before anything is stepped.
+* :class:`PolicyAction`: the action in [-1, 1]^n becomes a torque at every control period
+  (:class:`~elastic_gym.training.actions.ActionMap`);
+* :class:`ActionRepeat`: the action is held for ``k`` periods and the rewards summed,
+  above the observer, which still sees every sample;
+* :class:`PolicyObservation`: the features of
+  :class:`~elastic_gym.training.observation.ObservationBuilder`;
+* :class:`CriticState` (training only): the true state's features appended for a
+  privileged critic.
 """
 
 from __future__ import annotations
