@@ -103,10 +103,10 @@ def resolve_entry(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
             name=name, label=name, options=dict(entry.options), **{"class": controller}
         )
     else:
-        from elastic_gym.evaluation.runner import _controller_lookup
+        from elastic_gym.evaluation.controllers import comparison_controller
 
         try:
-            _controller_lookup(controller)
+            comparison_controller(controller)
         except ValueError as exc:
             raise ValueError(f"controller: {exc}") from None
         c_entry = ControllerEntry(name=controller, label=controller, options=dict(entry.options))
@@ -126,11 +126,11 @@ def _source_entry(source: str | type, options: dict) -> SourceEntry:
 
 
 def _run_entries(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
-    from elastic_gym.training.train import read_run_config
+    from elastic_gym.training.run_folder import RunFolder
 
-    run = Path(entry.run)
+    run = Path(str(entry.run))
     try:
-        config = read_run_config(run)
+        config = RunFolder(run).read_config()
     except (FileNotFoundError, ValueError) as exc:
         raise ValueError(f"run: {exc}") from None
     source = _source_entry(config.state, dict(config.observer_options))
@@ -168,9 +168,9 @@ def describe_entry(entry: Entry) -> dict:
         "oracle": bool(privileged),
     }
     if entry.run is not None:
-        from elastic_gym.training.train import read_run_config
+        from elastic_gym.training.run_folder import RunFolder
 
-        config = read_run_config(entry.run)
+        config = RunFolder(entry.run).read_config()
         record["run"] = {
             "folder": Path(entry.run).name,
             "env_id": config.env_id,

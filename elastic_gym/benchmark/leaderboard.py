@@ -33,7 +33,8 @@ def load_cards(folder: Path, suite: SuiteConfig) -> list[Scorecard]:
     paths = sorted(Path(folder).glob("*.json"))
     if not paths:
         raise FileNotFoundError(f"no scorecard JSON file in {folder}")
-    cards, labels = [], {}
+    cards: list = []
+    labels: dict[str, Path] = {}
     for path in paths:
         card = read_scorecard(path)
         if (card.suite.name, card.suite.version) != (suite.name, suite.version):
@@ -79,9 +80,10 @@ def winners(cards: Sequence[Scorecard], columns: list[str]) -> list[str]:
     """One line per score column: the best implementable entry and its lead."""
     lines = []
     for column in columns:
+        values = {c.label: score_value(c, column) for c in cards}
         ranked = sorted(
-            (c for c in cards if score_value(c, column) is not None),
-            key=lambda c: -score_value(c, column),
+            (c for c in cards if values[c.label] is not None),
+            key=lambda c: -float(values[c.label]),  # type: ignore[arg-type]
         )
         if not ranked:
             continue
@@ -93,7 +95,7 @@ def winners(cards: Sequence[Scorecard], columns: list[str]) -> list[str]:
         lead = ""
         if len(ranked) > 1:
             lead = (
-                f", {score_value(best, column) - score_value(ranked[1], column):.2f} ahead of "
+                f", {float(values[best.label]) - float(values[ranked[1].label]):.2f} ahead of "  # type: ignore[arg-type]
                 f"{ranked[1].label} ({fmt(score_value(ranked[1], column))})"
             )
         lines.append(f"* {column}: {best.label} ({fmt(score_value(best, column))}){lead}.")

@@ -96,7 +96,7 @@ def run_benchmark(
             progress=progress,
             plots=False,
             overwrite=overwrite,
-            console=Console(file=_FirstLine(log), soft_wrap=True),
+            console=Console(file=_FirstLine(log), soft_wrap=True),  # type: ignore[arg-type]
         )
     rows = comparison.runs
     rows = rows.to_dict("records") if hasattr(rows, "to_dict") else list(rows)

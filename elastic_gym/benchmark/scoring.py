@@ -107,7 +107,8 @@ def compute_scores(suite: SuiteConfig, episodes: Sequence[Episode]) -> Scores:
     are NaN and do not enter the overall score."""
     cells = {c.id: c for c in suite.cells}
     robots = sorted({cells[e.cell].robot for e in episodes}, key=list(suite.robots).index)
-    categories, per_robot = {}, {robot: {} for robot in robots}
+    categories: dict = {}
+    per_robot: dict[str, dict] = {robot: {} for robot in robots}
     for category in suite.categories:
         members = [e for e in episodes if cells[e.cell].category == category]
         categories[category] = _share(members)
