@@ -49,16 +49,13 @@ from elastic_gym.evaluation.runner import (
     RunResult,
     RunSpec,
     SkippedRun,
-    crashed_results,
-    describe_group,
     plan_runs,
-    run_group,
+    run_groups,
 )
 from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
 from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
 from elastic_gym.folder_lock import check_writable, folder_lock
 from elastic_gym.parallel import (
-    for_each_result,
     interrupts_raised,
     resolve_workers,
     with_detail,
@@ -168,18 +165,7 @@ def _compare(
         raise ResultsWriteError(f"{write_problem(exc)}: nothing written in {out}/") from exc
     sink = _Sink(out, runs, plots)
     try:
-        for_each_result(
-            run_group,
-            groups,
-            sink.add_group,
-            workers=n_workers,
-            backend=backend,
-            progress=progress,
-            label="runs",
-            describe=describe_group,
-            crashed=crashed_results,
-            size=len,
-        )
+        run_groups(groups, sink.add_group, n_workers, backend, progress)
     except BaseException as exc:
         rows = sink.csv.finish()
         kept = f"kept the {len(rows)} finished of {len(runs)} runs in {out}/"

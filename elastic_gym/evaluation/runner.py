@@ -588,11 +588,25 @@ def execute(
     """
     n_workers = resolve_workers(workers, len(runs), backend)
     results: dict[int, RunResult] = {}
-    for_each_result(
-        run_group,
+    run_groups(
         plan_groups(runs, batch_size, n_workers),
         lambda _, group_results: results.update((r.spec.index, r) for r in group_results),
-        workers=n_workers,
+        n_workers,
+        backend,
+        progress,
+    )
+    return [results[spec.index] for spec in runs]
+
+
+def run_groups(groups, on_results, workers: int, backend: str, progress: bool) -> None:
+    """Run the worlds ``groups`` (:func:`run_group`) on ``workers`` processes or Ray, calling
+    ``on_results(group, results)`` as each ends; a world whose worker died gives its runs'
+    rows through :func:`crashed_results`; the progress bar counts runs."""
+    for_each_result(
+        run_group,
+        groups,
+        on_results,
+        workers=workers,
         backend=backend,
         progress=progress,
         label="runs",
@@ -600,7 +614,6 @@ def execute(
         crashed=crashed_results,
         size=len,
     )
-    return [results[spec.index] for spec in runs]
 
 
 def describe_group(group: RunGroup) -> str:
