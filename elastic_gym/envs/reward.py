@@ -137,11 +137,10 @@ def _checked(error, error_rate, torque, previous_torque, torque_limit, torsion):
                 f"reward input {name!r} has shape {arr.shape}, error has {out['error'].shape}"
             )
         out[name] = arr
-    limit = np.asarray(torque_limit, dtype=float)
-    if limit.shape not in (arr.shape, arr.shape[1:]):
+    limit, shape = np.asarray(torque_limit, dtype=float), out["error"].shape
+    if limit.shape not in (shape, shape[1:]):
         raise ValueError(
-            f"reward input 'torque_limit' must have shape {arr.shape[1:]} or "
-            f"{arr.shape}, got {limit.shape}"
+            f"reward input 'torque_limit' must have shape {shape[1:]} or {shape}, got {limit.shape}"
         )
     return (
         out["error"],
