@@ -13,8 +13,9 @@ PyBullet world with the vector wrappers of :mod:`elastic_gym.training.vector` an
     ActionRepeat(decimation)              policy rate = 1 kHz / decimation
     PolicyObservation                     flat features (error, reference, torsion, ...);
                                           raw sensors: the last frame_stack frames
-    (CriticState)                         critic_state=True (training only): the true
-                                          state's features appended for the critic
+    (CriticState)                         critic_state / critic_plant (training only):
+                                          the true state's features and/or the drawn
+                                          plant parameters appended for the critic
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ def _stack(
     observation: ObservationConfig | dict | None,
     frame_stack: int,
     critic_state: bool,
+    critic_plant: bool = False,
 ) -> Any:
     """The stack of the module docstring on ``env`` with the wrappers of the modules
     ``observer_wrappers`` and ``policy_wrappers``: the single-env ones, or their vector
@@ -71,7 +73,9 @@ def _stack(
     if decimation > 1:
         env = policy_wrappers.ActionRepeat(env, decimation)
     env = policy_wrappers.PolicyObservation(env, observation, frame_stack)
-    return policy_wrappers.CriticState(env, observation) if critic_state else env
+    if not (critic_state or critic_plant):
+        return env
+    return policy_wrappers.CriticState(env, observation, critic_state, critic_plant)
 
 
 def make_policy_env(
@@ -84,6 +88,7 @@ def make_policy_env(
     observation: ObservationConfig | dict | None = None,
     frame_stack: int = 1,
     critic_state: bool = False,
+    critic_plant: bool = False,
 ) -> gym.Env:
     """Build the wrapper stack of the module docstring."""
     check_state_source(state)
@@ -96,6 +101,7 @@ def make_policy_env(
         observation,
         frame_stack,
         critic_state,
+        critic_plant,
     )
 
 
@@ -108,6 +114,7 @@ def wrap_policy_env(
     observation: ObservationConfig | dict | None = None,
     frame_stack: int = 1,
     critic_state: bool = False,
+    critic_plant: bool = False,
 ) -> gym.Env:
     """The wrapper stack of the module docstring around an env made by the caller (e.g.
     RL Zoo's ``env_wrapper`` hyper-parameter)."""
@@ -122,6 +129,7 @@ def wrap_policy_env(
         observation,
         frame_stack,
         critic_state,
+        critic_plant,
     )
 
 
@@ -137,6 +145,7 @@ def make_policy_vec_env(
     frame_stack: int = 1,
     autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
     critic_state: bool = False,
+    critic_plant: bool = False,
 ) -> gym.vector.VectorEnv:
     """The stack of :func:`make_policy_env` on ``n_arms`` arms in one PyBullet world.
 
@@ -162,4 +171,5 @@ def make_policy_vec_env(
         observation,
         frame_stack,
         critic_state,
+        critic_plant,
     )

@@ -12,8 +12,9 @@ Stack, bottom to top (``make_policy_env``)::
 * :class:`PolicyObservation`: the flat feature vector of
   :class:`~elastic_gym.training.observation.ObservationBuilder` (optionally the last
   ``frame_stack`` frames).
-* :class:`CriticState` (training only): the true state's features appended for a critic
-  with privileged information (:mod:`elastic_gym.training.critic`).
+* :class:`CriticState` (training only): the true state's features and/or the drawn plant
+  parameters appended for a critic with privileged information
+  (:mod:`elastic_gym.training.critic`).
 
 A wrong-shaped or non-finite action is refused before anything is stepped.
 """
@@ -107,15 +108,31 @@ class PolicyObservation(_CheckedActions[vector.PolicyObservation], gym.utils.Rec
 
 
 class CriticState(SingleArmWrapper[vector.CriticState], gym.utils.RecordConstructorArgs):
-    """The flat policy observation with the true state's features appended (training only).
+    """The flat policy observation with privileged entries appended (training only): the
+    true state's features (``state``) and/or the drawn plant parameters (``plant``), as
+    :class:`~elastic_gym.training.vector.CriticState`.
 
     Args:
         env: a flat policy stack (``PolicyObservation``).
         observation: the stack's :class:`ObservationConfig` (its scales are used).
+        state: append the true state's features.
+        plant: append the drawn plant parameters (the env must randomize some).
     """
 
-    def __init__(self, env: gym.Env, observation: ObservationConfig | dict | None = None) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, observation=observation)
+    def __init__(
+        self,
+        env: gym.Env,
+        observation: ObservationConfig | dict | None = None,
+        state: bool = True,
+        plant: bool = False,
+    ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, observation=observation, state=state, plant=plant
+        )
         SingleArmWrapper.__init__(
-            self, env, functools.partial(vector.CriticState, observation=observation)
+            self,
+            env,
+            functools.partial(
+                vector.CriticState, observation=observation, state=state, plant=plant
+            ),
         )
