@@ -32,6 +32,12 @@ def _policy(actor_size: int = 6, privileged: int = 4) -> PrivilegedCriticPolicy:
     )
 
 
+def _mean_std(policy, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The action distribution's mean and std on ``obs``."""
+    distribution = policy.get_distribution(obs).distribution
+    return distribution.mean, distribution.stddev
+
+
 def test_actor_never_depends_on_the_privileged_entries_and_the_critic_does():
     """Changing the last k entries leaves the action distribution bit for bit the same
     (mean, std, log-probability), the action mean's gradient with respect to them is
@@ -41,9 +47,9 @@ def test_actor_never_depends_on_the_privileged_entries_and_the_critic_does():
     other = obs.clone()
     other[:, 6:] = torch.randn(5, 4) * 10
     actions = torch.rand(5, 2) * 2 - 1
-    first, second = policy.get_distribution(obs), policy.get_distribution(other)
-    assert torch.equal(first.distribution.mean, second.distribution.mean)
-    assert torch.equal(first.distribution.stddev, second.distribution.stddev)
+    # SB3 reuses one distribution object: read each one's tensors before the next call
+    first, second = (_mean_std(policy, x) for x in (obs, other))
+    assert torch.equal(first[0], second[0]) and torch.equal(first[1], second[1])
     values, log_prob, _ = policy.evaluate_actions(obs, actions)
     other_values, other_log_prob, _ = policy.evaluate_actions(other, actions)
     assert torch.equal(log_prob, other_log_prob)
@@ -185,5 +191,113 @@ def test_critic_state_run_deploys_without_the_true_state(tmp_path):
     deployed.close()
     training.close()
 
+    result = evaluate_run(run, 2, 100)
+    assert all(np.isfinite(result.tracking_rms)) and max(result.tracking_rms) < 0.1
+
+
+RANDOMIZE = {
+    "randomize": {
+        "plant_scaling.link_mass": {"low": 0.7, "high": 1.3},
+        "unmodelled_friction.coulomb": {"low": 0.0, "high": 0.03},
+        "sensor_delay": {"low": 0, "high": 1},
+    }
+}
+
+
+def test_critic_plant_appends_each_arms_drawn_plant_after_the_true_state():
+    """Batched arms, De Luca source, randomized plants: the observation is the plain
+    stack's, then the ``"true"`` source's features, then exactly the values each arm drew
+    at its reset (``info["plant"]``, in the order of the randomization's paths), which
+    stay fixed over the episode and differ between arms."""
+    kwargs = {
+        "env_kwargs": {**SHORT_EPISODES, **RANDOMIZE},
+        "decimation": 10,
+        "action": TORQUE,
+    }
+    both = make_policy_vec_env(
+        TWO_LINK, 3, "deluca", critic_state=True, critic_plant=True, **kwargs
+    )
+    state_only = make_policy_vec_env(TWO_LINK, 3, "deluca", critic_state=True, **kwargs)
+    plant_only = make_policy_vec_env(TWO_LINK, 3, "deluca", critic_plant=True, **kwargs)
+    paths = ["plant_scaling.link_mass", "unmodelled_friction.coulomb", "sensor_delay"]
+    m = state_only.single_observation_space.shape[0]
+    assert both.single_observation_space.shape == (m + 3,)
+    assert plant_only.single_observation_space.shape == (m - 8 + 3,)
+    (obs, info), (state_obs, _), (plant_obs, _) = (
+        env.reset(seed=5) for env in (both, state_only, plant_only)
+    )
+    drawn = np.stack([info["plant"][p] for p in paths], axis=1)
+    assert np.all(np.ptp(drawn[:, :2], axis=0) > 0)  # arms drew different plants
+    rng = np.random.default_rng(2)
+    for _ in range(4):
+        np.testing.assert_array_equal(obs[:, :m], state_obs)
+        np.testing.assert_array_equal(obs[:, m:], drawn.astype(obs.dtype))
+        np.testing.assert_array_equal(plant_obs[:, : m - 8], obs[:, : m - 8])
+        np.testing.assert_array_equal(plant_obs[:, m - 8 :], obs[:, m:])
+        actions = rng.uniform(-0.3, 0.3, (3, 2))
+        obs, state_obs, plant_obs = (env.step(actions)[0] for env in (both, state_only, plant_only))
+    for env in (both, state_only, plant_only):
+        env.close()
+
+
+def test_critic_plant_without_randomization_or_on_other_algorithms_is_refused():
+    with pytest.raises(ValueError, match="critic_plant: the env randomizes no plant"):
+        make_policy_vec_env(TWO_LINK, 2, "true", critic_plant=True, action=TORQUE)
+    with pytest.raises(ValueError, match="ppo only"):
+        resolve_hyperparams("recurrentppo", TWO_LINK, {"critic_plant": True})
+    with pytest.raises(ValueError, match="critic_plant needs the MlpPolicy"):
+        resolve_hyperparams("ppo", TWO_LINK, {"critic_plant": True, "policy": "CnnPolicy"})
+
+
+def test_critic_plant_run_acts_as_its_actor_alone_and_deploys_without_the_plant(tmp_path):
+    """Training randomized with ``critic_state`` and ``critic_plant``: the actor's action
+    is bit for bit the same whatever the privileged entries (true state and drawn plant),
+    its gradient with respect to them is exactly zero while the critic's is not, and the
+    deployment stack (no privileged entries) gives the same action and evaluates."""
+    config = TrainConfig(
+        state="deluca",
+        total_steps=128,
+        out_dir=str(tmp_path / "r"),
+        env_kwargs={**SHORT_EPISODES, **RANDOMIZE},
+        eval_freq=64,
+        eval_episodes=2,
+        hyperparams={
+            "critic_state": True,
+            "critic_plant": True,
+            "n_envs": 2,
+            "n_steps": 32,
+            "batch_size": 32,
+            "n_epochs": 2,
+        },
+    )
+    train(config, progress_bar=False)
+    run = load_run(config.out_dir)
+    policy = run.model.policy
+    assert isinstance(policy, PrivilegedCriticPolicy) and policy.privileged_size == 8 + 3
+
+    deployed = run.stack.make()
+    training = run.stack.make(critic_state=True, critic_plant=True)
+    k = policy.actor_size
+    assert deployed.observation_space.shape[0] == k
+    obs, _ = deployed.reset(seed=13)
+    full, _ = training.reset(seed=13)
+    for _ in range(3):
+        normalized = run.normalizer.normalize_obs(full[None].astype(np.float32))
+        with_plant, _ = run.model.predict(normalized, deterministic=True)
+        np.testing.assert_array_equal(run.act(obs), with_plant[0])
+        probe = torch.as_tensor(normalized).requires_grad_(True)
+        other = probe.detach().clone()
+        other[:, k:] += torch.randn(1, 8 + 3) * 5
+        first, second = (_mean_std(policy, x) for x in (probe, other))
+        assert torch.equal(first[0], second[0]) and torch.equal(first[1], second[1])
+        (grad,) = torch.autograd.grad(first[0].sum(), probe)
+        assert torch.all(grad[:, k:] == 0) and torch.any(grad[:, :k] != 0)
+        (value_grad,) = torch.autograd.grad(policy.predict_values(probe).sum(), probe)
+        assert torch.all(value_grad[:, -3:] != 0)  # the critic reads the drawn plant
+        action = run.act(obs)
+        obs, full = deployed.step(action)[0], training.step(action)[0]
+        np.testing.assert_array_equal(full[:k], obs)
+    deployed.close()
+    training.close()
     result = evaluate_run(run, 2, 100)
     assert all(np.isfinite(result.tracking_rms)) and max(result.tracking_rms) < 0.1

@@ -2,12 +2,12 @@
 
 Hyper-parameters live in ``hyperparams/<algo>.yaml``, one entry per env id plus
 ``default``: the algorithm's constructor arguments and our keys (``n_timesteps``,
-``n_envs``, ``batches``, ``decimation``, ``normalize``, ``critic_state``, ``action``,
-``observation``, ``env_kwargs``). Command-line overrides (``key=value``) win over the
-file, which wins over the defaults; a run's own ``action`` / ``observation`` fields and
-env kwargs win key by key (a run naming its own ``task`` drops the file's
-``task_options``). ``learning_rate`` and ``clip_range`` may be ``lin_<value>``, a linear
-decay to 0.
+``n_envs``, ``batches``, ``decimation``, ``normalize``, ``critic_state``,
+``critic_plant``, ``action``, ``observation``, ``env_kwargs``). Command-line overrides
+(``key=value``) win over the file, which wins over the defaults; a run's own ``action`` /
+``observation`` fields and env kwargs win key by key (a run naming its own ``task`` drops
+the file's ``task_options``). ``learning_rate`` and ``clip_range`` may be
+``lin_<value>``, a linear decay to 0.
 """
 
 from __future__ import annotations
@@ -92,6 +92,7 @@ class Settings(StrictModel):
     decimation: Count = 1
     normalize: StrictBool = True
     critic_state: StrictBool = False
+    critic_plant: StrictBool = False
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
     env_kwargs: EnvKwargs = Field(default_factory=dict)
@@ -161,8 +162,10 @@ def resolve_settings(
         if isinstance(merged.get(key), str):
             merged[key] = _schedule(key, merged[key])
     _check_values(algo, merged)
-    if settings.critic_state:
-        _check_critic_state(algo, merged)
+    if settings.critic_state or settings.critic_plant:
+        _check_critic_state(
+            algo, merged, "critic_state" if settings.critic_state else "critic_plant"
+        )
     if "policy_kwargs" in merged:
         merged["policy_kwargs"] = _policy_kwargs(merged["policy_kwargs"])
     return settings, merged
@@ -197,20 +200,20 @@ def _check_values(algo: str, merged: dict) -> None:
                 merged[key] = int(value)
 
 
-def _check_critic_state(algo: str, merged: dict) -> None:
-    """``critic_state: true`` needs PPO with its MLP policy, whose features extractor it
-    splits (:class:`~elastic_gym.training.critic.PrivilegedCriticPolicy`)."""
+def _check_critic_state(algo: str, merged: dict, key: str) -> None:
+    """``critic_state`` / ``critic_plant`` need PPO with its MLP policy, whose features
+    extractor they split (:class:`~elastic_gym.training.critic.PrivilegedCriticPolicy`)."""
     if algo != "ppo":
         raise ValueError(
-            f"critic_state (a critic that sees the true state) is implemented "
+            f"critic_state / critic_plant (a critic with privileged inputs) is implemented "
             f"for ppo only, not {algo}"
         )
     if merged.get("policy", "MlpPolicy") != "MlpPolicy":
-        raise ValueError(f"critic_state needs the MlpPolicy, got policy {merged['policy']!r}")
+        raise ValueError(f"{key} needs the MlpPolicy, got policy {merged['policy']!r}")
     kwargs = merged.get("policy_kwargs") or {}
     if isinstance(kwargs, dict) and kwargs.get("share_features_extractor"):
         raise ValueError(
-            "critic_state gives the critic its own features extractor: drop "
+            f"{key} gives the critic its own features extractor: drop "
             "policy_kwargs.share_features_extractor"
         )
 

@@ -10,7 +10,7 @@ PyBullet world with the vector twins)::
     ActionRepeat(decimation)              policy rate = 1 kHz / decimation
     PolicyObservation                     flat features
     (FrameStackObservation + Flatten)     raw sensors: the last frames
-    (CriticState)                         critic_state (training only)
+    (CriticState)                         critic_state / critic_plant (training only)
 """
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ def _stack(
     observation: ObservationConfig | dict | None,
     frame_stack: int,
     critic_state: bool,
+    critic_plant: bool = False,
 ) -> Any:
     """The stack of the module docstring on ``env`` with the wrappers of the modules
     ``observer_wrappers`` and ``policy_wrappers``: the single-env ones, or their vector
@@ -67,7 +68,9 @@ def _stack(
     if decimation > 1:
         env = policy_wrappers.ActionRepeat(env, decimation)
     env = policy_wrappers.PolicyObservation(env, observation, frame_stack)
-    return policy_wrappers.CriticState(env, observation) if critic_state else env
+    if not (critic_state or critic_plant):
+        return env
+    return policy_wrappers.CriticState(env, observation, critic_state, critic_plant)
 
 
 def make_policy_env(
@@ -80,6 +83,7 @@ def make_policy_env(
     observation: ObservationConfig | dict | None = None,
     frame_stack: int = 1,
     critic_state: bool = False,
+    critic_plant: bool = False,
 ) -> gym.Env:
     """Build the wrapper stack of the module docstring."""
     check_state_source(state)
@@ -92,6 +96,7 @@ def make_policy_env(
         observation,
         frame_stack,
         critic_state,
+        critic_plant,
     )
 
 
@@ -104,6 +109,7 @@ def wrap_policy_env(
     observation: ObservationConfig | dict | None = None,
     frame_stack: int = 1,
     critic_state: bool = False,
+    critic_plant: bool = False,
 ) -> gym.Env:
     """The wrapper stack of the module docstring around an env made by the caller (e.g.
     RL Zoo's ``env_wrapper`` hyper-parameter)."""
@@ -118,6 +124,7 @@ def wrap_policy_env(
         observation,
         frame_stack,
         critic_state,
+        critic_plant,
     )
 
 
@@ -133,6 +140,7 @@ def make_policy_vec_env(
     frame_stack: int = 1,
     autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
     critic_state: bool = False,
+    critic_plant: bool = False,
 ) -> gym.vector.VectorEnv:
     """The stack of :func:`make_policy_env` on ``n_arms`` arms in one PyBullet world.
 
@@ -158,4 +166,5 @@ def make_policy_vec_env(
         observation,
         frame_stack,
         critic_state,
+        critic_plant,
     )

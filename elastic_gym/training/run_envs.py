@@ -62,7 +62,9 @@ class PolicyStack:
             observer_options=dict(config.observer_options),
         )
 
-    def _options(self, env_kwargs: dict | None, critic_state: bool) -> dict[str, Any]:
+    def _options(
+        self, env_kwargs: dict | None, critic_state: bool, critic_plant: bool
+    ) -> dict[str, Any]:
         return {
             "state": self.state,
             "env_kwargs": {**self.env_kwargs, **(env_kwargs or {})},
@@ -72,13 +74,19 @@ class PolicyStack:
             "observation": self.observation,
             "frame_stack": self.frame_stack,
             "critic_state": critic_state,
+            "critic_plant": critic_plant,
         }
 
-    def make(self, env_kwargs: dict | None = None, critic_state: bool = False) -> gym.Env:
+    def make(
+        self,
+        env_kwargs: dict | None = None,
+        critic_state: bool = False,
+        critic_plant: bool = False,
+    ) -> gym.Env:
         """The stack on one env. ``env_kwargs`` update the run's key by key (e.g. an
-        evaluation plant); ``critic_state``: the training stack, with the true state
-        appended for the critic."""
-        return make_policy_env(self.env_id, **self._options(env_kwargs, critic_state))
+        evaluation plant); ``critic_state`` / ``critic_plant``: the training stack, with
+        the true state / the drawn plant parameters appended for the critic."""
+        return make_policy_env(self.env_id, **self._options(env_kwargs, critic_state, critic_plant))
 
     def make_vec(
         self,
@@ -86,28 +94,37 @@ class PolicyStack:
         env_kwargs: dict | None = None,
         critic_state: bool = False,
         autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
+        critic_plant: bool = False,
     ) -> gym.vector.VectorEnv:
         """The stack on ``n_arms`` arms of one PyBullet world (a Gymnasium vector env with
-        ``autoreset_mode``); ``env_kwargs`` and ``critic_state`` as in :meth:`make`."""
+        ``autoreset_mode``); ``env_kwargs``, ``critic_state`` and ``critic_plant`` as in
+        :meth:`make`."""
         return make_policy_vec_env(
             self.env_id,
             n_arms,
             autoreset_mode=autoreset_mode,
-            **self._options(env_kwargs, critic_state),
+            **self._options(env_kwargs, critic_state, critic_plant),
         )
 
-    def sb3_vec_env(self, n_arms: int, env_kwargs: dict | None = None, critic_state: bool = False):
+    def sb3_vec_env(
+        self,
+        n_arms: int,
+        env_kwargs: dict | None = None,
+        critic_state: bool = False,
+        critic_plant: bool = False,
+    ):
         """The stack on ``n_arms`` arms of one PyBullet world as an SB3 ``VecEnv``."""
         from elastic_gym.training.sb3_vec_env import SB3VecEnv
 
-        return SB3VecEnv(self.make_vec(n_arms, env_kwargs, critic_state))
+        return SB3VecEnv(self.make_vec(n_arms, env_kwargs, critic_state, critic_plant=critic_plant))
 
 
 def training_vec_env(stack: PolicyStack, settings: Settings, n_envs: int, seed: int):
     """What SB3 trains on: one env (``n_envs`` 1), a batch of ``n_envs`` arms, or several
     batches in worker processes (hyper-parameter ``batches``,
     :attr:`~elastic_gym.training.config.Settings.batch_kwargs`); with the true state
-    appended for the critic if the hyper-parameter ``critic_state`` is set. Seeded with
+    and/or the drawn plant parameters appended for the critic if the hyper-parameter
+    ``critic_state`` / ``critic_plant`` is set. Seeded with
     ``seed``, under a ``VecMonitor``."""
     from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor
 
@@ -116,14 +133,14 @@ def training_vec_env(stack: PolicyStack, settings: Settings, n_envs: int, seed: 
     batches = settings.batch_kwargs
     if n_envs % len(batches):
         raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs ({n_envs})")
-    critic_state = settings.critic_state
+    critic = {"critic_state": settings.critic_state, "critic_plant": settings.critic_plant}
     venv: VecEnv
     if n_envs == 1:
-        venv = DummyVecEnv([functools.partial(stack.make, critic_state=critic_state)])
+        venv = DummyVecEnv([functools.partial(stack.make, **critic)])
         venv.action_space.seed(seed)
     else:
         factories = [
-            functools.partial(stack.sb3_vec_env, n_envs // len(batches), kwargs, critic_state)
+            functools.partial(stack.sb3_vec_env, n_envs // len(batches), kwargs, **critic)
             for kwargs in batches
         ]
         venv = factories[0]() if len(factories) == 1 else ProcessBatches(factories)

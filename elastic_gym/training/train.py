@@ -126,7 +126,7 @@ def _train(
         venv = VecNormalize(venv, norm_obs=normalize, norm_reward=normalize, gamma=gamma)
 
         policy = algo_kwargs.pop("policy", default_policy(config.algo))
-        if settings.critic_state:
+        if settings.critic_state or settings.critic_plant:
             from elastic_gym.training.critic import PrivilegedCriticPolicy
 
             # the evaluation envs are the deployment stack: the actor's observation only

@@ -230,33 +230,62 @@ class PolicyObservation(_ArmResets):
 
 
 class CriticState(gym.vector.VectorWrapper):
-    """Every arm's flat policy observation with its true state's features appended
+    """Every arm's flat policy observation with privileged entries appended for a critic
+    in training: its true state's features
     (:class:`~elastic_gym.training.observation.TrueStateFeatures` of
-    ``info["true_state"]``, the current step only, not frame-stacked): the privileged
-    input of a critic in training. The first entries are the policy's observation,
-    unchanged.
+    ``info["true_state"]``, the current step only, not frame-stacked) if ``state``, then,
+    if ``plant``, the plant parameters the arm drew at its last reset
+    (``info["plant"]`` of every randomized path, in the order of
+    :data:`~elastic_gym.envs.randomization.PATHS`; 0 for an arm that does not randomize
+    a path). The first entries are the policy's observation, unchanged.
 
     Args:
         env: a flat policy stack (``PolicyObservation``, possibly frame-stacked).
         observation: the stack's :class:`ObservationConfig` (its scales are used).
+        state: append the true state's features.
+        plant: append the drawn plant parameters (the env must randomize some).
     """
 
     def __init__(
-        self, env: gym.vector.VectorEnv, observation: ObservationConfig | dict | None = None
+        self,
+        env: gym.vector.VectorEnv,
+        observation: ObservationConfig | dict | None = None,
+        state: bool = True,
+        plant: bool = False,
     ) -> None:
         super().__init__(env)
         batch = elastic_batch(env)
         self.elastic = batch.robot.elastic
-        self.features = TrueStateFeatures(
-            ObservationConfig.from_config(observation), batch.n_joints, self.elastic
+        self.features = (
+            TrueStateFeatures(
+                ObservationConfig.from_config(observation), batch.n_joints, self.elastic
+            )
+            if state
+            else None
         )
-        size = flatdim(env.single_observation_space) + self.features.size
+        self.plant_paths = tuple(batch.plant_state.drawn) if plant else ()
+        if plant and not self.plant_paths:
+            raise ValueError(
+                "critic_plant: the env randomizes no plant parameter (give the env kwarg randomize)"
+            )
+        if not (state or plant):
+            raise ValueError("a critic state needs the true state, the plant or both")
+        size = (
+            flatdim(env.single_observation_space)
+            + (self.features.size if self.features else 0)
+            + len(self.plant_paths)
+        )
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
 
     def _observation(self, obs: np.ndarray, info: Mapping) -> np.ndarray:
-        privileged = self.features(true_state_vector(info, self.elastic), reference_rows(info))
-        return np.concatenate([obs, privileged], axis=1)
+        parts = [obs]
+        if self.features is not None:
+            parts.append(self.features(true_state_vector(info, self.elastic), reference_rows(info)))
+        if self.plant_paths:
+            drawn = np.stack([info["plant"][path] for path in self.plant_paths], axis=1)
+            parts.append(np.nan_to_num(drawn, nan=0.0))
+        return np.concatenate(parts, axis=1)
 
     def reset(self, *, seed=None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)

@@ -10,8 +10,8 @@ Stack, bottom to top (``make_policy_env``)::
   above the observer, which still sees every sample;
 * :class:`PolicyObservation`: the features of
   :class:`~elastic_gym.training.observation.ObservationBuilder`;
-* :class:`CriticState` (training only): the true state's features appended for a
-  privileged critic.
+* :class:`CriticState` (training only): the true state's features and/or the drawn plant
+  parameters appended for a privileged critic.
 """
 
 from __future__ import annotations
@@ -103,15 +103,31 @@ class PolicyObservation(_CheckedActions[vector.PolicyObservation], gym.utils.Rec
 
 
 class CriticState(SingleArmWrapper[vector.CriticState], gym.utils.RecordConstructorArgs):
-    """The flat policy observation with the true state's features appended (training only).
+    """The flat policy observation with privileged entries appended (training only): the
+    true state's features (``state``) and/or the drawn plant parameters (``plant``), as
+    :class:`~elastic_gym.training.vector.CriticState`.
 
     Args:
         env: a flat policy stack (``PolicyObservation``).
         observation: the stack's :class:`ObservationConfig` (its scales are used).
+        state: append the true state's features.
+        plant: append the drawn plant parameters (the env must randomize some).
     """
 
-    def __init__(self, env: gym.Env, observation: ObservationConfig | dict | None = None) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, observation=observation)
+    def __init__(
+        self,
+        env: gym.Env,
+        observation: ObservationConfig | dict | None = None,
+        state: bool = True,
+        plant: bool = False,
+    ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, observation=observation, state=state, plant=plant
+        )
         SingleArmWrapper.__init__(
-            self, env, functools.partial(vector.CriticState, observation=observation)
+            self,
+            env,
+            functools.partial(
+                vector.CriticState, observation=observation, state=state, plant=plant
+            ),
         )
