@@ -267,7 +267,7 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
         "--eval-freq",
         type=int,
         default=default(TrainConfig, "eval_freq"),
-        help="policy steps between evals (default: %(default)s)",
+        help="policy steps between evals (default: a twentieth of the run's policy steps)",
     )
     parser.add_argument("--eval-episodes", type=int, default=default(TrainConfig, "eval_episodes"))
     parser.add_argument(

@@ -304,7 +304,7 @@ class TrainConfig(ConfigModel):
     observer_options: dict[str, Any] = Field(default_factory=dict)
     hyperparams: dict[str, Any] = Field(default_factory=dict)
     hyperparams_file: StrictStr | None = None
-    eval_freq: PositiveInt = 20000
+    eval_freq: PositiveInt | None = None  # None: a twentieth of the run's policy steps
     eval_episodes: PositiveInt = 3
 
     @model_validator(mode="after")

@@ -131,11 +131,12 @@ def training_vec_env(stack: PolicyStack, settings: Settings, n_envs: int, seed: 
     from elastic_gym.training.sb3_vec_env import ProcessBatches
 
     batches = settings.batch_kwargs
-    if n_envs % len(batches):
+    one_env = n_envs == 1 and isinstance(settings.batches, int)  # a count: at most n_envs
+    if n_envs % len(batches) and not one_env:
         raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs ({n_envs})")
     critic = {"critic_state": settings.critic_state, "critic_plant": settings.critic_plant}
     venv: VecEnv
-    if n_envs == 1:
+    if one_env:
         venv = DummyVecEnv([functools.partial(stack.make, None, **critic)])
         venv.action_space.seed(seed)
     else:

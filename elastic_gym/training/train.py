@@ -7,7 +7,8 @@ one per core; or batches with different env kwargs, e.g. plants), all made by
 :mod:`elastic_gym.training.run_envs`; ``VecNormalize`` whose statistics are saved beside
 the model, a learning curve
 (:class:`~elastic_gym.training.learning_curve.LearningCurve`: deterministic evaluation
-episodes on the arms of one batch at the start, every ``eval_freq`` policy steps and at
+episodes on the arms of one batch at the start, every ``eval_freq`` policy steps (default:
+a twentieth of the run) and at
 the end) that keeps the best model, TensorBoard logs and a progress bar. The run folder
 (:class:`~elastic_gym.training.run_folder.RunFolder`) is refused if it holds an earlier
 run (unless ``overwrite``) and removed if the run fails or is interrupted. Training runs
@@ -149,9 +150,8 @@ def _train(
         )
         if stack.action.kind == "residual":
             zero_action_head(model)
-        curve = LearningCurve(
-            eval_envs, venv, out, config.eval_freq, config.seed + 10_000, stack.decimation
-        )
+        every = config.eval_freq or max(total // 20, 1)
+        curve = LearningCurve(eval_envs, venv, out, every, config.seed + 10_000, stack.decimation)
         start = time.perf_counter()
         model.learn(
             total_timesteps=total,
