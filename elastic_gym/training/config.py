@@ -33,6 +33,7 @@ from pydantic import (
     model_validator,
 )
 
+from elastic_gym.envs.config import KwargsMapping
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import check_state_source
@@ -78,7 +79,6 @@ def _count(value: Any) -> Any:
 
 Count = Annotated[int, Field(ge=1), BeforeValidator(_count)]
 PositiveInt = Annotated[StrictInt, Field(ge=1)]  # numpy integers count (StrictModel)
-EnvKwargs = dict[str, Any]
 
 
 class Settings(StrictModel):
@@ -88,14 +88,14 @@ class Settings(StrictModel):
     model_config = ConfigDict(frozen=True)
     n_timesteps: Count = 100_000
     n_envs: Count = 1
-    batches: Count | Annotated[list[EnvKwargs], Field(min_length=1)] = 1
+    batches: Count | Annotated[list[KwargsMapping], Field(min_length=1)] = 1
     decimation: Count = 1
     normalize: StrictBool = True
     critic_state: StrictBool = False
     critic_plant: StrictBool = False
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
-    env_kwargs: EnvKwargs = Field(default_factory=dict)
+    env_kwargs: KwargsMapping = Field(default_factory=dict)
 
     @property
     def batch_kwargs(self) -> list[dict]:
@@ -300,7 +300,7 @@ class TrainConfig(ConfigModel):
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
     frame_stack: PositiveInt = 4
-    env_kwargs: EnvKwargs = Field(default_factory=dict)
+    env_kwargs: KwargsMapping = Field(default_factory=dict)
     observer_options: dict[str, Any] = Field(default_factory=dict)
     hyperparams: dict[str, Any] = Field(default_factory=dict)
     hyperparams_file: StrictStr | None = None
