@@ -26,6 +26,7 @@ from threadpoolctl import threadpool_limits
 
 from elastic_gym.orphan_reaper import start_reaper
 from elastic_gym.process_pool import WorkerDiedError, WorkerPool
+from elastic_gym.validation import checked_count, lookup
 
 BACKENDS = ("process", "ray")
 SINGLE_THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -132,13 +133,8 @@ def default_workers(n_jobs: int) -> int:
 def resolve_workers(workers: int | None, n_jobs: int, backend: str) -> int:
     """The number of workers for ``n_jobs`` jobs (default: one per CPU); checks the
     arguments (``ValueError``)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; valid: {list(BACKENDS)}")
-    if workers is not None and (
-        not isinstance(workers, int) or isinstance(workers, bool) or workers < 1
-    ):
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
-    return workers or default_workers(n_jobs)
+    lookup(dict.fromkeys(BACKENDS), backend, "backend")
+    return default_workers(n_jobs) if workers is None else checked_count(workers, "workers", 1)
 
 
 def for_each_result(

@@ -8,7 +8,15 @@ from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, TypeVar, get_args
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictFloat,
+    TypeAdapter,
+    ValidationError,
+    model_validator,
+)
 from pydantic_core import core_schema
 from typing_extensions import Self
 
@@ -24,12 +32,13 @@ def is_real(value: Any) -> bool:
     )
 
 
-def is_count(value: Any, minimum: int = 0) -> bool:
-    """Whether ``value`` is an integer (Python or numpy, not a bool) >= ``minimum``."""
+def is_count(value: Any, minimum: int | None = 0) -> bool:
+    """Whether ``value`` is an integer (Python or numpy, not a bool) >= ``minimum``
+    (``None``: any integer)."""
     return bool(
         isinstance(value, (int, np.integer))
         and not isinstance(value, (bool, np.bool_))
-        and value >= minimum
+        and (minimum is None or value >= minimum)
     )
 
 
@@ -329,6 +338,18 @@ def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
         wrong_type = all(item["type"].endswith("_type") for item in error.errors())
         kind = TypeError if wrong_type else ValueError
         raise kind(format_validation_error(error, "options", model)) from None
+
+
+def option_value(name: str, value: Any, kind: Any) -> Any:
+    """One constructor option validated by the (annotated) type ``kind``: errors read
+    ``options.<name>: ...``, a ``TypeError`` for a value of the wrong type, a
+    ``ValueError`` otherwise (as :func:`validated_options`)."""
+    try:
+        return TypeAdapter(kind).validate_python(plain(value))
+    except ValidationError as error:
+        wrong_type = all(item["type"].endswith("_type") for item in error.errors())
+        message = format_validation_error(error, f"options.{name}")
+        raise (TypeError if wrong_type else ValueError)(message) from None
 
 
 @contextmanager

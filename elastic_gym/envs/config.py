@@ -15,6 +15,7 @@ arm. ``randomize``: parameter path -> :class:`Range`, drawn at every reset.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -234,24 +235,38 @@ class EnvKwargs(EnvConfig):
     render_mode: Literal["human", "rgb_array"] | None = None
 
 
-def checked_kwargs(kwargs: dict, loc: tuple = ()) -> dict:
-    """``kwargs`` (all or some of an env's) validated by :class:`EnvKwargs` and returned as
-    given; :class:`~elastic_gym.validation.ConfigError` with the field path
+class MakeKwargs(EnvKwargs):
+    """The keyword arguments of ``gym.make`` / ``gym.make_vec`` for an env of the package
+    (what a training run passes): :class:`EnvKwargs` and ``max_episode_steps`` (a
+    ``TimeLimit`` in control periods)."""
+
+    max_episode_steps: Annotated[StrictInt, Field(ge=1)] | None = None
+
+
+def checked_kwargs(kwargs: dict, loc: tuple = (), model: type[EnvKwargs] = EnvKwargs) -> dict:
+    """``kwargs`` (all or some of an env's) validated by ``model`` and returned as given;
+    :class:`~elastic_gym.validation.ConfigError` with the field path
     (``plant_scaling.link_mass: ...``) after ``loc`` otherwise."""
     try:
-        EnvKwargs.model_validate(plain(kwargs))
+        model.model_validate(plain(kwargs))
     except ValidationError as error:
-        raise ConfigError(format_validation_error(error, "", EnvKwargs), loc) from None
+        raise ConfigError(format_validation_error(error, "", model), loc) from None
     return kwargs
 
 
+@dataclass(frozen=True)
 class KwargsSchema:
-    """JSON Schema of a mapping of env kwargs: :class:`EnvKwargs`'s."""
+    """JSON Schema of a mapping of env kwargs: ``model``'s."""
 
-    @staticmethod
-    def __get_pydantic_json_schema__(core_schema: Any, handler: Any) -> dict:
-        return handler(EnvKwargs.__pydantic_core_schema__)
+    model: type[EnvKwargs] = EnvKwargs
+
+    def __get_pydantic_json_schema__(self, core_schema: Any, handler: Any) -> dict:
+        return handler(self.model.__pydantic_core_schema__)
 
 
-# env kwargs as a plain mapping (as given), validated by EnvKwargs
-KwargsMapping = Annotated[dict[str, Any], AfterValidator(checked_kwargs), KwargsSchema()]
+# the kwargs of gym.make for a package env as a plain mapping (as given), validated
+MakeKwargsMapping = Annotated[
+    dict[str, Any],
+    AfterValidator(lambda kwargs: checked_kwargs(kwargs, model=MakeKwargs)),
+    KwargsSchema(MakeKwargs),
+]

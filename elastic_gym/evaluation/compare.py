@@ -60,6 +60,7 @@ from elastic_gym.parallel import (
     resolve_workers,
     with_detail,
 )
+from elastic_gym.validation import checked_count
 
 DEFAULT_OUTPUT_ROOT = Path("compare_out")
 
@@ -112,8 +113,7 @@ def compare(
     cannot work, ``NotADirectoryError`` / ``PermissionError`` / ``FileExistsError`` for
     the output folder, ``ValueError`` for the other arguments.
     """
-    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
-        raise ValueError(f"batch_size must be an integer >= 1, got {batch_size!r}")
+    checked_count(batch_size, "batch_size", 1)
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / scenario.name
     check_writable(out)
     with folder_lock(out):

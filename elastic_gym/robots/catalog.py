@@ -15,6 +15,7 @@ from functools import cache
 import pybullet_data
 
 from elastic_gym.robots.spec import URDF_DIR, AccelerometerMount, LinkFriction, RobotSpec
+from elastic_gym.validation import lookup
 
 PI = math.pi
 
@@ -160,7 +161,4 @@ ROBOTS = {
 @cache
 def get_robot(name: str) -> RobotSpec:
     """The spec of a robot by name (see :data:`ROBOTS`)."""
-    try:
-        return ROBOTS[name]()
-    except KeyError:
-        raise ValueError(f"unknown robot {name!r}; valid: {sorted(ROBOTS)}") from None
+    return lookup(ROBOTS, name, "robot")()

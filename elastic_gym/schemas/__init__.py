@@ -19,6 +19,8 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
+from elastic_gym.validation import lookup
+
 SCHEMA_DIR = Path(__file__).resolve().parent
 SCHEMAS = {
     "scenario": "elastic_gym.evaluation.scenario:Scenario",  # presets, compare --config
@@ -42,12 +44,10 @@ def schema_models() -> dict[str, type[BaseModel]]:
 
 def json_schema(name: str) -> dict:
     """The JSON Schema (draft 2020-12) of the files validated by model ``name``."""
-    models = schema_models()
-    if name not in models:
-        raise ValueError(f"unknown schema {name!r}; valid: {sorted(models)}")
+    model = lookup(schema_models(), name, "schema")
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
-        **models[name].model_json_schema(by_alias=True),
+        **model.model_json_schema(by_alias=True),
     }
 
 

@@ -33,7 +33,7 @@ from pydantic import (
     model_validator,
 )
 
-from elastic_gym.envs.config import KwargsMapping
+from elastic_gym.envs.config import MakeKwargsMapping
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import check_state_source
@@ -41,6 +41,7 @@ from elastic_gym.validation import (
     ConfigModel,
     StrictModel,
     is_real,
+    lookup,
     registered_env_id,
     validated,
 )
@@ -54,8 +55,7 @@ ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "Leak
 
 def algorithm_class(algo: str):
     """The stable-baselines3 (or sb3-contrib, ``recurrentppo``) class of an algorithm name."""
-    if algo not in ALGORITHMS:
-        raise ValueError(f"unknown algorithm {algo!r}; valid: {list(ALGORITHMS)}")
+    lookup(dict.fromkeys(ALGORITHMS), algo, "algorithm")
     if algo == "recurrentppo":
         from sb3_contrib import RecurrentPPO
 
@@ -88,14 +88,14 @@ class Settings(StrictModel):
     model_config = ConfigDict(frozen=True)
     n_timesteps: Count = 100_000
     n_envs: Count = 1
-    batches: Count | Annotated[list[KwargsMapping], Field(min_length=1)] = 1
+    batches: Count | Annotated[list[MakeKwargsMapping], Field(min_length=1)] = 1
     decimation: Count = 1
     normalize: StrictBool = True
     critic_state: StrictBool = False
     critic_plant: StrictBool = False
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
-    env_kwargs: KwargsMapping = Field(default_factory=dict)
+    env_kwargs: MakeKwargsMapping = Field(default_factory=dict)
 
     @property
     def batch_kwargs(self) -> list[dict]:
@@ -300,7 +300,7 @@ class TrainConfig(ConfigModel):
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
     frame_stack: PositiveInt = 4
-    env_kwargs: KwargsMapping = Field(default_factory=dict)
+    env_kwargs: MakeKwargsMapping = Field(default_factory=dict)
     observer_options: dict[str, Any] = Field(default_factory=dict)
     hyperparams: dict[str, Any] = Field(default_factory=dict)
     hyperparams_file: StrictStr | None = None
