@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Annotated, Any, ClassVar, TypeVar, get_args
+from typing import Annotated, Any, ClassVar, TypeGuard, TypeVar, get_args
 
 import numpy as np
 from pydantic import (
@@ -32,7 +32,7 @@ def is_real(value: Any) -> bool:
     )
 
 
-def is_count(value: Any, minimum: int | None = 0) -> bool:
+def is_count(value: Any, minimum: int | None = 0) -> TypeGuard[int | np.integer]:
     """Whether ``value`` is an integer (Python or numpy, not a bool) >= ``minimum``
     (``None``: any integer)."""
     return bool(
