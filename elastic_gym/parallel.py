@@ -29,6 +29,7 @@ from elastic_gym.process_pool import WorkerDiedError, WorkerPool
 from elastic_gym.validation import checked_count, lookup
 
 BACKENDS = ("process", "ray")
+DEFAULT_BACKEND = BACKENDS[0]  # local worker processes
 SINGLE_THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 RAY_POLL = 0.5  # s between checks for signals while waiting on Ray
 RAY_IN_FLIGHT = 4  # Ray tasks submitted per worker; the rest wait here (cancelled for free)
@@ -142,7 +143,7 @@ def for_each_result(
     jobs: Sequence[Any],
     on_result: Callable[[int, Any], None],
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
     label: str = "jobs",
     describe: Callable[[Any], str] = repr,
@@ -209,7 +210,7 @@ def run_jobs(
     function: Callable[[Any], Any],
     jobs: Sequence[Any],
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
     label: str = "jobs",
     describe: Callable[[Any], str] = repr,

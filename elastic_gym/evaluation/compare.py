@@ -56,6 +56,7 @@ from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
 from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
 from elastic_gym.folder_lock import check_writable, folder_lock
 from elastic_gym.parallel import (
+    DEFAULT_BACKEND,
     interrupts_raised,
     resolve_workers,
     with_detail,
@@ -87,7 +88,7 @@ def compare(
     scenario: Scenario,
     output_dir: str | Path | None = None,
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
     plots: bool = True,
     overwrite: bool = False,

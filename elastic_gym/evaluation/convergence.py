@@ -22,6 +22,7 @@ from dataclasses import replace
 from elastic_gym.evaluation.report import METRIC_KEYS
 from elastic_gym.evaluation.runner import RunResult, RunSpec, env_robot, execute, plan_runs
 from elastic_gym.evaluation.scenario import Scenario
+from elastic_gym.parallel import DEFAULT_BACKEND
 from elastic_gym.validation import checked_count
 
 REFINEMENT = 8
@@ -106,7 +107,7 @@ def check_convergence(
     refinement: int = REFINEMENT,
     tolerance: float = TOLERANCE,
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
 ) -> list[dict]:
     """Run every run of ``scenario`` at its physics step and at 1/``refinement`` of it.
