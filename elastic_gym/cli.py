@@ -23,6 +23,7 @@ from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
 from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
 from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
 from elastic_gym.parallel import BACKENDS, DEFAULT_BACKEND, Interrupted, interrupts_raised
+from elastic_gym.validation import distinct
 
 
 def default(model: type[BaseModel], field: str):
@@ -328,9 +329,7 @@ def run_train(args: argparse.Namespace) -> int:
     require_rl_extra("elastic-gym train")
     from elastic_gym.training import RunFolder, TrainConfig, parse_overrides, train, train_many
 
-    duplicates = sorted({s for s in args.seeds if args.seeds.count(s) > 1})
-    if duplicates:
-        raise ValueError(f"--seeds: duplicate seed(s) {duplicates}")
+    distinct(args.seeds, "seed(s)", where="--seeds")
     name = args.env.split("/")[-1]
     base = args.out or f"runs/{args.algo}-{name}-{args.state}" + (
         f"-residual-{args.residual}" if args.residual else ""

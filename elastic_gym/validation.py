@@ -49,6 +49,15 @@ def checked_count(value: Any, name: str, minimum: int = 0) -> int:
     return int(value)
 
 
+def distinct(values: Sequence[Any], what: str, why: str = "", where: str = "") -> Sequence[Any]:
+    """``values`` if none repeats; ``ValueError: [<where>: ]duplicate <what> [...]<why>``
+    otherwise."""
+    repeated = sorted({x for x in values if values.count(x) > 1})
+    if repeated:
+        raise ValueError(f"{where}{': ' if where else ''}duplicate {what} {repeated}{why}")
+    return values
+
+
 def lookup(table: Mapping[str, T], name: Any, what: str) -> T:
     """``table[name]``; ``ValueError`` naming the ``what`` and listing the valid names."""
     if not isinstance(name, str) or name not in table:

@@ -53,7 +53,13 @@ from elastic_gym.evaluation.scenario_models import (
     check_env_kwargs,
     unique_labels,
 )
-from elastic_gym.validation import ConfigError, FieldError, StrictModel, format_validation_error
+from elastic_gym.validation import (
+    ConfigError,
+    FieldError,
+    StrictModel,
+    distinct,
+    format_validation_error,
+)
 
 __all__ = [
     "IDENTITY_COLUMNS",
@@ -83,13 +89,8 @@ class ScenarioError(ValueError):
 
 
 def _distinct(seeds: tuple[int, ...]) -> tuple[int, ...]:
-    duplicates = sorted({seed for seed in seeds if seeds.count(seed) > 1})
-    if duplicates:
-        raise ValueError(
-            f"duplicate seed(s) {duplicates}: a seed repeated would "
-            "count the same run twice in the means over seeds"
-        )
-    return seeds
+    why = ": a seed repeated would count the same run twice in the means over seeds"
+    return tuple(distinct(seeds, "seed(s)", why))
 
 
 def _folder_name(name: str) -> str:

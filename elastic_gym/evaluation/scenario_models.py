@@ -39,7 +39,13 @@ from elastic_gym.envs.config import EnvKwargs, KwargsSchema, checked_kwargs
 from elastic_gym.evaluation.controllers import controller_names
 from elastic_gym.model import ParameterScaling
 from elastic_gym.observers.registry import OBSERVERS
-from elastic_gym.validation import ENV_NAMESPACE, FieldError, StrictModel, registered_env_id
+from elastic_gym.validation import (
+    ENV_NAMESPACE,
+    FieldError,
+    StrictModel,
+    distinct,
+    registered_env_id,
+)
 
 TRUE_STATE = "true"
 NOMINAL = "nominal"
@@ -105,10 +111,7 @@ ClassPath = Annotated[
 
 def unique_labels(entries: tuple) -> tuple:
     """Refuse entries of a list whose labels repeat (they name rows and figures)."""
-    labels = [entry.label for entry in entries]
-    duplicates = sorted({x for x in labels if labels.count(x) > 1})
-    if duplicates:
-        raise ValueError(f"duplicate label(s) {duplicates}; give each entry a 'label'")
+    distinct([entry.label for entry in entries], "label(s)", "; give each entry a 'label'")
     return entries
 
 
