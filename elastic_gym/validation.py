@@ -58,6 +58,14 @@ def distinct(values: Sequence[Any], what: str, why: str = "", where: str = "") -
     return values
 
 
+def shaped(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``value`` as a float64 array of ``shape``; ``ValueError`` naming ``name`` otherwise."""
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    return arr
+
+
 def lookup(table: Mapping[str, T], name: Any, what: str) -> T:
     """``table[name]``; ``ValueError`` naming the ``what`` and listing the valid names."""
     if not isinstance(name, str) or name not in table:
