@@ -198,6 +198,10 @@ class ConfigModel(StrictModel):
         except ValidationError as error:
             raise ConfigError(format_validation_error(error, self.section, type(self))) from None
 
+    # not a custom __init__ for pydantic: a nested config is validated as a field, its
+    # errors with their full path (``reward.sigmas[0]``), not through this prefix
+    __init__.__pydantic_base_init__ = True  # type: ignore[attr-defined]
+
     @classmethod
     def from_config(cls, config: Any) -> Self:
         return validated(cls, config, cls.section)

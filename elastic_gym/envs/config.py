@@ -31,6 +31,7 @@ from pydantic import (
 from elastic_gym.envs.reward import RewardConfig
 from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
 from elastic_gym.model import ParameterScaling
+from elastic_gym.robots.spec import AccelerometerMount
 from elastic_gym.validation import (
     ConfigError,
     Finite,
@@ -199,8 +200,7 @@ class EnvConfig(StrictModel):
     """Every env kwarg of :class:`~elastic_gym.envs.batch.ArmBatch` (see its docstring).
 
     Typed here: what needs no robot. The task options are checked by the task, the
-    accelerometer mounts by :class:`~elastic_gym.robots.spec.AccelerometerMount`, the
-    robot-dependent limits (joint counts, a
+    robot-dependent limits (a sensor on a link the robot lacks, joint counts, a
     delay longer than 1 s, friction in fractions of the torque limits, a physics step too
     coarse for the stiffest joint) by the batch."""
 
@@ -210,7 +210,7 @@ class EnvConfig(StrictModel):
     control_dt: Annotated[PositiveFinite, Field(le=MAX_CONTROL_DT)] | None = None
     encoder: EncoderConfig | None = None
     accelerometer: Accelerometer = None
-    accelerometers: list | None = None
+    accelerometers: list[AccelerometerMount] | None = None
     plant_scaling: ParameterScaling | None = None
     unmodelled_friction: UnmodelledFriction | None = None
     torque_limit: PositiveNumbers | None = None
