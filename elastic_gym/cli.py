@@ -22,7 +22,8 @@ from pydantic import BaseModel
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
 from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
 from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
-from elastic_gym.parallel import BACKENDS, Interrupted, interrupts_raised
+from elastic_gym.parallel import BACKENDS, DEFAULT_BACKEND, Interrupted, interrupts_raised
+from elastic_gym.validation import distinct
 
 
 def default(model: type[BaseModel], field: str):
@@ -64,7 +65,10 @@ def add_compare_parser(subcommands: argparse._SubParsersAction) -> None:
         f"default {DEFAULT_BATCH_SIZE}); 1: every run in a world of its own (the same rows)",
     )
     parser.add_argument(
-        "--backend", choices=BACKENDS, default="process", help="local processes (default) or Ray"
+        "--backend",
+        choices=BACKENDS,
+        default=DEFAULT_BACKEND,
+        help="local processes (default) or Ray",
     )
     parser.add_argument(
         "--seeds", type=int, nargs="+", metavar="SEED", help="override the scenario's seeds"
@@ -273,7 +277,7 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--backend",
         choices=BACKENDS,
-        default="process",
+        default=DEFAULT_BACKEND,
         help="for several seeds: local processes (default) or Ray",
     )
     parser.add_argument("--workers", type=int, help="parallel runs (default: one per CPU)")
@@ -325,9 +329,7 @@ def run_train(args: argparse.Namespace) -> int:
     require_rl_extra("elastic-gym train")
     from elastic_gym.training import RunFolder, TrainConfig, parse_overrides, train, train_many
 
-    duplicates = sorted({s for s in args.seeds if args.seeds.count(s) > 1})
-    if duplicates:
-        raise ValueError(f"--seeds: duplicate seed(s) {duplicates}")
+    distinct(args.seeds, "seed(s)", where="--seeds")
     name = args.env.split("/")[-1]
     base = args.out or f"runs/{args.algo}-{name}-{args.state}" + (
         f"-residual-{args.residual}" if args.residual else ""
@@ -425,7 +427,7 @@ def add_benchmark_parser(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument("--output", metavar="DIR", help="default: ./benchmark_out/<label>")
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier scorecard")
     parser.add_argument("--workers", type=int, help="parallel workers (default: one per CPU)")
-    parser.add_argument("--backend", choices=BACKENDS, default="process")
+    parser.add_argument("--backend", choices=BACKENDS, default=DEFAULT_BACKEND)
     parser.add_argument(
         "--scorecards",
         metavar="DIR",

@@ -26,8 +26,10 @@ from threadpoolctl import threadpool_limits
 
 from elastic_gym.orphan_reaper import start_reaper
 from elastic_gym.process_pool import WorkerDiedError, WorkerPool
+from elastic_gym.validation import checked_count, lookup
 
 BACKENDS = ("process", "ray")
+DEFAULT_BACKEND = BACKENDS[0]  # local worker processes
 SINGLE_THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 RAY_POLL = 0.5  # s between checks for signals while waiting on Ray
 RAY_IN_FLIGHT = 4  # Ray tasks submitted per worker; the rest wait here (cancelled for free)
@@ -132,13 +134,8 @@ def default_workers(n_jobs: int) -> int:
 def resolve_workers(workers: int | None, n_jobs: int, backend: str) -> int:
     """The number of workers for ``n_jobs`` jobs (default: one per CPU); checks the
     arguments (``ValueError``)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; valid: {list(BACKENDS)}")
-    if workers is not None and (
-        not isinstance(workers, int) or isinstance(workers, bool) or workers < 1
-    ):
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
-    return workers or default_workers(n_jobs)
+    lookup(dict.fromkeys(BACKENDS), backend, "backend")
+    return default_workers(n_jobs) if workers is None else checked_count(workers, "workers", 1)
 
 
 def for_each_result(
@@ -146,7 +143,7 @@ def for_each_result(
     jobs: Sequence[Any],
     on_result: Callable[[int, Any], None],
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
     label: str = "jobs",
     describe: Callable[[Any], str] = repr,
@@ -213,7 +210,7 @@ def run_jobs(
     function: Callable[[Any], Any],
     jobs: Sequence[Any],
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
     label: str = "jobs",
     describe: Callable[[Any], str] = repr,

@@ -4,11 +4,20 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import fields
-from typing import Annotated, Any, ClassVar, TypeVar, cast, get_args
+from dataclasses import dataclass
+from typing import Annotated, Any, ClassVar, TypeGuard, TypeVar, get_args
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictFloat,
+    TypeAdapter,
+    ValidationError,
+    model_validator,
+)
+from pydantic_core import core_schema
 from typing_extensions import Self
 
 T = TypeVar("T")
@@ -23,6 +32,47 @@ def is_real(value: Any) -> bool:
     )
 
 
+def is_count(value: Any, minimum: int | None = 0) -> TypeGuard[int | np.integer]:
+    """Whether ``value`` is an integer (Python or numpy, not a bool) >= ``minimum``
+    (``None``: any integer)."""
+    return bool(
+        isinstance(value, (int, np.integer))
+        and not isinstance(value, (bool, np.bool_))
+        and (minimum is None or value >= minimum)
+    )
+
+
+def checked_count(value: Any, name: str, minimum: int = 0) -> int:
+    """``value`` as an ``int`` if :func:`is_count`; ``ValueError`` naming ``name`` otherwise."""
+    if not is_count(value, minimum):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def distinct(values: Sequence[Any], what: str, why: str = "", where: str = "") -> Sequence[Any]:
+    """``values`` if none repeats; ``ValueError: [<where>: ]duplicate <what> [...]<why>``
+    otherwise."""
+    repeated = sorted({x for x in values if values.count(x) > 1})
+    if repeated:
+        raise ValueError(f"{where}{': ' if where else ''}duplicate {what} {repeated}{why}")
+    return values
+
+
+def shaped(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``value`` as a float64 array of ``shape``; ``ValueError`` naming ``name`` otherwise."""
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    return arr
+
+
+def lookup(table: Mapping[str, T], name: Any, what: str) -> T:
+    """``table[name]``; ``ValueError`` naming the ``what`` and listing the valid names."""
+    if not isinstance(name, str) or name not in table:
+        raise ValueError(f"unknown {what} {name!r}; valid: {sorted(table)}")
+    return table[name]
+
+
 def registered_env_id(value: Any) -> str:
     """A registered Gymnasium env id; a bare name (``TwoLinkElastic-v0``) is looked up in
     the ``elastic_gym/`` namespace. ``ValueError`` lists the package's ids otherwise."""
@@ -35,33 +85,6 @@ def registered_env_id(value: Any) -> str:
         valid = sorted(k for k in registry if k.startswith(ENV_NAMESPACE))
         raise ValueError(f"unknown env id {value!r}; valid: {valid}")
     return env_id
-
-
-def checked_fields(cls: type[T], config: Any, what: str) -> dict | T | None:
-    """Validate the keys of a mapping against the fields of dataclass ``cls``.
-
-    Returns ``None`` for ``None``, the object itself for an instance of ``cls``, and the
-    mapping as a dict otherwise. Raises ``TypeError`` for anything else and
-    ``ValueError`` listing unknown and valid field names.
-    """
-    if config is None or isinstance(config, cls):
-        return config
-    if not isinstance(config, Mapping):
-        raise TypeError(f"{what} must be a mapping, got {type(config).__name__}")
-    allowed = {f.name for f in fields(cast(Any, cls))}
-    unknown = set(config) - allowed
-    if unknown:
-        raise ValueError(f"unknown {what} field(s) {sorted(unknown)}; valid: {sorted(allowed)}")
-    return dict(config)
-
-
-def config_from(cls: type[T], config: Any, what: str) -> T:
-    """An instance of dataclass ``cls`` from ``None`` (the defaults), an instance (itself)
-    or a mapping of its field names (checked by :func:`checked_fields`)."""
-    config = checked_fields(cls, config, what)
-    if config is None:
-        return cls()
-    return config if isinstance(config, cls) else cls(**config)
 
 
 def check_applies(kind: str, name: str, applies_to: frozenset[str], model) -> None:
@@ -119,6 +142,47 @@ PositiveFinite = Annotated[Finite, Field(gt=0)]
 NonNegativeFinite = Annotated[Finite, Field(ge=0)]
 
 
+@dataclass(frozen=True)
+class Numbers:
+    """Annotation of a number or a non-empty list of numbers (e.g. one per joint), finite,
+    each > ``minimum`` (``strict``) or >= it: validated to a float or a tuple of floats,
+    with its JSON Schema. Not a bool, not a string. Use the aliases below."""
+
+    minimum: float | None = None
+    strict: bool = True
+
+    def _fits(self, x: Any) -> bool:
+        low, strict = self.minimum, self.strict
+        return (
+            is_real(x)
+            and bool(np.isfinite(x))
+            and (low is None or (x > low if strict else x >= low))
+        )
+
+    def check(self, value: Any) -> float | tuple[float, ...]:
+        value = plain(value)
+        many = isinstance(value, (list, tuple))
+        if (many and not value) or not all(map(self._fits, value if many else [value])):
+            bound = (
+                "" if self.minimum is None else f" {'>' if self.strict else '>='} {self.minimum:g}"
+            )
+            raise ValueError(f"must be a finite number or a list of them{bound}, got {value!r}")
+        return tuple(float(x) for x in value) if many else float(value)
+
+    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
+        return core_schema.no_info_plain_validator_function(self.check)
+
+    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> dict:
+        key = "exclusiveMinimum" if self.strict else "minimum"
+        number = {"type": "number", **({} if self.minimum is None else {key: self.minimum})}
+        return {"anyOf": [number, {"type": "array", "items": number, "minItems": 1}]}
+
+
+FiniteNumbers = Annotated[float | tuple[float, ...], Numbers()]
+PositiveNumbers = Annotated[float | tuple[float, ...], Numbers(0.0)]
+NonNegativeNumbers = Annotated[float | tuple[float, ...], Numbers(0.0, strict=False)]
+
+
 class ConfigModel(StrictModel):
     """A frozen plain-data configuration, built by :meth:`from_config` from ``None`` (the
     defaults), an instance (itself) or a mapping of its fields; errors are prefixed with
@@ -133,6 +197,10 @@ class ConfigModel(StrictModel):
             super().__init__(**data)
         except ValidationError as error:
             raise ConfigError(format_validation_error(error, self.section, type(self))) from None
+
+    # not a custom __init__ for pydantic: a nested config is validated as a field, its
+    # errors with their full path (``reward.sigmas[0]``), not through this prefix
+    __init__.__pydantic_base_init__ = True  # type: ignore[attr-defined]
 
     @classmethod
     def from_config(cls, config: Any) -> Self:
@@ -170,7 +238,12 @@ def field_path(loc: Sequence[int | str], prefix: str = "") -> str:
 
 class ConfigError(ValueError):
     """A configuration refused with its message already in the package's form (the field
-    path first): what a :class:`ConfigModel` raises."""
+    path first): what a :class:`ConfigModel` raises. Raised inside a validator, its path
+    continues the validator's own, after ``loc`` (field names and list indices)."""
+
+    def __init__(self, message: str, loc: Sequence[int | str] = ()) -> None:
+        super().__init__(message)
+        self.loc = tuple(loc)
 
 
 class FieldError(ValueError):
@@ -243,6 +316,7 @@ def format_validation_error(
         message = item["msg"]
         cause = item.get("ctx", {}).get("error")
         if isinstance(cause, ConfigError):  # a nested config's own, already formatted
+            loc += list(cause.loc)
             lines.append(f"{field_path(loc, prefix)}.{cause}" if loc else str(cause))
             continue
         if item["type"] == "extra_forbidden":
@@ -262,13 +336,14 @@ M = TypeVar("M", bound=BaseModel)
 
 def validated(model: type[M], data: Any, prefix: str = "") -> M:
     """``model`` built from ``data`` (an instance is returned as is, ``None`` gives the
-    defaults). ``ValueError`` with one ``field.path: message`` per problem otherwise."""
+    defaults). :class:`ConfigError` (a ``ValueError``) with one ``field.path: message`` per
+    problem otherwise."""
     if isinstance(data, model):
         return data
     try:
         return model.model_validate({} if data is None else plain(data))
     except ValidationError as error:
-        raise ValueError(format_validation_error(error, prefix, model)) from None
+        raise ConfigError(format_validation_error(error, prefix, model)) from None
 
 
 # ---------------------------------------------------------------- observer / controller options
@@ -284,6 +359,18 @@ def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
         wrong_type = all(item["type"].endswith("_type") for item in error.errors())
         kind = TypeError if wrong_type else ValueError
         raise kind(format_validation_error(error, "options", model)) from None
+
+
+def option_value(name: str, value: Any, kind: Any) -> Any:
+    """One constructor option validated by the (annotated) type ``kind``: errors read
+    ``options.<name>: ...``, a ``TypeError`` for a value of the wrong type, a
+    ``ValueError`` otherwise (as :func:`validated_options`)."""
+    try:
+        return TypeAdapter(kind).validate_python(plain(value))
+    except ValidationError as error:
+        wrong_type = all(item["type"].endswith("_type") for item in error.errors())
+        message = format_validation_error(error, f"options.{name}")
+        raise (TypeError if wrong_type else ValueError)(message) from None
 
 
 @contextmanager

@@ -74,7 +74,11 @@ def test_step_before_reset():
         ({"plant_scaling": {"link_mass": -1.0}}, ValueError, "link_mass"),
         ({"unmodelled_friction": {"coulomb": -0.1}}, ValueError, "unmodelled_friction.coulomb"),
         ({"unmodelled_friction": {"coulomb": 1.0}}, ValueError, "below 1"),
-        ({"unmodelled_friction": {"stiction": 0.1}}, ValueError, "'coulomb' and/or 'viscous'"),
+        (
+            {"unmodelled_friction": {"stiction": 0.1}},
+            ValueError,
+            r"unmodelled_friction\.stiction: unexpected field; valid: \['coulomb', 'viscous'\]",
+        ),
         (
             {"unmodelled_friction": {"viscous": [0.1, 0.2, 0.3]}},
             ValueError,

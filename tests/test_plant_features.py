@@ -181,7 +181,7 @@ def test_rigid_arm_pulse_and_payload():
         ),
         (
             {"torque_pulses": {"times": [0.1], "durations": [-0.1], "amplitudes": [1.0]}},
-            "durations must be finite and > 0",
+            r"torque_pulses\.durations\[0\]: Input should be greater than 0",
         ),
         (
             {"torque_pulses": {"times": [0.1], "durations": [0.1], "amplitudes": [[1.0, 2, 3]]}},

@@ -172,7 +172,10 @@ def test_per_arm_plants_differ_in_pybullet_and_in_the_chain():
         ([{}], "exactly 2 mappings"),
         ({"plant_scaling": {}}, "per_arm: Input should be a valid list"),
         ([{}, {"stiffness": 1.0}], r"per_arm\[1\]\.stiffness: unexpected field"),
-        ([{}, {"plant_scaling": {"link_mass": -1}}], r"per_arm\[1\]: parameter scaling"),
+        (
+            [{}, {"plant_scaling": {"link_mass": -1}}],
+            r"per_arm\[1\]\.plant_scaling\.link_mass: must be",
+        ),
         (
             [{}, {"sensor_delay": -1}],
             r"per_arm\[1\]\.sensor_delay: Input should be greater than or equal to 0",

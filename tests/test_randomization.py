@@ -156,7 +156,7 @@ def test_vector_env_info_has_a_leading_arm_axis_and_pickles():
         ({"sensor_delay": {"low": 0, "high": 1.5}}, "sensor_delay takes integers"),
         (
             {"plant_scaling.link_mass": {"low": 0.0, "high": 1.0}},
-            r"randomize\['plant_scaling.link_mass'\]\.low: parameter scaling 'link_mass' must be",
+            r"randomize\['plant_scaling.link_mass'\]\.low: plant_scaling\.link_mass: must be",
         ),
         (
             {"sensor_delay": {"low": 0, "high": 5000}},

@@ -106,3 +106,48 @@ def test_cli_prints_the_schema(capsys):
     with pytest.raises(SystemExit) as info:
         main(["schema", "nope"])
     assert info.value.code == 2
+
+
+def test_a_freshly_written_run_config_names_the_run_schema_and_satisfies_it(tmp_path):
+    from elastic_gym.training import RunFolder, TrainConfig
+
+    config = TrainConfig(
+        out_dir=str(tmp_path / "run"),
+        env_kwargs={"plant_scaling": {"link_mass": [1.1, 1.2]}, "sensor_delay": 1},
+        action={"kind": "residual", "residual": "feedforward-state-feedback"},
+    )
+    folder = RunFolder(tmp_path / "run")
+    folder.path.mkdir()
+    folder.write_config(config)
+    text = (folder.path / "config.yaml").read_text()
+    match = HEADER.match(text)
+    assert match, text.splitlines()[0]
+    assert match[1] == (SCHEMA_DIR / "run.json").as_uri()  # absolute: valid from any folder
+    data = yaml.safe_load(text)
+    errors = [e.message for e in validator("run").iter_errors(data)]
+    assert not errors, errors
+    assert TrainConfig.from_dict(data) == config
+    bad = {**data, "env_kwargs": {"plant_scaling": {"link_mass": -1}}}
+    assert not validator("run").is_valid(bad)
+    with pytest.raises(ValueError, match=r"^env_kwargs\.plant_scaling\.link_mass: must be"):
+        TrainConfig.from_dict(bad)
+
+
+def test_the_scenario_schema_types_the_env_kwargs_by_the_envs_own_model():
+    check = validator("scenario")
+    base = {"controllers": ["motor-pd"], "state_sources": [True]}
+    env = {"id": "TwoLinkElastic-v0", "kwargs": {"plant_scaling": {"link_mass": 1.3}}}
+    assert check.is_valid({**base, "envs": [env]})
+    for kwargs, path in [
+        ({"plant_scaling": {"link_mass": -1}}, "envs[0].kwargs.plant_scaling.link_mass"),
+        ({"plant_scaling": {"link_mas": 1}}, "envs[0].kwargs.plant_scaling.link_mas"),
+        ({"sensor_delay": 1.5}, "envs[0].kwargs.sensor_delay"),
+        ({"tsk": "regulation"}, "envs[0].kwargs.tsk"),
+        ({"accelerometer": "noisy"}, "envs[0].kwargs.accelerometer"),
+    ]:
+        data = {**base, "envs": [{**env, "kwargs": kwargs}]}
+        assert not check.is_valid(data), kwargs
+        with pytest.raises(ScenarioError) as info:
+            Scenario.from_dict(data)
+        assert str(info.value).startswith(f"{path}:"), str(info.value)
+    assert check.is_valid({**base, "envs": [{**env, "kwargs": {"accelerometer": "ideal"}}]})

@@ -105,7 +105,7 @@ def test_an_axis_can_be_generated_from_magnitudes():
     [
         ({"nominal": 1, "values": [1.1]}, "sweeps.s.parameter"),
         ({**MASS, "parameter": "plant scaling"}, "sweeps.s.parameter"),
-        ({**MASS, "parameter": "plant_scalin.link_mass"}, "sweeps.s.parameter"),
+        ({**MASS, "parameter": "plant_scalin.link_mass"}, "sweeps.s.parameter.plant_scalin"),
         ({**MASS, "range": [1, 2]}, "sweeps.s"),
         ({"parameter": "sensor_delay", "nominal": 0}, "sweeps.s"),
         ({**MASS, "values": []}, "sweeps.s.values"),

@@ -173,12 +173,12 @@ def test_bad_hyperparameters(tmp_path):
     with pytest.raises(ValueError, match="key=value"):
         parse_overrides(["learning_rate"])
     wrong_kinds = [
-        ({"n_steps": "abc"}, "n_steps must be a finite number"),
-        ({"learning_rate": float("nan")}, "learning_rate must be a finite number"),
-        ({"n_steps": 64.5}, "n_steps must be an integer"),
+        ({"n_steps": "abc"}, "hyper-parameter n_steps: must be an integer"),
+        ({"learning_rate": float("nan")}, "learning_rate: Input should be a finite number"),
+        ({"n_steps": 64.5}, "n_steps: Input should be a valid integer"),
         ({"n_envs": 0}, "n_envs: Input should be greater than or equal to 1"),
         ({"normalize": "yes"}, "normalize: Input should be a valid boolean, got 'yes'"),
-        ({"use_sde": "no"}, "use_sde must be true or false"),
+        ({"use_sde": "no"}, "use_sde: Input should be a valid boolean"),
     ]
     for overrides, match in wrong_kinds:  # refused before any env exists, not inside SB3
         with pytest.raises(ValueError, match=match):

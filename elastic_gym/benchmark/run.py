@@ -30,6 +30,7 @@ from elastic_gym.benchmark.entry import Entry, describe_entry, resolve_entry
 from elastic_gym.benchmark.scorecard import JSON_FILE, Scorecard, build_scorecard, write_scorecard
 from elastic_gym.benchmark.scoring import compute_scores, score_episodes
 from elastic_gym.benchmark.suite import DEFAULT_SUITE, SuiteConfig, load_suite, suite_scenario
+from elastic_gym.parallel import DEFAULT_BACKEND
 from elastic_gym.validation import validated
 
 DEFAULT_OUTPUT_ROOT = Path("benchmark_out")
@@ -42,7 +43,7 @@ def run_benchmark(
     robots: list[str] | None = None,
     output_dir: str | Path | None = None,
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
     overwrite: bool = False,
     figure: bool = True,

@@ -34,7 +34,7 @@ from elastic_gym.evaluation.scenario import (
     merge,
 )
 from elastic_gym.evaluation.scenario_models import env_parameters
-from elastic_gym.validation import StrictModel, registered_env_id, validated
+from elastic_gym.validation import StrictModel, distinct, registered_env_id, validated
 
 SUITE_DIR = Path(__file__).resolve().parent / "suites"
 DEFAULT_SUITE = "elastic-gym-v1"
@@ -140,10 +140,7 @@ class SuiteConfig(StrictModel):
     @field_validator("seeds")
     @classmethod
     def _unique_seeds(cls, seeds: list[int]) -> list[int]:
-        repeated = sorted({s for s in seeds if seeds.count(s) > 1})
-        if repeated:
-            raise ValueError(f"duplicate seed(s) {repeated}")
-        return seeds
+        return list(distinct(seeds, "seed(s)"))
 
     @model_validator(mode="after")
     def _references(self) -> SuiteConfig:

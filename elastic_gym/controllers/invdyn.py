@@ -25,7 +25,7 @@ from scipy.special import factorial
 from elastic_gym import arms
 from elastic_gym.arms import REFERENCE_KEYS
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import is_real
+from elastic_gym.validation import is_real, shaped
 
 DEFAULT_FD_STEP = 1e-4
 TIME_TOLERANCE = 1e-9  # s; calls closer in time than this count as the same instant
@@ -61,11 +61,7 @@ def state_vector(obs: Mapping, dim: int, n_arms: int | None = None) -> np.ndarra
         raise ValueError(
             "controller needs obs['state']: wrap the env in ObserverWrapper or TrueStateWrapper"
         )
-    x = np.asarray(obs["state"], dtype=float)
-    shape = (dim,) if n_arms is None else (n_arms, dim)
-    if x.shape != shape:
-        raise ValueError(f"obs['state'] must have shape {shape}, got {x.shape}")
-    return x
+    return shaped(obs["state"], (dim,) if n_arms is None else (n_arms, dim), "obs['state']")
 
 
 def info_time(info: Mapping, n_arms: int | None = None) -> float | np.ndarray:

@@ -12,6 +12,7 @@ import importlib
 
 from elastic_gym.controllers.base import Controller
 from elastic_gym.model import RobotModel
+from elastic_gym.validation import lookup
 
 # name -> (module, class)
 CONTROLLERS: dict[str, tuple[str, str]] = {
@@ -45,9 +46,7 @@ def register_controller(name: str, target: str) -> None:
 
 
 def controller_class(name: str) -> type[Controller]:
-    if name not in CONTROLLERS:
-        raise ValueError(f"unknown controller {name!r}; valid: {sorted(CONTROLLERS)}")
-    module, cls = CONTROLLERS[name]
+    module, cls = lookup(CONTROLLERS, name, "controller")
     return getattr(importlib.import_module(module), cls)
 
 

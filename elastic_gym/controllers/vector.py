@@ -29,7 +29,7 @@ from elastic_gym.controllers.base import Controller, public_info
 from elastic_gym.controllers.invdyn import checked_reference_rows, info_time, state_vector
 from elastic_gym.controllers.registry import controller_class
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import check_applies
+from elastic_gym.validation import check_applies, checked_count
 
 ARM0 = np.array([0])
 
@@ -53,8 +53,7 @@ class VectorController(ABC):
     applies_to: frozenset[str] = frozenset({"elastic", "rigid"})
 
     def __init__(self, model: RobotModel, dt: float, n_arms: int) -> None:
-        if isinstance(n_arms, bool) or not isinstance(n_arms, (int, np.integer)) or n_arms < 1:
-            raise ValueError(f"n_arms must be an integer >= 1, got {n_arms!r}")
+        checked_count(n_arms, "n_arms", 1)
         check_applies("controller", self.name, self.applies_to, model)
         self.model = model
         self.dt = float(dt)

@@ -19,6 +19,7 @@ from elastic_gym.envs.config import (
     ArmOptions,
     PayloadConfig,
     TorquePulsesConfig,
+    UnmodelledFriction,
 )
 from elastic_gym.envs.plant import default_payload_position, with_payload
 from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
@@ -58,20 +59,15 @@ def deep_merge(base, override):
 
 def arm_kwargs(shared: dict, per_arm, n_arms: int) -> list[dict] | None:
     """Each arm's per-arm kwargs: ``shared`` deep-merged with ``per_arm[i]`` (None: no
-    per-arm mappings). ``per_arm`` must hold exactly ``n_arms`` mappings of
-    :data:`~elastic_gym.envs.config.PER_ARM_KEYS`."""
+    per-arm mappings). ``per_arm``: exactly ``n_arms`` mappings of
+    :data:`~elastic_gym.envs.config.PER_ARM_KEYS` (each validated by
+    :class:`~elastic_gym.envs.config.ArmOptions` with the env's kwargs)."""
     if per_arm is None:
         return None
-    if isinstance(per_arm, (str, bytes, Mapping)) or not hasattr(per_arm, "__len__"):
-        raise ValueError(f"per_arm must be a sequence of {n_arms} mappings, got {per_arm!r}")
     if len(per_arm) != n_arms:
         raise ValueError(
             f"per_arm must hold exactly {n_arms} mappings (one per arm), got {len(per_arm)}"
         )
-    for i, options in enumerate(per_arm):
-        if not isinstance(options, Mapping):
-            raise ValueError(f"per_arm[{i}] must be a mapping, got {options!r}")
-        validated(ArmOptions, options, f"per_arm[{i}]")
     return [
         {
             key: deep_merge(shared[key], options[key]) if key in options else shared[key]
@@ -111,27 +107,24 @@ class ArmResolver:
         self._nominal_plant = RobotModel(spec, accelerometers=mounts)
 
     def settings(self, kwargs: Mapping) -> ArmSettings:
-        spec = self.spec
-        scaling = self._scaling(kwargs.get("plant_scaling"))
-        encoder = EncoderConfig.from_config(kwargs.get("encoder"))
+        """One arm's settings from its per-arm kwargs (:class:`ArmOptions` and the robot's
+        limits)."""
+        spec, options = self.spec, validated(ArmOptions, kwargs)
+        encoder = options.encoder or EncoderConfig()
         return ArmSettings(
-            scaling=scaling,
-            friction=self._unmodelled_friction(kwargs.get("unmodelled_friction")),
+            scaling=self._scaling(options.plant_scaling),
+            friction=self._unmodelled_friction(options.unmodelled_friction),
             encoder=(
                 spec.encoder_resolution if encoder.resolution is None else encoder.resolution,
                 spec.encoder_noise_std if encoder.noise_std is None else encoder.noise_std,
             ),
-            accelerometer=self._accelerometer(kwargs.get("accelerometer")),
-            sensor_delay=self._delay(
-                kwargs.get("sensor_delay", 0), "sensor_delay", MAX_SENSOR_DELAY
-            ),
+            accelerometer=options.accelerometer or AccelerometerConfig(),
+            sensor_delay=self._delay(options.sensor_delay, "sensor_delay", MAX_SENSOR_DELAY),
             actuator_delay=self._delay(
-                kwargs.get("actuator_delay", 0), "actuator_delay", MAX_ACTUATOR_DELAY
+                options.actuator_delay, "actuator_delay", MAX_ACTUATOR_DELAY
             ),
-            payload=None
-            if kwargs.get("payload") is None
-            else validated(PayloadConfig, kwargs["payload"], "payload"),
-            pulses=self._pulses(kwargs.get("torque_pulses")),
+            payload=options.payload,
+            pulses=self._pulses(options.torque_pulses),
         )
 
     def plant_model(self, settings: ArmSettings, payload_mass: float | None = None) -> RobotModel:
@@ -154,9 +147,9 @@ class ArmResolver:
         return tuple(default_payload_position(self._nominal_plant).tolist())
 
     # ------------------------------------------------------------------ checks
-    def _scaling(self, plant_scaling) -> ParameterScaling:
+    def _scaling(self, scaling: ParameterScaling | None) -> ParameterScaling:
         """Refuse scaling a part the robot does not have (it would silently do nothing)."""
-        scaling = ParameterScaling.from_config(plant_scaling)
+        scaling = scaling or ParameterScaling()
         spec = self.spec
         absent = {
             "stiffness": not spec.elastic,
@@ -174,54 +167,26 @@ class ArmResolver:
             scaling.per_joint(key, self.n)  # one or n values
         return scaling
 
-    def _unmodelled_friction(self, config) -> LinkFriction | None:
+    def _unmodelled_friction(self, config: UnmodelledFriction | None) -> LinkFriction | None:
         """The ``unmodelled_friction`` kwarg as a :class:`LinkFriction` in N m."""
         if config is None:
             return None
-        if not isinstance(config, Mapping) or set(config) - {"coulomb", "viscous"}:
-            raise ValueError(
-                "unmodelled_friction must be a mapping with 'coulomb' and/or "
-                f"'viscous' (fractions of the torque limit), got {config!r}"
-            )
         n, limit = self.n, self.torque_limit
-        coulomb = per_joint_values(
-            config.get("coulomb", 0.0), n, "unmodelled_friction.coulomb", 0.0
-        )
-        viscous = per_joint_values(
-            config.get("viscous", 0.0), n, "unmodelled_friction.viscous", 0.0
-        )
-        if np.any(coulomb >= 1.0) or np.any(viscous > 1.0):
-            raise ValueError(
-                "unmodelled_friction: coulomb must stay below 1 (the motor could "
-                "not move the joint) and viscous at most 1 s/rad, got "
-                f"{config!r}"
-            )
+        coulomb = per_joint_values(config.coulomb, n, "unmodelled_friction.coulomb")
+        viscous = per_joint_values(config.viscous, n, "unmodelled_friction.viscous")
         return LinkFriction(
             viscous=tuple((limit * viscous).tolist()), coulomb_pos=tuple((limit * coulomb).tolist())
         )
 
-    @staticmethod
-    def _accelerometer(accelerometer) -> AccelerometerConfig:
-        if isinstance(accelerometer, str) and accelerometer != "ideal":
-            raise ValueError(
-                f"accelerometer must be 'ideal', a mapping of AccelerometerConfig fields or None, "
-                f"got the string {accelerometer!r}"
-            )
-        if accelerometer == "ideal":
-            return AccelerometerConfig.ideal()
-        return AccelerometerConfig.from_config(accelerometer)
-
-    def _delay(self, delay, name: str, limit: float) -> int:
-        if isinstance(delay, bool) or not isinstance(delay, (int, np.integer)) or delay < 0:
-            raise ValueError(f"{name} must be an integer >= 0 (control periods), got {delay!r}")
+    def _delay(self, delay: int | None, name: str, limit: float) -> int:
+        delay = delay or 0
         if delay * self.control_dt > limit:
             raise ValueError(f"{name} of {delay} control periods is more than {limit} s")
-        return int(delay)
+        return delay
 
-    def _pulses(self, config) -> TorquePulsesConfig | None:
-        if config is None:
+    def _pulses(self, pulses: TorquePulsesConfig | None) -> TorquePulsesConfig | None:
+        if pulses is None:
             return None
-        pulses = validated(TorquePulsesConfig, config, "torque_pulses")
         for k, amplitude in enumerate(pulses.amplitudes or ()):
             per_joint_values(amplitude, self.n, f"torque_pulses.amplitudes[{k}]")
         return pulses

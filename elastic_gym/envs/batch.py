@@ -47,7 +47,7 @@ from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
 from elastic_gym.robots.urdf_tools import joint_limits
-from elastic_gym.validation import per_joint_values, validated
+from elastic_gym.validation import checked_count, per_joint_values, validated
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
 MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
@@ -211,8 +211,7 @@ class ArmBatch:
     ) -> None:
         kwargs = {k: v for k, v in locals().items() if k not in ("self", "__class__")}
         self.init_kwargs = kwargs
-        if isinstance(n_arms, bool) or not isinstance(n_arms, (int, np.integer)) or n_arms < 1:
-            raise ValueError(f"the number of arms must be an integer >= 1, got {n_arms!r}")
+        n_arms = checked_count(n_arms, "the number of arms", 1)
         config = validated(EnvConfig, {k: kwargs[k] for k in self.KWARGS})
         spec = robot if isinstance(robot, RobotSpec) else get_robot(robot)
         check_batch_memory(spec.urdf, int(n_arms), spec.name)  # PyBullet would segfault

@@ -15,20 +15,35 @@ arm. ``randomize``: parameter path -> :class:`Range`, drawn at every reset.
 
 from __future__ import annotations
 
-import math
-from typing import Annotated, Any
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
 
 from pydantic import (
+    AfterValidator,
     BeforeValidator,
     Field,
-    StrictFloat,
     StrictInt,
-    field_validator,
+    ValidationError,
+    WithJsonSchema,
     model_validator,
 )
 
+from elastic_gym.envs.reward import RewardConfig
 from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
-from elastic_gym.validation import StrictModel
+from elastic_gym.model import ParameterScaling
+from elastic_gym.robots.spec import AccelerometerMount
+from elastic_gym.validation import (
+    ConfigError,
+    Finite,
+    FiniteNumbers,
+    NonNegativeFinite,
+    NonNegativeNumbers,
+    PositiveFinite,
+    PositiveNumbers,
+    StrictModel,
+    format_validation_error,
+    plain,
+)
 
 PER_ARM_KEYS = (
     "plant_scaling",
@@ -60,15 +75,19 @@ def _ideal_accelerometer(value: Any) -> Any:
     return value
 
 
-Accelerometer = Annotated[AccelerometerConfig | None, BeforeValidator(_ideal_accelerometer)]
-PositiveNumber = Annotated[StrictFloat, Field(gt=0.0, allow_inf_nan=False)]
+class _OrIdeal:
+    """JSON Schema: the string ``"ideal"`` besides the annotated type's own."""
+
+    @staticmethod
+    def __get_pydantic_json_schema__(core_schema: Any, handler: Any) -> dict:
+        return {"anyOf": [{"const": "ideal"}, handler(core_schema)]}
+
+
+Accelerometer = Annotated[
+    AccelerometerConfig | None, BeforeValidator(_ideal_accelerometer), _OrIdeal()
+]
 Periods = Annotated[StrictInt, Field(ge=0)]  # a count of control periods
-
-
-def _finite(value: float) -> float:
-    if not math.isfinite(value):
-        raise ValueError(f"must be finite, got {value!r}")
-    return value
+Payload = Annotated[NonNegativeFinite, Field(le=MAX_PAYLOAD)]  # kg
 
 
 class Range(StrictModel):
@@ -76,11 +95,9 @@ class Range(StrictModel):
     uniform in [log low, log high], low > 0). Integer parameters draw an integer uniformly
     in {low, ..., high}."""
 
-    low: float
-    high: float
+    low: Finite
+    high: Finite
     log: bool = False
-
-    _finite_ends = field_validator("low", "high")(_finite)
 
     @model_validator(mode="after")
     def _ordered(self) -> Range:
@@ -92,36 +109,25 @@ class Range(StrictModel):
 
 
 class PayloadChange(StrictModel):
-    time: float = Field(gt=0.0)
-    mass: float = Field(ge=0.0, le=MAX_PAYLOAD)
-
-    _finite_time = field_validator("time")(_finite)
+    time: PositiveFinite
+    mass: Payload
 
 
 class PayloadConfig(StrictModel):
-    mass: float = Field(ge=0.0, le=MAX_PAYLOAD)
-    position: tuple[float, float, float] | None = None
+    mass: Payload
+    position: tuple[Finite, Finite, Finite] | None = None
     change: PayloadChange | None = None
-
-    @field_validator("position")
-    @classmethod
-    def _finite_position(cls, value):
-        if value is not None:
-            for x in value:
-                _finite(x)
-        return value
 
 
 class RandomPulses(StrictModel):
     count: int = Field(ge=1, le=MAX_PULSES)
-    window: tuple[float, float]
+    window: tuple[NonNegativeFinite, NonNegativeFinite]
     duration: Range
     amplitude: Range
 
     @model_validator(mode="after")
     def _bounds(self) -> RandomPulses:
-        start, end = self.window
-        if not (math.isfinite(start) and math.isfinite(end) and 0.0 <= start <= end):
+        if self.window[0] > self.window[1]:
             raise ValueError(f"window must be 0 <= start <= end (s), got {self.window}")
         if self.duration.low <= 0.0:
             raise ValueError(f"duration.low must be > 0 s, got {self.duration.low}")
@@ -132,39 +138,55 @@ class RandomPulses(StrictModel):
         return self
 
 
+Pulses = Field(None, max_length=MAX_PULSES)
+
+
 class TorquePulsesConfig(StrictModel):
-    times: list[float] | None = None
-    durations: list[float] | None = None
-    amplitudes: list[float | list[float]] | None = None
+    times: list[NonNegativeFinite] | None = Pulses  # s
+    durations: list[PositiveFinite] | None = Pulses  # s
+    amplitudes: list[FiniteNumbers] | None = Pulses
     random: RandomPulses | None = None
 
     @model_validator(mode="after")
     def _one_form(self) -> TorquePulsesConfig:
-        times, durations, amplitudes = self.times, self.durations, self.amplitudes
+        given = [part is not None for part in (self.times, self.durations, self.amplitudes)]
         if self.random is not None:
-            if times is not None or durations is not None or amplitudes is not None:
+            if any(given):
                 raise ValueError("give either times/durations/amplitudes or random, not both")
-            return self
-        if times is None or durations is None or amplitudes is None:
+        elif not all(given):
             raise ValueError("give times, durations and amplitudes (or random)")
-        if not len(times) == len(durations) == len(amplitudes):
+        elif not len(self.times) == len(self.durations) == len(self.amplitudes):  # type: ignore[arg-type]
             raise ValueError("times, durations and amplitudes need one entry per pulse")
-        if len(times) > MAX_PULSES:
-            raise ValueError(f"at most {MAX_PULSES} pulses")
-        if any(not (math.isfinite(t) and t >= 0.0) for t in times):
-            raise ValueError(f"times must be finite and >= 0 s, got {times}")
-        if any(not (math.isfinite(d) and d > 0.0) for d in durations):
-            raise ValueError(f"durations must be finite and > 0 s, got {durations}")
+        return self
+
+
+class UnmodelledFriction(StrictModel):
+    """Link friction no model knows, in fractions of each joint's motor torque limit:
+    ``coulomb`` below 1 (the motor could not move the joint otherwise), ``viscous`` at
+    most 1 s/rad (scalars or per joint)."""
+
+    coulomb: NonNegativeNumbers = 0.0
+    viscous: NonNegativeNumbers = 0.0
+
+    @model_validator(mode="after")
+    def _movable(self) -> UnmodelledFriction:
+        coulomb = self.coulomb if isinstance(self.coulomb, tuple) else (self.coulomb,)
+        viscous = self.viscous if isinstance(self.viscous, tuple) else (self.viscous,)
+        if max(coulomb) >= 1.0 or max(viscous) > 1.0:
+            raise ValueError(
+                "coulomb must stay below 1 (the motor could not move the joint) and viscous "
+                f"at most 1 s/rad, got coulomb={self.coulomb}, viscous={self.viscous}"
+            )
         return self
 
 
 class ArmOptions(StrictModel):
     """The per-arm kwargs of one arm (one entry of ``per_arm``); None keeps the shared one.
+    What needs the robot (joint counts, delays in seconds) is checked by
+    :class:`~elastic_gym.envs.arm_config.ArmResolver`."""
 
-    The fields without a model here keep their own validators (the robot must be known)."""
-
-    plant_scaling: Any = None
-    unmodelled_friction: Any = None
+    plant_scaling: ParameterScaling | None = None
+    unmodelled_friction: UnmodelledFriction | None = None
     encoder: EncoderConfig | None = None
     accelerometer: Accelerometer = None
     sensor_delay: Periods | None = None
@@ -177,29 +199,74 @@ class ArmOptions(StrictModel):
 class EnvConfig(StrictModel):
     """Every env kwarg of :class:`~elastic_gym.envs.batch.ArmBatch` (see its docstring).
 
-    Typed here: what needs no robot. The plant scaling
-    (:class:`~elastic_gym.model.ParameterScaling`) and the reward
-    (:class:`~elastic_gym.envs.reward.RewardConfig`) keep their own config classes, the
-    task options are checked by the task, the robot-dependent limits (joint counts, a
+    Typed here: what needs no robot. The task options are checked by the task, the
+    robot-dependent limits (a sensor on a link the robot lacks, joint counts, a
     delay longer than 1 s, friction in fractions of the torque limits, a physics step too
     coarse for the stiffest joint) by the batch."""
 
     task: str = "tracking"
     task_options: dict | None = None
-    physics_dt: Annotated[PositiveNumber, Field(le=MAX_PHYSICS_DT)] | None = None
-    control_dt: Annotated[PositiveNumber, Field(le=MAX_CONTROL_DT)] | None = None
+    physics_dt: Annotated[PositiveFinite, Field(le=MAX_PHYSICS_DT)] | None = None
+    control_dt: Annotated[PositiveFinite, Field(le=MAX_CONTROL_DT)] | None = None
     encoder: EncoderConfig | None = None
     accelerometer: Accelerometer = None
-    accelerometers: list | None = None
-    plant_scaling: Any = None
-    unmodelled_friction: Any = None
-    torque_limit: PositiveNumber | list[PositiveNumber] | None = None
-    reward: Any = None
-    max_velocity: PositiveNumber = 100.0
+    accelerometers: list[AccelerometerMount] | None = None
+    plant_scaling: ParameterScaling | None = None
+    unmodelled_friction: UnmodelledFriction | None = None
+    torque_limit: PositiveNumbers | None = None
+    reward: RewardConfig | None = None
+    max_velocity: PositiveFinite = 100.0
     sensor_delay: Periods = 0
     actuator_delay: Periods = 0
     payload: PayloadConfig | None = None
     torque_pulses: TorquePulsesConfig | None = None
     randomize: dict[str, Range] | None = None
     per_arm: list[ArmOptions] | None = None
-    episode_time: PositiveNumber | None = EPISODE_TIME
+    episode_time: PositiveFinite | None = EPISODE_TIME
+
+
+class EnvKwargs(EnvConfig):
+    """The keyword arguments of an env of the package (``gym.make(id, **kwargs)``): the
+    batch's (:class:`EnvConfig`) and the env's own ``robot`` (a name of the catalog,
+    default the id's) and ``render_mode``. Scenarios and training configs validate their
+    env kwargs with it."""
+
+    robot: Annotated[Any, WithJsonSchema({"type": "string"})] = None
+    render_mode: Literal["human", "rgb_array"] | None = None
+
+
+class MakeKwargs(EnvKwargs):
+    """The keyword arguments of ``gym.make`` / ``gym.make_vec`` for an env of the package
+    (what a training run passes): :class:`EnvKwargs` and ``max_episode_steps`` (a
+    ``TimeLimit`` in control periods)."""
+
+    max_episode_steps: Annotated[StrictInt, Field(ge=1)] | None = None
+
+
+def checked_kwargs(kwargs: dict, loc: tuple = (), model: type[EnvKwargs] = EnvKwargs) -> dict:
+    """``kwargs`` (all or some of an env's) validated by ``model`` and returned as given;
+    :class:`~elastic_gym.validation.ConfigError` with the field path
+    (``plant_scaling.link_mass: ...``) after ``loc`` otherwise."""
+    try:
+        model.model_validate(plain(kwargs))
+    except ValidationError as error:
+        raise ConfigError(format_validation_error(error, "", model), loc) from None
+    return kwargs
+
+
+@dataclass(frozen=True)
+class KwargsSchema:
+    """JSON Schema of a mapping of env kwargs: ``model``'s."""
+
+    model: type[EnvKwargs] = EnvKwargs
+
+    def __get_pydantic_json_schema__(self, core_schema: Any, handler: Any) -> dict:
+        return handler(self.model.__pydantic_core_schema__)
+
+
+# the kwargs of gym.make for a package env as a plain mapping (as given), validated
+MakeKwargsMapping = Annotated[
+    dict[str, Any],
+    AfterValidator(lambda kwargs: checked_kwargs(kwargs, model=MakeKwargs)),
+    KwargsSchema(MakeKwargs),
+]

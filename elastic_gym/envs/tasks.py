@@ -18,7 +18,7 @@ import numpy as np
 from elastic_gym.envs.trajectories import RestToRestPath, rest_to_rest
 from elastic_gym.model import RobotModel
 from elastic_gym.robots.spec import RobotSpec
-from elastic_gym.validation import is_real, per_joint_values
+from elastic_gym.validation import checked_count, is_real, lookup, per_joint_values
 
 REFERENCE_ORDER = 4
 
@@ -30,7 +30,7 @@ def _vector(value, n: int, name: str) -> np.ndarray:
 def _max_move(value, spec: RobotSpec) -> float:
     if value is None:
         return spec.max_move
-    if isinstance(value, bool) or not is_real(value) or not (np.isfinite(value) and value > 0):
+    if not (is_real(value) and np.isfinite(value) and value > 0):
         raise ValueError(f"task option 'max_move' must be a number > 0, got {value!r}")
     return float(value)
 
@@ -137,10 +137,7 @@ class TrackingTask(Task):
         self._start: np.ndarray | None = None
         if self.start is not None:
             self._start = _vector(self.start, n, "start")
-        if isinstance(self.n_moves, bool) or not (
-            isinstance(self.n_moves, int) and self.n_moves >= 1
-        ):
-            raise ValueError(f"task option 'n_moves' must be an integer >= 1, got {self.n_moves!r}")
+        checked_count(self.n_moves, "task option 'n_moves'", 1)
         for key in ("move_time", "dwell_time"):
             value = getattr(self, key)
             if (
@@ -282,9 +279,7 @@ def make_task(
     name: str, spec: RobotSpec, model: RobotModel, options: dict | None, n_arms: int = 1
 ) -> Task:
     """Instantiate a task for ``n_arms`` arms by name with validated options."""
-    if name not in TASKS:
-        raise ValueError(f"unknown task {name!r}; valid: {sorted(TASKS)}")
-    cls = TASKS[name]
+    cls = lookup(TASKS, name, "task")
     options = dict(options or {})
     unknown = set(options) - set(cls.option_names())
     if unknown:

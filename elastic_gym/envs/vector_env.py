@@ -25,6 +25,7 @@ from gymnasium.vector.utils import batch_space
 from elastic_gym.envs.arm_env import validated_actions
 from elastic_gym.envs.batch import ArmBatch, with_batch_options
 from elastic_gym.robots.spec import RobotSpec
+from elastic_gym.validation import checked_count, is_count
 
 
 def masked_info(info: dict, mask: np.ndarray) -> dict:
@@ -40,7 +41,7 @@ def masked_info(info: dict, mask: np.ndarray) -> dict:
 
 def _generator(seed: object, where: str) -> np.random.Generator:
     """The generator of an integer seed >= 0; ``ValueError`` naming ``where`` otherwise."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+    if not is_count(seed):
         raise ValueError(f"{where} must be an integer >= 0 or None, got {seed!r}")
     return seeding.np_random(int(seed))[0]
 
@@ -86,14 +87,8 @@ class ArmVectorEnv(VectorEnv):
             raise ValueError(
                 f"render_mode {render_mode!r} not supported; valid: {self.metadata['render_modes']}"
             )
-        if max_episode_steps is not None and (
-            isinstance(max_episode_steps, bool)
-            or not isinstance(max_episode_steps, int)
-            or max_episode_steps < 1
-        ):
-            raise ValueError(
-                f"max_episode_steps must be an integer >= 1, got {max_episode_steps!r}"
-            )
+        if max_episode_steps is not None:
+            checked_count(max_episode_steps, "max_episode_steps", 1)
         self.batch = batch = ArmBatch(robot, num_envs, **kwargs)
         if max_episode_steps is not None:
             batch.limit_episode(max_episode_steps)
@@ -170,7 +165,7 @@ class ArmVectorEnv(VectorEnv):
         N = self.num_envs
         if seed is None:
             return [None] * N
-        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+        if is_count(seed, minimum=None):  # a negative one is refused by the arm
             return [int(seed) + i for i in range(N)]
         if not isinstance(seed, (list, tuple, np.ndarray)):
             raise TypeError(

@@ -56,10 +56,12 @@ from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
 from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
 from elastic_gym.folder_lock import check_writable, folder_lock
 from elastic_gym.parallel import (
+    DEFAULT_BACKEND,
     interrupts_raised,
     resolve_workers,
     with_detail,
 )
+from elastic_gym.validation import checked_count
 
 DEFAULT_OUTPUT_ROOT = Path("compare_out")
 
@@ -86,7 +88,7 @@ def compare(
     scenario: Scenario,
     output_dir: str | Path | None = None,
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
     plots: bool = True,
     overwrite: bool = False,
@@ -112,8 +114,7 @@ def compare(
     cannot work, ``NotADirectoryError`` / ``PermissionError`` / ``FileExistsError`` for
     the output folder, ``ValueError`` for the other arguments.
     """
-    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
-        raise ValueError(f"batch_size must be an integer >= 1, got {batch_size!r}")
+    checked_count(batch_size, "batch_size", 1)
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / scenario.name
     check_writable(out)
     with folder_lock(out):

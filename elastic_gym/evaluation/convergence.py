@@ -22,6 +22,8 @@ from dataclasses import replace
 from elastic_gym.evaluation.report import METRIC_KEYS
 from elastic_gym.evaluation.runner import RunResult, RunSpec, env_robot, execute, plan_runs
 from elastic_gym.evaluation.scenario import Scenario
+from elastic_gym.parallel import DEFAULT_BACKEND
+from elastic_gym.validation import checked_count
 
 REFINEMENT = 8
 TOLERANCE = 0.2
@@ -105,7 +107,7 @@ def check_convergence(
     refinement: int = REFINEMENT,
     tolerance: float = TOLERANCE,
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
 ) -> list[dict]:
     """Run every run of ``scenario`` at its physics step and at 1/``refinement`` of it.
@@ -113,8 +115,7 @@ def check_convergence(
     Returns :func:`compare_results` rows; ``all(row["converged"] for row in rows)`` is
     the verdict for the whole grid.
     """
-    if not isinstance(refinement, int) or refinement < 2:
-        raise ValueError(f"refinement must be an integer >= 2, got {refinement!r}")
+    checked_count(refinement, "refinement", 2)
     runs, _ = plan_runs(scenario)
     coarse = execute(runs, workers=workers, backend=backend, progress=progress)
     fine = execute(

@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from elastic_gym.evaluation.scenario import Scenario, ScenarioError
+from elastic_gym.validation import lookup
 from elastic_gym.yaml_io import YAMLInputError, load_yaml
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
@@ -18,8 +19,7 @@ def list_presets() -> list[str]:
 
 
 def preset_path(name: str) -> Path:
-    if name not in list_presets():
-        raise ValueError(f"unknown preset {name!r}; valid: {list_presets()}")
+    lookup(dict.fromkeys(list_presets()), name, "preset")
     return PRESET_DIR / f"{name}.yaml"
 
 

@@ -44,7 +44,7 @@ from elastic_gym.evaluation.scenario import (
 from elastic_gym.observers.base import Observer
 from elastic_gym.observers.registry import OBSERVERS, make_observer, observer_class
 from elastic_gym.observers.vector import ObserverWrapper as VectorObserverWrapper
-from elastic_gym.parallel import for_each_result, resolve_workers, user_failure
+from elastic_gym.parallel import DEFAULT_BACKEND, for_each_result, resolve_workers, user_failure
 from elastic_gym.process_pool import WorkerDiedError
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import RobotSpec
@@ -574,7 +574,7 @@ def _simulate(world: World, recorder: _Recorder, group: RunGroup, steps: int) ->
 def execute(
     runs: Sequence[RunSpec],
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
     batch_size: int = DEFAULT_BATCH_SIZE,
 ) -> list[RunResult]:

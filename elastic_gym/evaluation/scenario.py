@@ -53,7 +53,13 @@ from elastic_gym.evaluation.scenario_models import (
     check_env_kwargs,
     unique_labels,
 )
-from elastic_gym.validation import FieldError, StrictModel, format_validation_error
+from elastic_gym.validation import (
+    ConfigError,
+    FieldError,
+    StrictModel,
+    distinct,
+    format_validation_error,
+)
 
 __all__ = [
     "IDENTITY_COLUMNS",
@@ -83,13 +89,8 @@ class ScenarioError(ValueError):
 
 
 def _distinct(seeds: tuple[int, ...]) -> tuple[int, ...]:
-    duplicates = sorted({seed for seed in seeds if seeds.count(seed) > 1})
-    if duplicates:
-        raise ValueError(
-            f"duplicate seed(s) {duplicates}: a seed repeated would "
-            "count the same run twice in the means over seeds"
-        )
-    return seeds
+    why = ": a seed repeated would count the same run twice in the means over seeds"
+    return tuple(distinct(seeds, "seed(s)", why))
 
 
 def _folder_name(name: str) -> str:
@@ -173,9 +174,12 @@ class Scenario(StrictModel):
                     for env in self.envs:
                         try:
                             check_env_kwargs(env.id, value.values)
-                        except FieldError as exc:
-                            loc = (table, name, "parameter") if generated else (table, name, i)
-                            raise FieldError((*loc, *exc.loc), str(exc)) from None
+                        except (FieldError, ConfigError) as exc:
+                            at = (table, name, "parameter") if generated else (table, name, i)
+                            loc = (*at, *exc.loc)
+                            if isinstance(exc, FieldError):
+                                raise FieldError(loc, str(exc)) from None
+                            raise ConfigError(str(exc), loc) from None
         return self
 
     @classmethod

@@ -1,9 +1,10 @@
 """The entries of a comparison scenario as pydantic models (field-path errors, JSON Schema).
 
 Each model states its fields, types, bounds and defaults; the custom validators check only
-what a schema cannot know: registry names, env kwargs against an env's constructor,
-model-error and plant scalings against :class:`~elastic_gym.model.ParameterScaling`, and
-labels that must be unique. :class:`~elastic_gym.evaluation.scenario.Scenario` combines
+what a schema cannot know: registry names, env kwargs against an env's constructor (the
+package's envs: :class:`~elastic_gym.envs.config.EnvKwargs`, the model the env validates
+them with), model errors against :class:`~elastic_gym.model.ParameterScaling`, and labels
+that must be unique. :class:`~elastic_gym.evaluation.scenario.Scenario` combines
 them into the grid.
 """
 
@@ -21,6 +22,7 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
+    PlainSerializer,
     StrictFloat,
     StrictStr,
     ValidationInfo,
@@ -33,10 +35,17 @@ from pydantic import (
 )
 
 import elastic_gym  # noqa: F401 - registers the env ids
+from elastic_gym.envs.config import EnvKwargs, KwargsSchema, checked_kwargs
 from elastic_gym.evaluation.controllers import controller_names
 from elastic_gym.model import ParameterScaling
 from elastic_gym.observers.registry import OBSERVERS
-from elastic_gym.validation import ENV_NAMESPACE, FieldError, StrictModel, registered_env_id
+from elastic_gym.validation import (
+    ENV_NAMESPACE,
+    FieldError,
+    StrictModel,
+    distinct,
+    registered_env_id,
+)
 
 TRUE_STATE = "true"
 NOMINAL = "nominal"
@@ -50,7 +59,9 @@ def _keep_int(value: Any, handler: Any) -> float | int:
     return int(number) if isinstance(value, int) else number
 
 
-Real = Annotated[StrictFloat, AllowInfNan(False), WrapValidator(_keep_int)]  # 1 stays 1
+Real = Annotated[  # 1 stays 1, also in the written scenario.yaml
+    StrictFloat, AllowInfNan(False), WrapValidator(_keep_int), PlainSerializer(lambda v: v)
+]
 Positive = Annotated[StrictFloat, Field(gt=0, allow_inf_nan=False)]
 
 
@@ -100,10 +111,7 @@ ClassPath = Annotated[
 
 def unique_labels(entries: tuple) -> tuple:
     """Refuse entries of a list whose labels repeat (they name rows and figures)."""
-    labels = [entry.label for entry in entries]
-    duplicates = sorted({x for x in labels if labels.count(x) > 1})
-    if duplicates:
-        raise ValueError(f"duplicate label(s) {duplicates}; give each entry a 'label'")
+    distinct([entry.label for entry in entries], "label(s)", "; give each entry a 'label'")
     return entries
 
 
@@ -126,20 +134,26 @@ def env_parameters(env_id: str) -> set[str]:
     return names
 
 
+def is_package_env(env_id: str) -> bool:
+    """Whether ``env_id``'s constructor takes exactly the package envs' kwargs
+    (:class:`~elastic_gym.envs.config.EnvKwargs`)."""
+    return env_parameters(env_id) == set(EnvKwargs.model_fields)
+
+
 def check_env_kwargs(env_id: str, kwargs: Mapping, loc: tuple = ()) -> None:
-    """Refuse kwargs that ``env_id``'s constructor does not take, and a bad ``plant_scaling``
-    (``FieldError`` at ``loc``)."""
+    """Refuse kwargs that ``env_id``'s constructor does not take: validated by
+    :class:`~elastic_gym.envs.config.EnvKwargs` for an env of the package
+    (:func:`~elastic_gym.envs.config.checked_kwargs`), by the constructor's names
+    otherwise (``FieldError`` at ``loc``)."""
+    if is_package_env(env_id):
+        checked_kwargs(dict(kwargs), loc)
+        return
     valid = env_parameters(env_id)
     unknown = set(kwargs) - valid
     if unknown:
         raise FieldError(
             loc, f"unknown env kwarg(s) {sorted(unknown)} for {env_id}; valid: {sorted(valid)}"
         )
-    if "plant_scaling" in kwargs:
-        try:
-            ParameterScaling.from_config(kwargs["plant_scaling"])
-        except (TypeError, ValueError) as exc:
-            raise FieldError((*loc, "plant_scaling"), str(exc)) from None
 
 
 # ---------------------------------------------------------------------------- entries
@@ -168,7 +182,7 @@ class EnvEntry(BareEntry):
     bare_key = "id"
     id: Annotated[str, AfterValidator(registered_env_id)]
     label: Label = ""  # the id's name
-    kwargs: dict[str, Any] = Field(default_factory=dict)
+    kwargs: Annotated[dict[str, Any], KwargsSchema()] = Field(default_factory=dict)
     reset_options: dict[Any, Any] = Field(default_factory=dict)
 
     @field_validator("kwargs")

@@ -18,6 +18,8 @@ import numpy as np
 import pinocchio as pin
 from numba import njit
 
+from elastic_gym.validation import shaped
+
 # ---------------------------------------------------------------------------- kernels
 # Every kernel takes the chain's constant arrays (see SerialChain) and batched inputs
 # with a leading arm axis; small helpers are inlined by LLVM.
@@ -651,11 +653,7 @@ class SerialChain:
         n = self.n
         q, dq = _batch(q, n, "q"), _batch(dq, n, "dq")
         self._rows(q)
-        readings = np.ascontiguousarray(readings, dtype=np.float64)
-        if readings.shape != (len(q), 3 * self.n_sensors):
-            raise ValueError(
-                f"readings must have shape ({len(q)}, {3 * self.n_sensors}), got {readings.shape}"
-            )
+        readings = np.ascontiguousarray(shaped(readings, (len(q), 3 * self.n_sensors), "readings"))
         ddq = np.empty((len(q), n))
         diagnostics = np.empty((len(q), 3))
         _acceleration_from_readings_kernel(

@@ -15,7 +15,6 @@ simulator; :meth:`RobotModel.perturbed` gives a copy with parameter errors.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -24,50 +23,31 @@ import pinocchio as pin
 from elastic_gym.model.chain import SerialChain
 from elastic_gym.robots.spec import AccelerometerMount, LinkFriction, RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_text_for_pinocchio
-from elastic_gym.validation import checked_fields
+from elastic_gym.validation import (
+    ConfigModel,
+    NonNegativeFinite,
+    NonNegativeNumbers,
+    PositiveNumbers,
+)
 
 
-@dataclass(frozen=True)
-class ParameterScaling:
+class ParameterScaling(ConfigModel):
     """Multiplicative parameter changes (1.0 = nominal).
 
     Used for the simulated plant (``env`` kwarg ``plant_scaling``) and for model
     copies with errors (:meth:`RobotModel.perturbed`). ``link_mass`` scales the mass
     and rotational inertia of every link together (a uniformly denser link, centre of
     mass unchanged); ``link_inertia`` scales only the rotational inertia. Scalars or
-    one value per joint (the links moved by that joint).
+    one value per joint (the links moved by that joint), each > 0 (``damping`` and
+    ``friction`` >= 0).
     """
 
-    link_mass: float | tuple[float, ...] = 1.0
-    link_inertia: float | tuple[float, ...] = 1.0
-    stiffness: float | tuple[float, ...] = 1.0
-    motor_inertia: float | tuple[float, ...] = 1.0
-    damping: float | tuple[float, ...] = 1.0
-    friction: float = 1.0
-
-    @classmethod
-    def from_config(cls, config: ParameterScaling | dict | None) -> ParameterScaling:
-        checked = checked_fields(cls, config, "parameter scaling")
-        if checked is None:
-            return cls()
-        if not isinstance(checked, dict):  # an instance already
-            return checked
-        values: dict[str, Any] = {}
-        for key, value in checked.items():
-            try:
-                arr = np.asarray(value, dtype=float)
-            except (TypeError, ValueError):
-                raise ValueError(
-                    f"parameter scaling {key!r} must be numeric, got {value!r}"
-                ) from None
-            may_vanish = key in ("damping", "friction")  # D >= 0 and d(q') >= 0 are physical
-            if not np.all(np.isfinite(arr)) or np.any(arr < 0.0 if may_vanish else arr <= 0.0):
-                bound = ">= 0" if may_vanish else "> 0"
-                raise ValueError(
-                    f"parameter scaling {key!r} must be finite and {bound}, got {value!r}"
-                )
-            values[key] = float(arr) if arr.ndim == 0 else tuple(arr.tolist())
-        return cls(**values)
+    link_mass: PositiveNumbers = 1.0
+    link_inertia: PositiveNumbers = 1.0
+    stiffness: PositiveNumbers = 1.0
+    motor_inertia: PositiveNumbers = 1.0
+    damping: NonNegativeNumbers = 1.0  # D >= 0 and d(q') >= 0 are physical
+    friction: NonNegativeFinite = 1.0
 
     def per_joint(self, name: str, n: int) -> np.ndarray:
         value = np.asarray(getattr(self, name), dtype=float)
@@ -79,7 +59,7 @@ class ParameterScaling:
 
     @property
     def is_nominal(self) -> bool:
-        return all(np.all(np.asarray(getattr(self, f)) == 1.0) for f in self.__dataclass_fields__)
+        return all(np.all(np.asarray(getattr(self, f)) == 1.0) for f in type(self).model_fields)
 
 
 class RobotModel:
@@ -207,7 +187,7 @@ class RobotModel:
         extra = ParameterScaling.from_config(scaling if scaling is not None else kwargs)
         n = self.n
         combined: dict[str, Any] = {}
-        for name in ParameterScaling.__dataclass_fields__:
+        for name in ParameterScaling.model_fields:
             if name == "friction":
                 combined[name] = self.scaling.friction * extra.friction
             else:

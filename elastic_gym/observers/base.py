@@ -20,7 +20,7 @@ import numpy as np
 
 from elastic_gym.arms import as_batch
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import check_applies, is_real
+from elastic_gym.validation import check_applies, is_real, shaped
 
 ELASTIC_STATE = ("theta", "q", "dtheta", "dq")
 RIGID_STATE = ("q", "dq")
@@ -144,9 +144,7 @@ class BatchedObserver(Observer):
         return estimate
 
     def update(self, obs: Mapping[str, np.ndarray], torque: np.ndarray, dt: float) -> np.ndarray:
-        tau = np.asarray(torque, dtype=float)
-        if tau.shape != (self.n,):
-            raise ValueError(f"torque must have shape ({self.n},), got {tau.shape}")
+        tau = shaped(torque, (self.n,), "torque")
         estimate = self.update_arms(as_batch(obs), tau[None], dt)[0]
         self.diagnostics = {key: value[0].item() for key, value in self.arm_diagnostics.items()}
         return estimate
@@ -174,10 +172,7 @@ class BatchedObserver(Observer):
         return np.asarray(obs[key], dtype=float)[arms]
 
     def checked_torque(self, torque: np.ndarray, n_arms: int) -> np.ndarray:
-        tau = np.asarray(torque, dtype=float)
-        if tau.shape != (n_arms, self.n):
-            raise ValueError(f"torque must have shape ({n_arms}, {self.n}), got {tau.shape}")
-        return tau
+        return shaped(torque, (n_arms, self.n), "torque")
 
 
 def arm_count(obs: Mapping) -> int:

@@ -7,6 +7,7 @@ import importlib
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import Observer
 from elastic_gym.robots.spec import joint_kind
+from elastic_gym.validation import lookup
 
 # name -> (module, class, fixed options)
 OBSERVERS: dict[str, tuple[str, str, dict]] = {
@@ -30,9 +31,7 @@ OBSERVERS: dict[str, tuple[str, str, dict]] = {
 
 
 def observer_class(name: str) -> type[Observer]:
-    if name not in OBSERVERS:
-        raise ValueError(f"unknown observer {name!r}; valid: {sorted(OBSERVERS)}")
-    module, cls, _ = OBSERVERS[name]
+    module, cls, _ = lookup(OBSERVERS, name, "observer")
     return getattr(importlib.import_module(module), cls)
 
 

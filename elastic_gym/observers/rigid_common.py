@@ -16,13 +16,16 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field, StrictBool, StrictInt
 from scipy.stats import qmc
 
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import Observer
 from elastic_gym.observers.integration import rk4
+from elastic_gym.validation import PositiveFinite, option_value
 
 ASCENT_TOLERANCE = 1e-10
 SAMPLING_SEED = 0
@@ -30,28 +33,18 @@ SAMPLING_SEED = 0
 
 # ---------------------------------------------------------------- validation
 def positive_number(name: str, value: object) -> float:
-    """``value`` as a float > 0, or ValueError/TypeError naming the option."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise TypeError(f"option {name!r} must be a number, got {type(value).__name__}")
-    if not (np.isfinite(value) and value > 0):
-        raise ValueError(f"option {name!r} must be a finite number > 0, got {value!r}")
-    return float(value)
+    """``value`` as a float > 0 (:func:`~elastic_gym.validation.option_value`)."""
+    return option_value(name, value, PositiveFinite)
 
 
 def boolean_option(name: str, value: object) -> bool:
-    """``value`` if it is a bool, else TypeError naming the option."""
-    if not isinstance(value, bool):
-        raise TypeError(f"option {name!r} must be a bool, got {value!r}")
-    return value
+    """``value`` if it is a bool (:func:`~elastic_gym.validation.option_value`)."""
+    return option_value(name, value, StrictBool)
 
 
 def positive_integer(name: str, value: object, minimum: int = 1) -> int:
-    """``value`` as an int >= ``minimum``, or ValueError/TypeError naming the option."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"option {name!r} must be an integer, got {type(value).__name__}")
-    if value < minimum:
-        raise ValueError(f"option {name!r} must be >= {minimum}, got {value!r}")
-    return int(value)
+    """``value`` as an int >= ``minimum`` (:func:`~elastic_gym.validation.option_value`)."""
+    return option_value(name, value, Annotated[StrictInt, Field(ge=minimum)])
 
 
 # ---------------------------------------------------------------- dynamics

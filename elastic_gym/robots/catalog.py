@@ -15,6 +15,7 @@ from functools import cache
 import pybullet_data
 
 from elastic_gym.robots.spec import URDF_DIR, AccelerometerMount, LinkFriction, RobotSpec
+from elastic_gym.validation import lookup
 
 PI = math.pi
 
@@ -31,8 +32,15 @@ def two_link_elastic() -> RobotSpec:
         damping=(2.0, 1.0),
         torque_limit=(120.0, 60.0),
         accelerometers=(
-            AccelerometerMount("link1", (0.35, 0.0, 0.03), (0.0, 0.0, 0.0), "acc_link1"),
-            AccelerometerMount("link2", (0.30, 0.0, 0.025), (PI / 2, 0.0, PI / 6), "acc_link2"),
+            AccelerometerMount(
+                link="link1", position=(0.35, 0.0, 0.03), rpy=(0.0, 0.0, 0.0), name="acc_link1"
+            ),
+            AccelerometerMount(
+                link="link2",
+                position=(0.30, 0.0, 0.025),
+                rpy=(PI / 2, 0.0, PI / 6),
+                name="acc_link2",
+            ),
         ),
         workspace_low=(-2.6, -2.4),
         workspace_high=(0.6, 2.4),
@@ -63,7 +71,9 @@ def kr15_elastic() -> RobotSpec:
         coupling=((0.0, 0.0, 0.0), (0.0, 0.0, B[2] / r3), (0.0, 0.0, 0.0)),
         torque_limit=(2500.0, 4000.0, 1800.0),
         accelerometers=(
-            AccelerometerMount("forearm", (0.45, 0.0, 0.12), (0.0, 0.0, 0.0), "acc_forearm"),
+            AccelerometerMount(
+                link="forearm", position=(0.45, 0.0, 0.12), rpy=(0.0, 0.0, 0.0), name="acc_forearm"
+            ),
         ),
         workspace_low=(-1.2, -0.5, -0.9),
         workspace_high=(1.2, 0.6, 0.6),
@@ -92,10 +102,30 @@ def iiwa_elastic() -> RobotSpec:
         damping=(8.0, 8.0, 4.0, 4.0, 0.8, 0.5, 0.3),
         torque_limit=(176.0, 176.0, 110.0, 110.0, 110.0, 40.0, 40.0),
         accelerometers=(
-            AccelerometerMount("lbr_iiwa_link_2", (0.0, 0.08, 0.10), (0.0, 0.0, 0.0), "acc_link2"),
-            AccelerometerMount("lbr_iiwa_link_4", (0.0, 0.10, 0.08), (0.0, 0.0, 0.0), "acc_link4"),
-            AccelerometerMount("lbr_iiwa_link_6", (0.0, 0.06, 0.05), (0.0, 0.0, 0.0), "acc_link6"),
-            AccelerometerMount("lbr_iiwa_link_7", (0.05, 0.0, 0.03), (0.0, 0.0, 0.0), "acc_link7"),
+            AccelerometerMount(
+                link="lbr_iiwa_link_2",
+                position=(0.0, 0.08, 0.10),
+                rpy=(0.0, 0.0, 0.0),
+                name="acc_link2",
+            ),
+            AccelerometerMount(
+                link="lbr_iiwa_link_4",
+                position=(0.0, 0.10, 0.08),
+                rpy=(0.0, 0.0, 0.0),
+                name="acc_link4",
+            ),
+            AccelerometerMount(
+                link="lbr_iiwa_link_6",
+                position=(0.0, 0.06, 0.05),
+                rpy=(0.0, 0.0, 0.0),
+                name="acc_link6",
+            ),
+            AccelerometerMount(
+                link="lbr_iiwa_link_7",
+                position=(0.05, 0.0, 0.03),
+                rpy=(0.0, 0.0, 0.0),
+                name="acc_link7",
+            ),
         ),
         workspace_low=(-1.5, -0.3, -1.5, -1.8, -1.5, -1.5, -1.5),
         workspace_high=(1.5, 1.2, 1.5, -0.4, 1.5, 1.5, 1.5),
@@ -160,7 +190,4 @@ ROBOTS = {
 @cache
 def get_robot(name: str) -> RobotSpec:
     """The spec of a robot by name (see :data:`ROBOTS`)."""
-    try:
-        return ROBOTS[name]()
-    except KeyError:
-        raise ValueError(f"unknown robot {name!r}; valid: {sorted(ROBOTS)}") from None
+    return lookup(ROBOTS, name, "robot")()

@@ -11,61 +11,37 @@ Notation follows De Luca, Schroeder & Thuemmel (ICRA 2007), eqs. (1)-(2):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
+from pydantic import Field, StrictStr, model_validator
+
+from elastic_gym.validation import ConfigModel, Finite
 
 URDF_DIR = Path(__file__).parent / "urdf"
 
 
-@dataclass(frozen=True)
-class AccelerometerMount:
+class AccelerometerMount(ConfigModel):
     """A 3-axis accelerometer rigidly attached to a link.
 
     ``position`` (m) and ``rpy`` (rad, URDF roll-pitch-yaw) give the sensor frame
     in the frame of ``link`` (the URDF link frame, i.e. the frame of the joint
-    that moves the link).
+    that moves the link); ``name`` defaults to ``acc_<link>``.
     """
 
-    link: str
-    position: tuple[float, float, float]
-    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    name: str = ""
+    section: ClassVar[str] = "accelerometer"
+    link: Annotated[StrictStr, Field(min_length=1)]
+    position: tuple[Finite, Finite, Finite]
+    rpy: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
+    name: StrictStr = ""
 
-    def __post_init__(self) -> None:
-        for attr in ("position", "rpy"):
-            value = np.asarray(getattr(self, attr), dtype=float)
-            if value.shape != (3,) or not np.all(np.isfinite(value)):
-                raise ValueError(
-                    f"AccelerometerMount.{attr} must be 3 finite numbers, "
-                    f"got {getattr(self, attr)!r}"
-                )
-            object.__setattr__(self, attr, tuple(float(v) for v in value))
-        if not isinstance(self.link, str) or not self.link:
-            raise ValueError(f"AccelerometerMount.link must be a link name, got {self.link!r}")
+    @model_validator(mode="after")
+    def _default_name(self) -> AccelerometerMount:
         if not self.name:
-            object.__setattr__(self, "name", f"acc_{self.link}")
-
-    @classmethod
-    def from_config(cls, config: AccelerometerMount | dict) -> AccelerometerMount:
-        """Build from a mount or a mapping with keys ``link``, ``position``, ``rpy``, ``name``."""
-        if isinstance(config, cls):
-            return config
-        if not isinstance(config, dict):
-            raise TypeError(
-                f"accelerometer spec must be a dict or AccelerometerMount, got {config!r}"
-            )
-        allowed = {f.name for f in fields(cls)}
-        unknown = set(config) - allowed
-        if unknown:
-            raise ValueError(
-                f"unknown accelerometer field(s) {sorted(unknown)}; valid: {sorted(allowed)}"
-            )
-        if "link" not in config or "position" not in config:
-            raise ValueError(f"accelerometer spec needs 'link' and 'position', got {config!r}")
-        return cls(**config)
+            vars(self)["name"] = f"acc_{self.link}"
+        return self
 
 
 @dataclass(frozen=True)

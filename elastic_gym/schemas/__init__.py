@@ -3,7 +3,9 @@
 :data:`SCHEMAS` maps a schema name to the pydantic model that validates those files
 (``"module:Model"``; a model whose module is not installed is left out). The generated
 schemas ship beside this module as ``<name>.json``, and every shipped YAML file names
-its schema in its first line, ``# yaml-language-server: $schema=<relative path>``.
+its schema in its first line, ``# yaml-language-server: $schema=<relative path>``; a run
+folder's ``config.yaml`` (written anywhere) names the installed ``run.json`` by its
+``file://`` URI (:func:`schema_comment`).
 Regenerate them after changing a model with::
 
     elastic-gym schema --write
@@ -17,11 +19,14 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
+from elastic_gym.validation import lookup
+
 SCHEMA_DIR = Path(__file__).resolve().parent
 SCHEMAS = {
     "scenario": "elastic_gym.evaluation.scenario:Scenario",  # presets, compare --config
     "train": "elastic_gym.training.config:HyperparameterFile",  # hyper-parameter files
     "suite": "elastic_gym.benchmark.suite:SuiteConfig",
+    "run": "elastic_gym.training.config:TrainConfig",  # a run folder's config.yaml
 }
 
 
@@ -39,18 +44,23 @@ def schema_models() -> dict[str, type[BaseModel]]:
 
 def json_schema(name: str) -> dict:
     """The JSON Schema (draft 2020-12) of the files validated by model ``name``."""
-    models = schema_models()
-    if name not in models:
-        raise ValueError(f"unknown schema {name!r}; valid: {sorted(models)}")
+    model = lookup(schema_models(), name, "schema")
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
-        **models[name].model_json_schema(by_alias=True),
+        **model.model_json_schema(by_alias=True),
     }
 
 
 def schema_text(name: str) -> str:
     """:func:`json_schema` as the text of the shipped file."""
     return json.dumps(json_schema(name), indent=2, sort_keys=True) + "\n"
+
+
+def schema_comment(name: str) -> str:
+    """The first line of a written YAML file validated by schema ``name``: the installed
+    schema file's absolute ``file://`` URI (valid wherever the file is written, on the
+    machine and installation that wrote it)."""
+    return f"# yaml-language-server: $schema={(SCHEMA_DIR / f'{name}.json').as_uri()}\n"
 
 
 def write_schemas(directory: Path = SCHEMA_DIR) -> list[Path]:

@@ -30,16 +30,22 @@ from pydantic import (
     StrictBool,
     StrictInt,
     StrictStr,
+    TypeAdapter,
+    ValidationError,
     model_validator,
 )
 
+from elastic_gym.envs.config import MakeKwargsMapping
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import check_state_source
 from elastic_gym.validation import (
     ConfigModel,
+    Finite,
     StrictModel,
-    is_real,
+    format_validation_error,
+    lookup,
+    plain,
     registered_env_id,
     validated,
 )
@@ -53,8 +59,7 @@ ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "Leak
 
 def algorithm_class(algo: str):
     """The stable-baselines3 (or sb3-contrib, ``recurrentppo``) class of an algorithm name."""
-    if algo not in ALGORITHMS:
-        raise ValueError(f"unknown algorithm {algo!r}; valid: {list(ALGORITHMS)}")
+    lookup(dict.fromkeys(ALGORITHMS), algo, "algorithm")
     if algo == "recurrentppo":
         from sb3_contrib import RecurrentPPO
 
@@ -78,7 +83,6 @@ def _count(value: Any) -> Any:
 
 Count = Annotated[int, Field(ge=1), BeforeValidator(_count)]
 PositiveInt = Annotated[StrictInt, Field(ge=1)]  # numpy integers count (StrictModel)
-EnvKwargs = dict[str, Any]
 
 
 class Settings(StrictModel):
@@ -88,14 +92,14 @@ class Settings(StrictModel):
     model_config = ConfigDict(frozen=True)
     n_timesteps: Count = 100_000
     n_envs: Count = 1
-    batches: Count | Annotated[list[EnvKwargs], Field(min_length=1)] = 1
+    batches: Count | Annotated[list[MakeKwargsMapping], Field(min_length=1)] = 1
     decimation: Count = 1
     normalize: StrictBool = True
     critic_state: StrictBool = False
     critic_plant: StrictBool = False
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
-    env_kwargs: EnvKwargs = Field(default_factory=dict)
+    env_kwargs: MakeKwargsMapping = Field(default_factory=dict)
 
     @property
     def batch_kwargs(self) -> list[dict]:
@@ -180,24 +184,27 @@ def resolve_hyperparams(
     return {**settings.model_dump(exclude_unset=True), **algo_kwargs}
 
 
+Integral = Annotated[int, BeforeValidator(_count)]  # 64.0 is 64, 64.5 is refused
+ARGUMENT_KINDS = ((bool, StrictBool), (int, Integral), (float, Finite))  # by default's type
+
+
 def _check_values(algo: str, merged: dict) -> None:
     """Bind the algorithm's arguments to its signature before any env is built: an
-    argument whose default is a number must be a finite number (an integer where the
-    default is one) unless it is a schedule or a tuple (``train_freq``), and a boolean
-    default needs a boolean. Integral floats (``!!float 1e6``) become integers."""
+    argument whose default is a boolean needs a boolean, one whose default is a number a
+    finite number (an integer where the default is one; integral floats such as
+    ``!!float 1e6`` become integers) unless it is a schedule or a tuple (``train_freq``)."""
     params = inspect.signature(algorithm_class(algo).__init__).parameters
     for key, value in merged.items():
         default = getattr(params.get(key), "default", None)
-        if isinstance(default, bool):
-            if not isinstance(value, bool):
-                raise ValueError(f"hyper-parameter {key} must be true or false, got {value!r}")
-        elif _is_number(default) and not (callable(value) or isinstance(value, (list, tuple))):
-            if not _is_number(value) or not math.isfinite(value):
-                raise ValueError(f"hyper-parameter {key} must be a finite number, got {value!r}")
-            if isinstance(default, int):
-                if value != int(value):
-                    raise ValueError(f"hyper-parameter {key} must be an integer, got {value!r}")
-                merged[key] = int(value)
+        kind = next((kind for t, kind in ARGUMENT_KINDS if isinstance(default, t)), None)
+        if kind is None or (
+            kind is not StrictBool and (callable(value) or isinstance(value, (list, tuple)))
+        ):
+            continue
+        try:
+            merged[key] = TypeAdapter(kind).validate_python(plain(value))
+        except ValidationError as error:
+            raise ValueError(format_validation_error(error, f"hyper-parameter {key}")) from None
 
 
 def _check_critic_state(algo: str, merged: dict, key: str) -> None:
@@ -216,10 +223,6 @@ def _check_critic_state(algo: str, merged: dict, key: str) -> None:
             f"{key} gives the critic its own features extractor: drop "
             "policy_kwargs.share_features_extractor"
         )
-
-
-def _is_number(value) -> bool:
-    return is_real(value) and not isinstance(value, bool)
 
 
 def linear_schedule(initial: float, progress_remaining: float) -> float:
@@ -244,12 +247,10 @@ def _policy_kwargs(value) -> dict:
         raise ValueError(f"policy_kwargs must be a mapping, got {value!r}")
     kwargs = dict(value)
     if "activation_fn" in kwargs:
-        name = kwargs["activation_fn"]
-        if name not in ACTIVATIONS:
-            raise ValueError(f"policy_kwargs.activation_fn {name!r}; valid: {sorted(ACTIVATIONS)}")
         import torch
 
-        kwargs["activation_fn"] = getattr(torch.nn, ACTIVATIONS[name])
+        name = lookup(ACTIVATIONS, kwargs["activation_fn"], "policy_kwargs.activation_fn")
+        kwargs["activation_fn"] = getattr(torch.nn, name)
     return kwargs
 
 
@@ -300,7 +301,7 @@ class TrainConfig(ConfigModel):
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
     frame_stack: PositiveInt = 4
-    env_kwargs: EnvKwargs = Field(default_factory=dict)
+    env_kwargs: MakeKwargsMapping = Field(default_factory=dict)
     observer_options: dict[str, Any] = Field(default_factory=dict)
     hyperparams: dict[str, Any] = Field(default_factory=dict)
     hyperparams_file: StrictStr | None = None

@@ -23,6 +23,7 @@ from pathlib import Path
 import yaml
 
 from elastic_gym.folder_lock import check_writable, folder_lock
+from elastic_gym.schemas import schema_comment
 from elastic_gym.training.config import TrainConfig, algorithm_class
 from elastic_gym.yaml_io import load_yaml
 
@@ -160,8 +161,10 @@ class RunFolder:
     # ------------------------------------------------------------------ files
     def write_config(self, config: TrainConfig) -> None:
         """``config.yaml``: the config as the run used it (self-contained: no pointer to
-        a hyper-parameter file, every field of the action and observation configs)."""
-        (self.path / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+        a hyper-parameter file, every field of the action and observation configs), its
+        first line naming the ``run`` schema (:func:`~elastic_gym.schemas.schema_comment`)."""
+        text = schema_comment("run") + yaml.safe_dump(config.to_dict(), sort_keys=False)
+        (self.path / "config.yaml").write_text(text)
 
     def write_summary(self, summary: dict) -> None:
         """``summary.json``: written last, it marks the run finished."""

@@ -28,6 +28,7 @@ from pathlib import Path
 from gymnasium.spaces import flatdim
 from gymnasium.vector import AutoresetMode
 
+from elastic_gym.parallel import DEFAULT_BACKEND
 from elastic_gym.training.config import (
     Settings,
     TrainConfig,
@@ -220,7 +221,7 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
 def train_many(
     configs: list[TrainConfig],
     workers: int | None = None,
-    backend: str = "process",
+    backend: str = DEFAULT_BACKEND,
     progress: bool = True,
     overwrite: bool = False,
 ) -> list[TrainResult]:

@@ -33,6 +33,7 @@ from elastic_gym.training.observation import (
     ObservationInputs,
     TrueStateFeatures,
 )
+from elastic_gym.validation import checked_count
 
 
 def elastic_batch(env: gym.vector.VectorEnv) -> Any:
@@ -175,9 +176,7 @@ class PolicyObservation(_ArmResets):
             action_config.kind == "residual",
             batch.torque_limit,
         )
-        if isinstance(frame_stack, bool) or not isinstance(frame_stack, int) or frame_stack < 1:
-            raise ValueError(f"frame_stack must be an integer >= 1, got {frame_stack!r}")
-        self.frame_stack = frame_stack
+        self.frame_stack = checked_count(frame_stack, "frame_stack", 1)
         self.n = batch.n_joints
         size = self.builder.size * frame_stack
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
@@ -323,8 +322,7 @@ class ActionRepeat(gym.vector.VectorWrapper):
     """
 
     def __init__(self, env: gym.vector.VectorEnv, repeat: int) -> None:
-        if isinstance(repeat, bool) or not isinstance(repeat, int) or repeat < 1:
-            raise ValueError(f"decimation (action repeat) must be an integer >= 1, got {repeat!r}")
+        repeat = checked_count(repeat, "decimation (action repeat)", 1)
         super().__init__(env)
         self.repeat = repeat
 
