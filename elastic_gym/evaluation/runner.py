@@ -8,8 +8,8 @@ only ``{"state", "reference"}`` and the public info, never the truth. An arm tha
 gets its status row while its batch mates go on; a world that raises is rerun one run at a
 time, so only the run that raised fails.
 
-:func:`execute` runs the worlds with :func:`elastic_gym.parallel.run_jobs`: spawned worker
-processes or Ray (``backend="ray"``, the same job function), with a progress bar.
+:func:`execute` runs the worlds with :func:`elastic_gym.parallel.for_each_result`: spawned
+worker processes or Ray (``backend="ray"``, the same job function), with a progress bar.
 """
 
 from __future__ import annotations
@@ -582,9 +582,11 @@ def execute(
     (:func:`~elastic_gym.evaluation.groups.plan_groups`, :func:`run_group`); the results
     in run order.
 
-    ``workers=1`` with the process backend runs in this process (single-threaded BLAS
-    meanwhile). Every result stays in memory with its time series; :func:`compare
-    <elastic_gym.evaluation.compare>` streams them to disk instead.
+    ``workers=1`` with the process backend runs in one worker process (in this one, with
+    single-threaded BLAS, when the runs refer to classes of ``__main__``:
+    :func:`~elastic_gym.parallel.for_each_result`). Every result stays in memory with its
+    time series; :func:`compare <elastic_gym.evaluation.compare>` streams them to disk
+    instead.
     """
     n_workers = resolve_workers(workers, len(runs), backend)
     results: dict[int, RunResult] = {}
