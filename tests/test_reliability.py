@@ -8,6 +8,7 @@ import contextlib
 import csv
 import errno
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -26,7 +27,6 @@ QUIET = Console(quiet=True)
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 USER_CODE = '''
 import ctypes
-import multiprocessing
 import os
 import signal
 import sys
@@ -35,16 +35,31 @@ import time
 import numpy as np
 
 from elastic_gym.controllers.base import Controller
+from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
 
 
 class Faulty(Controller):
-    """Zero torque (the excitation task drives the arm); at call ``at`` it does ``fault``
-    (``"exit"``, ``"interrupt"``; ``"os_exit"`` and ``"segfault"`` in worker processes
-    only, so that the pre-run check in the parent survives); ``delay`` s per call."""
+    """Zero torque (the excitation task drives the arm); at call ``at`` (or when built,
+    ``when="built"``) it does ``fault``: ``"exit"``, ``"interrupt"``, ``"os_exit"``,
+    ``"sigkill"``, ``"segfault"``; ``delay`` s per call."""
 
-    def __init__(self, model, dt, fault="none", at=3, delay=0.0):
+    def __init__(self, model, dt, fault="none", at=3, delay=0.0, when="called"):
         super().__init__(model, dt)
         self.fault, self.at, self.delay = fault, at, delay
+        if when == "built":
+            self.do_fault()
+
+    def do_fault(self):
+        if self.fault == "exit":
+            sys.exit(3)
+        if self.fault == "interrupt":
+            raise KeyboardInterrupt
+        if self.fault == "os_exit":
+            os._exit(7)
+        if self.fault == "sigkill":
+            os.kill(os.getpid(), signal.SIGKILL)
+        if self.fault == "segfault":
+            ctypes.string_at(0)
 
     def reset(self, obs, info):
         self.calls = 0
@@ -52,15 +67,7 @@ class Faulty(Controller):
     def __call__(self, obs, info):
         self.calls += 1
         if self.calls == self.at:
-            if self.fault == "exit":
-                sys.exit(3)
-            if self.fault == "interrupt":
-                raise KeyboardInterrupt
-            in_worker = multiprocessing.parent_process() is not None
-            if self.fault == "os_exit" and in_worker:
-                os._exit(7)
-            if self.fault == "segfault" and in_worker:
-                ctypes.string_at(0)
+            self.do_fault()
         time.sleep(self.delay)
         return np.zeros(self.n)
 
@@ -68,6 +75,31 @@ class Faulty(Controller):
 class ExitsWhenBuilt(Faulty):
     def __init__(self, model, dt):
         sys.exit("no licence")
+
+
+class KilledAtReset(FiniteDifferenceObserver):
+    def reset(self, obs, initial_estimate=None):
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+class DivergesAbove(FiniteDifferenceObserver):
+    """Finite differences whose estimate turns NaN at the 3rd update of an arm whose first
+    encoder reading at the reset exceeds ``threshold``."""
+
+    name = "diverges"
+
+    def __init__(self, model, dt, threshold=0.0):
+        super().__init__(model, dt)
+        self.threshold = threshold
+
+    def reset(self, obs, initial_estimate=None):
+        self.updates, self.diverges = 0, obs["motor_position"][0] > self.threshold
+        return super().reset(obs, initial_estimate)
+
+    def update(self, obs, torque, dt):
+        self.updates += 1
+        estimate = super().update(obs, torque, dt)
+        return estimate * np.nan if self.diverges and self.updates >= 3 else estimate
 '''
 
 
@@ -163,6 +195,97 @@ def test_a_worker_that_dies_fails_its_own_run_and_the_grid_goes_on(tmp_path, use
         )
         assert found["exits", seed].startswith("failed: SystemExit: sys.exit(3)")
         assert found["fine", seed] == "ok"
+
+
+def compare_cli(tmp_path: Path, scenario: Scenario, out: Path, *args: str):
+    """``elastic-gym compare`` of ``scenario`` (with ``faulty.py`` importable) into ``out``."""
+    import yaml
+
+    (tmp_path / "faulty.py").write_text(USER_CODE)
+    config = tmp_path / "grid.yaml"
+    config.write_text(yaml.safe_dump(scenario.to_dict()))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
+    command = ["compare", "--config", str(config), "--output", str(out), "--no-progress"]
+    return subprocess.run(
+        [sys.executable, "-m", "elastic_gym.cli", *command, "--no-plots", *args],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+
+
+def test_with_one_worker_user_code_that_ends_its_process_is_that_runs_failed_row(tmp_path):
+    """Each fault strikes at the 3rd control period: in the pre-run check's sample of the
+    closed loop (left to the runs) and in the run itself; one worker, the CLI default on
+    one core."""
+    faults = ["os_exit", "sigkill", "segfault", "exit", "interrupt"]
+    scenario = faulty_scenario({**{f: {"fault": f} for f in faults}, "fine": {}})
+    out = tmp_path / "out"
+    done = compare_cli(tmp_path, scenario, out, "--workers", "1")
+    assert done.returncode == 1, done.stderr
+    assert statuses(out) == {
+        ("os_exit", "0"): "failed: WorkerDiedError: its worker process died (exit code 7)",
+        ("sigkill", "0"): "failed: WorkerDiedError: its worker process died (killed by SIGKILL)",
+        ("segfault", "0"): ("failed: WorkerDiedError: its worker process died (killed by SIGSEGV)"),
+        ("exit", "0"): "failed: SystemExit: sys.exit(3) called by the run's code",
+        ("interrupt", "0"): "failed: KeyboardInterrupt: raised by the run's code (no signal)",
+        ("fine", "0"): "ok",
+    }
+    assert f"5 of 6 runs failed (status column of {out / 'runs.csv'})" in done.stderr
+    assert "5 of 6 runs failed" in (out / "summary.md").read_text()
+    assert "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        (
+            {
+                "controllers": [
+                    {
+                        "name": "x",
+                        "class": "faulty:Faulty",
+                        "options": {"fault": "segfault", "when": "built"},
+                    }
+                ]
+            },
+            r"controllers\[0\]\.options: WorkerDiedError: its worker process died \(killed "
+            r"by SIGSEGV\) while the controller was built",
+        ),
+        (
+            {"state_sources": [{"name": "killed", "class": "faulty:KilledAtReset"}]},
+            r"state_sources\[0\]: WorkerDiedError: its worker process died \(killed by "
+            r"SIGKILL\) at the reset of the arms and their observer",
+        ),
+    ],
+    ids=["controller-built", "observer-reset"],
+)
+def test_user_code_that_ends_the_pre_run_checks_process_is_refused_naming_it(
+    tmp_path, entry, message
+):
+    scenario = Scenario.from_dict(
+        {
+            **faulty_scenario({"fine": {}}).to_dict(),
+            **entry,
+        }
+    )
+    out = tmp_path / "out"
+    done = compare_cli(tmp_path, scenario, out, "--workers", "1")
+    assert done.returncode == 2, done.stderr
+    assert re.search(rf"^elastic-gym compare: error: {message}$", done.stderr, re.M), done.stderr
+    assert not out.exists()
+
+
+def test_one_worker_runs_in_a_child_unless_the_jobs_need_this_main():
+    from elastic_gym.parallel import run_jobs
+    from elastic_gym.process_pool import refers_to_main
+
+    with pytest.raises(RuntimeError, match=r"^job 2 could not run: WorkerDiedError: .*exit code 5"):
+        run_jobs(os_exit_on_two, [0, 1, 2, 3], workers=1, progress=False, describe="job {}".format)
+    assert not refers_to_main(os_exit_on_two, [RuntimeError("x"), {"a": np.zeros(2)}])
+    assert refers_to_main(type("Scripted", (), {"__module__": "__main__"}))  # a notebook's
+    assert refers_to_main(lambda job: job)  # does not pickle: runs here
 
 
 def test_run_jobs_without_a_crash_handler_names_the_job_whose_worker_died():

@@ -512,7 +512,8 @@ class ClosedLoop:
     """The closed loop of a world's arms: each arm's status, and which arms still run.
 
     An arm whose episode ends (terminated by the env or the observer wrapper) is no
-    longer recorded and gets zero torque; the env restarts it (autoreset) and its
+    longer recorded and gets zero torque (its status: ``"terminated: <reason>"``, with the
+    observer's error in parentheses for a non-finite estimate); the env restarts it (autoreset) and its
     controller is reset then, so that it stays finite while its batch mates go on.
     Exceptions propagate.
     """
@@ -551,9 +552,11 @@ class ClosedLoop:
         action = np.where(self.running[:, None], controller(self._obs, _public(self.info)), 0.0)
         self._obs, _, terminated, truncated, self.info = self.world.wrapped.step(action)
         self._ended = terminated | truncated
+        errors = self.info.get("observer_error", [None] * len(self.statuses))
         for i in np.flatnonzero(self.running & self._ended):
-            reason = self.info["termination_reason"][i]
-            self.statuses[i] = f"terminated: {reason or 'terminated'}"
+            reason = self.info["termination_reason"][i] or "terminated"
+            why = f" ({' '.join(errors[i].split())})" if errors[i] else ""
+            self.statuses[i] = f"terminated: {reason}{why}"
         self.running &= ~self._ended
         return bool(self.running.any())
 
