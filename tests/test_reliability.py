@@ -603,6 +603,11 @@ def test_a_batch_too_large_for_the_memory_is_refused_before_it_is_built(monkeypa
 
 
 # ------------------------------------------------------------ diverging observers
+EKF_DIVERGED = (
+    "observer 'ekf' (ExtendedKalmanFilter): non-finite theta, q, dtheta, dq after an update"
+)
+
+
 def test_a_diverging_ekf_ends_its_episode_with_the_documented_reason():
     import gymnasium as gym
 
@@ -614,6 +619,7 @@ def test_a_diverging_ekf_ends_its_episode_with_the_documented_reason():
         obs, _, terminated, truncated, info = env.step(np.zeros(2))
     assert terminated and not truncated
     assert info["termination_reason"] == "non-finite state estimate"
+    assert info["observer_error"] == EKF_DIVERGED
     assert np.array_equal(obs["state"], np.full(8, 1e300))  # the last finite estimate
     with pytest.raises(RuntimeError, match="call reset"):
         env.step(np.zeros(2))
@@ -645,6 +651,10 @@ def test_one_diverging_arm_of_a_vector_env_ends_alone_the_others_bit_for_bit():
             assert info["termination_reason"][1] == (
                 "non-finite state estimate" if step % 2 == 0 else None
             )
+            if step % 2 == 0:  # the single env's text (its N = 1 case, tested above)
+                assert info["observer_error"].tolist() == [None, EKF_DIVERGED, None]
+            else:
+                assert "observer_error" not in info
             for single, arm in zip(singles, (0, 2), strict=True):
                 single_obs, *_ = single.step(np.zeros(2))
                 assert np.array_equal(obs["state"][arm], single_obs["state"])
@@ -729,7 +739,60 @@ def test_a_diverging_ekf_in_compare_is_a_terminated_row_not_a_failure(tmp_path):
         }
     )
     result = compare(scenario, output_dir=tmp_path, workers=1, progress=False, console=QUIET)
-    assert result.runs["status"].tolist() == ["terminated: non-finite state estimate"]
+    assert result.runs["status"].tolist() == [
+        f"terminated: non-finite state estimate ({EKF_DIVERGED})"
+    ]
+
+
+def test_a_diverging_arm_of_a_batched_comparison_is_its_terminated_row_with_the_reason(
+    tmp_path, user_module
+):
+    """Seed 0 is the one of the three whose first encoder reading exceeds the threshold;
+    its batch mates' rows equal their rows in worlds of their own."""
+    import gymnasium as gym
+    from test_batched_compare import _same
+
+    seeds, threshold = [2, 0, 3], -0.75
+    first = {seed: gym.make(TWO_LINK, physics_dt=6.25e-5).reset(seed=seed)[0] for seed in seeds}
+    assert [s for s in seeds if first[s]["motor_position"][0] > threshold] == [0]
+    scenario = Scenario.from_dict(
+        {
+            "name": "diverging-arm",
+            "duration": 0.01,
+            "seeds": seeds,
+            "envs": ["TwoLinkElastic-v0"],
+            "controllers": ["motor-pd"],
+            "state_sources": [
+                {
+                    "name": "diverges",
+                    "class": "faulty:DivergesAbove",
+                    "options": {"threshold": threshold},
+                }
+            ],
+        }
+    )
+    rows = {}
+    for batch_size in (1, 8):
+        rows[batch_size] = compare(
+            scenario,
+            output_dir=tmp_path / str(batch_size),
+            workers=1,
+            progress=False,
+            plots=False,
+            console=QUIET,
+            batch_size=batch_size,
+        ).runs.to_dict("records")
+    batched = {row["seed"]: row for row in rows[8]}
+    assert batched[0]["status"] == (
+        "terminated: non-finite state estimate (observer 'diverges' (DivergesAbove): "
+        "non-finite theta, q, dtheta, dq after an update)"
+    )
+    assert batched[0]["sim_time"] == pytest.approx(2e-3)  # recorded until it diverged
+    assert batched[2]["status"] == batched[3]["status"] == "ok"
+    for alone in rows[1]:
+        row = batched[alone["seed"]]
+        differ = {k: (alone[k], row[k]) for k in alone if k != "sim_wall_ratio"}
+        assert all(_same(*pair) for pair in differ.values()), alone["seed"]
 
 
 # ------------------------------------------------------------ sensors and numbers
