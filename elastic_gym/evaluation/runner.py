@@ -513,8 +513,9 @@ class ClosedLoop:
 
     An arm whose episode ends (terminated by the env or the observer wrapper) is no
     longer recorded and gets zero torque (its status: ``"terminated: <reason>"``, with the
-    observer's error in parentheses for a non-finite estimate); the env restarts it (autoreset) and its
-    controller is reset then, so that it stays finite while its batch mates go on.
+    observer's error in parentheses for a non-finite estimate); the env restarts it
+    (autoreset) and its controller is reset then, so that it stays finite while its batch
+    mates go on.
     Exceptions propagate.
     """
 
