@@ -2,17 +2,19 @@
 
 The grid: TwoLinkElastic tracking, eq. (13) and motor PD on the true state and on the De
 Luca estimate, ``SEEDS`` seeds: 4 groups of ``SEEDS`` runs that may share a world. Both
-ways run in this process (the runner's ``workers=1`` path, single-threaded BLAS), the
-CPU time of the whole execution measured (world set-up, closed loop and metrics), the
-best of interleaved repeats.
+ways run their worlds in this process (``run_group``, single-threaded BLAS), the CPU time
+of the whole execution measured (world set-up, closed loop and metrics), the best of
+interleaved repeats.
 """
 
 from __future__ import annotations
 
 import time
 
-from elastic_gym.evaluation import Scenario, execute, plan_runs
-from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
+from elastic_gym.evaluation import Scenario, plan_runs
+from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE, plan_groups
+from elastic_gym.evaluation.runner import run_group
+from elastic_gym.parallel import single_threaded
 
 SEEDS = 16
 DURATION = 0.5  # s per run
@@ -40,6 +42,8 @@ def compare_costs(physics_dt: float, seeds: int, duration: float, repeats: int) 
     for _ in range(repeats):
         for batch_size in best:
             start = time.process_time()
-            execute(runs, workers=1, progress=False, batch_size=batch_size)
+            with single_threaded():
+                for group in plan_groups(runs, batch_size, 1):
+                    run_group(group)
             best[batch_size] = min(best[batch_size], time.process_time() - start)
     return {"runs": len(runs), "alone": best[1], "batched": best[DEFAULT_BATCH_SIZE]}

@@ -117,7 +117,7 @@ def run_compare(args: argparse.Namespace) -> int:
         require_rl_extra("compare --policy")
     for run in args.policy:
         scenario = with_trained_policy(scenario, run)
-    compare(
+    result = compare(
         scenario,
         output_dir=args.output,
         workers=args.workers,
@@ -127,6 +127,12 @@ def run_compare(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         batch_size=args.batch_size,
     )
+    if result.failed:
+        sys.stderr.write(
+            f"elastic-gym compare: {result.failed} of {len(result.runs)} runs failed "
+            f"(status column of {result.output_dir / 'runs.csv'})\n"
+        )
+        return 1
     return 0
 
 
@@ -550,9 +556,10 @@ USAGE_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryErr
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code.
 
-    2: invalid input (nothing was run); 1: a job could not run, or results could not be
-    written (a full disk: the message says what was kept); 130 / 143: interrupted by
-    SIGINT / SIGTERM (the message says what was kept on disk).
+    2: invalid input (nothing was run); 1: a job could not run, a comparison's run failed
+    (its row says why; the others were run), or results could not be written (a full
+    disk: the message says what was kept); 130 / 143: interrupted by SIGINT / SIGTERM
+    (the message says what was kept on disk).
     """
     parser = build_parser()
     args = parser.parse_args(argv)

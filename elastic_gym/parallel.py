@@ -25,7 +25,7 @@ from rich.progress import Progress
 from threadpoolctl import threadpool_limits
 
 from elastic_gym.orphan_reaper import start_reaper
-from elastic_gym.process_pool import WorkerDiedError, WorkerPool
+from elastic_gym.process_pool import WorkerDiedError, WorkerPool, refers_to_main
 from elastic_gym.validation import checked_count, lookup
 
 BACKENDS = ("process", "ray")
@@ -162,7 +162,10 @@ def for_each_result(
     ``RuntimeError`` naming that job. Workers end when this process ends, however it
     ends (:mod:`~elastic_gym.process_pool`; Ray: :mod:`~elastic_gym.orphan_reaper`).
 
-    ``backend="process"``: spawned worker processes (``workers=1``: in this process).
+    ``backend="process"``: spawned worker processes, one with ``workers=1``; only jobs
+    that refer to ``__main__`` (a class defined in a notebook or in the script; see
+    :func:`~elastic_gym.process_pool.refers_to_main`) run in this process with one worker,
+    where code that ends its process ends this one.
     ``backend="ray"``: a local Ray runtime with ``workers`` CPUs is started unless
     ``ray.init`` was already called, or the environment variable ``RAY_ADDRESS`` names a
     running cluster (``ray start --head`` on one machine, ``ray start --address=HEAD:6379``
@@ -194,7 +197,7 @@ def for_each_result(
 
         if backend == "ray":
             _run_ray(function, jobs, workers, deliver, failure, died)
-        elif workers == 1:
+        elif workers == 1 and refers_to_main(function, jobs):
             with single_threaded():
                 for index, job in enumerate(jobs):
                     try:

@@ -9,18 +9,22 @@ Workers end when their parent does, however it ends (``kill -9`` included): on L
 the kernel sends them ``SIGKILL`` (``prctl(PR_SET_PDEATHSIG)``), and every worker also
 checks its parent's pid each :data:`PARENT_CHECK` seconds while it waits for a job.
 Workers ignore SIGINT (a Ctrl-C in a terminal reaches the whole process group; the
-parent alone decides what to stop).
+parent alone decides what to stop). A spawned worker imports the parent's ``__main__``
+module (a script runs again up to its ``__main__`` guard) only when the function or the
+jobs refer to it (:func:`refers_to_main`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import io
 import multiprocessing
 import os
 import pickle
 import signal
 import sys
+import types
 from collections.abc import Callable, Iterator
 from multiprocessing.connection import Connection, wait
 from typing import Any
@@ -62,6 +66,45 @@ def die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
+class _MainFinder(pickle.Pickler):
+    """A pickler that notes whether what it pickles refers to a class or function of
+    ``__main__``."""
+
+    def __init__(self) -> None:
+        super().__init__(io.BytesIO(), protocol=pickle.HIGHEST_PROTOCOL)
+        self.found = False
+
+    def reducer_override(self, obj: Any) -> Any:
+        if isinstance(obj, (type, types.FunctionType)) and obj.__module__ == "__main__":
+            self.found = True
+        return NotImplemented
+
+
+def refers_to_main(*objects: Any) -> bool:
+    """Whether ``objects`` can only be rebuilt in another process with this process's
+    ``__main__`` module: they refer to a class or function defined there (a script, a
+    notebook), or they do not pickle at all."""
+    finder = _MainFinder()
+    try:
+        finder.dump(objects)
+    except Exception:
+        return True
+    return finder.found
+
+
+@contextlib.contextmanager
+def _main_not_imported() -> Iterator[None]:
+    """While a worker starts: a bare ``__main__`` module, so that the spawned process does
+    not import the parent's main script (``multiprocessing`` imports it when it has a
+    file or a module spec)."""
+    main = sys.modules["__main__"]
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        sys.modules["__main__"] = main
+
+
 def _picklable_error(exc: BaseException) -> BaseException:
     """``exc`` if it survives pickling, else a ``RuntimeError`` with its text."""
     try:
@@ -97,15 +140,32 @@ def _worker(connection: Connection, function: Callable[[Any], Any], parent_pid: 
 
 
 class _Worker:
-    def __init__(self, context, function: Callable[[Any], Any], spawn_env: Callable) -> None:
+    def __init__(
+        self, context, function: Callable[[Any], Any], spawn_env: Callable, main: bool
+    ) -> None:
         self.connection, child = context.Pipe()
         self.process = context.Process(
             target=_worker, args=(child, function, os.getpid()), daemon=True
         )
-        with spawn_env():
+        with spawn_env(), contextlib.nullcontext() if main else _main_not_imported():
             self.process.start()
         child.close()
         self.job: int | None = None  # index of the job it runs
+
+
+class _Queue:
+    """The jobs not yet given to a worker, with their indices."""
+
+    def __init__(self, jobs: list[Any]) -> None:
+        self._jobs, self._next = jobs, 0
+
+    def waiting(self) -> bool:
+        return self._next < len(self._jobs)
+
+    def next(self) -> tuple[int, Any]:
+        index = self._next
+        self._next += 1
+        return index, self._jobs[index]
 
 
 class WorkerPool:
@@ -126,6 +186,7 @@ class WorkerPool:
         self._function, self._spawn_env = function, spawn_env
         self._size = workers
         self._workers: list[_Worker] = []
+        self._main = False  # whether the workers import __main__ (set by results)
 
     def __enter__(self) -> WorkerPool:
         return self
@@ -136,10 +197,15 @@ class WorkerPool:
     def results(self, jobs: list[Any]) -> Iterator[tuple[int, bool, Any]]:
         """Yield ``(index, True, result)``, ``(index, False, exception)`` for every job in
         completion order; a job whose worker died gives :class:`WorkerDiedError`."""
-        queue = iter(enumerate(jobs))
+        queue = _Queue(jobs)
         size = min(self._size, len(jobs))
+        main = refers_to_main(self._function, jobs)
+        if main and not self._main:
+            self.stop()  # workers started without __main__ cannot rebuild these jobs
+        if not self._workers:
+            self._main = main
         while len(self._workers) < size:
-            self._workers.append(_Worker(self._context, self._function, self._spawn_env))
+            self._workers.append(self._new_worker())
         busy = 0
         for worker in self._workers:
             busy += self._give(worker, queue)
@@ -152,23 +218,26 @@ class WorkerPool:
                 index, outcome = worker.job, self._collect(worker)
                 worker.job = None
                 busy -= 1
-                if outcome is None:  # the worker died: replace it
+                if outcome is None:  # the worker died: replaced if a job waits
                     self._workers.remove(worker)
                     worker.process.join()
-                    died = WorkerDiedError(worker.process.exitcode)
-                    worker = _Worker(self._context, self._function, self._spawn_env)
-                    self._workers.append(worker)
-                    outcome = (False, died)
-                busy += self._give(worker, queue)
+                    outcome = (False, WorkerDiedError(worker.process.exitcode))
+                    if queue.waiting():
+                        worker = self._new_worker()
+                        self._workers.append(worker)
+                if worker in self._workers:
+                    busy += self._give(worker, queue)
                 yield (index, *outcome)
 
+    def _new_worker(self) -> _Worker:
+        return _Worker(self._context, self._function, self._spawn_env, self._main)
+
     @staticmethod
-    def _give(worker: _Worker, queue: Iterator) -> int:
-        item = next(queue, None)
-        if item is None:
+    def _give(worker: _Worker, queue: _Queue) -> int:
+        if not queue.waiting():
             return 0
-        worker.job = item[0]
-        worker.connection.send(item[1])
+        worker.job, job = queue.next()
+        worker.connection.send(job)
         return 1
 
     @staticmethod

@@ -8,6 +8,7 @@ import contextlib
 import csv
 import errno
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -26,7 +27,6 @@ QUIET = Console(quiet=True)
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 USER_CODE = '''
 import ctypes
-import multiprocessing
 import os
 import signal
 import sys
@@ -35,16 +35,31 @@ import time
 import numpy as np
 
 from elastic_gym.controllers.base import Controller
+from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
 
 
 class Faulty(Controller):
-    """Zero torque (the excitation task drives the arm); at call ``at`` it does ``fault``
-    (``"exit"``, ``"interrupt"``; ``"os_exit"`` and ``"segfault"`` in worker processes
-    only, so that the pre-run check in the parent survives); ``delay`` s per call."""
+    """Zero torque (the excitation task drives the arm); at call ``at`` (or when built,
+    ``when="built"``) it does ``fault``: ``"exit"``, ``"interrupt"``, ``"os_exit"``,
+    ``"sigkill"``, ``"segfault"``; ``delay`` s per call."""
 
-    def __init__(self, model, dt, fault="none", at=3, delay=0.0):
+    def __init__(self, model, dt, fault="none", at=3, delay=0.0, when="called"):
         super().__init__(model, dt)
         self.fault, self.at, self.delay = fault, at, delay
+        if when == "built":
+            self.do_fault()
+
+    def do_fault(self):
+        if self.fault == "exit":
+            sys.exit(3)
+        if self.fault == "interrupt":
+            raise KeyboardInterrupt
+        if self.fault == "os_exit":
+            os._exit(7)
+        if self.fault == "sigkill":
+            os.kill(os.getpid(), signal.SIGKILL)
+        if self.fault == "segfault":
+            ctypes.string_at(0)
 
     def reset(self, obs, info):
         self.calls = 0
@@ -52,15 +67,7 @@ class Faulty(Controller):
     def __call__(self, obs, info):
         self.calls += 1
         if self.calls == self.at:
-            if self.fault == "exit":
-                sys.exit(3)
-            if self.fault == "interrupt":
-                raise KeyboardInterrupt
-            in_worker = multiprocessing.parent_process() is not None
-            if self.fault == "os_exit" and in_worker:
-                os._exit(7)
-            if self.fault == "segfault" and in_worker:
-                ctypes.string_at(0)
+            self.do_fault()
         time.sleep(self.delay)
         return np.zeros(self.n)
 
@@ -68,6 +75,31 @@ class Faulty(Controller):
 class ExitsWhenBuilt(Faulty):
     def __init__(self, model, dt):
         sys.exit("no licence")
+
+
+class KilledAtReset(FiniteDifferenceObserver):
+    def reset(self, obs, initial_estimate=None):
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+class DivergesAbove(FiniteDifferenceObserver):
+    """Finite differences whose estimate turns NaN at the 3rd update of an arm whose first
+    encoder reading at the reset exceeds ``threshold``."""
+
+    name = "diverges"
+
+    def __init__(self, model, dt, threshold=0.0):
+        super().__init__(model, dt)
+        self.threshold = threshold
+
+    def reset(self, obs, initial_estimate=None):
+        self.updates, self.diverges = 0, obs["motor_position"][0] > self.threshold
+        return super().reset(obs, initial_estimate)
+
+    def update(self, obs, torque, dt):
+        self.updates += 1
+        estimate = super().update(obs, torque, dt)
+        return estimate * np.nan if self.diverges and self.updates >= 3 else estimate
 '''
 
 
@@ -165,6 +197,97 @@ def test_a_worker_that_dies_fails_its_own_run_and_the_grid_goes_on(tmp_path, use
         assert found["fine", seed] == "ok"
 
 
+def compare_cli(tmp_path: Path, scenario: Scenario, out: Path, *args: str):
+    """``elastic-gym compare`` of ``scenario`` (with ``faulty.py`` importable) into ``out``."""
+    import yaml
+
+    (tmp_path / "faulty.py").write_text(USER_CODE)
+    config = tmp_path / "grid.yaml"
+    config.write_text(yaml.safe_dump(scenario.to_dict()))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
+    command = ["compare", "--config", str(config), "--output", str(out), "--no-progress"]
+    return subprocess.run(
+        [sys.executable, "-m", "elastic_gym.cli", *command, "--no-plots", *args],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+
+
+def test_with_one_worker_user_code_that_ends_its_process_is_that_runs_failed_row(tmp_path):
+    """Each fault strikes at the 3rd control period: in the pre-run check's sample of the
+    closed loop (left to the runs) and in the run itself; one worker, the CLI default on
+    one core."""
+    faults = ["os_exit", "sigkill", "segfault", "exit", "interrupt"]
+    scenario = faulty_scenario({**{f: {"fault": f} for f in faults}, "fine": {}})
+    out = tmp_path / "out"
+    done = compare_cli(tmp_path, scenario, out, "--workers", "1")
+    assert done.returncode == 1, done.stderr
+    assert statuses(out) == {
+        ("os_exit", "0"): "failed: WorkerDiedError: its worker process died (exit code 7)",
+        ("sigkill", "0"): "failed: WorkerDiedError: its worker process died (killed by SIGKILL)",
+        ("segfault", "0"): ("failed: WorkerDiedError: its worker process died (killed by SIGSEGV)"),
+        ("exit", "0"): "failed: SystemExit: sys.exit(3) called by the run's code",
+        ("interrupt", "0"): "failed: KeyboardInterrupt: raised by the run's code (no signal)",
+        ("fine", "0"): "ok",
+    }
+    assert f"5 of 6 runs failed (status column of {out / 'runs.csv'})" in done.stderr
+    assert "5 of 6 runs failed" in (out / "summary.md").read_text()
+    assert "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        (
+            {
+                "controllers": [
+                    {
+                        "name": "x",
+                        "class": "faulty:Faulty",
+                        "options": {"fault": "segfault", "when": "built"},
+                    }
+                ]
+            },
+            r"controllers\[0\]\.options: WorkerDiedError: its worker process died \(killed "
+            r"by SIGSEGV\) while the controller was built",
+        ),
+        (
+            {"state_sources": [{"name": "killed", "class": "faulty:KilledAtReset"}]},
+            r"state_sources\[0\]: WorkerDiedError: its worker process died \(killed by "
+            r"SIGKILL\) at the reset of the arms and their observer",
+        ),
+    ],
+    ids=["controller-built", "observer-reset"],
+)
+def test_user_code_that_ends_the_pre_run_checks_process_is_refused_naming_it(
+    tmp_path, entry, message
+):
+    scenario = Scenario.from_dict(
+        {
+            **faulty_scenario({"fine": {}}).to_dict(),
+            **entry,
+        }
+    )
+    out = tmp_path / "out"
+    done = compare_cli(tmp_path, scenario, out, "--workers", "1")
+    assert done.returncode == 2, done.stderr
+    assert re.search(rf"^elastic-gym compare: error: {message}$", done.stderr, re.M), done.stderr
+    assert not out.exists()
+
+
+def test_one_worker_runs_in_a_child_unless_the_jobs_need_this_main():
+    from elastic_gym.parallel import run_jobs
+    from elastic_gym.process_pool import refers_to_main
+
+    with pytest.raises(RuntimeError, match=r"^job 2 could not run: WorkerDiedError: .*exit code 5"):
+        run_jobs(os_exit_on_two, [0, 1, 2, 3], workers=1, progress=False, describe="job {}".format)
+    assert not refers_to_main(os_exit_on_two, [RuntimeError("x"), {"a": np.zeros(2)}])
+    assert refers_to_main(type("Scripted", (), {"__module__": "__main__"}))  # a notebook's
+    assert refers_to_main(lambda job: job)  # does not pickle: runs here
+
+
 def test_run_jobs_without_a_crash_handler_names_the_job_whose_worker_died():
     from elastic_gym.parallel import run_jobs
 
@@ -200,24 +323,41 @@ def slow_config(tmp_path: Path, runs: int = 4) -> Path:
     return config
 
 
+STARTUP_BOUND = 300.0  # s for compare (or Ray) to start its workers on a loaded machine
+ENDING_BOUND = 120.0  # s for every worker to end once its parent is gone (polled)
+
+
+def still_alive(pids: list[int], bound: float) -> list[str]:
+    """The processes of ``pids`` still alive after polling up to ``bound`` s (killed, so
+    that they do not stay for the other tests), as ``"pid (name)"``."""
+    deadline = time.monotonic() + bound
+    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = []
+    for pid in pids:
+        if alive(pid):
+            with contextlib.suppress(OSError):
+                name = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0].decode()
+                os.kill(pid, signal.SIGKILL)
+                left.append(f"{pid} ({name}) alive {bound:.0f} s after its parent was killed")
+    return left
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_workers_end_when_compare_is_killed(tmp_path):
     out = tmp_path / "out"
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
     process = cli([*args, "--workers", "2", "--no-progress", "--no-plots"], tmp_path)
-    deadline = time.monotonic() + 120
+    started = time.monotonic()
     while len(children(process.pid)) < 3:  # 2 workers + the resource tracker
         assert process.poll() is None, process.communicate()
-        assert time.monotonic() < deadline
+        assert time.monotonic() < started + STARTUP_BOUND, f"no workers after {STARTUP_BOUND} s"
         time.sleep(0.1)
     time.sleep(1.0)  # the workers run their first episodes
     left = children(process.pid)
     process.kill()
     process.communicate()
-    deadline = time.monotonic() + 5.0
-    while any(alive(pid) for pid in left) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not [pid for pid in left if alive(pid)]
+    assert not still_alive(left, ENDING_BOUND)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -228,7 +368,7 @@ def test_the_ray_runtime_ends_when_compare_is_killed(tmp_path):
     out = tmp_path / "out"
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
     process = cli([*args, "--workers", "2", "--backend", "ray", "--no-progress"], tmp_path)
-    deadline = time.monotonic() + 180
+    deadline = time.monotonic() + STARTUP_BOUND
     agents = {b"ray::DashboardAgent", b"ray::RuntimeEnvAgent"}  # what used to stay
 
     def names(pids) -> set[bytes]:
@@ -240,20 +380,14 @@ def test_the_ray_runtime_ends_when_compare_is_killed(tmp_path):
 
     while not agents <= names(ray_descendants(process.pid)):  # Ray is up
         assert process.poll() is None, process.communicate()
-        assert time.monotonic() < deadline
+        assert time.monotonic() < deadline, f"Ray not up after {STARTUP_BOUND} s"
         time.sleep(0.2)
     time.sleep(1.0)
     started = ray_descendants(process.pid)  # GCS, raylet, agents, workers
     process.kill()
     process.communicate()
     # the reaper waits for the parent to be gone, then freezes and kills in rounds
-    deadline = time.monotonic() + 40.0
-    while any(alive(pid) for pid in started) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    left = [pid for pid in started if alive(pid)]
-    for pid in left:  # do not leave them to the other tests
-        os.kill(pid, signal.SIGKILL)
-    assert not left
+    assert not still_alive(started, ENDING_BOUND)
 
 
 # ------------------------------------------------------------ full disks
@@ -316,6 +450,10 @@ def test_a_new_column_on_a_full_disk_leaves_the_old_file_whole(tmp_path, monkeyp
 
 FSIZE_LIMIT = """
 import resource, runpy, signal, sys
+from elastic_gym.evaluation import load_scenario, plan_runs
+from elastic_gym.evaluation.runner import run_episode
+# one run first: numba's cache files (written on a first compile) are not what is tested
+run_episode(plan_runs(load_scenario(sys.argv[sys.argv.index("--config") + 1]))[0][0])
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes beyond the limit: EFBIG
 resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv.pop(1)),) * 2)
 sys.argv[0] = "elastic-gym"
@@ -337,7 +475,7 @@ def compare_with_file_size_limit(tmp_path: Path, limit: int, out: Path, runs: in
         env=env,
         capture_output=True,
         text=True,
-        timeout=300,
+        timeout=900,
     )
 
 
@@ -345,8 +483,9 @@ def test_compare_on_a_filling_disk_keeps_its_rows_and_says_so(tmp_path):
     out = tmp_path / "out"
     done = compare_with_file_size_limit(tmp_path, 1200, out, runs=12)
     assert done.returncode == 1, done.stderr
-    message = done.stderr.strip().splitlines()[-1]
-    assert message.startswith("elastic-gym compare: error: disk full: "), done.stderr
+    said = [line for line in done.stderr.splitlines() if "compare: error: disk full: " in line]
+    assert said, done.stderr
+    message = said[-1]
     kept = int(message.split("disk full: ")[1].split()[0])
     assert f"rows kept in {out}/runs.csv" in message
     assert 1 <= kept < 12 and len(rows_of(out / "runs.csv")) == kept
@@ -480,6 +619,11 @@ def test_a_batch_too_large_for_the_memory_is_refused_before_it_is_built(monkeypa
 
 
 # ------------------------------------------------------------ diverging observers
+EKF_DIVERGED = (
+    "observer 'ekf' (ExtendedKalmanFilter): non-finite theta, q, dtheta, dq after an update"
+)
+
+
 def test_a_diverging_ekf_ends_its_episode_with_the_documented_reason():
     import gymnasium as gym
 
@@ -491,6 +635,7 @@ def test_a_diverging_ekf_ends_its_episode_with_the_documented_reason():
         obs, _, terminated, truncated, info = env.step(np.zeros(2))
     assert terminated and not truncated
     assert info["termination_reason"] == "non-finite state estimate"
+    assert info["observer_error"] == EKF_DIVERGED
     assert np.array_equal(obs["state"], np.full(8, 1e300))  # the last finite estimate
     with pytest.raises(RuntimeError, match="call reset"):
         env.step(np.zeros(2))
@@ -522,6 +667,10 @@ def test_one_diverging_arm_of_a_vector_env_ends_alone_the_others_bit_for_bit():
             assert info["termination_reason"][1] == (
                 "non-finite state estimate" if step % 2 == 0 else None
             )
+            if step % 2 == 0:  # the single env's text (its N = 1 case, tested above)
+                assert info["observer_error"].tolist() == [None, EKF_DIVERGED, None]
+            else:
+                assert "observer_error" not in info
             for single, arm in zip(singles, (0, 2), strict=True):
                 single_obs, *_ = single.step(np.zeros(2))
                 assert np.array_equal(obs["state"][arm], single_obs["state"])
@@ -606,7 +755,60 @@ def test_a_diverging_ekf_in_compare_is_a_terminated_row_not_a_failure(tmp_path):
         }
     )
     result = compare(scenario, output_dir=tmp_path, workers=1, progress=False, console=QUIET)
-    assert result.runs["status"].tolist() == ["terminated: non-finite state estimate"]
+    assert result.runs["status"].tolist() == [
+        f"terminated: non-finite state estimate ({EKF_DIVERGED})"
+    ]
+
+
+def test_a_diverging_arm_of_a_batched_comparison_is_its_terminated_row_with_the_reason(
+    tmp_path, user_module
+):
+    """Seed 0 is the one of the three whose first encoder reading exceeds the threshold;
+    its batch mates' rows equal their rows in worlds of their own."""
+    import gymnasium as gym
+    from test_batched_compare import _same
+
+    seeds, threshold = [2, 0, 3], -0.75
+    first = {seed: gym.make(TWO_LINK, physics_dt=6.25e-5).reset(seed=seed)[0] for seed in seeds}
+    assert [s for s in seeds if first[s]["motor_position"][0] > threshold] == [0]
+    scenario = Scenario.from_dict(
+        {
+            "name": "diverging-arm",
+            "duration": 0.01,
+            "seeds": seeds,
+            "envs": ["TwoLinkElastic-v0"],
+            "controllers": ["motor-pd"],
+            "state_sources": [
+                {
+                    "name": "diverges",
+                    "class": "faulty:DivergesAbove",
+                    "options": {"threshold": threshold},
+                }
+            ],
+        }
+    )
+    rows = {}
+    for batch_size in (1, 8):
+        rows[batch_size] = compare(
+            scenario,
+            output_dir=tmp_path / str(batch_size),
+            workers=1,
+            progress=False,
+            plots=False,
+            console=QUIET,
+            batch_size=batch_size,
+        ).runs.to_dict("records")
+    batched = {row["seed"]: row for row in rows[8]}
+    assert batched[0]["status"] == (
+        "terminated: non-finite state estimate (observer 'diverges' (DivergesAbove): "
+        "non-finite theta, q, dtheta, dq after an update)"
+    )
+    assert batched[0]["sim_time"] == pytest.approx(2e-3)  # recorded until it diverged
+    assert batched[2]["status"] == batched[3]["status"] == "ok"
+    for alone in rows[1]:
+        row = batched[alone["seed"]]
+        differ = {k: (alone[k], row[k]) for k in alone if k != "sim_wall_ratio"}
+        assert all(_same(*pair) for pair in differ.values()), alone["seed"]
 
 
 # ------------------------------------------------------------ sensors and numbers

@@ -7,10 +7,12 @@ checked first (:mod:`~elastic_gym.evaluation.preflight`). The output folder hold
 ``scenario.yaml`` and ``plots/``; with sweeps also ``margins.csv`` / ``margins.md`` and
 ``curves/``. An earlier comparison's folder is refused unless ``overwrite``, a folder
 another process writes into always (:mod:`~elastic_gym.folder_lock`). A run that fails
-(raises, calls ``sys.exit``, kills its worker) is a row ``failed: <Type>: <message>``; a
-full disk raises :class:`~elastic_gym.evaluation.output.ResultsWriteError` saying what
-``runs.csv`` kept. Workers are spawned: scripts with several workers need the
-``__main__`` guard.
+(raises, calls ``sys.exit``, kills its process) is a row ``failed: <Type>: <message>``
+(counted in ``summary.md`` and ``Comparison.failed``); a full disk raises
+:class:`~elastic_gym.evaluation.output.ResultsWriteError` saying what ``runs.csv`` kept.
+Runs and checks run in spawned workers (one with ``workers=1``), which import a script's
+``__main__`` only for classes defined there: then several workers need the ``__main__``
+guard, and one worker runs them in this process (:func:`~elastic_gym.parallel.for_each_result`).
 """
 
 from __future__ import annotations
@@ -82,6 +84,7 @@ class Comparison:
     markdown: str
     output_dir: Path
     files: list[Path] = field(default_factory=list)
+    failed: int = 0  # runs with status "failed: ..."
 
 
 def compare(
@@ -173,7 +176,13 @@ def _compare(
         _write_tables(scenario, out, rows, skipped_note + f"\nInterrupted: {kept}.\n")
         raise with_detail(exc, kept)  # noqa: B904 - with_detail sets the cause
     rows = sink.csv.finish()
-    summary, markdown = _write_tables(scenario, out, rows, skipped_note)
+    failed = [row["status"] for row in rows if row["status"].startswith("failed")]
+    failed_note = (
+        f"{len(failed)} of {len(rows)} runs failed (status column of runs.csv), e.g. {failed[0]}\n"
+        if failed
+        else ""
+    )
+    summary, markdown = _write_tables(scenario, out, rows, skipped_note + failed_note)
     files = [
         out / "runs.csv",
         out / "summary.csv",
@@ -187,17 +196,13 @@ def _compare(
         if plots:
             files += plot_all_curves(curves, out / CURVE_DIR)
     console.print(markdown, soft_wrap=True, markup=False)  # long lines are not cut
-    failed = [row["status"] for row in rows if row["status"].startswith("failed")]
-    if failed:
-        console.print(
-            f"{len(failed)} of {len(rows)} runs failed (status column of runs.csv), "
-            f"e.g. {failed[0]}",
-            markup=False,
-        )
+    console.print(failed_note, markup=False, end="")
     if scenario.sweeps:
         console.print(f"robustness margins: {out / 'margins.md'}", markup=False)
     console.print(f"written to {out}/")
-    return Comparison(scenario, as_table(rows), as_table(summary), skipped, markdown, out, files)
+    return Comparison(
+        scenario, as_table(rows), as_table(summary), skipped, markdown, out, files, len(failed)
+    )
 
 
 class _Sink:

@@ -1,8 +1,9 @@
 """Checks of a comparison before its first run, and an estimate of its duration.
 
-:func:`preflight` builds, once each, what the runs will build: every env with its kwargs
-and each axis value, its reset with the reset options, each model error's perturbed
-model, every controller and observer (trained policies loaded). A failure raises
+:func:`preflight` builds, once each and in a worker process, what the runs will build:
+every env with its kwargs and each axis value, its reset with the reset options, each
+model error's perturbed model, every controller and observer (trained policies loaded).
+A failure, or user code that ends that process while it is built, raises
 :class:`~elastic_gym.evaluation.scenario.ScenarioError` with the field path before any
 compute is spent; errors of the closed loop itself are left to the runs' statuses.
 The estimate times ``SAMPLE_TIME`` of closed loop of each (env, controller, state source)
@@ -37,7 +38,8 @@ from elastic_gym.evaluation.runner import (
     run_model,
 )
 from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError
-from elastic_gym.parallel import single_threaded, user_failure
+from elastic_gym.parallel import for_each_result, user_failure
+from elastic_gym.process_pool import WorkerDiedError
 
 SAMPLE_TIME = 0.05  # CPU s of closed loop timed per (env, controller, source) combination
 SAMPLE_STEPS = (3, 1000)  # fewest and most steps of a sample
@@ -103,37 +105,142 @@ def _combo(spec: RunSpec) -> tuple:
     return spec.labels["env"], spec.labels["controller"], spec.labels["source"]
 
 
+@dataclass(frozen=True)
+class _EnvCheck:
+    """Job: the checks of env entry ``index`` that need no controller (:func:`preflight`)."""
+
+    scenario: Scenario
+    index: int
+
+    def run(self) -> float:
+        scenario, entry, path = self.scenario, self.scenario.envs[self.index], self.path
+        env = _make_env(entry.id, scenario.env_kwargs(entry), f"{path}.kwargs")
+        try:
+            _check_duration(scenario.duration, env, path)
+            _check_reset(env, entry.reset_options, scenario.seeds[0], path)
+            _check_axes(scenario, entry, path)
+            _check_model_errors(env, scenario)
+        finally:
+            env.close()
+        return 0.0
+
+    @property
+    def path(self) -> str:
+        return f"envs[{self.index}]"
+
+    def after_death(self, exc: WorkerDiedError) -> float:
+        """The process running the checks died: refused."""
+        raise ScenarioError(self.path, f"{describe_failure(exc)} while the env was checked")
+
+
+STAGES = ("env", "observer", "controller", "reset", "loop")  # of a sample, in order
+_WHILE = {
+    "env": "while the vector env of its runs was built",
+    "observer": "while the observer was built",
+    "controller": "while the controller was built",
+    "reset": "at the reset of the arms and their observer",
+}
+
+
+@dataclass(frozen=True)
+class _Sample:
+    """Job: build the world of ``group`` and time its closed loop (:func:`_stages`), up to
+    the end of ``stage``."""
+
+    group: RunGroup
+    paths: tuple[str, str]  # of the controller and the state source
+    env_path: str
+    stage: str = "loop"
+
+    def run(self) -> float:
+        with contextlib.closing(_stages(self.group, self.paths, self.env_path)) as costs:
+            for stage, cost in zip(STAGES, costs, strict=False):
+                if stage == self.stage:
+                    return cost
+        raise AssertionError(f"no stage {self.stage!r}")
+
+    def at(self, stage: str) -> _Sample:
+        return _Sample(self.group, self.paths, self.env_path, stage)
+
+    def after_death(self, exc: WorkerDiedError) -> float:
+        """The process running the sample died. Up to the reset: refused, naming the
+        field of what was being built. In the whole sample: run again stage by stage
+        (the first stage that kills its process is refused); if only the closed loop
+        does, the cost of the setup (the closed loop is left to the runs)."""
+        if self.stage == "loop":
+            return _run_checks([self.at(stage) for stage in STAGES[:-1]])[-1]
+        controller_path, source_path = self.paths
+        path = {
+            "env": self.env_path,
+            "observer": f"{source_path}.options",
+            "controller": f"{controller_path}.options",
+            "reset": source_path,
+        }[self.stage]
+        raise ScenarioError(path, f"{describe_failure(exc)} {_WHILE[self.stage]}")
+
+
+def _check(job: _EnvCheck | _Sample) -> float | ScenarioError:
+    """Run one job of the pre-run check: its cost, or the refusal it found."""
+    try:
+        return job.run()
+    except ScenarioError as exc:
+        return exc
+
+
+def _run_checks(jobs: list[_EnvCheck | _Sample]) -> list[float]:
+    """Every job's cost, the jobs run in order in one worker process; raises the first
+    refusal (a job's own, or that of a job whose process died: ``after_death``)."""
+    costs: dict[int, float] = {}
+
+    def deliver(index: int, outcome: float | ScenarioError | WorkerDiedError) -> None:
+        if isinstance(outcome, ScenarioError):
+            raise outcome
+        if isinstance(outcome, WorkerDiedError):
+            outcome = jobs[index].after_death(outcome)
+        costs[index] = outcome
+
+    for_each_result(
+        _check,
+        jobs,
+        deliver,
+        workers=1,
+        progress=False,
+        describe=lambda job: f"the pre-run check {job}",
+        crashed=lambda job, exc: exc,
+    )
+    return [costs[i] for i in range(len(jobs))]
+
+
 def preflight(scenario: Scenario, groups: Sequence[RunGroup], workers: int) -> Estimate:
     """Build everything the runs of ``groups`` need once (see the module docstring);
-    raise :class:`ScenarioError` on the first failure; return the estimated wall time."""
+    raise :class:`ScenarioError` on the first failure; return the estimated wall time.
+
+    The checks run in a worker process (:func:`~elastic_gym.parallel.for_each_result`
+    with one worker): user code that ends that process (``os._exit``, a signal, a
+    segmentation fault) while its controller, observer or world is built is refused
+    naming the field; in the closed loop it is left to the runs (their rows say so).
+    """
     controller_index = {c.label: i for i, c in enumerate(scenario.controllers)}
     source_index = {s.label: i for i, s in enumerate(scenario.state_sources)}
-    error_index = {v.label: i for i, v in enumerate(scenario.model_errors)}
     combos: dict[tuple, RunGroup] = {}
     for group in groups:
         combos.setdefault(_combo(group.first), RunGroup(group.runs[:SAMPLE_ARMS]))
-    cost: dict[tuple, float] = {}
-    with single_threaded():
-        for i, entry in enumerate(scenario.envs):
-            if not any(key[0] == entry.label for key in combos):
-                continue
-            path = f"envs[{i}]"
-            env = _make_env(entry.id, scenario.env_kwargs(entry), f"{path}.kwargs")
-            try:
-                _check_duration(scenario.duration, env, path)
-                _check_reset(env, entry.reset_options, scenario.seeds[0], path)
-                _check_axes(scenario, entry, path)
-                _check_model_errors(env, scenario, error_index)
-                for key, sample in combos.items():
-                    if key[0] != entry.label:
-                        continue
-                    paths = (
-                        f"controllers[{controller_index[key[1]]}]",
-                        f"state_sources[{source_index[key[2]]}]",
-                    )
-                    cost[key] = _sample(sample, paths, f"{path}.kwargs")
-            finally:
-                env.close()
+    jobs: list[_EnvCheck | _Sample] = []
+    keys: dict[int, tuple] = {}  # job index of each combination's sample -> combination
+    for i, entry in enumerate(scenario.envs):
+        if not any(key[0] == entry.label for key in combos):
+            continue
+        jobs.append(_EnvCheck(scenario, i))
+        for key, sample in combos.items():
+            if key[0] == entry.label:
+                paths = (
+                    f"controllers[{controller_index[key[1]]}]",
+                    f"state_sources[{source_index[key[2]]}]",
+                )
+                keys[len(jobs)] = key
+                jobs.append(_Sample(sample, paths, f"envs[{i}].kwargs"))
+    costs = _run_checks(jobs)
+    cost = {key: costs[index] for index, key in keys.items()}
     # a group's runs may come from several env entries (per-arm plants): its first run's
     # sample stands for all of them
     total = sum(cost[_combo(group.first)] * len(group) for group in groups)
@@ -181,35 +288,40 @@ def _check_axes(scenario: Scenario, entry, path: str) -> None:
             env.close()
 
 
-def _check_model_errors(env: gym.Env, scenario: Scenario, error_index: dict) -> None:
+def _check_model_errors(env: gym.Env, scenario: Scenario) -> None:
     model = arm_env(env).model
-    for variation in scenario.model_errors:
+    for i, variation in enumerate(scenario.model_errors):
         if variation.values:
             try:
                 model.perturbed(**variation.values)
             except Exception as exc:
-                raise _error(f"model_errors[{error_index[variation.label]}]", exc) from None
+                raise _error(f"model_errors[{i}]", exc) from None
 
 
-def _sample(group: RunGroup, paths: tuple[str, str], env_path: str) -> float:
+def _stages(group: RunGroup, paths: tuple[str, str], env_path: str) -> Iterator[float]:
     """Build the world of ``group`` (errors name their field) and time ``SAMPLE_TIME`` of
-    its closed loop; returns the CPU time of one of its runs (s), setup included."""
+    its closed loop, yielding after each of :data:`STAGES` the CPU time of one of its runs
+    so far (s): the setup's, then the whole run's."""
     controller_path, source_path = paths
     spec, n_arms = group.first, len(group)
     start = time.process_time()
     with _named(env_path):
         envs = make_group_env(group)
     try:
+        yield (time.process_time() - start) / n_arms
         model = run_model(envs, spec)
         dt = arm_vector_env(envs).control_dt
         with _named(f"{source_path}.options"):
             wrapped = build_observer_wrapper(envs, spec, model)
+        yield (time.process_time() - start) / n_arms
         with _named(f"{controller_path}.options"):
             controller = build_vector_controller(spec, model, dt, n_arms)
+        yield (time.process_time() - start) / n_arms
         loop = ClosedLoop(World(envs, wrapped, controller), group)
         with _named(source_path):
             loop.reset()
         setup = time.process_time() - start
+        yield setup / n_arms
         steps, elapsed = 0, 0.0
         with np.errstate(all="ignore"), _left_to_the_runs():
             loop.reset_controllers()
@@ -224,7 +336,7 @@ def _sample(group: RunGroup, paths: tuple[str, str], env_path: str) -> float:
     finally:
         envs.close()
     step = elapsed / steps if steps else 0.0
-    return (setup + step * round(spec.duration / dt)) / n_arms
+    yield (setup + step * round(spec.duration / dt)) / n_arms
 
 
 def check_plot_names(scenario: Scenario, runs: Sequence[RunSpec]) -> None:

@@ -8,8 +8,8 @@ only ``{"state", "reference"}`` and the public info, never the truth. An arm tha
 gets its status row while its batch mates go on; a world that raises is rerun one run at a
 time, so only the run that raised fails.
 
-:func:`execute` runs the worlds with :func:`elastic_gym.parallel.run_jobs`: spawned worker
-processes or Ray (``backend="ray"``, the same job function), with a progress bar.
+:func:`execute` runs the worlds with :func:`elastic_gym.parallel.for_each_result`: spawned
+worker processes or Ray (``backend="ray"``, the same job function), with a progress bar.
 """
 
 from __future__ import annotations
@@ -512,8 +512,10 @@ class ClosedLoop:
     """The closed loop of a world's arms: each arm's status, and which arms still run.
 
     An arm whose episode ends (terminated by the env or the observer wrapper) is no
-    longer recorded and gets zero torque; the env restarts it (autoreset) and its
-    controller is reset then, so that it stays finite while its batch mates go on.
+    longer recorded and gets zero torque (its status: ``"terminated: <reason>"``, with the
+    observer's error in parentheses for a non-finite estimate); the env restarts it
+    (autoreset) and its controller is reset then, so that it stays finite while its batch
+    mates go on.
     Exceptions propagate.
     """
 
@@ -551,9 +553,11 @@ class ClosedLoop:
         action = np.where(self.running[:, None], controller(self._obs, _public(self.info)), 0.0)
         self._obs, _, terminated, truncated, self.info = self.world.wrapped.step(action)
         self._ended = terminated | truncated
+        errors = self.info.get("observer_error", [None] * len(self.statuses))
         for i in np.flatnonzero(self.running & self._ended):
-            reason = self.info["termination_reason"][i]
-            self.statuses[i] = f"terminated: {reason or 'terminated'}"
+            reason = self.info["termination_reason"][i] or "terminated"
+            why = f" ({' '.join(errors[i].split())})" if errors[i] else ""
+            self.statuses[i] = f"terminated: {reason}{why}"
         self.running &= ~self._ended
         return bool(self.running.any())
 
@@ -582,9 +586,11 @@ def execute(
     (:func:`~elastic_gym.evaluation.groups.plan_groups`, :func:`run_group`); the results
     in run order.
 
-    ``workers=1`` with the process backend runs in this process (single-threaded BLAS
-    meanwhile). Every result stays in memory with its time series; :func:`compare
-    <elastic_gym.evaluation.compare>` streams them to disk instead.
+    ``workers=1`` with the process backend runs in one worker process (in this one, with
+    single-threaded BLAS, when the runs refer to classes of ``__main__``:
+    :func:`~elastic_gym.parallel.for_each_result`). Every result stays in memory with its
+    time series; :func:`compare <elastic_gym.evaluation.compare>` streams them to disk
+    instead.
     """
     n_workers = resolve_workers(workers, len(runs), backend)
     results: dict[int, RunResult] = {}

@@ -85,7 +85,10 @@ class ScenarioError(ValueError):
 
     def __init__(self, path: str, message: str) -> None:
         super().__init__(f"{path}: {message}")
-        self.path = path
+        self.path, self.message = path, message
+
+    def __reduce__(self):  # pickled as (path, message), e.g. from a worker process
+        return type(self), (self.path, self.message)
 
 
 def _distinct(seeds: tuple[int, ...]) -> tuple[int, ...]:

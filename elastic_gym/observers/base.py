@@ -106,7 +106,9 @@ class BatchedObserver(Observer):
 
     ``obs`` arguments are batched observations (arrays with a leading arm axis of length
     N, the number of arms); ``arm_diagnostics`` holds one value per arm for each entry of
-    ``diagnostics``. ``reset`` and ``update`` run the same code with N = 1.
+    ``diagnostics``. ``reset`` and ``update`` run the same code with N = 1. An arm whose
+    update fails numerically gets a non-finite row, so that the wrappers end its episode
+    alone; an exception from ``update_arms`` ends the episodes of all the arms it updated.
     """
 
     def __init__(self, model: RobotModel, dt: float) -> None:

@@ -8,7 +8,9 @@ arm axis. Observers with a batched form (:class:`~elastic_gym.observers.base.Bat
 estimate all arms at once; the others run one copy per arm (:class:`ObserverArray`).
 Each arm's estimate is the single-env observer's; an arm whose estimate is no longer
 finite (or, in an :class:`ObserverArray`, whose update failed numerically) ends its
-episode alone ("non-finite state estimate"). Autoresets are followed.
+episode alone: ``info["termination_reason"]`` "non-finite state estimate" and
+``info["observer_error"]`` why (the numerical error, or the blocks of the estimate that
+are not finite). Autoresets are followed.
 """
 
 from __future__ import annotations
@@ -87,10 +89,25 @@ def numerical_failure(exc: BaseException) -> bool:
     )
 
 
+def observer_name(observer: Observer) -> str:
+    """``"observer 'ekf' (ExtendedKalmanFilter)"``: how messages name an observer."""
+    return f"observer {observer.name or type(observer).__name__!r} ({type(observer).__name__})"
+
+
+def non_finite_text(observer: Observer, estimate: np.ndarray) -> str:
+    """The ``observer_error`` of an update that returned a non-finite estimate: the
+    observer and the blocks of ``state_names`` that are not finite."""
+    blocks = np.array_split(np.asarray(estimate, dtype=float), len(observer.state_names))
+    names = [
+        n for n, b in zip(observer.state_names, blocks, strict=True) if not np.isfinite(b).all()
+    ]
+    return f"{observer_name(observer)}: non-finite {', '.join(names)} after an update"
+
+
 def checked_estimate(observer: Observer, estimate: object, call: str) -> np.ndarray:
     """``estimate`` if it is a numpy array of shape ``(observer.state_dim,)``, else a
     ``TypeError`` / ``ValueError`` naming the observer, the call and what it returned."""
-    who = f"observer {observer.name or type(observer).__name__!r} ({type(observer).__name__})"
+    who = observer_name(observer)
     if not isinstance(estimate, np.ndarray):
         raise TypeError(
             f"{who}: {call} returned a {type(estimate).__name__}, expected a numpy array "
@@ -305,7 +322,25 @@ class ObserverWrapper(gym.vector.VectorWrapper):
             estimates = batched
         finite = np.isfinite(estimates[arms]).all(axis=1)
         self._estimates[arms[finite]] = estimates[arms[finite]]
+        for i in arms[~finite]:
+            if self._errors[i] is None:
+                self._errors[i] = non_finite_text(self._arm_observer(i), estimates[i])
         return arms[~finite]
+
+    def _arm_observer(self, arm: int) -> Observer:
+        observer = self.observer
+        return observer.observers[arm] if isinstance(observer, ObserverArray) else observer
+
+    def _mark(self, info: dict, diverged: np.ndarray) -> None:
+        """``info["termination_reason"]`` of the ``diverged`` arms: ``NON_FINITE_ESTIMATE``,
+        and ``info["observer_error"]``: why (:meth:`_update`), None for the other arms."""
+        reasons = info["termination_reason"].copy()
+        reasons[diverged] = NON_FINITE_ESTIMATE
+        errors = np.full(self.num_envs, None, dtype=object)
+        errors[diverged] = self._errors[diverged]
+        info["termination_reason"], info["observer_error"] = reasons, errors
+        info["_termination_reason"] = reasons != None  # noqa: E711
+        info["_observer_error"] = errors != None  # noqa: E711
 
     def _final_estimates(self, obs: Mapping, info: dict, ended: np.ndarray) -> None:
         """SAME_STEP: estimate the terminal observations of the arms the env has just reset
@@ -321,7 +356,8 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         }
         final_info = info["final_info"]
         diverged = self._update(final_obs, final_info, ended)
-        final_info["termination_reason"][diverged] = NON_FINITE_ESTIMATE
+        if len(diverged):
+            self._mark(final_info, diverged)
         for i in ended:
             info["final_obs"][i] = {
                 "state": self._estimates[i].copy(),
@@ -331,21 +367,13 @@ class ObserverWrapper(gym.vector.VectorWrapper):
 
     def _terminate(self, diverged: np.ndarray, terminated: np.ndarray, info: dict) -> np.ndarray:
         """End the episodes of the ``diverged`` arms (non-finite estimate): ``terminated``
-        and ``info["termination_reason"]`` say so (``info["observer_error"]``: the errors
-        of :meth:`_update`), and the env resets them like any ended episode."""
+        and ``info["termination_reason"]`` say so (``info["observer_error"]``: why, see
+        :meth:`_mark`), and the env resets them like any ended episode."""
         if not len(diverged):
             return terminated
-        if any(error is not None for error in self._errors[diverged]):
-            errors = np.full(self.num_envs, None, dtype=object)
-            errors[diverged] = self._errors[diverged]
-            info["observer_error"] = errors
-            info["_observer_error"] = errors != None  # noqa: E711
         terminated = terminated.copy()
         terminated[diverged] = True
-        reasons = info["termination_reason"].copy()
-        reasons[diverged] = NON_FINITE_ESTIMATE
-        info["termination_reason"] = reasons
-        info["_termination_reason"] = reasons != None  # noqa: E711
+        self._mark(info, diverged)
         self._base.end_episodes(diverged)
         return terminated
 
