@@ -19,8 +19,9 @@ import pinocchio as pin
 from numba import njit
 
 # ---------------------------------------------------------------------------- kernels
-# Every kernel takes the chain's constant arrays (see SerialChain) and batched inputs
-# with a leading arm axis; small helpers are inlined by LLVM.
+# Every kernel takes batched inputs with a leading arm axis, the scratch buffer, its outputs
+# and last the chain's constants (``SerialChain._kernel_constants``); small helpers are
+# inlined by LLVM.
 
 
 @njit(cache=True)
@@ -231,43 +232,13 @@ def _sensor_reading(i, s_joint, s_rot, s_trans, gravity, links, small, out, row)
 
 
 @njit(cache=True)
-def _specific_forces_kernel(
-    q,
-    dq,
-    ddq,
-    parent,
-    rot_p,
-    trans_p,
-    axis,
-    mass,
-    com,
-    inertia,
-    grav,
-    s_joint,
-    s_rot,
-    s_trans,
-    w,
-    out,
-):
+def _specific_forces_kernel(q, dq, ddq, w, out, *constants):
     N, n = q.shape
-    stacked = rot_p.shape[0] > 1
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, _, _ = _workspace(n, w)
     zero = small[6]
     for k in range(N):
-        chain, _, sensors, gravity, _ = _arm_params(
-            k if stacked else 0,
-            parent,
-            rot_p,
-            trans_p,
-            axis,
-            mass,
-            com,
-            inertia,
-            grav,
-            s_joint,
-            s_rot,
-            s_trans,
-        )
+        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, *constants)
         _forward_kinematics(q[k], dq[k], ddq[k], zero, *chain, links, small)
         for i in range(sensors[0].shape[0]):
             _sensor_reading(i, *sensors, gravity, links, small, out[k], 3 * i)
@@ -298,74 +269,28 @@ def _maps_arm(q, dq, chain, sensors, gravity, links, small, bodies, T, W):
 
 
 @njit(cache=True)
-def _accelerometer_maps_kernel(
-    q, dq, parent, rot_p, trans_p, axis, mass, com, inertia, grav, s_joint, s_rot, s_trans, w, T, W
-):
+def _accelerometer_maps_kernel(q, dq, w, T, W, *constants):
     N, n = q.shape
-    stacked = rot_p.shape[0] > 1
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, _ = _workspace(n, w)
     for k in range(N):
-        chain, _, sensors, gravity, _ = _arm_params(
-            k if stacked else 0,
-            parent,
-            rot_p,
-            trans_p,
-            axis,
-            mass,
-            com,
-            inertia,
-            grav,
-            s_joint,
-            s_rot,
-            s_trans,
-        )
+        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, *constants)
         _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T[k], W[k])
 
 
 @njit(cache=True)
 def _acceleration_from_readings_kernel(
-    q,
-    dq,
-    readings,
-    threshold,
-    damping,
-    parent,
-    rot_p,
-    trans_p,
-    axis,
-    mass,
-    com,
-    inertia,
-    grav,
-    s_joint,
-    s_rot,
-    s_trans,
-    w,
-    ddq,
-    diagnostics,
+    q, dq, readings, threshold, damping, w, ddq, diagnostics, *constants
 ):
     N, n = q.shape
-    stacked = rot_p.shape[0] > 1
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     m = readings.shape[1]
     small, links, bodies, _ = _workspace(n, w)
     T = np.empty((m, n))
     W = np.empty(m)
     residual = np.empty(m)
     for k in range(N):
-        chain, _, sensors, gravity, _ = _arm_params(
-            k if stacked else 0,
-            parent,
-            rot_p,
-            trans_p,
-            axis,
-            mass,
-            com,
-            inertia,
-            grav,
-            s_joint,
-            s_rot,
-            s_trans,
-        )
+        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, *constants)
         _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T, W)
         finite = True
         for i in range(m):
@@ -463,97 +388,37 @@ def _mass_and_bias_arm(
 
 
 @njit(cache=True)
-def _mass_and_bias_kernel(
-    q, dq, parent, rot_p, trans_p, axis, mass, com, inertia, grav, s_joint, s_rot, s_trans, w, M, h
-):
+def _mass_and_bias_kernel(q, dq, w, M, h, *constants):
     N, n = q.shape
-    stacked = rot_p.shape[0] > 1
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, _ = _workspace(n, w)
     zero_n = bodies[8]
     for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(
-            k if stacked else 0,
-            parent,
-            rot_p,
-            trans_p,
-            axis,
-            mass,
-            com,
-            inertia,
-            grav,
-            s_joint,
-            s_rot,
-            s_trans,
-        )
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
         _mass_and_bias_arm(
             q[k], dq[k], zero_n, minus_gravity, chain, *bodies_p, M[k], h[k], links, small, bodies
         )
 
 
 @njit(cache=True)
-def _rnea_kernel(
-    q,
-    dq,
-    ddq,
-    parent,
-    rot_p,
-    trans_p,
-    axis,
-    mass,
-    com,
-    inertia,
-    grav,
-    s_joint,
-    s_rot,
-    s_trans,
-    w,
-    h,
-):
+def _rnea_kernel(q, dq, ddq, w, h, *constants):
     N, n = q.shape
-    stacked = rot_p.shape[0] > 1
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, (M, _, _) = _workspace(n, w)
     for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(
-            k if stacked else 0,
-            parent,
-            rot_p,
-            trans_p,
-            axis,
-            mass,
-            com,
-            inertia,
-            grav,
-            s_joint,
-            s_rot,
-            s_trans,
-        )
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
         arm = (q[k], dq[k], ddq[k], minus_gravity)
         _mass_and_bias_arm(*arm, chain, *bodies_p, M, h[k], links, small, bodies, False)
 
 
 @njit(cache=True)
-def _gravity_kernel(
-    q, parent, rot_p, trans_p, axis, mass, com, inertia, grav, s_joint, s_rot, s_trans, w, h
-):
+def _gravity_kernel(q, w, h, *constants):
     N, n = q.shape
-    stacked = rot_p.shape[0] > 1
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, (M, _, _) = _workspace(n, w)
     zero_n = bodies[8]
     for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(
-            k if stacked else 0,
-            parent,
-            rot_p,
-            trans_p,
-            axis,
-            mass,
-            com,
-            inertia,
-            grav,
-            s_joint,
-            s_rot,
-            s_trans,
-        )
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
         arm = (q[k], zero_n, zero_n, minus_gravity)
         _mass_and_bias_arm(*arm, chain, *bodies_p, M, h[k], links, small, bodies, False)
 
@@ -586,45 +451,14 @@ def _cholesky_solve(A, b, out):
 
 
 @njit(cache=True)
-def _forward_dynamics_kernel(
-    q,
-    dq,
-    tau,
-    added_inertia,
-    parent,
-    rot_p,
-    trans_p,
-    axis,
-    mass,
-    com,
-    inertia,
-    grav,
-    s_joint,
-    s_rot,
-    s_trans,
-    w,
-    out,
-):
+def _forward_dynamics_kernel(q, dq, tau, added_inertia, w, out, *constants):
     """(M + M_a) q'' = tau - n per arm; ``added_inertia`` (1 or N, n, n)."""
     N, n = q.shape
-    stacked = rot_p.shape[0] > 1
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, (M, h, rhs) = _workspace(n, w)
     per_arm = added_inertia.shape[0] > 1
     for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(
-            k if stacked else 0,
-            parent,
-            rot_p,
-            trans_p,
-            axis,
-            mass,
-            com,
-            inertia,
-            grav,
-            s_joint,
-            s_rot,
-            s_trans,
-        )
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
         arm = (q[k], dq[k], bodies[8], minus_gravity)
         _mass_and_bias_arm(*arm, chain, *bodies_p, M, h, links, small, bodies)
         added = added_inertia[k if per_arm else 0]
@@ -793,7 +627,7 @@ class SerialChain:
         q, dq, ddq = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(ddq, n, "ddq")
         self._rows(q)
         out = np.empty((len(q), 3 * self.n_sensors))
-        _specific_forces_kernel(q, dq, ddq, *self._kernel_constants(), self._work, out)
+        _specific_forces_kernel(q, dq, ddq, self._work, out, *self._kernel_constants())
         return out
 
     def accelerometer_maps(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -803,7 +637,7 @@ class SerialChain:
         self._rows(q)
         T = np.empty((len(q), 3 * self.n_sensors, n))
         W = np.empty((len(q), 3 * self.n_sensors))
-        _accelerometer_maps_kernel(q, dq, *self._kernel_constants(), self._work, T, W)
+        _accelerometer_maps_kernel(q, dq, self._work, T, W, *self._kernel_constants())
         return T, W
 
     def acceleration_from_readings(
@@ -838,10 +672,10 @@ class SerialChain:
             readings,
             float(threshold),
             float(damping),
-            *self._kernel_constants(),
             self._work,
             ddq,
             diagnostics,
+            *self._kernel_constants(),
         )
         return ddq, diagnostics
 
@@ -852,7 +686,7 @@ class SerialChain:
         self._rows(q)
         M = np.empty((len(q), n, n))
         h = np.empty((len(q), n))
-        _mass_and_bias_kernel(q, dq, *self._kernel_constants(), self._work, M, h)
+        _mass_and_bias_kernel(q, dq, self._work, M, h, *self._kernel_constants())
         return M, h
 
     def rnea(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
@@ -861,7 +695,7 @@ class SerialChain:
         q, dq, ddq = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(ddq, n, "ddq")
         self._rows(q)
         out = np.empty(q.shape)
-        _rnea_kernel(q, dq, ddq, *self._kernel_constants(), self._work, out)
+        _rnea_kernel(q, dq, ddq, self._work, out, *self._kernel_constants())
         return out
 
     def rnea_tangent(self, point: Triple, direction: Triple) -> tuple[np.ndarray, np.ndarray]:
@@ -889,7 +723,7 @@ class SerialChain:
         ]
         self._rows(z[0])
         out = np.empty((len(z[0]), width), dtype=np.complex128)
-        kernel(*z, *self._kernel_constants(), self._work_complex, out)
+        kernel(*z, self._work_complex, out, *self._kernel_constants())
         return out.real.copy(), out.imag / COMPLEX_STEP
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
@@ -897,7 +731,7 @@ class SerialChain:
         q = _batch(q, self.n, "q")
         self._rows(q)
         h = np.empty(q.shape)
-        _gravity_kernel(q, *self._kernel_constants(), self._work, h)
+        _gravity_kernel(q, self._work, h, *self._kernel_constants())
         return h
 
     def forward_dynamics(
@@ -918,5 +752,5 @@ class SerialChain:
             else np.ascontiguousarray(added_inertia, dtype=np.float64).reshape(-1, n, n)
         )
         out = np.empty((len(q), n))
-        _forward_dynamics_kernel(q, dq, tau, extra, *self._kernel_constants(), self._work, out)
+        _forward_dynamics_kernel(q, dq, tau, extra, self._work, out, *self._kernel_constants())
         return out
