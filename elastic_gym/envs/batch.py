@@ -627,40 +627,45 @@ class ArmBatch:
 
     def info(self, arms: int | slice | np.ndarray = slice(None)) -> dict:
         """The info of ``arms`` (see the module docstring): arrays with a leading arm axis,
-        or plain values of one arm when ``arms`` is an int."""
-        sim = self.sim
+        or plain values of one arm when ``arms`` is an int.
+
+        Every array is new (views of one fresh copy per group: the state, the reference),
+        so no later step changes an info already handed out.
+        """
+        sim, n = self.sim, self.n_joints
         one = isinstance(arms, (int, np.integer))
-        state = {
-            "q": sim.q[arms].copy(),
-            "dq": sim.dq[arms].copy(),
-            "theta": sim.theta[arms].copy(),
-            "dtheta": sim.dtheta[arms].copy(),
-            "ddq": self.ddq[arms].copy(),
-        }
-        state["x"] = np.concatenate(
-            [state["theta"], state["q"], state["dtheta"], state["dq"]], axis=-1
+        x = np.concatenate(
+            (sim.theta[arms], sim.q[arms], sim.dtheta[arms], sim.dq[arms], self.ddq[arms]), axis=-1
         )
-        reference = self.reference[arms]
+        state = {
+            "q": x[..., n : 2 * n],
+            "dq": x[..., 3 * n : 4 * n],
+            "theta": x[..., :n],
+            "dtheta": x[..., 2 * n : 3 * n],
+            "ddq": x[..., 4 * n :],
+            "x": x[..., : 4 * n],
+        }
+        reference = self.reference[arms].copy()
         return {
             "time": float(self._time[arms]) if one else self._time[arms].copy(),
             "true_state": state,
             "torque": self.torque[arms].copy(),
             "torque_saturated": bool(self.saturated[arms]) if one else self.saturated[arms].copy(),
-            "acceleration_saturated": self._acceleration_saturated(arms),
-            "reference": {key: reference[..., k, :].copy() for k, key in enumerate(REFERENCE_KEYS)},
+            "acceleration_saturated": self._acceleration_saturated(arms, one),
+            "reference": {key: reference[..., k, :] for k, key in enumerate(REFERENCE_KEYS)},
             "termination_reason": self.reasons[arms] if one else self.reasons[arms].copy(),
             "plant": self.plant_state.info(arms),
         }
 
-    def _acceleration_saturated(self, arms):
+    def _acceleration_saturated(self, arms, one: bool):
         """Whether an observed accelerometer reading is at the sensor's range (clipped)."""
         if not self.model.n_sensors:
-            at_range = np.zeros(np.shape(self._time[arms]), dtype=bool)
-        else:
-            readings = np.abs(self.obs["acceleration"][arms])
-            limit = np.asarray(self.accelerometer_array.range[arms])[..., None]  # per arm
-            at_range = np.any(readings >= limit, axis=-1)
-        return bool(at_range) if np.ndim(at_range) == 0 else at_range
+            return False if one else np.zeros(len(self._time[arms]), dtype=bool)
+        readings = np.abs(self.obs["acceleration"][arms])
+        limit = self.accelerometer_array.range[arms]
+        if one:
+            return bool((readings >= limit).any())
+        return (readings >= limit[:, None]).any(axis=-1)
 
     def reference_preview(self, offsets: np.ndarray) -> np.ndarray:
         """q_d .. q_d^(4) of every arm at its time + each offset (s): (N, H, 5, n).

@@ -21,8 +21,9 @@ from numba import njit
 from elastic_gym.validation import shaped
 
 # ---------------------------------------------------------------------------- kernels
-# Every kernel takes the chain's constant arrays (see SerialChain) and batched inputs
-# with a leading arm axis; small helpers are inlined by LLVM.
+# Every kernel takes batched inputs with a leading arm axis, the scratch buffer, its outputs
+# and last the chain's constants (``SerialChain._kernel_constants``); small helpers are
+# inlined by LLVM.
 
 
 @njit(cache=True)
@@ -57,38 +58,25 @@ def _point_acceleration(acc, alpha, omega, r, out, tmp, tmp2):
         out[i] += tmp[i]
 
 
-def _layout(n: int, n_sensors: int) -> tuple[int, int]:
-    """Sizes of the flat parameter array and of the scratch buffer of a chain."""
-    params = n * (9 + 3 + 3 + 1 + 3 + 9) + 6 + n_sensors * 12
-    work = 9 + 9 + 3 * 5 + 9 + n * (9 + 3 * 5) + n * (3 + 9 + 3 * 3) + 9 + n + n * n + 2 * n
-    return params, work
+def _work_size(n: int) -> int:
+    """Size of the scratch buffer of a chain of n joints (see :func:`_workspace`)."""
+    return 9 + 9 + 3 * 5 + 9 + n * (9 + 3 * 5) + n * (3 + 9 + 3 * 3) + 9 + n + n * n + 2 * n
 
 
 @njit(cache=True)
-def _unpack(fp, ip):
-    """Views of the chain's constants packed by :class:`SerialChain` (see ``_pack``)."""
-    n, n_s = ip[0], ip[1]
-    parent, s_joint = ip[2 : 2 + n], ip[2 + n : 2 + n + n_s]
-    o = 0
-    rot_p = fp[o : o + 9 * n].reshape((n, 3, 3))
-    o += 9 * n
-    trans_p = fp[o : o + 3 * n].reshape((n, 3))
-    o += 3 * n
-    axis = fp[o : o + 3 * n].reshape((n, 3))
-    o += 3 * n
-    mass = fp[o : o + n]
-    o += n
-    com = fp[o : o + 3 * n].reshape((n, 3))
-    o += 3 * n
-    inertia = fp[o : o + 9 * n].reshape((n, 3, 3))
-    o += 9 * n
-    gravity, minus_gravity = fp[o : o + 3], fp[o + 3 : o + 6]
-    o += 6
-    s_rot = fp[o : o + 9 * n_s].reshape((n_s, 3, 3))
-    o += 9 * n_s
-    s_trans = fp[o : o + 3 * n_s].reshape((n_s, 3))
-    chain = (parent, rot_p, trans_p, axis)
-    return chain, (mass, com, inertia), (s_joint, s_rot, s_trans), gravity, minus_gravity
+def _arm_params(a, parent, rot_p, trans_p, axis, mass, com, inertia, grav, s_joint, s_rot, s_trans):
+    """Views of arm ``a``'s constants (``SerialChain._kernel_constants``): the chain, the
+    bodies, the sensors, g_W and -g_W. Each constant is a separate array with a leading
+    arm axis (row 0 for every arm when not stacked): views made here by reshaping one
+    flat array made the kernels 2-3x slower."""
+    chain = (parent, rot_p[a], trans_p[a], axis[a])
+    return (
+        chain,
+        (mass[a], com[a], inertia[a]),
+        (s_joint, s_rot[a], s_trans[a]),
+        grav[a, 0],
+        grav[a, 1],
+    )
 
 
 @njit(cache=True)
@@ -246,14 +234,13 @@ def _sensor_reading(i, s_joint, s_rot, s_trans, gravity, links, small, out, row)
 
 
 @njit(cache=True)
-def _specific_forces_kernel(q, dq, ddq, fp, ip, w, out):
+def _specific_forces_kernel(q, dq, ddq, w, out, *constants):
     N, n = q.shape
-    chain, _, sensors, gravity, _ = _unpack(fp[0], ip)
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, _, _ = _workspace(n, w)
     zero = small[6]
     for k in range(N):
-        if k and fp.shape[0] > 1:
-            chain, _, sensors, gravity, _ = _unpack(fp[k], ip)
+        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, *constants)
         _forward_kinematics(q[k], dq[k], ddq[k], zero, *chain, links, small)
         for i in range(sensors[0].shape[0]):
             _sensor_reading(i, *sensors, gravity, links, small, out[k], 3 * i)
@@ -284,30 +271,28 @@ def _maps_arm(q, dq, chain, sensors, gravity, links, small, bodies, T, W):
 
 
 @njit(cache=True)
-def _accelerometer_maps_kernel(q, dq, fp, ip, w, T, W):
+def _accelerometer_maps_kernel(q, dq, w, T, W, *constants):
     N, n = q.shape
-    chain, _, sensors, gravity, _ = _unpack(fp[0], ip)
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, _ = _workspace(n, w)
     for k in range(N):
-        if k and fp.shape[0] > 1:
-            chain, _, sensors, gravity, _ = _unpack(fp[k], ip)
+        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, *constants)
         _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T[k], W[k])
 
 
 @njit(cache=True)
 def _acceleration_from_readings_kernel(
-    q, dq, readings, threshold, damping, fp, ip, w, ddq, diagnostics
+    q, dq, readings, threshold, damping, w, ddq, diagnostics, *constants
 ):
     N, n = q.shape
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     m = readings.shape[1]
-    chain, _, sensors, gravity, _ = _unpack(fp[0], ip)
     small, links, bodies, _ = _workspace(n, w)
     T = np.empty((m, n))
     W = np.empty(m)
     residual = np.empty(m)
     for k in range(N):
-        if k and fp.shape[0] > 1:
-            chain, _, sensors, gravity, _ = _unpack(fp[k], ip)
+        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, *constants)
         _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T, W)
         finite = True
         for i in range(m):
@@ -405,40 +390,37 @@ def _mass_and_bias_arm(
 
 
 @njit(cache=True)
-def _mass_and_bias_kernel(q, dq, fp, ip, w, M, h):
+def _mass_and_bias_kernel(q, dq, w, M, h, *constants):
     N, n = q.shape
-    chain, bodies_p, _, _, minus_gravity = _unpack(fp[0], ip)
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, _ = _workspace(n, w)
     zero_n = bodies[8]
     for k in range(N):
-        if k and fp.shape[0] > 1:
-            chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
         _mass_and_bias_arm(
             q[k], dq[k], zero_n, minus_gravity, chain, *bodies_p, M[k], h[k], links, small, bodies
         )
 
 
 @njit(cache=True)
-def _rnea_kernel(q, dq, ddq, fp, ip, w, h):
+def _rnea_kernel(q, dq, ddq, w, h, *constants):
     N, n = q.shape
-    chain, bodies_p, _, _, minus_gravity = _unpack(fp[0], ip)
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, (M, _, _) = _workspace(n, w)
     for k in range(N):
-        if k and fp.shape[0] > 1:
-            chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
         arm = (q[k], dq[k], ddq[k], minus_gravity)
         _mass_and_bias_arm(*arm, chain, *bodies_p, M, h[k], links, small, bodies, False)
 
 
 @njit(cache=True)
-def _gravity_kernel(q, fp, ip, w, h):
+def _gravity_kernel(q, w, h, *constants):
     N, n = q.shape
-    chain, bodies_p, _, _, minus_gravity = _unpack(fp[0], ip)
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, (M, _, _) = _workspace(n, w)
     zero_n = bodies[8]
     for k in range(N):
-        if k and fp.shape[0] > 1:
-            chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
         arm = (q[k], zero_n, zero_n, minus_gravity)
         _mass_and_bias_arm(*arm, chain, *bodies_p, M, h[k], links, small, bodies, False)
 
@@ -471,15 +453,14 @@ def _cholesky_solve(A, b, out):
 
 
 @njit(cache=True)
-def _forward_dynamics_kernel(q, dq, tau, added_inertia, fp, ip, w, out):
+def _forward_dynamics_kernel(q, dq, tau, added_inertia, w, out, *constants):
     """(M + M_a) q'' = tau - n per arm; ``added_inertia`` (1 or N, n, n)."""
     N, n = q.shape
-    chain, bodies_p, _, _, minus_gravity = _unpack(fp[0], ip)
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, (M, h, rhs) = _workspace(n, w)
     per_arm = added_inertia.shape[0] > 1
     for k in range(N):
-        if k and fp.shape[0] > 1:
-            chain, bodies_p, _, _, minus_gravity = _unpack(fp[k], ip)
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
         arm = (q[k], dq[k], bodies[8], minus_gravity)
         _mass_and_bias_arm(*arm, chain, *bodies_p, M, h, links, small, bodies)
         added = added_inertia[k if per_arm else 0]
@@ -547,26 +528,53 @@ class SerialChain:
         frames = [pin_model.frames[f] for f in sensor_frames]
         self.n_sensors = len(frames)
         gravity = np.array(pin_model.gravity.linear, dtype=float)
-        pieces = [
-            [pin_model.jointPlacements[j].rotation for j in joints],
-            [pin_model.jointPlacements[j].translation for j in joints],
-            axes,
-            [body.mass for body in bodies],
-            [body.lever for body in bodies],
-            [body.inertia for body in bodies],
-            gravity,
-            -gravity,
-            [f.placement.rotation for f in frames],
-            [f.placement.translation for f in frames],
-        ]
-        self._params = np.concatenate([np.asarray(x, dtype=float).ravel() for x in pieces])[None]
-        self._ints = np.array(
-            [n, self.n_sensors, *parent, *(f.parentJoint - 1 for f in frames)], dtype=np.int64
-        )
-        size, work = _layout(n, self.n_sensors)
-        assert self._params.shape == (1, size)
+        constants = {  # one row: the arm axis of the kernels' per-arm constants
+            "rot_p": [pin_model.jointPlacements[j].rotation for j in joints],
+            "trans_p": [pin_model.jointPlacements[j].translation for j in joints],
+            "axis": axes,
+            "mass": [body.mass for body in bodies],
+            "com": [body.lever for body in bodies],
+            "inertia": [body.inertia for body in bodies],
+            "grav": [gravity, -gravity],
+            "s_rot": np.reshape([f.placement.rotation for f in frames], (-1, 3, 3)),
+            "s_trans": np.reshape([f.placement.translation for f in frames], (-1, 3)),
+        }
+        self._constants = {
+            key: np.asarray(value, dtype=float)[None] for key, value in constants.items()
+        }
+        self._parent = np.array(parent, dtype=np.int64)
+        self._s_joint = np.array([f.parentJoint - 1 for f in frames], dtype=np.int64)
         self._no_inertia = np.zeros((1, n, n))
         self._scratch()
+
+    @property
+    def _arms(self) -> int:
+        """Rows of the per-arm constants: 1 (every arm alike) or N (stacked)."""
+        return len(self._constants["mass"])
+
+    def _kernel_constants(self) -> tuple[np.ndarray, ...]:
+        """The kernels' constants in their argument order (see :func:`_arm_params`)."""
+        c = self._constants
+        return (
+            self._parent,
+            c["rot_p"],
+            c["trans_p"],
+            c["axis"],
+            c["mass"],
+            c["com"],
+            c["inertia"],
+            c["grav"],
+            self._s_joint,
+            c["s_rot"],
+            c["s_trans"],
+        )
+
+    def _with_constants(self, constants: dict[str, np.ndarray]) -> SerialChain:
+        new = SerialChain.__new__(SerialChain)
+        vars(new).update(vars(self))
+        new._constants = constants
+        new._scratch()
+        return new
 
     @classmethod
     def stack(cls, chains: list[SerialChain] | tuple[SerialChain, ...]) -> SerialChain:
@@ -574,37 +582,37 @@ class SerialChain:
         sensors, e.g. link inertias that differ per arm): its methods then take exactly
         ``len(chains)`` rows, row k computed bit for bit as ``chains[k]`` computes it."""
         first = chains[0]
-        if any(not np.array_equal(c._ints, first._ints) for c in chains):
+        if any(
+            not np.array_equal(c._parent, first._parent)
+            or not np.array_equal(c._s_joint, first._s_joint)
+            for c in chains
+        ):
             raise ValueError("stacked chains must share their joints and sensors")
-        new = cls.__new__(cls)
-        vars(new).update(vars(first))
-        new._params = np.concatenate([c._params for c in chains])
-        new._scratch()
-        return new
+        return first._with_constants(
+            {key: np.concatenate([c._constants[key] for c in chains]) for key in first._constants}
+        )
 
     def select(self, arms: np.ndarray) -> SerialChain:
         """The chain of the rows ``arms`` of a stacked chain (itself when not stacked)."""
-        if len(self._params) == 1:
+        if self._arms == 1:
             return self
-        new = SerialChain.__new__(SerialChain)
-        vars(new).update(vars(self))
-        new._params = self._params[np.asarray(arms, dtype=np.int64)]
-        new._scratch()
-        return new
+        rows = np.asarray(arms, dtype=np.int64)
+        return self._with_constants({key: c[rows] for key, c in self._constants.items()})
 
     def set_row(self, arm: int, chain: SerialChain) -> None:
         """Give arm ``arm`` of a stacked chain the parameters of ``chain``."""
-        self._params[arm] = chain._params[0]
+        for key, c in self._constants.items():
+            c[arm] = chain._constants[key][0]
 
     def _rows(self, x: np.ndarray) -> None:
-        if len(self._params) > 1 and len(x) != len(self._params):
+        if self._arms > 1 and len(x) != self._arms:
             raise ValueError(
-                f"a chain stacked for {len(self._params)} arms got {len(x)} rows; "
+                f"a chain stacked for {self._arms} arms got {len(x)} rows; "
                 "use select(arms) for a subset"
             )
 
     def _scratch(self) -> None:
-        work = _layout(self.n, self.n_sensors)[1]
+        work = _work_size(self.n)
         self._work = np.empty(work)
         self._work_complex = np.empty(work, dtype=np.complex128)  # complex-step tangents
 
@@ -621,7 +629,7 @@ class SerialChain:
         q, dq, ddq = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(ddq, n, "ddq")
         self._rows(q)
         out = np.empty((len(q), 3 * self.n_sensors))
-        _specific_forces_kernel(q, dq, ddq, self._params, self._ints, self._work, out)
+        _specific_forces_kernel(q, dq, ddq, self._work, out, *self._kernel_constants())
         return out
 
     def accelerometer_maps(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -631,7 +639,7 @@ class SerialChain:
         self._rows(q)
         T = np.empty((len(q), 3 * self.n_sensors, n))
         W = np.empty((len(q), 3 * self.n_sensors))
-        _accelerometer_maps_kernel(q, dq, self._params, self._ints, self._work, T, W)
+        _accelerometer_maps_kernel(q, dq, self._work, T, W, *self._kernel_constants())
         return T, W
 
     def acceleration_from_readings(
@@ -662,11 +670,10 @@ class SerialChain:
             readings,
             float(threshold),
             float(damping),
-            self._params,
-            self._ints,
             self._work,
             ddq,
             diagnostics,
+            *self._kernel_constants(),
         )
         return ddq, diagnostics
 
@@ -677,7 +684,7 @@ class SerialChain:
         self._rows(q)
         M = np.empty((len(q), n, n))
         h = np.empty((len(q), n))
-        _mass_and_bias_kernel(q, dq, self._params, self._ints, self._work, M, h)
+        _mass_and_bias_kernel(q, dq, self._work, M, h, *self._kernel_constants())
         return M, h
 
     def rnea(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
@@ -686,7 +693,7 @@ class SerialChain:
         q, dq, ddq = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(ddq, n, "ddq")
         self._rows(q)
         out = np.empty(q.shape)
-        _rnea_kernel(q, dq, ddq, self._params, self._ints, self._work, out)
+        _rnea_kernel(q, dq, ddq, self._work, out, *self._kernel_constants())
         return out
 
     def rnea_tangent(self, point: Triple, direction: Triple) -> tuple[np.ndarray, np.ndarray]:
@@ -714,7 +721,7 @@ class SerialChain:
         ]
         self._rows(z[0])
         out = np.empty((len(z[0]), width), dtype=np.complex128)
-        kernel(*z, self._params, self._ints, self._work_complex, out)
+        kernel(*z, self._work_complex, out, *self._kernel_constants())
         return out.real.copy(), out.imag / COMPLEX_STEP
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
@@ -722,7 +729,7 @@ class SerialChain:
         q = _batch(q, self.n, "q")
         self._rows(q)
         h = np.empty(q.shape)
-        _gravity_kernel(q, self._params, self._ints, self._work, h)
+        _gravity_kernel(q, self._work, h, *self._kernel_constants())
         return h
 
     def forward_dynamics(
@@ -743,5 +750,5 @@ class SerialChain:
             else np.ascontiguousarray(added_inertia, dtype=np.float64).reshape(-1, n, n)
         )
         out = np.empty((len(q), n))
-        _forward_dynamics_kernel(q, dq, tau, extra, self._params, self._ints, self._work, out)
+        _forward_dynamics_kernel(q, dq, tau, extra, self._work, out, *self._kernel_constants())
         return out
