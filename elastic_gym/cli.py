@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from pydantic import BaseModel
 
@@ -23,6 +24,9 @@ from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
 from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
 from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
 from elastic_gym.parallel import BACKENDS, Interrupted, interrupts_raised
+
+if TYPE_CHECKING:
+    from elastic_gym.training import TrainConfig
 
 
 def default(model: type[BaseModel], field: str):
@@ -318,22 +322,25 @@ def require_rl_extra(command: str) -> None:
         ) from None
 
 
-def run_train(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
+def train_run_base(args: argparse.Namespace) -> str:
+    """The run folder of ``elastic-gym train`` (``--out`` or its default): the run's, or
+    the parent of one ``seed<k>`` folder per seed when several."""
+    name = args.env.split("/")[-1]
+    return args.out or f"runs/{args.algo}-{name}-{args.state}" + (
+        f"-residual-{args.residual}" if args.residual else ""
+    )
 
-    require_rl_extra("elastic-gym train")
-    from elastic_gym.training import RunFolder, TrainConfig, parse_overrides, train, train_many
+
+def train_configs(args: argparse.Namespace) -> list[TrainConfig]:
+    """The :class:`~elastic_gym.training.TrainConfig` of each seed of parsed
+    ``elastic-gym train`` arguments: what the command trains."""
+    from elastic_gym.training import TrainConfig, parse_overrides
 
     duplicates = sorted({s for s in args.seeds if args.seeds.count(s) > 1})
     if duplicates:
         raise ValueError(f"--seeds: duplicate seed(s) {duplicates}")
-    name = args.env.split("/")[-1]
-    base = args.out or f"runs/{args.algo}-{name}-{args.state}" + (
-        f"-residual-{args.residual}" if args.residual else ""
-    )
-    RunFolder(base).check(args.overwrite)
-    configs = [
+    base = train_run_base(args)
+    return [
         TrainConfig(
             env_id=args.env,
             algo=args.algo,
@@ -353,6 +360,17 @@ def run_train(args: argparse.Namespace) -> int:
         )
         for seed in args.seeds
     ]
+
+
+def run_train(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    require_rl_extra("elastic-gym train")
+    from elastic_gym.training import RunFolder, train, train_many
+
+    RunFolder(train_run_base(args)).check(args.overwrite)
+    configs = train_configs(args)
     if len(configs) == 1:
         results = [train(configs[0], progress_bar=not args.no_progress, overwrite=args.overwrite)]
     else:
