@@ -2,9 +2,10 @@
 with domain randomization, next to eq. (13), eq. (13) with integral action and motor PD,
 on eight plants the model does not know.
 
-    python benchmarks/robust_study.py                 # train what is missing, evaluate, report
-    python benchmarks/robust_study.py --runs DIR --report    # evaluate finished runs, report
-    python benchmarks/robust_study.py --commands      # the elastic-gym train command of each run
+    python benchmarks/robust_study.py               # train what is missing, evaluate, report
+    python benchmarks/robust_study.py --report      # no training: evaluate finished runs, report
+    python benchmarks/robust_study.py --commands    # the elastic-gym train command of each run
+    python benchmarks/robust_study.py --runs DIR    # run folders DIR/<row>/seed<k>
 
 The training, evaluation and report machinery is the RL study's (``rl_study.py``: resumed
 training, cached evaluations, learning curves); this file holds what differs:
@@ -22,7 +23,7 @@ training, cached evaluations, learning curves); this file holds what differs:
 3. Report into ``--out`` (default ``docs/robust_study/``): ``table.md`` / ``table.csv``
    (loop x source x plant: the RMS over the episodes' samples, mean and range over
    training seeds), ``evaluations.csv``, ``targets.md`` (the issue's four targets, computed
-   from the evaluations), ``robust_rms.png``, ``stamp.md``, ``curves.csv`` and
+   from the evaluations), ``robust_rms.png``, ``rows.md``, ``stamp.md``, ``curves.csv`` and
    ``learning_curves.png``.
 """
 
@@ -345,6 +346,8 @@ def plot(lines: list[dict], out: Path) -> None:
             several = line[f"{plant} min"] != ""
             low.append(line[plant] - line[f"{plant} min"] if several else 0.0)
             high.append(line[f"{plant} max"] - line[plant] if several else 0.0)
+        if not x:
+            continue
         ax.bar(
             x,
             height,
@@ -358,7 +361,8 @@ def plot(lines: list[dict], out: Path) -> None:
     ax.set_xticks(range(len(lines)))
     ax.set_xticklabels(
         [f"{line['loop']}\n[{line['state']}]".replace(", trained", ",\ntrained") for line in lines],
-        rotation=90,
+        rotation=35,
+        ha="right",
         fontsize=7,
     )
     ax.set_ylabel("link tracking RMS [rad]")
@@ -386,14 +390,25 @@ def stamp(out: Path) -> None:
     )
 
 
+def write_rows(out: Path) -> None:
+    """``rows.md``: the training table (``TRAINING``) as the report shows it."""
+    text = ["| row | training seeds | hyper-parameter file | `elastic-gym train` arguments |"]
+    text.append("|---|---:|---|---|")
+    for row in ROWS:
+        file = f"`{row.hyperparams_file}`" if row.hyperparams_file else "shipped default"
+        text.append(f"| `{row.key}` | {len(row.seeds)} | {file} | `{row.arguments}` |")
+    (out / "rows.md").write_text("\n".join(text) + "\n")
+
+
 def report(records: list[dict], out: Path) -> list[str]:
-    """The robustness study's files: table, targets, figure and stamp."""
+    """The robustness study's files: table, targets, figure, training rows and stamp."""
     lines = table(records)
     write_table(lines, out)
     write_targets([target.line() for target in targets(records)], out)
     plot(lines, out)
+    write_rows(out)
     stamp(out)
-    return ["table.md", "table.csv", "targets.md", "robust_rms.png", "stamp.md"]
+    return ["table.md", "table.csv", "targets.md", "robust_rms.png", "rows.md", "stamp.md"]
 
 
 ROBUST_STUDY = Study(

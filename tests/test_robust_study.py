@@ -5,6 +5,7 @@ are computed from the evaluations, and a tiny study writes every report file."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -195,35 +196,55 @@ def test_the_targets_compute_their_verdicts_from_the_numbers():
 
 def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     runs, out = tmp_path / "runs", tmp_path / "out"
+    classical = ((rs.EQ13, "eq. (13)", ("deluca",)), ("motor-pd", "motor PD", (rs.ENCODERS,)))
+    study = dataclasses.replace(rs.ROBUST_STUDY, classical=classical)
     argv = ["--rows", "ppo-true-nominal", "--steps", "2048", "--plants", "nominal", "mass1.3"]
     argv += ["--episodes", "1", "--runs", str(runs), "--out", str(out)]
-    rs.run(rs.ROBUST_STUDY, argv)
+    rs.run(study, argv)
     assert (runs / "ppo-true-nominal" / "seed0" / "summary.json").is_file()
     with open(out / "evaluations.csv") as handle:
         records = list(csv.DictReader(handle))
-    classical = [f"{c}-{s}" for c, _, sources in rs.CLASSICAL for s in sources]
-    expected = {
-        (key, plant) for key in [*classical, "ppo-true-nominal"] for plant in ("nominal", "mass1.3")
-    }
+    keys = ["feedforward-state-feedback-deluca", "motor-pd-finite-difference", "ppo-true-nominal"]
+    expected = {(key, plant) for key in keys for plant in ("nominal", "mass1.3")}
     assert {(r["row"], r["plant"]) for r in records} == expected
     assert len(records) == len(expected)  # one episode each
     assert {r["episode_seed"] for r in records} == {"100000"}
     table = (out / "table.md").read_text().splitlines()
-    assert len(table) == 2 + len(classical) + 1
+    assert len(table) == 2 + len(keys)
     assert "link mass ×1.3" in table[0] and "K ×0.9" in table[0]
-    ppo = [line for line in table if "PPO, pure RL, trained nominal" in line]
-    assert len(ppo) == 1
+    (ppo,) = [line for line in table if "PPO, pure RL, trained nominal" in line]
     heavy = [r for r in records if r["row"] == "ppo-true-nominal" and r["plant"] == "mass1.3"]
-    assert f"{float(heavy[0]['tracking_rms']):.2e}" in ppo[0]
+    assert f"{float(heavy[0]['tracking_rms']):.2e}" in ppo
+    with open(out / "table.csv") as handle:
+        lines = {line["row"]: line for line in csv.DictReader(handle)}
+    assert float(lines["ppo-true-nominal"]["mass1.3"]) == float(heavy[0]["tracking_rms"])
     targets = (out / "targets.md").read_text()
     assert "| nominal PPO on the true state, training wall time |" in targets
-    assert targets.count("| — |") == 9  # the rows not trained here
+    assert targets.count("| — |") == 9  # the rows and loops not evaluated here
     assert (out / "robust_rms.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert (out / "learning_curves.png").is_file() and "elastic-gym" in (
-        out / "stamp.md"
-    ).read_text()
+    assert (out / "learning_curves.png").is_file()
+    assert "elastic-gym" in (out / "stamp.md").read_text()
     before = (out / "evaluations.csv").read_text()
     capsys.readouterr()
-    rs.run(rs.ROBUST_STUDY, [*argv, "--report"])  # cached: nothing evaluated again
+    rs.run(study, [*argv, "--report"])  # cached: nothing evaluated again
     assert "evaluated" not in capsys.readouterr().out
     assert (out / "evaluations.csv").read_text() == before
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            ["--rows", "ppo-true-nominal", "nope"],
+            "--rows: unknown rows ['nope']; valid: ['ppo-true",
+        ),
+        (["--plants", "mass2"], "--plants: unknown plants ['mass2']; valid: ['nominal', 'mass0.7'"),
+        (["--episodes", "0"], "--episodes: must be >= 1, got 0"),
+    ],
+)
+def test_unknown_rows_plants_and_no_episodes_are_refused(argv, message, tmp_path, capsys):
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exit_:
+        rs.run(rs.ROBUST_STUDY, [*argv, "--runs", str(tmp_path / "runs"), "--out", str(out)])
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / "runs").exists()
