@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import json
 import sys
 from pathlib import Path
 
@@ -229,6 +230,16 @@ def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     rs.run(study, [*argv, "--report"])  # cached: nothing evaluated again
     assert "evaluated" not in capsys.readouterr().out
     assert (out / "evaluations.csv").read_text() == before
+    summary = runs / "ppo-true-nominal" / "seed0" / "summary.json"
+    summary.write_text(summary.read_text().replace('"wall_time": ', '"wall_time": 1'))
+    rs.run(study, [*argv, "--report"])  # a run trained again since: evaluated again
+    log = capsys.readouterr().out
+    assert log.count("evaluated ppo-true-nominal seed 0") == 2 and log.count("evaluated") == 2
+    with open(out / "evaluations.csv") as handle:
+        again = list(csv.DictReader(handle))
+    assert len(again) == len(records)
+    (wall,) = {r["wall_time"] for r in again if r["row"] == "ppo-true-nominal"}
+    assert wall == str(json.loads(summary.read_text())["wall_time"])
 
 
 @pytest.mark.parametrize(
