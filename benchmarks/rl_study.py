@@ -513,11 +513,20 @@ class Target:
         return "met" if (ratio < 1 if self.strict else ratio <= 1) else "missed"
 
     def line(self) -> dict:
+        """The target as a line of ``targets.md`` ("—" for a number not measured)."""
+
+        def number(value: float, text: str) -> str:
+            return text if np.isfinite(value) else "—"
+
+        ratio = self.measured / self.bound
+        comparison = "<" if self.strict else "≤"
         return {
             "target": self.name,
-            "measured": f"{self.measured:.2e} {self.unit}",
-            "bound": f"{'<' if self.strict else '≤'} {self.bound:.2e} {self.unit} ({self.rule})",
-            "measured / bound": f"{self.measured / self.bound:.3f}",
+            "measured": number(self.measured, f"{self.measured:.2e} {self.unit}"),
+            "bound": f"{comparison} "
+            + number(self.bound, f"{self.bound:.2e} {self.unit}")
+            + f" ({self.rule})",
+            "measured / bound": number(ratio, f"{ratio:.3f}"),
             "verdict": self.verdict,
         }
 
