@@ -22,7 +22,7 @@ from elastic_gym.controllers.invdyn import reference_derivatives, state_vector
 from elastic_gym.controllers.vector import ARM0, ControllerTwin, make_vector_controller, twin_of
 from elastic_gym.model import RobotModel
 from elastic_gym.training.actions import ActionMap
-from elastic_gym.training.observation import ObservationBuilder, ObservationInputs
+from elastic_gym.training.observation import ErrorIntegral, ObservationBuilder, ObservationInputs
 from elastic_gym.training.policy_env import SENSORS
 from elastic_gym.training.rollouts import PolicyActor
 from elastic_gym.training.trained import TrainedRun, load_run
@@ -149,6 +149,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._action = np.zeros((N, n))
         self._last_action = np.zeros((N, n))
         self._last_base = np.zeros((N, n))
+        self._integral = ErrorIntegral(N, n, controller.elastic)
 
     def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
         if self.base is not None:
@@ -158,6 +159,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._calls[arms] = 0
         for held in (self._action, self._last_action, self._last_base):
             held[arms] = 0.0
+        self._integral.restart(arms, np.broadcast_to(info["time"], (self.n_arms,)))
 
     def torques(
         self, x: np.ndarray, reference: np.ndarray, obs: Mapping, info: Mapping
@@ -167,12 +169,16 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         c, n = self.controller, self.n
         acting = np.flatnonzero(self._calls % c.decimation == 0)  # at 1 / (decimation dt)
         if len(acting):
+            later = acting[self._calls[acting] > 0]  # the first call is the reset's step
+            time = np.broadcast_to(info["time"], (self.n_arms,))
+            self._integral.advance(later, x[later], reference[later], time)
             features = c.builder.build(
                 ObservationInputs(
                     reference=reference[acting],
                     last_action=self._last_action[acting],
                     state=x[acting],
                     base_torque=self._last_base[acting],
+                    error_integral=self._integral.value[acting],
                 )
             )
             for k, i in enumerate(acting):
