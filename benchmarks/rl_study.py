@@ -699,7 +699,7 @@ def forget_evaluations(path: Path, keys: set[str]) -> None:
         writer.writerows(kept)
 
 
-def report(records: list[dict], out: Path) -> list[str]:
+def report(records: list[dict], out: Path, rows, runs: Path) -> list[str]:
     """The RL study's tables: ``table.md`` / ``table.csv`` and ``targets.md``."""
     write_table(table(records), out)
     write_targets(targets(records), out)
@@ -715,8 +715,8 @@ class Study:
     ``config(seed, runs) -> TrainConfig`` (:class:`Row`); ``plants``: name -> env kwargs
     of an evaluation plant; ``classical``: (controller, label, state sources) evaluated on
     TwoLinkElastic (``kr15_classical`` on KR15); ``zero_offset``: also the motor-offset PD
-    with a zero action; ``report(records, out)`` writes the study's tables and returns
-    their file names; ``command(row, seed, runs)``: the ``elastic-gym train`` command of a
+    with a zero action; ``report(records, out, rows, runs)`` writes the study's tables and
+    returns their file names; ``command(row, seed, runs)``: the ``elastic-gym train`` command of a
     run (None: the study has none)."""
 
     name: str
@@ -724,7 +724,7 @@ class Study:
     rows: tuple
     plants: dict[str, dict]
     classical: tuple
-    report: Callable[[list[dict], Path], list[str]]
+    report: Callable[[list[dict], Path, tuple, Path], list[str]]
     runs: str
     out: str
     kr15_classical: tuple = ()
@@ -833,7 +833,7 @@ def run(study: Study, argv: list[str] | None = None) -> None:
         train_all(rows, runs, start)
     out.mkdir(parents=True, exist_ok=True)
     records = evaluate_all(study, rows, runs, out, start)
-    written = study.report(records, out)
+    written = study.report(records, out, tuple(rows), runs)
     curves = gather_curves(rows, runs, out)
     if curves:
         plot_curves(curves, out)

@@ -23,7 +23,8 @@ training, cached evaluations, learning curves); this file holds what differs:
 3. Report into ``--out`` (default ``docs/robust_study/``): ``table.md`` / ``table.csv``
    (loop x source x plant: the RMS over the episodes' samples, mean and range over
    training seeds), ``evaluations.csv``, ``targets.md`` (the issue's four targets, computed
-   from the evaluations), ``robust_rms.png``, ``rows.md``, ``stamp.md``, ``curves.csv`` and
+   from the evaluations), ``robust_rms.png``, ``rows.md``, ``runs.md`` (the runs
+   evaluated and what they were trained with beyond the table), ``stamp.md``, ``curves.csv`` and
    ``learning_curves.png``.
 """
 
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import csv
 import datetime
+import json
 import shlex
 import subprocess
 import sys
@@ -44,6 +46,8 @@ import elastic_gym
 from elastic_gym.cli import build_parser, train_configs
 from elastic_gym.envs.config import PER_ARM_KEYS, EnvConfig
 from elastic_gym.training import TrainConfig
+from elastic_gym.training.config import merged_hyperparams
+from elastic_gym.training.run_folder import FINISHED, RunFolder
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the RL study beside this file
 from rl_study import (
@@ -400,15 +404,72 @@ def write_rows(out: Path) -> None:
     (out / "rows.md").write_text("\n".join(text) + "\n")
 
 
-def report(records: list[dict], out: Path) -> list[str]:
-    """The robustness study's files: table, targets, figure, training rows and stamp."""
+def differences(row: Row, seed: int, runs: Path) -> list[str]:
+    """What the finished run of ``row`` in ``runs`` was trained with that the table's
+    command would not have given it: the names of the differing config fields, resolved
+    action and observation configs and hyper-parameters."""
+    saved = RunFolder(Path(row.config(seed, runs).out_dir)).read_config()
+    expected = row.config(seed, runs)
+    names = [
+        name
+        for name in ("algo", "state", "env_id", "total_steps", "env_kwargs", "observer_options")
+        if getattr(saved, name) != getattr(expected, name)
+    ]
+    if expected.state == "sensors" and saved.frame_stack != expected.frame_stack:
+        names.append("frame_stack")
+    try:
+        settings, _ = expected.settings()
+    except ValueError:  # the table's file does not exist (yet)
+        return [*names, f"{expected.hyperparams_file} (not found)"]
+    mine = saved.policy_configs(saved.settings()[0])
+    theirs = expected.policy_configs(settings)
+    names += [
+        name
+        for name, a, b in zip(("action", "observation"), mine, theirs, strict=True)
+        if a.to_dict() != b.to_dict()
+    ]
+    shipped = merged_hyperparams(
+        expected.algo, expected.env_id, expected.hyperparams, expected.hyperparams_file
+    )
+    keys = sorted(set(shipped) | set(saved.hyperparams))
+    return names + [key for key in keys if shipped.get(key) != saved.hyperparams.get(key)]
+
+
+def write_runs(rows, runs: Path, out: Path) -> None:
+    """``runs.md``: every finished run evaluated, with what it was trained with beyond the
+    table's command (field names of :func:`differences`)."""
+    text = [
+        "| row | seed | policy steps | training time [s] | features | differs from the table in |"
+    ]
+    text.append("|---|---:|---:|---:|---|---|")
+    for row in rows:
+        for seed in row.seeds:
+            folder = RunFolder(Path(row.config(seed, runs).out_dir))
+            if not folder.finished:
+                continue
+            summary = json.loads((folder.path / FINISHED).read_text())
+            features = folder.read_config().observation.get("features")
+            features = ", ".join(features) if features else "default"
+            text.append(
+                f"| `{row.key}` | {seed} | {summary['policy_steps']} | "
+                f"{summary['wall_time']:.0f} | {features} | "
+                f"{', '.join(differences(row, seed, runs)) or '—'} |"
+            )
+    (out / "runs.md").write_text("\n".join(text) + "\n")
+
+
+def report(records: list[dict], out: Path, rows, runs: Path) -> list[str]:
+    """The robustness study's files: table, targets, figure, training rows, the runs
+    evaluated and the stamp."""
     lines = table(records)
     write_table(lines, out)
     write_targets([target.line() for target in targets(records)], out)
     plot(lines, out)
     write_rows(out)
+    write_runs(rows, runs, out)
     stamp(out)
-    return ["table.md", "table.csv", "targets.md", "robust_rms.png", "rows.md", "stamp.md"]
+    files = ["table.md", "table.csv", "targets.md", "robust_rms.png", "rows.md", "runs.md"]
+    return [*files, "stamp.md"]
 
 
 ROBUST_STUDY = Study(

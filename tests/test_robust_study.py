@@ -226,6 +226,8 @@ def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     assert (out / "robust_rms.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "learning_curves.png").is_file()
     assert "elastic-gym" in (out / "stamp.md").read_text()
+    (run_line,) = [line for line in (out / "runs.md").read_text().splitlines() if "`ppo" in line]
+    assert run_line.startswith("| `ppo-true-nominal` | 0 | 2048 |") and run_line.endswith("| — |")
     before = (out / "evaluations.csv").read_text()
     capsys.readouterr()
     rs.run(study, [*argv, "--report"])  # cached: nothing evaluated again
