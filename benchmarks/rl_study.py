@@ -48,6 +48,7 @@ import dataclasses
 import json
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -209,12 +210,19 @@ def train_all(rows, runs: Path, start: float) -> None:
 
 
 # ---------------------------------------------------------------- evaluation
-def classical_evaluation(env_id: str, controller: str, source: str, env_kwargs: dict) -> Evaluation:
+def classical_evaluation(
+    env_id: str,
+    controller: str,
+    source: str,
+    env_kwargs: dict,
+    episodes: int = EVAL_EPISODES,
+    seed: int = EVAL_SEED,
+) -> Evaluation:
     """A classical controller on the evaluation episodes, through the policy stack: a
     residual on it whose action is zero applies exactly its torque."""
     envs = make_policy_vec_env(
         env_id,
-        EVAL_EPISODES,
+        episodes,
         source,
         env_kwargs,
         decimation=10,
@@ -222,16 +230,18 @@ def classical_evaluation(env_id: str, controller: str, source: str, env_kwargs: 
         autoreset_mode=AutoresetMode.NEXT_STEP,
     )
     try:
-        return evaluate_arms(envs, lambda obs: np.zeros((len(obs), envs.n)), EVAL_SEED)
+        return evaluate_arms(envs, lambda obs: np.zeros((len(obs), envs.n)), seed)
     finally:
         envs.close()
 
 
-def zero_action_evaluation(env_id: str, env_kwargs: dict) -> Evaluation:
+def zero_action_evaluation(
+    env_id: str, env_kwargs: dict, episodes: int = EVAL_EPISODES, seed: int = EVAL_SEED
+) -> Evaluation:
     """The motor-offset PD with a zero action: where a pure-RL policy starts."""
     envs = make_policy_vec_env(
         env_id,
-        EVAL_EPISODES,
+        episodes,
         "true",
         env_kwargs,
         decimation=10,
@@ -239,7 +249,7 @@ def zero_action_evaluation(env_id: str, env_kwargs: dict) -> Evaluation:
         autoreset_mode=AutoresetMode.NEXT_STEP,
     )
     try:
-        return evaluate_arms(envs, lambda obs: np.zeros((len(obs), envs.n)), EVAL_SEED)
+        return evaluate_arms(envs, lambda obs: np.zeros((len(obs), envs.n)), seed)
     finally:
         envs.close()
 
@@ -261,15 +271,45 @@ EVAL_COLUMNS = (
 )
 
 
-def evaluate_all(rows, runs: Path, out: Path, start: float) -> list[dict]:
-    """Every run and classical controller x plant x episode -> evaluations.csv (cached)."""
+def _cached(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    with open(path) as handle:
+        return list(csv.DictReader(handle))
+
+
+def _summary(row, seed: int, runs: Path) -> dict | None:
+    """The ``summary.json`` of a finished run of ``row``, or None."""
+    finished = Path(row.config(seed, runs).out_dir) / FINISHED
+    return json.loads(finished.read_text()) if finished.exists() else None
+
+
+def _stale(records: list[dict], rows, runs: Path) -> set[tuple[str, str]]:
+    """(row, seed) of the cached evaluations of a run that was trained again since (its
+    summary's policy steps or wall time differ from the evaluated run's)."""
+    stale = set()
+    for row in rows:
+        for seed in row.seeds:
+            summary = _summary(row, seed, runs)
+            if summary is None:
+                continue
+            now = (str(summary["policy_steps"]), str(summary["wall_time"]))
+            mine = [r for r in records if r["row"] == row.key and r["seed"] == str(seed)]
+            if any((r["policy_steps"], r["wall_time"]) != now for r in mine):
+                stale.add((row.key, str(seed)))
+    return stale
+
+
+def evaluate_all(study: Study, rows, runs: Path, out: Path, start: float) -> list[dict]:
+    """Every run of ``rows`` and every classical controller of ``study`` x plant x episode
+    -> evaluations.csv (cached: what it holds is not evaluated again, unless the run was
+    trained again since)."""
     path = out / "evaluations.csv"
-    done = {}
-    if path.exists():
-        with open(path) as handle:
-            for record in csv.DictReader(handle):
-                done.setdefault((record["row"], record["seed"], record["plant"]), []).append(record)
-    records = [r for group in done.values() for r in group]
+    cached = _cached(path)
+    stale = _stale(cached, rows, runs)
+    records = [r for r in cached if (r["row"], r["seed"]) not in stale]
+    done = {(r["row"], r["seed"], r["plant"]) for r in records}
+    episodes, first = study.eval_episodes, study.eval_seed
 
     def add(key, label, env_id, state, algo, seed, plant, evaluation, steps="", wall=""):
         for episode, rms, ret, sat in zip(
@@ -308,29 +348,24 @@ def evaluate_all(rows, runs: Path, out: Path, start: float) -> list[dict]:
     def missing(key, seed, plant) -> bool:
         return (key, str(seed), plant) not in done
 
-    for env_id, table in ((TWO_LINK, CLASSICAL), (KR15, KR15_CLASSICAL)):
+    for env_id, table in ((TWO_LINK, study.classical), (KR15, study.kr15_classical)):
         if not any(row.env_id == env_id for row in rows):
             continue
         task = TASK if env_id == TWO_LINK else {}
-        plants = {name: PLANTS[name] for row in rows if row.env_id == env_id for name in row.plants}
+        names = dict.fromkeys(name for row in rows if row.env_id == env_id for name in row.plants)
+        plants = {name: study.plants[name] for name in names}
         for controller, label, sources in table:
             for source in sources:
                 key = f"{controller}-{source}" + ("-kr15" if env_id == KR15 else "")
                 for plant, kwargs in plants.items():
                     if missing(key, "", plant):
-                        add(
-                            key,
-                            label,
-                            env_id,
-                            source,
-                            "",
-                            "",
-                            plant,
-                            classical_evaluation(env_id, controller, source, {**task, **kwargs}),
+                        evaluation = classical_evaluation(
+                            env_id, controller, source, {**task, **kwargs}, episodes, first
                         )
-                        log(f"evaluated {key} on {plant}", start)
+                        add(key, label, env_id, source, "", "", plant, evaluation)
+                        log(f"evaluated {key} on {plant}: {evaluation.rms:.2e}", start)
         key = "zero-offset" + ("-kr15" if env_id == KR15 else "")
-        for plant, kwargs in plants.items():
+        for plant, kwargs in plants.items() if study.zero_offset else ():
             if missing(key, "", plant):
                 add(
                     key,
@@ -340,23 +375,19 @@ def evaluate_all(rows, runs: Path, out: Path, start: float) -> list[dict]:
                     "",
                     "",
                     plant,
-                    zero_action_evaluation(env_id, {**task, **kwargs}),
+                    zero_action_evaluation(env_id, {**task, **kwargs}, episodes, first),
                 )
     for row in rows:
         for seed in row.seeds:
-            config = row.config(seed, runs)
-            folder = Path(config.out_dir)
-            if not (folder / FINISHED).exists():
+            summary = _summary(row, seed, runs)
+            if summary is None:
                 continue
-            summary = json.loads((folder / FINISHED).read_text())
             run = None
             for plant in row.plants:
-                kwargs = PLANTS[plant]
                 if missing(row.key, seed, plant):
-                    run = run or load_run(folder)
-                    evaluation = evaluate_run(
-                        run, EVAL_EPISODES, EVAL_SEED, {**row.eval_task, **kwargs}
-                    )
+                    run = run or load_run(row.config(seed, runs).out_dir)
+                    kwargs = {**row.eval_task, **study.plants[plant]}
+                    evaluation = evaluate_run(run, episodes, first, kwargs)
                     add(
                         row.key,
                         row.label,
@@ -410,11 +441,7 @@ def table(records: list[dict]) -> list[dict]:
             "training seeds": len(seeds) if seeds != [""] else "—",
         }
         for plant, suffix in (("nominal", "nominal"), ("mass+30%", "+30 % mass")):
-            per_seed = [
-                _rms([r for r in mine if r["plant"] == plant and r["seed"] == s])
-                for s in seeds
-                if any(r["plant"] == plant and r["seed"] == s for r in mine)
-            ]
+            per_seed = seed_rms(mine, key, plant)
             name = "track RMS nominal [rad]" if plant == "nominal" else "track RMS +30 % mass [rad]"
             line[name] = f"{np.mean(per_seed):.2e}" if per_seed else ""
             line[f"range {suffix}"] = (
@@ -450,14 +477,58 @@ def write_table(lines: list[dict], out: Path) -> None:
     (out / "table.md").write_text("\n".join(text) + "\n")
 
 
-def _row_rms(records, key: str, plant: str) -> float:
-    """A row's RMS on a plant: the mean over its training seeds of each seed's RMS over
-    the evaluation episodes (NaN when the row was not evaluated)."""
+def seed_rms(records, key: str, plant: str) -> list[float]:
+    """A row's RMS over the evaluation episodes on a plant, one per training seed (in
+    seed order; one for a classical row)."""
     mine = [r for r in records if r["row"] == key and r["plant"] == plant]
     seeds = sorted({r["seed"] for r in mine})
-    if not seeds:
-        return float("nan")
-    return float(np.mean([_rms([r for r in mine if r["seed"] == s]) for s in seeds]))
+    return [_rms([r for r in mine if r["seed"] == s]) for s in seeds]
+
+
+def row_rms(records, key: str, plant: str) -> float:
+    """A row's RMS on a plant: the mean over its training seeds of each seed's RMS over
+    the evaluation episodes (NaN when the row was not evaluated)."""
+    per_seed = seed_rms(records, key, plant)
+    return float(np.mean(per_seed)) if per_seed else float("nan")
+
+
+@dataclass(frozen=True)
+class Target:
+    """A target of a study: ``measured`` against ``bound`` (``rule`` says where the bound
+    comes from); met when measured <= bound, or measured < bound if ``strict``."""
+
+    name: str
+    measured: float
+    bound: float
+    rule: str
+    strict: bool = False
+    unit: str = "rad"
+
+    @property
+    def verdict(self) -> str:
+        """ "met", "missed", or "—" when a number is missing (a row not evaluated)."""
+        ratio = self.measured / self.bound
+        if not np.isfinite(ratio):
+            return "—"
+        return "met" if (ratio < 1 if self.strict else ratio <= 1) else "missed"
+
+    def line(self) -> dict:
+        """The target as a line of ``targets.md`` ("—" for a number not measured)."""
+
+        def number(value: float, text: str) -> str:
+            return text if np.isfinite(value) else "—"
+
+        ratio = self.measured / self.bound
+        comparison = "<" if self.strict else "≤"
+        return {
+            "target": self.name,
+            "measured": number(self.measured, f"{self.measured:.2e} {self.unit}"),
+            "bound": f"{comparison} "
+            + number(self.bound, f"{self.bound:.2e} {self.unit}")
+            + f" ({self.rule})",
+            "measured / bound": number(ratio, f"{ratio:.3f}"),
+            "verdict": self.verdict,
+        }
 
 
 def targets(records: list[dict]) -> list[dict]:
@@ -465,7 +536,7 @@ def targets(records: list[dict]) -> list[dict]:
     (``measured / bound``: met when <= 1)."""
 
     def rms(key, plant="nominal"):
-        return _row_rms(records, key, plant)
+        return row_rms(records, key, plant)
 
     half_eq13 = min(0.5 * rms(f"{EQ13}-deluca", "mass+30%"), 4e-3)
     half_rule = "min(0.5 x eq. (13) on De Luca, 4e-3 rad)"
@@ -544,20 +615,7 @@ def targets(records: list[dict]) -> list[dict]:
             integral_rule,
         ),
     ]
-    lines = []
-    for name, value, bound, rule in checks:
-        ratio = value / bound
-        verdict = "—" if not np.isfinite(ratio) else ("met" if ratio <= 1 else "missed")
-        lines.append(
-            {
-                "target": name,
-                "measured [rad]": f"{value:.2e}",
-                "bound": f"{bound:.2e} ({rule})",
-                "measured / bound": f"{ratio:.3f}",
-                "verdict": verdict,
-            }
-        )
-    return lines
+    return [Target(*check).line() for check in checks]
 
 
 def write_targets(lines: list[dict], out: Path) -> None:
@@ -641,15 +699,82 @@ def forget_evaluations(path: Path, keys: set[str]) -> None:
         writer.writerows(kept)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--runs", default="runs/rl_study", help="training run folders")
-    parser.add_argument("--out", default="docs/rl_study", help="tables and figures")
+def report(records: list[dict], out: Path, rows, runs: Path) -> list[str]:
+    """The RL study's tables: ``table.md`` / ``table.csv`` and ``targets.md``."""
+    write_table(table(records), out)
+    write_targets(targets(records), out)
+    return ["table.md", "table.csv", "targets.md"]
+
+
+@dataclass(frozen=True)
+class Study:
+    """What a study trains, evaluates and reports (this script's, or a sibling's).
+
+    ``rows``: objects with ``key``, ``label``, ``state``, ``algo``, ``env_id``, ``seeds``,
+    ``plants`` (names of ``plants``), ``eval_task``, ``steps`` (None: the row's own) and
+    ``config(seed, runs) -> TrainConfig`` (:class:`Row`); ``plants``: name -> env kwargs
+    of an evaluation plant; ``classical``: (controller, label, state sources) evaluated on
+    TwoLinkElastic (``kr15_classical`` on KR15); ``zero_offset``: also the motor-offset PD
+    with a zero action; ``report(records, out, rows, runs)`` writes the study's tables and
+    returns their file names; ``command(row, seed, runs)``: the ``elastic-gym train`` command of a
+    run (None: the study has none)."""
+
+    name: str
+    description: str
+    rows: tuple
+    plants: dict[str, dict]
+    classical: tuple
+    report: Callable[[list[dict], Path, tuple, Path], list[str]]
+    runs: str
+    out: str
+    kr15_classical: tuple = ()
+    zero_offset: bool = True
+    eval_episodes: int = EVAL_EPISODES
+    eval_seed: int = EVAL_SEED
+    command: Callable[[object, int, Path], str] | None = None
+
+
+RL_STUDY = Study(
+    "RL study",
+    __doc__.split("\n\n")[0],
+    ROWS,
+    PLANTS,
+    CLASSICAL,
+    report,
+    "runs/rl_study",
+    "docs/rl_study",
+    kr15_classical=KR15_CLASSICAL,
+)
+
+
+def _choose(parser, kind: str, chosen, valid) -> list:
+    unknown = [name for name in chosen or () if name not in valid]
+    if unknown:
+        parser.error(f"--{kind}: unknown {kind} {unknown}; valid: {list(valid)}")
+    return list(valid) if chosen is None else [name for name in valid if name in chosen]
+
+
+def run(study: Study, argv: list[str] | None = None) -> None:
+    """The command line of a study: train what is missing, evaluate, report."""
+    parser = argparse.ArgumentParser(description=study.description)
+    parser.add_argument("--runs", default=study.runs, help="training run folders")
+    parser.add_argument("--out", default=study.out, help="tables and figures")
+    keys = [row.key for row in study.rows]
     parser.add_argument(
-        "--rows",
+        "--rows", nargs="+", metavar="KEY", help=f"only these rows (default: all: {keys})"
+    )
+    parser.add_argument(
+        "--plants",
         nargs="+",
-        metavar="KEY",
-        help=f"only these rows (default: all: {[row.key for row in ROWS]})",
+        metavar="NAME",
+        help=f"only these evaluation plants (default: all: {list(study.plants)})",
+    )
+    parser.add_argument(
+        "--episodes",
+        type=int,
+        default=study.eval_episodes,
+        metavar="N",
+        help="evaluation episodes per plant (default: %(default)s)",
     )
     parser.add_argument(
         "--report",
@@ -667,39 +792,54 @@ def main() -> None:
         action="store_true",
         help="remove earlier runs and evaluations of the chosen rows first",
     )
-    args = parser.parse_args()
-    rows = [row for row in ROWS if args.rows is None or row.key in args.rows]
-    unknown = set(args.rows or ()) - {row.key for row in ROWS}
-    if unknown:
-        parser.error(f"unknown rows {sorted(unknown)}; valid: {[row.key for row in ROWS]}")
-    if args.steps is not None:
-        rows = [dataclasses.replace(row, steps=args.steps) for row in rows]
+    if study.command is not None:
+        parser.add_argument(
+            "--commands",
+            action="store_true",
+            help="print the elastic-gym train command of every run and exit",
+        )
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error(f"--episodes: must be >= 1, got {args.episodes}")
+    chosen = set(_choose(parser, "rows", args.rows, keys))
+    plants = _choose(parser, "plants", args.plants, study.plants)
+    rows = [
+        dataclasses.replace(
+            row,
+            plants=tuple(p for p in row.plants if p in plants),
+            **({} if args.steps is None else {"steps": args.steps}),
+        )
+        for row in study.rows
+        if row.key in chosen
+    ]
+    study = dataclasses.replace(study, eval_episodes=args.episodes)
     runs, out = Path(args.runs), Path(args.out)
+    if getattr(args, "commands", False):
+        for row in rows:
+            for seed in row.seeds:
+                print(study.command(row, seed, runs))
+        return
     if args.fresh:
         for row in rows:
             shutil.rmtree(runs / row.key, ignore_errors=True)
         forget_evaluations(out / "evaluations.csv", {row.key for row in rows})
     start = time.perf_counter()
     log(
-        f"RL study: {sum(len(r.seeds) for r in rows)} training runs of {len(rows)} rows "
+        f"{study.name}: {sum(len(r.seeds) for r in rows)} training runs of {len(rows)} rows "
         f"into {runs}, report into {out}",
         start,
     )
     if not args.report:
         train_all(rows, runs, start)
     out.mkdir(parents=True, exist_ok=True)
-    records = evaluate_all(rows, runs, out, start)
-    write_table(table(records), out)
-    write_targets(targets(records), out)
+    records = evaluate_all(study, rows, runs, out, start)
+    written = study.report(records, out, tuple(rows), runs)
     curves = gather_curves(rows, runs, out)
     if curves:
         plot_curves(curves, out)
-    log(
-        f"wrote {out}/table.md, table.csv, targets.md, evaluations.csv, curves.csv, "
-        "learning_curves.png",
-        start,
-    )
+        written += ["curves.csv", "learning_curves.png"]
+    log(f"wrote {out}/: {', '.join(['evaluations.csv', *written])}", start)
 
 
 if __name__ == "__main__":
-    main()
+    run(RL_STUDY)

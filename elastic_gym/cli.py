@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from pydantic import BaseModel
 
@@ -24,6 +25,9 @@ from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
 from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
 from elastic_gym.parallel import BACKENDS, DEFAULT_BACKEND, Interrupted, interrupts_raised
 from elastic_gym.validation import distinct
+
+if TYPE_CHECKING:
+    from elastic_gym.training import TrainConfig
 
 
 def default(model: type[BaseModel], field: str):
@@ -328,20 +332,23 @@ def require_rl_extra(command: str) -> None:
         ) from None
 
 
-def run_train(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
-
-    require_rl_extra("elastic-gym train")
-    from elastic_gym.training import RunFolder, TrainConfig, parse_overrides, train, train_many
-
-    distinct(args.seeds, "seed(s)", where="--seeds")
+def train_run_base(args: argparse.Namespace) -> str:
+    """The run folder of ``elastic-gym train`` (``--out`` or its default): the run's, or
+    the parent of one ``seed<k>`` folder per seed when several."""
     name = args.env.split("/")[-1]
-    base = args.out or f"runs/{args.algo}-{name}-{args.state}" + (
+    return args.out or f"runs/{args.algo}-{name}-{args.state}" + (
         f"-residual-{args.residual}" if args.residual else ""
     )
-    RunFolder(base).check(args.overwrite)
-    configs = [
+
+
+def train_configs(args: argparse.Namespace) -> list[TrainConfig]:
+    """The :class:`~elastic_gym.training.TrainConfig` of each seed of parsed
+    ``elastic-gym train`` arguments: what the command trains."""
+    from elastic_gym.training import TrainConfig, parse_overrides
+
+    distinct(args.seeds, "seed(s)", where="--seeds")
+    base = train_run_base(args)
+    return [
         TrainConfig(
             env_id=args.env,
             algo=args.algo,
@@ -361,6 +368,17 @@ def run_train(args: argparse.Namespace) -> int:
         )
         for seed in args.seeds
     ]
+
+
+def run_train(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    require_rl_extra("elastic-gym train")
+    from elastic_gym.training import RunFolder, train, train_many
+
+    RunFolder(train_run_base(args)).check(args.overwrite)
+    configs = train_configs(args)
     if len(configs) == 1:
         results = [train(configs[0], progress_bar=not args.no_progress, overwrite=args.overwrite)]
     else:

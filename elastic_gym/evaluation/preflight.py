@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Generator, Iterator, Sequence
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -298,7 +298,7 @@ def _check_model_errors(env: gym.Env, scenario: Scenario) -> None:
                 raise _error(f"model_errors[{i}]", exc) from None
 
 
-def _stages(group: RunGroup, paths: tuple[str, str], env_path: str) -> Iterator[float]:
+def _stages(group: RunGroup, paths: tuple[str, str], env_path: str) -> Generator[float, None, None]:
     """Build the world of ``group`` (errors name their field) and time ``SAMPLE_TIME`` of
     its closed loop, yielding after each of :data:`STAGES` the CPU time of one of its runs
     so far (s): the setup's, then the whole run's."""
