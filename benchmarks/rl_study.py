@@ -761,13 +761,18 @@ def run(study: Study, argv: list[str] | None = None) -> None:
     parser.add_argument("--out", default=study.out, help="tables and figures")
     keys = [row.key for row in study.rows]
     parser.add_argument(
-        "--rows", nargs="+", metavar="KEY", help=f"only these rows (default: all: {keys})"
+        "--rows",
+        nargs="+",
+        metavar="KEY",
+        help=f"only these rows (default: all: {keys})".replace("%", "%%"),
     )
     parser.add_argument(
         "--plants",
         nargs="+",
         metavar="NAME",
-        help=f"only these evaluation plants (default: all: {list(study.plants)})",
+        help=f"only these evaluation plants (default: all: {list(study.plants)})".replace(
+            "%", "%%"
+        ),
     )
     parser.add_argument(
         "--episodes",
