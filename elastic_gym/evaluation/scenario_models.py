@@ -35,7 +35,7 @@ from pydantic import (
 import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.evaluation.controllers import controller_names
 from elastic_gym.model import ParameterScaling
-from elastic_gym.observers.registry import OBSERVERS
+from elastic_gym.observers.registry import state_sources
 from elastic_gym.validation import ENV_NAMESPACE, FieldError, StrictModel, registered_env_id
 
 TRUE_STATE = "true"
@@ -232,7 +232,8 @@ class ControllerEntry(_Named):
 
 
 class SourceEntry(_Named):
-    """A state source: ``"true"`` (the oracle) or an observer with options;
+    """A state source: ``"true"`` (the oracle), an observer with options, or raw
+    ``"sensors"`` (for controllers that read them, e.g. a policy trained on them);
     ``initial_estimate`` (full state vector) is passed to ``observer.reset``."""
 
     kind = "state source"
@@ -243,7 +244,7 @@ class SourceEntry(_Named):
 
     @staticmethod
     def registry() -> set[str]:
-        return set(OBSERVERS)
+        return set(state_sources())
 
 
 # ---------------------------------------------------------------------------- variations

@@ -45,7 +45,8 @@ class Evaluation:
         return float(np.sqrt(np.mean(np.square(self.tracking_rms))))
 
 
-def _at_bound(action: np.ndarray) -> np.ndarray:
+def at_bound(action: np.ndarray) -> np.ndarray:
+    """Per action row: whether some joint's action is at its bound (|a| >= 1 - 1e-6)."""
     return np.any(np.abs(action) >= 1.0 - 1e-6, axis=-1)
 
 
@@ -60,10 +61,10 @@ def evaluate_policy(
         obs, _ = env.reset(seed=seed)
         if start is not None:
             start()
-        done, total, errors, at_bound = False, 0.0, [], 0
+        done, total, errors, bounded = False, 0.0, [], 0
         while not done:
             action = act(obs)
-            at_bound += bool(_at_bound(np.asarray(action)))
+            bounded += bool(at_bound(np.asarray(action)))
             obs, reward, terminated, truncated, info = env.step(action)
             total += float(reward)
             done = terminated or truncated
@@ -73,7 +74,7 @@ def evaluate_policy(
         rms.append(
             float(np.sqrt(np.mean(np.sum(np.square(errors), axis=1)))) if errors else float("inf")
         )
-        saturated.append(at_bound / max(len(errors), 1))
+        saturated.append(bounded / max(len(errors), 1))
     return Evaluation(seeds, tuple(returns), tuple(rms), tuple(saturated))
 
 
@@ -105,7 +106,7 @@ def _evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None) 
     returns = np.zeros(n_arms)
     squared = np.zeros(n_arms)
     samples = np.zeros(n_arms, dtype=int)
-    at_bound = np.zeros(n_arms)
+    bounded = np.zeros(n_arms)
     while running.any():
         action = np.asarray(act(obs))
         obs, reward, terminated, truncated, info = envs.step(action)
@@ -113,13 +114,13 @@ def _evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None) 
         returns[running] += reward[running]
         squared[running] += np.sum(error[running] ** 2, axis=1)
         samples[running] += 1
-        at_bound[running] += _at_bound(action[running])
+        bounded[running] += at_bound(action[running])
         running &= ~(terminated | truncated)
     return Evaluation(
         tuple(int(seed) + i for i in range(n_arms)),
         tuple(returns.tolist()),
         tuple(np.sqrt(squared / samples).tolist()),
-        tuple((at_bound / samples).tolist()),
+        tuple((bounded / samples).tolist()),
     )
 
 

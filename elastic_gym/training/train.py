@@ -25,7 +25,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gymnasium.spaces import flatdim
-from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training.config import (
     Settings,
@@ -116,11 +115,6 @@ def _train(
     stack = PolicyStack.of(config, settings)
     venv = training_vec_env(stack, settings, n_envs, config.seed)
     try:
-        eval_envs = stack.make_vec(config.eval_episodes, autoreset_mode=AutoresetMode.NEXT_STEP)
-    except BaseException:
-        venv.close()
-        raise
-    try:
         normalize = settings.normalize
         gamma = float(algo_kwargs.get("gamma", 0.99))
         venv = VecNormalize(venv, norm_obs=normalize, norm_reward=normalize, gamma=gamma)
@@ -129,10 +123,11 @@ def _train(
         if settings.critic_state or settings.critic_plant:
             from elastic_gym.training.critic import PrivilegedCriticPolicy
 
-            # the evaluation envs are the deployment stack: the actor's observation only
-            privileged = flatdim(venv.observation_space) - flatdim(
-                eval_envs.single_observation_space
-            )
+            deployed = stack.make()  # the deployment stack: the actor's observation only
+            try:
+                privileged = flatdim(venv.observation_space) - flatdim(deployed.observation_space)
+            finally:
+                deployed.close()
             policy = PrivilegedCriticPolicy
             algo_kwargs["policy_kwargs"] = {
                 **algo_kwargs.get("policy_kwargs", {}),
@@ -149,9 +144,7 @@ def _train(
         )
         if stack.action.kind == "residual":
             zero_action_head(model)
-        curve = LearningCurve(
-            eval_envs, venv, out, config.eval_freq, config.seed + 10_000, stack.decimation
-        )
+        curve = LearningCurve(config, settings, venv, out, config.eval_freq, config.seed + 10_000)
         start = time.perf_counter()
         model.learn(
             total_timesteps=total,
@@ -164,9 +157,8 @@ def _train(
         model.save(out / "model.zip")
         venv.save(str(out / "vecnormalize.pkl"))
     finally:
-        for env in (venv, eval_envs):  # a failure to close must not hide what happened
-            with contextlib.suppress(Exception):
-                env.close()
+        with contextlib.suppress(Exception):  # a failure to close must not hide what happened
+            venv.close()
     # the run folder is self-contained: the hyper-parameters used, not a pointer to a file,
     # and every field of the action and observation configs (a later release's defaults
     # must not change what a saved policy's actions mean)
