@@ -218,6 +218,15 @@ def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
     }
     with pytest.raises(ScenarioError, match=r"state_sources\[0\]\.initial_estimate"):
         plan_runs(Scenario.model_validate(data))
+    with pytest.raises(ValueError, match=r"^n_episodes must be an integer >= 1, got 0$"):
+        evaluate_run(run, 0)
+    from elastic_gym.training.policy_controller import TrainedPolicyController
+
+    env = run.stack.make()
+    model = env.unwrapped.model
+    env.close()
+    with pytest.raises(ValueError, match="^best: applies to a run folder, not to a loaded run$"):
+        TrainedPolicyController(model, 1e-3, run, best=True)
 
 
 def test_benchmark_scores_a_raw_sensor_run_as_implementable(sensor_runs, tmp_path):
@@ -244,3 +253,31 @@ def test_benchmark_scores_a_raw_sensor_run_as_implementable(sensor_runs, tmp_pat
     assert "implementable: the raw sensors, no estimate and no ground truth" in (
         scorecard_markdown(card)
     )
+
+
+def test_a_callable_policy_reads_the_raw_sensor_observation():
+    """The `policy` controller on the source `sensors` gets each arm's sensor dict (no
+    state estimate); the same rows batched and one arm per world."""
+    seen: list[list[str]] = []
+
+    def policy(obs):
+        seen.append(sorted(obs))
+        return np.clip(0.3 - obs["motor_position"], -1.0, 1.0)
+
+    scenario = Scenario.model_validate(
+        {
+            "duration": 0.05,
+            "seeds": [0, 1],
+            "envs": [ENV_ID],
+            "controllers": [{"name": "policy", "options": {"policy": policy}}],
+            "state_sources": ["sensors"],
+        }
+    )
+    runs, skipped = plan_runs(scenario)
+    assert len(runs) == 2 and not skipped
+    batched = execute(runs, workers=1, progress=False)
+    alone = execute(runs, workers=1, progress=False, batch_size=1)
+    assert seen[0] == ["acceleration", "motor_position", "reference"]
+    for a, b in zip(batched, alone, strict=True):
+        assert a.ok and a.metrics["track_rms"] == b.metrics["track_rms"]
+        assert a.metrics["torque_rms"] > 0
