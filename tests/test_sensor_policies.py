@@ -225,7 +225,7 @@ def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
     env = run.stack.make()
     model = env.unwrapped.model
     env.close()
-    with pytest.raises(ValueError, match="^best: applies to a run folder, not to a loaded run$"):
+    with pytest.raises(ValueError, match=r"^best: applies to a run folder, not to a loaded run$"):
         TrainedPolicyController(model, 1e-3, run, best=True)
 
 
