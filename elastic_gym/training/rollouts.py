@@ -1,14 +1,15 @@
-"""Deterministic evaluation of a policy: per-episode return, link tracking RMS and the
-share of actions at their bounds, episode after episode on one env
-(:func:`evaluate_policy`) or all episodes at once on the arms of one batch
+"""Deterministic rollouts of any callable policy on a policy stack: per-episode return,
+link tracking RMS and the share of actions at their bounds, episode after episode on one
+env (:func:`evaluate_policy`) or all episodes at once on the arms of one batch
 (:func:`evaluate_arms`, the same numbers: arm i of a batch reset with seed s is the single
-env reset with seed s + i).
+env reset with seed s + i). A trained run's evaluation
+(:func:`~elastic_gym.training.trained.evaluate_run`, the learning curve) runs on the
+comparison's loop instead and gives the same :class:`Evaluation`.
 
-The tracking RMS of an episode is the comparison's (``elastic-gym compare``'s
-``track_rms``): sqrt(mean_k |e_k|^2) with |e_k| the Euclidean norm over the joints of
-the link error e = q - q_d of the true state, whatever state the policy sees, sampled at
-the policy steps (the end of each hold window: 100 Hz at the shipped decimation; on
-trained TwoLinkElastic policies the 1 kHz samples give the same value to 3 digits).
+Here the tracking RMS of an episode is sqrt(mean_k |e_k|^2) with |e_k| the Euclidean norm
+over the joints of the link error e = q - q_d of the true state, whatever state the policy
+sees, sampled at the policy steps (the end of each hold window); the comparison's
+``track_rms`` samples every control period from the reset on.
 :class:`PolicyActor` is the act of a trained SB3 model (duck-typed: no SB3 import here).
 """
 

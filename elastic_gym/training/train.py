@@ -7,7 +7,7 @@ one per core; or batches with different env kwargs, e.g. plants), all made by
 :mod:`elastic_gym.training.run_envs`; ``VecNormalize`` whose statistics are saved beside
 the model, a learning curve
 (:class:`~elastic_gym.training.learning_curve.LearningCurve`: deterministic evaluation
-episodes on the arms of one batch at the start, every ``eval_freq`` policy steps and at
+episodes on the comparison's loop at the start, every ``eval_freq`` policy steps and at
 the end) that keeps the best model, TensorBoard logs and a progress bar. The run folder
 (:class:`~elastic_gym.training.run_folder.RunFolder`) is refused if it holds an earlier
 run (unless ``overwrite``) and removed if the run fails or is interrupted. Training runs
