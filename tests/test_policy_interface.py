@@ -68,6 +68,7 @@ def test_features_equal_their_definitions():
         features=(
             "error",
             "error_rate",
+            "error_integral",
             "reference",
             "preview",
             "torsion",
@@ -85,15 +86,19 @@ def test_features_equal_their_definitions():
         action={"kind": "motor-offset"},
         observation=observation,
     )
-    env.reset(seed=1)
+    _, info = env.reset(seed=1)
+    integral, time = np.zeros(2), info["time"]
     for _ in range(40):  # into the first move
         obs, _, _, _, info = env.step(np.array([0.3, -0.7]))
+        integral += (info["time"] - time) * (info["true_state"]["q"] - reference_rows(info)[0])
+        time = info["time"]
     c = observation
     truth, ref = info["true_state"], reference_rows(info)
     task = env.unwrapped.task
     expected = {
         "error": (truth["q"] - ref[0]) / c.error_scale,
         "error_rate": (truth["dq"] - ref[1]) / c.error_rate_scale,
+        "error_integral": integral / c.error_integral_scale,
         "reference": np.concatenate([ref[0], ref[1], ref[2] / 10, ref[3] / 100]),
         "preview": np.concatenate(
             [task.reference(np.array([info["time"] + h]))[0, 0] - ref[0] for h in c.preview]
@@ -104,7 +109,8 @@ def test_features_equal_their_definitions():
         "last_action": np.array([0.3, -0.7]),
     }
     builder = env.get_wrapper_attr("builder")
-    assert obs.dtype == np.float32 and obs.shape == (builder.size,) == (22,)
+    assert obs.dtype == np.float32 and obs.shape == (builder.size,) == (24,)
+    assert time == pytest.approx(0.4) and np.abs(integral).max() > 1e-5
     start = 0
     for name, size in builder.sizes.items():
         np.testing.assert_allclose(obs[start : start + size], expected[name], rtol=1e-6, atol=1e-6)

@@ -235,6 +235,20 @@ SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arc
             "ppo",  # one env (DummyVecEnv); a critic with the truth
             {"critic_state": True, "n_envs": 1, "n_steps": 50, "batch_size": 50, "n_epochs": 2},
         ),
+        (
+            {"kind": "motor-offset"},
+            "ppo",  # the error integral: a memory of the stack and of the controller
+            {
+                "n_envs": 1,
+                "n_steps": 50,
+                "batch_size": 50,
+                "n_epochs": 2,
+                "observation": {
+                    "features": ["error", "error_integral", "reference", "last_action"],
+                    "error_integral_scale": 1e-5,
+                },
+            },
+        ),
     ],
 )
 def test_trained_run_as_comparison_controller_matches_the_policy_env(

@@ -2,7 +2,8 @@
 arm axis (N arms).
 
 Features (:class:`ObservationConfig`, in this order when selected; n joints, m
-accelerometers): ``error`` and ``error_rate`` of the state source, ``reference``
+accelerometers): ``error``, ``error_rate`` and ``error_integral`` (:class:`ErrorIntegral`,
+the integral action's information) of the state source, ``reference``
 (q_d .. q_d^(k-1), scaled per order), ``preview`` (q_d(t + h) - q_d(t) for horizons h),
 ``torsion`` and ``torsion_rate`` (elastic state), ``motor_error`` and ``acceleration``
 (raw sensors), ``last_action`` and ``base_torque`` (residual). The reference and its
@@ -24,6 +25,7 @@ from elastic_gym.validation import ConfigModel, PositiveFinite
 FEATURES = (
     "error",
     "error_rate",
+    "error_integral",
     "reference",
     "preview",
     "torsion",
@@ -33,7 +35,8 @@ FEATURES = (
     "last_action",
     "base_torque",
 )
-STATE_FEATURES = frozenset({"error", "error_rate", "torsion", "torsion_rate"})
+STATE_FEATURES = frozenset({"error", "error_rate", "error_integral", "torsion", "torsion_rate"})
+TRUE_STATE_FEATURES = ("error", "error_rate", "torsion", "torsion_rate")  # memoryless
 ELASTIC_FEATURES = frozenset({"torsion", "torsion_rate", "motor_error"})
 SENSOR_FEATURES = frozenset({"motor_error", "acceleration"})
 GRAVITY = 9.81
@@ -63,6 +66,7 @@ class ObservationConfig(ConfigModel):
     preview: tuple[PositiveFinite, ...] = ()  # horizons (s)
     error_scale: PositiveFinite = 0.01
     error_rate_scale: PositiveFinite = 0.1
+    error_integral_scale: PositiveFinite = 1e-3  # rad s
     torsion_scale: PositiveFinite = 0.05
     torsion_rate_scale: PositiveFinite = 1.0
     preview_scale: PositiveFinite = 0.1
@@ -100,7 +104,7 @@ class ObservationInputs:
     ``state`` (N, 4n | 2n) for state sources, ``motor_position`` (N, n) and
     ``acceleration`` (N, 3m) for raw sensors; ``reference`` (N, 5, n) rows q_d .. q_d^(4);
     ``preview`` (N, H, n) q_d at the preview horizons; ``last_action`` (N, n);
-    ``base_torque`` (N, n).
+    ``base_torque`` (N, n); ``error_integral`` (N, n) of :class:`ErrorIntegral`.
     """
 
     reference: np.ndarray
@@ -110,6 +114,36 @@ class ObservationInputs:
     acceleration: np.ndarray | None = None
     preview: np.ndarray | None = None
     base_torque: np.ndarray | None = None
+    error_integral: np.ndarray | None = None
+
+
+class ErrorIntegral:
+    """The integral of each arm's link tracking error over its episode, at the policy
+    steps: I_0 = 0 at a (re)start, I_k = I_(k-1) + (t_k - t_(k-1)) (q_k - q_d,k), with q
+    from the state source (the quantity an integral action integrates).
+
+    Args:
+        n_arms, n: arms and joints. ``elastic``: the state is (theta, q, theta', q').
+    """
+
+    def __init__(self, n_arms: int, n: int, elastic: bool) -> None:
+        self.n, self.elastic = n, elastic
+        self.value = np.zeros((n_arms, n))
+        self._time = np.zeros(n_arms)
+
+    def restart(self, arms: np.ndarray, time: np.ndarray) -> None:
+        """Arms ``arms`` start an episode at ``time`` (N,)."""
+        self.value[arms] = 0.0
+        self._time[arms] = time[arms]
+
+    def advance(
+        self, arms: np.ndarray, state: np.ndarray, reference: np.ndarray, time: np.ndarray
+    ) -> None:
+        """One policy step of arms ``arms``: ``state`` (len(arms), dim), ``reference``
+        (len(arms), >= 1, n) rows q_d, ..., ``time`` (N,) of all arms."""
+        q = state[:, self.n : 2 * self.n] if self.elastic else state[:, : self.n]
+        self.value[arms] += (time[arms] - self._time[arms])[:, None] * (q - reference[:, 0])
+        self._time[arms] = time[arms]
 
 
 class ObservationBuilder:
@@ -210,6 +244,8 @@ class ObservationBuilder:
             return (_given(x.motor_position, name) - ref[:, 0]) / c.torsion_scale
         if name == "acceleration":
             return _given(x.acceleration, name) / GRAVITY
+        if name == "error_integral":
+            return _given(x.error_integral, name) / c.error_integral_scale
         s = _given(x.state, name)
         if self.elastic:
             theta, q, dtheta, dq = (s[:, i * n : (i + 1) * n] for i in range(4))
@@ -232,9 +268,7 @@ class TrueStateFeatures:
     """
 
     def __init__(self, config: ObservationConfig, n: int, elastic: bool) -> None:
-        features = tuple(
-            f for f in FEATURES if f in STATE_FEATURES and (elastic or f not in ELASTIC_FEATURES)
-        )
+        features = tuple(f for f in TRUE_STATE_FEATURES if elastic or f not in ELASTIC_FEATURES)
         self.builder = ObservationBuilder(
             config.model_copy(update={"features": features}), n, elastic, False, False, np.ones(n)
         )

@@ -21,7 +21,7 @@ from elastic_gym.controllers import Controller, make_controller
 from elastic_gym.controllers.vector import ARM0, ControllerTwin, make_vector_controller, twin_of
 from elastic_gym.model import RobotModel
 from elastic_gym.training.actions import ActionMap
-from elastic_gym.training.observation import ObservationBuilder, ObservationInputs
+from elastic_gym.training.observation import ErrorIntegral, ObservationBuilder, ObservationInputs
 from elastic_gym.training.policy_env import SENSORS
 from elastic_gym.training.rollouts import PolicyActor, at_bound
 from elastic_gym.training.trained import TrainedRun, load_run
@@ -168,6 +168,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._previous_motor = np.zeros((N, n))  # encoders at the last call (raw sensors)
         self._acts = np.zeros(N)
         self._at_bound = np.zeros(N)
+        self._integral = ErrorIntegral(N, n, controller.elastic)
 
     @property
     def arm_diagnostics(self) -> dict[str, np.ndarray]:
@@ -195,20 +196,28 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             held[arms] = 0.0
         if self.controller.sensors:
             self._previous_motor[arms] = np.asarray(obs["motor_position"], dtype=float)[arms]
+        self._integral.restart(arms, np.broadcast_to(info["time"], (self.n_arms,)))
 
-    def _inputs(self, obs: Mapping, reference: np.ndarray, arms: np.ndarray):
-        """The policy's feature inputs of ``arms``: the state, or the raw sensors."""
+    def _inputs(
+        self, obs: Mapping, info: Mapping, x: np.ndarray | None, reference: np.ndarray, arms
+    ) -> ObservationInputs:
+        """The policy's feature inputs of the acting ``arms``: the state (and the error
+        integral, advanced to this policy step), or the raw sensors."""
         inputs = ObservationInputs(
             reference=reference[arms],
             last_action=self._last_action[arms],
             base_torque=self._last_base[arms],
         )
-        if self.controller.sensors:
+        if x is None:  # raw sensors
             inputs.motor_position = np.asarray(obs["motor_position"], dtype=float)[arms]
             if "acceleration" in obs:
                 inputs.acceleration = np.asarray(obs["acceleration"], dtype=float)[arms]
-        else:
-            inputs.state = self.states(obs)[arms]
+            return inputs
+        later = arms[self._calls[arms] > 0]  # the first call is the reset's step
+        time = np.broadcast_to(info["time"], (self.n_arms,))
+        self._integral.advance(later, x[later], reference[later], time)
+        inputs.state = x[arms]
+        inputs.error_integral = self._integral.value[arms]
         return inputs
 
     def _policy_observations(self, features: np.ndarray, arms: np.ndarray) -> np.ndarray:
@@ -225,10 +234,9 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         """(theta, theta') of the action map: from the state, or the encoders and their
         backward difference over the control period (raw sensors)."""
         c, n = self.controller, self.n
-        if not c.map.needs_motor_state:
+        if not c.elastic:
             return None, None
-        if not c.sensors:
-            assert x is not None
+        if x is not None:
             return x[:, :n], x[:, 2 * n : 3 * n]
         theta = np.asarray(obs["motor_position"], dtype=float)
         dtheta = (theta - self._previous_motor) / self.dt
@@ -240,7 +248,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         x = None if c.sensors else self.states(obs)
         acting = np.flatnonzero(self._calls % c.decimation == 0)  # at 1 / (decimation dt)
         if len(acting):
-            features = c.builder.build(self._inputs(obs, reference, acting))
+            features = c.builder.build(self._inputs(obs, info, x, reference, acting))
             policy_obs = self._policy_observations(features, acting)
             for k, i in enumerate(acting):
                 self._action[i] = self.actors[i](policy_obs[k])

@@ -136,7 +136,7 @@ def training_vec_env(stack: PolicyStack, settings: Settings, n_envs: int, seed: 
     critic = {"critic_state": settings.critic_state, "critic_plant": settings.critic_plant}
     venv: VecEnv
     if n_envs == 1:
-        venv = DummyVecEnv([functools.partial(stack.make, **critic)])
+        venv = DummyVecEnv([functools.partial(stack.make, None, **critic)])
         venv.action_space.seed(seed)
     else:
         factories = [

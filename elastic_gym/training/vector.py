@@ -27,6 +27,7 @@ from elastic_gym.envs.arm_env import validated_actions
 from elastic_gym.observers.vector import true_state_vector
 from elastic_gym.training.actions import ActionConfig, ActionMap
 from elastic_gym.training.observation import (
+    ErrorIntegral,
     ObservationBuilder,
     ObservationConfig,
     ObservationInputs,
@@ -183,6 +184,11 @@ class PolicyObservation(_ArmResets):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._last_action = np.zeros((self.num_envs, self.n))
         self._frames = np.zeros((self.num_envs, frame_stack, self.builder.size), np.float32)
+        self._integral = (
+            ErrorIntegral(self.num_envs, self.n, batch.robot.elastic)
+            if "error_integral" in self.builder.features
+            else None
+        )
 
     def _features(self, obs: Mapping, info: Mapping) -> np.ndarray:
         preview = None
@@ -198,8 +204,16 @@ class PolicyObservation(_ArmResets):
             acceleration=obs.get("acceleration"),
             preview=preview,
             base_torque=info["base_torque"],
+            error_integral=None if self._integral is None else self._integral.value,
         )
         return self.builder.build(inputs)
+
+    def _integrate(self, obs: Mapping, info: Mapping, restarted: np.ndarray) -> None:
+        """Advance the error integral of every arm, restart it for ``restarted``."""
+        if self._integral is not None:
+            every = np.arange(self.num_envs)
+            self._integral.advance(every, obs["state"], reference_rows(info), info["time"])
+            self._integral.restart(restarted, info["time"])
 
     def _observation(self, features: np.ndarray, restarted) -> np.ndarray:
         self._frames[:, :-1] = self._frames[:, 1:]
@@ -211,6 +225,8 @@ class PolicyObservation(_ArmResets):
         obs, info = self.env.reset(seed=seed, options=options)
         arms = self._reset_arms(options)  # a masked reset leaves the other arms' frames
         self._last_action[arms] = 0.0
+        if self._integral is not None:
+            self._integral.restart(arms, info["time"])
         self._frames[arms] = self._features(obs, info)[arms, None]
         return self._frames.reshape(self.num_envs, -1).copy(), info
 
@@ -220,6 +236,7 @@ class PolicyObservation(_ArmResets):
         self._last_action = np.clip(a, -1.0, 1.0)
         restarted = self._restarted(terminated, truncated)
         self._last_action[restarted] = 0.0
+        self._integrate(obs, info, restarted)
         return (
             self._observation(self._features(obs, info), restarted),
             reward,
