@@ -98,8 +98,12 @@ def evaluation_runs(
     stack = run.stack
     kwargs = {**stack.env_kwargs, **(env_kwargs or {})}
     duration = episode_duration(stack.env_id, kwargs)
-    controller = ControllerEntry(name=TrainedPolicyController.name, options={"run": run})
-    source = SourceEntry(name=stack.state, options=dict(stack.observer_options))
+    controller = ControllerEntry.model_validate(
+        {"name": TrainedPolicyController.name, "options": {"run": run}}
+    )
+    source = SourceEntry.model_validate(
+        {"name": stack.state, "options": dict(stack.observer_options)}
+    )
     return RunGroup(
         tuple(
             RunSpec(
