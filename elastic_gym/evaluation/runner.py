@@ -4,7 +4,8 @@ One run = (env id + kwargs, reset options, seed, state source, controller, model
 the controller/observer). Runs that may share a world (:mod:`~elastic_gym.evaluation.groups`)
 run as one vector env + vector observer + vector controller (:func:`run_group`), built on the
 env's nominal model (``.perturbed(**model_error)`` with a model error); the controller sees
-only ``{"state", "reference"}`` and the public info, never the truth. An arm that terminates
+only ``{"state", "reference"}`` (on the source ``sensors``: the sensor observation) and the
+public info, never the truth. An arm that terminates
 gets its status row while its batch mates go on; a world that raises is rerun one run at a
 time, so only the run that raised fails.
 
