@@ -142,19 +142,14 @@ def run_compare(args: argparse.Namespace) -> int:
 
 def with_trained_policy(scenario, run_dir: str):
     """The scenario with a ``trained-policy`` controller for a run folder, paired with the
-    state source it was trained on (added to the scenario if missing)."""
+    state source it was trained on (an observer, ``true`` or raw ``sensors``; added to the
+    scenario if missing)."""
     from pathlib import Path
 
     from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry
-    from elastic_gym.training.policy_env import SENSORS
     from elastic_gym.training.run_folder import RunFolder
 
     config = RunFolder(run_dir).read_config()
-    if config.state == SENSORS:
-        raise ValueError(
-            f"--policy {run_dir}: trained on raw sensors; comparisons need a "
-            "policy trained on 'true' or an observer state"
-        )
     other_envs = sorted({e.id for e in scenario.envs} - {config.env_id})
     if other_envs:
         raise ValueError(
@@ -427,7 +422,8 @@ def add_benchmark_parser(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--source",
         metavar="SOURCE",
-        help="state source: 'true' (oracle), an observer name, or an Observer 'module:Class'",
+        help="state source: 'true' (oracle), an observer name, 'sensors' (raw sensors, for "
+        "a policy) or an Observer 'module:Class'",
     )
     parser.add_argument("--run", metavar="RUN", help="a run folder written by elastic-gym train")
     parser.add_argument(

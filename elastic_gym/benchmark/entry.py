@@ -3,9 +3,10 @@
 An entry is a closed loop of the comparison runner: a **controller** (registry name, a
 user's :class:`~elastic_gym.controllers.Controller` subclass as ``"module:Class"``, or any
 callable policy through the ``policy`` controller) with its ``options``, paired with a
-**state source** (``"true"``, an observer registry name or a user's
-:class:`~elastic_gym.observers.Observer` subclass); or a **run folder** written by
-``elastic-gym train`` (the ``trained-policy`` controller on its own state source).
+**state source** (``"true"``, an observer registry name, a user's
+:class:`~elastic_gym.observers.Observer` subclass, or raw ``"sensors"`` for a controller
+that reads them); or a **run folder** written by ``elastic-gym train`` (the
+``trained-policy`` controller on its own state source, raw sensors included).
 
 The controller sees only the estimate, the reference and the time; the observer sees the
 sensors, the applied torque and the ground-truth items its class declares in
@@ -21,7 +22,7 @@ from typing import Any
 from pydantic import Field, model_validator
 
 from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry, resolve_class
-from elastic_gym.observers.registry import OBSERVERS, observer_class
+from elastic_gym.observers.registry import OBSERVERS, source_class, state_sources
 from elastic_gym.validation import StrictModel
 
 TRUE_STATE = "true"
@@ -117,9 +118,9 @@ def _source_entry(source: str | type, options: dict) -> SourceEntry:
     if _is_class_path(source):
         name = _short(source)
         return SourceEntry(name=name, label=name, options=dict(options), **{"class": source})
-    if source not in OBSERVERS:
+    if source not in state_sources():
         raise ValueError(
-            f"source: unknown state source {source!r}; valid: {sorted(OBSERVERS)} or "
+            f"source: unknown state source {source!r}; valid: {sorted(state_sources())} or "
             "'module:Class' of an Observer"
         )
     return SourceEntry(name=source, label=source, options=dict(options))
@@ -139,16 +140,17 @@ def _run_entries(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
 
 
 def privileged_items(source: SourceEntry) -> tuple[str, ...]:
-    """The ground-truth items the state source reads (empty: implementable)."""
+    """The ground-truth items the state source reads (empty: implementable; raw sensors
+    read none)."""
     if source.cls is not None:
         cls = resolve_class(source.cls, "source")
         return tuple(getattr(cls, "privileged", ()))
     if source.name == TRUE_STATE:
         return ("true_state",)
-    fixed = OBSERVERS[source.name][2]
+    fixed = OBSERVERS[source.name][2] if source.name in OBSERVERS else {}
     if fixed.get("acceleration") == "ideal":
         return ("link_acceleration",)
-    return tuple(getattr(observer_class(source.name), "privileged", ()))
+    return tuple(getattr(source_class(source.name), "privileged", ()))
 
 
 def describe_entry(entry: Entry) -> dict:

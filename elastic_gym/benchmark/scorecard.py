@@ -23,6 +23,7 @@ from pydantic import Field
 import elastic_gym
 from elastic_gym.benchmark.scoring import OVERALL, PRECISION, Episode, Scores
 from elastic_gym.benchmark.suite import SuiteConfig
+from elastic_gym.observers.sensors import SENSORS
 from elastic_gym.validation import StrictModel, validated
 
 FORMAT = 1
@@ -202,6 +203,8 @@ def scorecard_markdown(card: Scorecard) -> str:
     """The scorecard as a markdown page: scores per category (and robot), then per cell."""
     entry, scores = card.entry, card.scores
     kind = "oracle reference (reads the ground truth)" if card.oracle else "implementable"
+    if entry["source"] == SENSORS:
+        kind = "implementable: the raw sensors, no estimate and no ground truth"
     lines = [
         f"# {card.label} on {card.suite.name}",
         "",

@@ -42,10 +42,13 @@ class Controller(ABC):
     Class attributes:
         name: registry name.
         applies_to: ``{"elastic"}``, ``{"rigid"}`` or both.
+        takes_sensors: whether it runs on raw sensors too (an observation without
+            ``state``: the encoders, accelerometers and ``reference`` of the env).
     """
 
     name: ClassVar[str] = ""
     applies_to: ClassVar[frozenset[str]] = frozenset({"elastic", "rigid"})
+    takes_sensors: ClassVar[bool] = False
     vector_twin: ClassVar[type | None] = None
     options_model: ClassVar[type | None] = None
     """The pydantic model (a ``StrictModel``) of the constructor's plain-data options."""

@@ -115,6 +115,7 @@ class PolicyController(Controller):
 
     name = "policy"
     options_model = PolicyOptions
+    takes_sensors = True  # the policy gets the observation as it is
 
     def __init__(
         self,

@@ -250,8 +250,8 @@ def compute_arm_metrics(series: ArmSeries, tracking: bool = True) -> list[dict[s
             )
         last_time = series.time[np.maximum(lengths - 1, 0)]
         start = np.searchsorted(series.time, np.minimum(ESTIMATION_TRANSIENT, last_time / 2))
-        n_blocks = len(series.state_names)
-        blocks = series.estimation_error.reshape(K, N, n_blocks, -1)
+        n_blocks = len(series.state_names)  # 0: raw sensors, nothing estimated (no block)
+        blocks = series.estimation_error.reshape(K, N, max(n_blocks, 1), -1)
         for b, name in enumerate(series.state_names):
             columns[f"est_rms_{name}"] = _window_rms(blocks[:, :, b], start, lengths)
     for i, metrics in enumerate(arms):

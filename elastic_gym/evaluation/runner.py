@@ -4,7 +4,8 @@ One run = (env id + kwargs, reset options, seed, state source, controller, model
 the controller/observer). Runs that may share a world (:mod:`~elastic_gym.evaluation.groups`)
 run as one vector env + vector observer + vector controller (:func:`run_group`), built on the
 env's nominal model (``.perturbed(**model_error)`` with a model error); the controller sees
-only ``{"state", "reference"}`` and the public info, never the truth. An arm that terminates
+only ``{"state", "reference"}`` (on the source ``sensors``: the sensor observation) and the
+public info, never the truth. An arm that terminates
 gets its status row while its batch mates go on; a world that raises is rerun one run at a
 time, so only the run that raised fails.
 
@@ -42,8 +43,10 @@ from elastic_gym.evaluation.scenario import (
     resolve_class,
 )
 from elastic_gym.observers.base import Observer
-from elastic_gym.observers.registry import OBSERVERS, make_observer, observer_class
+from elastic_gym.observers.registry import OBSERVERS, make_observer, source_class
+from elastic_gym.observers.sensors import RawSensors
 from elastic_gym.observers.vector import ObserverWrapper as VectorObserverWrapper
+from elastic_gym.observers.vector import SensorWrapper
 from elastic_gym.parallel import DEFAULT_BACKEND, for_each_result, resolve_workers, user_failure
 from elastic_gym.process_pool import WorkerDiedError
 from elastic_gym.robots.catalog import get_robot
@@ -81,6 +84,9 @@ class RunResult:
 
     ``diagnostics``: the largest value over the run of each numeric entry of the
     observer's ``diagnostics`` (e.g. ``jumps`` of the hybrid gain, ``cond_TA``).
+    ``episode_return``: the sum of the env's rewards over the run's control periods.
+    ``controller_diagnostics``: the run's entry, at its end, of each per-arm array in the
+    vector controller's ``arm_diagnostics`` (e.g. ``saturated_actions`` of a trained policy).
     """
 
     spec: RunSpec
@@ -89,6 +95,8 @@ class RunResult:
     series: TimeSeries | None  # None when the run failed before its first sample
     wall_time: float
     diagnostics: dict = field(default_factory=dict)
+    episode_return: float = float("nan")
+    controller_diagnostics: dict = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -181,9 +189,14 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
         check_options(cls, entry.options, f"controllers[{i}]")
         controllers.append((entry, cls))
     for i, source_entry in enumerate(scenario.state_sources):
-        cls = _entry_class(source_entry, f"state_sources[{i}]", Observer, observer_class)
-        fixed = OBSERVERS[source_entry.name][2] if source_entry.cls is None else {}
+        cls = _entry_class(source_entry, f"state_sources[{i}]", Observer, source_class)
+        named = source_entry.cls is None and source_entry.name in OBSERVERS
+        fixed = OBSERVERS[source_entry.name][2] if named else {}
         check_options(cls, source_entry.options, f"state_sources[{i}]", fixed)
+        if issubclass(cls, RawSensors) and source_entry.initial_estimate is not None:
+            raise ScenarioError(
+                f"state_sources[{i}].initial_estimate", "raw sensors have no estimate to start"
+            )
         sources.append((source_entry, cls))
     axis_values = itertools.product(*(values for _, values in scenario.axes))
     runs: list[RunSpec] = []
@@ -240,6 +253,8 @@ def _inapplicable(
         return f"controller {controller.name!r} applies to {sorted(c_cls.applies_to)} arms"
     if kind not in o_cls.applies_to:
         return f"observer {source.name!r} applies to {sorted(o_cls.applies_to)} arms"
+    if issubclass(o_cls, RawSensors) and not c_cls.takes_sensors:
+        return f"controller {controller.name!r} needs a state source, not raw sensors"
     return ""
 
 
@@ -362,7 +377,10 @@ def make_group_env(group: RunGroup) -> gym.vector.VectorEnv:
 def build_observer_wrapper(
     envs: gym.vector.VectorEnv, spec: RunSpec, model
 ) -> VectorObserverWrapper:
-    """The run's state source on ``model`` for every arm of ``envs``."""
+    """The run's state source on ``model`` for every arm of ``envs`` (raw sensors: the
+    sensor observation itself, :class:`~elastic_gym.observers.vector.SensorWrapper`)."""
+    if issubclass(spec.observer_cls, RawSensors):
+        return SensorWrapper(envs)
     observer = make_observer_of(spec, model, arm_vector_env(envs).control_dt)
     return VectorObserverWrapper(envs, observer, initial_estimate=initial_estimate(spec))
 
@@ -396,7 +414,7 @@ def run_group(group: RunGroup) -> list[RunResult]:
     with the metrics of the samples recorded until then (none, ``series=None``, when the
     setup failed). ``wall_time`` is the world's loop time divided by its arms.
     """
-    world = recorder = None
+    world = recorder = loop = None
     wall = 0.0
     try:
         world = build_world(group)
@@ -405,10 +423,12 @@ def run_group(group: RunGroup) -> list[RunResult]:
         state_dim = world.wrapped.observer.state_dim
         recorder = _Recorder(steps, len(group), base.n_joints, state_dim, base.batch.robot.elastic)
         start = time.perf_counter()
+        loop = ClosedLoop(world, group)
         try:
-            statuses = _simulate(world, recorder, group, steps)
+            _simulate(loop, recorder, steps)
         finally:
             wall = time.perf_counter() - start
+        statuses = loop.statuses
     except BaseException as exc:
         if not user_failure(exc):
             raise
@@ -423,10 +443,17 @@ def run_group(group: RunGroup) -> list[RunResult]:
             RunResult(spec, status, {}, None, wall)
             for spec, status in zip(group.runs, statuses, strict=True)
         ]
-    assert world is not None  # the recorder has rows
+    assert world is not None and loop is not None  # the recorder has rows
     tracking = arm_vector_env(world.envs).batch.task.name != "excitation"
     names = world.wrapped.state_names
-    return _results(group, statuses, recorder, names, tracking, wall / len(group))
+    results = _results(group, statuses, recorder, names, tracking, wall / len(group))
+    controller_diagnostics = getattr(world.controller, "arm_diagnostics", {})
+    for i, result in enumerate(results):
+        result.episode_return = float(loop.returns[i])
+        result.controller_diagnostics = {
+            key: float(values[i]) for key, values in controller_diagnostics.items()
+        }
+    return results
 
 
 def _results(
@@ -525,6 +552,7 @@ class ClosedLoop:
         n_arms = len(group)
         self.statuses = [STATUS_OK] * n_arms
         self.running = np.ones(n_arms, dtype=bool)
+        self.returns = np.zeros(n_arms)  # each arm's rewards while it runs
         self._ended = np.zeros(n_arms, dtype=bool)  # restarted by the autoreset next step
         self.info: dict = {}
         self._obs: dict = {}
@@ -551,7 +579,8 @@ class ClosedLoop:
         if len(restarted):
             controller.reset_arms(self._obs, _public(self.info), restarted)
         action = np.where(self.running[:, None], controller(self._obs, _public(self.info)), 0.0)
-        self._obs, _, terminated, truncated, self.info = self.world.wrapped.step(action)
+        self._obs, reward, terminated, truncated, self.info = self.world.wrapped.step(action)
+        self.returns[self.running] += reward[self.running]
         self._ended = terminated | truncated
         errors = self.info.get("observer_error", [None] * len(self.statuses))
         for i in np.flatnonzero(self.running & self._ended):
@@ -562,16 +591,14 @@ class ClosedLoop:
         return bool(self.running.any())
 
 
-def _simulate(world: World, recorder: _Recorder, group: RunGroup, steps: int) -> list[str]:
-    """Run the closed loop ``steps`` control periods, recording; returns the statuses."""
-    loop = ClosedLoop(world, group)
+def _simulate(loop: ClosedLoop, recorder: _Recorder, steps: int) -> None:
+    """Run the closed loop ``steps`` control periods, recording."""
     with np.errstate(all="ignore"):
         recorder.record(loop.start(), loop.running)
         for _ in range(steps):
             if not loop.advance():
                 break
             recorder.record(loop.info, loop.running)
-    return loop.statuses
 
 
 # ---------------------------------------------------------------------------- execution

@@ -38,7 +38,7 @@ import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.envs.config import EnvKwargs, KwargsSchema, checked_kwargs
 from elastic_gym.evaluation.controllers import controller_names
 from elastic_gym.model import ParameterScaling
-from elastic_gym.observers.registry import OBSERVERS
+from elastic_gym.observers.registry import state_sources
 from elastic_gym.validation import (
     ENV_NAMESPACE,
     FieldError,
@@ -246,7 +246,8 @@ class ControllerEntry(_Named):
 
 
 class SourceEntry(_Named):
-    """A state source: ``"true"`` (the oracle) or an observer with options;
+    """A state source: ``"true"`` (the oracle), an observer with options, or raw
+    ``"sensors"`` (for controllers that read them, e.g. a policy trained on them);
     ``initial_estimate`` (full state vector) is passed to ``observer.reset``."""
 
     kind = "state source"
@@ -257,7 +258,7 @@ class SourceEntry(_Named):
 
     @staticmethod
     def registry() -> set[str]:
-        return set(OBSERVERS)
+        return set(state_sources())
 
 
 # ---------------------------------------------------------------------------- variations

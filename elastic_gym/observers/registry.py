@@ -6,6 +6,7 @@ import importlib
 
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import Observer
+from elastic_gym.observers.sensors import SENSORS, RawSensors
 from elastic_gym.robots.spec import joint_kind
 from elastic_gym.validation import lookup
 
@@ -33,6 +34,21 @@ OBSERVERS: dict[str, tuple[str, str, dict]] = {
 def observer_class(name: str) -> type[Observer]:
     module, cls, _ = lookup(OBSERVERS, name, "observer")
     return getattr(importlib.import_module(module), cls)
+
+
+def state_sources() -> list[str]:
+    """Every state source name: raw ``"sensors"``, then the observers (``"true"`` = oracle)."""
+    return [SENSORS, *OBSERVERS]
+
+
+def source_class(name: str) -> type[Observer]:
+    """The class of a state source name: :class:`RawSensors` for raw sensors, else the
+    observer's (``ValueError`` naming the valid ones for an unknown name)."""
+    if name == SENSORS:
+        return RawSensors
+    if name not in OBSERVERS:
+        raise ValueError(f"unknown state source {name!r}; valid: {sorted(state_sources())}")
+    return observer_class(name)
 
 
 def make_observer(name: str, model: RobotModel, dt: float, **options) -> Observer:

@@ -29,6 +29,7 @@ from elastic_gym.arms import arm_view
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, Observer
 from elastic_gym.observers.registry import make_observer
+from elastic_gym.observers.sensors import RawSensors
 
 NON_FINITE_STATE = "non-finite state"
 NON_FINITE_ESTIMATE = "non-finite state estimate"
@@ -157,7 +158,8 @@ def annotate(info: dict, estimate: np.ndarray, elastic: bool, diagnostics: dict)
     truth = true_state_vector(info, elastic)
     info["estimate"] = estimate.copy()
     info["true_state_vector"] = truth
-    info["estimation_error"] = estimate - truth
+    # raw sensors estimate nothing: their error is as empty as their estimate
+    info["estimation_error"] = estimate - truth if estimate.shape[-1] else estimate.copy()
     info["observer_diagnostics"] = dict(diagnostics)
     return info
 
@@ -403,11 +405,36 @@ class TrueStateWrapper(ObserverWrapper):
         super().__init__(env, "true")
 
 
+class SensorWrapper(ObserverWrapper):
+    """Raw sensors as the state source: the sensor observation of every arm is kept as it
+    is (no ``state``), and ``info`` gets the wrapper's entries with an empty estimate
+    (:class:`~elastic_gym.observers.sensors.RawSensors`), so that a loop on raw sensors
+    runs where a loop on an observer does; nothing of the ground truth is read."""
+
+    def __init__(self, env: VectorEnv) -> None:
+        base: Any = env.unwrapped
+        model = getattr(base, "model", None)
+        if model is None:
+            raise TypeError("the SensorWrapper needs an elastic_gym vector env")
+        super().__init__(env, RawSensors(model, base.control_dt))
+        self.single_observation_space = env.single_observation_space
+        self.observation_space = env.observation_space
+
+    def _observation(self, obs: Mapping) -> dict:
+        return dict(obs)
+
+    def _final_estimates(self, obs: Mapping, info: dict, ended: np.ndarray) -> None:
+        """SAME_STEP: the terminal observations stay the sensors' (nothing to estimate)."""
+        final = info["final_info"]
+        annotate(final, self._estimates, self.observer.elastic, self.observer.arm_diagnostics)
+
+
 __all__ = [
     "NON_FINITE_ESTIMATE",
     "NON_FINITE_STATE",
     "ObserverArray",
     "ObserverWrapper",
+    "SensorWrapper",
     "TrueStateWrapper",
     "true_state_vector",
 ]

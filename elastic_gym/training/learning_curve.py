@@ -2,8 +2,10 @@
 wall time, written to the run folder.
 
 :class:`LearningCurve` (an SB3 callback) evaluates the deterministic policy at the start,
-every ``every`` policy steps and at the end, on the same episodes each time (the arms of
-one batch, seeds ``seed``, ``seed + 1``, ...), with the normalization of that moment. Each
+every ``every`` policy steps and at the end, on the same episodes each time, with the
+normalization of that moment: :func:`~elastic_gym.training.trained.evaluate_run` of the
+model being trained, the arms of one world of the comparison's loop (seeds ``seed``,
+``seed + 1``, ...). Each
 evaluation is a row of ``learning_curve.csv``: ``policy_steps``, ``env_steps``,
 ``wall_time`` (evaluations excluded), ``eval_return`` and ``eval_return_std``,
 ``tracking_rms`` and ``tracking_rms_max`` (rad), ``saturated`` (share of actions at their
@@ -20,8 +22,10 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from elastic_gym.training.rollouts import Evaluation, PolicyActor, evaluate_arms
+from elastic_gym.training.config import Settings, TrainConfig
+from elastic_gym.training.rollouts import Evaluation
 from elastic_gym.training.run_folder import CURVE_FILE
+from elastic_gym.training.trained import TrainedRun, episode_duration, evaluate_run
 
 COLUMNS = (
     "policy_steps",
@@ -38,33 +42,34 @@ COLUMNS = (
 
 class LearningCurve(BaseCallback):
     """Evaluations during training -> ``learning_curve.csv``, ``evaluations.npz`` and
-    ``best_model.zip`` in ``out_dir`` (module docstring). Refuses (``ValueError``) an
-    evaluation batch whose episodes never end (``episode_time=None``, no step limit).
+    ``best_model.zip`` in ``out_dir`` (module docstring). Refuses (``ValueError``) a run
+    whose evaluation episodes never end (``episode_time=None``).
 
     Args:
-        envs: the evaluation batch (policy vector env, autoreset ``NEXT_STEP``).
+        config, settings: the run's config and resolved hyper-parameters.
         normalizer: the training ``VecNormalize`` (its current statistics), or None.
         out_dir: the run folder.
         every: policy steps between evaluations.
-        seed: seed of the first evaluation arm.
-        decimation: control periods per policy step.
+        seed: seed of the first evaluation episode.
     """
 
     def __init__(
-        self, envs, normalizer, out_dir: str | Path, every: int, seed: int, decimation: int
+        self,
+        config: TrainConfig,
+        settings: Settings,
+        normalizer,
+        out_dir: str | Path,
+        every: int,
+        seed: int,
     ) -> None:
         super().__init__()
         if every < 1:
             raise ValueError(f"evaluation interval must be >= 1 policy step, got {every}")
-        if envs.unwrapped.batch.episode_time is None:
-            raise ValueError(
-                "env_kwargs.episode_time: None (episodes that never end) leaves the "
-                "learning curve's evaluation episodes unbounded; give a finite "
-                "episode_time or max_episode_steps"
-            )
-        self.envs, self.normalizer = envs, normalizer
+        self.config, self.settings, self.normalizer = config, settings, normalizer
+        episode_duration(config.env_id, config.training_env_kwargs(settings))
+        self.episodes = config.eval_episodes
         self.out = Path(out_dir)
-        self.every, self.seed, self.decimation = every, seed, decimation
+        self.every, self.seed, self.decimation = every, seed, settings.decimation
         self.evaluations: list[Evaluation] = []
         self.timesteps: list[int] = []
         self._next = 0
@@ -89,8 +94,8 @@ class LearningCurve(BaseCallback):
 
     def _evaluate(self) -> None:
         began = time.perf_counter()
-        actor = PolicyActor(self.model, self.normalizer)
-        result = evaluate_arms(self.envs, actor, self.seed, actor.start)
+        run = TrainedRun(self.model, self.normalizer, self.config, self.settings)
+        result = evaluate_run(run, self.episodes, self.seed)
         self.evaluations.append(result)
         self.timesteps.append(self.num_timesteps)
         self._next = (self.num_timesteps // self.every + 1) * self.every

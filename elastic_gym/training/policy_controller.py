@@ -14,17 +14,16 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
-from pydantic import StrictBool
+from pydantic import InstanceOf, StrictBool
 
 from elastic_gym.arms import as_batch
 from elastic_gym.controllers import Controller, make_controller
-from elastic_gym.controllers.invdyn import reference_derivatives, state_vector
 from elastic_gym.controllers.vector import ARM0, ControllerTwin, make_vector_controller, twin_of
 from elastic_gym.model import RobotModel
 from elastic_gym.training.actions import ActionMap
 from elastic_gym.training.observation import ErrorIntegral, ObservationBuilder, ObservationInputs
 from elastic_gym.training.policy_env import SENSORS
-from elastic_gym.training.rollouts import PolicyActor
+from elastic_gym.training.rollouts import PolicyActor, at_bound
 from elastic_gym.training.trained import TrainedRun, load_run
 from elastic_gym.validation import StrictModel, validated_options
 
@@ -32,7 +31,7 @@ from elastic_gym.validation import StrictModel, validated_options
 class TrainedPolicyOptions(StrictModel):
     """The options of :class:`TrainedPolicyController`."""
 
-    run: Path
+    run: InstanceOf[TrainedRun] | Path
     best: StrictBool = False
 
 
@@ -80,38 +79,54 @@ class TrainedPolicyController(Controller):
 
     Args:
         model, dt: nominal model and control period of the comparison.
-        run: the run folder. ``best``: use the best model of the learning curve.
+        run: the run folder, or a run already loaded (:class:`TrainedRun`, e.g. the
+            model being trained). ``best``: use the best model of the learning curve.
 
-    The comparison must feed it the state source it was trained on (``state_source``);
-    policies trained on raw ``sensors`` or with a reference preview (which needs the
-    task's future reference, not in a controller's ``info``) are refused.
+    The comparison must feed it the state source it was trained on (``state_source``):
+    an estimate (``obs["state"]``) or, for a policy trained on raw ``sensors``, the
+    sensor observation itself (encoders and accelerometers, each arm's last
+    ``frame_stack`` policy frames stacked as in training, the motor velocity of a
+    motor-offset action the backward difference of the encoders). A policy that sees a
+    preview of the reference (the task's future, not in a controller's ``info``) is
+    refused.
     """
 
     name = "trained-policy"
     options_model = TrainedPolicyOptions
+    takes_sensors = True  # a policy trained on them
 
-    def __init__(self, model: RobotModel, dt: float, run: str | Path, best: bool = False) -> None:
+    def __init__(
+        self, model: RobotModel, dt: float, run: str | Path | TrainedRun, best: bool = False
+    ) -> None:
         super().__init__(model, dt)
         validated_options(TrainedPolicyOptions, locals())
-        trained = load_run(run, best=best)
+        if isinstance(run, TrainedRun):
+            if best:
+                raise ValueError("best: applies to a run folder, not to a loaded run")
+            trained, run = run, run.config.out_dir
+        else:
+            trained = load_run(run, best=best)
         config = trained.config
-        if config.state == SENSORS:
-            raise ValueError(
-                f"the policy in {run} was trained on raw sensors; only policies trained on a "
-                "state source ('true' or an observer) can run in a comparison"
-            )
+        self.sensors = config.state == SENSORS
         action, observation = config.policy_configs(trained.settings)
         self.map = ActionMap(action, model)
         self.builder = ObservationBuilder(
-            observation, self.n, model.elastic, False, action.kind == "residual", model.torque_limit
+            observation,
+            self.n,
+            model.elastic,
+            self.sensors,
+            action.kind == "residual",
+            model.torque_limit,
+            3 * model.n_sensors,
         )
         if "preview" in self.builder.features:
             raise ValueError(
                 f"the policy in {run} sees a preview of the reference, which a "
                 "comparison controller cannot read"
             )
+        self.frame_stack = trained.stack.frame_stack
         check_robot(config, model, run)
-        check_spaces(trained, self.builder.size, self.n, run)
+        check_spaces(trained, self.builder.size * self.frame_stack, self.n, run)
         self.base = None
         if action.residual is not None:  # kind "residual"
             self.base = make_controller(action.residual, model, dt, **action.residual_options)
@@ -125,16 +140,15 @@ class TrainedPolicyController(Controller):
         self._law.reset_arms(as_batch(obs), as_batch(info), ARM0)
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        x = state_vector(obs, self._law.state_dim)
-        reference = reference_derivatives(info, self.n)
-        return self._law.torques(x[None], reference[None], as_batch(obs), as_batch(info))[0]
+        return self._law(as_batch(obs), as_batch(info))[0]
 
 
 @twin_of(TrainedPolicyController)
 class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
     """:class:`TrainedPolicyController` on N arms: features and torques of all arms at
-    once; the policy acts per arm (its own recurrent memory, and a per-arm call rounds as
-    the single controller's does); the residual base is one vector controller."""
+    once; the policy acts per arm (its own recurrent memory and frame stack, and a
+    per-arm call rounds as the single controller's does); the residual base is one
+    vector controller."""
 
     def _bind(self, controller: TrainedPolicyController, n_arms: int) -> None:
         super()._bind(controller, n_arms)
@@ -149,46 +163,102 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._action = np.zeros((N, n))
         self._last_action = np.zeros((N, n))
         self._last_base = np.zeros((N, n))
+        size = controller.builder.size
+        self._frames = np.zeros((N, controller.frame_stack, size), dtype=np.float32)
+        self._previous_motor = np.zeros((N, n))  # encoders at the last call (raw sensors)
+        self._acts = np.zeros(N)
+        self._at_bound = np.zeros(N)
         self._integral = ErrorIntegral(N, n, controller.elastic)
 
+    @property
+    def arm_diagnostics(self) -> dict[str, np.ndarray]:
+        """``saturated_actions``: each arm's share of policy steps since its reset with an
+        action at its bound on some joint (:func:`~elastic_gym.training.rollouts.at_bound`)."""
+        return {"saturated_actions": self._at_bound / np.maximum(self._acts, 1)}
+
+    def _check_source(self, obs: Mapping) -> None:
+        c = self.controller
+        if c.sensors != ("state" not in obs):
+            given = "a state estimate" if c.sensors else "raw sensors"
+            raise ValueError(
+                f"the policy in {c.run} was trained on {c.state_source!r} but the loop gives "
+                f"it {given}: pair it with the state source {c.state_source!r}"
+            )
+
     def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
+        self._check_source(obs)
         if self.base is not None:
             self.base.reset_arms(obs, info, arms)
         for i in arms:
             self.actors[i].start()
         self._calls[arms] = 0
-        for held in (self._action, self._last_action, self._last_base):
+        for held in (self._action, self._last_action, self._last_base, self._acts, self._at_bound):
             held[arms] = 0.0
+        if self.controller.sensors:
+            self._previous_motor[arms] = np.asarray(obs["motor_position"], dtype=float)[arms]
         self._integral.restart(arms, np.broadcast_to(info["time"], (self.n_arms,)))
 
-    def torques(
-        self, x: np.ndarray, reference: np.ndarray, obs: Mapping, info: Mapping
-    ) -> np.ndarray:
-        """Torques (N, n) for states (N, dim) and references (N, 5, n); the batched ``obs``
-        and ``info`` feed the residual base controller."""
+    def _inputs(
+        self, obs: Mapping, info: Mapping, x: np.ndarray | None, reference: np.ndarray, arms
+    ) -> ObservationInputs:
+        """The policy's feature inputs of the acting ``arms``: the state (and the error
+        integral, advanced to this policy step), or the raw sensors."""
+        inputs = ObservationInputs(
+            reference=reference[arms],
+            last_action=self._last_action[arms],
+            base_torque=self._last_base[arms],
+        )
+        if x is None:  # raw sensors
+            inputs.motor_position = np.asarray(obs["motor_position"], dtype=float)[arms]
+            if "acceleration" in obs:
+                inputs.acceleration = np.asarray(obs["acceleration"], dtype=float)[arms]
+            return inputs
+        later = arms[self._calls[arms] > 0]  # the first call is the reset's step
+        time = np.broadcast_to(info["time"], (self.n_arms,))
+        self._integral.advance(later, x[later], reference[later], time)
+        inputs.state = x[arms]
+        inputs.error_integral = self._integral.value[arms]
+        return inputs
+
+    def _policy_observations(self, features: np.ndarray, arms: np.ndarray) -> np.ndarray:
+        """Each acting arm's last ``frame_stack`` frames, flat, oldest first; an arm's
+        first frame after its reset fills its whole stack (as in training)."""
+        first = self._calls[arms] == 0
+        frames = self._frames
+        frames[arms[~first], :-1] = frames[arms[~first], 1:]
+        frames[arms, -1] = features
+        frames[arms[first]] = features[first, None]
+        return frames[arms].reshape(len(arms), -1)
+
+    def _motor_state(self, obs: Mapping, x: np.ndarray | None):
+        """(theta, theta') of the action map: from the state, or the encoders and their
+        backward difference over the control period (raw sensors)."""
         c, n = self.controller, self.n
-        acting = np.flatnonzero(self._calls % c.decimation == 0)  # at 1 / (decimation dt)
-        if len(acting):
-            later = acting[self._calls[acting] > 0]  # the first call is the reset's step
-            time = np.broadcast_to(info["time"], (self.n_arms,))
-            self._integral.advance(later, x[later], reference[later], time)
-            features = c.builder.build(
-                ObservationInputs(
-                    reference=reference[acting],
-                    last_action=self._last_action[acting],
-                    state=x[acting],
-                    base_torque=self._last_base[acting],
-                    error_integral=self._integral.value[acting],
-                )
-            )
-            for k, i in enumerate(acting):
-                self._action[i] = self.actors[i](features[k])
-            self._last_action[acting] = np.clip(self._action[acting], -1.0, 1.0)
-        self._calls += 1
-        base = np.zeros((len(x), n)) if self.base is None else self.base(obs, info)
-        self._last_base = base
-        theta, dtheta = (x[:, :n], x[:, 2 * n : 3 * n]) if c.elastic else (None, None)
-        return c.map.torque(self._action, theta, dtheta, reference, base)
+        if not c.elastic:
+            return None, None
+        if x is not None:
+            return x[:, :n], x[:, 2 * n : 3 * n]
+        theta = np.asarray(obs["motor_position"], dtype=float)
+        dtheta = (theta - self._previous_motor) / self.dt
+        return theta, dtheta
 
     def __call__(self, obs: Mapping, info: Mapping) -> np.ndarray:
-        return self.torques(self.states(obs), self.references(info), obs, info)
+        c, n = self.controller, self.n
+        reference = self.references(info)
+        x = None if c.sensors else self.states(obs)
+        acting = np.flatnonzero(self._calls % c.decimation == 0)  # at 1 / (decimation dt)
+        if len(acting):
+            features = c.builder.build(self._inputs(obs, info, x, reference, acting))
+            policy_obs = self._policy_observations(features, acting)
+            for k, i in enumerate(acting):
+                self._action[i] = self.actors[i](policy_obs[k])
+            self._last_action[acting] = np.clip(self._action[acting], -1.0, 1.0)
+            self._acts[acting] += 1
+            self._at_bound[acting] += at_bound(self._action[acting])
+        self._calls += 1
+        base = np.zeros((self.n_arms, n)) if self.base is None else self.base(obs, info)
+        self._last_base = base
+        theta, dtheta = self._motor_state(obs, x)
+        if c.sensors:
+            self._previous_motor = np.asarray(obs["motor_position"], dtype=float).copy()
+        return c.map.torque(self._action, theta, dtheta, reference, base)

@@ -22,20 +22,14 @@ import gymnasium as gym
 from gymnasium.vector import AutoresetMode
 
 import elastic_gym  # noqa: F401  (registers the env ids in worker processes)
-from elastic_gym.observers import OBSERVERS
 from elastic_gym.observers import vector as vector_observers
 from elastic_gym.observers import wrappers as observers
+from elastic_gym.observers.registry import state_sources
+from elastic_gym.observers.sensors import SENSORS
 from elastic_gym.training import vector as vector_policy
 from elastic_gym.training import wrappers as policy
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
-
-SENSORS = "sensors"
-
-
-def state_sources() -> list[str]:
-    """Valid values of ``state``: raw sensors, or any observer name (``"true"`` = oracle)."""
-    return [SENSORS, *OBSERVERS]
 
 
 def check_state_source(state: str) -> None:

@@ -1,14 +1,15 @@
-"""Deterministic evaluation of a policy: per-episode return, link tracking RMS and the
-share of actions at their bounds, episode after episode on one env
-(:func:`evaluate_policy`) or all episodes at once on the arms of one batch
+"""Deterministic rollouts of any callable policy on a policy stack: per-episode return,
+link tracking RMS and the share of actions at their bounds, episode after episode on one
+env (:func:`evaluate_policy`) or all episodes at once on the arms of one batch
 (:func:`evaluate_arms`, the same numbers: arm i of a batch reset with seed s is the single
-env reset with seed s + i).
+env reset with seed s + i). A trained run's evaluation
+(:func:`~elastic_gym.training.trained.evaluate_run`, the learning curve) runs on the
+comparison's loop instead and gives the same :class:`Evaluation`.
 
-The tracking RMS of an episode is the comparison's (``elastic-gym compare``'s
-``track_rms``): sqrt(mean_k |e_k|^2) with |e_k| the Euclidean norm over the joints of
-the link error e = q - q_d of the true state, whatever state the policy sees, sampled at
-the policy steps (the end of each hold window: 100 Hz at the shipped decimation; on
-trained TwoLinkElastic policies the 1 kHz samples give the same value to 3 digits).
+Here the tracking RMS of an episode is sqrt(mean_k |e_k|^2) with |e_k| the Euclidean norm
+over the joints of the link error e = q - q_d of the true state, whatever state the policy
+sees, sampled at the policy steps (the end of each hold window); the comparison's
+``track_rms`` samples every control period from the reset on.
 :class:`PolicyActor` is the act of a trained SB3 model (duck-typed: no SB3 import here).
 """
 
@@ -45,7 +46,8 @@ class Evaluation:
         return float(np.sqrt(np.mean(np.square(self.tracking_rms))))
 
 
-def _at_bound(action: np.ndarray) -> np.ndarray:
+def at_bound(action: np.ndarray) -> np.ndarray:
+    """Per action row: whether some joint's action is at its bound (|a| >= 1 - 1e-6)."""
     return np.any(np.abs(action) >= 1.0 - 1e-6, axis=-1)
 
 
@@ -60,10 +62,10 @@ def evaluate_policy(
         obs, _ = env.reset(seed=seed)
         if start is not None:
             start()
-        done, total, errors, at_bound = False, 0.0, [], 0
+        done, total, errors, bounded = False, 0.0, [], 0
         while not done:
             action = act(obs)
-            at_bound += bool(_at_bound(np.asarray(action)))
+            bounded += bool(at_bound(np.asarray(action)))
             obs, reward, terminated, truncated, info = env.step(action)
             total += float(reward)
             done = terminated or truncated
@@ -73,7 +75,7 @@ def evaluate_policy(
         rms.append(
             float(np.sqrt(np.mean(np.sum(np.square(errors), axis=1)))) if errors else float("inf")
         )
-        saturated.append(at_bound / max(len(errors), 1))
+        saturated.append(bounded / max(len(errors), 1))
     return Evaluation(seeds, tuple(returns), tuple(rms), tuple(saturated))
 
 
@@ -105,7 +107,7 @@ def _evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None) 
     returns = np.zeros(n_arms)
     squared = np.zeros(n_arms)
     samples = np.zeros(n_arms, dtype=int)
-    at_bound = np.zeros(n_arms)
+    bounded = np.zeros(n_arms)
     while running.any():
         action = np.asarray(act(obs))
         obs, reward, terminated, truncated, info = envs.step(action)
@@ -113,13 +115,13 @@ def _evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None) 
         returns[running] += reward[running]
         squared[running] += np.sum(error[running] ** 2, axis=1)
         samples[running] += 1
-        at_bound[running] += _at_bound(action[running])
+        bounded[running] += at_bound(action[running])
         running &= ~(terminated | truncated)
     return Evaluation(
         tuple(int(seed) + i for i in range(n_arms)),
         tuple(returns.tolist()),
         tuple(np.sqrt(squared / samples).tolist()),
-        tuple((at_bound / samples).tolist()),
+        tuple((bounded / samples).tolist()),
     )
 
 

@@ -7,7 +7,7 @@ one per core; or batches with different env kwargs, e.g. plants), all made by
 :mod:`elastic_gym.training.run_envs`; ``VecNormalize`` whose statistics are saved beside
 the model, a learning curve
 (:class:`~elastic_gym.training.learning_curve.LearningCurve`: deterministic evaluation
-episodes on the arms of one batch at the start, every ``eval_freq`` policy steps (default:
+episodes on the comparison's loop at the start, every ``eval_freq`` policy steps (default:
 a twentieth of the run) and at
 the end) that keeps the best model, TensorBoard logs and a progress bar. The run folder
 (:class:`~elastic_gym.training.run_folder.RunFolder`) is refused if it holds an earlier
@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gymnasium.spaces import flatdim
-from gymnasium.vector import AutoresetMode
 
 from elastic_gym.parallel import DEFAULT_BACKEND
 from elastic_gym.training.config import (
@@ -118,11 +117,6 @@ def _train(
     stack = PolicyStack.of(config, settings)
     venv = training_vec_env(stack, settings, n_envs, config.seed)
     try:
-        eval_envs = stack.make_vec(config.eval_episodes, autoreset_mode=AutoresetMode.NEXT_STEP)
-    except BaseException:
-        venv.close()
-        raise
-    try:
         normalize = settings.normalize
         gamma = float(algo_kwargs.get("gamma", 0.99))
         venv = VecNormalize(venv, norm_obs=normalize, norm_reward=normalize, gamma=gamma)
@@ -131,10 +125,11 @@ def _train(
         if settings.critic_state or settings.critic_plant:
             from elastic_gym.training.critic import PrivilegedCriticPolicy
 
-            # the evaluation envs are the deployment stack: the actor's observation only
-            privileged = flatdim(venv.observation_space) - flatdim(
-                eval_envs.single_observation_space
-            )
+            deployed = stack.make()  # the deployment stack: the actor's observation only
+            try:
+                privileged = flatdim(venv.observation_space) - flatdim(deployed.observation_space)
+            finally:
+                deployed.close()
             policy = PrivilegedCriticPolicy
             algo_kwargs["policy_kwargs"] = {
                 **algo_kwargs.get("policy_kwargs", {}),
@@ -152,7 +147,7 @@ def _train(
         if stack.action.kind == "residual":
             zero_action_head(model)
         every = config.eval_freq or max(total // 20, 1)
-        curve = LearningCurve(eval_envs, venv, out, every, config.seed + 10_000, stack.decimation)
+        curve = LearningCurve(config, settings, venv, out, every, config.seed + 10_000)
         start = time.perf_counter()
         model.learn(
             total_timesteps=total,
@@ -165,9 +160,8 @@ def _train(
         model.save(out / "model.zip")
         venv.save(str(out / "vecnormalize.pkl"))
     finally:
-        for env in (venv, eval_envs):  # a failure to close must not hide what happened
-            with contextlib.suppress(Exception):
-                env.close()
+        with contextlib.suppress(Exception):  # a failure to close must not hide what happened
+            venv.close()
     # the run folder is self-contained: the hyper-parameters used, not a pointer to a file,
     # and every field of the action and observation configs (a later release's defaults
     # must not change what a saved policy's actions mean)

@@ -1,0 +1,283 @@
+"""Policies trained on raw sensors in the comparison and the benchmark, and the policy
+evaluation (evaluate_run, the learning curve) on the comparison's loop."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import yaml
+
+from elastic_gym.benchmark import run_benchmark
+from elastic_gym.benchmark.scorecard import scorecard_markdown
+from elastic_gym.cli import with_trained_policy
+from elastic_gym.evaluation import plan_runs
+from elastic_gym.evaluation.groups import RunGroup
+from elastic_gym.evaluation.runner import ClosedLoop, build_world, execute, run_group
+from elastic_gym.evaluation.scenario import Scenario, ScenarioError, SourceEntry
+from elastic_gym.observers.registry import source_class
+from elastic_gym.training import TrainConfig, evaluate_run, load_run, train
+from elastic_gym.training.trained import evaluation_runs
+
+ENV_ID = "elastic_gym/TwoLinkElastic-v0"
+EPISODE = {"episode_time": 0.3}
+TINY_NETS = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
+
+pytestmark = pytest.mark.usefixtures("single_thread_torch")
+
+
+@pytest.fixture(scope="module")
+def sensor_runs(tmp_path_factory):
+    """Two tiny runs on raw sensors: RecurrentPPO (an LSTM, one frame) and PPO on a stack
+    of three frames; both with the default motor-offset action (the encoders' backward
+    difference in its D term)."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("sensor-runs")
+    common = {"state": "sensors", "env_kwargs": EPISODE, "eval_freq": 10**9, "eval_episodes": 2}
+    configs = {
+        "lstm": TrainConfig(
+            algo="recurrentppo",
+            total_steps=128,
+            out_dir=str(root / "lstm"),
+            frame_stack=1,
+            hyperparams={
+                "n_envs": 4,
+                **TINY_NETS,
+                "policy_kwargs": {"lstm_hidden_size": 16, "net_arch": [16], "log_std_init": 0.0},
+            },
+            **common,
+        ),
+        "stacked": TrainConfig(
+            algo="ppo",
+            total_steps=128,
+            out_dir=str(root / "stacked"),
+            frame_stack=3,
+            hyperparams={"n_envs": 4, **TINY_NETS, "policy_kwargs": {"net_arch": [16]}},
+            **common,
+        ),
+    }
+    for config in configs.values():
+        train(config, progress_bar=False)
+    torch.set_num_threads(threads)
+    return {key: config.out_dir for key, config in configs.items()}
+
+
+class _Logged:
+    """A per-arm policy actor that records the actions it returns."""
+
+    def __init__(self, actor, log: list) -> None:
+        self.actor, self.log = actor, log
+
+    def start(self) -> None:
+        self.actor.start()
+
+    def __call__(self, obs):
+        action = self.actor(obs)
+        self.log.append(np.array(action, dtype=float))
+        return action
+
+
+def _own_predictions(run, seed: int, steps: int) -> np.ndarray:
+    """The policy's own predict() on its training stack (one env, seed ``seed``), its LSTM
+    state carried from step to step: the reference each comparison arm must reproduce."""
+    env = run.stack.make({"episode_time": None})
+    obs, _ = env.reset(seed=seed)
+    state, start, actions = None, True, []
+    for _ in range(steps):
+        batch = run.normalizer.normalize_obs(obs[None]) if run.normalizer else obs[None]
+        action, state = run.model.predict(
+            batch, state=state, episode_start=np.array([start]), deterministic=True
+        )
+        start = False
+        actions.append(action[0].astype(float))
+        obs, *_ = env.step(action[0])
+    env.close()
+    return np.array(actions)
+
+
+@pytest.mark.parametrize("kind", ["lstm", "stacked"])
+def test_each_arm_gets_the_policys_own_prediction_with_its_memory(sensor_runs, kind):
+    """In one world of three arms on raw sensors, the action of arm i at every policy step
+    is the policy's predict() on the training stack seeded i, with its own LSTM state
+    (or frame stack) carried per arm; an LSTM that forgot its state acts otherwise."""
+    run = load_run(sensor_runs[kind])
+    group = evaluation_runs(run, 3, 40)
+    world = build_world(group)
+    logs: list[list] = [[] for _ in group.runs]
+    controller = world.controller
+    controller.actors = [_Logged(a, log) for a, log in zip(controller.actors, logs, strict=True)]
+    policy_steps = 12
+    loop = ClosedLoop(world, group)
+    loop.start()
+    for _ in range(policy_steps * run.decimation):
+        loop.advance()
+    world.close()
+    for i, spec in enumerate(group.runs):
+        reference = _own_predictions(run, spec.seed, policy_steps)
+        np.testing.assert_allclose(np.array(logs[i]), reference, rtol=0, atol=1e-6)
+    if kind == "lstm":  # the memory matters: restarting it every step changes the actions
+        env = run.stack.make({"episode_time": None})
+        obs, _ = env.reset(seed=40)
+        forgetful = []
+        for _ in range(policy_steps):
+            run.start()
+            forgetful.append(run.act(obs))
+            obs, *_ = env.step(np.array(logs[0][len(forgetful) - 1], dtype=np.float32))
+        env.close()
+        assert np.max(np.abs(np.array(forgetful) - np.array(logs[0]))) > 1e-4
+
+
+def _scenario(runs: dict, env_kwargs: dict, duration: float, seeds: list[int]) -> Scenario:
+    scenario = Scenario.model_validate(
+        {
+            "name": "sensors",
+            "duration": duration,
+            "physics_dt": None,
+            "seeds": seeds,
+            "envs": [{"id": ENV_ID, "kwargs": env_kwargs}],
+            "controllers": [{"name": "feedforward-state-feedback", "label": "eq13"}],
+            "state_sources": ["deluca"],
+        }
+    )
+    for folder in runs.values():
+        scenario = with_trained_policy(scenario, folder)
+    return scenario
+
+
+def test_sensor_policy_rows_batched_equal_one_arm_per_world(sensor_runs):
+    """`compare --policy RUN` of raw-sensor runs: a source 'sensors' is added for them,
+    eq. (13) is not paired with it (skipped with the reason), and every metric of every
+    row is the same batched and with --batch-size 1 (1e-12 relative)."""
+    scenario = _scenario(
+        sensor_runs, {"task_options": {"n_moves": 1, "move_time": 0.2}}, 0.3, [0, 1, 2]
+    )
+    runs, skipped = plan_runs(scenario)
+    sources = {spec.labels["source"] for spec in runs if spec.controller.name == "trained-policy"}
+    assert sources == {"sensors-policy"}
+    assert any(
+        s.labels["controller"] == "eq13" and "needs a state source, not raw sensors" in s.reason
+        for s in skipped
+    )
+    batched = execute(runs, workers=1, progress=False)
+    alone = execute(runs, workers=1, progress=False, batch_size=1)
+    policy_rows = [r for r in batched if r.spec.controller.name == "trained-policy"]
+    assert len(policy_rows) == 6 and all(r.ok for r in batched)
+    for a, b in zip(batched, alone, strict=True):
+        assert a.metrics.keys() == b.metrics.keys()
+        for key, value in a.metrics.items():
+            if key in ("sim_wall_ratio",):
+                continue
+            np.testing.assert_allclose(value, b.metrics[key], rtol=1e-12, atol=0, err_msg=key)
+        assert a.episode_return == pytest.approx(b.episode_return, rel=1e-12)
+    assert not any(k.startswith("est_rms") for r in policy_rows for k in r.metrics)
+
+
+@pytest.mark.parametrize("kind", ["lstm", "stacked"])
+def test_evaluate_run_is_the_comparison_row_of_the_same_run_seed_and_plant(sensor_runs, kind):
+    """evaluate_run runs on the comparison's loop: its tracking RMS of episode seed s is
+    the track_rms of the comparison row of the same run, seed and plant, to 1e-12, and its
+    return the sum of the env's rewards of that row's episode; one episode alone is the
+    same arm of a batch."""
+    run = load_run(sensor_runs[kind])
+    heavy = {"plant_scaling": {"link_mass": 1.2}}
+    evaluation = evaluate_run(run, 3, 5, heavy)
+    kwargs = {**run.stack.env_kwargs, **heavy}
+    scenario = _scenario({kind: sensor_runs[kind]}, kwargs, EPISODE["episode_time"], [5, 6, 7])
+    runs, _ = plan_runs(scenario)
+    rows = {
+        r.spec.seed: r
+        for r in execute(runs, workers=1, progress=False)
+        if r.spec.controller.name == "trained-policy"
+    }
+    for seed, rms, ret in zip(
+        evaluation.seeds, evaluation.tracking_rms, evaluation.returns, strict=True
+    ):
+        assert rms == pytest.approx(rows[seed].metrics["track_rms"], rel=1e-12, abs=0)
+        assert ret == pytest.approx(rows[seed].episode_return, rel=1e-12, abs=0)
+    assert evaluate_run(run, 1, 6, heavy).tracking_rms[0] == evaluation.tracking_rms[1]
+    assert all(0.0 <= s <= 1.0 for s in evaluation.saturated_actions)
+
+
+def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
+    """A raw-sensor policy fed an estimate fails its row naming the source to use; raw
+    sensors take no initial estimate (refused when the runs are planned)."""
+    run = load_run(sensor_runs["lstm"])
+    spec = evaluation_runs(run, 1, 0).first
+    deluca = {"source": SourceEntry(name="deluca"), "observer_cls": source_class("deluca")}
+    (result,) = run_group(RunGroup((dataclasses.replace(spec, **deluca),)))
+    assert result.status.startswith("failed: ValueError")
+    assert "pair it with the state source 'sensors'" in result.status
+    data = {
+        "envs": [ENV_ID],
+        "controllers": [{"name": "trained-policy", "options": {"run": sensor_runs["lstm"]}}],
+        "state_sources": [{"name": "sensors", "initial_estimate": [0.0] * 8}],
+    }
+    with pytest.raises(ScenarioError, match=r"state_sources\[0\]\.initial_estimate"):
+        plan_runs(Scenario.model_validate(data))
+    with pytest.raises(ValueError, match=r"^n_episodes must be an integer >= 1, got 0$"):
+        evaluate_run(run, 0)
+    from elastic_gym.training.policy_controller import TrainedPolicyController
+
+    env = run.stack.make()
+    model = env.unwrapped.model
+    env.close()
+    with pytest.raises(ValueError, match=r"^best: applies to a run folder, not to a loaded run$"):
+        TrainedPolicyController(model, 1e-3, run, best=True)
+
+
+def test_benchmark_scores_a_raw_sensor_run_as_implementable(sensor_runs, tmp_path):
+    """`elastic-gym benchmark --run RUN` of a RecurrentPPO run on raw sensors: scored,
+    source 'sensors', nothing privileged, not an oracle, and the scorecard says so."""
+    from tests.test_benchmark import tiny_suite_data
+
+    data = tiny_suite_data()
+    data["categories"] = {"nominal": data["categories"]["nominal"]}
+    suite_file = tmp_path / "tiny.yaml"
+    suite_file.write_text(yaml.safe_dump(data))
+    card = run_benchmark(
+        {"run": sensor_runs["lstm"]},
+        suite=suite_file,
+        output_dir=tmp_path / "card",
+        workers=1,
+        progress=False,
+        figure=False,
+    )
+    assert card.entry["source"] == "sensors" and card.entry["privileged"] == []
+    assert card.oracle is False and card.entry["run"]["state"] == "sensors"
+    assert card.scores.episodes == len(data["seeds"])
+    assert all(e.status == "ok" for c in card.cells for e in c.episodes)
+    assert "implementable: the raw sensors, no estimate and no ground truth" in (
+        scorecard_markdown(card)
+    )
+
+
+def test_a_callable_policy_reads_the_raw_sensor_observation():
+    """The `policy` controller on the source `sensors` gets each arm's sensor dict (no
+    state estimate); the same rows batched and one arm per world."""
+    seen: list[list[str]] = []
+
+    def policy(obs):
+        seen.append(sorted(obs))
+        return np.clip(0.3 - obs["motor_position"], -1.0, 1.0)
+
+    scenario = Scenario.model_validate(
+        {
+            "duration": 0.05,
+            "seeds": [0, 1],
+            "envs": [ENV_ID],
+            "controllers": [{"name": "policy", "options": {"policy": policy}}],
+            "state_sources": ["sensors"],
+        }
+    )
+    runs, skipped = plan_runs(scenario)
+    assert len(runs) == 2 and not skipped
+    batched = execute(runs, workers=1, progress=False)
+    alone = execute(runs, workers=1, progress=False, batch_size=1)
+    assert seen[0] == ["acceleration", "motor_position", "reference"]
+    for a, b in zip(batched, alone, strict=True):
+        assert a.ok and a.metrics["track_rms"] == b.metrics["track_rms"]
+        assert a.metrics["torque_rms"] > 0
