@@ -93,7 +93,7 @@ def refers_to_main(*objects: Any) -> bool:
 
 
 @contextlib.contextmanager
-def _main_not_imported() -> Iterator[None]:
+def main_not_imported() -> Iterator[None]:
     """While a worker starts: a bare ``__main__`` module, so that the spawned process does
     not import the parent's main script (``multiprocessing`` imports it when it has a
     file or a module spec)."""
@@ -147,7 +147,7 @@ class _Worker:
         self.process = context.Process(
             target=_worker, args=(child, function, os.getpid()), daemon=True
         )
-        with spawn_env(), contextlib.nullcontext() if main else _main_not_imported():
+        with spawn_env(), contextlib.nullcontext() if main else main_not_imported():
             self.process.start()
         child.close()
         self.job: int | None = None  # index of the job it runs

@@ -32,7 +32,8 @@ work = Path(tempfile.mkdtemp(prefix="elastic-gym-tutorial-"))
 # ## Training
 #
 # `TrainConfig` holds one run; everything else comes from the shipped PPO hyper-parameters
-# (`elastic_gym/training/hyperparams/ppo.yaml`): 32 arms in one batch, the policy at 100 Hz
+# (`elastic_gym/training/hyperparams/ppo.yaml`): 64 arms in two worlds (one worker process
+# each), the policy at 100 Hz
 # over the 1 kHz loop, motor-offset actions (a motor PD tracks q_d + 0.05 rad · a — no model
 # term in the policy path), the reference up to q_d⁗ in the observation, a learning rate
 # decaying linearly to zero. `state="deluca"`: the policy sees the De Luca estimate, as a

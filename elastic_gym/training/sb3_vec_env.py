@@ -13,6 +13,7 @@ one ``VecEnv``.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -20,6 +21,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env import VecEnv
+
+from elastic_gym.process_pool import main_not_imported, refers_to_main
 
 
 def _row(obs: Any, i: int) -> Any:
@@ -162,6 +165,8 @@ class ProcessBatches(VecEnv):
         from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper
 
         context = multiprocessing.get_context("spawn")
+        # a script without a __main__ guard must not run again in the workers
+        main = refers_to_main(factories)
         self.remotes, self.processes = [], []
         for factory in factories:
             remote, work_remote = context.Pipe()
@@ -170,7 +175,8 @@ class ProcessBatches(VecEnv):
                 daemon=True,
                 args=(work_remote, remote, CloudpickleWrapper(factory)),
             )
-            process.start()
+            with contextlib.nullcontext() if main else main_not_imported():
+                process.start()
             work_remote.close()
             self.remotes.append(remote)
             self.processes.append(process)
