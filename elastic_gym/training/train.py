@@ -5,11 +5,10 @@ env through :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`), or ``batches`
 worlds in worker processes (:class:`~elastic_gym.training.sb3_vec_env.ProcessBatches`,
 one per core; or batches with different env kwargs, e.g. plants), all made by
 :mod:`elastic_gym.training.run_envs`; ``VecNormalize`` whose statistics are saved beside
-the model, a learning curve
-(:class:`~elastic_gym.training.learning_curve.LearningCurve`: deterministic evaluation
-episodes on the comparison's loop at the start, every ``eval_freq`` policy steps (default:
-a twentieth of the run) and at
-the end) that keeps the best model, TensorBoard logs and a progress bar. The run folder
+the model, a learning curve (:class:`~elastic_gym.training.learning_curve.LearningCurve`:
+deterministic episodes on the comparison's loop at the start, every ``eval_freq`` policy
+steps, default a twentieth of the run, and at the end) that keeps the best model,
+TensorBoard logs and a progress bar. The run folder
 (:class:`~elastic_gym.training.run_folder.RunFolder`) is refused if it holds an earlier
 run (unless ``overwrite``) and removed if the run fails or is interrupted. Training runs
 with single-threaded torch and BLAS (:func:`elastic_gym.parallel.single_threaded`).
