@@ -199,6 +199,7 @@ def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     runs, out = tmp_path / "runs", tmp_path / "out"
     classical = ((rs.EQ13, "eq. (13)", ("deluca",)), ("motor-pd", "motor PD", (rs.ENCODERS,)))
     small = "--algo ppo --state true --hyperparams n_envs=4 batches=1 batch_size=64"
+    small += " --eval-freq 1024 --eval-episodes 1"  # two learning-curve points, not twenty
     rows = (rs.Row("ppo-true-nominal", (0,), None, small),)  # the shipped 64 arms: too slow
     study = dataclasses.replace(rs.ROBUST_STUDY, classical=classical, rows=rows)
     argv = ["--rows", "ppo-true-nominal", "--steps", "2048", "--plants", "nominal", "mass1.3"]
