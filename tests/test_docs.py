@@ -170,6 +170,19 @@ ROBOT_ROWS = {  # first cell of a row of an environment page's robot table -> Ro
 }
 
 
+def test_every_env_has_a_page_with_its_gif_in_the_nav():
+    nav = (ROOT / "mkdocs.yml").read_text().split("\nnav:\n")[1]
+    titles = {
+        re.match(r"# (\S+)\n", page.read_text()).group(1): page
+        for page in (DOCS / "environments").glob("*-*.md")
+    }
+    assert sorted(titles) == sorted(i.split("/")[1] for i in elastic_gym.ENV_IDS)
+    for env_id, page in titles.items():
+        assert f" environments/{page.name}\n" in nav, page.name
+        gif = f"images/envs/{env_id.removesuffix('-v0')}.gif"
+        assert f"](../{gif})" in page.read_text() and (DOCS / gif).is_file(), env_id
+
+
 @pytest.mark.parametrize("page", sorted((DOCS / "environments").glob("*-*.md")), ids=str)
 def test_environment_pages_state_the_robots_parameters(page):
     """Every K, B, D, torque limit, friction and workspace an env page shows is its spec's."""
