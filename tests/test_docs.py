@@ -140,6 +140,74 @@ def test_batched_page_lists_every_randomizable_path():
     assert listed == list(PATHS)
 
 
+def test_env_kwargs_table_lists_exactly_the_env_kwargs():
+    """One table on the environments page, a row per kwarg of the envs, none else."""
+    from elastic_gym.envs.batch import ArmBatch
+
+    page = (DOCS / "environments" / "index.md").read_text()
+    table = page.split("| kwarg | what it sets |\n|---|---|\n")[1].split("\n\n")[0]
+    listed = [
+        name for row in table.splitlines() for name in re.findall(r"`(\w+)`", row.split("|")[1])
+    ]
+    assert sorted(listed) == sorted([*ArmBatch.KWARGS, "render_mode"])
+
+
+def interleave(a, b) -> list[float]:
+    return [v for pair in zip(a, b, strict=True) for v in pair]
+
+
+ROBOT_ROWS = {  # first cell of a row of an environment page's robot table -> RobotSpec
+    "stiffness K": lambda s: s.stiffness,
+    "K (": lambda s: s.stiffness,
+    "motor inertia B": lambda s: s.motor_inertia,
+    "B (": lambda s: s.motor_inertia,
+    "spring damping D": lambda s: s.damping,
+    "D (": lambda s: s.damping,
+    "torque limit": lambda s: s.torque_limit,
+    "viscous friction": lambda s: s.friction.viscous,
+    "Coulomb friction": lambda s: interleave(s.friction.coulomb_pos, s.friction.coulomb_neg),
+    "workspace": lambda s: interleave(s.workspace_low, s.workspace_high),
+}
+
+
+def test_every_env_has_a_page_with_its_gif_in_the_nav():
+    nav = (ROOT / "mkdocs.yml").read_text().split("\nnav:\n")[1]
+    titles = {
+        re.match(r"# (\S+)\n", page.read_text()).group(1): page
+        for page in (DOCS / "environments").glob("*-*.md")
+    }
+    assert sorted(titles) == sorted(i.split("/")[1] for i in elastic_gym.ENV_IDS)
+    for env_id, page in titles.items():
+        assert f" environments/{page.name}\n" in nav, page.name
+        gif = f"images/envs/{env_id.removesuffix('-v0')}.gif"
+        assert f"](../{gif})" in page.read_text() and (DOCS / gif).is_file(), env_id
+
+
+@pytest.mark.parametrize("page", sorted((DOCS / "environments").glob("*-*.md")), ids=str)
+def test_environment_pages_state_the_robots_parameters(page):
+    """Every K, B, D, torque limit, friction and workspace an env page shows is its spec's."""
+    import gymnasium as gym
+
+    from elastic_gym.robots.catalog import ROBOTS
+
+    env_id = re.match(r"# (\w+-v\d+)\n", page.read_text()).group(1)
+    spec = ROBOTS[gym.spec(f"elastic_gym/{env_id}").kwargs["robot"]]()
+    section = page.read_text().split("## Robot\n")[1].split("\n## ")[0]
+    checked = set()
+    for row in section.splitlines():
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        key = next((k for k in ROBOT_ROWS if cells[0].startswith(k)), None)
+        if key is None:
+            continue
+        shown = [
+            float(x.replace("−", "-"))
+            for x in re.findall(r"−?\d+(?:\.\d+)?(?:e\d+)?", "|".join(cells[1:]))
+        ]
+        assert shown == pytest.approx(list(ROBOT_ROWS[key](spec)), rel=1e-12), (page.name, key)
+        checked.add(key)
+    assert {"torque limit"} <= checked and (not spec.elastic or len(checked) >= 4), checked
+
+
 def test_module_docstrings_state_contracts_in_at_most_15_lines():
     """Long derivations and measured stories live on the docs' pages, not in modules."""
     import ast

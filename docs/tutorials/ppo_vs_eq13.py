@@ -96,8 +96,8 @@ for row in rows:
 # * eq. (13) tracks to a few 1e-5 rad on both sources: with an exact model, the De Luca
 #   estimate is as good as the truth for it;
 # * the policy is orders of magnitude behind: about 2e-2 rad after the quick run, 3e-3 rad
-#   after 100 000 steps (the RL results page has the shipped 400 000-step policy at about
-#   5e-4 rad); its error barely changes between the estimate and the truth, because the
+#   after 100 000 steps (the RL results page has the policies of the shipped recipes and
+#   of the RL study); its error barely changes between the estimate and the truth, because the
 #   observer's error is far below what the policy achieves.
 #
 # Where a policy can win is where the model is wrong: rerun the comparison with an axis

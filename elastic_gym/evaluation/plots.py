@@ -170,8 +170,8 @@ def legend_outside(
 ) -> None:
     """Figure title, and the legend in a strip right of the panels (never over the data).
 
-    A fixed layout (``subplots_adjust``): matplotlib's constrained layout measured 60 %
-    of the drawing time of these many-panel figures.
+    A fixed layout (``subplots_adjust``): matplotlib's constrained layout costs most of
+    the drawing time of these many-panel figures.
     """
     width, height = fig.get_size_inches()
     right = 1.0 - LEGEND_WIDTH / width

@@ -67,8 +67,8 @@ def _work_size(n: int) -> int:
 def _arm_params(a, parent, rot_p, trans_p, axis, mass, com, inertia, grav, s_joint, s_rot, s_trans):
     """Views of arm ``a``'s constants (``SerialChain._kernel_constants``): the chain, the
     bodies, the sensors, g_W and -g_W. Each constant is a separate array with a leading
-    arm axis (row 0 for every arm when not stacked): views made here by reshaping one
-    flat array made the kernels 2-3x slower."""
+    arm axis (row 0 for every arm when not stacked), not views reshaped here from one
+    flat array, which slow the kernels (results: benchmarks, speed work)."""
     chain = (parent, rot_p[a], trans_p[a], axis[a])
     return (
         chain,

@@ -42,8 +42,8 @@ default MEMS part (1.5e-3 m/s^2/sqrt(Hz) at 1 kHz, 0.034 m/s^2) plus its 0.02 m/
 MAX_VARIANCE = 1e6
 """Largest entry of Q, R and P0 in their SI units (standard deviations of 1000 rad, rad/s
 or m/s^2; torque noise sqrt(Q / T) of 3e4 N m at 1 ms), far above anything physical for
-these arms. Measured on the 2-link arm at T = 1 ms: P0 = 1e10 lost positive definiteness
-in the update within 5 samples, Q = 1e60 overflowed at the first."""
+these arms, and well below the magnitudes at which the covariance update loses positive
+definiteness or overflows."""
 MAX_STD = float(np.sqrt(MAX_VARIANCE))
 """Largest standard deviation (or encoder quantum) option, from :data:`MAX_VARIANCE`."""
 MAX_SUBSTEPS = 100

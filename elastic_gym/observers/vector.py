@@ -10,7 +10,8 @@ Each arm's estimate is the single-env observer's; an arm whose estimate is no lo
 finite (or, in an :class:`ObserverArray`, whose update failed numerically) ends its
 episode alone: ``info["termination_reason"]`` "non-finite state estimate" and
 ``info["observer_error"]`` why (the numerical error, or the blocks of the estimate that
-are not finite). Autoresets are followed.
+are not finite). Autoresets are followed. ``SensorWrapper(envs)`` (raw sensors as the
+state source) keeps the sensor observation and adds the same ``info`` with an empty estimate.
 """
 
 from __future__ import annotations

@@ -91,8 +91,8 @@ def evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None = 
 
     Runs single-threaded (torch and BLAS), as training does: with 2 threads a matmul
     splits the arms' rows differently, and the episodes amplify the last-bit
-    differences (up to 2 % of an episode's RMS for the RL study's policies and 0.5 % for
-    eq. (13) on KR15), so the numbers would depend on the caller's thread settings.
+    differences into visible changes of the metrics, so the numbers would depend on the
+    caller's thread settings.
     """
     with single_threaded():
         return _evaluate_arms(envs, act, seed, start)
