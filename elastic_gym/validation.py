@@ -58,6 +58,30 @@ def distinct(values: Sequence[Any], what: str, why: str = "", where: str = "") -
     return values
 
 
+def _given(options: Mapping[str, Any]) -> list[str]:
+    return [name for name, value in options.items() if value is not None]
+
+
+def at_most_one(options: Mapping[str, Any], required: bool = False, loc: Sequence = ()) -> None:
+    """Refuse more than one of ``options`` (name -> value, ``None``: not given), and none
+    when ``required``: ``FieldError`` (a ``ValueError``; ``loc`` continues a validator's
+    path) reading ``give one of a or b, not a and b``."""
+    given = _given(options)
+    if len(given) > 1 or (required and not given):
+        choice = f"give {'one' if required else 'at most one'} of {' or '.join(options)}"
+        raise FieldError(loc, choice + (f", not {' and '.join(given)}" if given else ""))
+
+
+def all_or_none(options: Mapping[str, Any], loc: Sequence = ()) -> None:
+    """Refuse some but not all of ``options`` (name -> value, ``None``: not given):
+    ``FieldError`` reading ``give kp and kd together (or none): kd missing``."""
+    given = _given(options)
+    if 0 < len(given) < len(options):
+        missing = [name for name in options if name not in given]
+        together = f"give {' and '.join(options)} together (or none)"
+        raise FieldError(loc, f"{together}: {' and '.join(missing)} missing")
+
+
 def shaped(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
     """``value`` as a float64 array of ``shape``; ``ValueError`` naming ``name`` otherwise."""
     arr = np.asarray(value, dtype=float)
@@ -347,6 +371,10 @@ def validated(model: type[M], data: Any, prefix: str = "") -> M:
 
 
 # ---------------------------------------------------------------- observer / controller options
+def _wrong_type(item: Any) -> bool:
+    return item["type"].endswith("_type") or item["type"] == "is_instance_of"
+
+
 def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
     """The options of a constructor validated by their model: ``arguments`` is the
     constructor's ``locals()`` (only the model's fields are read); errors read
@@ -356,7 +384,7 @@ def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
     try:
         return model.model_validate(plain(given))
     except ValidationError as error:
-        wrong_type = all(item["type"].endswith("_type") for item in error.errors())
+        wrong_type = all(map(_wrong_type, error.errors()))
         kind = TypeError if wrong_type else ValueError
         raise kind(format_validation_error(error, "options", model)) from None
 
@@ -368,7 +396,7 @@ def option_value(name: str, value: Any, kind: Any) -> Any:
     try:
         return TypeAdapter(kind).validate_python(plain(value))
     except ValidationError as error:
-        wrong_type = all(item["type"].endswith("_type") for item in error.errors())
+        wrong_type = all(map(_wrong_type, error.errors()))
         message = format_validation_error(error, f"options.{name}")
         raise (TypeError if wrong_type else ValueError)(message) from None
 

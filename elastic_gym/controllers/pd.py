@@ -33,6 +33,7 @@ from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
     NonNegativeFinite,
     PositiveFinite,
+    all_or_none,
     option_checks,
     per_joint_values,
     validated_options,
@@ -56,8 +57,7 @@ class PDOptions(FeedforwardOptions):
     @field_validator("kd")
     @classmethod
     def _both_gains(cls, kd: Any, info: ValidationInfo) -> Any:
-        if (info.data.get("kp") is None) != (kd is None):
-            raise ValueError("give both kp and kd, or neither (bandwidth design)")
+        all_or_none({"kp": info.data.get("kp"), "kd": kd})  # neither: the bandwidth design
         return kd
 
 

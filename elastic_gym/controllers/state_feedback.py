@@ -41,6 +41,7 @@ from elastic_gym.validation import (
     Finite,
     PositiveFinite,
     StrictModel,
+    at_most_one,
     option_checks,
     validated_options,
 )
@@ -89,10 +90,9 @@ class StateFeedbackOptions(FeedforwardOptions):
     @field_validator("poles")
     @classmethod
     def _one_design(cls, poles: Any, info: ValidationInfo) -> Any:
-        given = [k for k in ("gain", "weights") if info.data.get(k) is not None]
-        given += ["poles"] if poles is not None else []
-        if len(given) > 1:
-            raise ValueError(f"give at most one of gain, weights, poles; got {given}")
+        at_most_one(
+            {"gain": info.data.get("gain"), "weights": info.data.get("weights"), "poles": poles}
+        )
         return poles
 
     @field_validator("feedback")

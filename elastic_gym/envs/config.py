@@ -41,6 +41,8 @@ from elastic_gym.validation import (
     PositiveFinite,
     PositiveNumbers,
     StrictModel,
+    all_or_none,
+    at_most_one,
     format_validation_error,
     plain,
 )
@@ -149,13 +151,13 @@ class TorquePulsesConfig(StrictModel):
 
     @model_validator(mode="after")
     def _one_form(self) -> TorquePulsesConfig:
-        given = [part is not None for part in (self.times, self.durations, self.amplitudes)]
-        if self.random is not None:
-            if any(given):
-                raise ValueError("give either times/durations/amplitudes or random, not both")
-        elif not all(given):
-            raise ValueError("give times, durations and amplitudes (or random)")
-        elif not len(self.times) == len(self.durations) == len(self.amplitudes):  # type: ignore[arg-type]
+        all_or_none(
+            {"times": self.times, "durations": self.durations, "amplitudes": self.amplitudes}
+        )
+        at_most_one({"times": self.times, "random": self.random}, required=True)
+        if self.times is not None and not (
+            len(self.times) == len(self.durations) == len(self.amplitudes)  # type: ignore[arg-type]
+        ):
             raise ValueError("times, durations and amplitudes need one entry per pulse")
         return self
 

@@ -248,9 +248,13 @@ class ExcitationTask(Task):
         n, o = self.spec.n_joints, self.options
         self.gravity_compensation = o.gravity_compensation
         limit = np.asarray(self.spec.torque_limit)
-        self._amplitude = 0.05 * limit if o.amplitude is None else _vector(o.amplitude, n, "amplitude")
+        self._amplitude = (
+            0.05 * limit if o.amplitude is None else _vector(o.amplitude, n, "amplitude")
+        )
         self._frequency = (
-            np.linspace(0.5, 1.5, n) if o.frequency is None else _vector(o.frequency, n, "frequency")
+            np.linspace(0.5, 1.5, n)
+            if o.frequency is None
+            else _vector(o.frequency, n, "frequency")
         )
         self._phase = _vector(o.phase, n, "phase")
         self._offset = _vector(o.offset, n, "offset")
