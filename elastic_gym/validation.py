@@ -17,7 +17,7 @@ from pydantic import (
     ValidationError,
     model_validator,
 )
-from pydantic_core import core_schema
+from pydantic_core import PydanticCustomError, core_schema
 from typing_extensions import Self
 
 T = TypeVar("T")
@@ -200,6 +200,46 @@ class Numbers:
         key = "exclusiveMinimum" if self.strict else "minimum"
         number = {"type": "number", **({} if self.minimum is None else {key: self.minimum})}
         return {"anyOf": [number, {"type": "array", "items": number, "minItems": 1}]}
+
+
+@dataclass(frozen=True)
+class Matrix:
+    """Annotation of a number, a list of numbers or a list of lists (a matrix) of finite
+    entries of magnitude <= ``bound``: validated to nested tuples of floats. Its shape is
+    the user's to check. Not a bool, not a string (a ``TypeError`` in option errors)."""
+
+    bound: float
+
+    def check(self, value: Any) -> Any:
+        value = plain(value)
+        leaves = _leaves(value)
+        if not (leaves and all(is_real(x) and abs(x) <= self.bound for x in leaves)):
+            kind = "value_error" if all(map(is_real, leaves)) else "matrix_type"
+            shown = f", got {value!r}" if isinstance(value, (list, tuple)) else ""  # else: added
+            raise PydanticCustomError(
+                kind,
+                "must be a number, a list of numbers or a matrix, finite and of magnitude "
+                f"<= {self.bound:g}{shown}",
+            )
+        return _floats(value)
+
+    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
+        return core_schema.no_info_plain_validator_function(self.check)
+
+    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> dict:
+        number = {"type": "number", "minimum": -self.bound, "maximum": self.bound}
+        row = {"type": "array", "items": number, "minItems": 1}
+        return {"anyOf": [number, row, {"type": "array", "items": row, "minItems": 1}]}
+
+
+def _leaves(value: Any) -> list:
+    if isinstance(value, (list, tuple)):
+        return [leaf for item in value for leaf in _leaves(item)]
+    return [value]
+
+
+def _floats(value: Any) -> Any:
+    return tuple(map(_floats, value)) if isinstance(value, (list, tuple)) else float(value)
 
 
 FiniteNumbers = Annotated[float | tuple[float, ...], Numbers()]
