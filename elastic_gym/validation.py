@@ -429,15 +429,15 @@ def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
         raise kind(format_validation_error(error, "options", model)) from None
 
 
-def option_value(name: str, value: Any, kind: Any) -> Any:
-    """One constructor option validated by the (annotated) type ``kind``: errors read
-    ``options.<name>: ...``, a ``TypeError`` for a value of the wrong type, a
-    ``ValueError`` otherwise (as :func:`validated_options`)."""
+def option_value(name: str, value: Any, kind: Any, prefix: str = "options.") -> Any:
+    """One constructor option (or function argument, ``prefix=""``) validated by the
+    (annotated) type ``kind``: errors read ``options.<name>: ...``, a ``TypeError`` for a
+    value of the wrong type, a ``ValueError`` otherwise (as :func:`validated_options`)."""
     try:
         return TypeAdapter(kind).validate_python(plain(value))
     except ValidationError as error:
         wrong_type = all(map(_wrong_type, error.errors()))
-        message = format_validation_error(error, f"options.{name}")
+        message = format_validation_error(error, f"{prefix}{name}")
         raise (TypeError if wrong_type else ValueError)(message) from None
 
 

@@ -21,7 +21,12 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationInfo, field_validator
 
-from elastic_gym.controllers.gain_design import bandwidth_pd_gains, most_stable_bandwidth, pd_gain
+from elastic_gym.controllers.gain_design import (
+    Block,
+    bandwidth_pd_gains,
+    most_stable_bandwidth,
+    pd_gain,
+)
 from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP
 from elastic_gym.controllers.state_feedback import (
     FeedforwardOptions,
@@ -64,7 +69,7 @@ class PDOptions(FeedforwardOptions):
 class _BlockPD(FeedforwardStateFeedback):
     """PD on one block of the state (``block``) with the eq. (13) feedforward."""
 
-    block = "motor"
+    block: Block = "motor"
     options_model = PDOptions
 
     def __init__(

@@ -14,10 +14,10 @@ experiment ("close to the robot natural frequency"). The same law runs on rigid 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Annotated, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
-from pydantic import Field, StrictBool, ValidationInfo, field_validator
+from pydantic import StrictBool, ValidationInfo, field_validator
 
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.gain_design import (
@@ -30,6 +30,7 @@ from elastic_gym.controllers.gain_design import (
 )
 from elastic_gym.controllers.invdyn import (
     DEFAULT_FD_STEP,
+    FdStep,
     InverseDynamics,
     info_time,
     reference_derivatives,
@@ -57,10 +58,6 @@ def _square(value, size: int, name: str) -> np.ndarray:
             f"options.weights.{name}: must be a {size}x{size} matrix or {size} numbers"
         )
     return arr
-
-
-FdStep = Annotated[float, Field(strict=True, gt=0.0, lt=0.1, allow_inf_nan=False)]
-"""The central-difference step (s) of tau_r'' inside INVDYN."""
 
 
 class LQRWeights(StrictModel):

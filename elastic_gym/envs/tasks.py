@@ -110,9 +110,6 @@ class Task:
         }
         return {name: np.atleast_2d(v) for name, v in values.items() if v is not None}
 
-    def _max_move(self, value: float | None) -> float:
-        return self.spec.max_move if value is None else value
-
     # helpers
     @property
     def low(self) -> np.ndarray:
@@ -164,7 +161,7 @@ class TrackingTask(Task):
                 )
             self._given = np.array(o.waypoints, dtype=float)
         self._start = None if o.start is None else _vector(o.start, n, "start")
-        self._max_move = self._max_move(o.max_move)
+        self._max_move = self.spec.max_move if o.max_move is None else o.max_move
         if self._given is not None:
             n_points = len(self._given) + (self._start is not None)
         else:
@@ -213,7 +210,7 @@ class RegulationTask(Task):
         n, o = self.spec.n_joints, self.options
         self._goal = None if o.goal is None else _vector(o.goal, n, "goal")
         self._start = None if o.start is None else _vector(o.start, n, "start")
-        self._max_move = self._max_move(o.max_move)
+        self._max_move = self.spec.max_move if o.max_move is None else o.max_move
         self.targets = np.zeros((self.n_arms, n))
 
     def reset_arm(self, arm: int, rng: np.random.Generator) -> np.ndarray:
