@@ -63,6 +63,7 @@ MAX_PULSES = 1000
 MAX_PHYSICS_DT = 1e-3 + 1e-15  # s
 MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
 EPISODE_TIME = 3.0  # s
+RenderMode = Literal["human", "rgb_array"]
 
 
 def _ideal_accelerometer(value: Any) -> Any:
@@ -110,6 +111,14 @@ class Range(StrictModel):
         return self
 
 
+class PositiveRange(Range):
+    low: PositiveFinite
+
+
+class NonNegativeRange(Range):
+    low: NonNegativeFinite
+
+
 class PayloadChange(StrictModel):
     time: PositiveFinite
     mass: Payload
@@ -124,19 +133,13 @@ class PayloadConfig(StrictModel):
 class RandomPulses(StrictModel):
     count: int = Field(ge=1, le=MAX_PULSES)
     window: tuple[NonNegativeFinite, NonNegativeFinite]
-    duration: Range
-    amplitude: Range
+    duration: PositiveRange  # s
+    amplitude: NonNegativeRange  # fractions of the torque limit
 
     @model_validator(mode="after")
     def _bounds(self) -> RandomPulses:
         if self.window[0] > self.window[1]:
             raise ValueError(f"window must be 0 <= start <= end (s), got {self.window}")
-        if self.duration.low <= 0.0:
-            raise ValueError(f"duration.low must be > 0 s, got {self.duration.low}")
-        if self.amplitude.low < 0.0:
-            raise ValueError(
-                f"amplitude (fractions of the torque limit) must be >= 0, got {self.amplitude.low}"
-            )
         return self
 
 
@@ -234,7 +237,7 @@ class EnvKwargs(EnvConfig):
     env kwargs with it."""
 
     robot: Annotated[Any, WithJsonSchema({"type": "string"})] = None
-    render_mode: Literal["human", "rgb_array"] | None = None
+    render_mode: RenderMode | None = None
 
 
 class MakeKwargs(EnvKwargs):
