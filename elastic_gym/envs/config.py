@@ -275,3 +275,35 @@ MakeKwargsMapping = Annotated[
     AfterValidator(lambda kwargs: checked_kwargs(kwargs, model=MakeKwargs)),
     KwargsSchema(MakeKwargs),
 ]
+
+
+# ------------------------------------------------------------------------ reset options
+MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
+Angles = tuple[Annotated[Finite, Field(ge=-MAX_ANGLE, le=MAX_ANGLE)], ...]
+
+
+class RigidInitialState(StrictModel):
+    """``initial_state`` of a rigid arm: link angles (rad) and velocities (rad/s), one per
+    joint (their count, ``max_velocity`` and the joint limits are checked by the batch)."""
+
+    q: Angles | None = None
+    dq: tuple[Finite, ...] | None = None
+
+
+class ElasticInitialState(RigidInitialState):
+    """``initial_state`` of an elastic arm: also the motor angles and velocities."""
+
+    theta: Angles | None = None
+    dtheta: tuple[Finite, ...] | None = None
+
+
+class RigidResetOptions(StrictModel):
+    """The ``options`` of a rigid arm's ``reset``."""
+
+    initial_state: RigidInitialState | None = None
+
+
+class ElasticResetOptions(StrictModel):
+    """The ``options`` of an elastic arm's ``reset``."""
+
+    initial_state: ElasticInitialState | None = None
