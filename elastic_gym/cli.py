@@ -184,9 +184,9 @@ def with_trained_policy(scenario, run_dir: str):
 
 
 def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
+    from elastic_gym.observers.registry import state_sources
     from elastic_gym.training.actions import KINDS
     from elastic_gym.training.config import ALGORITHMS, TrainConfig
-    from elastic_gym.training.policy_env import state_sources
 
     parser = subcommands.add_parser(
         "train",

@@ -508,7 +508,9 @@ class ArmBatch:
     def _initial_state_options(self, options: dict | None) -> dict[str, np.ndarray]:
         """The reset ``options`` validated (types and angle magnitudes by their model, the
         lengths, velocities and joint limits here): the given initial state by key."""
-        model = ElasticResetOptions if self.robot.elastic else RigidResetOptions
+        model: type[ElasticResetOptions | RigidResetOptions] = (
+            ElasticResetOptions if self.robot.elastic else RigidResetOptions
+        )
         given = validated(model, options, "options").initial_state
         n, values = self.n_joints, {}
         for key, value in ({} if given is None else given.model_dump(exclude_none=True)).items():

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
+import pydantic_core
 from pydantic import (
     AfterValidator,
     BeforeValidator,
@@ -266,7 +267,11 @@ class KwargsSchema:
     model: type[EnvKwargs] = EnvKwargs
 
     def __get_pydantic_json_schema__(self, core_schema: Any, handler: Any) -> dict:
-        return handler(self.model.__pydantic_core_schema__)
+        schema = self.model.__pydantic_core_schema__
+        if schema["type"] == "model":  # a definition of its own (``$ref``), as a field's model
+            reference = pydantic_core.core_schema.definition_reference_schema(schema["ref"])
+            schema = pydantic_core.core_schema.definitions_schema(reference, [schema])
+        return handler(schema)
 
 
 # the kwargs of gym.make for a package env as a plain mapping (as given), validated
