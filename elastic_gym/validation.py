@@ -208,18 +208,19 @@ class Matrix:
     entries of magnitude <= ``bound``: validated to nested tuples of floats. Its shape is
     the user's to check. Not a bool, not a string (a ``TypeError`` in option errors)."""
 
-    bound: float
+    bound: float = float("inf")
 
     def check(self, value: Any) -> Any:
         value = plain(value)
         leaves = _leaves(value)
-        if not (leaves and all(is_real(x) and abs(x) <= self.bound for x in leaves)):
+        if not (
+            leaves and all(is_real(x) and np.isfinite(x) and abs(x) <= self.bound for x in leaves)
+        ):
             kind = "value_error" if all(map(is_real, leaves)) else "matrix_type"
             shown = f", got {value!r}" if isinstance(value, (list, tuple)) else ""  # else: added
+            bound = f" and of magnitude <= {self.bound:g}" if np.isfinite(self.bound) else ""
             raise PydanticCustomError(
-                kind,
-                "must be a number, a list of numbers or a matrix, finite and of magnitude "
-                f"<= {self.bound:g}{shown}",
+                kind, f"must be a number, a list of numbers or a matrix, finite{bound}{shown}"
             )
         return _floats(value)
 
