@@ -52,7 +52,7 @@ from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.envs.tasks import make_task
 from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
-from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
+from elastic_gym.robots.spec import AccelerometerMount, RobotSpec, substeps
 from elastic_gym.robots.urdf_tools import joint_limits
 from elastic_gym.validation import checked_count, per_joint_values, validated
 
@@ -359,12 +359,7 @@ class ArmBatch:
         """(physics step, control period, physics steps per control period)."""
         physics = self.robot.physics_dt if config.physics_dt is None else config.physics_dt
         control = self.robot.control_dt if config.control_dt is None else config.control_dt
-        ratio = control / physics
-        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
-            raise ValueError(
-                f"control_dt ({control}) must be an integer multiple of physics_dt ({physics})"
-            )
-        return float(physics), float(control), round(ratio)
+        return float(physics), float(control), substeps(control, physics)
 
     def _check_stability(self, plant: RobotModel) -> None:
         if not self.robot.elastic:
