@@ -864,7 +864,7 @@ def test_a_refused_reset_changes_no_random_stream():
     env = gym.make(TWO_LINK)
     env.reset(seed=3)
     before = streams(env)
-    with pytest.raises(ValueError, match="options.bogus: unexpected field"):
+    with pytest.raises(ValueError, match=r"options\.bogus: unexpected field"):
         env.reset(seed=4, options={"bogus": 1})
     assert streams(env) == before and env.unwrapped.np_random is env.unwrapped.batch.rngs[0]
 
