@@ -184,9 +184,9 @@ def with_trained_policy(scenario, run_dir: str):
 
 
 def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
+    from elastic_gym.observers.registry import state_sources
     from elastic_gym.training.actions import KINDS
     from elastic_gym.training.config import ALGORITHMS, TrainConfig
-    from elastic_gym.training.policy_env import state_sources
 
     parser = subcommands.add_parser(
         "train",
@@ -530,8 +530,9 @@ def add_schema_parser(subcommands: argparse._SubParsersAction) -> None:
         "compare --config), 'train' (hyper-parameter files). YAML editors complete and "
         "check a file whose first line is '# yaml-language-server: $schema=<schema.json>'.",
     )
-    parser.add_argument("name", nargs="?", choices=sorted(schema_models()))
-    parser.add_argument(
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument("name", nargs="?", choices=sorted(schema_models()))
+    which.add_argument(
         "--write",
         action="store_true",
         help=f"regenerate the shipped schema files in {SCHEMA_DIR} instead",
@@ -544,8 +545,6 @@ def run_schema(args: argparse.Namespace) -> int:
 
     if args.write:
         print("\n".join(str(path) for path in write_schemas()))
-    elif args.name is None:
-        raise ValueError("give a schema name, or --write")
     else:
         sys.stdout.write(schema_text(args.name))
     return 0

@@ -17,7 +17,7 @@ from pydantic import (
     ValidationError,
     model_validator,
 )
-from pydantic_core import core_schema
+from pydantic_core import PydanticCustomError, core_schema
 from typing_extensions import Self
 
 T = TypeVar("T")
@@ -56,6 +56,30 @@ def distinct(values: Sequence[Any], what: str, why: str = "", where: str = "") -
     if repeated:
         raise ValueError(f"{where}{': ' if where else ''}duplicate {what} {repeated}{why}")
     return values
+
+
+def _given(options: Mapping[str, Any]) -> list[str]:
+    return [name for name, value in options.items() if value is not None]
+
+
+def at_most_one(options: Mapping[str, Any], required: bool = False, loc: Sequence = ()) -> None:
+    """Refuse more than one of ``options`` (name -> value, ``None``: not given), and none
+    when ``required``: ``FieldError`` (a ``ValueError``; ``loc`` continues a validator's
+    path) reading ``give one of a or b, not a and b``."""
+    given = _given(options)
+    if len(given) > 1 or (required and not given):
+        choice = f"give {'one' if required else 'at most one'} of {' or '.join(options)}"
+        raise FieldError(loc, choice + (f", not {' and '.join(given)}" if given else ""))
+
+
+def all_or_none(options: Mapping[str, Any], loc: Sequence = ()) -> None:
+    """Refuse some but not all of ``options`` (name -> value, ``None``: not given):
+    ``FieldError`` reading ``give kp and kd together (or none): kd missing``."""
+    given = _given(options)
+    if 0 < len(given) < len(options):
+        missing = [name for name in options if name not in given]
+        together = f"give {' and '.join(options)} together (or none)"
+        raise FieldError(loc, f"{together}: {' and '.join(missing)} missing")
 
 
 def shaped(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -176,6 +200,47 @@ class Numbers:
         key = "exclusiveMinimum" if self.strict else "minimum"
         number = {"type": "number", **({} if self.minimum is None else {key: self.minimum})}
         return {"anyOf": [number, {"type": "array", "items": number, "minItems": 1}]}
+
+
+@dataclass(frozen=True)
+class Matrix:
+    """Annotation of a number, a list of numbers or a list of lists (a matrix) of finite
+    entries of magnitude <= ``bound``: validated to nested tuples of floats. Its shape is
+    the user's to check. Not a bool, not a string (a ``TypeError`` in option errors)."""
+
+    bound: float = float("inf")
+
+    def check(self, value: Any) -> Any:
+        value = plain(value)
+        leaves = _leaves(value)
+        if not (
+            leaves and all(is_real(x) and np.isfinite(x) and abs(x) <= self.bound for x in leaves)
+        ):
+            kind = "value_error" if all(map(is_real, leaves)) else "matrix_type"
+            shown = f", got {value!r}" if isinstance(value, (list, tuple)) else ""  # else: added
+            bound = f" and of magnitude <= {self.bound:g}" if np.isfinite(self.bound) else ""
+            raise PydanticCustomError(
+                kind, f"must be a number, a list of numbers or a matrix, finite{bound}{shown}"
+            )
+        return _floats(value)
+
+    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
+        return core_schema.no_info_plain_validator_function(self.check)
+
+    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> dict:
+        number = {"type": "number", "minimum": -self.bound, "maximum": self.bound}
+        row = {"type": "array", "items": number, "minItems": 1}
+        return {"anyOf": [number, row, {"type": "array", "items": row, "minItems": 1}]}
+
+
+def _leaves(value: Any) -> list:
+    if isinstance(value, (list, tuple)):
+        return [leaf for item in value for leaf in _leaves(item)]
+    return [value]
+
+
+def _floats(value: Any) -> Any:
+    return tuple(map(_floats, value)) if isinstance(value, (list, tuple)) else float(value)
 
 
 FiniteNumbers = Annotated[float | tuple[float, ...], Numbers()]
@@ -347,6 +412,10 @@ def validated(model: type[M], data: Any, prefix: str = "") -> M:
 
 
 # ---------------------------------------------------------------- observer / controller options
+def _wrong_type(item: Any) -> bool:
+    return item["type"].endswith("_type") or item["type"] == "is_instance_of"
+
+
 def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
     """The options of a constructor validated by their model: ``arguments`` is the
     constructor's ``locals()`` (only the model's fields are read); errors read
@@ -356,20 +425,20 @@ def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
     try:
         return model.model_validate(plain(given))
     except ValidationError as error:
-        wrong_type = all(item["type"].endswith("_type") for item in error.errors())
+        wrong_type = all(map(_wrong_type, error.errors()))
         kind = TypeError if wrong_type else ValueError
         raise kind(format_validation_error(error, "options", model)) from None
 
 
-def option_value(name: str, value: Any, kind: Any) -> Any:
-    """One constructor option validated by the (annotated) type ``kind``: errors read
-    ``options.<name>: ...``, a ``TypeError`` for a value of the wrong type, a
-    ``ValueError`` otherwise (as :func:`validated_options`)."""
+def option_value(name: str, value: Any, kind: Any, prefix: str = "options.") -> Any:
+    """One constructor option (or function argument, ``prefix=""``) validated by the
+    (annotated) type ``kind``: errors read ``options.<name>: ...``, a ``TypeError`` for a
+    value of the wrong type, a ``ValueError`` otherwise (as :func:`validated_options`)."""
     try:
         return TypeAdapter(kind).validate_python(plain(value))
     except ValidationError as error:
-        wrong_type = all(item["type"].endswith("_type") for item in error.errors())
-        message = format_validation_error(error, f"options.{name}")
+        wrong_type = all(map(_wrong_type, error.errors()))
+        message = format_validation_error(error, f"{prefix}{name}")
         raise (TypeError if wrong_type else ValueError)(message) from None
 
 

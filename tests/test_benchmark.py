@@ -223,7 +223,10 @@ def test_entries_record_what_they_read_and_oracles_are_marked():
     for fields, message in [
         ({"controller": "nope"}, "controller: unknown controller 'nope'"),
         ({"controller": "motor-pd", "source": "nope"}, "source: unknown state source 'nope'"),
-        ({"controller": "motor-pd", "run": "x"}, "either a controller"),
+        (
+            {"controller": "motor-pd", "run": "x"},
+            "give one of controller or run, not controller and run",
+        ),
         ({"controller": "motor-pd", "sorce": "x"}, "entry.sorce: unexpected field"),
         ({"run": "/nonexistent"}, "run: /nonexistent is not a training run folder"),
     ]:

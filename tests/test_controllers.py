@@ -429,3 +429,20 @@ def test_bad_calls_and_robot_kinds():
     bad_policy = PolicyController(elastic, 1e-3, lambda o: np.array([np.nan, 0.0]))
     with pytest.raises(ValueError, match="finite"):
         bad_policy(obs, info)
+
+
+@pytest.mark.parametrize(
+    ("options", "error", "message"),
+    [
+        ({"policy": "x.zip"}, ValueError, r"options: give policy \(a path\) and algorithm"),
+        ({"algorithm": "PPO"}, ValueError, "algorithm together .*: policy \\(a path\\) missing"),
+        ({"preprocess": 3}, TypeError, "options.preprocess: Input should be callable"),
+        ({"residual": 5}, TypeError, "options.residual: "),
+        ({"residual_options": {"omega": 3.0}}, ValueError, "options.residual_options: apply"),
+        ({"residual_scale": 0.0}, ValueError, "options.residual_scale"),
+    ],
+)
+def test_bad_policy_controller_options_are_named(options, error, message):
+    options = {"policy": lambda obs: np.zeros(2), **options}
+    with pytest.raises(error, match=message):
+        PolicyController(model_of("two_link_elastic"), 1e-3, **options)

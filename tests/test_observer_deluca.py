@@ -334,7 +334,10 @@ def test_bad_options_and_inputs_raise_clear_errors():
         ({"poles": [-1.0, -2.0, 3.0, -4.0]}, "negative real parts"),
         ({"poles": "fast"}, "poles must be numbers"),
         ({"poles": [-1 + 1j, -1 + 1j, -2.0, -3.0]}, "conjugate"),
-        ({"poles": [-1.0] * 4, "bandwidth": 100.0}, "either poles or bandwidth"),
+        (
+            {"poles": [-1.0] * 4, "bandwidth": 100.0},
+            "one of poles or bandwidth, not poles and bandwidth",
+        ),
         ({"bandwidth": -5.0}, "bandwidth"),
         ({"dls_threshold": 0.0}, "dls_threshold"),
         ({"dls_damping": float("nan")}, "dls_damping"),

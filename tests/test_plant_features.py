@@ -174,7 +174,7 @@ def test_rigid_arm_pulse_and_payload():
         ({"payload": {"mass": 1.0, "where": 2}}, r"payload\.where: unexpected field"),
         ({"payload": {"mass": 1.0, "change": {"time": 0.0, "mass": 1}}}, r"payload\.change\.time"),
         ({"payload": {"mass": 1.0, "position": [0, 0]}}, r"payload\.position"),
-        ({"torque_pulses": {"times": [0.1]}}, "give times, durations and amplitudes"),
+        ({"torque_pulses": {"times": [0.1]}}, "give times and durations and amplitudes together"),
         (
             {"torque_pulses": {"times": [0.1], "durations": [0.1, 0.2], "amplitudes": [1.0]}},
             "one entry per pulse",

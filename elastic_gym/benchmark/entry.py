@@ -23,7 +23,7 @@ from pydantic import Field, model_validator
 
 from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry, resolve_class
 from elastic_gym.observers.registry import OBSERVERS, source_class, state_sources
-from elastic_gym.validation import StrictModel
+from elastic_gym.validation import StrictModel, at_most_one
 
 TRUE_STATE = "true"
 TRAINED_POLICY = "trained-policy"
@@ -47,8 +47,7 @@ class Entry(StrictModel):
 
     @model_validator(mode="after")
     def _one_kind(self) -> Entry:
-        if (self.controller is None) == (self.run is None):
-            raise ValueError("give either a controller (with a source) or a run folder")
+        at_most_one({"controller": self.controller, "run": self.run}, required=True)
         if self.run is not None and (self.options or self.source_options):
             raise ValueError("a run folder takes no options: its run_config.yaml has them")
         for name in ("controller", "source"):

@@ -16,6 +16,8 @@ integral of the link error), :func:`lqr_gain`, :func:`pole_placement_gain` and
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 import pinocchio as pin
 import scipy.linalg as sla
@@ -23,7 +25,10 @@ from scipy.optimize import brentq
 from scipy.signal import place_poles
 
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import is_real
+from elastic_gym.validation import PositiveFinite, option_value
+
+Block = Literal["motor", "link"]
+"""The state block of a decentralized PD (:func:`pd_gain`)."""
 
 BANDWIDTH_SEARCH = (0.1, 20.0)  # bracket of w / omega for the bisection
 
@@ -87,15 +92,15 @@ def _bandwidth_weights(model: RobotModel, J: np.ndarray, w: float) -> np.ndarray
     return Q
 
 
-def _check_omega(omega: float, key: str = "omega") -> None:
-    if not (is_real(omega) and np.isfinite(omega) and omega > 0):
-        raise ValueError(f"{key} must be a positive number (rad/s), got {omega!r}")
+def _positive(value: float, name: str = "omega") -> float:
+    """A design argument that must be a finite number > 0 (``ValueError`` naming it)."""
+    return option_value(name, value, PositiveFinite, prefix="")
 
 
 def bandwidth_weight(model: RobotModel, q0: np.ndarray, omega: float) -> float:
     """The w of the LQR bandwidth design whose slowest closed-loop pole has magnitude
     ``omega`` (see module doc)."""
-    _check_omega(omega)
+    _positive(omega)
     A, Bu = linearize(model, q0)
     J = rigid_inertia(model, q0)
     R = np.eye(model.n)
@@ -150,8 +155,7 @@ def lqr_integral_gain(
     0.33 w and leaves the other two within 4 % of the design without integral
     (0.84 +- 0.50j vs 0.87 +- 0.50j).
     """
-    if not (is_real(integral_weight) and np.isfinite(integral_weight) and integral_weight > 0):
-        raise ValueError(f"integral_weight must be a positive number, got {integral_weight!r}")
+    _positive(integral_weight, "integral_weight")
     w = bandwidth_weight(model, q0, omega)
     J = rigid_inertia(model, q0)
     n = model.n
@@ -173,12 +177,11 @@ def pole_placement_gain(A: np.ndarray, Bu: np.ndarray, poles) -> np.ndarray:
     return place_poles(A, Bu, poles).gain_matrix
 
 
-def pd_gain(model: RobotModel, kp: np.ndarray, kd: np.ndarray, block: str) -> np.ndarray:
+def pd_gain(model: RobotModel, kp: np.ndarray, kd: np.ndarray, block: Block) -> np.ndarray:
     """Decentralized PD as an N x dim(x) gain acting on the ``"motor"`` or ``"link"`` block."""
     n = model.n
     blocks = 4 if model.elastic else 2
-    if block not in ("motor", "link"):
-        raise ValueError(f"block must be 'motor' or 'link', got {block!r}")
+    option_value("block", block, Block, prefix="")
     if block == "motor" and not model.elastic:
         raise ValueError("a motor-side PD needs an elastic arm")
     position = 0 if block == "motor" or not model.elastic else 1
@@ -197,14 +200,14 @@ def bandwidth_pd_gains(
     This is the gain of each joint moving rigidly with bandwidth w; the actual poles of
     the elastic closed loop differ (see :func:`closed_loop_poles`).
     """
-    _check_omega(omega)
-    _check_omega(damping_ratio, "damping_ratio")
+    _positive(omega)
+    _positive(damping_ratio, "damping_ratio")
     J = np.diag(rigid_inertia(model, q0))
     return J * omega**2, 2.0 * damping_ratio * J * omega
 
 
 def most_stable_bandwidth(
-    model: RobotModel, q0: np.ndarray, omega: float, damping_ratio: float, block: str
+    model: RobotModel, q0: np.ndarray, omega: float, damping_ratio: float, block: Block
 ) -> float:
     """The PD bandwidth w <= omega (log grid down to omega / 30) with the largest stability
     margin -max Re(pole) of the nominal linearized closed loop.
@@ -213,7 +216,7 @@ def most_stable_bandwidth(
     through a visco-elastic joint is destabilizing above kd ~ (B + J)^2 D / (B J) (Routh
     criterion of the single joint), so the rigid-arm rule w = omega is unstable there.
     """
-    _check_omega(omega)
+    _positive(omega)
     A, Bu = linearize(model, q0)
     candidates = omega * np.geomspace(1.0, 1.0 / 30.0, 61)
 

@@ -17,17 +17,21 @@ the computed torque. Every class runs N arms at once (the single arm: N = 1).
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Annotated
 
 import numpy as np
 from numba import njit
+from pydantic import Field
 from scipy.special import factorial
 
 from elastic_gym import arms
 from elastic_gym.arms import REFERENCE_KEYS
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import is_real, shaped
+from elastic_gym.validation import option_value, shaped
 
 DEFAULT_FD_STEP = 1e-4
+FdStep = Annotated[float, Field(strict=True, gt=0.0, lt=0.1, allow_inf_nan=False)]
+"""The central-difference step (s) of tau_r'' inside INVDYN."""
 TIME_TOLERANCE = 1e-9  # s; calls closer in time than this count as the same instant
 
 
@@ -98,10 +102,8 @@ class RigidTorque:
     """
 
     def __init__(self, model: RobotModel, fd_step: float = DEFAULT_FD_STEP) -> None:
-        if not (is_real(fd_step) and 0.0 < fd_step < 0.1):
-            raise ValueError(f"fd_step must be a number in (0, 0.1) s, got {fd_step!r}")
         self.model = model
-        self.fd_step = float(fd_step)
+        self.fd_step = option_value("fd_step", fd_step, FdStep, prefix="")
         self._ahead = taylor_matrix(self.fd_step)
         self._behind = taylor_matrix(-self.fd_step)
 

@@ -21,7 +21,12 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationInfo, field_validator
 
-from elastic_gym.controllers.gain_design import bandwidth_pd_gains, most_stable_bandwidth, pd_gain
+from elastic_gym.controllers.gain_design import (
+    Block,
+    bandwidth_pd_gains,
+    most_stable_bandwidth,
+    pd_gain,
+)
 from elastic_gym.controllers.invdyn import DEFAULT_FD_STEP
 from elastic_gym.controllers.state_feedback import (
     FeedforwardOptions,
@@ -33,6 +38,7 @@ from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
     NonNegativeFinite,
     PositiveFinite,
+    all_or_none,
     option_checks,
     per_joint_values,
     validated_options,
@@ -56,15 +62,14 @@ class PDOptions(FeedforwardOptions):
     @field_validator("kd")
     @classmethod
     def _both_gains(cls, kd: Any, info: ValidationInfo) -> Any:
-        if (info.data.get("kp") is None) != (kd is None):
-            raise ValueError("give both kp and kd, or neither (bandwidth design)")
+        all_or_none({"kp": info.data.get("kp"), "kd": kd})  # neither: the bandwidth design
         return kd
 
 
 class _BlockPD(FeedforwardStateFeedback):
     """PD on one block of the state (``block``) with the eq. (13) feedforward."""
 
-    block = "motor"
+    block: Block = "motor"
     options_model = PDOptions
 
     def __init__(

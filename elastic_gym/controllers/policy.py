@@ -20,7 +20,7 @@ from collections.abc import Callable, Mapping
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import Field, StrictBool
+from pydantic import Field, StrictBool, model_validator
 
 from elastic_gym.arms import arm_view, as_batch
 from elastic_gym.controllers.base import Controller
@@ -32,7 +32,13 @@ from elastic_gym.controllers.vector import (
     twin_of,
 )
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import StrictModel, per_joint_values, validated_options
+from elastic_gym.validation import (
+    FieldError,
+    StrictModel,
+    all_or_none,
+    per_joint_values,
+    validated_options,
+)
 
 RESIDUAL_DEADZONE = 0.2  # default |a| below which a residual adds exactly nothing
 
@@ -84,15 +90,29 @@ def load_normalization(normalization):
 
 
 class PolicyOptions(StrictModel):
-    """The plain-data options of :class:`PolicyController` (the policy, its normalization,
-    preprocessing and residual controller are objects, checked by the controller)."""
+    """The options of :class:`PolicyController` (the policy and its normalization are
+    checked by the controller as they are loaded)."""
 
+    policy: Any
+    algorithm: str | type | None = None
+    preprocess: Callable | None = None
     scale_actions: StrictBool = True
+    residual: Controller | str | None = None
     residual_options: dict[str, Any] | None = None
     residual_scale: Annotated[float, Field(strict=True, gt=0.0, le=1.0)] = 0.1
     residual_deadzone: Annotated[float, Field(strict=True, ge=0.0, lt=1.0)] = RESIDUAL_DEADZONE
     deterministic: StrictBool = True
     decimation: Annotated[int, Field(strict=True, ge=1)] = 1
+
+    @model_validator(mode="after")
+    def _paired(self) -> PolicyOptions:
+        path = self.policy if isinstance(self.policy, (str, os.PathLike)) else None
+        all_or_none({"policy (a path)": path, "algorithm": self.algorithm})
+        if self.residual_options and not isinstance(self.residual, str):
+            raise FieldError(
+                ("residual_options",), "apply only when residual is a controller's registry name"
+            )
+        return self
 
 
 class PolicyController(Controller):
@@ -137,19 +157,13 @@ class PolicyController(Controller):
         super().__init__(model, dt)
         validated_options(PolicyOptions, locals())
         self.decimation = decimation
-        if isinstance(policy, (str, os.PathLike)):
-            if algorithm is None:
-                raise ValueError("a policy path needs 'algorithm' (e.g. 'PPO' or 'SAC')")
+        if algorithm is not None:  # with a policy path (PolicyOptions)
             policy = load_sb3_model(policy, algorithm)
-        elif algorithm is not None:
-            raise ValueError("'algorithm' applies only when policy is a path")
         self._predict = callable(getattr(policy, "predict", None))
         if not (self._predict or callable(policy)):
             raise TypeError(
                 f"policy must be callable or have predict(), got {type(policy).__name__}"
             )
-        if preprocess is not None and not callable(preprocess):
-            raise TypeError("preprocess must be callable f(obs, info)")
         self.policy = policy
         self.normalization = load_normalization(normalization)
         self.preprocess = preprocess
@@ -167,17 +181,9 @@ class PolicyController(Controller):
         return per_joint_values(torque_limit, self.n, "torque_limit", 0.0, strict=True)
 
     def _base_controller(self, residual, options) -> Controller | None:
-        if residual is None:
-            if options:
-                raise ValueError("residual_options need a residual controller")
-            return None
         if isinstance(residual, str):
             return make_controller(residual, self.model, self.dt, **dict(options or {}))
-        if not isinstance(residual, Controller):
-            raise TypeError(f"residual must be a Controller or a registry name, got {residual!r}")
-        if options:
-            raise ValueError("residual_options apply only when residual is a registry name")
-        return residual
+        return residual  # a Controller or None (PolicyOptions)
 
     def reset(self, obs: Mapping, info: Mapping) -> None:
         self._law.reset_arms(as_batch(obs), as_batch(info), ARM0)

@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from typing import Annotated, Any, ClassVar
 
 import numpy as np
-from pydantic import Field, StrictBool, ValidationInfo, field_validator
+from pydantic import StrictBool, ValidationInfo, field_validator
 
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.gain_design import (
@@ -30,6 +30,7 @@ from elastic_gym.controllers.gain_design import (
 )
 from elastic_gym.controllers.invdyn import (
     DEFAULT_FD_STEP,
+    FdStep,
     InverseDynamics,
     info_time,
     reference_derivatives,
@@ -39,9 +40,12 @@ from elastic_gym.controllers.vector import OneArmLaw, StateLaw, arm_rows, twin_o
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
     Finite,
+    Matrix,
     PositiveFinite,
     StrictModel,
+    at_most_one,
     option_checks,
+    shaped,
     validated_options,
 )
 
@@ -58,15 +62,11 @@ def _square(value, size: int, name: str) -> np.ndarray:
     return arr
 
 
-FdStep = Annotated[float, Field(strict=True, gt=0.0, lt=0.1, allow_inf_nan=False)]
-"""The central-difference step (s) of tau_r'' inside INVDYN."""
-
-
 class LQRWeights(StrictModel):
     """LQR weights: matrices, diagonals or scalars (checked against the state size)."""
 
-    Q: Any
-    R: Any
+    Q: Annotated[Any, Matrix()]
+    R: Annotated[Any, Matrix()]
 
 
 class FeedforwardOptions(StrictModel):
@@ -81,7 +81,7 @@ class StateFeedbackOptions(FeedforwardOptions):
     """The options of :class:`FeedforwardStateFeedback` (gain shapes checked by its design)."""
 
     omega: PositiveFinite = 30.0
-    gain: Any = None
+    gain: Annotated[Any, Matrix()] | None = None
     weights: LQRWeights | None = None
     poles: Any = None
     feedback: StrictBool = True
@@ -89,10 +89,9 @@ class StateFeedbackOptions(FeedforwardOptions):
     @field_validator("poles")
     @classmethod
     def _one_design(cls, poles: Any, info: ValidationInfo) -> Any:
-        given = [k for k in ("gain", "weights") if info.data.get(k) is not None]
-        given += ["poles"] if poles is not None else []
-        if len(given) > 1:
-            raise ValueError(f"give at most one of gain, weights, poles; got {given}")
+        at_most_one(
+            {"gain": info.data.get("gain"), "weights": info.data.get("weights"), "poles": poles}
+        )
         return poles
 
     @field_validator("feedback")
@@ -166,19 +165,11 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
     def _configuration(self, q0) -> np.ndarray:
         if q0 is None:
             return nominal_configuration(self.model)
-        arr = np.asarray(q0, dtype=float)
-        if arr.shape != (self.n,):
-            raise ValueError(f"options.design_configuration: must be {self.n} numbers, got {q0!r}")
-        return arr
+        return shaped(q0, (self.n,), "options.design_configuration")
 
     def _design(self, A, Bu, q0, omega, gain, weights, poles) -> tuple[np.ndarray, str]:
         if gain is not None:
-            K = np.asarray(gain, dtype=float)
-            if K.shape != (self.n, self.dim) or not np.all(np.isfinite(K)):
-                raise ValueError(
-                    f"options.gain: must be a finite {self.n}x{self.dim} matrix, got {K.shape}"
-                )
-            return K.copy(), "explicit gain"
+            return shaped(gain, (self.n, self.dim), "options.gain"), "explicit gain"
         if weights is not None:
             Q = _square(weights.Q, self.dim, "Q")
             R = _square(weights.R, self.n, "R")

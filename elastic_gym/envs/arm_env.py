@@ -15,7 +15,9 @@ import gymnasium as gym
 import numpy as np
 
 from elastic_gym.envs.batch import ArmBatch, with_batch_options
+from elastic_gym.envs.config import RenderMode
 from elastic_gym.robots.spec import RobotSpec
+from elastic_gym.validation import option_value
 
 ARM = np.array([0])
 
@@ -40,6 +42,17 @@ def validated_actions(action, n_arms: int, n_joints: int) -> np.ndarray:
 
 def _from_batch(name: str, doc: str) -> property:
     return property(lambda self: getattr(self.batch, name), doc=doc)
+
+
+def check_kind(batch: ArmBatch, kind: str | None, suffix: str = "Env") -> None:
+    """Refuse (closing ``batch``) a robot whose joints are not of an env class's ``kind``
+    (``"elastic"``, ``"rigid"``; ``None``: any), naming the class to use instead
+    (``RigidArm<suffix>``)."""
+    spec = batch.robot
+    if kind is not None and spec.kind != kind:
+        batch.close()
+        other = "ElasticArm" if spec.elastic else "RigidArm"
+        raise ValueError(f"robot {spec.name!r} has {spec.kind} joints; use {other}{suffix}")
 
 
 class ArmEnv(gym.Env):
@@ -68,14 +81,11 @@ class ArmEnv(gym.Env):
 
     @with_batch_options
     def __init__(self, robot: str | RobotSpec, render_mode: str | None = None, **kwargs) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode {render_mode!r} not supported; valid: {self.metadata['render_modes']}"
-            )
+        option_value("render_mode", render_mode, RenderMode | None, prefix="")
         self._init_kwargs = {"robot": robot, "render_mode": render_mode, **kwargs}
         self.render_mode = render_mode
         self.batch = ArmBatch(robot, 1, gui=render_mode == "human", **kwargs)
-        self._check_kind(self.batch.robot)
+        check_kind(self.batch, self.kind)
         self._set_spaces()
 
     robot = _from_batch("robot", "The RobotSpec.")
@@ -105,13 +115,6 @@ class ArmEnv(gym.Env):
         }
         self.action_space = batch.single_action_space
         self.observation_space = batch.single_observation_space
-
-    def _check_kind(self, spec: RobotSpec) -> None:
-        kind = spec.kind
-        if self.kind is not None and kind != self.kind:
-            other = "RigidArmEnv" if spec.elastic else "ElasticArmEnv"
-            self.batch.close()
-            raise ValueError(f"robot {spec.name!r} has {kind} joints; use {other}")
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | None = None, options: dict | None = None):

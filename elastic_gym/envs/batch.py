@@ -29,7 +29,14 @@ from numba import njit
 
 from elastic_gym.arms import REFERENCE_KEYS
 from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, arm_kwargs
-from elastic_gym.envs.config import EPISODE_TIME, PER_ARM_KEYS, EnvConfig, Range
+from elastic_gym.envs.config import (
+    EPISODE_TIME,
+    PER_ARM_KEYS,
+    ElasticResetOptions,
+    EnvConfig,
+    Range,
+    RigidResetOptions,
+)
 from elastic_gym.envs.memory import check_batch_memory
 from elastic_gym.envs.plant import PlantArray
 from elastic_gym.envs.plant_state import PlantState
@@ -45,13 +52,11 @@ from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.envs.tasks import make_task
 from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
-from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
+from elastic_gym.robots.spec import AccelerometerMount, RobotSpec, substeps
 from elastic_gym.robots.urdf_tools import joint_limits
 from elastic_gym.validation import checked_count, per_joint_values, validated
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
-MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
-STATE_KEYS = ("q", "dq", "theta", "dtheta")
 
 
 REASONS = np.array(
@@ -354,12 +359,7 @@ class ArmBatch:
         """(physics step, control period, physics steps per control period)."""
         physics = self.robot.physics_dt if config.physics_dt is None else config.physics_dt
         control = self.robot.control_dt if config.control_dt is None else config.control_dt
-        ratio = control / physics
-        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
-            raise ValueError(
-                f"control_dt ({control}) must be an integer multiple of physics_dt ({physics})"
-            )
-        return float(physics), float(control), round(ratio)
+        return float(physics), float(control), substeps(control, physics)
 
     def _check_stability(self, plant: RobotModel) -> None:
         if not self.robot.elastic:
@@ -433,11 +433,7 @@ class ArmBatch:
         """
         self._check_open()
         arms = np.asarray(arms, dtype=np.int64)
-        options = dict(options or {})
-        unknown = set(options) - {"initial_state"}
-        if unknown:
-            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: ['initial_state']")
-        given = self._initial_state_options(options.get("initial_state"))
+        given = self._initial_state_options(options)
         q0 = self.task.reset(arms, self.rngs)
         self.plant_state.reset(arms)
         q, dq, theta, dtheta = self._initial_state(q0, given, arms)
@@ -504,33 +500,27 @@ class ArmBatch:
         self.running &= ~(terminated | truncated)
         return reward, terminated, truncated
 
-    def _initial_state_options(self, given: dict | None) -> dict[str, np.ndarray]:
-        n = self.n_joints
-        allowed = STATE_KEYS if self.robot.elastic else STATE_KEYS[:2]
-        if given is None:
-            return {}
-        if not isinstance(given, dict):
-            raise ValueError(f"initial_state must be a mapping with keys {list(allowed)}")
-        unknown = set(given) - set(allowed)
-        if unknown:
-            raise ValueError(
-                f"unknown initial_state key(s) {sorted(unknown)}; valid: {sorted(allowed)}"
-            )
-        values = {}
-        for key, value in given.items():
-            bound = self.max_velocity if key.startswith("d") else MAX_ANGLE
-            try:
-                arr = np.asarray(value, dtype=float)
-            except (TypeError, ValueError):
-                arr = np.full(n + 1, np.nan)
-            if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(np.abs(arr) > bound):
+    def _initial_state_options(self, options: dict | None) -> dict[str, np.ndarray]:
+        """The reset ``options`` validated (types and angle magnitudes by their model, the
+        lengths, velocities and joint limits here): the given initial state by key."""
+        model: type[ElasticResetOptions | RigidResetOptions] = (
+            ElasticResetOptions if self.robot.elastic else RigidResetOptions
+        )
+        given = validated(model, options, "options").initial_state
+        n, values = self.n_joints, {}
+        for key, value in ({} if given is None else given.model_dump(exclude_none=True)).items():
+            arr = np.array(value, dtype=float)
+            if arr.shape != (n,) or (
+                key.startswith("d") and np.any(np.abs(arr) > self.max_velocity)
+            ):
                 raise ValueError(
-                    f"initial_state[{key!r}] must be {n} finite numbers with "
-                    f"magnitude <= {bound:g}, got {value!r}"
+                    f"options.initial_state.{key}: must be {n} numbers"
+                    + (f" of magnitude <= {self.max_velocity:g}" if key.startswith("d") else "")
+                    + f", got {value!r}"
                 )
             if key == "q" and (np.any(arr < self.joint_lower) or np.any(arr > self.joint_upper)):
                 raise ValueError(
-                    f"initial_state['q'] = {arr} is outside the joint limits "
+                    f"options.initial_state.q: {arr} is outside the joint limits "
                     f"[{self.joint_lower}, {self.joint_upper}]"
                 )
             values[key] = arr

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
+import pydantic_core
 from pydantic import (
     AfterValidator,
     BeforeValidator,
@@ -41,6 +42,8 @@ from elastic_gym.validation import (
     PositiveFinite,
     PositiveNumbers,
     StrictModel,
+    all_or_none,
+    at_most_one,
     format_validation_error,
     plain,
 )
@@ -61,6 +64,7 @@ MAX_PULSES = 1000
 MAX_PHYSICS_DT = 1e-3 + 1e-15  # s
 MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
 EPISODE_TIME = 3.0  # s
+RenderMode = Literal["human", "rgb_array"]
 
 
 def _ideal_accelerometer(value: Any) -> Any:
@@ -108,6 +112,14 @@ class Range(StrictModel):
         return self
 
 
+class PositiveRange(Range):
+    low: PositiveFinite
+
+
+class NonNegativeRange(Range):
+    low: NonNegativeFinite
+
+
 class PayloadChange(StrictModel):
     time: PositiveFinite
     mass: Payload
@@ -122,19 +134,13 @@ class PayloadConfig(StrictModel):
 class RandomPulses(StrictModel):
     count: int = Field(ge=1, le=MAX_PULSES)
     window: tuple[NonNegativeFinite, NonNegativeFinite]
-    duration: Range
-    amplitude: Range
+    duration: PositiveRange  # s
+    amplitude: NonNegativeRange  # fractions of the torque limit
 
     @model_validator(mode="after")
     def _bounds(self) -> RandomPulses:
         if self.window[0] > self.window[1]:
             raise ValueError(f"window must be 0 <= start <= end (s), got {self.window}")
-        if self.duration.low <= 0.0:
-            raise ValueError(f"duration.low must be > 0 s, got {self.duration.low}")
-        if self.amplitude.low < 0.0:
-            raise ValueError(
-                f"amplitude (fractions of the torque limit) must be >= 0, got {self.amplitude.low}"
-            )
         return self
 
 
@@ -149,13 +155,13 @@ class TorquePulsesConfig(StrictModel):
 
     @model_validator(mode="after")
     def _one_form(self) -> TorquePulsesConfig:
-        given = [part is not None for part in (self.times, self.durations, self.amplitudes)]
-        if self.random is not None:
-            if any(given):
-                raise ValueError("give either times/durations/amplitudes or random, not both")
-        elif not all(given):
-            raise ValueError("give times, durations and amplitudes (or random)")
-        elif not len(self.times) == len(self.durations) == len(self.amplitudes):  # type: ignore[arg-type]
+        all_or_none(
+            {"times": self.times, "durations": self.durations, "amplitudes": self.amplitudes}
+        )
+        at_most_one({"times": self.times, "random": self.random}, required=True)
+        if self.times is not None and not (
+            len(self.times) == len(self.durations) == len(self.amplitudes)  # type: ignore[arg-type]
+        ):
             raise ValueError("times, durations and amplitudes need one entry per pulse")
         return self
 
@@ -232,7 +238,7 @@ class EnvKwargs(EnvConfig):
     env kwargs with it."""
 
     robot: Annotated[Any, WithJsonSchema({"type": "string"})] = None
-    render_mode: Literal["human", "rgb_array"] | None = None
+    render_mode: RenderMode | None = None
 
 
 class MakeKwargs(EnvKwargs):
@@ -261,7 +267,11 @@ class KwargsSchema:
     model: type[EnvKwargs] = EnvKwargs
 
     def __get_pydantic_json_schema__(self, core_schema: Any, handler: Any) -> dict:
-        return handler(self.model.__pydantic_core_schema__)
+        schema = self.model.__pydantic_core_schema__
+        if schema["type"] == "model":  # a definition of its own (``$ref``), as a field's model
+            reference = pydantic_core.core_schema.definition_reference_schema(schema["ref"])
+            schema = pydantic_core.core_schema.definitions_schema(reference, [schema])
+        return handler(schema)
 
 
 # the kwargs of gym.make for a package env as a plain mapping (as given), validated
@@ -270,3 +280,35 @@ MakeKwargsMapping = Annotated[
     AfterValidator(lambda kwargs: checked_kwargs(kwargs, model=MakeKwargs)),
     KwargsSchema(MakeKwargs),
 ]
+
+
+# ------------------------------------------------------------------------ reset options
+MAX_ANGLE = 1e3  # rad: a larger initial angle has lost its precision
+Angles = tuple[Annotated[Finite, Field(ge=-MAX_ANGLE, le=MAX_ANGLE)], ...]
+
+
+class RigidInitialState(StrictModel):
+    """``initial_state`` of a rigid arm: link angles (rad) and velocities (rad/s), one per
+    joint (their count, ``max_velocity`` and the joint limits are checked by the batch)."""
+
+    q: Angles | None = None
+    dq: tuple[Finite, ...] | None = None
+
+
+class ElasticInitialState(RigidInitialState):
+    """``initial_state`` of an elastic arm: also the motor angles and velocities."""
+
+    theta: Angles | None = None
+    dtheta: tuple[Finite, ...] | None = None
+
+
+class RigidResetOptions(StrictModel):
+    """The ``options`` of a rigid arm's ``reset``."""
+
+    initial_state: RigidInitialState | None = None
+
+
+class ElasticResetOptions(StrictModel):
+    """The ``options`` of an elastic arm's ``reset``."""
+
+    initial_state: ElasticInitialState | None = None

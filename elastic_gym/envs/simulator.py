@@ -30,6 +30,7 @@ from elastic_gym.envs.plant import PAYLOAD_LINK, PlantArray, last_link, payload_
 from elastic_gym.model import RobotModel, SerialChain
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_without_limits
+from elastic_gym.validation import lookup
 
 ARM_SPACING = 8.0  # m between the bases of neighbouring arms (well beyond any arm's reach)
 X11_TIMEOUT = 1.0  # s to reach the X server before the PyBullet GUI is started
@@ -196,10 +197,9 @@ class ArmSimulator:
             p.getJointInfo(first, j, physicsClientId=c)[1].decode(): j
             for j in range(p.getNumJoints(first, physicsClientId=c))
         }
-        missing = [name for name in spec.joint_names if name not in name_to_index]
-        if missing:
-            raise ValueError(f"joints {missing} not found in {spec.urdf}")
-        self.joint_indices = [name_to_index[name] for name in spec.joint_names]
+        self.joint_indices = [
+            lookup(name_to_index, name, f"joint of {spec.urdf}") for name in spec.joint_names
+        ]
         self._urdf_dynamics: list[dict] = []  # per arm: link -> (joint, mass, inertia)
         for arm, body in enumerate(self.bodies):
             self._configure_dynamics(body)
@@ -225,11 +225,13 @@ class ArmSimulator:
         )
 
     def _link_index(self, body: int, name: str) -> int:
+        """The PyBullet index of the URDF link ``name`` (``ValueError`` listing the links)."""
         c = self.client
-        for j in range(p.getNumJoints(body, physicsClientId=c)):
-            if p.getJointInfo(body, j, physicsClientId=c)[12].decode() == name:
-                return j
-        raise ValueError(f"link {name!r} not in the URDF")
+        links = {
+            p.getJointInfo(body, j, physicsClientId=c)[12].decode(): j
+            for j in range(p.getNumJoints(body, physicsClientId=c))
+        }
+        return lookup(links, name, "URDF link")
 
     # ------------------------------------------------------------------ setup
     def _configure_dynamics(self, body: int) -> None:
@@ -409,12 +411,10 @@ class ArmSimulator:
     def link_pose(self, link_name: str, arm: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Position (from the arm's base) and rotation of a URDF link frame, from PyBullet."""
         c, body = self.client, self.bodies[arm]
-        for j in range(p.getNumJoints(body, physicsClientId=c)):
-            if p.getJointInfo(body, j, physicsClientId=c)[12].decode() == link_name:
-                state = p.getLinkState(body, j, computeForwardKinematics=1, physicsClientId=c)
-                rot = np.asarray(p.getMatrixFromQuaternion(state[5])).reshape(3, 3)
-                return np.asarray(state[4]) - self.base_positions[arm], rot
-        raise ValueError(f"link {link_name!r} not in the URDF")
+        j = self._link_index(body, link_name)
+        state = p.getLinkState(body, j, computeForwardKinematics=1, physicsClientId=c)
+        rot = np.asarray(p.getMatrixFromQuaternion(state[5])).reshape(3, 3)
+        return np.asarray(state[4]) - self.base_positions[arm], rot
 
     # ------------------------------------------------------------------ rendering
     def render(self, arm: int = 0, width: int = 480, height: int = 360) -> np.ndarray:

@@ -6,40 +6,68 @@
 * ``excitation``: an open-loop torque (e.g. g(q) + (cos t/2, -cos t) of Cristofaro &
   De Luca, Example 1) to which the action is added; for observer-only studies.
 
-Every task options mapping is validated: unknown keys raise ``ValueError`` naming them.
+Every task's options are a pydantic model (``TrackingOptions`` ...): unknown keys and bad
+values raise ``ValueError`` naming the field (``task_options.max_move: ...``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
+from typing import Annotated, ClassVar
 
 import numpy as np
+from pydantic import Field, StrictBool
 
 from elastic_gym.envs.trajectories import RestToRestPath, rest_to_rest
 from elastic_gym.model import RobotModel
 from elastic_gym.robots.spec import RobotSpec
-from elastic_gym.validation import checked_count, is_real, lookup, per_joint_values
+from elastic_gym.validation import (
+    Finite,
+    FiniteNumbers,
+    NonNegativeFinite,
+    PositiveFinite,
+    StrictModel,
+    lookup,
+    per_joint_values,
+    validated,
+)
 
 REFERENCE_ORDER = 4
 
 
 def _vector(value, n: int, name: str) -> np.ndarray:
-    return per_joint_values(value, n, f"task option {name!r}")
+    """A per-joint option (a number or N numbers, already finite by its model) as (N,)."""
+    return per_joint_values(value, n, f"task_options.{name}")
 
 
-def _max_move(value, spec: RobotSpec) -> float:
-    if value is None:
-        return spec.max_move
-    if not (is_real(value) and np.isfinite(value) and value > 0):
-        raise ValueError(f"task option 'max_move' must be a number > 0, got {value!r}")
-    return float(value)
+class RegulationOptions(StrictModel):
+    """Options of :class:`RegulationTask` (see it); the lengths are checked by the task."""
+
+    goal: FiniteNumbers | None = None
+    start: FiniteNumbers | None = None
+    max_move: PositiveFinite | None = None  # None: the robot's
 
 
-def _configs(value, n: int, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim != 2 or arr.shape[1] != n or len(arr) < 1 or not np.all(np.isfinite(arr)):
-        raise ValueError(f"task option {name!r} must be a list of {n}-vectors, got {value!r}")
-    return arr
+class TrackingOptions(StrictModel):
+    """Options of :class:`TrackingTask` (see it)."""
+
+    waypoints: Annotated[tuple[tuple[Finite, ...], ...], Field(min_length=1)] | None = None
+    n_moves: Annotated[int, Field(strict=True, ge=1)] = 2
+    move_time: PositiveFinite = 1.0
+    dwell_time: NonNegativeFinite = 0.25
+    max_move: PositiveFinite | None = None  # None: the robot's
+    start: FiniteNumbers | None = None
+
+
+class ExcitationOptions(StrictModel):
+    """Options of :class:`ExcitationTask` (see it)."""
+
+    gravity_compensation: StrictBool = True
+    amplitude: FiniteNumbers | None = None
+    frequency: FiniteNumbers | None = None
+    phase: FiniteNumbers = 0.0
+    offset: FiniteNumbers = 0.0
+    start: FiniteNumbers | None = None
 
 
 @dataclass
@@ -55,6 +83,7 @@ class Task:
     model: RobotModel
     n_arms: int = field(default=1, kw_only=True)
     name: str = field(default="", init=False)
+    options_model: ClassVar[type[StrictModel]]
 
     def reset(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
         """Sample the episodes of ``arms``; return their initial link configurations
@@ -107,10 +136,6 @@ class Task:
         out[:, 0] = rows
         return out
 
-    @classmethod
-    def option_names(cls) -> list[str]:
-        return [f.name for f in fields(cls) if f.init and f.name not in ("spec", "model", "n_arms")]
-
 
 @dataclass
 class TrackingTask(Task):
@@ -121,34 +146,22 @@ class TrackingTask(Task):
     ``start`` (first configuration; default random).
     """
 
-    waypoints: list | None = None
-    n_moves: int = 2
-    move_time: float = 1.0
-    dwell_time: float = 0.25
-    max_move: float | None = None
-    start: list | None = None
+    options: TrackingOptions = field(default_factory=TrackingOptions)
+    options_model = TrackingOptions
 
     def __post_init__(self) -> None:
         self.name = "tracking"
-        n = self.spec.n_joints
+        n, o = self.spec.n_joints, self.options
+        self.n_moves, self.move_time, self.dwell_time = o.n_moves, o.move_time, o.dwell_time
         self._given: np.ndarray | None = None
-        if self.waypoints is not None:
-            self._given = _configs(self.waypoints, n, "waypoints")
-        self._start: np.ndarray | None = None
-        if self.start is not None:
-            self._start = _vector(self.start, n, "start")
-        checked_count(self.n_moves, "task option 'n_moves'", 1)
-        for key in ("move_time", "dwell_time"):
-            value = getattr(self, key)
-            if (
-                isinstance(value, bool)
-                or not is_real(value)
-                or not (np.isfinite(value) and value >= 0)
-            ):
-                raise ValueError(f"task option {key!r} must be a number >= 0, got {value!r}")
-        if self.move_time <= 0:
-            raise ValueError("task option 'move_time' must be > 0")
-        self._max_move = _max_move(self.max_move, self.spec)
+        if o.waypoints is not None:
+            if any(len(point) != n for point in o.waypoints):
+                raise ValueError(
+                    f"task_options.waypoints: must be a list of {n}-vectors, got {o.waypoints!r}"
+                )
+            self._given = np.array(o.waypoints, dtype=float)
+        self._start = None if o.start is None else _vector(o.start, n, "start")
+        self._max_move = self.spec.max_move if o.max_move is None else o.max_move
         if self._given is not None:
             n_points = len(self._given) + (self._start is not None)
         else:
@@ -189,16 +202,15 @@ class RegulationTask(Task):
     Options: ``goal``, ``start``, ``max_move``.
     """
 
-    goal: list | None = None
-    start: list | None = None
-    max_move: float | None = None
+    options: RegulationOptions = field(default_factory=RegulationOptions)
+    options_model = RegulationOptions
 
     def __post_init__(self) -> None:
         self.name = "regulation"
-        n = self.spec.n_joints
-        self._goal = _vector(self.goal, n, "goal") if self.goal is not None else None
-        self._start = _vector(self.start, n, "start") if self.start is not None else None
-        self._max_move = _max_move(self.max_move, self.spec)
+        n, o = self.spec.n_joints, self.options
+        self._goal = None if o.goal is None else _vector(o.goal, n, "goal")
+        self._start = None if o.start is None else _vector(o.start, n, "start")
+        self._max_move = self.spec.max_move if o.max_move is None else o.max_move
         self.targets = np.zeros((self.n_arms, n))
 
     def reset_arm(self, arm: int, rng: np.random.Generator) -> np.ndarray:
@@ -225,33 +237,25 @@ class ExcitationTask(Task):
     ``phase`` (rad), ``offset`` (N m), ``start``.
     """
 
-    gravity_compensation: bool = True
-    amplitude: list | float | None = None
-    frequency: list | float | None = None
-    phase: list | float = 0.0
-    offset: list | float = 0.0
-    start: list | None = None
+    options: ExcitationOptions = field(default_factory=ExcitationOptions)
+    options_model = ExcitationOptions
 
     def __post_init__(self) -> None:
         self.name = "excitation"
-        n = self.spec.n_joints
-        if not isinstance(self.gravity_compensation, bool):
-            raise ValueError(
-                "task option 'gravity_compensation' must be true or false, "
-                f"got {self.gravity_compensation!r}"
-            )
+        n, o = self.spec.n_joints, self.options
+        self.gravity_compensation = o.gravity_compensation
         limit = np.asarray(self.spec.torque_limit)
         self._amplitude = (
-            _vector(self.amplitude, n, "amplitude") if self.amplitude is not None else 0.05 * limit
+            0.05 * limit if o.amplitude is None else _vector(o.amplitude, n, "amplitude")
         )
         self._frequency = (
-            _vector(self.frequency, n, "frequency")
-            if self.frequency is not None
-            else np.linspace(0.5, 1.5, n)
+            np.linspace(0.5, 1.5, n)
+            if o.frequency is None
+            else _vector(o.frequency, n, "frequency")
         )
-        self._phase = _vector(self.phase, n, "phase")
-        self._offset = _vector(self.offset, n, "offset")
-        self._start = _vector(self.start, n, "start") if self.start is not None else None
+        self._phase = _vector(o.phase, n, "phase")
+        self._offset = _vector(o.offset, n, "offset")
+        self._start = None if o.start is None else _vector(o.start, n, "start")
         self.holds = np.zeros((self.n_arms, n))
 
     def reset_arm(self, arm: int, rng: np.random.Generator) -> np.ndarray:
@@ -278,12 +282,8 @@ TASKS: dict[str, type[Task]] = {
 def make_task(
     name: str, spec: RobotSpec, model: RobotModel, options: dict | None, n_arms: int = 1
 ) -> Task:
-    """Instantiate a task for ``n_arms`` arms by name with validated options."""
+    """Instantiate a task for ``n_arms`` arms by name, its options validated by its model
+    (errors read ``task_options.<field>: ...``)."""
     cls = lookup(TASKS, name, "task")
-    options = dict(options or {})
-    unknown = set(options) - set(cls.option_names())
-    if unknown:
-        raise ValueError(
-            f"unknown option(s) {sorted(unknown)} for task {name!r}; valid: {cls.option_names()}"
-        )
-    return cls(spec=spec, model=model, n_arms=n_arms, **options)
+    config = validated(cls.options_model, options, "task_options")
+    return cls(spec=spec, model=model, n_arms=n_arms, options=config)  # type: ignore[call-arg]

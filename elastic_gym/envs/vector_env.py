@@ -22,10 +22,11 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from elastic_gym.envs.arm_env import validated_actions
+from elastic_gym.envs.arm_env import check_kind, validated_actions
 from elastic_gym.envs.batch import ArmBatch, with_batch_options
+from elastic_gym.envs.config import RenderMode
 from elastic_gym.robots.spec import RobotSpec
-from elastic_gym.validation import checked_count, is_count
+from elastic_gym.validation import checked_count, is_count, option_value
 
 
 def masked_info(info: dict, mask: np.ndarray) -> dict:
@@ -76,26 +77,14 @@ class ArmVectorEnv(VectorEnv):
         render_mode: str | None = None,
         **kwargs,
     ) -> None:
-        try:
-            mode = AutoresetMode(autoreset_mode)
-        except ValueError:
-            raise ValueError(
-                f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}, "
-                f"got {autoreset_mode!r}"
-            ) from None
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode {render_mode!r} not supported; valid: {self.metadata['render_modes']}"
-            )
+        mode = option_value("autoreset_mode", autoreset_mode, AutoresetMode, prefix="")
+        option_value("render_mode", render_mode, RenderMode | None, prefix="")
         if max_episode_steps is not None:
             checked_count(max_episode_steps, "max_episode_steps", 1)
         self.batch = batch = ArmBatch(robot, num_envs, **kwargs)
         if max_episode_steps is not None:
             batch.limit_episode(max_episode_steps)
-        kind = batch.robot.kind
-        if self.kind is not None and kind != self.kind:
-            batch.close()
-            raise ValueError(f"robot {batch.robot.name!r} has {kind} joints")
+        check_kind(batch, self.kind, "VectorEnv")
         self.num_envs = batch.n_arms
         self.render_mode = render_mode
         self.autoreset_mode = mode

@@ -14,7 +14,7 @@ import numpy as np
 from pydantic import ConfigDict, Field, PrivateAttr, StrictBool, StrictInt, model_validator
 
 from elastic_gym.evaluation.scenario_models import NOMINAL, Real, Variation
-from elastic_gym.validation import FieldError, StrictModel
+from elastic_gym.validation import FieldError, StrictModel, all_or_none, at_most_one
 
 
 class Magnitudes(StrictModel):
@@ -26,7 +26,7 @@ class Magnitudes(StrictModel):
     parameter: Annotated[
         str, Field(pattern=r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$", examples=["plant_scaling.link_mass"])
     ]
-    values: tuple[Real, ...] = Field((), json_schema_extra={"minItems": 1})
+    values: tuple[Real, ...] = Field((), min_length=1)
     range: tuple[Real, Real] | None = None
     num: Annotated[StrictInt, Field(ge=2)] | None = None
     log: StrictBool = False
@@ -35,22 +35,16 @@ class Magnitudes(StrictModel):
 
     @model_validator(mode="after")
     def _resolved(self) -> Magnitudes:
-        given = "values" in self.model_fields_set
-        if given == (self.range is not None):
-            raise ValueError("give either 'values' or 'range' (with 'num')")
-        if self.range is not None:
-            if self.num is None:
-                raise FieldError(("num",), "an integer >= 2 goes with 'range'")
+        values = self.values if "values" in self.model_fields_set else None
+        at_most_one({"values": values, "range": self.range}, required=True)
+        all_or_none({"range": self.range, "num": self.num}, loc=("num",))
+        if self.range is not None and self.num is not None:
             low, high = self.range
             if self.log and not (low > 0 and high > 0):
                 raise FieldError(("range",), f"log: true needs bounds > 0, got {list(self.range)}")
             points = (np.geomspace if self.log else np.linspace)(low, high, self.num)
             values = tuple(float(f"{v:.12g}") for v in points)  # 1.2000000000000002 -> 1.2
             vars(self).update(values=values, range=None, num=None)
-        elif self.num is not None:
-            raise FieldError(("num",), "goes with 'range', not with 'values'")
-        if not self.values:
-            raise FieldError(("values",), "must not be empty")
         for i, v in enumerate(self.values):
             if self.log and v <= 0:
                 raise FieldError(("values", i), f"must be finite and > 0, got {v!r}")

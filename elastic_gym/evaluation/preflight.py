@@ -67,10 +67,6 @@ class Estimate:
         return f"about {self.seconds / 3600:.1f} h"
 
 
-def _error(path: str, exc: BaseException) -> ScenarioError:
-    return ScenarioError(path, describe_failure(exc))
-
-
 @contextlib.contextmanager
 def _named(path: str) -> Iterator[None]:
     """What the code inside raises for itself (:func:`~elastic_gym.parallel.user_failure`:
@@ -81,7 +77,7 @@ def _named(path: str) -> Iterator[None]:
     except BaseException as exc:
         if not user_failure(exc):
             raise
-        raise _error(path, exc) from None
+        raise ScenarioError(path, describe_failure(exc)) from None
 
 
 @contextlib.contextmanager
@@ -95,10 +91,8 @@ def _left_to_the_runs() -> Iterator[None]:
 
 
 def _make_env(entry_id: str, kwargs: dict, path: str) -> gym.Env:
-    try:
+    with _named(path):
         return gym.make(entry_id, **kwargs)
-    except Exception as exc:
-        raise _error(path, exc) from None
 
 
 def _combo(spec: RunSpec) -> tuple:
@@ -271,10 +265,8 @@ def _check_duration(duration: float, env: gym.Env, path: str) -> None:
 
 
 def _check_reset(env: gym.Env, options: dict, seed: int, path: str) -> None:
-    try:
+    with _named(f"{path}.reset_options" if options else path):
         env.reset(seed=seed, options=options or None)
-    except Exception as exc:
-        raise _error(f"{path}.reset_options" if options else path, exc) from None
 
 
 def _check_axes(scenario: Scenario, entry, path: str) -> None:
@@ -292,10 +284,8 @@ def _check_model_errors(env: gym.Env, scenario: Scenario) -> None:
     model = arm_env(env).model
     for i, variation in enumerate(scenario.model_errors):
         if variation.values:
-            try:
+            with _named(f"model_errors[{i}]"):
                 model.perturbed(**variation.values)
-            except Exception as exc:
-                raise _error(f"model_errors[{i}]", exc) from None
 
 
 def _stages(group: RunGroup, paths: tuple[str, str], env_path: str) -> Generator[float, None, None]:

@@ -28,6 +28,7 @@ from elastic_gym.validation import (
     NonNegativeFinite,
     NonNegativeNumbers,
     PositiveNumbers,
+    per_joint_values,
 )
 
 
@@ -50,12 +51,8 @@ class ParameterScaling(ConfigModel):
     friction: NonNegativeFinite = 1.0
 
     def per_joint(self, name: str, n: int) -> np.ndarray:
-        value = np.asarray(getattr(self, name), dtype=float)
-        if value.ndim == 0:
-            return np.full(n, float(value))
-        if value.shape != (n,):
-            raise ValueError(f"parameter scaling {name!r} needs 1 or {n} values, got {value.size}")
-        return value
+        """The factor ``name`` for each of ``n`` joints (a scalar is repeated)."""
+        return per_joint_values(getattr(self, name), n, f"parameter scaling {name!r}")
 
     @property
     def is_nominal(self) -> bool:

@@ -14,13 +14,13 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from elastic_gym.arms import as_batch
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import check_applies, is_real, shaped
+from elastic_gym.validation import PositiveFinite, check_applies, option_value, shaped
 
 ELASTIC_STATE = ("theta", "q", "dtheta", "dq")
 RIGID_STATE = ("q", "dq")
@@ -47,11 +47,9 @@ class Observer(ABC):
     """The pydantic model (a ``StrictModel``) of the constructor's plain-data options."""
 
     def __init__(self, model: RobotModel, dt: float) -> None:
-        if not (is_real(dt) and np.isfinite(dt) and dt > 0):
-            raise ValueError(f"observer dt must be a positive number, got {dt!r}")
+        self.dt = option_value("dt", dt, PositiveFinite, prefix="observer ")
         check_applies("observer", self.name, self.applies_to, model)
         self.model = model
-        self.dt = float(dt)
         self.n = model.n
         self.elastic = model.elastic
         self.diagnostics: dict[str, float] = {}
@@ -87,13 +85,18 @@ class Observer(ABC):
         return np.asarray(obs[key], dtype=float)
 
     def check_initial_estimate(self, initial_estimate: np.ndarray | None) -> np.ndarray | None:
+        """``initial_estimate`` (``state_dim`` finite numbers) as a float array, or None."""
         if initial_estimate is None:
             return None
-        x = np.asarray(initial_estimate, dtype=float)
-        if x.shape != (self.state_dim,) or not np.all(np.isfinite(x)):
+        return self._estimate_rows(initial_estimate, [(self.state_dim,)])
+
+    def _estimate_rows(self, value: Any, shapes: list[tuple[int, ...]]) -> np.ndarray:
+        x = np.asarray(value, dtype=float)
+        if x.shape not in shapes or not np.all(np.isfinite(x)):
+            rows = " (or one row per arm)" if len(shapes) > 1 else ""
             raise ValueError(
-                f"initial_estimate must be {self.state_dim} finite numbers {self.state_names}, "
-                f"got shape {x.shape}"
+                f"initial_estimate must be {self.state_dim} finite numbers {self.state_names}"
+                f"{rows}, got shape {x.shape}"
             )
         return x.copy()
 
@@ -156,17 +159,9 @@ class BatchedObserver(Observer):
         """``initial_estimate`` checked and broadcast to ``count`` rows (or None)."""
         if initial_estimate is None:
             return None
-        x = np.asarray(initial_estimate, dtype=float)
-        if x.ndim == 1:
-            x = np.asarray(self.check_initial_estimate(x))[None]
-        if x.shape not in ((1, self.state_dim), (count, self.state_dim)) or not np.all(
-            np.isfinite(x)
-        ):
-            raise ValueError(
-                f"initial_estimate must be {self.state_dim} finite numbers "
-                f"{self.state_names} (or one row per arm), got shape {x.shape}"
-            )
-        return np.broadcast_to(x, (count, self.state_dim)).copy()
+        d = self.state_dim
+        x = self._estimate_rows(initial_estimate, [(d,), (1, d), (count, d)])
+        return np.broadcast_to(x, (count, d)).copy()
 
     def measured_positions(self, obs: Mapping, arms: np.ndarray | slice) -> np.ndarray:
         """Encoder readings of ``arms``, (len(arms), N)."""

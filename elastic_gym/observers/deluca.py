@@ -37,6 +37,7 @@ from elastic_gym.observers.deluca_gains import (
 from elastic_gym.validation import (
     PositiveFinite,
     StrictModel,
+    at_most_one,
     option_checks,
     validated_options,
 )
@@ -80,8 +81,7 @@ class DeLucaOptions(StrictModel):
     @field_validator("bandwidth")
     @classmethod
     def _poles_or_bandwidth(cls, bandwidth: Any, info: ValidationInfo) -> Any:
-        if bandwidth is not None and info.data.get("poles") is not None:
-            raise ValueError("give either poles or bandwidth, not both")
+        at_most_one({"poles": info.data.get("poles"), "bandwidth": bandwidth})
         return bandwidth
 
 

@@ -27,7 +27,13 @@ from scipy.linalg import expm
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, arm_count
 from elastic_gym.observers.integration import rk4
-from elastic_gym.validation import NonNegativeFinite, StrictModel, is_real, validated_options
+from elastic_gym.validation import (
+    Matrix,
+    NonNegativeFinite,
+    StrictModel,
+    is_real,
+    validated_options,
+)
 
 DEFAULT_ALPHA = 1.0
 """Exponential data weighting alpha of eq. (15), 1/s."""
@@ -52,8 +58,17 @@ stiffest elastic mode of the package (596 rad/s); more only multiply the cost.""
 
 
 # ----------------------------------------------------------------------------- options
-def covariance_option(value, name: str, block_sizes: tuple[int, ...]) -> np.ndarray:
-    """A symmetric positive semi-definite covariance from a compact option value.
+CovarianceValue = Annotated[Any, Matrix(MAX_VARIANCE)]
+"""A covariance option as given: finite entries of magnitude <= :data:`MAX_VARIANCE`
+(larger ones overflow the filter's arithmetic); its form is checked by
+:func:`covariance_option`."""
+
+
+def covariance_option(
+    value: CovarianceValue, name: str, block_sizes: tuple[int, ...]
+) -> np.ndarray:
+    """A symmetric positive semi-definite covariance from a compact option value (its
+    entries validated by :data:`CovarianceValue`).
 
     Accepted forms: a scalar (the same variance everywhere), one variance per block
     (``len(block_sizes)`` values, each repeated over its block), the full diagonal,
@@ -62,15 +77,8 @@ def covariance_option(value, name: str, block_sizes: tuple[int, ...]) -> np.ndar
     dim = sum(block_sizes)
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise TypeError(f"options.{name}: must be numeric, got {value!r}") from None
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"options.{name}: must be finite, got {value!r}")
-    if np.any(np.abs(arr) > MAX_VARIANCE):
-        raise ValueError(
-            f"options.{name}: entries must be <= {MAX_VARIANCE:g} in SI units "
-            f"(larger ones overflow the filter's arithmetic), got {value!r}"
-        )
+    except ValueError:  # a ragged matrix
+        arr = np.full(dim + 1, np.nan)
     if arr.ndim == 0:
         arr = np.full(dim, float(arr))
     elif arr.ndim == 1 and arr.size == len(block_sizes):
@@ -82,7 +90,7 @@ def covariance_option(value, name: str, block_sizes: tuple[int, ...]) -> np.ndar
     if arr.shape != (dim, dim):
         raise ValueError(
             f"options.{name}: must be a scalar, {len(block_sizes)} block variances, "
-            f"{dim} diagonal entries or a {dim}x{dim} matrix, got shape {arr.shape}"
+            f"{dim} diagonal entries or a {dim}x{dim} matrix, got {value!r}"
         )
     symmetric = 0.5 * (arr + arr.T)
     scale = max(1.0, float(np.abs(arr).max()))
@@ -252,17 +260,17 @@ Deviation = Annotated[float, Field(strict=True, ge=0, le=MAX_STD, allow_inf_nan=
 
 class EKFOptions(StrictModel):
     """The plain-data options of :class:`ExtendedKalmanFilter` (see its arguments); the
-    covariances Q, R, P0 are checked against the robot's dimensions by
+    forms of the covariances Q, R, P0 are checked against the robot's dimensions by
     :func:`covariance_option`, alpha against 1/dt by the filter."""
 
     alpha: NonNegativeFinite = DEFAULT_ALPHA
-    Q: Any = None
-    P0: Any = None
+    Q: CovarianceValue | None = None
+    P0: CovarianceValue | None = None
     use_accelerometers: StrictBool = False
     encoder_resolution: Deviation | None = None
     encoder_noise_std: Deviation | None = None
     accelerometer_std: Annotated[Deviation, Field(gt=0)] = DEFAULT_ACCELEROMETER_STD
-    R: Any = None  # after the sensor options it replaces
+    R: CovarianceValue | None = None  # after the sensor options it replaces
     substeps: Annotated[int, Field(strict=True, ge=1, le=MAX_SUBSTEPS)] = 1
 
     @field_validator("R")
@@ -347,11 +355,13 @@ class ExtendedKalmanFilter(BatchedObserver):
         self.Q = (
             default_process_noise(model, self.dt)
             if Q is None
-            else covariance_option(Q, "Q", (n, n))
+            else covariance_option(options.Q, "Q", (n, n))
         )
         blocks = (n, 3 * model.n_sensors) if use_accelerometers else (n,)
         self.R = (
-            self._sensor_covariance(options) if R is None else covariance_option(R, "R", blocks)
+            self._sensor_covariance(options)
+            if options.R is None
+            else covariance_option(options.R, "R", blocks)
         )
         if np.linalg.eigvalsh(self.R).min() <= 0.0:
             raise ValueError(
@@ -361,7 +371,7 @@ class ExtendedKalmanFilter(BatchedObserver):
         self.P0 = (
             np.diag(np.repeat(np.asarray(DEFAULT_INITIAL_STD) ** 2, n))
             if P0 is None
-            else covariance_option(P0, "P0", (n, n, n, n))
+            else covariance_option(options.P0, "P0", (n, n, n, n))
         )
         self._selector = np.hstack([np.eye(n), np.zeros((n, 3 * n))])  # theta = C x
         self._derivatives = ElasticLinearization(model)

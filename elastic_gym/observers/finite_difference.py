@@ -16,7 +16,7 @@ import numpy as np
 
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, arm_count
-from elastic_gym.validation import is_real
+from elastic_gym.validation import PositiveFinite, option_value
 
 
 class FiniteDifferenceObserver(BatchedObserver):
@@ -26,13 +26,7 @@ class FiniteDifferenceObserver(BatchedObserver):
 
     def __init__(self, model: RobotModel, dt: float, cutoff_hz: float = 30.0) -> None:
         super().__init__(model, dt)
-        if (
-            isinstance(cutoff_hz, bool)
-            or not is_real(cutoff_hz)
-            or not (np.isfinite(cutoff_hz) and cutoff_hz > 0)
-        ):
-            raise ValueError(f"cutoff_hz must be > 0 (a finite number), got {cutoff_hz!r}")
-        self.cutoff_hz = float(cutoff_hz)
+        self.cutoff_hz = option_value("cutoff_hz", cutoff_hz, PositiveFinite)
         self._allocate(1)
 
     def _allocate(self, n_arms: int) -> None:

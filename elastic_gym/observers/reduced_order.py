@@ -17,6 +17,7 @@ sample (``jump_sets="literal"``); the default ``"hysteresis"`` lowers the gain o
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -28,8 +29,10 @@ from elastic_gym.observers.rigid_common import (
     positive_integer,
     positive_number,
 )
+from elastic_gym.validation import at_most_one, option_checks, option_value
 
-JUMP_SETS = ("hysteresis", "literal")
+JumpSets = Literal["hysteresis", "literal"]
+JUMP_SETS = get_args(JumpSets)
 
 
 class ReducedOrderObserver(ScalarGainReducedObserver):
@@ -74,10 +77,9 @@ class ReducedOrderObserver(ScalarGainReducedObserver):
         substeps: int = 1,
     ) -> None:
         self.hybrid = boolean_option("hybrid", hybrid)
-        if jump_sets not in JUMP_SETS:
-            raise ValueError(f"option 'jump_sets' must be one of {JUMP_SETS}, got {jump_sets!r}")
-        if hybrid and k0 is not None:
-            raise ValueError("option 'k0' (a constant gain) cannot be combined with hybrid=True")
+        option_value("jump_sets", jump_sets, JumpSets)
+        with option_checks("k0"):  # k0: a constant gain, hybrid: the switched one
+            at_most_one({"k0": k0, "hybrid": hybrid or None})
         self.eta = positive_number("eta", eta)
         self.v_max = positive_number("v_max", v_max)
         self.v_bar = positive_number("v_bar", v_bar)

@@ -44,11 +44,8 @@ def state_sources() -> list[str]:
 def source_class(name: str) -> type[Observer]:
     """The class of a state source name: :class:`RawSensors` for raw sensors, else the
     observer's (``ValueError`` naming the valid ones for an unknown name)."""
-    if name == SENSORS:
-        return RawSensors
-    if name not in OBSERVERS:
-        raise ValueError(f"unknown state source {name!r}; valid: {sorted(state_sources())}")
-    return observer_class(name)
+    lookup(dict.fromkeys(state_sources()), name, "state source")
+    return RawSensors if name == SENSORS else observer_class(name)
 
 
 def make_observer(name: str, model: RobotModel, dt: float, **options) -> Observer:

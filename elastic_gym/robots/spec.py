@@ -126,6 +126,18 @@ class LinkFriction:
         )
 
 
+def substeps(control_dt: float, physics_dt: float, where: str = "", tolerance: float = 1e-6) -> int:
+    """Physics steps per control period; ``ValueError`` (after ``where``) unless
+    ``control_dt`` is an integer multiple (within ``tolerance``) of ``physics_dt``."""
+    ratio = control_dt / physics_dt
+    if abs(ratio - round(ratio)) > tolerance or round(ratio) < 1:
+        raise ValueError(
+            f"{where}control_dt ({control_dt}) must be an integer multiple of physics_dt "
+            f"({physics_dt})"
+        )
+    return round(ratio)
+
+
 def joint_kind(elastic: bool) -> str:
     """``"elastic"`` for elastic joints, ``"rigid"`` otherwise."""
     return "elastic" if elastic else "rigid"
@@ -220,8 +232,4 @@ class RobotSpec:
                 raise ValueError(
                     f"RobotSpec {self.name!r}: coupling S must be strictly upper triangular {n}x{n}"
                 )
-        steps = self.control_dt / self.physics_dt
-        if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
-            raise ValueError(
-                f"RobotSpec {self.name!r}: control_dt must be an integer multiple of physics_dt"
-            )
+        substeps(self.control_dt, self.physics_dt, f"RobotSpec {self.name!r}: ", 1e-9)

@@ -6,10 +6,11 @@ controller of the comparison
 """
 
 from elastic_gym.controllers.registry import register_controller
+from elastic_gym.observers.registry import state_sources
 from elastic_gym.training.actions import ActionConfig, ActionMap
 from elastic_gym.training.config import ALGORITHMS, TrainConfig, parse_overrides
 from elastic_gym.training.observation import ObservationBuilder, ObservationConfig
-from elastic_gym.training.policy_env import make_policy_env, state_sources
+from elastic_gym.training.policy_env import make_policy_env
 from elastic_gym.training.run_envs import PolicyStack
 from elastic_gym.training.run_folder import RunFolder
 from elastic_gym.training.train import TrainResult, train, train_many

@@ -24,7 +24,13 @@ from pydantic import Field, StrictBool, StrictStr, model_validator
 from elastic_gym.controllers.gain_design import bandwidth_pd_gains, nominal_configuration
 from elastic_gym.controllers.policy import RESIDUAL_DEADZONE, residual_torque
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import ConfigModel, Finite, PositiveFinite, per_joint_values
+from elastic_gym.validation import (
+    ConfigModel,
+    Finite,
+    PositiveFinite,
+    all_or_none,
+    per_joint_values,
+)
 
 KINDS = ("torque", "motor-offset", "residual")
 Gains = Finite | list[Finite] | None  # one or n numbers; checked against n by ActionMap
@@ -60,8 +66,7 @@ class ActionConfig(ConfigModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> ActionConfig:
-        if (self.kp is None) != (self.kd is None):
-            raise ValueError("give both 'kp' and 'kd', or neither (bandwidth rule)")
+        all_or_none({"kp": self.kp, "kd": self.kd})  # neither: the bandwidth rule
         if (self.kind == "residual") != (self.residual is not None):
             raise ValueError(
                 "kind 'residual' needs 'residual' (a controller name), and only it takes one"

@@ -24,7 +24,7 @@ from gymnasium.vector import AutoresetMode
 import elastic_gym  # noqa: F401  (registers the env ids in worker processes)
 from elastic_gym.observers import vector as vector_observers
 from elastic_gym.observers import wrappers as observers
-from elastic_gym.observers.registry import state_sources
+from elastic_gym.observers.registry import source_class
 from elastic_gym.observers.sensors import SENSORS
 from elastic_gym.training import vector as vector_policy
 from elastic_gym.training import wrappers as policy
@@ -33,8 +33,8 @@ from elastic_gym.training.observation import ObservationConfig
 
 
 def check_state_source(state: str) -> None:
-    if state not in state_sources():
-        raise ValueError(f"unknown state source {state!r}; valid: {state_sources()}")
+    """Refuse a name that is no state source (:func:`source_class`), listing the valid ones."""
+    source_class(state)
 
 
 def _stack(

@@ -27,6 +27,7 @@ from elastic_gym.training.config import Settings, TrainConfig
 from elastic_gym.training.rollouts import Evaluation, PolicyActor
 from elastic_gym.training.run_envs import PolicyStack
 from elastic_gym.training.run_folder import RunFolder
+from elastic_gym.validation import checked_count
 
 
 @dataclass
@@ -91,8 +92,7 @@ def evaluation_runs(
     """The comparison's runs of :func:`evaluate_run`: the ``trained-policy`` controller of
     ``run`` (the loaded object, not its folder) on its state source, one run per seed
     ``seed``, ``seed + 1``, ..., in the run's env with ``env_kwargs`` merged into its own."""
-    if isinstance(n_episodes, bool) or not isinstance(n_episodes, int) or n_episodes < 1:
-        raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
+    checked_count(n_episodes, "n_episodes", 1)
     from elastic_gym.training.policy_controller import TrainedPolicyController
 
     stack = run.stack
