@@ -216,7 +216,8 @@ class ArmSimulator:
 
         shape = (n_arms, n)
         self.q, self.dq = np.zeros(shape), np.zeros(shape)
-        self._buffers = tuple(np.empty(shape) for _ in range(3))  # a substep's link, tau_J, theta''
+        # a substep's link torque, tau_J and theta''
+        self._buffers = (np.empty(shape), np.empty(shape), np.empty(shape))
         self.theta, self.dtheta = np.zeros(shape), np.zeros(shape)
         self._elastic = spec.elastic
 
@@ -400,10 +401,10 @@ class ArmSimulator:
         # model (1): the motors advance inside the transmission kernel (they do not depend
         # on PyBullet's step); otherwise after PyBullet's step
         fused = self._elastic and not self.plants.has_coupling
-        buffers = self._buffers
+        link, tau_j, ddtheta_buffer = self._buffers
         for _ in range(n_substeps):
             if fused:
-                link_tau = self._transmission(tau, link_torque, *buffers, dt)[0]
+                link_tau = self._transmission(tau, link_torque, link, tau_j, ddtheta_buffer, dt)[0]
             else:
                 link_tau, ddtheta, _ = self.accelerations(tau, link_torque)
             for body, forces in zip(bodies, link_tau.tolist(), strict=True):
