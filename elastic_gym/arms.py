@@ -37,17 +37,17 @@ def as_batch(value: Any) -> Any:
     """``value`` of one arm as a batch of one arm: a leading axis of length 1 (mappings
     item by item; strings and None as object arrays, so that a longer string can replace
     them)."""
-    if isinstance(value, Mapping):  # arrays inline: a step's info holds about twenty
-        return {
+    if isinstance(value, np.ndarray | float | int | np.generic):  # before the slower ABC test
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "OUS":  # bool is an int
+            return arr[None]
+    elif type(value) is dict or isinstance(value, Mapping):  # arrays inline: an info holds
+        return {  # about twenty
             key: item[None]
             if type(item) is np.ndarray and item.dtype.kind not in "OUS"
             else as_batch(item)
             for key, item in value.items()
         }
-    if isinstance(value, np.ndarray | float | int | np.generic):
-        arr = np.asarray(value)
-        if arr.dtype.kind not in "OUS":  # bool is an int
-            return arr[None]
     out = np.empty(1, dtype=object)
     out[0] = value
     return out
@@ -56,7 +56,7 @@ def as_batch(value: Any) -> Any:
 def single_arm(value: Any) -> Any:
     """The one arm of a batch of one arm (:func:`as_batch` reversed: ``_key`` masks
     dropped, numpy scalars as Python scalars, as a single env gives them)."""
-    if isinstance(value, Mapping):
+    if type(value) is not np.ndarray and (type(value) is dict or isinstance(value, Mapping)):
         return {
             key: item[0]
             if type(item) is np.ndarray and item.ndim > 1 and item.dtype.kind not in "OUS"

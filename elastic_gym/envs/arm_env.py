@@ -9,6 +9,7 @@ is in ``info["true_state"]``. Action: motor torque (N m), clipped to the torque 
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -35,7 +36,8 @@ def validated_actions(action, n_arms: int, n_joints: int) -> np.ndarray:
     if arr.shape != shape:
         raise ValueError(f"action must have shape {shape}, got {arr.shape}")
     arr = arr.astype(np.float64)
-    if not np.all(np.isfinite(arr)):
+    # a finite sum has finite terms (one reduction; the elementwise test only when it is not)
+    if not math.isfinite(arr.sum()) and not np.isfinite(arr).all():
         raise ValueError(f"action must be finite, got {arr}")
     return arr.reshape(-1, n_joints)
 

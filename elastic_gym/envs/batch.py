@@ -572,7 +572,7 @@ class ArmBatch:
         if not len(arms):
             return
         sim = self.sim
-        rngs = [self.rngs[i] for i in arms]
+        rngs = self.rngs if arms is self._arms else [self.rngs[i] for i in arms]
         position = sim.theta if self.robot.elastic else sim.q
         readings = {self.position_key: self.encoder.measure(position[arms], rngs, arms)}
         if self.model.n_sensors:

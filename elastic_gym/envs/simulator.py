@@ -18,9 +18,11 @@ joint limits are not enforced by PyBullet; the env ends the episode when one is 
 from __future__ import annotations
 
 import contextlib
+import operator
 import os
 import socket
 import sys
+from itertools import chain
 
 import numpy as np
 import pybullet as p
@@ -35,6 +37,7 @@ from elastic_gym.validation import lookup
 ARM_SPACING = 8.0  # m between the bases of neighbouring arms (well beyond any arm's reach)
 X11_TIMEOUT = 1.0  # s to reach the X server before the PyBullet GUI is started
 PAYLOAD_BYTES = PAYLOAD_LINK.encode()
+_POSITION_VELOCITY = operator.itemgetter(0, 1)  # of a getJointStates entry
 
 
 @njit(cache=True)
@@ -57,11 +60,14 @@ def _transmission_kernel(
     link,
     tau_j,
     ddtheta,
+    dt,
 ):
     """Per arm k and joint j: tau_J = K (theta - q) + D (theta' - q'), the link torque
     tau_J - d(q') (rigid: tau - d(q')) and theta'' = B^-1 (tau - tau_J) of model (1);
     d(q') = F_v q' + c tanh(q' / smoothing), c = coulomb_pos or coulomb_neg by the sign.
-    Every coefficient has a leading arm axis (arm k's own plant)."""
+    Every coefficient has a leading arm axis (arm k's own plant). ``dt`` > 0 (elastic
+    arms): the motor side is then advanced in place as :func:`_integrate_motors` does
+    (each joint's theta'' depends only on its own state, read before it is advanced)."""
     N, n = q.shape
     for k in range(N):
         for j in range(n):
@@ -76,6 +82,9 @@ def _transmission_kernel(
                 tau_j[k, j] = torque
                 link[k, j] = torque - friction
                 ddtheta[k, j] = B_inv[k, j] * (tau[k, j] - torque)
+                if dt > 0.0:
+                    dtheta[k, j] = dtheta[k, j] + dt * ddtheta[k, j]
+                    theta[k, j] = theta[k, j] + dt * dtheta[k, j]
             else:
                 link[k, j] = tau[k, j] - friction
 
@@ -207,6 +216,8 @@ class ArmSimulator:
 
         shape = (n_arms, n)
         self.q, self.dq = np.zeros(shape), np.zeros(shape)
+        # a substep's link torque, tau_J and theta''
+        self._buffers = (np.empty(shape), np.empty(shape), np.empty(shape))
         self.theta, self.dtheta = np.zeros(shape), np.zeros(shape)
         self._elastic = spec.elastic
 
@@ -327,13 +338,9 @@ class ArmSimulator:
 
     def _read_links(self) -> None:
         c, joints, get = self.client, self.joint_indices, p.getJointStates
-        flat = [
-            value
-            for body in self.bodies
-            for joint in get(body, joints, physicsClientId=c)
-            for value in joint[:2]
-        ]
-        states = np.array(flat).reshape(self.n_arms, self.n, 2)
+        joint_states = chain.from_iterable([get(b, joints, physicsClientId=c) for b in self.bodies])
+        flat = np.fromiter(chain.from_iterable(map(_POSITION_VELOCITY, joint_states)), float)
+        states = flat.reshape(self.n_arms, self.n, 2)
         self.q, self.dq = states[:, :, 0].copy(), states[:, :, 1].copy()
 
     # ------------------------------------------------------------------ stepping
@@ -350,6 +357,11 @@ class ArmSimulator:
             return (tau if link_torque is None else tau + link_torque), None, None
         shape = self.q.shape
         link, tau_j, ddtheta = np.empty(shape), np.empty(shape), np.empty(shape)
+        return self._transmission(tau, link_torque, link, tau_j, ddtheta, 0.0)
+
+    def _transmission(self, tau, link_torque, link, tau_j, ddtheta, dt: float):
+        """:meth:`accelerations` into the given arrays (``dt``: see the kernel)."""
+        plants = self.plants
         _transmission_kernel(
             self.theta,
             self.dtheta,
@@ -369,6 +381,7 @@ class ArmSimulator:
             link,
             tau_j,
             ddtheta,
+            dt,
         )
         if link_torque is not None:
             link += link_torque
@@ -387,12 +400,19 @@ class ArmSimulator:
         c, dt, joints, bodies = self.client, self.physics_dt, self.joint_indices, self.bodies
         control, set_torques = p.TORQUE_CONTROL, p.setJointMotorControlArray
         tau = np.ascontiguousarray(tau, dtype=np.float64)
+        # model (1): the motors advance inside the transmission kernel (they do not depend
+        # on PyBullet's step); otherwise after PyBullet's step
+        fused = self._elastic and not self.plants.has_coupling
+        link, tau_j, ddtheta_buffer = self._buffers
         for _ in range(n_substeps):
-            link_tau, ddtheta, _ = self.accelerations(tau, link_torque)
+            if fused:
+                link_tau = self._transmission(tau, link_torque, link, tau_j, ddtheta_buffer, dt)[0]
+            else:
+                link_tau, ddtheta, _ = self.accelerations(tau, link_torque)
             for body, forces in zip(bodies, link_tau.tolist(), strict=True):
                 set_torques(body, joints, control, forces=forces, physicsClientId=c)
             p.stepSimulation(physicsClientId=c)
-            if self._elastic:
+            if self._elastic and not fused:
                 _integrate_motors(self.theta, self.dtheta, ddtheta, dt)
             self._read_links()
             if not self._elastic:

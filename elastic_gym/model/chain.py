@@ -18,6 +18,7 @@ import numpy as np
 import pinocchio as pin
 from numba import njit
 
+from elastic_gym.model.lapack import svd_workspace, thin_svd
 from elastic_gym.validation import shaped
 
 # ---------------------------------------------------------------------------- kernels
@@ -291,6 +292,7 @@ def _acceleration_from_readings_kernel(
     T = np.empty((m, n))
     W = np.empty(m)
     residual = np.empty(m)
+    space = svd_workspace(m, n)
     for k in range(N):
         chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, *constants)
         _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T, W)
@@ -304,7 +306,7 @@ def _acceleration_from_readings_kernel(
             ddq[k, :] = np.nan
             diagnostics[k, :] = np.nan
             continue
-        U, s, Vt = np.linalg.svd(T, full_matrices=False)
+        Ut, s, V = thin_svd(T, space)  # U = Ut.T, V^T = V.T
         sigma_min = s[n - 1]
         ratio = min(sigma_min / threshold, 1.0)
         damping2 = (1.0 - ratio * ratio) * damping * damping
@@ -313,10 +315,10 @@ def _acceleration_from_readings_kernel(
         for r in range(n):
             y = 0.0
             for i in range(m):
-                y += U[i, r] * residual[i]
+                y += Ut[r, i] * residual[i]
             y *= s[r] / (s[r] * s[r] + damping2)
             for c in range(n):
-                ddq[k, c] += Vt[r, c] * y
+                ddq[k, c] += V[c, r] * y
         diagnostics[k, 0] = s[0]
         diagnostics[k, 1] = sigma_min
         diagnostics[k, 2] = np.sqrt(damping2)

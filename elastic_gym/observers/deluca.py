@@ -210,8 +210,9 @@ class DeLucaObserver(BatchedObserver):
             xi[:, n : 2 * n], dq, reading, self.dls_threshold, self.dls_damping
         )
         sigma_max, sigma_min, damping = singular.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cond = np.where(sigma_min > 0.0, sigma_max / sigma_min, np.inf)
+        cond = np.divide(
+            sigma_max, sigma_min, out=np.full(len(sigma_max), np.inf), where=sigma_min > 0.0
+        )
         self._record(
             arms,
             cond_TA=cond,

@@ -316,14 +316,18 @@ class ObserverWrapper(gym.vector.VectorWrapper):
             estimates = self.observer.update_arms(measured, info["torque"], dt, arms)
             self._errors[arms] = [self.observer.errors[i] for i in arms]
         else:
+            which = None if len(arms) == self.num_envs else arms  # all: the observer's fast path
             batched, error = guarded(
-                lambda: self.observer.update_arms(measured, info["torque"], dt, arms)
+                lambda: self.observer.update_arms(measured, info["torque"], dt, which)
             )
             if batched is None:  # a batched observer's error: every arm it was updating
                 self._errors[arms] = error
                 return arms
             estimates = batched
         finite = np.isfinite(estimates[arms]).all(axis=1)
+        if finite.all():  # the common case
+            self._estimates[arms] = estimates[arms]
+            return arms[:0]
         self._estimates[arms[finite]] = estimates[arms[finite]]
         for i in arms[~finite]:
             if self._errors[i] is None:
