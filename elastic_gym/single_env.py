@@ -24,6 +24,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv, VectorWrapper
 from gymnasium.vector.utils import batch_space
 
 from elastic_gym.arms import as_batch, single_arm
+from elastic_gym.validation import elastic_base
 
 
 class OneArm(VectorEnv):
@@ -36,11 +37,7 @@ class OneArm(VectorEnv):
     """
 
     def __init__(self, env: gym.Env) -> None:
-        batch = getattr(env.unwrapped, "batch", None)
-        if batch is None:
-            raise TypeError(
-                f"this wrapper needs an elastic_gym env (gym.make('elastic_gym/...')), got {env}"
-            )
+        batch = elastic_base(env, "this wrapper", vector=False).batch
         self.env, self.batch = env, batch
         self.num_envs = 1
         self.metadata = {**env.metadata, "autoreset_mode": AutoresetMode.DISABLED}

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, TypeGuard, TypeVar, get_args
@@ -90,6 +90,52 @@ def shaped(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
     return arr
 
 
+def entry(
+    data: Any,
+    where: str,
+    key: str,
+    shape: tuple[int | None, ...] | None,
+    missing: str,
+    finite: bool = False,
+) -> Any:
+    """``data[key]`` of a step's ``obs`` or ``info`` (``where``) as a float64 array of
+    ``shape`` (a leading ``None``: any number of arms; ``shape`` ``None``: the value as
+    given), with
+    finite entries if ``finite``. ``ValueError`` reading ``missing`` (who needs the entry
+    and where it comes from) when ``data`` lacks it, naming ``where[key]`` otherwise."""
+    if not isinstance(data, Mapping) or key not in data:
+        raise ValueError(missing)
+    if shape is None:
+        return data[key]
+    arr = np.asarray(data[key], dtype=float)
+    lead = int(shape[0] is None)
+    if (arr.ndim != len(shape) or arr.shape[lead:] != shape[lead:]) or (
+        finite and not np.all(np.isfinite(arr))
+    ):
+        shown = str(shape).replace("None", "arms")
+        raise ValueError(
+            f"{where}[{key!r}] must have {'finite entries and ' if finite else ''}shape "
+            f"{shown}, got {arr.shape}"
+        )
+    return arr
+
+
+def stable_poles(value: Any, *shapes: tuple[int, ...]) -> np.ndarray:
+    """``value`` as a complex array of one of ``shapes``: finite poles with negative real
+    parts (a stable design); ``ValueError`` naming ``poles`` and what was given otherwise."""
+    try:
+        arr = np.asarray(value, dtype=complex)
+    except (TypeError, ValueError):
+        arr = np.full(0, np.nan)  # reported below
+    if arr.shape not in shapes or not np.all(np.isfinite(arr)) or np.any(arr.real >= 0.0):
+        allowed = " or ".join(map(str, shapes))
+        raise ValueError(
+            "poles must be finite numbers (complex allowed) with negative real parts, of "
+            f"shape {allowed}, got {value!r}"
+        )
+    return arr
+
+
 def lookup(table: Mapping[str, T], name: Any, what: str) -> T:
     """``table[name]``; ``ValueError`` naming the ``what`` and listing the valid names."""
     if not isinstance(name, str) or name not in table:
@@ -102,13 +148,25 @@ def registered_env_id(value: Any) -> str:
     the ``elastic_gym/`` namespace. ``ValueError`` lists the package's ids otherwise."""
     from gymnasium import registry
 
-    if not isinstance(value, str):
-        raise ValueError(f"env id must be a string, got {value!r}")
-    env_id = value if "/" in value else ENV_NAMESPACE + value
-    if env_id not in registry:
+    env_id = value if not isinstance(value, str) or "/" in value else ENV_NAMESPACE + value
+    if not isinstance(env_id, str) or env_id not in registry:
         valid = sorted(k for k in registry if k.startswith(ENV_NAMESPACE))
         raise ValueError(f"unknown env id {value!r}; valid: {valid}")
     return env_id
+
+
+def elastic_base(env: Any, who: str, vector: bool = True) -> Any:
+    """``env.unwrapped`` if it is an elastic_gym env (one holding the ``batch`` of its arms);
+    ``TypeError`` naming ``who`` and how to make one otherwise."""
+    base = env.unwrapped
+    if getattr(base, "batch", None) is None:
+        kind, make = (
+            ("vector env", "gym.make_vec(..., vectorization_mode='vector_entry_point')")
+            if vector
+            else ("env", "gym.make('elastic_gym/...')")
+        )
+        raise TypeError(f"{who} needs an elastic_gym {kind} ({make}), got {env}")
+    return base
 
 
 def check_applies(kind: str, name: str, applies_to: frozenset[str], model) -> None:
@@ -233,6 +291,49 @@ class Matrix:
         return {"anyOf": [number, row, {"type": "array", "items": row, "minItems": 1}]}
 
 
+def square_matrix(
+    value: Any,
+    size: int,
+    name: str,
+    blocks: tuple[int, ...] = (),
+    symmetric: bool = False,
+    psd_tolerance: float | None = None,
+) -> np.ndarray:
+    """The (size, size) matrix of a :class:`Matrix` option (``options.<name>``) from its
+    compact forms: a scalar (times the identity), one value per block of ``blocks`` (each
+    repeated over its block), the diagonal, or the matrix itself.
+
+    ``symmetric``: the matrix must be symmetric (the mean of it and its transpose is
+    returned); ``psd_tolerance``: its symmetric part must be positive semi-definite, to
+    ``-psd_tolerance * max(1, max|entry|)`` for a full matrix, exactly for a diagonal.
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except ValueError:  # a ragged matrix
+        arr = np.full(size + 1, np.nan)
+    full = arr.ndim == 2
+    if arr.ndim == 0:
+        arr = np.full(size, float(arr))
+    elif blocks and arr.ndim == 1 and arr.size == len(blocks):
+        arr = np.repeat(arr, blocks)
+    if arr.shape == (size,):
+        arr = np.diag(arr)
+    if arr.shape != (size, size) or not np.all(np.isfinite(arr)):
+        per_block = f"{len(blocks)} block values, " if len(blocks) > 1 else ""
+        raise ValueError(
+            f"options.{name}: must be a scalar, {per_block}{size} diagonal entries or a "
+            f"{size}x{size} matrix, got {value!r}"
+        )
+    mean = 0.5 * (arr + arr.T)
+    scale = max(1.0, float(np.abs(arr).max())) if full else 0.0
+    if (symmetric and not np.allclose(arr, arr.T)) or (
+        psd_tolerance is not None and np.linalg.eigvalsh(mean).min() < -psd_tolerance * scale
+    ):
+        shape = "symmetric positive semi-definite" if symmetric else "positive semi-definite"
+        raise ValueError(f"options.{name}: must be {shape}, got {value!r}")
+    return mean if symmetric else arr
+
+
 def _leaves(value: Any) -> list:
     if isinstance(value, (list, tuple)):
         return [leaf for item in value for leaf in _leaves(item)]
@@ -258,10 +359,7 @@ class ConfigModel(StrictModel):
 
     def __init__(self, **data: Any) -> None:
         """Keyword construction refuses bad fields in the package's error form too."""
-        try:
-            super().__init__(**data)
-        except ValidationError as error:
-            raise ConfigError(format_validation_error(error, self.section, type(self))) from None
+        checked(lambda: super(ConfigModel, self).__init__(**data), self.section, type(self))
 
     # not a custom __init__ for pydantic: a nested config is validated as a field, its
     # errors with their full path (``reward.sigmas[0]``), not through this prefix
@@ -405,10 +503,28 @@ def validated(model: type[M], data: Any, prefix: str = "") -> M:
     problem otherwise."""
     if isinstance(data, model):
         return data
+    return checked(lambda: model.model_validate({} if data is None else plain(data)), prefix, model)
+
+
+def checked(
+    validate: Callable[[], T],
+    prefix: str = "",
+    model: type[BaseModel] | None = None,
+    by_kind: bool = False,
+) -> T:
+    """``validate()``; its ``ValidationError`` as one line per problem, the field path
+    (after ``prefix``) first: a :class:`ConfigError`, or with ``by_kind`` a ``TypeError``
+    when every problem is a value of the wrong type (a string for a number, 1 for a bool)
+    and a ``ValueError`` otherwise."""
     try:
-        return model.model_validate({} if data is None else plain(data))
+        return validate()
     except ValidationError as error:
-        raise ConfigError(format_validation_error(error, prefix, model)) from None
+        message = format_validation_error(error, prefix, model)
+        if not by_kind:
+            raise ConfigError(message) from None
+        raise (TypeError if all(map(_wrong_type, error.errors())) else ValueError)(
+            message
+        ) from None
 
 
 # ---------------------------------------------------------------- observer / controller options
@@ -422,24 +538,15 @@ def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
     ``options.<name>: ...``, a ``TypeError`` when every problem is a value of the wrong
     type (a string for a number, 1 for a bool), a ``ValueError`` otherwise."""
     given = {key: value for key, value in arguments.items() if key in model.model_fields}
-    try:
-        return model.model_validate(plain(given))
-    except ValidationError as error:
-        wrong_type = all(map(_wrong_type, error.errors()))
-        kind = TypeError if wrong_type else ValueError
-        raise kind(format_validation_error(error, "options", model)) from None
+    return checked(lambda: model.model_validate(plain(given)), "options", model, by_kind=True)
 
 
 def option_value(name: str, value: Any, kind: Any, prefix: str = "options.") -> Any:
     """One constructor option (or function argument, ``prefix=""``) validated by the
     (annotated) type ``kind``: errors read ``options.<name>: ...``, a ``TypeError`` for a
     value of the wrong type, a ``ValueError`` otherwise (as :func:`validated_options`)."""
-    try:
-        return TypeAdapter(kind).validate_python(plain(value))
-    except ValidationError as error:
-        wrong_type = all(map(_wrong_type, error.errors()))
-        message = format_validation_error(error, f"{prefix}{name}")
-        raise (TypeError if wrong_type else ValueError)(message) from None
+    adapter = TypeAdapter(kind)
+    return checked(lambda: adapter.validate_python(plain(value)), prefix + name, by_kind=True)
 
 
 @contextmanager

@@ -332,7 +332,7 @@ def test_bad_options_and_inputs_raise_clear_errors():
         ({"acceleration": "gyro"}, "acceleration"),
         ({"poles": [-1.0, -2.0, -3.0]}, "poles"),
         ({"poles": [-1.0, -2.0, 3.0, -4.0]}, "negative real parts"),
-        ({"poles": "fast"}, "poles must be numbers"),
+        ({"poles": "fast"}, "poles must be finite numbers"),
         ({"poles": [-1 + 1j, -1 + 1j, -2.0, -3.0]}, "conjugate"),
         (
             {"poles": [-1.0] * 4, "bandwidth": 100.0},

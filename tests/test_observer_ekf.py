@@ -232,7 +232,7 @@ def test_bad_options_are_named(options, error, word):
         ),
         ({"substeps": 10**9}, r"options\.substeps: .*less than or equal to 100"),
         ({"alpha": float("inf")}, r"options\.alpha: .*finite number"),
-        ({"Q": [[1.0, 2.0], [3.0, 4.0]]}, r"options\.Q: must be a scalar, 2 block variances"),
+        ({"Q": [[1.0, 2.0], [3.0, 4.0]]}, r"options\.Q: must be a scalar, 2 block values"),
         (
             {"R": [[1e-9, 1e-6], [1e-6, 1e-9]]},
             r"options\.R: must be symmetric positive semi-definite",

@@ -25,7 +25,7 @@ from scipy.optimize import brentq
 from scipy.signal import place_poles
 
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import PositiveFinite, option_value
+from elastic_gym.validation import PositiveFinite, option_value, stable_poles
 
 Block = Literal["motor", "link"]
 """The state block of a decentralized PD (:func:`pd_gain`)."""
@@ -169,12 +169,7 @@ def lqr_integral_gain(
 
 def pole_placement_gain(A: np.ndarray, Bu: np.ndarray, poles) -> np.ndarray:
     """MIMO pole placement (``scipy.signal.place_poles``) of all 2 * (positions) poles."""
-    poles = np.asarray(poles, dtype=complex)
-    if poles.shape != (A.shape[0],):
-        raise ValueError(f"poles must be {A.shape[0]} closed-loop eigenvalues, got {poles.shape}")
-    if np.any(poles.real >= 0):
-        raise ValueError(f"poles must have negative real parts, got {poles}")
-    return place_poles(A, Bu, poles).gain_matrix
+    return place_poles(A, Bu, stable_poles(poles, (A.shape[0],))).gain_matrix
 
 
 def pd_gain(model: RobotModel, kp: np.ndarray, kd: np.ndarray, block: Block) -> np.ndarray:

@@ -27,11 +27,12 @@ from scipy.special import factorial
 from elastic_gym import arms
 from elastic_gym.arms import REFERENCE_KEYS
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import option_value, shaped
+from elastic_gym.validation import entry, option_value
 
 DEFAULT_FD_STEP = 1e-4
 FdStep = Annotated[float, Field(strict=True, gt=0.0, lt=0.1, allow_inf_nan=False)]
 """The central-difference step (s) of tau_r'' inside INVDYN."""
+PUBLIC_INFO = "(pass public_info(info) of the env step)"
 TIME_TOLERANCE = 1e-9  # s; calls closer in time than this count as the same instant
 
 
@@ -47,8 +48,7 @@ def checked_reference_rows(info: Mapping, n: int, n_arms: int | None) -> np.ndar
     reference = info.get("reference") if isinstance(info, Mapping) else None
     if not isinstance(reference, Mapping) or any(k not in reference for k in REFERENCE_KEYS):
         raise ValueError(
-            f"controller needs info['reference'] with keys {REFERENCE_KEYS} "
-            "(pass public_info(info) of the env step)"
+            f"controller needs info['reference'] with keys {REFERENCE_KEYS} {PUBLIC_INFO}"
         )
     ref = arms.reference_rows(info)
     shape = (len(REFERENCE_KEYS), n) if n_arms is None else (n_arms, len(REFERENCE_KEYS), n)
@@ -61,23 +61,16 @@ def checked_reference_rows(info: Mapping, n: int, n_arms: int | None) -> np.ndar
 def state_vector(obs: Mapping, dim: int, n_arms: int | None = None) -> np.ndarray:
     """``obs["state"]`` (from an ObserverWrapper / TrueStateWrapper) checked: (dim,), or
     (n_arms, dim) for a batch."""
-    if not isinstance(obs, Mapping) or "state" not in obs:
-        raise ValueError(
-            "controller needs obs['state']: wrap the env in ObserverWrapper or TrueStateWrapper"
-        )
-    return shaped(obs["state"], (dim,) if n_arms is None else (n_arms, dim), "obs['state']")
+    shape = (dim,) if n_arms is None else (n_arms, dim)
+    missing = "controller needs obs['state']: wrap the env in ObserverWrapper or TrueStateWrapper"
+    return entry(obs, "obs", "state", shape, missing)
 
 
 def info_time(info: Mapping, n_arms: int | None = None) -> float | np.ndarray:
-    """``info["time"]``: a float, or (n_arms,) times for a batch."""
-    if not isinstance(info, Mapping) or "time" not in info:
-        raise ValueError("controller needs info['time'] (pass public_info(info) of the env step)")
-    if n_arms is None:
-        return float(info["time"])
-    t = np.asarray(info["time"], dtype=float)
-    if t.shape != (n_arms,) or not np.all(np.isfinite(t)):
-        raise ValueError(f"info['time'] must hold {n_arms} finite times, got shape {t.shape}")
-    return t
+    """``info["time"]``: a float, or (n_arms,) finite times for a batch."""
+    shape = None if n_arms is None else (n_arms,)
+    t = entry(info, "info", "time", shape, f"controller needs info['time'] {PUBLIC_INFO}", True)
+    return float(t) if n_arms is None else t
 
 
 def taylor_matrix(h: float, order: int = len(REFERENCE_KEYS)) -> np.ndarray:

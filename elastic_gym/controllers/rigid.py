@@ -15,34 +15,32 @@ from ``info["reference"]``:
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.vector import OneArmLaw, StateLaw, arm_rows, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import PositiveFinite, StrictModel, validated_options
+from elastic_gym.validation import (
+    Matrix,
+    PositiveFinite,
+    StrictModel,
+    square_matrix,
+    validated_options,
+)
 
 CRISTOFARO_LAMBDA = 0.5
 CRISTOFARO_KP = (40.0, 60.0)
 CRISTOFARO_KD = (60.0, 90.0)
+Gain = Annotated[Any, Matrix()]
+"""A gain option as given (finite entries); its form is checked by :func:`_gain_matrix`."""
 
 
 def _gain_matrix(value, n: int, name: str) -> np.ndarray:
-    """A positive semi-definite diagonal gain from a scalar, N numbers or an N x N matrix."""
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        arr = np.full(n, float(arr))
-    if arr.ndim == 1 and arr.shape == (n,):
-        arr = np.diag(arr)
-    if arr.shape != (n, n) or not np.all(np.isfinite(arr)):
-        raise ValueError(
-            f"options.{name}: must be a scalar, {n} numbers or a {n}x{n} matrix, got {value!r}"
-        )
-    if np.any(np.linalg.eigvalsh(0.5 * (arr + arr.T)) < 0.0):
-        raise ValueError(f"options.{name}: must be positive semi-definite, got {value!r}")
-    return arr
+    """A gain whose symmetric part is positive semi-definite, from a scalar, N numbers or
+    an N x N matrix (:func:`square_matrix`)."""
+    return square_matrix(value, n, name, psd_tolerance=0.0)
 
 
 class _RigidTracking(OneArmLaw, Controller):
@@ -59,9 +57,9 @@ def _signals(x: np.ndarray, ref: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
 class CristofaroOptions(StrictModel):
     """The options of :class:`CristofaroTrackingController` (gain sizes checked by it)."""
 
-    Lambda: Any = CRISTOFARO_LAMBDA
-    K_P: Any = None
-    K_D: Any = None
+    Lambda: Gain = CRISTOFARO_LAMBDA
+    K_P: Gain | None = None
+    K_D: Gain | None = None
 
 
 class CristofaroTrackingController(_RigidTracking):
@@ -102,8 +100,8 @@ class FeedbackLinearizationOptions(StrictModel):
 
     omega: PositiveFinite = 10.0
     damping_ratio: PositiveFinite = 1.0
-    K_P: Any = None
-    K_D: Any = None
+    K_P: Gain | None = None
+    K_D: Gain | None = None
     friction_velocity: Literal["estimate", "desired"] = "estimate"
 
 

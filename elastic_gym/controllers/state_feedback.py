@@ -46,20 +46,9 @@ from elastic_gym.validation import (
     at_most_one,
     option_checks,
     shaped,
+    square_matrix,
     validated_options,
 )
-
-
-def _square(value, size: int, name: str) -> np.ndarray:
-    """A (size, size) weight from a matrix, a diagonal vector or a scalar."""
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim <= 1:
-        arr = np.diag(np.broadcast_to(arr, (size,)))
-    if arr.shape != (size, size) or not np.all(np.isfinite(arr)):
-        raise ValueError(
-            f"options.weights.{name}: must be a {size}x{size} matrix or {size} numbers"
-        )
-    return arr
 
 
 class LQRWeights(StrictModel):
@@ -171,8 +160,8 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
         if gain is not None:
             return shaped(gain, (self.n, self.dim), "options.gain"), "explicit gain"
         if weights is not None:
-            Q = _square(weights.Q, self.dim, "Q")
-            R = _square(weights.R, self.n, "R")
+            Q = square_matrix(weights.Q, self.dim, "weights.Q", (self.dim,))
+            R = square_matrix(weights.R, self.n, "weights.R", (self.n,))
             return lqr_gain(A, Bu, Q, R), "LQR (given weights)"
         if poles is not None:
             with option_checks("poles"):

@@ -38,6 +38,7 @@ from elastic_gym.validation import (
     PositiveFinite,
     StrictModel,
     at_most_one,
+    entry,
     option_checks,
     validated_options,
 )
@@ -186,23 +187,14 @@ class DeLucaObserver(BatchedObserver):
         """q'' samples of ``arms``: ideal (privileged), or eq. (11) at the estimates xi."""
         n = self.n
         if self.acceleration == "ideal":
-            if "link_acceleration" not in obs:
-                raise ValueError(
-                    "acceleration='ideal' needs obs['link_acceleration'] (the true q''; "
-                    "ObserverWrapper adds it for observers with privileged link_acceleration)"
-                )
-            ddq = np.asarray(obs["link_acceleration"], dtype=float)
-            if ddq.shape[1:] != (n,):
-                raise ValueError(f"obs['link_acceleration'] must have shape ({n},) per arm")
-            return ddq[arms]
-        if "acceleration" not in obs:
-            raise ValueError("acceleration='accelerometer' needs obs['acceleration']")
-        reading = np.asarray(obs["acceleration"], dtype=float)[arms]
-        if reading.shape[1:] != (3 * self.model.n_sensors,):
-            raise ValueError(
-                f"obs['acceleration'] must have shape "
-                f"({3 * self.model.n_sensors},) per arm, got {reading.shape[1:]}"
+            missing = (
+                "acceleration='ideal' needs obs['link_acceleration'] (the true q''; "
+                "ObserverWrapper adds it for observers with privileged link_acceleration)"
             )
+            return entry(obs, "obs", "link_acceleration", (None, n), missing)[arms]
+        missing = "acceleration='accelerometer' needs obs['acceleration']"
+        shape = (None, 3 * self.model.n_sensors)
+        reading = entry(obs, "obs", "acceleration", shape, missing)[arms]
         dq = xi[:, 3 * n :]
         if self.velocity_saturation is not None:
             dq = np.clip(dq, -self.velocity_saturation, self.velocity_saturation)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from elastic_gym.validation import per_joint_values
+from elastic_gym.validation import per_joint_values, stable_poles
 
 POLES_PER_JOINT = 4
 DEFAULT_BANDWIDTH = 250.0  # rad/s, the value found best on the KR15/2 (Sec. V-A)
@@ -45,21 +45,8 @@ def validate_poles(poles, n_joints: int) -> np.ndarray:
     Every pole must have a negative real part, and complex poles must come in
     conjugate pairs within each joint (so that the gains are real).
     """
-    try:
-        arr = np.asarray(poles, dtype=complex)
-    except (TypeError, ValueError):
-        raise ValueError(f"poles must be numbers (complex allowed), got {poles!r}") from None
-    if arr.shape == (POLES_PER_JOINT,):
-        arr = np.broadcast_to(arr, (n_joints, POLES_PER_JOINT))
-    if arr.shape != (n_joints, POLES_PER_JOINT):
-        raise ValueError(
-            f"poles must have shape ({POLES_PER_JOINT},) or ({n_joints}, {POLES_PER_JOINT}), "
-            f"got {arr.shape}"
-        )
-    if not np.all(np.isfinite(arr)):
-        raise ValueError("poles must be finite")
-    if np.any(arr.real >= 0.0):
-        raise ValueError(f"poles must have negative real parts, got {arr.tolist()}")
+    arr = stable_poles(poles, (POLES_PER_JOINT,), (n_joints, POLES_PER_JOINT))
+    arr = np.broadcast_to(arr, (n_joints, POLES_PER_JOINT))
     coeffs = _polynomial(arr)
     degree = np.arange(1, POLES_PER_JOINT + 1)
     tolerance = 1e-9 * np.abs(arr).max(axis=1, keepdims=True) ** degree

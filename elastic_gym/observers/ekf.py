@@ -31,7 +31,9 @@ from elastic_gym.validation import (
     Matrix,
     NonNegativeFinite,
     StrictModel,
+    entry,
     is_real,
+    square_matrix,
     validated_options,
 )
 
@@ -55,6 +57,8 @@ MAX_STD = float(np.sqrt(MAX_VARIANCE))
 MAX_SUBSTEPS = 100
 """Most RK4 steps per period: at T = 1 ms one step already keeps h * omega <= 0.6 for the
 stiffest elastic mode of the package (596 rad/s); more only multiply the cost."""
+PSD_TOLERANCE = 1e-12
+"""Relative rounding a given full covariance may have below zero in its eigenvalues."""
 
 
 # ----------------------------------------------------------------------------- options
@@ -68,35 +72,10 @@ def covariance_option(
     value: CovarianceValue, name: str, block_sizes: tuple[int, ...]
 ) -> np.ndarray:
     """A symmetric positive semi-definite covariance from a compact option value (its
-    entries validated by :data:`CovarianceValue`).
-
-    Accepted forms: a scalar (the same variance everywhere), one variance per block
-    (``len(block_sizes)`` values, each repeated over its block), the full diagonal,
-    or the full symmetric matrix.
-    """
-    dim = sum(block_sizes)
-    try:
-        arr = np.asarray(value, dtype=float)
-    except ValueError:  # a ragged matrix
-        arr = np.full(dim + 1, np.nan)
-    if arr.ndim == 0:
-        arr = np.full(dim, float(arr))
-    elif arr.ndim == 1 and arr.size == len(block_sizes):
-        arr = np.repeat(arr, block_sizes)
-    if arr.ndim == 1 and arr.size == dim:
-        if np.any(arr < 0.0):
-            raise ValueError(f"options.{name}: variances must be >= 0, got {value!r}")
-        return np.diag(arr)
-    if arr.shape != (dim, dim):
-        raise ValueError(
-            f"options.{name}: must be a scalar, {len(block_sizes)} block variances, "
-            f"{dim} diagonal entries or a {dim}x{dim} matrix, got {value!r}"
-        )
-    symmetric = 0.5 * (arr + arr.T)
-    scale = max(1.0, float(np.abs(arr).max()))
-    if not np.allclose(arr, arr.T) or np.linalg.eigvalsh(symmetric).min() < -1e-12 * scale:
-        raise ValueError(f"options.{name}: must be symmetric positive semi-definite")
-    return symmetric
+    entries validated by :data:`CovarianceValue`): a scalar (the same variance everywhere),
+    one variance per block (``len(block_sizes)`` values, each repeated over its block),
+    the full diagonal, or the full symmetric matrix (:func:`square_matrix`)."""
+    return square_matrix(value, sum(block_sizes), name, block_sizes, True, PSD_TOLERANCE)
 
 
 def default_process_noise(model: RobotModel, dt: float) -> np.ndarray:
@@ -439,9 +418,9 @@ class ExtendedKalmanFilter(BatchedObserver):
     def _measurements(self, obs: Mapping, arms: np.ndarray) -> np.ndarray:
         parts = [self.measured_positions(obs, arms)]
         if self.use_accelerometers:
-            if "acceleration" not in obs:
-                raise ValueError("use_accelerometers=True needs obs['acceleration']")
-            parts.append(np.asarray(obs["acceleration"], dtype=float)[arms])
+            missing = "use_accelerometers=True needs obs['acceleration']"
+            reading = entry(obs, "obs", "acceleration", None, missing)
+            parts.append(np.asarray(reading, dtype=float)[arms])
         y = np.concatenate([np.reshape(p, (len(arms), -1)) for p in parts], axis=1)
         if y.shape[1] != self.R.shape[0]:
             raise ValueError(

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Mapping
-from typing import Any, TypeGuard, cast
+from typing import TypeGuard, cast
 
 import gymnasium as gym
 import numpy as np
@@ -31,6 +31,7 @@ from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, Observer
 from elastic_gym.observers.registry import make_observer
 from elastic_gym.observers.sensors import RawSensors
+from elastic_gym.validation import elastic_base
 
 NON_FINITE_STATE = "non-finite state"
 NON_FINITE_ESTIMATE = "non-finite state estimate"
@@ -247,12 +248,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         **options,
     ) -> None:
         super().__init__(env)
-        base: Any = env.unwrapped  # an elastic_gym vector env (checked below)
-        if not hasattr(base, "batch"):
-            raise TypeError(
-                "the vector ObserverWrapper needs an elastic_gym vector env "
-                "(gym.make_vec(..., vectorization_mode='vector_entry_point'))"
-            )
+        base = elastic_base(env, "the vector ObserverWrapper")
         single = build_observer(base.batch, observer, model, options)
         check_sensor_space(env.single_observation_space, single)
         N = env.num_envs
@@ -417,11 +413,8 @@ class SensorWrapper(ObserverWrapper):
     runs where a loop on an observer does; nothing of the ground truth is read."""
 
     def __init__(self, env: VectorEnv) -> None:
-        base: Any = env.unwrapped
-        model = getattr(base, "model", None)
-        if model is None:
-            raise TypeError("the SensorWrapper needs an elastic_gym vector env")
-        super().__init__(env, RawSensors(model, base.control_dt))
+        base = elastic_base(env, "the SensorWrapper")
+        super().__init__(env, RawSensors(base.model, base.control_dt))
         self.single_observation_space = env.single_observation_space
         self.observation_space = env.observation_space
 
