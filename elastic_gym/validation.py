@@ -82,11 +82,29 @@ def all_or_none(options: Mapping[str, Any], loc: Sequence = ()) -> None:
         raise FieldError(loc, f"{together}: {' and '.join(missing)} missing")
 
 
-def shaped(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
-    """``value`` as a float64 array of ``shape``; ``ValueError`` naming ``name`` otherwise."""
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+def shaped(
+    value: Any, shape: tuple[int | None, ...], name: str, finite: bool = False
+) -> np.ndarray:
+    """``value`` as a float64 array of ``shape`` (a leading ``None``: any length N, e.g.
+    one row per arm), with finite entries if ``finite``; ``ValueError`` naming ``name``
+    otherwise."""
+    try:
+        arr: np.ndarray | None = np.asarray(value, dtype=float)
+    except ValueError:  # ragged rows
+        arr = None
+    if (
+        arr is None
+        or (
+            arr.shape != shape
+            and not (shape and shape[0] is None and arr.shape[1:] == shape[1:] and arr.ndim)
+        )
+        or (finite and not np.all(np.isfinite(arr)))
+    ):
+        shown = str(shape).replace("None", "N")
+        raise ValueError(
+            f"{name} must have {'finite entries and ' if finite else ''}shape {shown}, "
+            f"got {'ragged rows' if arr is None else arr.shape}"
+        )
     return arr
 
 
@@ -98,26 +116,12 @@ def entry(
     missing: str,
     finite: bool = False,
 ) -> Any:
-    """``data[key]`` of a step's ``obs`` or ``info`` (``where``) as a float64 array of
-    ``shape`` (a leading ``None``: any number of arms; ``shape`` ``None``: the value as
-    given), with
-    finite entries if ``finite``. ``ValueError`` reading ``missing`` (who needs the entry
-    and where it comes from) when ``data`` lacks it, naming ``where[key]`` otherwise."""
+    """``data[key]`` of a step's ``obs`` or ``info`` (``where``) as :func:`shaped` makes it
+    (``shape`` ``None``: the value as given). ``ValueError`` reading ``missing`` (who needs
+    the entry and where it comes from) when ``data`` lacks it."""
     if not isinstance(data, Mapping) or key not in data:
         raise ValueError(missing)
-    if shape is None:
-        return data[key]
-    arr = np.asarray(data[key], dtype=float)
-    lead = int(shape[0] is None)
-    if (arr.ndim != len(shape) or arr.shape[lead:] != shape[lead:]) or (
-        finite and not np.all(np.isfinite(arr))
-    ):
-        shown = str(shape).replace("None", "arms")
-        raise ValueError(
-            f"{where}[{key!r}] must have {'finite entries and ' if finite else ''}shape "
-            f"{shown}, got {arr.shape}"
-        )
-    return arr
+    return data[key] if shape is None else shaped(data[key], shape, f"{where}[{key!r}]", finite)
 
 
 def stable_poles(value: Any, *shapes: tuple[int, ...]) -> np.ndarray:
@@ -511,20 +515,23 @@ def checked(
     prefix: str = "",
     model: type[BaseModel] | None = None,
     by_kind: bool = False,
+    loc: Sequence[int | str] = (),
 ) -> T:
     """``validate()``; its ``ValidationError`` as one line per problem, the field path
-    (after ``prefix``) first: a :class:`ConfigError`, or with ``by_kind`` a ``TypeError``
-    when every problem is a value of the wrong type (a string for a number, 1 for a bool)
-    and a ``ValueError`` otherwise."""
+    (after ``prefix``) first: a :class:`ConfigError` (continuing a validator's path after
+    ``loc``), or with ``by_kind`` a ``TypeError`` when every problem is a value of the
+    wrong type (a string for a number, 1 for a bool) and a ``ValueError`` otherwise."""
     try:
         return validate()
     except ValidationError as error:
         message = format_validation_error(error, prefix, model)
-        if not by_kind:
-            raise ConfigError(message) from None
-        raise (TypeError if all(map(_wrong_type, error.errors())) else ValueError)(
-            message
-        ) from None
+        wrong_type = all(map(_wrong_type, error.errors()))
+        refusal: ValueError | TypeError = (
+            ConfigError(message, loc)
+            if not by_kind
+            else (TypeError if wrong_type else ValueError)(message)
+        )
+        raise refusal from None
 
 
 # ---------------------------------------------------------------- observer / controller options
@@ -550,10 +557,10 @@ def option_value(name: str, value: Any, kind: Any, prefix: str = "options.") -> 
 
 
 @contextmanager
-def option_checks(name: str) -> Iterator[None]:
-    """A ``ValueError`` raised inside (a check that needs the robot, beyond the option's
-    model) reads ``options.<name>: ...``."""
+def errors_at(where: str) -> Iterator[None]:
+    """A ``ValueError`` raised inside (a check that needs the robot or the other options,
+    beyond a model) reads ``<where>: ...`` (e.g. ``options.poles``, ``per_arm[1]``)."""
     try:
         yield
     except ValueError as exc:
-        raise ValueError(f"options.{name}: {exc}") from None
+        raise ValueError(f"{where}: {exc}") from None

@@ -124,7 +124,17 @@ def test_observer_wrapper_refuses_what_would_be_silently_wrong():
         (
             "elastic_gym/IiwaElastic-v0",
             {"task": "regulation", "task_options": {"goal": [9.0, 0, 0, 0, 0, 0, 0]}},
-            "joint limits",
+            r"task_options\.goal: \[\[9\.0, .* is outside the joint limits",
+        ),
+        (
+            ID,
+            {"task_options": {"waypoints": [[0.1, 0.2], [0.3]]}},
+            r"task_options\.waypoints must have shape \(N, 2\), got ragged rows",
+        ),
+        (
+            ID,
+            {"task_options": {"waypoints": [[0.1, 0.2, 0.3]]}},
+            r"task_options\.waypoints must have shape \(N, 2\), got \(1, 3\)",
         ),
     ],
 )
@@ -153,7 +163,7 @@ def test_bad_initial_states_are_refused_and_change_nothing(initial_state, match)
 
 def test_initial_state_beyond_the_joint_limits_is_refused():
     env = gym.make("elastic_gym/IiwaElastic-v0")
-    with pytest.raises(ValueError, match="joint limits"):
+    with pytest.raises(ValueError, match=r"options\.initial_state\.q: .* outside the joint limits"):
         env.reset(options={"initial_state": {"q": [0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 0.0]}})
     env.close()
 

@@ -27,7 +27,7 @@ from scipy.special import factorial
 from elastic_gym import arms
 from elastic_gym.arms import REFERENCE_KEYS
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import entry, option_value
+from elastic_gym.validation import entry, option_value, shaped
 
 DEFAULT_FD_STEP = 1e-4
 FdStep = Annotated[float, Field(strict=True, gt=0.0, lt=0.1, allow_inf_nan=False)]
@@ -50,12 +50,8 @@ def checked_reference_rows(info: Mapping, n: int, n_arms: int | None) -> np.ndar
         raise ValueError(
             f"controller needs info['reference'] with keys {REFERENCE_KEYS} {PUBLIC_INFO}"
         )
-    ref = arms.reference_rows(info)
     shape = (len(REFERENCE_KEYS), n) if n_arms is None else (n_arms, len(REFERENCE_KEYS), n)
-    if ref.shape != shape or not np.all(np.isfinite(ref)):
-        what = f"5 finite {n}-vectors" if n_arms is None else f"finite ({n_arms}, {n}) arrays"
-        raise ValueError(f"info['reference'] must hold {what}, got shape {ref.shape}")
-    return ref
+    return shaped(arms.reference_rows(info), shape, "info['reference'] rows", finite=True)
 
 
 def state_vector(obs: Mapping, dim: int, n_arms: int | None = None) -> np.ndarray:

@@ -39,7 +39,7 @@ from elastic_gym.validation import (
     NonNegativeFinite,
     PositiveFinite,
     all_or_none,
-    option_checks,
+    errors_at,
     per_joint_values,
     validated_options,
 )
@@ -104,7 +104,7 @@ class _BlockPD(FeedforwardStateFeedback):
             if self.bandwidth is None:
                 self.bandwidth = self.default_bandwidth(q0)
             kp, kd = bandwidth_pd_gains(model, q0, self.bandwidth, self.damping_ratio)
-        with option_checks("kp" if self._kp is not None else "omega"):
+        with errors_at("options.kp" if self._kp is not None else "options.omega"):
             kp, kd = per_joint_values(kp, n, "kp", 0.0), per_joint_values(kd, n, "kd", 0.0)
         gain = pd_gain(model, kp, kd, self.block)
         return gain, f"{self.block} PD"

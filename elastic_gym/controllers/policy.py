@@ -36,6 +36,7 @@ from elastic_gym.validation import (
     FieldError,
     StrictModel,
     all_or_none,
+    lookup,
     per_joint_values,
     validated_options,
 )
@@ -66,9 +67,13 @@ def load_sb3_model(path: str | os.PathLike, algorithm: str | type):
             sb3 = importlib.import_module("stable_baselines3")
         except ImportError as exc:  # pragma: no cover - optional dependency
             raise ImportError("loading a policy file needs stable-baselines3 (extra 'rl')") from exc
-        if not hasattr(sb3, algorithm):
-            raise ValueError(f"unknown stable-baselines3 algorithm {algorithm!r}")
-        algorithm = getattr(sb3, algorithm)
+        base = importlib.import_module("stable_baselines3.common.base_class").BaseAlgorithm
+        algorithms = {
+            name: cls
+            for name, cls in vars(sb3).items()
+            if isinstance(cls, type) and issubclass(cls, base)
+        }
+        algorithm = lookup(algorithms, algorithm, "stable-baselines3 algorithm")
     cls: Any = algorithm
     return cls.load(os.fspath(path), device="cpu")
 

@@ -44,7 +44,7 @@ from elastic_gym.validation import (
     PositiveFinite,
     StrictModel,
     at_most_one,
-    option_checks,
+    errors_at,
     shaped,
     square_matrix,
     validated_options,
@@ -164,7 +164,7 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
             R = square_matrix(weights.R, self.n, "weights.R", (self.n,))
             return lqr_gain(A, Bu, Q, R), "LQR (given weights)"
         if poles is not None:
-            with option_checks("poles"):
+            with errors_at("options.poles"):
                 return pole_placement_gain(A, Bu, poles), "pole placement"
         return lqr_bandwidth_gain(self.model, q0, omega), f"LQR, slowest pole {omega} rad/s"
 

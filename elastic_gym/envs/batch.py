@@ -54,7 +54,7 @@ from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec, substeps
 from elastic_gym.robots.urdf_tools import joint_limits
-from elastic_gym.validation import checked_count, per_joint_values, validated
+from elastic_gym.validation import checked_count, errors_at, per_joint_values, validated
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
 
@@ -239,7 +239,8 @@ class ArmBatch:
         self.joint_lower, self.joint_upper = joint_limits(spec.urdf, spec.joint_names)
         self.reward_config = RewardConfig.from_config(reward)
         self.task = make_task(task, spec, self.model, task_options, n_arms=self.n_arms)
-        self._check_task_points()
+        for name, points in self.task.configured_points().items():
+            self._check_within_limits(f"task_options.{name}", points)
         self._make_sensors()
         self.sim = ArmSimulator(
             spec,
@@ -266,10 +267,8 @@ class ArmBatch:
         checked: set[tuple] = set()  # plants whose stability is checked
         for i, arm in enumerate(self.arm_kwargs):
             where = "" if merged is None else f"per_arm[{i}]."
-            try:
+            with errors_at(f"per_arm[{i}]"):
                 settings = shared_settings if merged is None else resolver.settings(arm)
-            except ValueError as error:
-                raise ValueError(f"per_arm[{i}]: {error}") from None
             ranges = {
                 path: validated(Range, spec, f"{where}randomize[{path!r}]")
                 for path, spec in (arm.get("randomize") or {}).items()
@@ -295,13 +294,13 @@ class ArmBatch:
         change = None if settings.payload is None else settings.payload.change
         return [] if change is None else [change.mass]
 
-    def _check_task_points(self) -> None:
-        for name, points in self.task.configured_points().items():
-            if np.any(points < self.joint_lower) or np.any(points > self.joint_upper):
-                raise ValueError(
-                    f"task option {name!r} = {points.tolist()} is outside the "
-                    f"joint limits [{self.joint_lower}, {self.joint_upper}]"
-                )
+    def _check_within_limits(self, name: str, points: np.ndarray) -> None:
+        """Refuse configurations ``points`` (the option ``name``) outside the joint limits."""
+        if np.any(points < self.joint_lower) or np.any(points > self.joint_upper):
+            raise ValueError(
+                f"{name}: {points.tolist()} is outside the joint limits "
+                f"[{self.joint_lower}, {self.joint_upper}]"
+            )
 
     def _make_sensors(self) -> None:
         N, n = self.n_arms, self.n_joints
@@ -518,11 +517,8 @@ class ArmBatch:
                     + (f" of magnitude <= {self.max_velocity:g}" if key.startswith("d") else "")
                     + f", got {value!r}"
                 )
-            if key == "q" and (np.any(arr < self.joint_lower) or np.any(arr > self.joint_upper)):
-                raise ValueError(
-                    f"options.initial_state.q: {arr} is outside the joint limits "
-                    f"[{self.joint_lower}, {self.joint_upper}]"
-                )
+            if key == "q":
+                self._check_within_limits("options.initial_state.q", arr)
             values[key] = arr
         return values
 

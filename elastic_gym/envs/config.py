@@ -24,7 +24,6 @@ from pydantic import (
     BeforeValidator,
     Field,
     StrictInt,
-    ValidationError,
     WithJsonSchema,
     model_validator,
 )
@@ -34,7 +33,6 @@ from elastic_gym.envs.sensors import AccelerometerConfig, EncoderConfig
 from elastic_gym.model import ParameterScaling
 from elastic_gym.robots.spec import AccelerometerMount
 from elastic_gym.validation import (
-    ConfigError,
     Finite,
     FiniteNumbers,
     NonNegativeFinite,
@@ -44,7 +42,7 @@ from elastic_gym.validation import (
     StrictModel,
     all_or_none,
     at_most_one,
-    format_validation_error,
+    checked,
     plain,
 )
 
@@ -253,10 +251,7 @@ def checked_kwargs(kwargs: dict, loc: tuple = (), model: type[EnvKwargs] = EnvKw
     """``kwargs`` (all or some of an env's) validated by ``model`` and returned as given;
     :class:`~elastic_gym.validation.ConfigError` with the field path
     (``plant_scaling.link_mass: ...``) after ``loc`` otherwise."""
-    try:
-        model.model_validate(plain(kwargs))
-    except ValidationError as error:
-        raise ConfigError(format_validation_error(error, "", model), loc) from None
+    checked(lambda: model.model_validate(plain(kwargs)), "", model, loc=loc)
     return kwargs
 
 

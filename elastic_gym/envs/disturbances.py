@@ -11,26 +11,29 @@ from __future__ import annotations
 
 import numpy as np
 
-from elastic_gym.envs.config import TorquePulsesConfig
+from elastic_gym.envs.config import RandomPulses, TorquePulsesConfig
 from elastic_gym.validation import per_joint_values
 
 
-def draw_pulses(
-    config: TorquePulsesConfig, rng: np.random.Generator | None, torque_limit: np.ndarray
+def given_pulses(
+    config: TorquePulsesConfig, torque_limit: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(start times (P,), end times (P,), amplitudes (P, n)) of a schedule; a random one
-    draws times, then durations, then amplitudes, then signs from ``rng``."""
+    """(start times (P,), end times (P,), amplitudes (P, n)) of a given schedule."""
     n = len(torque_limit)
-    if config.random is None:
-        times = np.asarray(config.times, dtype=float)
-        amplitudes = [
-            per_joint_values(a, n, f"torque_pulses.amplitudes[{k}]")
-            for k, a in enumerate(config.amplitudes or ())
-        ]
-        return times, times + np.asarray(config.durations), np.array(amplitudes).reshape(-1, n)
-    if rng is None:
-        raise ValueError("random torque pulses are drawn from an arm's plant stream")
-    spec = config.random
+    times = np.asarray(config.times, dtype=float)
+    amplitudes = [
+        per_joint_values(a, n, f"torque_pulses.amplitudes[{k}]")
+        for k, a in enumerate(config.amplitudes or ())
+    ]
+    return times, times + np.asarray(config.durations), np.array(amplitudes).reshape(-1, n)
+
+
+def random_pulses(
+    spec: RandomPulses, rng: np.random.Generator, torque_limit: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A random schedule as :func:`given_pulses` gives one: times, then durations, then
+    amplitudes, then signs drawn from ``rng`` (an arm's plant stream)."""
+    n = len(torque_limit)
     times = rng.uniform(*spec.window, size=spec.count)
     durations = rng.uniform(spec.duration.low, spec.duration.high, size=spec.count)
     scale = rng.uniform(spec.amplitude.low, spec.amplitude.high, size=(spec.count, n))

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from elastic_gym.envs.arm_config import ArmSettings
-from elastic_gym.envs.disturbances import TorquePulses, draw_pulses
+from elastic_gym.envs.disturbances import TorquePulses, given_pulses, random_pulses
 from elastic_gym.envs.randomization import PATHS, draw, plant_stream, with_values
 
 if TYPE_CHECKING:
@@ -47,7 +47,7 @@ class PlantState:
             self._set_payload(arm, arm_settings, initial=True)
             pulses = arm_settings.pulses
             if pulses is not None and pulses.random is None:
-                self.pulses.set(arm, *draw_pulses(pulses, None, batch.torque_limit))
+                self.pulses.set(arm, *given_pulses(pulses, batch.torque_limit))
 
     # ------------------------------------------------------------------ resets
     def reset(self, arms: np.ndarray) -> None:
@@ -67,7 +67,7 @@ class PlantState:
                 self._set_payload(arm, batch.settings[arm])
             pulses = batch.settings[arm].pulses
             if pulses is not None and pulses.random is not None:
-                self.pulses.set(arm, *draw_pulses(pulses, rng, batch.torque_limit))
+                self.pulses.set(arm, *random_pulses(pulses.random, rng, batch.torque_limit))
 
     def apply(self, arm: int, settings: ArmSettings) -> None:
         """Give arm ``arm`` the plant and sensors of ``settings``."""

@@ -20,6 +20,7 @@ import numpy as np
 
 from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, deep_merge
 from elastic_gym.envs.config import Range
+from elastic_gym.validation import errors_at, lookup
 
 PLANT_STREAM = 0x706C616E  # spawn key of the plant stream ("plan")
 # path -> integer-valued
@@ -97,16 +98,14 @@ def check_ranges(
     frequency-changing paths (whose stability the caller checks)."""
     where = f"{prefix}randomize"
     for path, spec in ranges.items():
-        if path not in PATHS:
-            raise ValueError(f"{where}: unknown parameter path {path!r}; valid: {list(PATHS)}")
-        if PATHS[path] and (spec.low != int(spec.low) or spec.high != int(spec.high)):
+        with errors_at(where):
+            integer = lookup(PATHS, path, "parameter path")
+        if integer and (spec.low != int(spec.low) or spec.high != int(spec.high)):
             raise ValueError(f"{where}[{path!r}]: {path} takes integers, got {spec}")
         for end in ("low", "high"):
-            value = int(getattr(spec, end)) if PATHS[path] else getattr(spec, end)
-            try:
+            value = int(getattr(spec, end)) if integer else getattr(spec, end)
+            with errors_at(f"{where}[{path!r}].{end}"):
                 resolver.settings(with_values(kwargs, {path: value}))
-            except ValueError as error:
-                raise ValueError(f"{where}[{path!r}].{end}: {error}") from None
     modes = [p for p in MODE_PATHS if p in ranges]
     corners = itertools.product(*[(ranges[p].low, ranges[p].high) for p in modes])
     return [

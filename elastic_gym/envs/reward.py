@@ -103,36 +103,32 @@ def _saturated_mean(x: np.ndarray) -> np.ndarray:
 
 
 def _checked(error, error_rate, torque, previous_torque, torque_limit, torsion):
+    shape = np.shape(error)
     arrays = {
         "error": error,
         "error_rate": error_rate,
         "torque": torque,
         "previous_torque": previous_torque,
         "torsion": torsion,
+        "torque_limit": torque_limit,
     }
     out = {}
     for name, value in arrays.items():
         arr = np.asarray(value, dtype=float)
-        if arr.ndim != 2:
+        allowed = [shape, shape[1:]] if name == "torque_limit" else [shape]
+        if len(shape) != 2 or arr.shape not in allowed:
             raise ValueError(
-                f"reward input {name!r} must have shape (arms, joints), got {arr.shape}"
-            )
-        if out and arr.shape != out["error"].shape:
-            raise ValueError(
-                f"reward input {name!r} has shape {arr.shape}, error has {out['error'].shape}"
+                f"reward input {name!r} must have shape (arms, joints)"
+                + (" or (joints,)" if len(allowed) > 1 else "")
+                + f" (error has {shape}), got {arr.shape}"
             )
         out[name] = arr
-    limit, shape = np.asarray(torque_limit, dtype=float), out["error"].shape
-    if limit.shape not in (shape, shape[1:]):
-        raise ValueError(
-            f"reward input 'torque_limit' must have shape {shape[1:]} or {shape}, got {limit.shape}"
-        )
     return (
         out["error"],
         out["error_rate"],
         out["torque"],
         out["previous_torque"],
-        limit,
+        out["torque_limit"],
         out["torsion"],
     )
 

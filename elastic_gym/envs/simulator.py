@@ -109,21 +109,21 @@ def rowwise_matvec(A: np.ndarray, X: np.ndarray) -> np.ndarray:
     return out
 
 
-def check_display() -> None:
-    """Raise RuntimeError unless an X server answers at $DISPLAY (Linux).
+def display_problem() -> str | None:
+    """Why no X server answers at $DISPLAY (Linux), or None when one does.
 
     ``p.connect(p.GUI)`` without a reachable X server terminates the whole process,
     so the GUI is only started after a successful connection to the display.
     """
     if not sys.platform.startswith("linux"):
-        return
+        return None
     display = os.environ.get("DISPLAY")
     if not display:
-        raise RuntimeError("render_mode='human' needs a display (DISPLAY is not set)")
+        return "DISPLAY is not set"
     host, _, rest = display.rpartition(":")
     number = rest.split(".")[0]
     if not number.isdigit():
-        raise RuntimeError(f"render_mode='human': cannot parse DISPLAY={display!r}")
+        return f"cannot parse DISPLAY={display!r}"
     try:
         if host in ("", "unix"):
             with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
@@ -132,10 +132,8 @@ def check_display() -> None:
         else:
             socket.create_connection((host, 6000 + int(number)), timeout=X11_TIMEOUT).close()
     except OSError as exc:
-        raise RuntimeError(
-            f"render_mode='human' needs a display: no X server answers at DISPLAY={display!r} "
-            f"({exc})"
-        ) from None
+        return f"no X server answers at DISPLAY={display!r} ({exc})"
+    return None
 
 
 class ArmSimulator:
@@ -171,13 +169,11 @@ class ArmSimulator:
         self.n = n = spec.n_joints
         self.n_arms = n_arms
         self.physics_dt = float(physics_dt)
-        if gui:
-            check_display()
-            self.client = p.connect(p.GUI)
-            if self.client < 0:
-                raise RuntimeError("render_mode='human' needs a display for the PyBullet GUI")
-        else:
-            self.client = p.connect(p.DIRECT)
+        problem = display_problem() if gui else None
+        self.client = -1 if problem else p.connect(p.GUI if gui else p.DIRECT)
+        if gui and self.client < 0:
+            why = problem or "the PyBullet GUI did not start"
+            raise RuntimeError(f"render_mode='human' needs a display: {why}")
         self._connected = True
         c = self.client
         p.resetSimulation(physicsClientId=c)

@@ -12,6 +12,7 @@ values raise ``ValueError`` naming the field (``task_options.max_move: ...``).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Annotated, ClassVar
 
@@ -29,6 +30,7 @@ from elastic_gym.validation import (
     StrictModel,
     lookup,
     per_joint_values,
+    shaped,
     validated,
 )
 
@@ -71,7 +73,7 @@ class ExcitationOptions(StrictModel):
 
 
 @dataclass
-class Task:
+class Task(ABC):
     """Base class: reference trajectories, an optional external torque, start configurations.
 
     A task serves ``n_arms`` arms at once (arrays with a leading arm axis); arm i samples
@@ -90,12 +92,13 @@ class Task:
         (len(arms), N), at rest. ``rngs`` holds the generators of all arms."""
         return np.array([self.reset_arm(i, rngs[i]) for i in arms]).reshape(-1, self.spec.n_joints)
 
+    @abstractmethod
     def reset_arm(self, arm: int, rng: np.random.Generator) -> np.ndarray:
-        raise NotImplementedError
+        """Sample arm ``arm``'s episode from ``rng``; return its initial configuration (N,)."""
 
+    @abstractmethod
     def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
         """(len(arms), REFERENCE_ORDER + 1, N): q_d and its derivatives, arm k at time t[k]."""
-        raise NotImplementedError
 
     def external_torque(self, t: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """Open-loop torque (n_arms, N) added to the action; None when there is none."""
@@ -155,11 +158,7 @@ class TrackingTask(Task):
         self.n_moves, self.move_time, self.dwell_time = o.n_moves, o.move_time, o.dwell_time
         self._given: np.ndarray | None = None
         if o.waypoints is not None:
-            if any(len(point) != n for point in o.waypoints):
-                raise ValueError(
-                    f"task_options.waypoints: must be a list of {n}-vectors, got {o.waypoints!r}"
-                )
-            self._given = np.array(o.waypoints, dtype=float)
+            self._given = shaped(o.waypoints, (None, n), "task_options.waypoints")
         self._start = None if o.start is None else _vector(o.start, n, "start")
         self._max_move = self.spec.max_move if o.max_move is None else o.max_move
         if self._given is not None:

@@ -492,10 +492,7 @@ def _batch(x: np.ndarray, n: int, name: str) -> np.ndarray:
         and x.flags.c_contiguous
     ):
         return x  # the hot path: the simulator's own arrays
-    arr = np.ascontiguousarray(x, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != n:
-        raise ValueError(f"{name} must have shape (N, {n}), got {arr.shape}")
-    return arr
+    return np.ascontiguousarray(shaped(x, (None, n), name))
 
 
 class SerialChain:

@@ -39,7 +39,7 @@ from elastic_gym.validation import (
     StrictModel,
     at_most_one,
     entry,
-    option_checks,
+    errors_at,
     validated_options,
 )
 
@@ -143,7 +143,7 @@ class DeLucaObserver(BatchedObserver):
 
         K, B, D = model.K, model.B, model.D
         radius = DEFAULT_BANDWIDTH if options.bandwidth is None else options.bandwidth
-        with option_checks("poles" if poles is not None else "bandwidth"):
+        with errors_at("options.poles" if poles is not None else "options.bandwidth"):
             self.poles = butterworth_poles(radius, n) if poles is None else validate_poles(poles, n)
             if self.dt * np.abs(self.poles).max() > MAX_POLE_STEP:
                 raise ValueError(

@@ -29,7 +29,7 @@ from elastic_gym.observers.rigid_common import (
     positive_integer,
     positive_number,
 )
-from elastic_gym.validation import at_most_one, option_checks, option_value
+from elastic_gym.validation import at_most_one, errors_at, option_value
 
 JumpSets = Literal["hysteresis", "literal"]
 JUMP_SETS = get_args(JumpSets)
@@ -78,7 +78,7 @@ class ReducedOrderObserver(ScalarGainReducedObserver):
     ) -> None:
         self.hybrid = boolean_option("hybrid", hybrid)
         option_value("jump_sets", jump_sets, JumpSets)
-        with option_checks("k0"):  # k0: a constant gain, hybrid: the switched one
+        with errors_at("options.k0"):  # k0: a constant gain, hybrid: the switched one
             at_most_one({"k0": k0, "hybrid": hybrid or None})
         self.eta = positive_number("eta", eta)
         self.v_max = positive_number("v_max", v_max)

@@ -208,24 +208,23 @@ class RobotSpec:
 
     def __post_init__(self) -> None:
         n = self.n_joints
-        vectors: dict[str, tuple[float, ...] | None] = {
-            "torque_limit": self.torque_limit,
-            "workspace_low": self.workspace_low,
-            "workspace_high": self.workspace_high,
+        vectors: dict[str, tuple[tuple[float, ...] | None, bool]] = {  # (value, positive)
+            "torque_limit": (self.torque_limit, False),
+            "workspace_low": (self.workspace_low, False),
+            "workspace_high": (self.workspace_high, False),
         }
         if self.elastic:
             vectors.update(
-                stiffness=self.stiffness, motor_inertia=self.motor_inertia, damping=self.damping
+                stiffness=(self.stiffness, True),
+                motor_inertia=(self.motor_inertia, True),
+                damping=(self.damping, False),
             )
-        for key, value in vectors.items():
-            if value is None or len(value) != n:
+        for key, (value, positive) in vectors.items():
+            if value is None or len(value) != n or (positive and min(value) <= 0):
                 raise ValueError(
-                    f"RobotSpec {self.name!r}: {key} must have {n} entries, got {value!r}"
+                    f"RobotSpec {self.name!r}: {key} must have {n} entries"
+                    f"{', each > 0' if positive else ''}, got {value!r}"
                 )
-        if self.elastic and (
-            min(self.stiffness or ()) <= 0 or min(self.motor_inertia or ()) <= 0
-        ):  # both given (checked above)
-            raise ValueError(f"RobotSpec {self.name!r}: stiffness and motor_inertia must be > 0")
         if self.coupling is not None:
             S = np.asarray(self.coupling, dtype=float)
             if S.shape != (n, n) or np.any(np.tril(S) != 0.0):
