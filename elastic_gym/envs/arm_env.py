@@ -122,15 +122,10 @@ class ArmEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode at rest (or at ``options["initial_state"]``, see ArmBatch)."""
         self.batch._check_open()
-        previous = self._np_random, self._np_random_seed
-        with self.batch.generators_kept_on_error(ARM):
-            try:
-                super().reset(seed=seed)
-                self.batch.rngs[0] = self.np_random
-                self.batch.reset_arms(ARM, options)
-            except BaseException:  # a refused reset changes no random stream
-                self._np_random, self._np_random_seed = previous
-                raise
+        with self.batch.generators_kept_on_error(ARM, self):  # a refused reset: no change
+            super().reset(seed=seed)
+            self.batch.rngs[0] = self.np_random
+            self.batch.reset_arms(ARM, options)
         return self.batch.observation(0), self.batch.info(0)
 
     def step(self, action):

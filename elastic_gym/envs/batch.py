@@ -21,7 +21,7 @@ import contextlib
 import functools
 import inspect
 from collections.abc import Iterator
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
@@ -411,16 +411,20 @@ class ArmBatch:
 
     # ------------------------------------------------------------------ episodes
     @contextlib.contextmanager
-    def generators_kept_on_error(self, arms: np.ndarray) -> Iterator[None]:
+    def generators_kept_on_error(self, arms: np.ndarray, env: Any = None) -> Iterator[None]:
         """If the block raises (a refused reset), the generators of ``arms`` are the same
-        objects in the same states as before it: a refused reset changes no stream."""
+        objects in the same states as before it, and so is the ``np_random`` of ``env`` (a
+        single-arm env) and its seed: a refused reset changes no stream."""
         saved = [(i, self.rngs[i], self.rngs[i].bit_generator.state) for i in arms]
+        own = None if env is None else (env._np_random, env._np_random_seed)
         try:
             yield
         except BaseException:
             for i, rng, state in saved:
                 rng.bit_generator.state = state
                 self.rngs[i] = rng
+            if own is not None:
+                env._np_random, env._np_random_seed = own
             raise
 
     def reset_arms(self, arms: np.ndarray, options: dict | None = None) -> None:

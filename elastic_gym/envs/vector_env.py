@@ -171,13 +171,14 @@ class ArmVectorEnv(VectorEnv):
         batch._check_open()
         tau = validated_actions(actions, self.num_envs, batch.n_joints)
         mode = self.autoreset_mode
-        if mode is AutoresetMode.DISABLED and not batch.running.all():
+        disabled = mode is AutoresetMode.DISABLED
+        if not (batch.running if disabled else batch.running | self._autoreset).all():
             raise RuntimeError(
                 "autoreset is disabled: reset the arms whose episode has ended "
                 "(reset(options={'reset_mask': ...})) before stepping them"
+                if disabled
+                else "call reset() before step()"
             )
-        if mode is not AutoresetMode.DISABLED and not (batch.running | self._autoreset).all():
-            raise RuntimeError("call reset() before step()")
         stepping = ~self._autoreset
         reward, terminated, truncated = batch.step(tau, stepping)
         done = terminated | truncated
