@@ -333,15 +333,15 @@ def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_p
     assert card.entry["source"] == observer and card.entry["controller"] == "motor-pd"
     assert re.search(r"30 runs .*on 1 worker, about \d+ s", capsys.readouterr().out)
     for bad, message in [
-        (["--class", observer, "--source", "ekf"], "drop --source"),
+        (["--class", observer, "--source", "ekf"], "--class (an Observer) and --source"),
         (
             ["--class", "elastic_gym.controllers.pd:MotorPD", "--controller", "motor-pd"],
-            "drop --controller",
+            "--class (a Controller) and --controller",
         ),
         (["--class", "elastic_gym.envs:ElasticArmEnv"], "neither a Controller nor an Observer"),
         (["--controller", "motor-pd", "--output", str(tmp_path / "a")], "earlier scorecard"),
         (["--controller", "motor-pd", "--robot", "kr15"], "unknown robot(s) ['kr15']"),
-        ([], "give --controller, --class, --run or --leaderboard"),
+        ([], "give one of --leaderboard or --run or --controller/--class/--source"),
     ]:
         assert cli([*args, *bad]) == 2
         assert message in capsys.readouterr().err
