@@ -173,11 +173,10 @@ class RunFolder:
     def read_config(self) -> TrainConfig:
         """The run's configuration (the folder checked, old folders migrated); a missing
         or invalid file raises ``ValueError`` naming it."""
-        if not self.path.is_dir():
-            raise ValueError(f"{self.path} is not a training run folder: no such folder")
         missing = [name for name in RUN_FILES if not (self.path / name).is_file()]
         if missing:
-            raise ValueError(f"{self.path} is not a training run folder: missing {missing}")
+            why = f"missing {missing}" if self.path.is_dir() else "no such folder"
+            raise ValueError(f"{self.path} is not a training run folder: {why}")
         path = self.path / "config.yaml"
         try:
             data = load_yaml(path)
