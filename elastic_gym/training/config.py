@@ -24,6 +24,7 @@ from pydantic import (
     AfterValidator,
     ConfigDict,
     Field,
+    GetPydanticSchema,
     RootModel,
     StrictBool,
     StrictFloat,
@@ -75,7 +76,8 @@ def default_policy(algo: str) -> str:
 
 
 # an integer or an integral float (YAML's ``!!float 1e6`` is 1000000), not a bool or a string
-Integral = StrictInt | Annotated[StrictFloat, Field(multiple_of=1), AfterValidator(int)]
+_INTEGRAL = StrictInt | Annotated[StrictFloat, Field(multiple_of=1), AfterValidator(int)]
+Integral = Annotated[int, GetPydanticSchema(lambda _, handler: handler.generate_schema(_INTEGRAL))]
 Count = Annotated[Integral, Field(ge=1), WithJsonSchema({"type": "integer", "minimum": 1})]
 PositiveInt = Annotated[StrictInt, Field(ge=1)]  # numpy integers count (StrictModel)
 
