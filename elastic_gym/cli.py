@@ -16,17 +16,18 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel
+from pydantic import BaseModel, RootModel
 
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
 from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
 from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
 from elastic_gym.parallel import BACKENDS, DEFAULT_BACKEND, Interrupted, interrupts_raised
-from elastic_gym.validation import distinct
+from elastic_gym.validation import distinct, validated
 
 if TYPE_CHECKING:
+    from elastic_gym.benchmark.entry import EntryArguments
     from elastic_gym.training import TrainConfig
 
 
@@ -290,15 +291,14 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=run_train)
 
 
+class _Mapping(RootModel[dict[str, Any]]):
+    """A YAML mapping given on the command line (empty: ``{}``)."""
+
+
 def _yaml_mapping(text: str, option: str) -> dict:
     from elastic_gym.yaml_io import load_yaml
 
-    value = load_yaml(text, option)
-    if value is None:
-        return {}
-    if not isinstance(value, dict):
-        raise ValueError(f"{option}: must be a YAML mapping, got {text!r}")
-    return value
+    return validated(_Mapping, load_yaml(text, option), prefix=option).root
 
 
 def _action_fields(args: argparse.Namespace) -> dict:
@@ -461,54 +461,31 @@ def add_benchmark_parser(subcommands: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=run_benchmark_command)
 
 
-def benchmark_entry(args: argparse.Namespace) -> dict:
-    """The entry fields of ``elastic-gym benchmark``'s arguments."""
-    from elastic_gym.benchmark.entry import DEFAULT_CONTROLLER, TRUE_STATE, class_kind
+def benchmark_arguments(args: argparse.Namespace) -> EntryArguments:
+    """The entry options of ``elastic-gym benchmark``, validated together."""
+    from elastic_gym.benchmark.entry import EntryArguments
 
-    options = _yaml_mapping(args.options, "--options")
-    source_options = _yaml_mapping(args.source_options, "--source-options")
-    label = {"label": args.label} if args.label else {}
-    given = [f"--{k}" for k in ("controller", "source", "run") if getattr(args, k)]
-    given += ["--class"] if args.cls else []
-    if args.run:
-        extra = [g for g in given if g != "--run"] + (["--options"] if options else [])
-        if extra or source_options:
-            raise ValueError(f"--run takes no {extra or ['--source-options']}: the run has them")
-        return {"run": args.run, **label}
-    controller, source = args.controller, args.source
-    if args.cls:
-        if class_kind(args.cls, "--class") == "observer":
-            if source:
-                raise ValueError("--class is an Observer, the state source: drop --source")
-            source = args.cls
-        elif controller:
-            raise ValueError("--class is a Controller: drop --controller")
-        else:
-            controller = args.cls
-    if not (controller or source):
-        raise ValueError("give --controller, --class, --run or --leaderboard")
-    return {
-        "controller": controller or DEFAULT_CONTROLLER,
-        "options": options,
-        "source": source or TRUE_STATE,
-        "source_options": source_options,
-        **label,
+    fields = {key: getattr(args, key) for key in ("controller", "source", "run", "label")}
+    fields |= {"class": args.cls, "leaderboard": args.leaderboard}
+    fields |= {
+        key: _yaml_mapping(getattr(args, key), f"--{key.replace('_', '-')}")
+        for key in ("options", "source_options")
     }
+    return validated(EntryArguments, fields, prefix="entry")
 
 
 def run_benchmark_command(args: argparse.Namespace) -> int:
     from elastic_gym.benchmark import rebuild_leaderboard, run_benchmark
 
-    if args.leaderboard:
-        if args.controller or args.cls or args.run or args.source:
-            raise ValueError("--leaderboard runs nothing: drop --controller/--class/--run/--source")
+    arguments = benchmark_arguments(args)
+    if arguments.leaderboard:
         files = rebuild_leaderboard(args.scorecards, args.page, args.suite)
         print("written: " + ", ".join(str(f) for f in files))
         return 0
     if args.run:
         require_rl_extra("benchmark --run")
     run_benchmark(
-        benchmark_entry(args),
+        arguments.entry(),
         suite=args.suite,
         robots=args.robot,
         output_dir=args.output,

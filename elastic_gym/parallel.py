@@ -181,32 +181,31 @@ def for_each_result(
         weight = size or (lambda job: 1)
         task = bar.add_task(label, total=sum(weight(job) for job in jobs))
 
-        def deliver(index: int, result: Any) -> None:
-            on_result(index, result)
+        def settle(index: int, ok: bool, outcome: Any) -> None:
+            """A job's result (``ok``) or exception: results go to ``on_result``, as does
+            ``crashed(job, WorkerDiedError)`` when given; other exceptions are raised as a
+            ``RuntimeError`` naming the job."""
+            if not ok and crashed is not None and isinstance(outcome, WorkerDiedError):
+                ok, outcome = True, crashed(jobs[index], outcome)
+            if not ok:
+                raise RuntimeError(
+                    f"{describe(jobs[index])} could not run: {type(outcome).__name__}: {outcome}"
+                ) from outcome
+            on_result(index, outcome)
             bar.advance(task, weight(jobs[index]))
 
-        def failure(index: int, exc: Exception) -> RuntimeError:
-            return RuntimeError(
-                f"{describe(jobs[index])} could not run: {type(exc).__name__}: {exc}"
-            )
-
-        def died(index: int, exc: WorkerDiedError) -> None:
-            if crashed is None:
-                raise failure(index, exc) from exc
-            deliver(index, crashed(jobs[index], exc))
-
         if backend == "ray":
-            _run_ray(function, jobs, workers, deliver, failure, died)
+            _run_ray(function, jobs, workers, settle)
         elif workers == 1 and refers_to_main(function, jobs):
             with single_threaded():
                 for index, job in enumerate(jobs):
                     try:
-                        result = function(job)
+                        ok, outcome = True, function(job)
                     except Exception as exc:
-                        raise failure(index, exc) from exc
-                    deliver(index, result)
+                        ok, outcome = False, exc
+                    settle(index, ok, outcome)
         else:
-            _run_processes(function, jobs, workers, deliver, failure, died)
+            _run_processes(function, jobs, workers, settle)
 
 
 def run_jobs(
@@ -262,18 +261,13 @@ def _call(function: Callable[[Any], Any], job: Any) -> Any:
     return function(job)
 
 
-def _run_processes(function, jobs, workers, deliver, failure, died) -> None:
+def _run_processes(function, jobs, workers, settle) -> None:
     with WorkerPool(function, workers, spawn_env=single_threaded) as pool:
         for index, ok, outcome in pool.results(list(jobs)):
-            if ok:
-                deliver(index, outcome)
-            elif isinstance(outcome, WorkerDiedError):
-                died(index, outcome)
-            else:
-                raise failure(index, outcome) from outcome
+            settle(index, ok, outcome)
 
 
-def _run_ray(function, jobs, workers, deliver, failure, died) -> None:
+def _run_ray(function, jobs, workers, settle) -> None:
     try:
         import ray
     except ImportError:
@@ -312,13 +306,12 @@ def _run_ray(function, jobs, workers, deliver, failure, died) -> None:
             for ref in done:
                 index = pending.pop(ref)
                 try:
-                    result = ray.get(ref)
+                    ok, outcome = True, ray.get(ref)
                 except ray.exceptions.WorkerCrashedError as exc:
-                    died(index, WorkerDiedError(None, f"the Ray worker crashed: {exc}"))
-                    continue
+                    ok, outcome = False, WorkerDiedError(None, f"the Ray worker crashed: {exc}")
                 except Exception as exc:
-                    raise failure(index, exc) from exc
-                deliver(index, result)
+                    ok, outcome = False, exc
+                settle(index, ok, outcome)
     except BaseException:
         for ref in pending:
             with contextlib.suppress(Exception):  # e.g. a task that has just finished

@@ -173,7 +173,7 @@ def test_bad_hyperparameters(tmp_path):
     with pytest.raises(ValueError, match="key=value"):
         parse_overrides(["learning_rate"])
     wrong_kinds = [
-        ({"n_steps": "abc"}, "hyper-parameter n_steps: must be an integer"),
+        ({"n_steps": "abc"}, "hyper-parameter n_steps: Input should be a valid integer"),
         ({"learning_rate": float("nan")}, "learning_rate: Input should be a finite number"),
         ({"n_steps": 64.5}, "n_steps: Input should be a valid integer"),
         ({"n_envs": 0}, "n_envs: Input should be greater than or equal to 1"),

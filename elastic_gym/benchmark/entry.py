@@ -16,18 +16,38 @@ scored like any entry and listed apart (:func:`describe_entry` records what it u
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import Field, model_validator
+from pydantic import AfterValidator, Field, PrivateAttr, StrictStr, model_validator
 
 from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry, resolve_class
-from elastic_gym.observers.registry import OBSERVERS, source_class, state_sources
+from elastic_gym.evaluation.scenario_models import ClassPath
+from elastic_gym.observers.registry import OBSERVERS, source_class
 from elastic_gym.validation import StrictModel, at_most_one
 
 TRUE_STATE = "true"
 TRAINED_POLICY = "trained-policy"
 DEFAULT_CONTROLLER = "feedforward-state-feedback"
+
+
+def _registered(check: Callable[[str], Any]) -> Callable[[Any], Any]:
+    """A validator checking a registry name with ``check`` (a class or a class path
+    passes: it is resolved when the runs are planned)."""
+
+    def validate(value: Any) -> Any:
+        if value is not None and not _is_class_path(value):
+            check(value)
+        return value
+
+    return validate
+
+
+def _controller_class(name: str) -> type:
+    from elastic_gym.evaluation.controllers import comparison_controller
+
+    return comparison_controller(name)
 
 
 class Entry(StrictModel):
@@ -38,9 +58,11 @@ class Entry(StrictModel):
     """
 
     label: str | None = Field(default=None, min_length=1)
-    controller: Any = None
+    controller: Annotated[
+        StrictStr | type | None, AfterValidator(_registered(_controller_class))
+    ] = None
     options: dict[str, Any] = Field(default_factory=dict)
-    source: Any = TRUE_STATE
+    source: Annotated[StrictStr | type, AfterValidator(_registered(source_class))] = TRUE_STATE
     source_options: dict[str, Any] = Field(default_factory=dict)
     run: str | None = None
     best: bool = False
@@ -49,13 +71,7 @@ class Entry(StrictModel):
     def _one_kind(self) -> Entry:
         at_most_one({"controller": self.controller, "run": self.run}, required=True)
         if self.run is not None and (self.options or self.source_options):
-            raise ValueError("a run folder takes no options: its run_config.yaml has them")
-        for name in ("controller", "source"):
-            value = getattr(self, name)
-            if value is not None and not isinstance(value, (str, type)):
-                raise ValueError(
-                    f"{name}: a registry name, a 'module:Class' string or a class, got {value!r}"
-                )
+            raise ValueError("a run folder takes no options: its config.yaml has them")
         return self
 
     @property
@@ -67,12 +83,12 @@ class Entry(StrictModel):
         return f"{_short(self.controller)}@{_short(self.source)}"
 
 
-def _short(value: str | type) -> str:
+def _short(value: str | type | None) -> str:
     return value.__name__ if isinstance(value, type) else str(value).rpartition(":")[2]
 
 
-def _is_class_path(value: str | type) -> bool:
-    return isinstance(value, type) or ":" in value
+def _is_class_path(value: str | type | None) -> bool:
+    return isinstance(value, type) or ":" in str(value)
 
 
 def class_kind(path: str, option: str) -> str:
@@ -80,8 +96,6 @@ def class_kind(path: str, option: str) -> str:
     from elastic_gym.controllers.base import Controller
     from elastic_gym.observers.base import Observer
 
-    if ":" not in path:
-        raise ValueError(f"{option}: must be 'module:Class', got {path!r}")
     cls = resolve_class(path, option)
     if isinstance(cls, type) and issubclass(cls, Controller):
         return "controller"
@@ -90,10 +104,53 @@ def class_kind(path: str, option: str) -> str:
     raise ValueError(f"{option}: {path} is neither a Controller nor an Observer subclass")
 
 
+class EntryArguments(StrictModel):
+    """The entry options of ``elastic-gym benchmark``, checked together once: one of
+    ``--leaderboard``, ``--run`` or a closed loop (``--controller`` / ``--class`` /
+    ``--source``); ``--class`` (``cls``) takes the place of the controller or of the
+    source, whichever it is. :meth:`entry` gives the :class:`Entry` fields."""
+
+    controller: str | None = None
+    cls: ClassPath = Field(default=None, alias="class")
+    source: str | None = None
+    run: str | None = None
+    leaderboard: bool = False
+    options: dict[str, Any] = Field(default_factory=dict)
+    source_options: dict[str, Any] = Field(default_factory=dict)
+    label: str | None = None
+    _class_kind: str = PrivateAttr("")
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> EntryArguments:
+        loop = self.controller or self.cls or self.source
+        kinds = {"--leaderboard": self.leaderboard or None, "--run": self.run}
+        at_most_one({**kinds, "--controller/--class/--source": loop}, required=True)
+        if self.cls is not None:
+            self._class_kind = class_kind(self.cls, "--class")
+            taken = "source" if self._class_kind == "observer" else "controller"
+            kind = {"observer": "--class (an Observer)", "controller": "--class (a Controller)"}
+            at_most_one({kind[self._class_kind]: self.cls, f"--{taken}": getattr(self, taken)})
+        return self
+
+    def entry(self) -> dict[str, Any]:
+        """The :class:`Entry` fields (defaults: :data:`DEFAULT_CONTROLLER`, the true state)."""
+        fields: dict[str, Any] = {"options": self.options, "source_options": self.source_options}
+        fields |= {"label": self.label} if self.label else {}
+        if self.run is not None:
+            return {"run": self.run, **fields}
+        given = {self._class_kind: self.cls} if self.cls is not None else {}
+        controller = given.get("controller", self.controller) or DEFAULT_CONTROLLER
+        return {
+            "controller": controller,
+            "source": given.get("observer", self.source) or TRUE_STATE,
+            **fields,
+        }
+
+
 def resolve_entry(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
-    """The comparison's controller and state-source entries of ``entry`` (``ValueError``
-    naming the field for an unknown name or class; options are bound to the constructors
-    when the runs are planned)."""
+    """The comparison's controller and state-source entries of ``entry`` (its names are
+    checked by :class:`Entry`; options are bound to the constructors when the runs are
+    planned)."""
     if entry.run is not None:
         return _run_entries(entry)
     controller = entry.controller
@@ -103,13 +160,8 @@ def resolve_entry(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
             name=name, label=name, options=dict(entry.options), **{"class": controller}
         )
     else:
-        from elastic_gym.evaluation.controllers import comparison_controller
-
-        try:
-            comparison_controller(controller)
-        except ValueError as exc:
-            raise ValueError(f"controller: {exc}") from None
-        c_entry = ControllerEntry(name=controller, label=controller, options=dict(entry.options))
+        name = str(controller)  # a registry name (Entry needs a controller or a run)
+        c_entry = ControllerEntry(name=name, label=name, options=dict(entry.options))
     return c_entry, _source_entry(entry.source, entry.source_options)
 
 
@@ -117,11 +169,6 @@ def _source_entry(source: str | type, options: dict) -> SourceEntry:
     if _is_class_path(source):
         name = _short(source)
         return SourceEntry(name=name, label=name, options=dict(options), **{"class": source})
-    if source not in state_sources():
-        raise ValueError(
-            f"source: unknown state source {source!r}; valid: {sorted(state_sources())} or "
-            "'module:Class' of an Observer"
-        )
     return SourceEntry(name=source, label=source, options=dict(options))
 
 

@@ -18,7 +18,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from elastic_gym.benchmark.scorecard import Scorecard, fmt, read_scorecard, score_value
+from elastic_gym.benchmark.scorecard import Scorecard, SuiteRef, fmt, read_scorecard, score_value
 from elastic_gym.benchmark.scoring import OVERALL, PRECISION
 from elastic_gym.benchmark.suite import DEFAULT_SUITE, SuiteConfig, load_suite
 
@@ -26,6 +26,15 @@ DOCS = Path("docs")
 SCORECARD_DIR = DOCS / "leaderboard" / "scorecards"
 PAGE = DOCS / "leaderboard.md"
 NOTES = "notes.md"  # beside the scorecard folder: what the leaderboard shows, in words
+
+
+def _identity(suite: SuiteRef | SuiteConfig) -> tuple[str, int, str]:
+    """What a scorecard must share with the suite it is ranked on."""
+    return suite.name, suite.version, suite.hash
+
+
+def _shown(suite: SuiteRef | SuiteConfig) -> str:
+    return f"{suite.name} version {suite.version} (hash {suite.hash[:12]})"
 
 
 def load_cards(folder: Path, suite: SuiteConfig) -> list[Scorecard]:
@@ -37,15 +46,11 @@ def load_cards(folder: Path, suite: SuiteConfig) -> list[Scorecard]:
     labels: dict[str, Path] = {}
     for path in paths:
         card = read_scorecard(path)
-        if (card.suite.name, card.suite.version) != (suite.name, suite.version):
+        if _identity(card.suite) != _identity(suite):
+            changed = " (the suite changed)" if card.suite.name == suite.name else ""
             raise ValueError(
-                f"{path}: scorecard of suite {card.suite.name} version {card.suite.version}, "
-                f"not of {suite.name} version {suite.version}: re-run the entry on this suite"
-            )
-        if card.suite.hash != suite.hash:
-            raise ValueError(
-                f"{path}: suite hash {card.suite.hash[:12]} differs from {suite.name}'s "
-                f"{suite.hash[:12]} (the suite changed): re-run the entry"
+                f"{path}: scorecard of suite {_shown(card.suite)}, not of {_shown(suite)}"
+                f"{changed}: re-run the entry on this suite"
             )
         if card.label in labels:
             raise ValueError(f"{path}: entry label {card.label!r} also in {labels[card.label]}")

@@ -84,8 +84,11 @@ def run_benchmark(
             )
     scenario = suite_scenario(suite, controller, source, robots, name=_slug(entry.name))
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / _slug(entry.name)
-    _check_folder(out, overwrite)
-    check_output_folder(out / RUNS_DIR, overwrite)
+    if (out / JSON_FILE).exists() and not overwrite:
+        raise FileExistsError(
+            f"{out} holds an earlier scorecard; choose another --output or pass --overwrite"
+        )
+    check_output_folder(out / RUNS_DIR, overwrite)  # refuses a file, in ``out`` or above
     start, cpu_start = time.perf_counter(), _cpu_seconds()
     (out / RUNS_DIR).mkdir(parents=True, exist_ok=True)
     with open(out / RUNS_DIR / "compare.log", "w") as log:
@@ -126,15 +129,6 @@ def _cpu_seconds() -> float:
 def _slug(label: str) -> str:
     """A file-system-safe folder name for an entry label."""
     return re.sub(r"[^A-Za-z0-9_.@+-]+", "_", label).strip("._") or "entry"
-
-
-def _check_folder(out: Path, overwrite: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"output folder {str(out)!r} is a file")
-    if (out / JSON_FILE).exists() and not overwrite:
-        raise FileExistsError(
-            f"{out} holds an earlier scorecard; choose another --output or pass --overwrite"
-        )
 
 
 class _FirstLine(io.TextIOBase):

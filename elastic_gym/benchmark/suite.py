@@ -22,7 +22,6 @@ from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Any
 
-import yaml
 from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
@@ -35,6 +34,7 @@ from elastic_gym.evaluation.scenario import (
 )
 from elastic_gym.evaluation.scenario_models import env_parameters
 from elastic_gym.validation import StrictModel, distinct, registered_env_id, validated
+from elastic_gym.yaml_io import load_yaml
 
 SUITE_DIR = Path(__file__).resolve().parent / "suites"
 DEFAULT_SUITE = "elastic-gym-v1"
@@ -292,11 +292,7 @@ def load_suite(name_or_path: str | Path = DEFAULT_SUITE) -> SuiteConfig:
         raise FileNotFoundError(
             f"suite {str(name_or_path)!r} is neither a shipped suite {list_suites()} nor a file"
         )
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: invalid YAML: {exc}") from None
-    return validated(SuiteConfig, data)
+    return validated(SuiteConfig, load_yaml(path))  # YAMLInputError: a ValueError naming it
 
 
 def suite_schema() -> dict:

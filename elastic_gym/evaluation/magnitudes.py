@@ -102,19 +102,7 @@ class Magnitudes(StrictModel):
 
 
 class Sweep(Magnitudes):
-    """A one-at-a-time sweep: magnitudes and the ``nominal`` one, which the runs as given
-    have (required)."""
+    """A one-at-a-time sweep: magnitudes and the ``nominal`` one (required), which the
+    runs as given have."""
 
-    model_config = ConfigDict(json_schema_extra={"required": ["parameter", "nominal"]})
-
-    @model_validator(mode="after")
-    def _nominal(self) -> Sweep:
-        if self.nominal is None:
-            raise FieldError(("nominal",), "is required: the magnitude of the nominal runs")
-        return self
-
-    @property
-    def nominal_magnitude(self) -> float:
-        """``nominal``, which a sweep always has (checked when it is built)."""
-        assert self.nominal is not None
-        return self.nominal
+    nominal: Real = Field(description="the magnitude of the nominal runs")

@@ -84,7 +84,7 @@ def curve_margin(curve: SweepCurve, criterion: str) -> dict:
             "lower_failed_at": sweep.nominal,
             "upper_failed_at": sweep.nominal,
         }
-    center = sweep.nominal_magnitude
+    center = sweep.nominal
     below = [p for p in reversed(curve.points) if p.magnitude < center]
     above = [p for p in curve.points if p.magnitude > center]
     for side, points in (("lower", below), ("upper", above)):

@@ -15,6 +15,7 @@ be too long or coincide.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import time
 from collections.abc import Generator, Iterator, Sequence
@@ -68,26 +69,18 @@ class Estimate:
 
 
 @contextlib.contextmanager
-def _named(path: str) -> Iterator[None]:
+def _named(path: str | None) -> Iterator[None]:
     """What the code inside raises for itself (:func:`~elastic_gym.parallel.user_failure`:
     any exception, ``sys.exit``, its own ``KeyboardInterrupt``) becomes a
-    :class:`ScenarioError` naming ``path``."""
+    :class:`ScenarioError` naming ``path``; with ``path`` None it only ends the code
+    inside (a sample's closed loop: the runs report it)."""
     try:
         yield
     except BaseException as exc:
         if not user_failure(exc):
             raise
-        raise ScenarioError(path, describe_failure(exc)) from None
-
-
-@contextlib.contextmanager
-def _left_to_the_runs() -> Iterator[None]:
-    """What the closed loop raises for itself ends the sample; the runs report it."""
-    try:
-        yield
-    except BaseException as exc:
-        if not user_failure(exc):
-            raise
+        if path is not None:
+            raise ScenarioError(path, describe_failure(exc)) from None
 
 
 def _make_env(entry_id: str, kwargs: dict, path: str) -> gym.Env:
@@ -148,10 +141,7 @@ class _Sample:
 
     def run(self) -> float:
         with contextlib.closing(_stages(self.group, self.paths, self.env_path)) as costs:
-            for stage, cost in zip(STAGES, costs, strict=False):
-                if stage == self.stage:
-                    return cost
-        raise AssertionError(f"no stage {self.stage!r}")
+            return next(itertools.islice(costs, STAGES.index(self.stage), None))
 
     def at(self, stage: str) -> _Sample:
         return _Sample(self.group, self.paths, self.env_path, stage)
@@ -313,7 +303,7 @@ def _stages(group: RunGroup, paths: tuple[str, str], env_path: str) -> Generator
         setup = time.process_time() - start
         yield setup / n_arms
         steps, elapsed = 0, 0.0
-        with np.errstate(all="ignore"), _left_to_the_runs():
+        with np.errstate(all="ignore"), _named(None):
             loop.reset_controllers()
             loop.advance()  # warms caches up
             tick = time.process_time()

@@ -150,23 +150,26 @@ def check_options(cls: type, options: dict, path: str, fixed: dict | None = None
     calling it: unknown, duplicate or missing options raise :class:`ScenarioError` with
     the field path, e.g. ``controllers[1].options.omegaa: unexpected option``."""
     fixed = fixed or {}
-    for key in options:
-        if key in fixed:
-            raise ScenarioError(f"{path}.options.{key}", f"fixed to {fixed[key]!r} by the name")
     try:
-        signature = inspect.signature(cls)
+        signature: inspect.Signature | None = inspect.signature(cls)
     except (TypeError, ValueError):  # no introspectable signature: checked when built
+        signature = None
+    parameters = list(signature.parameters.values())[2:] if signature else []  # after (model, dt)
+    any_name = signature is None or any(p.kind is p.VAR_KEYWORD for p in parameters)
+    valid = [
+        p.name
+        for p in parameters
+        if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name not in fixed
+    ]
+    problems = {key: f"fixed to {fixed[key]!r} by the name" for key in options if key in fixed}
+    if not any_name:  # the first problem is refused, a fixed option before an unknown one
+        unknown = [key for key in options if key not in valid and key not in fixed]
+        problems |= dict.fromkeys(unknown, f"unexpected option; valid: {valid}")
+    if problems:
+        key, problem = next(iter(problems.items()))
+        raise ScenarioError(f"{path}.options.{key}", problem)
+    if signature is None:
         return
-    parameters = list(signature.parameters.values())[2:]  # after (model, dt)
-    if not any(p.kind is p.VAR_KEYWORD for p in parameters):
-        valid = [
-            p.name
-            for p in parameters
-            if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name not in fixed
-        ]
-        for key in options:
-            if key not in valid:
-                raise ScenarioError(f"{path}.options.{key}", f"unexpected option; valid: {valid}")
     try:
         signature.bind(None, None, **fixed, **options)
     except TypeError as exc:

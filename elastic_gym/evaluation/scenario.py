@@ -179,10 +179,8 @@ class Scenario(StrictModel):
                             check_env_kwargs(env.id, value.values)
                         except (FieldError, ConfigError) as exc:
                             at = (table, name, "parameter") if generated else (table, name, i)
-                            loc = (*at, *exc.loc)
-                            if isinstance(exc, FieldError):
-                                raise FieldError(loc, str(exc)) from None
-                            raise ConfigError(str(exc), loc) from None
+                            exc.loc = (*at, *exc.loc)
+                            raise
         return self
 
     @classmethod
@@ -271,17 +269,18 @@ def resolve_class(cls: type | str, path: str) -> type:
     if isinstance(cls, type):
         return cls
     module, _, attr = cls.partition(":")
+    problem = None
     try:
         found = getattr(importlib.import_module(module), attr)
+        if not isinstance(found, type):
+            problem = f"{cls!r} is not a class but {type(found).__name__} {found!r}"
     except (ImportError, AttributeError) as exc:
-        raise ScenarioError(path, f"cannot import class {cls!r}: {exc}") from None
+        problem = f"cannot import class {cls!r}: {exc}"
     except (Exception, SystemExit) as exc:  # the module's own code failed or does not compile
         message = " ".join(str(exc).split())
-        raise ScenarioError(
-            path, f"importing module {module!r} failed: {type(exc).__name__}: {message}"
-        ) from None
-    if not isinstance(found, type):
-        raise ScenarioError(path, f"{cls!r} is not a class but {type(found).__name__} {found!r}")
+        problem = f"importing module {module!r} failed: {type(exc).__name__}: {message}"
+    if problem is not None:
+        raise ScenarioError(path, problem)
     return found
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Annotated, Any, ClassVar
 
 import gymnasium as gym
@@ -203,6 +203,7 @@ class _Named(BareEntry):
     """Base of the controller and state-source entries (a bare string is the name)."""
 
     kind: ClassVar[str]
+    registry: ClassVar[Callable[[], Iterable[str]]]  # the names valid without a ``class``
     name: Name
     label: Label = ""  # the name
     options: dict[Any, Any] = Field(default_factory=dict)
@@ -210,7 +211,7 @@ class _Named(BareEntry):
 
     @model_validator(mode="after")
     def _defaults(self) -> _Named:
-        valid = self.registry()
+        valid = set(type(self).registry())
         if self.cls is None and self.name not in valid:
             raise FieldError(
                 ("name",), f"unknown {self.kind} {self.name!r}; valid: {sorted(valid)}"
@@ -225,11 +226,6 @@ class _Named(BareEntry):
             cls if cls is None or isinstance(cls, str) else f"{cls.__module__}:{cls.__qualname__}"
         )
 
-    @staticmethod
-    def registry() -> set[str]:
-        """The names valid without an explicit ``class``."""
-        raise NotImplementedError
-
 
 class ControllerEntry(_Named):
     """A controller by registry name (or explicit ``class``, a
@@ -240,9 +236,7 @@ class ControllerEntry(_Named):
     kind = "controller"
     sources: tuple[Label, ...] | None = Field(None, min_length=1)
 
-    @staticmethod
-    def registry() -> set[str]:
-        return set(controller_names())
+    registry = staticmethod(controller_names)
 
 
 class SourceEntry(_Named):
@@ -256,9 +250,7 @@ class SourceEntry(_Named):
         None, min_length=1
     )
 
-    @staticmethod
-    def registry() -> set[str]:
-        return set(state_sources())
+    registry = staticmethod(state_sources)
 
 
 # ---------------------------------------------------------------------------- variations

@@ -102,7 +102,7 @@ def sweep_curves(scenario: Scenario, rows: Sequence[dict]) -> list[SweepCurve]:
         if NOMINAL not in by_label:
             continue
         for sweep in scenario.sweeps:
-            points = {sweep.nominal_magnitude: by_label[NOMINAL]}
+            points = {sweep.nominal: by_label[NOMINAL]}
             for label, members in by_label.items():
                 magnitude = sweep.magnitude(label)
                 if magnitude is not None and label != NOMINAL:

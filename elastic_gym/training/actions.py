@@ -67,10 +67,10 @@ class ActionConfig(ConfigModel):
     @model_validator(mode="after")
     def _consistent(self) -> ActionConfig:
         all_or_none({"kp": self.kp, "kd": self.kd})  # neither: the bandwidth rule
-        if (self.kind == "residual") != (self.residual is not None):
-            raise ValueError(
-                "kind 'residual' needs 'residual' (a controller name), and only it takes one"
-            )
+        residual_kind = True if self.kind == "residual" else None  # only it takes a base
+        all_or_none(
+            {"kind 'residual'": residual_kind, "residual (a controller name)": self.residual}
+        )
         return self
 
     @property

@@ -20,18 +20,19 @@ from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import (
     AfterValidator,
-    BeforeValidator,
     ConfigDict,
     Field,
+    GetPydanticSchema,
     RootModel,
     StrictBool,
+    StrictFloat,
     StrictInt,
     StrictStr,
     TypeAdapter,
     ValidationError,
+    WithJsonSchema,
     model_validator,
 )
 
@@ -74,14 +75,10 @@ def default_policy(algo: str) -> str:
     return "MlpLstmPolicy" if algo in RECURRENT else "MlpPolicy"
 
 
-def _count(value: Any) -> Any:
-    """An integer or an integral float (YAML's ``!!float 1e6``), not a bool or a string."""
-    if isinstance(value, (bool, str)):
-        raise ValueError(f"must be an integer, got {value!r}")
-    return value
-
-
-Count = Annotated[int, Field(ge=1), BeforeValidator(_count)]
+# an integer or an integral float (YAML's ``!!float 1e6`` is 1000000), not a bool or a string
+_INTEGRAL = StrictInt | Annotated[StrictFloat, Field(multiple_of=1), AfterValidator(int)]
+Integral = Annotated[int, GetPydanticSchema(lambda _, handler: handler.generate_schema(_INTEGRAL))]
+Count = Annotated[Integral, Field(ge=1), WithJsonSchema({"type": "integer", "minimum": 1})]
 PositiveInt = Annotated[StrictInt, Field(ge=1)]  # numpy integers count (StrictModel)
 
 
@@ -184,7 +181,6 @@ def resolve_hyperparams(
     return {**settings.model_dump(exclude_unset=True), **algo_kwargs}
 
 
-Integral = Annotated[int, BeforeValidator(_count)]  # 64.0 is 64, 64.5 is refused
 ARGUMENT_KINDS = ((bool, StrictBool), (int, Integral), (float, Finite))  # by default's type
 
 
@@ -261,10 +257,7 @@ def parse_overrides(items: list[str]) -> dict:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise ValueError(f"hyper-parameter override must look like key=value, got {item!r}")
-        try:
-            parsed = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise ValueError(f"cannot parse the value of override {item!r}") from None
+        parsed = load_yaml(value, f"override {item!r}")
         if isinstance(parsed, str):  # YAML 1.1 reads "1e-4" as a string
             with contextlib.suppress(ValueError):
                 parsed = float(parsed)

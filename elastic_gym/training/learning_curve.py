@@ -49,7 +49,8 @@ class LearningCurve(BaseCallback):
         config, settings: the run's config and resolved hyper-parameters.
         normalizer: the training ``VecNormalize`` (its current statistics), or None.
         out_dir: the run folder.
-        every: policy steps between evaluations.
+        every: policy steps between evaluations (>= 1: ``eval_freq`` is a positive
+            integer, its default a twentieth of the run, at least 1).
         seed: seed of the first evaluation episode.
     """
 
@@ -63,8 +64,6 @@ class LearningCurve(BaseCallback):
         seed: int,
     ) -> None:
         super().__init__()
-        if every < 1:
-            raise ValueError(f"evaluation interval must be >= 1 policy step, got {every}")
         self.config, self.settings, self.normalizer = config, settings, normalizer
         episode_duration(config.env_id, config.training_env_kwargs(settings))
         self.episodes = config.eval_episodes

@@ -20,7 +20,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import AfterValidator, Field, StrictInt
 
-from elastic_gym.validation import ConfigModel, PositiveFinite
+from elastic_gym.validation import ConfigModel, PositiveFinite, distinct
 
 FEATURES = (
     "error",
@@ -44,8 +44,7 @@ GRAVITY = 9.81
 
 def _in_order(features: tuple[str, ...] | None) -> tuple[str, ...] | None:
     """Features repeat nowhere and are kept in the order of :data:`FEATURES`."""
-    if features is not None and len(set(features)) != len(features):
-        raise ValueError(f"observation features repeat: {list(features)}")
+    distinct(features or (), "observation feature(s)")
     return features and tuple(f for f in FEATURES if f in features)
 
 

@@ -55,23 +55,22 @@ def check_spaces(trained: TrainedRun, features: int, n_joints: int, run: str | P
     or copied from another run."""
     model = trained.model
     expected = features + getattr(model.policy, "privileged_size", 0)
-    shapes = {"model.zip": tuple(model.observation_space.shape)}
+    entries = f"config.yaml ({trained.config.env_id}, state {trained.config.state!r}) gives "
+    entries += f"{expected} entries"
+    checks = [("model.zip takes observations", model.observation_space.shape, expected, entries)]
     statistics = getattr(getattr(trained.normalizer, "obs_rms", None), "mean", None)
     if statistics is not None:
-        shapes["vecnormalize.pkl"] = tuple(np.shape(statistics))
-    for name, shape in shapes.items():
-        if shape != (expected,):
-            raise ValueError(
-                f"{run}: {name} takes observations of shape {shape}, but config.yaml "
-                f"({trained.config.env_id}, state {trained.config.state!r}) gives {expected} "
-                "entries: the folder's config.yaml does not match its model"
-            )
-    actions = tuple(model.action_space.shape)
-    if actions != (n_joints,):
-        raise ValueError(
-            f"{run}: model.zip gives actions of shape {actions}, the comparison's robot has "
-            f"{n_joints} joints: the folder's config.yaml does not match its model"
+        checks.append(
+            ("vecnormalize.pkl takes observations", np.shape(statistics), expected, entries)
         )
+    joints = f"the comparison's robot has {n_joints} joints"
+    checks.append(("model.zip gives actions", model.action_space.shape, n_joints, joints))
+    for what, shape, size, why in checks:
+        if tuple(shape) != (size,):
+            raise ValueError(
+                f"{run}: {what} of shape {tuple(shape)}, but {why}: the folder's config.yaml "
+                "does not match its model"
+            )
 
 
 class TrainedPolicyController(Controller):

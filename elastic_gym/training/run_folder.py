@@ -173,11 +173,10 @@ class RunFolder:
     def read_config(self) -> TrainConfig:
         """The run's configuration (the folder checked, old folders migrated); a missing
         or invalid file raises ``ValueError`` naming it."""
-        if not self.path.is_dir():
-            raise ValueError(f"{self.path} is not a training run folder: no such folder")
         missing = [name for name in RUN_FILES if not (self.path / name).is_file()]
         if missing:
-            raise ValueError(f"{self.path} is not a training run folder: missing {missing}")
+            why = f"missing {missing}" if self.path.is_dir() else "no such folder"
+            raise ValueError(f"{self.path} is not a training run folder: {why}")
         path = self.path / "config.yaml"
         try:
             data = load_yaml(path)
@@ -195,20 +194,24 @@ class RunFolder:
         """The SB3 model (``best``: the learning curve's best, if saved); unpickles."""
         best_path = self.path / "best_model.zip"
         path = best_path if best and best_path.exists() else self.path / "model.zip"
-        try:
-            return algorithm_class(algo).load(str(path), device="cpu")
-        except Exception as exc:
-            raise ValueError(
-                f"{path} cannot be loaded as a {algo} model: {type(exc).__name__}: {exc}"
-            ) from None
+        return _loaded(path, f" as a {algo} model", algorithm_class(algo).load, device="cpu")
 
     def load_normalizer(self):
         """The saved ``VecNormalize`` statistics, frozen (not updated); unpickles."""
-        path = self.path / "vecnormalize.pkl"
-        try:
-            with open(path, "rb") as handle:
-                normalizer = pickle.load(handle)
-            normalizer.training = False
-        except Exception as exc:
-            raise ValueError(f"{path} cannot be loaded: {type(exc).__name__}: {exc}") from None
-        return normalizer
+        return _loaded(self.path / "vecnormalize.pkl", "", _frozen_normalizer)
+
+
+def _frozen_normalizer(path: str):
+    with open(path, "rb") as handle:
+        normalizer = pickle.load(handle)
+    normalizer.training = False
+    return normalizer
+
+
+def _loaded(path: Path, what: str, load: Callable, **kwargs):
+    """``load(str(path), **kwargs)``; ``ValueError`` naming the file (and ``what`` it was
+    loaded as) for whatever the loading raises."""
+    try:
+        return load(str(path), **kwargs)
+    except Exception as exc:
+        raise ValueError(f"{path} cannot be loaded{what}: {type(exc).__name__}: {exc}") from None

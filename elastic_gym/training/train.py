@@ -57,7 +57,7 @@ def zero_action_head(model) -> None:
     policy = model.policy
     if hasattr(policy, "action_net"):  # PPO / A2C
         heads = [policy.action_net]
-    elif hasattr(policy.actor, "mu"):  # SAC: Linear; TD3: Sequential(..., Linear, Tanh)
+    else:  # SAC: Linear; TD3: Sequential(..., Linear, Tanh) (TrainConfig.algo: no other)
         mu = policy.actor.mu
         heads = (
             [mu]
@@ -67,8 +67,6 @@ def zero_action_head(model) -> None:
         if hasattr(model, "actor_target"):
             target = model.actor_target.mu
             heads += [m for m in target if isinstance(m, torch.nn.Linear)][-1:]
-    else:  # pragma: no cover - every algorithm of ALGORITHMS is handled above
-        raise TypeError(f"cannot find the action head of {type(policy).__name__}")
     with torch.no_grad():
         for head in heads:
             head.weight.zero_()
