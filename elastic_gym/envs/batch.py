@@ -572,13 +572,15 @@ class ArmBatch:
         if not len(arms):
             return
         sim = self.sim
-        rngs = self.rngs if arms is self._arms else [self.rngs[i] for i in arms]
+        every = arms is self._arms  # the hot path: whole arrays, no fancy indexing
+        rows = slice(None) if every else arms
+        rngs = self.rngs if every else [self.rngs[i] for i in arms]
         position = sim.theta if self.robot.elastic else sim.q
-        readings = {self.position_key: self.encoder.measure(position[arms], rngs, arms)}
+        readings = {self.position_key: self.encoder.measure(position[rows], rngs, arms)}
         if self.model.n_sensors:
             chain = sim.plants.chain
-            chain = chain if len(arms) == self.n_arms else chain.select(arms)
-            force = chain.specific_forces(sim.q[arms], sim.dq[arms], self.ddq[arms])
+            chain = chain if every else chain.select(arms)
+            force = chain.specific_forces(sim.q[rows], sim.dq[rows], self.ddq[rows])
             readings["acceleration"] = self.accelerometer_array.measure(force, rngs, arms)
         length = self._sensor_line
         if length > 1:
@@ -587,15 +589,15 @@ class ArmBatch:
             if length > 1:
                 line = self._measured[key]
                 if first:
-                    line[:, arms] = value
+                    line[:, rows] = value
                 else:
-                    line[self._slot, arms] = value
+                    line[self._slot, rows] = value
                 value = line[oldest, arms]
             if not finite and not np.isfinite(value).all():  # a broken state keeps the last
                 keep = ~np.isfinite(value).all(axis=1)  # reading
-                value = np.where(keep[:, None], self.obs[key][arms], value)
-            self.obs[key][arms] = value
-        self.obs["reference"][arms] = self.reference[arms, :2].reshape(len(arms), -1)
+                value = np.where(keep[:, None], self.obs[key][rows], value)
+            self.obs[key][rows] = value
+        self.obs["reference"][rows] = self.reference[rows, :2].reshape(len(arms), -1)
 
     def _reward(self) -> np.ndarray:
         sim = self.sim
