@@ -47,6 +47,7 @@ from elastic_gym.envs.sensors import (
     AccelerometerConfig,
     Encoder,
     EncoderConfig,
+    every_arm,
 )
 from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.envs.tasks import make_task
@@ -88,6 +89,21 @@ def _break_codes(q, dq, theta, dtheta, lower, upper, max_velocity, codes):
         codes[k] = code
         broken = broken or code > 0
     return broken
+
+
+@njit(cache=True)
+def _clip_torque(command, low, high, tau, saturated):
+    """tau = min(max(command, low), high) per joint, as numpy's maximum and minimum give it
+    (NaN stays NaN), and per arm whether any joint's torque changed (NaN: changed)."""
+    for k in range(command.shape[0]):
+        changed = False
+        for j in range(command.shape[1]):
+            c = command[k, j]
+            v = low[j] if c < low[j] else c
+            v = high[j] if v > high[j] else v
+            tau[k, j] = v
+            changed = changed or v != c
+        saturated[k] = changed
 
 
 def with_batch_options(init):
@@ -334,7 +350,7 @@ class ArmBatch:
         self._no_arm = np.zeros(N, dtype=bool)
         self._codes = np.zeros(N, dtype=np.int64)
         self._all = np.ones(N, dtype=bool)
-        self._arms = np.arange(N)
+        self._arms = every_arm(N)  # (the sensors' whole-array path)
         self._minus_limit = -self.torque_limit
         self._time: np.ndarray = np.zeros(N)
         self.obs = {
@@ -470,8 +486,8 @@ class ArmBatch:
         external = self.task.external_torque(self._time, sim.q)
         if external is not None:
             command = command + (external if every else np.where(stepping[:, None], external, 0.0))
-        tau = np.minimum(np.maximum(command, self._minus_limit), self.torque_limit)
-        self.saturated = (tau != command).any(axis=1)
+        tau, self.saturated = np.empty(command.shape), np.empty(len(command), dtype=bool)
+        _clip_torque(command, self._minus_limit, self.torque_limit, tau, self.saturated)
         pulse = self.plant_state.before_step(self._time)
         sim.step(tau, self.n_substeps, pulse)
         self.steps += stepping
