@@ -490,7 +490,7 @@ class ArmBatch:
         _clip_torque(command, self._minus_limit, self.torque_limit, tau, self.saturated)
         pulse = self.plant_state.before_step(self._time)
         sim.step(tau, self.n_substeps, pulse)
-        self.steps += stepping
+        self.steps += 1 if every else stepping
         self._time = self.steps * self.control_dt
         self.previous_torque, self.torque = self.torque, tau
         self.ddq = sim.link_acceleration(tau, pulse)
@@ -513,7 +513,8 @@ class ArmBatch:
         if not every:
             reward = np.where(stepping, reward, 0.0)
             truncated = truncated & stepping
-        self.running &= ~(terminated | truncated)
+        if reasons is not None or self.max_steps is not None:  # else no episode ended
+            self.running &= ~(terminated | truncated)
         return reward, terminated, truncated
 
     def _initial_state_options(self, options: dict | None) -> dict[str, np.ndarray]:
