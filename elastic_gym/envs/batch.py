@@ -486,7 +486,8 @@ class ArmBatch:
         external = self.task.external_torque(self._time, sim.q)
         if external is not None:
             command = command + (external if every else np.where(stepping[:, None], external, 0.0))
-        tau, self.saturated = np.empty(command.shape), np.empty(len(command), dtype=bool)
+        tau: np.ndarray = np.empty(command.shape)
+        self.saturated = np.empty(len(command), dtype=bool)
         _clip_torque(command, self._minus_limit, self.torque_limit, tau, self.saturated)
         pulse = self.plant_state.before_step(self._time)
         sim.step(tau, self.n_substeps, pulse)

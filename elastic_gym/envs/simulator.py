@@ -405,10 +405,23 @@ class ArmSimulator:
         fused = self._elastic and not plants.has_coupling
         link, tau_j, ddtheta_buffer = self._buffers
         if fused:  # the kernel's arguments after the state (see _transmission)
-            constants = (tau, plants.K, plants.D, plants.B_inv, plants.viscous)
-            constants += (plants.coulomb_pos, plants.coulomb_neg, plants.smoothing)
-            constants += (plants.has_friction, plants.has_coulomb, True, link, tau_j)
-            constants += (ddtheta_buffer, dt)
+            constants: tuple = (
+                tau,
+                plants.K,
+                plants.D,
+                plants.B_inv,
+                plants.viscous,
+                plants.coulomb_pos,
+                plants.coulomb_neg,
+                plants.smoothing,
+                plants.has_friction,
+                plants.has_coulomb,
+                True,
+                link,
+                tau_j,
+                ddtheta_buffer,
+                dt,
+            )
         for _ in range(n_substeps):
             if fused:
                 _transmission_kernel(self.theta, self.dtheta, self.q, self.dq, *constants)
