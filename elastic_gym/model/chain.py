@@ -23,8 +23,9 @@ from elastic_gym.validation import shaped
 
 # ---------------------------------------------------------------------------- kernels
 # Every kernel takes batched inputs with a leading arm axis, the scratch buffer, its outputs
-# and last the chain's constants (``SerialChain._kernel_constants``); small helpers are
-# inlined by LLVM.
+# and last the chain's constants (``SerialChain._kernel_constants``). The helpers are inlined
+# by numba (``inline="always"``: a call passing some twenty arrays costs more than a 2-link
+# arm's flops), so they take the constants as tuples, never as star-arguments.
 
 
 @njit(cache=True, inline="always")
