@@ -47,6 +47,7 @@ from elastic_gym.envs.sensors import (
     AccelerometerConfig,
     Encoder,
     EncoderConfig,
+    every_arm,
 )
 from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.envs.tasks import make_task
@@ -88,6 +89,21 @@ def _break_codes(q, dq, theta, dtheta, lower, upper, max_velocity, codes):
         codes[k] = code
         broken = broken or code > 0
     return broken
+
+
+@njit(cache=True)
+def _clip_torque(command, low, high, tau, saturated):
+    """tau = min(max(command, low), high) per joint, as numpy's maximum and minimum give it
+    (NaN stays NaN), and per arm whether any joint's torque changed (NaN: changed)."""
+    for k in range(command.shape[0]):
+        changed = False
+        for j in range(command.shape[1]):
+            c = command[k, j]
+            v = low[j] if c < low[j] else c
+            v = high[j] if v > high[j] else v
+            tau[k, j] = v
+            changed = changed or v != c
+        saturated[k] = changed
 
 
 def with_batch_options(init):
@@ -333,7 +349,7 @@ class ArmBatch:
         self._no_arm = np.zeros(N, dtype=bool)
         self._codes = np.zeros(N, dtype=np.int64)
         self._all = np.ones(N, dtype=bool)
-        self._arms = np.arange(N)
+        self._arms = every_arm(N)  # (the sensors' whole-array path)
         self._minus_limit = -self.torque_limit
         self._time: np.ndarray = np.zeros(N)
         self.obs = {
@@ -473,11 +489,12 @@ class ArmBatch:
         external = self.task.external_torque(self._time, sim.q)
         if external is not None:
             command = command + (external if every else np.where(stepping[:, None], external, 0.0))
-        tau = np.minimum(np.maximum(command, self._minus_limit), self.torque_limit)
-        self.saturated = (tau != command).any(axis=1)
+        tau: np.ndarray = np.empty(command.shape)
+        self.saturated = np.empty(len(command), dtype=bool)
+        _clip_torque(command, self._minus_limit, self.torque_limit, tau, self.saturated)
         pulse = self.plant_state.before_step(self._time)
         sim.step(tau, self.n_substeps, pulse)
-        self.steps += stepping
+        self.steps += 1 if every else stepping
         self._time = self.steps * self.control_dt
         self.previous_torque, self.torque = self.torque, tau
         self.ddq = sim.link_acceleration(tau, pulse)
@@ -500,7 +517,8 @@ class ArmBatch:
         if not every:
             reward = np.where(stepping, reward, 0.0)
             truncated = truncated & stepping
-        self.running &= ~(terminated | truncated)
+        if reasons is not None or self.max_steps is not None:  # else no episode ended
+            self.running &= ~(terminated | truncated)
         return reward, terminated, truncated
 
     def _initial_state_options(self, options: dict | None) -> dict[str, np.ndarray]:
@@ -572,13 +590,15 @@ class ArmBatch:
         if not len(arms):
             return
         sim = self.sim
-        rngs = self.rngs if arms is self._arms else [self.rngs[i] for i in arms]
+        every = arms is self._arms  # the hot path: whole arrays, no fancy indexing
+        rows = slice(None) if every else arms
+        rngs = self.rngs if every else [self.rngs[i] for i in arms]
         position = sim.theta if self.robot.elastic else sim.q
-        readings = {self.position_key: self.encoder.measure(position[arms], rngs, arms)}
+        readings = {self.position_key: self.encoder.measure(position[rows], rngs, arms)}
         if self.model.n_sensors:
             chain = sim.plants.chain
-            chain = chain if len(arms) == self.n_arms else chain.select(arms)
-            force = chain.specific_forces(sim.q[arms], sim.dq[arms], self.ddq[arms])
+            chain = chain if every else chain.select(arms)
+            force = chain.specific_forces(sim.q[rows], sim.dq[rows], self.ddq[rows])
             readings["acceleration"] = self.accelerometer_array.measure(force, rngs, arms)
         length = self._sensor_line
         if length > 1:
@@ -587,15 +607,15 @@ class ArmBatch:
             if length > 1:
                 line = self._measured[key]
                 if first:
-                    line[:, arms] = value
+                    line[:, rows] = value
                 else:
-                    line[self._slot, arms] = value
+                    line[self._slot, rows] = value
                 value = line[oldest, arms]
             if not finite and not np.isfinite(value).all():  # a broken state keeps the last
                 keep = ~np.isfinite(value).all(axis=1)  # reading
-                value = np.where(keep[:, None], self.obs[key][arms], value)
-            self.obs[key][arms] = value
-        self.obs["reference"][arms] = self.reference[arms, :2].reshape(len(arms), -1)
+                value = np.where(keep[:, None], self.obs[key][rows], value)
+            self.obs[key][rows] = value
+        self.obs["reference"][rows] = self.reference[rows, :2].reshape(len(arms), -1)
 
     def _reward(self) -> np.ndarray:
         sim = self.sim

@@ -6,6 +6,7 @@ Only these reach the observation. Noise is drawn from the environment's
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Annotated
 
@@ -15,6 +16,15 @@ from pydantic import AfterValidator, ConfigDict, StrictFloat
 from elastic_gym.validation import StrictModel, validated
 
 GRAVITY = 9.81
+
+
+@functools.cache
+def every_arm(n_arms: int) -> np.ndarray:
+    """The indices 0 .. N - 1 (read-only, one array per N): given as ``arms``, the sensors
+    measure every arm with whole-array operations instead of indexing with ``arms``."""
+    arms = np.arange(n_arms)
+    arms.flags.writeable = False
+    return arms
 
 
 def _within(low: float, high: float, zero: bool = True, why: str = "") -> AfterValidator:
@@ -68,6 +78,15 @@ class GaussianNoise:
 
     def draw(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
         """One sample per arm of ``arms`` (``rngs[k]`` is the generator of ``arms[k]``)."""
+        if arms is every_arm(len(self.next)):
+            empty = self.next == self.BLOCK
+            if empty.any():
+                for arm in np.flatnonzero(empty):
+                    self.block[arm] = rngs[arm].standard_normal(self.block.shape[1:])
+                    self.next[arm] = 0
+            sample = self.block[arms, self.next]
+            self.next += 1
+            return sample
         following = self.next[arms]
         empty = following == self.BLOCK
         if empty.any():
@@ -89,10 +108,10 @@ def common(values: np.ndarray) -> float | None:
 def _quantized(y: np.ndarray, resolution: np.ndarray, shared: float | None, arms) -> np.ndarray:
     """round(y / r) * r per row with arm k's resolution r_k (r = 0: unchanged)."""
     if shared is not None:
-        return np.round(y / shared) * shared if shared > 0.0 else np.array(y, dtype=float)
+        return np.rint(y / shared) * shared if shared > 0.0 else np.array(y, dtype=float)
     r = resolution[arms, None]
     safe = np.where(r > 0.0, r, 1.0)
-    return np.where(r > 0.0, np.round(y / safe) * safe, y)
+    return np.where(r > 0.0, np.rint(y / safe) * safe, y)  # rint: np.round to 0 decimals
 
 
 def _add_noise(
@@ -242,7 +261,7 @@ class AccelerometerArray:
         self, specific_force: np.ndarray, rngs: list[np.random.Generator], arms: np.ndarray
     ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``specific_force``; ``rngs`` are theirs)."""
-        y = specific_force + self.bias[arms]
+        y = specific_force + (self.bias if arms is every_arm(len(self.bias)) else self.bias[arms])
         sample_std, alpha, limit, resolution = self._shared
         y = _add_noise(y, self.sample_std, sample_std, self.noise, arms, rngs)
         if alpha is None or alpha > 0.0:

@@ -336,8 +336,7 @@ class ArmSimulator:
         c, joints, get = self.client, self.joint_indices, p.getJointStates
         joint_states = chain.from_iterable([get(b, joints, physicsClientId=c) for b in self.bodies])
         flat = np.fromiter(chain.from_iterable(map(_POSITION_VELOCITY, joint_states)), float)
-        states = flat.reshape(self.n_arms, self.n, 2)
-        self.q, self.dq = states[:, :, 0].copy(), states[:, :, 1].copy()
+        self.q, self.dq = flat.reshape(self.n_arms, self.n, 2).transpose(2, 0, 1).copy()
 
     # ------------------------------------------------------------------ stepping
     def accelerations(
@@ -398,11 +397,31 @@ class ArmSimulator:
         tau = np.ascontiguousarray(tau, dtype=np.float64)
         # model (1): the motors advance inside the transmission kernel (they do not depend
         # on PyBullet's step); otherwise after PyBullet's step
-        fused = self._elastic and not self.plants.has_coupling
+        plants = self.plants
+        fused = self._elastic and not plants.has_coupling
         link, tau_j, ddtheta_buffer = self._buffers
+        if fused:  # the kernel's arguments after the state (see _transmission)
+            constants: tuple = (
+                tau,
+                plants.K,
+                plants.D,
+                plants.B_inv,
+                plants.viscous,
+                plants.coulomb_pos,
+                plants.coulomb_neg,
+                plants.smoothing,
+                plants.has_friction,
+                plants.has_coulomb,
+                True,
+                link,
+                tau_j,
+                ddtheta_buffer,
+                dt,
+            )
         for _ in range(n_substeps):
             if fused:
-                link_tau = self._transmission(tau, link_torque, link, tau_j, ddtheta_buffer, dt)[0]
+                _transmission_kernel(self.theta, self.dtheta, self.q, self.dq, *constants)
+                link_tau = link if link_torque is None else link + link_torque
             else:
                 link_tau, ddtheta, _ = self.accelerations(tau, link_torque)
             for body, forces in zip(bodies, link_tau.tolist(), strict=True):

@@ -23,31 +23,32 @@ from elastic_gym.validation import shaped
 
 # ---------------------------------------------------------------------------- kernels
 # Every kernel takes batched inputs with a leading arm axis, the scratch buffer, its outputs
-# and last the chain's constants (``SerialChain._kernel_constants``); small helpers are
-# inlined by LLVM.
+# and last the chain's constants (``SerialChain._kernel_constants``). The helpers are inlined
+# by numba (``inline="always"``: a call passing some twenty arrays costs more than a 2-link
+# arm's flops), so they take the constants as tuples, never as star-arguments.
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _cross(a, b, out):
     out[0] = a[1] * b[2] - a[2] * b[1]
     out[1] = a[2] * b[0] - a[0] * b[2]
     out[2] = a[0] * b[1] - a[1] * b[0]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _matvec(A, x, out):
     for i in range(3):
         out[i] = A[i, 0] * x[0] + A[i, 1] * x[1] + A[i, 2] * x[2]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _matmul(A, B, out):
     for i in range(3):
         for k in range(3):
             out[i, k] = A[i, 0] * B[0, k] + A[i, 1] * B[1, k] + A[i, 2] * B[2, k]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _point_acceleration(acc, alpha, omega, r, out, tmp, tmp2):
     """Classical acceleration of a point at offset r: a + alpha x r + omega x (omega x r)."""
     _cross(alpha, r, tmp)
@@ -64,12 +65,13 @@ def _work_size(n: int) -> int:
     return 9 + 9 + 3 * 5 + 9 + n * (9 + 3 * 5) + n * (3 + 9 + 3 * 3) + 9 + n + n * n + 2 * n
 
 
-@njit(cache=True)
-def _arm_params(a, parent, rot_p, trans_p, axis, mass, com, inertia, grav, s_joint, s_rot, s_trans):
+@njit(cache=True, inline="always")
+def _arm_params(a, constants):
     """Views of arm ``a``'s constants (``SerialChain._kernel_constants``): the chain, the
     bodies, the sensors, g_W and -g_W. Each constant is a separate array with a leading
     arm axis (row 0 for every arm when not stacked), not views reshaped here from one
     flat array, which slow the kernels (results: benchmarks, speed work)."""
+    parent, rot_p, trans_p, axis, mass, com, inertia, grav, s_joint, s_rot, s_trans = constants
     chain = (parent, rot_p[a], trans_p[a], axis[a])
     return (
         chain,
@@ -80,7 +82,7 @@ def _arm_params(a, parent, rot_p, trans_p, axis, mass, com, inertia, grav, s_joi
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _workspace(n, w):
     """Scratch views of the flat buffer w, reused for every arm (no allocation per call)."""
     o = 0
@@ -118,14 +120,15 @@ def _workspace(n, w):
     return small, links, bodies, (M, h, rhs)
 
 
-@njit(cache=True)
-def _forward_kinematics(q, dq, ddq, base_acc, parent, rot_p, trans_p, axis, links, small):
+@njit(cache=True, inline="always")
+def _forward_kinematics(q, dq, ddq, base_acc, chain, links, small):
     """World rotation R, origin p, axis z, angular velocity omega and acceleration alpha,
     origin acceleration acc of every joint frame (``links``), for one arm.
 
     Written with scalars (no array views in the loop: they cost more than the flops).
     """
     n = q.shape[0]
+    parent, rot_p, trans_p, axis = chain
     R, p, z, omega, alpha, acc = links
     for j in range(n):
         lam = parent[j]
@@ -202,12 +205,13 @@ def _forward_kinematics(q, dq, ddq, base_acc, parent, rot_p, trans_p, axis, link
         acc[j, 2] = cz + ez + (wx * fy - wy * fx)
 
 
-@njit(cache=True)
-def _sensor_reading(i, s_joint, s_rot, s_trans, gravity, links, small, out, row):
+@njit(cache=True, inline="always")
+def _sensor_reading(i, sensors, gravity, links, small, out, row):
     """Specific force of sensor i in its frame into out[row: row + 3]; returns its joint.
 
     Leaves R_WS in small[1] and the sensor offset from its joint origin in small[2].
     """
+    s_joint, s_rot, s_trans = sensors
     R, p, z, omega, alpha, acc = links
     R_s, r_s = small[1], small[2]
     j = s_joint[i]
@@ -241,13 +245,13 @@ def _specific_forces_kernel(q, dq, ddq, w, out, *constants):
     small, links, _, _ = _workspace(n, w)
     zero = small[6]
     for k in range(N):
-        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, *constants)
-        _forward_kinematics(q[k], dq[k], ddq[k], zero, *chain, links, small)
+        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, constants)
+        _forward_kinematics(q[k], dq[k], ddq[k], zero, chain, links, small)
         for i in range(sensors[0].shape[0]):
-            _sensor_reading(i, *sensors, gravity, links, small, out[k], 3 * i)
+            _sensor_reading(i, sensors, gravity, links, small, out[k], 3 * i)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _maps_arm(q, dq, chain, sensors, gravity, links, small, bodies, T, W):
     """T_A and W_A of eq. (10) for one arm (rows of all sensors)."""
     n = q.shape[0]
@@ -255,9 +259,9 @@ def _maps_arm(q, dq, chain, sensors, gravity, links, small, bodies, T, W):
     R, p, z, omega, alpha, acc = links
     R_s, r_s, t1, t2 = small[1], small[2], bodies[5], bodies[6]
     zero, zero_n = small[6], bodies[8]
-    _forward_kinematics(q, dq, zero_n, zero, *chain, links, small)
+    _forward_kinematics(q, dq, zero_n, zero, chain, links, small)
     for i in range(sensors[0].shape[0]):
-        j = _sensor_reading(i, *sensors, gravity, links, small, W, 3 * i)
+        j = _sensor_reading(i, sensors, gravity, links, small, W, 3 * i)
         for c in range(3):
             for m in range(n):
                 T[3 * i + c, m] = 0.0
@@ -277,7 +281,7 @@ def _accelerometer_maps_kernel(q, dq, w, T, W, *constants):
     stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, _ = _workspace(n, w)
     for k in range(N):
-        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, *constants)
+        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, constants)
         _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T[k], W[k])
 
 
@@ -294,7 +298,7 @@ def _acceleration_from_readings_kernel(
     residual = np.empty(m)
     space = svd_workspace(m, n)
     for k in range(N):
-        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, *constants)
+        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, constants)
         _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T, W)
         finite = True
         for i in range(m):
@@ -324,18 +328,19 @@ def _acceleration_from_readings_kernel(
         diagnostics[k, 2] = np.sqrt(damping2)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _mass_and_bias_arm(
-    q, dq, ddq, base_acc, chain, mass, com, inertia, M, h, links, small, bodies, with_mass=True
+    q, dq, ddq, base_acc, chain, body_params, M, h, links, small, bodies, with_mass
 ):
     """M(q) (if ``with_mass``) and M(q) q'' + n(q, q') of one arm (Newton-Euler with
     a_0 = -g_W, composite Jacobians); ``ddq`` zero gives the bias n(q, q')."""
     n = q.shape[0]
+    mass, com, inertia = body_params
     R, p, z, omega, alpha, acc = links
     com_w, inertia_w, force, moment, Jv, r, t1, t2, _ = bodies
     tmp, a_c, Iw = small[1], small[2], small[3]
     parent = chain[0]
-    _forward_kinematics(q, dq, ddq, base_acc, *chain, links, small)
+    _forward_kinematics(q, dq, ddq, base_acc, chain, links, small)
     for b in range(n):
         _matvec(R[b], com[b], r)  # c_b - p_b
         for c in range(3):
@@ -398,9 +403,20 @@ def _mass_and_bias_kernel(q, dq, w, M, h, *constants):
     small, links, bodies, _ = _workspace(n, w)
     zero_n = bodies[8]
     for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
         _mass_and_bias_arm(
-            q[k], dq[k], zero_n, minus_gravity, chain, *bodies_p, M[k], h[k], links, small, bodies
+            q[k],
+            dq[k],
+            zero_n,
+            minus_gravity,
+            chain,
+            bodies_p,
+            M[k],
+            h[k],
+            links,
+            small,
+            bodies,
+            True,
         )
 
 
@@ -410,9 +426,21 @@ def _rnea_kernel(q, dq, ddq, w, h, *constants):
     stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, (M, _, _) = _workspace(n, w)
     for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
-        arm = (q[k], dq[k], ddq[k], minus_gravity)
-        _mass_and_bias_arm(*arm, chain, *bodies_p, M, h[k], links, small, bodies, False)
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
+        _mass_and_bias_arm(
+            q[k],
+            dq[k],
+            ddq[k],
+            minus_gravity,
+            chain,
+            bodies_p,
+            M,
+            h[k],
+            links,
+            small,
+            bodies,
+            False,
+        )
 
 
 @njit(cache=True)
@@ -422,12 +450,24 @@ def _gravity_kernel(q, w, h, *constants):
     small, links, bodies, (M, _, _) = _workspace(n, w)
     zero_n = bodies[8]
     for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
-        arm = (q[k], zero_n, zero_n, minus_gravity)
-        _mass_and_bias_arm(*arm, chain, *bodies_p, M, h[k], links, small, bodies, False)
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
+        _mass_and_bias_arm(
+            q[k],
+            zero_n,
+            zero_n,
+            minus_gravity,
+            chain,
+            bodies_p,
+            M,
+            h[k],
+            links,
+            small,
+            bodies,
+            False,
+        )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _cholesky_solve(A, b, out):
     """Solve A x = b for a symmetric positive definite A (A is overwritten by its factor)."""
     n = b.shape[0]
@@ -462,9 +502,10 @@ def _forward_dynamics_kernel(q, dq, tau, added_inertia, w, out, *constants):
     small, links, bodies, (M, h, rhs) = _workspace(n, w)
     per_arm = added_inertia.shape[0] > 1
     for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, *constants)
-        arm = (q[k], dq[k], bodies[8], minus_gravity)
-        _mass_and_bias_arm(*arm, chain, *bodies_p, M, h, links, small, bodies)
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
+        _mass_and_bias_arm(
+            q[k], dq[k], bodies[8], minus_gravity, chain, bodies_p, M, h, links, small, bodies, True
+        )
         added = added_inertia[k if per_arm else 0]
         for a in range(n):
             rhs[a] = tau[k, a] - h[a]
