@@ -133,19 +133,23 @@ RIGID_CONTROLLERS = [
 ]
 
 
-def grid() -> Scenario:
+ARMS = (
+    {"id": "TwoLinkElastic-v0", "label": "elastic", "kwargs": {"max_velocity": 4.0}},
+    {"id": "TwoLinkRigid-v0", "label": "rigid", "kwargs": {"max_velocity": 4.0}},
+)
+
+
+def grid(arms: tuple[dict, ...] = ARMS) -> Scenario:
     """Every built-in controller (and a residual policy) on every state source of its arm,
-    two seeds, a plant sweep and a sensor sweep (both per-arm kwargs), an early end."""
+    two seeds, a plant sweep and a sensor sweep (both per-arm kwargs), an early end (the
+    full-torque controller trips the velocity limit on either arm)."""
     return Scenario.from_dict(
         {
             "name": "both-ways",
             "duration": 0.1,
             "physics_dt": None,
             "seeds": [0, 1],
-            "envs": [
-                {"id": "TwoLinkElastic-v0", "label": "elastic"},
-                {"id": "TwoLinkRigid-v0", "label": "rigid", "kwargs": {"max_velocity": 4.0}},
-            ],
+            "envs": list(arms),
             "sweeps": {
                 "mass": {"parameter": "plant_scaling.link_mass", "nominal": 1.0, "values": [1.3]},
                 "delay": {"parameter": "sensor_delay", "nominal": 0, "values": [2]},
@@ -175,8 +179,10 @@ def _same(a, b) -> bool:
     return a == b
 
 
-def test_rows_of_a_grid_batched_equal_one_arm_per_world(tmp_path):
-    scenario = grid()
+@pytest.mark.parametrize("arm", ARMS, ids=lambda arm: arm["label"])
+def test_rows_of_a_grid_batched_equal_one_arm_per_world(tmp_path, arm):
+    """One arm's half of the grid per test, so the two halves run on both xdist workers."""
+    scenario = grid((arm,))
     runs, _ = plan_runs(scenario)
     assert max(len(g) for g in plan_groups(runs, DEFAULT_BATCH_SIZE, 1)) > 2  # really batched
     results = {}
