@@ -354,14 +354,10 @@ class ArmSimulator:
         link, tau_j, ddtheta = np.empty(shape), np.empty(shape), np.empty(shape)
         return self._transmission(tau, link_torque, link, tau_j, ddtheta, 0.0)
 
-    def _transmission(self, tau, link_torque, link, tau_j, ddtheta, dt: float):
-        """:meth:`accelerations` into the given arrays (``dt``: see the kernel)."""
+    def _transmission_arguments(self, tau, elastic: bool, link, tau_j, ddtheta, dt: float):
+        """The arguments of the transmission kernel after the state (q, theta and rates)."""
         plants = self.plants
-        _transmission_kernel(
-            self.theta,
-            self.dtheta,
-            self.q,
-            self.dq,
+        return (
             tau,
             plants.K,
             plants.D,
@@ -372,11 +368,22 @@ class ArmSimulator:
             plants.smoothing,
             plants.has_friction,
             plants.has_coulomb,
-            self._elastic,
+            elastic,
             link,
             tau_j,
             ddtheta,
             dt,
+        )
+
+    def _transmission(self, tau, link_torque, link, tau_j, ddtheta, dt: float):
+        """:meth:`accelerations` into the given arrays (``dt``: see the kernel)."""
+        plants = self.plants
+        _transmission_kernel(
+            self.theta,
+            self.dtheta,
+            self.q,
+            self.dq,
+            *self._transmission_arguments(tau, self._elastic, link, tau_j, ddtheta, dt),
         )
         if link_torque is not None:
             link += link_torque
@@ -400,24 +407,8 @@ class ArmSimulator:
         plants = self.plants
         fused = self._elastic and not plants.has_coupling
         link, tau_j, ddtheta_buffer = self._buffers
-        if fused:  # the kernel's arguments after the state (see _transmission)
-            constants: tuple = (
-                tau,
-                plants.K,
-                plants.D,
-                plants.B_inv,
-                plants.viscous,
-                plants.coulomb_pos,
-                plants.coulomb_neg,
-                plants.smoothing,
-                plants.has_friction,
-                plants.has_coulomb,
-                True,
-                link,
-                tau_j,
-                ddtheta_buffer,
-                dt,
-            )
+        if fused:  # the kernel's arguments after the state, with the motors integrated
+            constants = self._transmission_arguments(tau, True, link, tau_j, ddtheta_buffer, dt)
         for _ in range(n_substeps):
             if fused:
                 _transmission_kernel(self.theta, self.dtheta, self.q, self.dq, *constants)
