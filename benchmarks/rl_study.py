@@ -626,15 +626,23 @@ def write_targets(lines: list[dict], out: Path) -> None:
 
 
 def gather_curves(rows, runs: Path, out: Path) -> list[dict]:
+    """The learning curves of the finished runs of ``rows`` -> ``curves.csv``; a run whose
+    folder is not under ``runs`` keeps its curve of the earlier ``curves.csv``."""
+    earlier: dict[tuple[str, str], list[dict]] = {}
+    if (out / "curves.csv").exists():
+        with open(out / "curves.csv") as handle:
+            for record in csv.DictReader(handle):
+                earlier.setdefault((record["row"], record["seed"]), []).append(record)
     records = []
     for row in rows:
         for seed in row.seeds:
             path = Path(row.config(seed, runs).out_dir) / CURVE_FILE
             if not (path.parent / FINISHED).exists():
+                records += earlier.get((row.key, str(seed)), [])
                 continue
             with open(path) as handle:
                 for record in csv.DictReader(handle):
-                    records.append({"row": row.key, "seed": seed, **record})
+                    records.append({"row": row.key, "seed": str(seed), **record})
     if records:
         with open(out / "curves.csv", "w", newline="") as handle:
             writer = csv.DictWriter(handle, list(records[0]))

@@ -437,7 +437,14 @@ def differences(row: Row, seed: int, runs: Path) -> list[str]:
 
 def write_runs(rows, runs: Path, out: Path) -> None:
     """``runs.md``: every finished run evaluated, with what it was trained with beyond the
-    table's command (field names of :func:`differences`)."""
+    table's command (field names of :func:`differences`). A run whose folder is not under
+    ``runs`` keeps its line of the earlier ``runs.md`` (its evaluations stay in
+    ``evaluations.csv`` too), so a report on another machine adds runs without losing any."""
+    earlier = {}
+    if (out / "runs.md").exists():
+        for line in (out / "runs.md").read_text().splitlines()[2:]:
+            cells = [cell.strip() for cell in line.split("|")]
+            earlier[(cells[1].strip("`"), cells[2])] = line
     text = [
         "| row | seed | policy steps | training time [s] | features | differs from the table in |"
     ]
@@ -446,6 +453,8 @@ def write_runs(rows, runs: Path, out: Path) -> None:
         for seed in row.seeds:
             folder = RunFolder(Path(row.config(seed, runs).out_dir))
             if not folder.finished:
+                if (row.key, str(seed)) in earlier:
+                    text.append(earlier[(row.key, str(seed))])
                 continue
             summary = json.loads((folder.path / FINISHED).read_text())
             features = folder.read_config().observation.get("features")

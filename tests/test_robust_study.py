@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -246,6 +247,12 @@ def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     assert len(again) == len(records)
     (wall,) = {r["wall_time"] for r in again if r["row"] == "ppo-true-nominal"}
     assert wall == str(json.loads(summary.read_text())["wall_time"])
+    files = ("runs.md", "curves.csv", "evaluations.csv", "table.csv")
+    kept = {name: (out / name).read_text() for name in files}
+    shutil.rmtree(runs)  # a report on a machine without the run folders loses nothing
+    rs.run(study, [*argv, "--report"])
+    assert "evaluated" not in capsys.readouterr().out
+    assert {name: (out / name).read_text() for name in files} == kept
 
 
 @pytest.mark.parametrize(
