@@ -152,8 +152,7 @@ class RunsCsv:
         self._error: ResultsWriteError | None = None
 
     def add(self, index: int, row: dict) -> None:
-        if self._error is not None:
-            raise self._error
+        self._check_no_error()
         self.rows[index] = row
         new = [key for key in row if key not in self.fields]
         if new or self._fd is None:
@@ -164,8 +163,7 @@ class RunsCsv:
 
     def finish(self) -> list[dict]:
         """Write the file in run order, close it, and return the rows in that order."""
-        if self._error is not None:
-            raise self._error
+        self._check_no_error()
         rows = [self.rows[i] for i in sorted(self.rows)]
         self._replace(rows)
         self._close()
@@ -213,3 +211,8 @@ class RunsCsv:
         )
         self._close()
         raise self._error from exc
+
+    def _check_no_error(self) -> None:
+        """A failed write is raised again by every later call (the file keeps its rows)."""
+        if self._error is not None:
+            raise self._error
