@@ -23,7 +23,7 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
-from elastic_gym.folder_lock import check_writable
+from elastic_gym.folder_lock import check_free
 
 RESULT_FILES = (
     "runs.csv",
@@ -74,16 +74,13 @@ def check_output_folder(folder: Path, overwrite: bool) -> None:
     be created in it (or in the parent it would be created in). ``FileExistsError``: it
     holds the files of an earlier comparison and ``overwrite`` is false.
     """
-    check_writable(folder)
-    if folder.is_dir() and not overwrite:
-        earlier = earlier_results(folder)
-        if earlier:
-            shown = ", ".join(earlier[:5]) + (", ..." if len(earlier) > 5 else "")
-            raise FileExistsError(
-                f"output folder {str(folder)!r} holds the results of an earlier comparison "
-                f"({shown}); choose another folder, or replace them with --overwrite "
-                "(overwrite=True)"
-            )
+    check_free(
+        folder,
+        lambda: earlier_results(folder),
+        "the results of an earlier comparison",
+        "output folder",
+        overwrite,
+    )
 
 
 def clear_results(folder: Path) -> None:
