@@ -17,7 +17,7 @@ import contextlib
 import fcntl
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TextIO
 
@@ -72,6 +72,27 @@ def check_writable(folder: str | Path) -> None:
             f"output folder {str(folder)!r}: cannot write in "
             f"{str(existing)!r} ({exc.strerror or exc})"
         ) from None
+
+
+def check_free(
+    folder: str | Path,
+    earlier: Callable[[], list[str]],
+    holds: str,
+    choose: str,
+    overwrite: bool = False,
+) -> None:
+    """Raise before any work if ``folder`` cannot receive new outputs; changes nothing:
+    :func:`check_writable`, then ``FileExistsError`` if it holds the outputs of an earlier
+    job (``earlier()``: their names; ``holds`` says what they are, ``choose`` the option
+    that picks another folder) and not ``overwrite``."""
+    check_writable(folder)
+    found = [] if overwrite else earlier()
+    if found:
+        shown = ", ".join(found[:5]) + (", ..." if len(found) > 5 else "")
+        raise FileExistsError(
+            f"output folder {str(folder)!r} holds {holds} ({shown}); choose another "
+            f"{choose}, or replace it with --overwrite (overwrite=True)"
+        )
 
 
 def _acquire(path: Path) -> TextIO:

@@ -82,6 +82,20 @@ def all_or_none(options: Mapping[str, Any], loc: Sequence = ()) -> None:
         raise FieldError(loc, f"{together}: {' and '.join(missing)} missing")
 
 
+def ordered(
+    low: float,
+    high: float,
+    strict: bool = False,
+    names: tuple[str, str] = ("low", "high"),
+    loc: Sequence = (),
+) -> None:
+    """Refuse ``low > high`` (``strict``: ``low >= high``) of a range: ``FieldError``
+    (``loc`` continues a validator's path) reading ``low (2) must be <= high (1)``."""
+    if low > high or (strict and low == high):
+        relation = "<" if strict else "<="
+        raise FieldError(loc, f"{names[0]} ({low:g}) must be {relation} {names[1]} ({high:g})")
+
+
 def shaped(
     value: Any, shape: tuple[int | None, ...], name: str, finite: bool = False
 ) -> np.ndarray:

@@ -338,7 +338,10 @@ def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_p
             ["--class", "elastic_gym.controllers.pd:MotorPD", "--controller", "motor-pd"],
             "--class (a Controller) and --controller",
         ),
-        (["--class", "elastic_gym.envs:ElasticArmEnv"], "neither a Controller nor an Observer"),
+        (
+            ["--class", "elastic_gym.envs:ElasticArmEnv"],
+            "neither a subclass of Controller nor Observer",
+        ),
         (["--controller", "motor-pd", "--output", str(tmp_path / "a")], "earlier scorecard"),
         (["--controller", "motor-pd", "--robot", "kr15"], "unknown robot(s) ['kr15']"),
         ([], "give one of --leaderboard or --run or --controller/--class/--source"),

@@ -198,7 +198,7 @@ def test_rigid_arm_pulse_and_payload():
                     }
                 }
             },
-            r"torque_pulses\.random: window must be 0 <= start <= end",
+            r"torque_pulses\.random\.window: start \(.*\) must be <= end",
         ),
     ],
 )

@@ -854,7 +854,7 @@ def test_a_refused_reset_changes_no_random_stream():
     before = streams(envs)
     refused = [
         ({"seed": 1.5}, TypeError, "seed must be an integer >= 0, a list of 3"),
-        ({"seed": [7, 8, -1]}, ValueError, r"seed\[2\] must be an integer >= 0 or None"),
+        ({"seed": [7, 8, -1]}, ValueError, r"seed\[2\] must be an integer >= 0, got -1"),
         ({"seed": 9, "options": {"bogus": 1}}, ValueError, "options.bogus: unexpected field"),
     ]
     for kwargs, error, message in refused:

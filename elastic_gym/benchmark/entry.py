@@ -96,12 +96,8 @@ def class_kind(path: str, option: str) -> str:
     from elastic_gym.controllers.base import Controller
     from elastic_gym.observers.base import Observer
 
-    cls = resolve_class(path, option)
-    if isinstance(cls, type) and issubclass(cls, Controller):
-        return "controller"
-    if isinstance(cls, type) and issubclass(cls, Observer):
-        return "observer"
-    raise ValueError(f"{option}: {path} is neither a Controller nor an Observer subclass")
+    cls = resolve_class(path, option, (Controller, Observer))
+    return "controller" if issubclass(cls, Controller) else "observer"
 
 
 class EntryArguments(StrictModel):

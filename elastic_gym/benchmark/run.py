@@ -30,6 +30,7 @@ from elastic_gym.benchmark.entry import Entry, describe_entry, resolve_entry
 from elastic_gym.benchmark.scorecard import JSON_FILE, Scorecard, build_scorecard, write_scorecard
 from elastic_gym.benchmark.scoring import compute_scores, score_episodes
 from elastic_gym.benchmark.suite import DEFAULT_SUITE, SuiteConfig, load_suite, suite_scenario
+from elastic_gym.folder_lock import check_free
 from elastic_gym.parallel import DEFAULT_BACKEND
 from elastic_gym.validation import validated
 
@@ -84,10 +85,8 @@ def run_benchmark(
             )
     scenario = suite_scenario(suite, controller, source, robots, name=_slug(entry.name))
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / _slug(entry.name)
-    if (out / JSON_FILE).exists() and not overwrite:
-        raise FileExistsError(
-            f"{out} holds an earlier scorecard; choose another --output or pass --overwrite"
-        )
+    scorecard = [JSON_FILE] if (out / JSON_FILE).exists() else []
+    check_free(out, lambda: scorecard, "an earlier scorecard", "--output", overwrite)
     check_output_folder(out / RUNS_DIR, overwrite)  # refuses a file, in ``out`` or above
     start, cpu_start = time.perf_counter(), _cpu_seconds()
     (out / RUNS_DIR).mkdir(parents=True, exist_ok=True)

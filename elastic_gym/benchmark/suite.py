@@ -33,7 +33,7 @@ from elastic_gym.evaluation.scenario import (
     merge,
 )
 from elastic_gym.evaluation.scenario_models import env_parameters
-from elastic_gym.validation import StrictModel, distinct, registered_env_id, validated
+from elastic_gym.validation import StrictModel, distinct, ordered, registered_env_id, validated
 from elastic_gym.yaml_io import load_yaml
 
 SUITE_DIR = Path(__file__).resolve().parent / "suites"
@@ -118,8 +118,7 @@ class PrecisionConfig(StrictModel):
 
     @model_validator(mode="after")
     def _ordered(self) -> PrecisionConfig:
-        if not self.low < self.high:
-            raise ValueError(f"low ({self.low:g}) must be < high ({self.high:g})")
+        ordered(self.low, self.high, strict=True)
         return self
 
 

@@ -43,6 +43,7 @@ from elastic_gym.validation import (
     all_or_none,
     at_most_one,
     checked,
+    ordered,
     plain,
 )
 
@@ -103,8 +104,7 @@ class Range(StrictModel):
 
     @model_validator(mode="after")
     def _ordered(self) -> Range:
-        if self.low > self.high:
-            raise ValueError(f"low ({self.low}) must be <= high ({self.high})")
+        ordered(self.low, self.high)
         if self.log and self.low <= 0.0:
             raise ValueError(f"a log-uniform range needs low > 0, got {self.low}")
         return self
@@ -137,8 +137,7 @@ class RandomPulses(StrictModel):
 
     @model_validator(mode="after")
     def _bounds(self) -> RandomPulses:
-        if self.window[0] > self.window[1]:
-            raise ValueError(f"window must be 0 <= start <= end (s), got {self.window}")
+        ordered(*self.window, names=("start", "end"), loc=("window",))
         return self
 
 

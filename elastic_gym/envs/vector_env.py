@@ -42,9 +42,7 @@ def masked_info(info: dict, mask: np.ndarray) -> dict:
 
 def _generator(seed: object, where: str) -> np.random.Generator:
     """The generator of an integer seed >= 0; ``ValueError`` naming ``where`` otherwise."""
-    if not is_count(seed):
-        raise ValueError(f"{where} must be an integer >= 0 or None, got {seed!r}")
-    return seeding.np_random(int(seed))[0]
+    return seeding.np_random(checked_count(seed, where))[0]
 
 
 class ArmVectorEnv(VectorEnv):

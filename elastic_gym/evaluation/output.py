@@ -23,7 +23,7 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
-from elastic_gym.folder_lock import check_writable
+from elastic_gym.folder_lock import check_free
 
 RESULT_FILES = (
     "runs.csv",
@@ -74,16 +74,13 @@ def check_output_folder(folder: Path, overwrite: bool) -> None:
     be created in it (or in the parent it would be created in). ``FileExistsError``: it
     holds the files of an earlier comparison and ``overwrite`` is false.
     """
-    check_writable(folder)
-    if folder.is_dir() and not overwrite:
-        earlier = earlier_results(folder)
-        if earlier:
-            shown = ", ".join(earlier[:5]) + (", ..." if len(earlier) > 5 else "")
-            raise FileExistsError(
-                f"output folder {str(folder)!r} holds the results of an earlier comparison "
-                f"({shown}); choose another folder, or replace them with --overwrite "
-                "(overwrite=True)"
-            )
+    check_free(
+        folder,
+        lambda: earlier_results(folder),
+        "the results of an earlier comparison",
+        "output folder",
+        overwrite,
+    )
 
 
 def clear_results(folder: Path) -> None:
@@ -152,8 +149,7 @@ class RunsCsv:
         self._error: ResultsWriteError | None = None
 
     def add(self, index: int, row: dict) -> None:
-        if self._error is not None:
-            raise self._error
+        self._check_no_error()
         self.rows[index] = row
         new = [key for key in row if key not in self.fields]
         if new or self._fd is None:
@@ -164,8 +160,7 @@ class RunsCsv:
 
     def finish(self) -> list[dict]:
         """Write the file in run order, close it, and return the rows in that order."""
-        if self._error is not None:
-            raise self._error
+        self._check_no_error()
         rows = [self.rows[i] for i in sorted(self.rows)]
         self._replace(rows)
         self._close()
@@ -213,3 +208,8 @@ class RunsCsv:
         )
         self._close()
         raise self._error from exc
+
+    def _check_no_error(self) -> None:
+        """A failed write is raised again by every later call (the file keeps its rows)."""
+        if self._error is not None:
+            raise self._error

@@ -131,10 +131,7 @@ def _entry_class(
 ) -> type:
     """The class of a controller/observer entry: explicit ``class`` or registry name."""
     if entry.cls is not None:
-        cls = resolve_class(entry.cls, f"{path}.class")
-        if not issubclass(cls, base):
-            raise ScenarioError(f"{path}.class", f"{cls!r} is not a subclass of {base.__name__}")
-        return cls
+        return resolve_class(entry.cls, f"{path}.class", (base,))
     try:
         return lookup(entry.name)
     except ImportError as exc:

@@ -263,17 +263,19 @@ def _validated(model: type[Scenario], data: Any, by_name: bool = False) -> Scena
         raise ScenarioError(path, message) from None
 
 
-def resolve_class(cls: type | str, path: str) -> type:
+def resolve_class(cls: type | str, path: str, bases: tuple[type, ...] = (object,)) -> type:
     """A class given directly or as ``"module:Class"``, which imports the module (running
-    its top-level code: a scenario file is code, load only trusted ones)."""
-    if isinstance(cls, type):
-        return cls
-    module, _, attr = cls.partition(":")
+    its top-level code: a scenario file is code, load only trusted ones), a subclass of
+    one of ``bases``; :class:`ScenarioError` at ``path`` otherwise."""
+    module, _, attr = ("", "", "") if isinstance(cls, type) else cls.partition(":")
     problem = None
     try:
-        found = getattr(importlib.import_module(module), attr)
+        found = cls if isinstance(cls, type) else getattr(importlib.import_module(module), attr)
         if not isinstance(found, type):
             problem = f"{cls!r} is not a class but {type(found).__name__} {found!r}"
+        elif not issubclass(found, bases):
+            kinds = " nor ".join(base.__name__ for base in bases)
+            problem = f"{found!r} is {'neither' if len(bases) > 1 else 'not'} a subclass of {kinds}"
     except (ImportError, AttributeError) as exc:
         problem = f"cannot import class {cls!r}: {exc}"
     except (Exception, SystemExit) as exc:  # the module's own code failed or does not compile

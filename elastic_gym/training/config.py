@@ -31,7 +31,6 @@ from pydantic import (
     StrictInt,
     StrictStr,
     TypeAdapter,
-    ValidationError,
     WithJsonSchema,
     model_validator,
 )
@@ -44,7 +43,7 @@ from elastic_gym.validation import (
     ConfigModel,
     Finite,
     StrictModel,
-    format_validation_error,
+    checked,
     lookup,
     plain,
     registered_env_id,
@@ -119,10 +118,8 @@ class HyperparameterFile(RootModel[dict[str, HyperparameterEntry]]):
 
 def load_hyperparams_file(path: str | Path) -> dict:
     """Parse a hyper-parameter YAML file; errors name the file and the problem."""
-    data = load_yaml(Path(path))
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: top level must map env ids (or 'default') to settings")
-    validated(HyperparameterFile, data, prefix=str(path))
+    data = load_yaml(Path(path))  # an empty file (None) is refused too: not a mapping
+    checked(lambda: HyperparameterFile.model_validate(data), str(path), HyperparameterFile)
     return data
 
 
@@ -197,10 +194,8 @@ def _check_values(algo: str, merged: dict) -> None:
             kind is not StrictBool and (callable(value) or isinstance(value, (list, tuple)))
         ):
             continue
-        try:
-            merged[key] = TypeAdapter(kind).validate_python(plain(value))
-        except ValidationError as error:
-            raise ValueError(format_validation_error(error, f"hyper-parameter {key}")) from None
+        check = functools.partial(TypeAdapter(kind).validate_python, plain(value))
+        merged[key] = checked(check, f"hyper-parameter {key}")
 
 
 def _check_critic_state(algo: str, merged: dict, key: str) -> None:
@@ -239,9 +234,9 @@ def _schedule(key: str, text: str):
 
 
 def _policy_kwargs(value) -> dict:
-    if not isinstance(value, dict):
-        raise ValueError(f"policy_kwargs must be a mapping, got {value!r}")
-    kwargs = dict(value)
+    kwargs = dict(
+        checked(lambda: TypeAdapter(dict[str, Any]).validate_python(value), "policy_kwargs")
+    )
     if "activation_fn" in kwargs:
         import torch
 

@@ -12,10 +12,15 @@ stack without ``CriticState`` and pads the k entries with NaN: the actor never r
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import torch
 from gymnasium import spaces
+from pydantic import Field, StrictInt, TypeAdapter
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, MlpExtractor
+
+from elastic_gym.validation import checked
 
 
 class ActorSlice(BaseFeaturesExtractor):
@@ -56,15 +61,8 @@ class PrivilegedCriticPolicy(ActorCriticPolicy):
                 f"a privileged critic needs flat Box observations, got {observation_space}"
             )
         size = observation_space.shape[0]
-        if (
-            isinstance(privileged_size, bool)
-            or not isinstance(privileged_size, int)
-            or not 0 < privileged_size < size
-        ):
-            raise ValueError(
-                f"privileged_size must be an integer in 1 .. {size - 1} (the "
-                f"observation has {size} entries), got {privileged_size!r}"
-            )
+        within = Annotated[StrictInt, Field(ge=1, le=size - 1)]  # not the whole observation
+        checked(lambda: TypeAdapter(within).validate_python(privileged_size), "privileged_size")
         if kwargs.pop("share_features_extractor", False):
             raise ValueError("a privileged critic cannot share the actor's features extractor")
         self.privileged_size = privileged_size

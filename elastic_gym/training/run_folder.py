@@ -22,7 +22,7 @@ from pathlib import Path
 
 import yaml
 
-from elastic_gym.folder_lock import check_writable, folder_lock
+from elastic_gym.folder_lock import check_free, check_writable, folder_lock
 from elastic_gym.schemas import schema_comment
 from elastic_gym.training.config import TrainConfig, algorithm_class
 from elastic_gym.yaml_io import load_yaml
@@ -98,14 +98,7 @@ class RunFolder:
         if it is a file, ``PermissionError`` if it cannot be written (a read-only file
         system, :func:`~elastic_gym.folder_lock.check_writable`), ``FileExistsError`` if it
         holds an earlier run and not ``overwrite``."""
-        check_writable(self.path)
-        earlier = self.earlier_run() if self.path.is_dir() else []
-        if earlier and not overwrite:
-            shown = ", ".join(earlier[:4]) + (", ..." if len(earlier) > 4 else "")
-            raise FileExistsError(
-                f"run folder {str(self.path)!r} holds an earlier run ({shown}); choose "
-                "another --out, or replace it with --overwrite (overwrite=True)"
-            )
+        check_free(self.path, self.earlier_run, "an earlier run", "--out", overwrite)
 
     def lock(self) -> contextlib.AbstractContextManager:
         """The folder's writer lock for a ``with`` block
