@@ -50,12 +50,15 @@ def _rest_to_rest_kernel(t, waypoints, move_time, dwell_time, coefficients, out)
     for k in range(N):
         out[k, :, :] = 0.0
         if n_segments == 0:
-            out[k, 0, :] = waypoints[k, 0]
+            for j in range(n):  # element loops: a slice copy compiles numba's broadcasting
+                out[k, 0, j] = waypoints[k, 0, j]
             continue
         index = min(int(max(t[k], 0.0) // segment), n_segments - 1)
         u = (t[k] - index * segment - dwell_time) / move_time
         if u <= 0.0 or u >= 1.0:  # at rest (derivatives above 4 of the law do not vanish there)
-            out[k, 0, :] = waypoints[k, index] if u <= 0.0 else waypoints[k, index + 1]
+            rest = index if u <= 0.0 else index + 1
+            for j in range(n):
+                out[k, 0, j] = waypoints[k, rest, j]
             continue
         powers[0] = 1.0
         for p in range(1, powers.shape[0]):
