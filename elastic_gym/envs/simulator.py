@@ -434,6 +434,17 @@ class ArmSimulator:
             return ddq
         return self.plants.chain.forward_dynamics(self.q, self.dq, link_tau)
 
+    def link_acceleration_and_forces(
+        self, tau: np.ndarray, link_torque: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """(:meth:`link_acceleration`, the noise-free accelerometer readings of eq. (9) at
+        it, (N, 3 n_sensors), or None for model (2), whose q'' comes with its torques):
+        q'' and the readings in one compiled call where they can be."""
+        link_tau, _, ddq = self.accelerations(tau, link_torque)
+        if ddq is not None:
+            return ddq, None
+        return self.plants.chain.forward_dynamics_and_forces(self.q, self.dq, link_tau)
+
     def link_pose(self, link_name: str, arm: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Position (from the arm's base) and rotation of a URDF link frame, from PyBullet."""
         c, body = self.client, self.bodies[arm]
