@@ -811,7 +811,11 @@ class SerialChain:
         self._rows(q)
         ddq = np.empty((len(q), n))
         forces = np.empty((len(q), 3 * self.n_sensors))
-        _dynamics_and_forces_kernel(
-            q, dq, tau, self._no_inertia, self._work, ddq, forces, *self._kernel_constants()
-        )
+        _dynamics_and_forces_kernel(q, dq, tau, *self.dynamics_and_forces_arguments(ddq, forces))
         return ddq, forces
+
+    def dynamics_and_forces_arguments(self, ddq: np.ndarray, forces: np.ndarray) -> tuple:
+        """The arguments of :func:`_dynamics_and_forces_kernel` after (q, q', tau), writing
+        into ``ddq`` and ``forces``: for compiled callers composing it with their own
+        kernels (the simulator's transmission)."""
+        return (self._no_inertia, self._work, ddq, forces, *self._kernel_constants())
