@@ -660,7 +660,8 @@ class ArmBatch:
         """
         sim, n = self.sim, self.n_joints
         one = isinstance(arms, (int, np.integer))
-        rows = slice(arms, arms + 1) if one else arms  # one arm: a row kept 2-D until [0]
+        # one arm: a row kept 2-D until [0]
+        rows = slice(int(arms), int(arms) + 1) if isinstance(arms, (int, np.integer)) else arms
         # one fresh copy of the state and the reference (5 n each: the derivatives)
         x = np.concatenate(
             (

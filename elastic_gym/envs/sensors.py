@@ -199,7 +199,8 @@ class Encoder:
     ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``position``; ``rngs`` are theirs)."""
         resolution, noise_std = self._shared
-        if None not in (resolution, noise_std) and arms is every_arm(len(self.noise_std)):
+        every = arms is every_arm(len(self.noise_std))
+        if every and resolution is not None and noise_std is not None:
             return _compiled(position, None, noise_std, self.noise, rngs, np.inf, resolution)
         y = _add_noise(position, self.noise_std, noise_std, self.noise, arms, rngs)
         return _quantized(y, self.resolution, resolution, arms)
@@ -302,7 +303,13 @@ class AccelerometerArray:
         """Readings of the arms ``arms`` (rows of ``specific_force``; ``rngs`` are theirs)."""
         every = arms is every_arm(len(self.bias))
         sample_std, alpha, limit, resolution = self._shared
-        if every and alpha == 0.0 and None not in (sample_std, limit, resolution):
+        if (
+            every
+            and alpha == 0.0
+            and sample_std is not None
+            and limit is not None
+            and resolution is not None
+        ):
             return _compiled(
                 specific_force, self.bias, sample_std, self.noise, rngs, limit, resolution
             )
