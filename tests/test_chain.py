@@ -86,3 +86,16 @@ def test_chain_checks_shapes_and_pickles():
     q, dq, ddq, _ = _states(model, 3)
     copy = pickle.loads(pickle.dumps(chain))
     assert np.array_equal(copy.specific_forces(q, dq, ddq), chain.specific_forces(q, dq, ddq))
+
+
+@pytest.mark.parametrize("robot", list(ROBOTS))
+def test_dynamics_and_forces_in_one_call_equal_the_two_calls(robot):
+    """The fused kernel of the env step is forward dynamics then eq. (9), bit for bit."""
+    model = RobotModel(get_robot(robot))
+    chain = model.chain
+    for n_arms in (1, 5):
+        q, dq, _, tau = _states(model, n_arms, seed=4)
+        ddq, forces = chain.forward_dynamics_and_forces(q, dq, tau)
+        expected = chain.forward_dynamics(q, dq, tau)
+        assert np.array_equal(ddq, expected)
+        assert np.array_equal(forces, chain.specific_forces(q, dq, expected))

@@ -236,3 +236,22 @@ def test_a_pickled_env_with_plant_features_continues_bit_for_bit():
     assert a[4]["plant"]["payload.mass"] == 1.5
     drawn = [e.reset()[1]["plant"]["plant_scaling.link_mass"] for e in (env, clone)]
     assert drawn[0] == drawn[1]  # the plant streams continue alike
+
+
+@pytest.mark.parametrize("friction", [False, True])
+def test_step_dynamics_in_one_call_equal_the_separate_calls(friction):
+    """q'' and the accelerometers' noise-free readings of a step (one compiled call) equal
+    link_acceleration and eq. (9) computed apart, with a link-side pulse torque."""
+    kwargs = {"unmodelled_friction": {"viscous": 0.02, "coulomb": 0.1}} if friction else {}
+    env = gym.make(TWO_LINK, **kwargs)
+    env.reset(seed=2)
+    for _ in range(5):
+        env.step(np.array([1.5, -0.7]))
+    sim = env.unwrapped.sim
+    tau, pulse = np.array([[0.8, -0.3]]), np.array([[0.4, 0.25]])
+    for link_torque in (None, pulse):
+        ddq, forces = sim.link_acceleration_and_forces(tau, link_torque)
+        expected = sim.link_acceleration(tau, link_torque)
+        assert np.array_equal(ddq, expected)
+        assert np.array_equal(forces, sim.plants.chain.specific_forces(sim.q, sim.dq, expected))
+    env.close()

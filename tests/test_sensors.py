@@ -176,3 +176,28 @@ def test_sensor_delay_shifts_the_measurements_not_the_reference():
         assert np.array_equal(obs_d["reference"], obs["reference"])
     with pytest.raises(ValueError, match="sensor_delay"):
         make_noise_free("elastic_gym/TwoLinkElastic-v0", sensor_delay=-1)
+
+
+def test_compiled_readings_of_every_arm_equal_the_numpy_path():
+    """Measured with ``every_arm`` (one compiled call) or with an index array (numpy), the
+    readings and the noise streams are the same bit for bit, NaN and saturation included."""
+    from elastic_gym.envs.sensors import every_arm
+
+    n_arms, steps = 3, GaussianNoise.BLOCK + 5
+    config = AccelerometerConfig(noise_density=2e-3, bias_std=0.05, range=20.0, resolution=1e-3)
+    fast, slow = (AccelerometerArray(config, 2, 1e-3, n_arms) for _ in range(2))
+    enc_fast, enc_slow = (Encoder(7e-4, 1e-3, 2, n_arms) for _ in range(2))
+    rngs_fast, rngs_slow = ([np.random.default_rng(s) for s in range(n_arms)] for _ in range(2))
+    fast.reset(every_arm(n_arms), rngs_fast)
+    slow.reset(np.arange(n_arms), rngs_slow)
+    truth = np.random.default_rng(7).uniform(-30.0, 30.0, (steps, n_arms, 6))
+    truth[3, 1, 2] = np.nan
+    position = truth[..., :2] / 10.0
+    for t in range(steps):
+        a = fast.measure(truth[t], rngs_fast, every_arm(n_arms))
+        b = slow.measure(truth[t], rngs_slow, np.arange(n_arms))
+        assert np.array_equal(a, b, equal_nan=True)
+        a = enc_fast.measure(position[t], rngs_fast, every_arm(n_arms))
+        b = enc_slow.measure(position[t], rngs_slow, np.arange(n_arms))
+        assert np.array_equal(a, b, equal_nan=True)
+    assert np.any(np.abs(fast.measure(truth[0], rngs_fast, every_arm(n_arms))) == 20.0)

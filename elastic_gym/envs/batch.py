@@ -497,12 +497,18 @@ class ArmBatch:
         self.steps += 1 if every else stepping
         self._time = self.steps * self.control_dt
         self.previous_torque, self.torque = self.torque, tau
-        self.ddq = sim.link_acceleration(tau, pulse)
+        if self.model.n_sensors:  # q'' and the accelerometers' noise-free readings at once
+            self.ddq, forces = sim.link_acceleration_and_forces(tau, pulse)
+        else:
+            self.ddq, forces = sim.link_acceleration(tau, pulse), None
         self.reference = self.task.reference(self._time)
         reasons = self._termination_reasons()
         self._slot = (self._slot + 1) % self._sensor_line
         self._observe(
-            self._arms if every else np.flatnonzero(stepping), first=False, finite=reasons is None
+            self._arms if every else np.flatnonzero(stepping),
+            first=False,
+            finite=reasons is None,
+            forces=forces,
         )
         reward = self._reward()
         truncated = self._no_arm if self.max_steps is None else self.steps >= self.max_steps
@@ -580,12 +586,19 @@ class ArmBatch:
             return None
         return REASONS[self._codes]
 
-    def _observe(self, arms: np.ndarray, first: bool, finite: bool = True) -> None:
+    def _observe(
+        self,
+        arms: np.ndarray,
+        first: bool,
+        finite: bool = True,
+        forces: np.ndarray | None = None,
+    ) -> None:
         """Measure the arms ``arms`` (their generators draw the noise), through the delay line.
 
         ``first``: the first reading of an episode fills the whole delay line; otherwise the
         reading goes to the newest slot (advanced by :meth:`step`). ``finite``: every arm's
-        state is known to be finite (no need to look for readings to hold).
+        state is known to be finite (no need to look for readings to hold). ``forces``: the
+        noise-free accelerometer readings of every arm (N, 3 n_sensors), if already known.
         """
         if not len(arms):
             return
@@ -596,9 +609,12 @@ class ArmBatch:
         position = sim.theta if self.robot.elastic else sim.q
         readings = {self.position_key: self.encoder.measure(position[rows], rngs, arms)}
         if self.model.n_sensors:
-            chain = sim.plants.chain
-            chain = chain if every else chain.select(arms)
-            force = chain.specific_forces(sim.q[rows], sim.dq[rows], self.ddq[rows])
+            if forces is not None:
+                force = forces if every else forces[arms]
+            else:
+                chain = sim.plants.chain
+                chain = chain if every else chain.select(arms)
+                force = chain.specific_forces(sim.q[rows], sim.dq[rows], self.ddq[rows])
             readings["acceleration"] = self.accelerometer_array.measure(force, rngs, arms)
         length = self._sensor_line
         if length > 1:
@@ -644,25 +660,41 @@ class ArmBatch:
         """
         sim, n = self.sim, self.n_joints
         one = isinstance(arms, (int, np.integer))
+        # one arm: a row kept 2-D until [0]
+        rows = slice(int(arms), int(arms) + 1) if isinstance(arms, (int, np.integer)) else arms
+        # one fresh copy of the state and the reference (5 n each: the derivatives)
         x = np.concatenate(
-            (sim.theta[arms], sim.q[arms], sim.dtheta[arms], sim.dq[arms], self.ddq[arms]), axis=-1
+            (
+                sim.theta[rows],
+                sim.q[rows],
+                sim.dtheta[rows],
+                sim.dq[rows],
+                self.ddq[rows],
+                self.reference[rows].reshape(-1, len(REFERENCE_KEYS) * n),
+            ),
+            axis=1,
         )
+        if one:
+            x = x[0]
         state = {
             "q": x[..., n : 2 * n],
             "dq": x[..., 3 * n : 4 * n],
             "theta": x[..., :n],
             "dtheta": x[..., 2 * n : 3 * n],
-            "ddq": x[..., 4 * n :],
+            "ddq": x[..., 4 * n : 5 * n],
             "x": x[..., : 4 * n],
         }
-        reference = self.reference[arms].copy()
+        start = 5 * n
         return {
             "time": float(self._time[arms]) if one else self._time[arms].copy(),
             "true_state": state,
             "torque": self.torque[arms].copy(),
             "torque_saturated": bool(self.saturated[arms]) if one else self.saturated[arms].copy(),
             "acceleration_saturated": self._acceleration_saturated(arms, one),
-            "reference": {key: reference[..., k, :] for k, key in enumerate(REFERENCE_KEYS)},
+            "reference": {
+                key: x[..., start + k * n : start + (k + 1) * n]
+                for k, key in enumerate(REFERENCE_KEYS)
+            },
             "termination_reason": self.reasons[arms] if one else self.reasons[arms].copy(),
             "plant": self.plant_state.info(arms),
         }
@@ -673,8 +705,8 @@ class ArmBatch:
             return False if one else np.zeros(len(self._time[arms]), dtype=bool)
         readings = np.abs(self.obs["acceleration"][arms])
         limit = self.accelerometer_array.range[arms]
-        if one:
-            return bool((readings >= limit).any())
+        if one:  # any |reading| >= limit: the largest non-NaN one (fmax skips NaN)
+            return bool(np.fmax.reduce(readings) >= limit)
         return (readings >= limit[:, None]).any(axis=-1)
 
     def reference_preview(self, offsets: np.ndarray) -> np.ndarray:

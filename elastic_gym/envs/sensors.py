@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from typing import Annotated
 
 import numpy as np
+from numba import njit
 from pydantic import AfterValidator, ConfigDict, StrictFloat
 
 from elastic_gym.validation import StrictModel, validated
@@ -76,14 +77,18 @@ class GaussianNoise:
     def restart(self, arms: np.ndarray) -> None:
         self.next[arms] = self.BLOCK
 
+    def refill(self, rngs: list[np.random.Generator]) -> None:
+        """A fresh block for every arm whose block is used up (before a sample of each)."""
+        empty = self.next == self.BLOCK
+        if empty.any():
+            for arm in np.flatnonzero(empty):
+                self.block[arm] = rngs[arm].standard_normal(self.block.shape[1:])
+                self.next[arm] = 0
+
     def draw(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
         """One sample per arm of ``arms`` (``rngs[k]`` is the generator of ``arms[k]``)."""
         if arms is every_arm(len(self.next)):
-            empty = self.next == self.BLOCK
-            if empty.any():
-                for arm in np.flatnonzero(empty):
-                    self.block[arm] = rngs[arm].standard_normal(self.block.shape[1:])
-                    self.next[arm] = 0
+            self.refill(rngs)
             sample = self.block[arms, self.next]
             self.next += 1
             return sample
@@ -98,6 +103,28 @@ class GaussianNoise:
         sample = self.block[arms, following]
         self.next[arms] = following + 1
         return sample
+
+
+@njit(cache=True)
+def _shared_readings(y, offset, std, block, following, bound, resolution, out):
+    """Every arm's readings with one error model for all, as the numpy path gives them:
+    out = quantize(clip(y + offset + std n, -bound, bound)) with n = block[k, following[k]]
+    (``following`` advanced when std > 0), quantize(v) = rint(v / r) r for r > 0 (NaN kept
+    by the clip, like numpy's maximum and minimum); ``offset`` None: no offset."""
+    for k in range(y.shape[0]):
+        for j in range(y.shape[1]):
+            v = y[k, j]
+            if offset is not None:
+                v = v + offset[k, j]
+            if std > 0.0:
+                v = v + std * block[k, following[k], j]
+            v = -bound if v < -bound else v
+            v = bound if v > bound else v
+            if resolution > 0.0:
+                v = np.rint(v / resolution) * resolution
+            out[k, j] = v
+        if std > 0.0:
+            following[k] += 1
 
 
 def common(values: np.ndarray) -> float | None:
@@ -134,6 +161,16 @@ def _add_noise(
     return y
 
 
+def _compiled(y, offset, std: float, noise: GaussianNoise, rngs, bound: float, resolution: float):
+    """Every arm's readings by :func:`_shared_readings` (one error model, no filter)."""
+    if std > 0.0:
+        noise.refill(rngs)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    out = np.empty(y.shape)
+    _shared_readings(y, offset, std, noise.block, noise.next, bound, resolution, out)
+    return out
+
+
 class Encoder:
     """Quantized, optionally noisy position measurement: round((x + n) / r) * r.
 
@@ -162,6 +199,9 @@ class Encoder:
     ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``position``; ``rngs`` are theirs)."""
         resolution, noise_std = self._shared
+        every = arms is every_arm(len(self.noise_std))
+        if every and resolution is not None and noise_std is not None:
+            return _compiled(position, None, noise_std, self.noise, rngs, np.inf, resolution)
         y = _add_noise(position, self.noise_std, noise_std, self.noise, arms, rngs)
         return _quantized(y, self.resolution, resolution, arms)
 
@@ -261,8 +301,19 @@ class AccelerometerArray:
         self, specific_force: np.ndarray, rngs: list[np.random.Generator], arms: np.ndarray
     ) -> np.ndarray:
         """Readings of the arms ``arms`` (rows of ``specific_force``; ``rngs`` are theirs)."""
-        y = specific_force + (self.bias if arms is every_arm(len(self.bias)) else self.bias[arms])
+        every = arms is every_arm(len(self.bias))
         sample_std, alpha, limit, resolution = self._shared
+        if (
+            every
+            and alpha == 0.0
+            and sample_std is not None
+            and limit is not None
+            and resolution is not None
+        ):
+            return _compiled(
+                specific_force, self.bias, sample_std, self.noise, rngs, limit, resolution
+            )
+        y = specific_force + (self.bias if every else self.bias[arms])
         y = _add_noise(y, self.sample_std, sample_std, self.noise, arms, rngs)
         if alpha is None or alpha > 0.0:
             a = self.alpha[arms, None] if alpha is None else alpha

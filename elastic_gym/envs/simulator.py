@@ -30,6 +30,7 @@ from numba import njit
 
 from elastic_gym.envs.plant import PAYLOAD_LINK, PlantArray, last_link, payload_urdf
 from elastic_gym.model import RobotModel, SerialChain
+from elastic_gym.model.chain import _dynamics_and_forces_kernel
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_without_limits
 from elastic_gym.validation import lookup
@@ -87,6 +88,22 @@ def _transmission_kernel(
                     theta[k, j] = theta[k, j] + dt * dtheta[k, j]
             else:
                 link[k, j] = tau[k, j] - friction
+
+
+@njit(cache=True)
+def _link_dynamics_kernel(theta, dtheta, q, dq, transmission, link_torque, *dynamics):
+    """:func:`_transmission_kernel` (its arguments after the state: ``transmission``; link
+    torque into ``transmission[11]``), plus ``link_torque`` if not None, then
+    :func:`~elastic_gym.model.chain._dynamics_and_forces_kernel` at that link torque
+    (``dynamics``: its arguments after q, q', tau): the calls of
+    :meth:`ArmSimulator.accelerations` and the chain in one dispatch."""
+    _transmission_kernel(theta, dtheta, q, dq, *transmission)
+    link = transmission[11]
+    if link_torque is not None:
+        for k in range(link.shape[0]):
+            for j in range(link.shape[1]):
+                link[k, j] += link_torque[k, j]
+    _dynamics_and_forces_kernel(q, dq, link, *dynamics)
 
 
 @njit(cache=True)
@@ -433,6 +450,39 @@ class ArmSimulator:
         if ddq is not None:
             return ddq
         return self.plants.chain.forward_dynamics(self.q, self.dq, link_tau)
+
+    def link_acceleration_and_forces(
+        self, tau: np.ndarray, link_torque: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """(:meth:`link_acceleration`, the noise-free accelerometer readings of eq. (9) at
+        it, (N, 3 n_sensors), or None for model (2), whose q'' comes with its torques):
+        q'' and the readings in one compiled call where they can be."""
+        plants = self.plants
+        if plants.has_coupling or not (self._elastic or plants.has_friction):
+            link_tau, _, ddq = self.accelerations(tau, link_torque)
+            if ddq is not None:
+                return ddq, None
+            return plants.chain.forward_dynamics_and_forces(self.q, self.dq, link_tau)
+        shape = self.q.shape  # model (1) or friction: the transmission kernel, as above
+        ddq, forces = np.empty(shape), np.empty((shape[0], 3 * plants.chain.n_sensors))
+        transmission = self._transmission_arguments(
+            np.ascontiguousarray(tau, dtype=np.float64),
+            self._elastic,
+            np.empty(shape),
+            np.empty(shape),
+            np.empty(shape),
+            0.0,
+        )
+        _link_dynamics_kernel(
+            self.theta,
+            self.dtheta,
+            self.q,
+            self.dq,
+            transmission,
+            link_torque,
+            *plants.chain.dynamics_and_forces_arguments(ddq, forces),
+        )
+        return ddq, forces
 
     def link_pose(self, link_name: str, arm: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Position (from the arm's base) and rotation of a URDF link frame, from PyBullet."""

@@ -514,6 +514,14 @@ def _forward_dynamics_kernel(q, dq, tau, added_inertia, w, out, *constants):
         _cholesky_solve(M, rhs, out[k])
 
 
+@njit(cache=True)
+def _dynamics_and_forces_kernel(q, dq, tau, added_inertia, w, ddq, forces, *constants):
+    """:func:`_forward_dynamics_kernel` into ``ddq``, then :func:`_specific_forces_kernel` at
+    that q'' into ``forces``: the same two kernels, one dispatch from Python."""
+    _forward_dynamics_kernel(q, dq, tau, added_inertia, w, ddq, *constants)
+    _specific_forces_kernel(q, dq, ddq, w, forces, *constants)
+
+
 # ---------------------------------------------------------------------------- the chain
 
 Triple = tuple[np.ndarray, np.ndarray, np.ndarray]  # (q, q', q'') or a direction of it
@@ -792,3 +800,22 @@ class SerialChain:
         out = np.empty((len(q), n))
         _forward_dynamics_kernel(q, dq, tau, extra, self._work, out, *self._kernel_constants())
         return out
+
+    def forward_dynamics_and_forces(
+        self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`forward_dynamics` (no added inertia), :meth:`specific_forces` at that
+        q''), equal to the two calls bit for bit, in one compiled call."""
+        n = self.n
+        q, dq, tau = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(tau, n, "tau")
+        self._rows(q)
+        ddq = np.empty((len(q), n))
+        forces = np.empty((len(q), 3 * self.n_sensors))
+        _dynamics_and_forces_kernel(q, dq, tau, *self.dynamics_and_forces_arguments(ddq, forces))
+        return ddq, forces
+
+    def dynamics_and_forces_arguments(self, ddq: np.ndarray, forces: np.ndarray) -> tuple:
+        """The arguments of :func:`_dynamics_and_forces_kernel` after (q, q', tau), writing
+        into ``ddq`` and ``forces``: for compiled callers composing it with their own
+        kernels (the simulator's transmission)."""
+        return (self._no_inertia, self._work, ddq, forces, *self._kernel_constants())
