@@ -869,45 +869,80 @@ class ArmBatch:
         Every array is new (views of one fresh copy per group: the state, the reference),
         so no later step changes an info already handed out.
         """
+        if isinstance(arms, (int, np.integer)):
+            return self._arm_info(int(arms))
         sim, n = self.sim, self.n_joints
-        one = isinstance(arms, (int, np.integer))
-        # one arm: a row kept 2-D until [0]
-        rows = slice(int(arms), int(arms) + 1) if isinstance(arms, (int, np.integer)) else arms
         # one fresh copy of the state and the reference (5 n each: the derivatives)
         x = np.concatenate(
             (
-                sim.theta[rows],
-                sim.q[rows],
-                sim.dtheta[rows],
-                sim.dq[rows],
-                self.ddq[rows],
-                self.reference[rows].reshape(-1, len(REFERENCE_KEYS) * n),
+                sim.theta[arms],
+                sim.q[arms],
+                sim.dtheta[arms],
+                sim.dq[arms],
+                self.ddq[arms],
+                self.reference[arms].reshape(-1, len(REFERENCE_KEYS) * n),
             ),
             axis=1,
         )
-        if one:
-            x = x[0]
         state = {
-            "q": x[..., n : 2 * n],
-            "dq": x[..., 3 * n : 4 * n],
-            "theta": x[..., :n],
-            "dtheta": x[..., 2 * n : 3 * n],
-            "ddq": x[..., 4 * n : 5 * n],
-            "x": x[..., : 4 * n],
+            "q": x[:, n : 2 * n],
+            "dq": x[:, 3 * n : 4 * n],
+            "theta": x[:, :n],
+            "dtheta": x[:, 2 * n : 3 * n],
+            "ddq": x[:, 4 * n : 5 * n],
+            "x": x[:, : 4 * n],
         }
         start = 5 * n
         return {
-            "time": float(self._time[arms]) if one else self._time[arms].copy(),
+            "time": self._time[arms].copy(),
             "true_state": state,
             "torque": self.torque[arms].copy(),
-            "torque_saturated": bool(self.saturated[arms]) if one else self.saturated[arms].copy(),
-            "acceleration_saturated": self._acceleration_saturated(arms, one),
+            "torque_saturated": self.saturated[arms].copy(),
+            "acceleration_saturated": self._acceleration_saturated(arms, False),
             "reference": {
-                key: x[..., start + k * n : start + (k + 1) * n]
+                key: x[:, start + k * n : start + (k + 1) * n]
                 for k, key in enumerate(REFERENCE_KEYS)
             },
-            "termination_reason": self.reasons[arms] if one else self.reasons[arms].copy(),
+            "termination_reason": self.reasons[arms].copy(),
             "plant": self.plant_state.info(arms),
+        }
+
+    def _arm_info(self, k: int) -> dict:
+        """:meth:`info` of the one arm ``k`` (plain values; the same items, one copy of
+        the state and the reference)."""
+        sim, n = self.sim, self.n_joints
+        x = np.concatenate(
+            (
+                sim.theta[k],
+                sim.q[k],
+                sim.dtheta[k],
+                sim.dq[k],
+                self.ddq[k],
+                self.reference[k].ravel(),
+            )
+        )
+        return {
+            "time": float(self._time[k]),
+            "true_state": {
+                "q": x[n : 2 * n],
+                "dq": x[3 * n : 4 * n],
+                "theta": x[:n],
+                "dtheta": x[2 * n : 3 * n],
+                "ddq": x[4 * n : 5 * n],
+                "x": x[: 4 * n],
+            },
+            "torque": self.torque[k].copy(),
+            "torque_saturated": bool(self.saturated[k]),
+            "acceleration_saturated": self._acceleration_saturated(k, True),
+            "reference": {  # REFERENCE_KEYS
+                "q": x[5 * n : 6 * n],
+                "dq": x[6 * n : 7 * n],
+                "ddq": x[7 * n : 8 * n],
+                "d3q": x[8 * n : 9 * n],
+                "d4q": x[9 * n : 10 * n],
+            },
+            "termination_reason": self.reasons[k],
+            "plant": self.plant_state.info(k),
         }
 
     def _acceleration_saturated(self, arms, one: bool):
