@@ -203,6 +203,16 @@ def _post_step_kernel(theta, dtheta, q, dq, transmission, dynamics, limits, sens
     return True
 
 
+@njit(cache=True)
+def _at_range(readings, limit):
+    """Whether any |reading| >= limit (a NaN reading is not), as numpy's
+    ``np.fmax.reduce(np.abs(readings)) >= limit`` gives it."""
+    for j in range(readings.shape[0]):  # noqa: SIM110 - a loop numba compiles
+        if abs(readings[j]) >= limit:
+            return True
+    return False
+
+
 def with_batch_options(init):
     """Give an env ``__init__(self, ..., **kwargs)`` that forwards ``kwargs`` to
     :class:`ArmBatch` the signature it really accepts (``inspect.signature``, ``help``,
@@ -949,10 +959,10 @@ class ArmBatch:
         """Whether an observed accelerometer reading is at the sensor's range (clipped)."""
         if not self.model.n_sensors:
             return False if one else np.zeros(len(self._time[arms]), dtype=bool)
+        if one:  # any |reading| >= limit (NaN readings: not saturated)
+            return _at_range(self.obs["acceleration"][arms], self.accelerometer_array.range[arms])
         readings = np.abs(self.obs["acceleration"][arms])
         limit = self.accelerometer_array.range[arms]
-        if one:  # any |reading| >= limit: the largest non-NaN one (fmax skips NaN)
-            return bool(np.fmax.reduce(readings) >= limit)
         return (readings >= limit[:, None]).any(axis=-1)
 
     def reference_preview(self, offsets: np.ndarray) -> np.ndarray:
