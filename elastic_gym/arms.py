@@ -37,6 +37,14 @@ def as_batch(value: Any) -> Any:
     """``value`` of one arm as a batch of one arm: a leading axis of length 1 (mappings
     item by item; strings and None as object arrays, so that a longer string can replace
     them)."""
+    kind = type(value)  # the types of an arm's info first, by identity (no ABC test)
+    if kind is np.ndarray:
+        if value.dtype.kind not in "OUS":
+            return value[None]
+    elif kind is float or kind is bool or kind is int:
+        return np.array((value,))  # float64, bool, int64 as np.asarray gives them
+    elif kind is dict:
+        return {key: as_batch(item) for key, item in value.items()}
     if isinstance(value, np.ndarray | float | int | np.generic):  # before the slower ABC test
         arr = np.asarray(value)
         if arr.dtype.kind not in "OUS":  # bool is an int

@@ -41,15 +41,16 @@ from elastic_gym.envs.memory import check_batch_memory
 from elastic_gym.envs.plant import PlantArray
 from elastic_gym.envs.plant_state import PlantState
 from elastic_gym.envs.randomization import check_ranges, with_values
-from elastic_gym.envs.reward import RewardConfig, batch_reward
+from elastic_gym.envs.reward import RewardConfig, _reward_kernel, batch_reward
 from elastic_gym.envs.sensors import (
     AccelerometerArray,
     AccelerometerConfig,
     Encoder,
     EncoderConfig,
+    _shared_readings,
     every_arm,
 )
-from elastic_gym.envs.simulator import ArmSimulator
+from elastic_gym.envs.simulator import ArmSimulator, _link_dynamics_kernel
 from elastic_gym.envs.tasks import make_task
 from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
@@ -104,6 +105,112 @@ def _clip_torque(command, low, high, tau, saturated):
             tau[k, j] = v
             changed = changed or v != c
         saturated[k] = changed
+
+
+@njit(cache=True)
+def _post_step_kernel(theta, dtheta, q, dq, transmission, dynamics, limits, sensors, out):
+    """The end of a control period of every arm in one call, the same kernels in the same
+    order as :meth:`ArmBatch.step` calls them one by one (so bit for bit the same):
+
+    1. q'' and the noise-free accelerometer readings (eq. (9)): the simulator's
+       :func:`~elastic_gym.envs.simulator._link_dynamics_kernel` (``transmission``,
+       ``dynamics``: its arguments; no link-side torque);
+    2. the termination codes (:func:`_break_codes`, ``limits``: its arguments after the
+       state); if an arm broke, returns False here (the caller measures with the hold of
+       non-finite readings);
+    3. the encoders' and accelerometers' readings (:func:`~elastic_gym.envs.sensors.
+       _shared_readings`: one error model for every arm, no filter), through the sensor
+       delay line, into the observation with the reference q_d, q_d';
+    4. the reward (:func:`~elastic_gym.envs.reward._reward_kernel`) at e = q - q_d,
+       e' = q' - q_d', torsion theta - q.
+
+    ``sensors``: (elastic, encoder std, block, next, resolution, has accelerometers, bias,
+    std, block, next, range, resolution, readings (encoders, accelerometers), delay lines
+    (L, N, size) of both, newest slot, delays (N,), observation arrays (position,
+    acceleration, reference), reference (N, 5, n)). ``out``: (tau, previous tau, torque
+    limit row, reward constants after the torque limit, reward (N,))."""
+    (
+        elastic,
+        enc_std,
+        enc_block,
+        enc_next,
+        enc_resolution,
+        has_acc,
+        acc_bias,
+        acc_std,
+        acc_block,
+        acc_next,
+        acc_range,
+        acc_resolution,
+        position_reading,
+        acc_reading,
+        position_line,
+        acc_line,
+        slot,
+        delay,
+        position_obs,
+        acc_obs,
+        reference_obs,
+        reference,
+    ) = sensors
+    forces = dynamics[3]
+    _link_dynamics_kernel(theta, dtheta, q, dq, transmission, None, *dynamics)
+    if _break_codes(q, dq, theta, dtheta, *limits):
+        return False
+    _shared_readings(
+        theta if elastic else q,
+        None,
+        enc_std,
+        enc_block,
+        enc_next,
+        np.inf,
+        enc_resolution,
+        position_reading,
+    )
+    if has_acc:
+        _shared_readings(
+            forces, acc_bias, acc_std, acc_block, acc_next, acc_range, acc_resolution, acc_reading
+        )
+    N, n = q.shape
+    length = position_line.shape[0]
+    for k in range(N):
+        if length > 1:
+            oldest = (slot - delay[k]) % length
+            for j in range(position_reading.shape[1]):
+                position_line[slot, k, j] = position_reading[k, j]
+                position_obs[k, j] = position_line[oldest, k, j]
+            if has_acc:
+                for j in range(acc_reading.shape[1]):
+                    acc_line[slot, k, j] = acc_reading[k, j]
+                    acc_obs[k, j] = acc_line[oldest, k, j]
+        else:
+            for j in range(position_reading.shape[1]):
+                position_obs[k, j] = position_reading[k, j]
+            if has_acc:
+                for j in range(acc_reading.shape[1]):
+                    acc_obs[k, j] = acc_reading[k, j]
+        for j in range(n):
+            reference_obs[k, j] = reference[k, 0, j]
+            reference_obs[k, n + j] = reference[k, 1, j]
+    error, error_rate, torsion = np.empty((N, n)), np.empty((N, n)), np.empty((N, n))
+    for k in range(N):
+        for j in range(n):
+            error[k, j] = q[k, j] - reference[k, 0, j]
+            error_rate[k, j] = dq[k, j] - reference[k, 1, j]
+            torsion[k, j] = theta[k, j] - q[k, j]
+    tau, previous, limit = out[0], out[1], out[2]
+    _reward_kernel(error, error_rate, tau, previous, limit, torsion, *out[3:])
+    return True
+
+
+@njit(cache=True)
+def _at_range(readings, limit):
+    """Whether any |reading| >= limit (a NaN reading is not), as numpy's
+    ``np.fmax.reduce(np.abs(readings)) >= limit`` gives it."""
+    for j in range(readings.shape[0]):  # noqa: SIM110 - a loop numba compiles
+        if abs(readings[j]) >= limit:
+            return True
+    return False
 
 
 def with_batch_options(init):
@@ -369,6 +476,9 @@ class ArmBatch:
         }
         self._slot = 0  # slot of the newest reading in the delay line
         self.plant_state = PlantState(self)
+        self._limit_row = self.torque_limit[None]
+        self._fusion: tuple | bool | None = None  # see _fusion_arguments
+        self._noise_draws: list = []
 
     def _timing(self, config: EnvConfig) -> tuple[float, float, int]:
         """(physics step, control period, physics steps per control period)."""
@@ -470,6 +580,7 @@ class ArmBatch:
         self.ddq[arms] = self.sim.link_acceleration(self.torque)[arms]
         self.reference[arms] = self.task.reference(self.time[arms], arms)
         self._observe(arms, first=True)
+        self._fusion = None  # the arms' sensors and plants may have changed
 
     def step(self, actions: np.ndarray, stepping: np.ndarray | None = None) -> tuple:
         """Advance every arm one control period under motor torques ``actions`` (N, n).
@@ -497,20 +608,9 @@ class ArmBatch:
         self.steps += 1 if every else stepping
         self._time = self.steps * self.control_dt
         self.previous_torque, self.torque = self.torque, tau
-        if self.model.n_sensors:  # q'' and the accelerometers' noise-free readings at once
-            self.ddq, forces = sim.link_acceleration_and_forces(tau, pulse)
-        else:
-            self.ddq, forces = sim.link_acceleration(tau, pulse), None
         self.reference = self.task.reference(self._time)
-        reasons = self._termination_reasons()
         self._slot = (self._slot + 1) % self._sensor_line
-        self._observe(
-            self._arms if every else np.flatnonzero(stepping),
-            first=False,
-            finite=reasons is None,
-            forces=forces,
-        )
-        reward = self._reward()
+        reward, reasons = self._end_of_period(tau, pulse, every, stepping)
         truncated = self._no_arm if self.max_steps is None else self.steps >= self.max_steps
         if reasons is None:  # the common case: no arm broke its physics
             self.reasons = self._no_reasons
@@ -526,6 +626,127 @@ class ArmBatch:
         if reasons is not None or self.max_steps is not None:  # else no episode ended
             self.running &= ~(terminated | truncated)
         return reward, terminated, truncated
+
+    def _end_of_period(self, tau, pulse, every: bool, stepping: np.ndarray):
+        """(reward, termination reasons or None) at the end of a control period: q'' and
+        the accelerometers' noise-free readings, termination, measurements, reward; in one
+        compiled call (:func:`_post_step_kernel`) where the batch allows it."""
+        sim = self.sim
+        fusion = self._fusion if every and pulse is None else False
+        if fusion is None:
+            fusion = self._fusion = self._fusion_arguments()
+        forces: np.ndarray | None
+        reasons: np.ndarray | None
+        if isinstance(fusion, tuple):
+            transmission, dynamics, limits, head, tail, reward_constants = fusion
+            reward = np.empty(self.n_arms)
+            for noise, std in self._noise_draws:  # the generators' blocks, in sensor order
+                if std > 0.0:
+                    noise.refill(self.rngs)
+            finished = _post_step_kernel(
+                sim.theta,
+                sim.dtheta,
+                sim.q,
+                sim.dq,
+                (tau, *transmission),
+                dynamics,
+                limits,
+                (*head, self._slot, *tail, self.reference),
+                (tau, self.previous_torque, *reward_constants, reward),
+            )
+            self.ddq = dynamics[2]
+            if finished:
+                return reward, None
+            forces = dynamics[3]
+            reasons = REASONS[self._codes]
+        else:
+            if self.model.n_sensors:  # q'' and the accelerometers' noise-free readings at once
+                self.ddq, forces = sim.link_acceleration_and_forces(tau, pulse)
+            else:
+                self.ddq, forces = sim.link_acceleration(tau, pulse), None
+            reasons = self._termination_reasons()
+        self._observe(
+            self._arms if every else np.flatnonzero(stepping),
+            first=False,
+            finite=reasons is None,
+            forces=forces,
+        )
+        return self._reward(), reasons
+
+    def _fusion_arguments(self) -> tuple | bool:
+        """The arguments of :func:`_post_step_kernel` that hold for the episode (None in
+        ``self._fusion``: not yet built; rebuilt after every reset), or False when the
+        batch needs the step by step path: model (2), an arm with its own sensor error
+        model, an accelerometer filter."""
+        sim, encoder, acc = self.sim, self.encoder, self.accelerometer_array
+        plants, n_sensors = sim.plants, self.model.n_sensors
+        resolution, noise_std = encoder._shared
+        sample_std, alpha, limit, acc_resolution = acc._shared
+        if (
+            plants.has_coupling
+            or resolution is None
+            or noise_std is None
+            or (
+                n_sensors
+                and (alpha != 0.0 or sample_std is None or limit is None or acc_resolution is None)
+            )
+        ):
+            return False
+        N, n = self.n_arms, self.n_joints
+        shape = (N, n)
+        ddq, forces = np.empty(shape), np.empty((N, 3 * n_sensors))
+        transmission = (
+            *plants.transmission,
+            self.robot.elastic,
+            np.empty(shape),
+            np.empty(shape),
+            np.empty(shape),
+            0.0,
+        )
+        dynamics = plants.chain.dynamics_and_forces_arguments(ddq, forces)
+        limits = (self.joint_lower, self.joint_upper, self.max_velocity, self._codes)
+        size = 3 * n_sensors
+        no_readings = np.zeros((N, 0))
+        obs, lines = self.obs, self._measured
+        position = self.position_key
+        head = (
+            self.robot.elastic,
+            noise_std,
+            encoder.noise.block,
+            encoder.noise.next,
+            resolution,
+            bool(n_sensors),
+            acc.bias,
+            sample_std if n_sensors else 0.0,
+            acc.noise.block,
+            acc.noise.next,
+            limit if n_sensors else np.inf,
+            acc_resolution if n_sensors else 0.0,
+            np.empty(shape),
+            np.empty((N, size)),
+            lines[position],
+            lines["acceleration"] if n_sensors else no_readings[None],
+        )
+        tail = (
+            self.sensor_delay,
+            obs[position],
+            obs["acceleration"] if n_sensors else no_readings,
+            obs["reference"],
+        )
+        c, dt = self.reward_config, self.control_dt
+        reward_constants = (
+            self._limit_row,
+            c._inverse_sigmas,
+            c._inverse_velocity_sigmas,
+            c._weights,
+            c.rate_time / dt,
+            c.torsion_scale,
+            dt,
+        )
+        self._noise_draws = [(encoder.noise, noise_std)]
+        if n_sensors:
+            self._noise_draws.append((acc.noise, sample_std))
+        return transmission, dynamics, limits, head, tail, reward_constants
 
     def _initial_state_options(self, options: dict | None) -> dict[str, np.ndarray]:
         """The reset ``options`` validated (types and angle magnitudes by their model, the
@@ -658,55 +879,90 @@ class ArmBatch:
         Every array is new (views of one fresh copy per group: the state, the reference),
         so no later step changes an info already handed out.
         """
+        if isinstance(arms, (int, np.integer)):
+            return self._arm_info(int(arms))
         sim, n = self.sim, self.n_joints
-        one = isinstance(arms, (int, np.integer))
-        # one arm: a row kept 2-D until [0]
-        rows = slice(int(arms), int(arms) + 1) if isinstance(arms, (int, np.integer)) else arms
         # one fresh copy of the state and the reference (5 n each: the derivatives)
         x = np.concatenate(
             (
-                sim.theta[rows],
-                sim.q[rows],
-                sim.dtheta[rows],
-                sim.dq[rows],
-                self.ddq[rows],
-                self.reference[rows].reshape(-1, len(REFERENCE_KEYS) * n),
+                sim.theta[arms],
+                sim.q[arms],
+                sim.dtheta[arms],
+                sim.dq[arms],
+                self.ddq[arms],
+                self.reference[arms].reshape(-1, len(REFERENCE_KEYS) * n),
             ),
             axis=1,
         )
-        if one:
-            x = x[0]
         state = {
-            "q": x[..., n : 2 * n],
-            "dq": x[..., 3 * n : 4 * n],
-            "theta": x[..., :n],
-            "dtheta": x[..., 2 * n : 3 * n],
-            "ddq": x[..., 4 * n : 5 * n],
-            "x": x[..., : 4 * n],
+            "q": x[:, n : 2 * n],
+            "dq": x[:, 3 * n : 4 * n],
+            "theta": x[:, :n],
+            "dtheta": x[:, 2 * n : 3 * n],
+            "ddq": x[:, 4 * n : 5 * n],
+            "x": x[:, : 4 * n],
         }
         start = 5 * n
         return {
-            "time": float(self._time[arms]) if one else self._time[arms].copy(),
+            "time": self._time[arms].copy(),
             "true_state": state,
             "torque": self.torque[arms].copy(),
-            "torque_saturated": bool(self.saturated[arms]) if one else self.saturated[arms].copy(),
-            "acceleration_saturated": self._acceleration_saturated(arms, one),
+            "torque_saturated": self.saturated[arms].copy(),
+            "acceleration_saturated": self._acceleration_saturated(arms, False),
             "reference": {
-                key: x[..., start + k * n : start + (k + 1) * n]
+                key: x[:, start + k * n : start + (k + 1) * n]
                 for k, key in enumerate(REFERENCE_KEYS)
             },
-            "termination_reason": self.reasons[arms] if one else self.reasons[arms].copy(),
+            "termination_reason": self.reasons[arms].copy(),
             "plant": self.plant_state.info(arms),
+        }
+
+    def _arm_info(self, k: int) -> dict:
+        """:meth:`info` of the one arm ``k`` (plain values; the same items, one copy of
+        the state and the reference)."""
+        sim, n = self.sim, self.n_joints
+        x = np.concatenate(
+            (
+                sim.theta[k],
+                sim.q[k],
+                sim.dtheta[k],
+                sim.dq[k],
+                self.ddq[k],
+                self.reference[k].ravel(),
+            )
+        )
+        return {
+            "time": float(self._time[k]),
+            "true_state": {
+                "q": x[n : 2 * n],
+                "dq": x[3 * n : 4 * n],
+                "theta": x[:n],
+                "dtheta": x[2 * n : 3 * n],
+                "ddq": x[4 * n : 5 * n],
+                "x": x[: 4 * n],
+            },
+            "torque": self.torque[k].copy(),
+            "torque_saturated": bool(self.saturated[k]),
+            "acceleration_saturated": self._acceleration_saturated(k, True),
+            "reference": {  # REFERENCE_KEYS
+                "q": x[5 * n : 6 * n],
+                "dq": x[6 * n : 7 * n],
+                "ddq": x[7 * n : 8 * n],
+                "d3q": x[8 * n : 9 * n],
+                "d4q": x[9 * n : 10 * n],
+            },
+            "termination_reason": self.reasons[k],
+            "plant": self.plant_state.info(k),
         }
 
     def _acceleration_saturated(self, arms, one: bool):
         """Whether an observed accelerometer reading is at the sensor's range (clipped)."""
         if not self.model.n_sensors:
             return False if one else np.zeros(len(self._time[arms]), dtype=bool)
+        if one:  # any |reading| >= limit (NaN readings: not saturated)
+            return _at_range(self.obs["acceleration"][arms], self.accelerometer_array.range[arms])
         readings = np.abs(self.obs["acceleration"][arms])
         limit = self.accelerometer_array.range[arms]
-        if one:  # any |reading| >= limit: the largest non-NaN one (fmax skips NaN)
-            return bool(np.fmax.reduce(readings) >= limit)
         return (readings >= limit[:, None]).any(axis=-1)
 
     def reference_preview(self, offsets: np.ndarray) -> np.ndarray:
@@ -808,3 +1064,4 @@ class ArmBatch:
         for noise, (block, following) in zip(self._noise_streams(), episode["noise"], strict=True):
             noise.block, noise.next = block, following
         vars(self.task).update(episode["task"])
+        self._fusion = None  # arrays replaced

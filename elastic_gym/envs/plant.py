@@ -129,3 +129,15 @@ class PlantArray:
         self.has_coulomb = any(
             m.friction is not None and m.friction.coulomb_pos is not None for m in models
         )
+        # the transmission kernel's constants in its argument order (arrays changed in place)
+        self.transmission = (
+            self.K,
+            self.D,
+            self.B_inv,
+            self.viscous,
+            self.coulomb_pos,
+            self.coulomb_neg,
+            self.smoothing,
+            self.has_friction,
+            self.has_coulomb,
+        )

@@ -58,6 +58,15 @@ class EncoderConfig(StrictModel):
         return validated(cls, config, "encoder")
 
 
+@njit(cache=True)
+def _any_equal(values, value):
+    """Whether any entry of ``values`` (1-D) equals ``value``."""
+    for k in range(values.shape[0]):  # noqa: SIM110 - a loop numba compiles
+        if values[k] == value:
+            return True
+    return False
+
+
 class GaussianNoise:
     """Standard normal samples of ``size`` per arm and reading, each arm from its own
     generator, drawn ``BLOCK`` readings at a time.
@@ -79,9 +88,8 @@ class GaussianNoise:
 
     def refill(self, rngs: list[np.random.Generator]) -> None:
         """A fresh block for every arm whose block is used up (before a sample of each)."""
-        empty = self.next == self.BLOCK
-        if empty.any():
-            for arm in np.flatnonzero(empty):
+        if _any_equal(self.next, self.BLOCK):  # rare: once every BLOCK readings
+            for arm in np.flatnonzero(self.next == self.BLOCK):
                 self.block[arm] = rngs[arm].standard_normal(self.block.shape[1:])
                 self.next[arm] = 0
 

@@ -107,6 +107,28 @@ def _link_dynamics_kernel(theta, dtheta, q, dq, transmission, link_torque, *dyna
 
 
 @njit(cache=True)
+def _substep_kernel(joint_states, theta, dtheta, q, dq, *transmission):
+    """q and q' of every arm from PyBullet's flat joint states (q, q' per joint, arm by arm;
+    empty: the state is current), in place, then :func:`_transmission_kernel` (its
+    arguments after the state: ``transmission``): one dispatch per substep."""
+    _unpack_joint_states(joint_states, q, dq)
+    _transmission_kernel(theta, dtheta, q, dq, *transmission)
+
+
+@njit(cache=True)
+def _unpack_joint_states(joint_states, q, dq):
+    """q[k, j], q'[k, j] = joint_states[2 (k n + j)], joint_states[2 (k n + j) + 1] (none
+    when ``joint_states`` is empty)."""
+    if joint_states.shape[0] == 0:
+        return
+    N, n = q.shape
+    for k in range(N):
+        for j in range(n):
+            q[k, j] = joint_states[2 * (k * n + j)]
+            dq[k, j] = joint_states[2 * (k * n + j) + 1]
+
+
+@njit(cache=True)
 def _integrate_motors(theta, dtheta, ddtheta, dt):
     """Semi-implicit Euler of the motor side, in place: theta' += dt theta'', theta += dt theta'."""
     N, n = theta.shape
@@ -228,11 +250,16 @@ class ArmSimulator:
             self.set_link_scaling(arm, self.plants.models[arm].scaling)
 
         shape = (n_arms, n)
+        # the state, written in place (a rigid arm's theta is its q)
         self.q, self.dq = np.zeros(shape), np.zeros(shape)
         # a substep's link torque, tau_J and theta''
         self._buffers = (np.empty(shape), np.empty(shape), np.empty(shape))
-        self.theta, self.dtheta = np.zeros(shape), np.zeros(shape)
         self._elastic = spec.elastic
+        self.theta, self.dtheta = (
+            (np.zeros(shape), np.zeros(shape)) if self._elastic else (self.q, self.dq)
+        )
+        self._no_states = np.empty(0)
+        self._count = 2 * n_arms * n  # numbers read from PyBullet per substep
 
     @property
     def chain(self) -> SerialChain:
@@ -349,11 +376,14 @@ class ArmSimulator:
         else:
             self.theta[arms], self.dtheta[arms] = q, dq
 
-    def _read_links(self) -> None:
+    def _joint_states(self) -> np.ndarray:
+        """PyBullet's q and q' of every joint, flat (q, q' per joint, arm by arm)."""
         c, joints, get = self.client, self.joint_indices, p.getJointStates
-        joint_states = chain.from_iterable([get(b, joints, physicsClientId=c) for b in self.bodies])
-        flat = np.fromiter(chain.from_iterable(map(_POSITION_VELOCITY, joint_states)), float)
-        self.q, self.dq = flat.reshape(self.n_arms, self.n, 2).transpose(2, 0, 1).copy()
+        if self.n_arms == 1:
+            states = get(self.bodies[0], joints, physicsClientId=c)
+        else:
+            states = chain.from_iterable([get(b, joints, physicsClientId=c) for b in self.bodies])
+        return np.fromiter(chain.from_iterable(map(_POSITION_VELOCITY, states)), float, self._count)
 
     # ------------------------------------------------------------------ stepping
     def accelerations(
@@ -373,24 +403,7 @@ class ArmSimulator:
 
     def _transmission_arguments(self, tau, elastic: bool, link, tau_j, ddtheta, dt: float):
         """The arguments of the transmission kernel after the state (q, theta and rates)."""
-        plants = self.plants
-        return (
-            tau,
-            plants.K,
-            plants.D,
-            plants.B_inv,
-            plants.viscous,
-            plants.coulomb_pos,
-            plants.coulomb_neg,
-            plants.smoothing,
-            plants.has_friction,
-            plants.has_coulomb,
-            elastic,
-            link,
-            tau_j,
-            ddtheta,
-            dt,
-        )
+        return (tau, *self.plants.transmission, elastic, link, tau_j, ddtheta, dt)
 
     def _transmission(self, tau, link_torque, link, tau_j, ddtheta, dt: float):
         """:meth:`accelerations` into the given arrays (``dt``: see the kernel)."""
@@ -426,20 +439,25 @@ class ArmSimulator:
         link, tau_j, ddtheta_buffer = self._buffers
         if fused:  # the kernel's arguments after the state, with the motors integrated
             constants = self._transmission_arguments(tau, True, link, tau_j, ddtheta_buffer, dt)
+        states = self._no_states  # PyBullet's joint states not yet in q, q'
+        one = bodies[0] if len(bodies) == 1 else None
         for _ in range(n_substeps):
-            if fused:
-                _transmission_kernel(self.theta, self.dtheta, self.q, self.dq, *constants)
+            if fused:  # the last substep's joint states read and the transmission in one call
+                _substep_kernel(states, self.theta, self.dtheta, self.q, self.dq, *constants)
                 link_tau = link if link_torque is None else link + link_torque
             else:
+                _unpack_joint_states(states, self.q, self.dq)
                 link_tau, ddtheta, _ = self.accelerations(tau, link_torque)
-            for body, forces in zip(bodies, link_tau.tolist(), strict=True):
-                set_torques(body, joints, control, forces=forces, physicsClientId=c)
+            if one is not None:
+                set_torques(one, joints, control, forces=link_tau[0].tolist(), physicsClientId=c)
+            else:
+                for body, forces in zip(bodies, link_tau.tolist(), strict=True):
+                    set_torques(body, joints, control, forces=forces, physicsClientId=c)
             p.stepSimulation(physicsClientId=c)
             if self._elastic and not fused:
                 _integrate_motors(self.theta, self.dtheta, ddtheta, dt)
-            self._read_links()
-            if not self._elastic:
-                self.theta, self.dtheta = self.q, self.dq
+            states = self._joint_states()
+        _unpack_joint_states(states, self.q, self.dq)
 
     def link_acceleration(
         self, tau: np.ndarray, link_torque: np.ndarray | None = None
