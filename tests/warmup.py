@@ -1,0 +1,156 @@
+"""Fill numba's cache before the xdist workers start (``conftest.pytest_configure``).
+
+On a fresh clone every worker compiles every ``cache=True`` kernel it calls, both workers
+the same kernels at the same time. Here two processes compile them once, in parallel, each
+its share: ``python tests/warmup.py PART MARKERS`` runs the steps of ``PARTS[PART]``; a
+step named ``"wait:X"`` waits until the other part has written ``MARKERS/X`` (the kernels
+it compiles are then in the cache, loaded instead of compiled again), a step ``"mark:X"``
+writes it. The steps go through the public API (the arrays the tests pass), so the cache
+holds the signatures the tests call.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+WAIT_BOUND = 900.0  # s for the other part's marker
+
+
+def _chain():
+    from elastic_gym.model import RobotModel
+    from elastic_gym.robots.catalog import get_robot
+
+    model = RobotModel(get_robot("two_link_elastic"))
+    rng = np.random.default_rng(0)
+    q, dq, ddq, tau = (rng.uniform(-1.0, 1.0, (2, model.n)) for _ in range(4))
+    return model.chain, q, dq, ddq, tau
+
+
+def dynamics() -> None:
+    """The Newton-Euler kernel in every mode, real and complex (rnea_tangent)."""
+    chain, q, dq, ddq, tau = _chain()
+    chain.gravity(q)
+    chain.mass_and_bias(q, dq)
+    chain.rnea(q, dq, ddq)
+    chain.forward_dynamics(q, dq, tau)
+    chain.forward_dynamics(q, dq, tau, -0.01 * np.eye(chain.n))
+    chain.rnea_tangent((q, dq, ddq), (dq, ddq, tau))
+
+
+def sensors() -> None:
+    """The accelerometer kernel in every mode, real and complex, and eq. (11)."""
+    chain, q, dq, ddq, _ = _chain()
+    readings = chain.specific_forces(q, dq, ddq)
+    chain.accelerometer_maps(q, dq)
+    chain.acceleration_from_readings(q, dq, readings, 0.1, 0.05)
+    chain.specific_forces_tangent((q, dq, ddq), (dq, ddq, q))
+
+
+def _steps(env_id: str, **kwargs) -> None:
+    import gymnasium as gym
+
+    env = gym.make(env_id, **kwargs)
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step(env.action_space.sample())
+    env.close()
+
+
+def rigid() -> None:
+    """A rigid arm (q'' and the readings from Python), which compiles the env's kernels
+    but the elastic transmission's."""
+    _steps("elastic_gym/TwoLinkRigid-v0")
+
+
+def elastic() -> None:
+    """Every other env id, with and without a link torque pulse."""
+    import elastic_gym
+
+    for env_id in elastic_gym.ENV_IDS:
+        if env_id != "elastic_gym/TwoLinkRigid-v0":
+            _steps(env_id)
+    pulse = {"times": [0.0], "durations": [1e-3], "amplitudes": [[0.1, 0.1]]}
+    _steps("elastic_gym/TwoLinkElastic-v0", torque_pulses=pulse)
+
+
+def _compare(env_id: str) -> None:
+    """Every built-in controller on every state source of an arm, one arm per world and
+    batched, with a per-arm plant sweep (the vector env, observers and controllers)."""
+    from rich.console import Console
+
+    from elastic_gym.controllers.registry import CONTROLLERS
+    from elastic_gym.evaluation import Scenario, compare
+    from elastic_gym.observers.registry import OBSERVERS
+
+    scenario = Scenario.from_dict(
+        {
+            "name": "warm-up",
+            "duration": 0.01,
+            "seeds": [0, 1],
+            "envs": [env_id],
+            "sweeps": {
+                "mass": {"parameter": "plant_scaling.link_mass", "nominal": 1.0, "values": [1.3]},
+                "delay": {"parameter": "sensor_delay", "nominal": 0, "values": [2]},
+            },
+            "controllers": sorted(set(CONTROLLERS) - {"policy"}),  # policy: torch, trained
+            "state_sources": sorted(OBSERVERS),
+        }
+    )
+    with tempfile.TemporaryDirectory() as out:
+        for batch_size in (1, 64):
+            compare(
+                scenario,
+                output_dir=Path(out) / str(batch_size),
+                workers=1,
+                progress=False,
+                plots=False,
+                console=Console(quiet=True),
+                batch_size=batch_size,
+            )
+
+
+def compare_elastic() -> None:
+    _compare("TwoLinkElastic-v0")
+
+
+def compare_rigid() -> None:
+    _compare("TwoLinkRigid-v0")
+
+
+# The two chain kernels first, one per part; then what links them (an env step), the
+# elastic and the rigid arm's kernels apart; then the comparisons of either arm.
+PARTS = {
+    "a": ["dynamics", "mark:dynamics", "wait:rigid", "elastic", "compare_elastic"],
+    "b": ["sensors", "wait:dynamics", "rigid", "mark:rigid", "compare_rigid"],
+}
+
+
+def main(part: str, markers: Path) -> None:
+    steps = PARTS[part]
+    try:
+        for step in steps:
+            started = time.perf_counter()
+            if step.startswith("mark:"):
+                (markers / step[5:]).touch()
+                continue
+            if step.startswith("wait:"):
+                while not (markers / step[5:]).exists():
+                    if time.perf_counter() > started + WAIT_BOUND:
+                        raise TimeoutError(f"no marker {step[5:]} after {WAIT_BOUND} s")
+                    time.sleep(0.1)
+            else:
+                globals()[step]()
+            print(f"{step} {time.perf_counter() - started:.1f} s", flush=True)
+    finally:  # a failed part does not keep the other one waiting
+        for step in steps:
+            if step.startswith("mark:"):
+                (markers / step[5:]).touch()
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], Path(sys.argv[2]))
