@@ -469,24 +469,3 @@ def test_cli_errors_name_the_field(tmp_path, capsys):
     assert "duraton: unexpected field" in capsys.readouterr().err
     assert main(["compare", "--list-presets"]) == 0
     assert "default" in capsys.readouterr().out.split()
-
-
-def test_ray_backend_gives_the_same_table():
-    ray = pytest.importorskip("ray")
-    scenario = Scenario.from_dict(
-        rigid_scenario(
-            controllers=["open-loop"],
-            state_sources=["finite-difference"],
-            duration=0.1,
-            envs=[{"id": "TwoLinkRigid-v0", "kwargs": {"task": "excitation"}}],
-        )
-    )
-    runs = plan_runs(scenario)[0]
-    local = execute(runs, workers=1, progress=False)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        remote = execute(runs, workers=2, backend="ray", progress=False)
-    finally:
-        ray.shutdown()
-    assert remote[0].metrics["est_rms_dq"] == local[0].metrics["est_rms_dq"]
-    np.testing.assert_array_equal(remote[0].series.q, local[0].series.q)

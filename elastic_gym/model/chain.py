@@ -23,9 +23,14 @@ from elastic_gym.validation import shaped
 
 # ---------------------------------------------------------------------------- kernels
 # Every kernel takes batched inputs with a leading arm axis, the scratch buffer, its outputs
-# and last the chain's constants (``SerialChain._kernel_constants``). The helpers are inlined
-# by numba (``inline="always"``: a call passing some twenty arrays costs more than a 2-link
-# arm's flops), so they take the constants as tuples, never as star-arguments.
+# and last the chain's constants as one tuple (``SerialChain._kernel_constants``). The
+# helpers are inlined by numba (``inline="always"``: a call passing some twenty arrays costs
+# more than a 2-link arm's flops), so they take the constants as tuples, never as
+# star-arguments. Inlined code is compiled once per kernel that inlines it, and once per
+# signature: the quantities sharing a recursion are modes of one kernel (``_sensors_kernel``,
+# ``_dynamics_kernel``), called with the same argument types from Python and from compiled
+# callers (float64 C-contiguous arrays, complex128 for the complex step; no star-arguments
+# and no literal modes, which numba types as other types when a compiled caller passes them).
 
 
 @njit(cache=True, inline="always")
@@ -238,79 +243,68 @@ def _sensor_reading(i, sensors, gravity, links, small, out, row):
     return j
 
 
-@njit(cache=True)
-def _specific_forces_kernel(q, dq, ddq, w, out, *constants):
-    N, n = q.shape
-    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
-    small, links, _, _ = _workspace(n, w)
-    zero = small[6]
-    for k in range(N):
-        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, constants)
-        _forward_kinematics(q[k], dq[k], ddq[k], zero, chain, links, small)
-        for i in range(sensors[0].shape[0]):
-            _sensor_reading(i, sensors, gravity, links, small, out[k], 3 * i)
-
-
-@njit(cache=True, inline="always")
-def _maps_arm(q, dq, chain, sensors, gravity, links, small, bodies, T, W):
-    """T_A and W_A of eq. (10) for one arm (rows of all sensors)."""
-    n = q.shape[0]
-    parent = chain[0]
-    R, p, z, omega, alpha, acc = links
-    R_s, r_s, t1, t2 = small[1], small[2], bodies[5], bodies[6]
-    zero, zero_n = small[6], bodies[8]
-    _forward_kinematics(q, dq, zero_n, zero, chain, links, small)
-    for i in range(sensors[0].shape[0]):
-        j = _sensor_reading(i, sensors, gravity, links, small, W, 3 * i)
-        for c in range(3):
-            for m in range(n):
-                T[3 * i + c, m] = 0.0
-        m = j
-        while m >= 0:  # the joints moving the sensor's link: z_m x (p_S - p_m)
-            for c in range(3):
-                t1[c] = p[j, c] + r_s[c] - p[m, c]
-            _cross(z[m], t1, t2)
-            for c in range(3):
-                T[3 * i + c, m] = R_s[0, c] * t2[0] + R_s[1, c] * t2[1] + R_s[2, c] * t2[2]
-            m = parent[m]
+# What a kernel computes (its first argument): the modes of the two kernels below.
+_FORCES, _MAPS = 0, 1  # _sensors_kernel
+_GRAVITY, _RNEA, _MASS_AND_BIAS, _FORWARD = 0, 1, 2, 3  # _dynamics_kernel
 
 
 @njit(cache=True)
-def _accelerometer_maps_kernel(q, dq, w, T, W, *constants):
+def _sensors_kernel(mode, q, dq, ddq, w, T, W, constants):
+    """Per arm: the readings of eq. (9) at (q, q', q'') into W (``_FORCES``; T unused), or
+    T_A into T and W_A (the readings at q'' = 0) into W of eq. (10) (``_MAPS``; ddq
+    unused). One kernel, so that numba compiles the recursions once for every mode."""
     N, n = q.shape
     stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, _ = _workspace(n, w)
+    zero, zero_n = small[6], bodies[8]
+    parent = constants[0]
+    R, p, z, omega, alpha, acc = links
+    R_s, r_s, t1, t2 = small[1], small[2], bodies[5], bodies[6]
+    maps = mode == _MAPS
     for k in range(N):
         chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, constants)
-        _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T[k], W[k])
+        _forward_kinematics(q[k], dq[k], zero_n if maps else ddq[k], zero, chain, links, small)
+        for i in range(sensors[0].shape[0]):
+            j = _sensor_reading(i, sensors, gravity, links, small, W[k], 3 * i)
+            if not maps:
+                continue
+            Tk = T[k]
+            for c in range(3):
+                for m in range(n):
+                    Tk[3 * i + c, m] = 0.0
+            m = j
+            while m >= 0:  # the joints moving the sensor's link: z_m x (p_S - p_m)
+                for c in range(3):
+                    t1[c] = p[j, c] + r_s[c] - p[m, c]
+                _cross(z[m], t1, t2)
+                for c in range(3):
+                    Tk[3 * i + c, m] = R_s[0, c] * t2[0] + R_s[1, c] * t2[1] + R_s[2, c] * t2[2]
+                m = parent[m]
 
 
 @njit(cache=True)
 def _acceleration_from_readings_kernel(
-    q, dq, readings, threshold, damping, w, ddq, diagnostics, *constants
+    q, dq, readings, threshold, damping, w, ddq, diagnostics, constants
 ):
     N, n = q.shape
-    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     m = readings.shape[1]
-    small, links, bodies, _ = _workspace(n, w)
-    T = np.empty((m, n))
-    W = np.empty(m)
+    T = np.empty((N, m, n))
+    W = np.empty((N, m))
+    _sensors_kernel(np.int64(_MAPS), q, dq, q, w, T, W, constants)  # int64, not a literal
     residual = np.empty(m)
     space = svd_workspace(m, n)
     for k in range(N):
-        chain, _, sensors, gravity, _ = _arm_params(k if stacked else 0, constants)
-        _maps_arm(q[k], dq[k], chain, sensors, gravity, links, small, bodies, T, W)
         finite = True
         for i in range(m):
-            residual[i] = readings[k, i] - W[i]
+            residual[i] = readings[k, i] - W[k, i]
             for c in range(n):
-                finite = finite and np.isfinite(T[i, c])
+                finite = finite and np.isfinite(T[k, i, c])
             finite = finite and np.isfinite(residual[i])
         if not finite:  # a diverged estimate: no inverse
             ddq[k, :] = np.nan
             diagnostics[k, :] = np.nan
             continue
-        Ut, s, V = thin_svd(T, space)  # U = Ut.T, V^T = V.T
+        Ut, s, V = thin_svd(T[k], space)  # U = Ut.T, V^T = V.T
         sigma_min = s[n - 1]
         ratio = min(sigma_min / threshold, 1.0)
         damping2 = (1.0 - ratio * ratio) * damping * damping
@@ -396,77 +390,6 @@ def _mass_and_bias_arm(
             a = parent[a]
 
 
-@njit(cache=True)
-def _mass_and_bias_kernel(q, dq, w, M, h, *constants):
-    N, n = q.shape
-    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
-    small, links, bodies, _ = _workspace(n, w)
-    zero_n = bodies[8]
-    for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
-        _mass_and_bias_arm(
-            q[k],
-            dq[k],
-            zero_n,
-            minus_gravity,
-            chain,
-            bodies_p,
-            M[k],
-            h[k],
-            links,
-            small,
-            bodies,
-            True,
-        )
-
-
-@njit(cache=True)
-def _rnea_kernel(q, dq, ddq, w, h, *constants):
-    N, n = q.shape
-    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
-    small, links, bodies, (M, _, _) = _workspace(n, w)
-    for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
-        _mass_and_bias_arm(
-            q[k],
-            dq[k],
-            ddq[k],
-            minus_gravity,
-            chain,
-            bodies_p,
-            M,
-            h[k],
-            links,
-            small,
-            bodies,
-            False,
-        )
-
-
-@njit(cache=True)
-def _gravity_kernel(q, w, h, *constants):
-    N, n = q.shape
-    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
-    small, links, bodies, (M, _, _) = _workspace(n, w)
-    zero_n = bodies[8]
-    for k in range(N):
-        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
-        _mass_and_bias_arm(
-            q[k],
-            zero_n,
-            zero_n,
-            minus_gravity,
-            chain,
-            bodies_p,
-            M,
-            h[k],
-            links,
-            small,
-            bodies,
-            False,
-        )
-
-
 @njit(cache=True, inline="always")
 def _cholesky_solve(A, b, out):
     """Solve A x = b for a symmetric positive definite A (A is overwritten by its factor)."""
@@ -495,31 +418,50 @@ def _cholesky_solve(A, b, out):
 
 
 @njit(cache=True)
-def _forward_dynamics_kernel(q, dq, tau, added_inertia, w, out, *constants):
-    """(M + M_a) q'' = tau - n per arm; ``added_inertia`` (1 or N, n, n)."""
+def _dynamics_kernel(mode, q, dq, ddq, tau, added_inertia, w, M_out, h_out, constants):
+    """Per arm: g(q) (``_GRAVITY``) or M(q) q'' + n(q, q') (``_RNEA``) into h_out; M(q) and
+    n(q, q') into M_out and h_out (``_MASS_AND_BIAS``); q'' of (M + M_a) q'' = tau - n into
+    h_out (``_FORWARD``; ``added_inertia`` (1 or N, n, n)). Arguments a mode does not use
+    are not read (M_out is written by ``_MASS_AND_BIAS`` only). One kernel, so that numba
+    compiles the Newton-Euler recursion once for every mode."""
     N, n = q.shape
     stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
     small, links, bodies, (M, h, rhs) = _workspace(n, w)
+    zero_n = bodies[8]
     per_arm = added_inertia.shape[0] > 1
+    with_mass = mode >= _MASS_AND_BIAS  # _MASS_AND_BIAS or _FORWARD
     for k in range(N):
         chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
         _mass_and_bias_arm(
-            q[k], dq[k], bodies[8], minus_gravity, chain, bodies_p, M, h, links, small, bodies, True
+            q[k],
+            zero_n if mode == _GRAVITY else dq[k],
+            ddq[k] if mode == _RNEA else zero_n,
+            minus_gravity,
+            chain,
+            bodies_p,
+            M_out[k] if mode == _MASS_AND_BIAS else M,
+            h if mode == _FORWARD else h_out[k],
+            links,
+            small,
+            bodies,
+            with_mass,
         )
-        added = added_inertia[k if per_arm else 0]
-        for a in range(n):
-            rhs[a] = tau[k, a] - h[a]
-            for c in range(n):
-                M[a, c] += added[a, c]
-        _cholesky_solve(M, rhs, out[k])
+        if mode == _FORWARD:
+            added = added_inertia[k if per_arm else 0]
+            for a in range(n):
+                rhs[a] = tau[k, a] - h[a]
+                for c in range(n):
+                    M[a, c] += added[a, c]
+            _cholesky_solve(M, rhs, h_out[k])
 
 
 @njit(cache=True)
-def _dynamics_and_forces_kernel(q, dq, tau, added_inertia, w, ddq, forces, *constants):
-    """:func:`_forward_dynamics_kernel` into ``ddq``, then :func:`_specific_forces_kernel` at
-    that q'' into ``forces``: the same two kernels, one dispatch from Python."""
-    _forward_dynamics_kernel(q, dq, tau, added_inertia, w, ddq, *constants)
-    _specific_forces_kernel(q, dq, ddq, w, forces, *constants)
+def _dynamics_and_forces_kernel(q, dq, tau, added_inertia, w, ddq, forces, constants):
+    """Forward dynamics into ``ddq``, then the readings of eq. (9) at that q'' into
+    ``forces``: the two :class:`SerialChain` calls in one dispatch from Python."""
+    forward, readings = np.int64(_FORWARD), np.int64(_FORCES)  # int64 as from Python
+    _dynamics_kernel(forward, q, dq, q, tau, added_inertia, w, added_inertia, ddq, constants)
+    _sensors_kernel(readings, q, dq, ddq, w, added_inertia, forces, constants)
 
 
 # ---------------------------------------------------------------------------- the chain
@@ -592,7 +534,8 @@ class SerialChain:
         }
         self._parent = np.array(parent, dtype=np.int64)
         self._s_joint = np.array([f.parentJoint - 1 for f in frames], dtype=np.int64)
-        self._no_inertia = np.zeros((1, n, n))
+        self._no_inertia = np.zeros((1, n, n))  # also what a kernel's unused arrays get
+        self._no_inertia_complex = np.zeros((1, n, n), dtype=np.complex128)
         self._scratch()
 
     @property
@@ -677,7 +620,9 @@ class SerialChain:
         q, dq, ddq = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(ddq, n, "ddq")
         self._rows(q)
         out = np.empty((len(q), 3 * self.n_sensors))
-        _specific_forces_kernel(q, dq, ddq, self._work, out, *self._kernel_constants())
+        _sensors_kernel(
+            _FORCES, q, dq, ddq, self._work, self._no_inertia, out, self._kernel_constants()
+        )
         return out
 
     def accelerometer_maps(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -687,7 +632,7 @@ class SerialChain:
         self._rows(q)
         T = np.empty((len(q), 3 * self.n_sensors, n))
         W = np.empty((len(q), 3 * self.n_sensors))
-        _accelerometer_maps_kernel(q, dq, self._work, T, W, *self._kernel_constants())
+        _sensors_kernel(_MAPS, q, dq, q, self._work, T, W, self._kernel_constants())
         return T, W
 
     def acceleration_from_readings(
@@ -721,7 +666,7 @@ class SerialChain:
             self._work,
             ddq,
             diagnostics,
-            *self._kernel_constants(),
+            self._kernel_constants(),
         )
         return ddq, diagnostics
 
@@ -732,7 +677,7 @@ class SerialChain:
         self._rows(q)
         M = np.empty((len(q), n, n))
         h = np.empty((len(q), n))
-        _mass_and_bias_kernel(q, dq, self._work, M, h, *self._kernel_constants())
+        self._dynamics(_MASS_AND_BIAS, q, dq, q, q, self._no_inertia, M, h)
         return M, h
 
     def rnea(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
@@ -741,7 +686,7 @@ class SerialChain:
         q, dq, ddq = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(ddq, n, "ddq")
         self._rows(q)
         out = np.empty(q.shape)
-        _rnea_kernel(q, dq, ddq, self._work, out, *self._kernel_constants())
+        self._dynamics(_RNEA, q, dq, ddq, q, self._no_inertia, self._no_inertia, out)
         return out
 
     def rnea_tangent(self, point: Triple, direction: Triple) -> tuple[np.ndarray, np.ndarray]:
@@ -752,32 +697,54 @@ class SerialChain:
         exact to rounding (no subtraction; truncation O(h^2), h = :data:`COMPLEX_STEP`).
         Along a trajectory the direction (q', q'', q^(3)) gives the time derivative.
         """
-        return self._complex_step(_rnea_kernel, self.n, point, direction)
+        return self._complex_step(_RNEA, self.n, point, direction)
 
     def specific_forces_tangent(
         self, point: Triple, direction: Triple
     ) -> tuple[np.ndarray, np.ndarray]:
         """(readings, d readings): :meth:`specific_forces` at ``point`` and its derivative
         along ``direction``, by the complex step of :meth:`rnea_tangent`."""
-        return self._complex_step(_specific_forces_kernel, 3 * self.n_sensors, point, direction)
+        return self._complex_step(_FORCES, 3 * self.n_sensors, point, direction)
 
-    def _complex_step(self, kernel, width: int, point: Triple, direction: Triple):
+    def _complex_step(self, mode: int, width: int, point: Triple, direction: Triple):
+        """:meth:`rnea` (``mode`` ``_RNEA``) or :meth:`specific_forces` (``_FORCES``) at the
+        complex point + i h direction."""
         n = self.n
-        z = [
+        q, dq, ddq = (
             np.ascontiguousarray(_batch(x, n, "point") + (1j * COMPLEX_STEP) * _batch(t, n, "t"))
             for x, t in zip(point, direction, strict=True)
-        ]
-        self._rows(z[0])
-        out = np.empty((len(z[0]), width), dtype=np.complex128)
-        kernel(*z, self._work_complex, out, *self._kernel_constants())
+        )
+        self._rows(q)
+        out = np.empty((len(q), width), dtype=np.complex128)
+        unused = self._no_inertia_complex
+        constants = self._kernel_constants()
+        if mode == _RNEA:
+            w = self._work_complex
+            _dynamics_kernel(_RNEA, q, dq, ddq, q, self._no_inertia, w, unused, out, constants)
+        else:
+            _sensors_kernel(_FORCES, q, dq, ddq, self._work_complex, unused, out, constants)
         return out.real.copy(), out.imag / COMPLEX_STEP
+
+    def _dynamics(self, mode, q, dq, ddq, tau, added_inertia, M_out, h_out) -> None:
+        _dynamics_kernel(
+            mode,
+            q,
+            dq,
+            ddq,
+            tau,
+            added_inertia,
+            self._work,
+            M_out,
+            h_out,
+            self._kernel_constants(),
+        )
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """g(q) (N, n)."""
         q = _batch(q, self.n, "q")
         self._rows(q)
         h = np.empty(q.shape)
-        _gravity_kernel(q, self._work, h, *self._kernel_constants())
+        self._dynamics(_GRAVITY, q, q, q, q, self._no_inertia, self._no_inertia, h)
         return h
 
     def forward_dynamics(
@@ -798,7 +765,7 @@ class SerialChain:
             else np.ascontiguousarray(added_inertia, dtype=np.float64).reshape(-1, n, n)
         )
         out = np.empty((len(q), n))
-        _forward_dynamics_kernel(q, dq, tau, extra, self._work, out, *self._kernel_constants())
+        self._dynamics(_FORWARD, q, dq, q, tau, extra, self._no_inertia, out)
         return out
 
     def forward_dynamics_and_forces(
@@ -818,4 +785,4 @@ class SerialChain:
         """The arguments of :func:`_dynamics_and_forces_kernel` after (q, q', tau), writing
         into ``ddq`` and ``forces``: for compiled callers composing it with their own
         kernels (the simulator's transmission)."""
-        return (self._no_inertia, self._work, ddq, forces, *self._kernel_constants())
+        return (self._no_inertia, self._work, ddq, forces, self._kernel_constants())
