@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
@@ -209,11 +209,24 @@ def stable_poles(value: Any, *shapes: tuple[int, ...]) -> np.ndarray:
     return numbers(value, "poles", what, shapes, dtype=complex, stable=True)
 
 
-def lookup(table: Mapping[str, T], name: Any, what: str) -> T:
-    """``table[name]``; ``ValueError`` naming the ``what`` and listing the valid names."""
+def lookup(table: Mapping[str, T], name: Any, what: str, loc: Sequence = ()) -> T:
+    """``table[name]``; ``FieldError`` (a ``ValueError``; ``loc`` continues a validator's
+    path) naming the ``what`` and listing the valid names."""
     if not isinstance(name, str) or name not in table:
-        raise ValueError(f"unknown {what} {name!r}; valid: {sorted(table)}")
+        raise FieldError(loc, f"unknown {what} {name!r}; valid: {sorted(table)}")
     return table[name]
+
+
+def known(
+    names: Iterable[Any], valid: Iterable[str], what: str, of: str = "", loc: Sequence = ()
+) -> None:
+    """Refuse the ``names`` not in ``valid``: ``FieldError`` (``loc`` continues a
+    validator's path) reading ``unknown env kwarg(s) ['x'] for <of>; valid: [...]``."""
+    valid = set(valid)
+    unknown = sorted(set(names) - valid)
+    if unknown:
+        where = f" for {of}" if of else ""
+        raise FieldError(loc, f"unknown {what}(s) {unknown}{where}; valid: {sorted(valid)}")
 
 
 def registered_env_id(value: Any) -> str:
@@ -222,9 +235,8 @@ def registered_env_id(value: Any) -> str:
     from gymnasium import registry
 
     env_id = value if not isinstance(value, str) or "/" in value else ENV_NAMESPACE + value
-    if not isinstance(env_id, str) or env_id not in registry:
-        valid = sorted(k for k in registry if k.startswith(ENV_NAMESPACE))
-        raise ValueError(f"unknown env id {value!r}; valid: {valid}")
+    if not (isinstance(env_id, str) and env_id in registry):  # refused, the package's ids listed
+        lookup({k: k for k in registry if k.startswith(ENV_NAMESPACE)}, value, "env id")
     return env_id
 
 

@@ -44,6 +44,7 @@ from elastic_gym.validation import (
     Finite,
     StrictModel,
     checked,
+    known,
     lookup,
     plain,
     registered_env_id,
@@ -150,12 +151,7 @@ def resolve_settings(
     settings = validated(Settings, ours)
     allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters)
     allowed -= EXCLUDED_ARGUMENTS | {"_init_setup_model"}
-    unknown = set(merged) - allowed
-    if unknown:
-        raise ValueError(
-            f"unknown hyper-parameter(s) {sorted(unknown)} for {algo}; "
-            f"valid: {sorted(allowed | set(Settings.model_fields))}"
-        )
+    known(merged, allowed | set(Settings.model_fields), "hyper-parameter", of=algo)  # ours popped
     for key in SCHEDULED:
         if isinstance(merged.get(key), str):
             merged[key] = _schedule(key, merged[key])
