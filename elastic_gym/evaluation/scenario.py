@@ -182,8 +182,10 @@ class Scenario(StrictModel):
 
     @classmethod
     def from_dict(cls, data: Mapping, name: str | None = None) -> Scenario:
-        """Validate a mapping (parsed YAML, or Python objects) into a scenario."""
-        return _validated(cls, {**data, "name": name} if name else data)
+        """Validate a mapping (parsed YAML, or Python objects) into a scenario (anything
+        else is refused by the model)."""
+        named = name and isinstance(data, Mapping)
+        return _validated(cls, {**data, "name": name} if named else data)
 
     @property
     def sweeps(self) -> tuple[Sweep, ...]:

@@ -299,8 +299,9 @@ class TrainConfig(ConfigModel):
 
     @classmethod
     def from_dict(cls, data: dict) -> TrainConfig:
-        """A run's config from a mapping of its fields (``ValueError`` naming the field)."""
-        return validated(cls, data)
+        """A run's config from a mapping of its fields (``ValueError`` naming the field;
+        anything else, ``None`` of an empty file too, is refused by the model)."""
+        return checked(functools.partial(cls.model_validate, plain(data)), model=cls)
 
     def settings(self) -> tuple[Settings, dict]:
         """(our settings, the algorithm's arguments) of this run (:func:`resolve_settings`)."""
