@@ -131,6 +131,7 @@ def numbers(
     exact: bool = False,
     show_shape: bool = False,
     shown: Any = None,
+    loc: Sequence[int | str] = (),
 ) -> np.ndarray:
     """The one check of numeric input: ``value`` as a ``dtype`` array (``float`` or
     ``complex``) whose shape is one of ``shapes`` (a ``None`` entry: any length; a scalar
@@ -139,7 +140,8 @@ def numbers(
     real parts (``stable``: poles of a stable design), and Python or numpy numbers only
     (``exact``: no bool, no string). ``ValueError: <name> <what>, got <value or shape>``
     otherwise (``show_shape``: the shape given; ``shown``: what the user gave, when
-    ``value`` was derived from it)."""
+    ``value`` was derived from it): a :class:`FieldError` whose ``loc`` continues a
+    validator's path."""
     try:
         arr: np.ndarray | None = np.asarray(value, dtype=dtype)
     except (TypeError, ValueError):  # not numbers, or ragged rows
@@ -157,7 +159,7 @@ def numbers(
     ):
         given = value if shown is None else shown
         got = ("ragged rows" if arr is None else arr.shape) if show_shape else repr(given)
-        raise ValueError(f"{name}{' ' if name else ''}{what}, got {got}")
+        raise FieldError(loc, f"{name}{' ' if name else ''}{what}, got {got}")
     return arr
 
 
