@@ -118,7 +118,7 @@ def ordered(
 def numbers(
     value: Any,
     name: str,
-    what: str,
+    what: str | Callable[[], str],
     shapes: Sequence[tuple[int | None, ...]],
     *,
     dtype: type = float,
@@ -150,7 +150,7 @@ def numbers(
         arr = np.full(broadcast, arr[()])
     if (
         arr is None
-        or not (arr.shape in shapes or any(map(partial(_fits_shape, arr.shape), shapes)))
+        or not (arr.shape in shapes or any(_fits_shape(arr.shape, shape) for shape in shapes))
         or (finite and not np.all(np.isfinite(arr)))
         or (minimum is not None and not np.all(arr > minimum if strict else arr >= minimum))
         or (bound is not None and np.any(np.abs(arr) > bound))
@@ -159,14 +159,17 @@ def numbers(
     ):
         given = value if shown is None else shown
         got = ("ragged rows" if arr is None else arr.shape) if show_shape else repr(given)
+        what = what() if callable(what) else what  # a callable: the hot paths build no text
         raise FieldError(loc, f"{name}{' ' if name else ''}{what}, got {got}")
     return arr
 
 
 def _fits_shape(actual: tuple[int, ...], wanted: tuple[int | None, ...]) -> bool:
     """Whether an array shape is ``wanted`` (a ``None`` entry: any length)."""
-    if len(actual) != len(wanted):
+    if len(actual) != len(wanted) or not actual:
         return False
+    if None not in wanted[1:]:  # the common (None, n): any number of rows of n
+        return wanted[0] in (None, actual[0]) and actual[1:] == wanted[1:]
     return all(w in (None, a) for a, w in zip(actual, wanted, strict=True))
 
 
@@ -180,8 +183,11 @@ def shaped(
 ) -> np.ndarray:
     """``value`` as a float64 array of ``shape`` (a leading ``None``: any length N, e.g.
     one row per arm), with finite entries if ``finite`` (:func:`numbers`)."""
-    shown = str(shape).replace("None", "N")
-    what = f"must have {'finite entries and ' if finite else ''}shape {shown}"
+
+    def what() -> str:
+        shown = str(shape).replace("None", "N")
+        return f"must have {'finite entries and ' if finite else ''}shape {shown}"
+
     return numbers(value, name, what, [shape], finite=finite, show_shape=True)
 
 

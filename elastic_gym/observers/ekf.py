@@ -338,8 +338,10 @@ class ExtendedKalmanFilter(BatchedObserver):
             else covariance_option(options.Q, "Q", (n, n))
         )
         blocks = (n, 3 * model.n_sensors) if use_accelerometers else (n,)
-        R = self._sensor_covariance(options) if options.R is None else options.R
-        self.R = covariance_option(R, "R", blocks, definite=True)  # or the noise it is from
+        R, name = options.R, "R"
+        if R is None:  # from the sensor options
+            R, name = self._sensor_covariance(options).tolist(), "R (from the sensor noise)"
+        self.R = covariance_option(R, name, blocks, definite=True)
         self.P0 = (
             np.diag(np.repeat(np.asarray(DEFAULT_INITIAL_STD) ** 2, n))
             if P0 is None
