@@ -98,7 +98,7 @@ def only_when(condition: bool, options: Mapping[str, Any], when: str, loc: Seque
     if given and not condition:
         text = f"{'apply' if len(given) > 1 else 'applies'} only when {when}"
         named = tuple(loc[-1:]) == tuple(given)  # the path names it already
-        raise FieldError(loc, text if named else f"{' and '.join(given)}: {text}")
+        raise refusal(loc, text if named else f"{' and '.join(given)}: {text}")
 
 
 def ordered(
@@ -160,7 +160,7 @@ def numbers(
         given = value if shown is None else shown
         got = ("ragged rows" if arr is None else arr.shape) if show_shape else repr(given)
         what = what() if callable(what) else what  # a callable: the hot paths build no text
-        raise FieldError(loc, f"{name}{' ' if name else ''}{what}, got {got}")
+        raise refusal(loc, f"{name}{' ' if name else ''}{what}, got {got}")
     return arr
 
 
@@ -221,7 +221,7 @@ def lookup(table: Mapping[str, T], name: Any, what: str, loc: Sequence = ()) -> 
     """``table[name]``; ``FieldError`` (a ``ValueError``; ``loc`` continues a validator's
     path) naming the ``what`` and listing the valid names."""
     if not isinstance(name, str) or name not in table:
-        raise FieldError(loc, f"unknown {what} {name!r}; valid: {sorted(table)}")
+        raise refusal(loc, f"unknown {what} {name!r}; valid: {sorted(table)}")
     return table[name]
 
 
@@ -234,7 +234,7 @@ def known(
     unknown = sorted(set(names) - valid)
     if unknown:
         where = f" for {of}" if of else ""
-        raise FieldError(loc, f"unknown {what}(s) {unknown}{where}; valid: {sorted(valid)}")
+        raise refusal(loc, f"unknown {what}(s) {unknown}{where}; valid: {sorted(valid)}")
 
 
 def registered_env_id(value: Any) -> str:
@@ -542,6 +542,13 @@ class FieldError(ValueError):
     def __init__(self, loc: Sequence[int | str], message: str) -> None:
         super().__init__(message)
         self.loc = tuple(loc)
+
+
+def refusal(loc: Sequence[int | str], message: str) -> ValueError:
+    """The ``ValueError`` of a refused value: a :class:`FieldError` continuing a
+    validator's path when ``loc`` is given (a plain ``ValueError`` otherwise, as users
+    see it named in a pre-run check's message)."""
+    return FieldError(loc, message) if loc else ValueError(message)
 
 
 _UNION_TAGS = frozenset({"int", "float", "str", "bool", "list", "dict", "tuple", "none"})
