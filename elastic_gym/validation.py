@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 from typing import Annotated, Any, ClassVar, TypeGuard, TypeVar, get_args
 
 import numpy as np
@@ -82,6 +83,24 @@ def all_or_none(options: Mapping[str, Any], loc: Sequence = ()) -> None:
         raise FieldError(loc, f"{together}: {' and '.join(missing)} missing")
 
 
+def only_when(condition: bool, options: Mapping[str, Any], when: str, loc: Sequence = ()) -> None:
+    """Refuse ``options`` (name -> value; ``None``, ``False`` or an empty mapping: not
+    given) unless ``condition``: ``FieldError`` (``loc`` continues a validator's path)
+    reading ``best: applies only when run is a run folder, not a loaded run`` (without
+    the name when ``loc`` ends with it)."""
+    given = [
+        name
+        for name, value in options.items()
+        if value is not None
+        and value is not False
+        and not (isinstance(value, Mapping) and not value)
+    ]
+    if given and not condition:
+        text = f"{'apply' if len(given) > 1 else 'applies'} only when {when}"
+        named = tuple(loc[-1:]) == tuple(given)  # the path names it already
+        raise refusal(loc, text if named else f"{' and '.join(given)}: {text}")
+
+
 def ordered(
     low: float,
     high: float,
@@ -96,30 +115,80 @@ def ordered(
         raise FieldError(loc, f"{names[0]} ({low:g}) must be {relation} {names[1]} ({high:g})")
 
 
+def numbers(
+    value: Any,
+    name: str,
+    what: str | Callable[[], str],
+    shapes: Sequence[tuple[int | None, ...]],
+    *,
+    dtype: type = float,
+    broadcast: int | None = None,
+    finite: bool = True,
+    minimum: float | None = None,
+    strict: bool = False,
+    bound: float | None = None,
+    stable: bool = False,
+    exact: bool = False,
+    show_shape: bool = False,
+    shown: Any = None,
+    loc: Sequence[int | str] = (),
+) -> np.ndarray:
+    """The one check of numeric input: ``value`` as a ``dtype`` array (``float`` or
+    ``complex``) whose shape is one of ``shapes`` (a ``None`` entry: any length; a scalar
+    is first repeated ``broadcast`` times when given), with finite entries (``finite``),
+    each > ``minimum`` (``strict``) or >= it, of magnitude <= ``bound``, with negative
+    real parts (``stable``: poles of a stable design), and Python or numpy numbers only
+    (``exact``: no bool, no string). ``ValueError: <name> <what>, got <value or shape>``
+    otherwise (``show_shape``: the shape given; ``shown``: what the user gave, when
+    ``value`` was derived from it): a :class:`FieldError` whose ``loc`` continues a
+    validator's path."""
+    try:
+        arr: np.ndarray | None = np.asarray(value, dtype=dtype)
+    except (TypeError, ValueError):  # not numbers, or ragged rows
+        arr = None
+    if arr is not None and arr.ndim == 0 and broadcast is not None:
+        arr = np.full(broadcast, arr[()])
+    if (
+        arr is None
+        or not (arr.shape in shapes or any(_fits_shape(arr.shape, shape) for shape in shapes))
+        or (finite and not np.all(np.isfinite(arr)))
+        or (minimum is not None and not np.all(arr > minimum if strict else arr >= minimum))
+        or (bound is not None and np.any(np.abs(arr) > bound))
+        or (stable and np.any(arr.real >= 0.0))
+        or (exact and not all(map(is_real, _leaves(plain(value)))))
+    ):
+        given = value if shown is None else shown
+        got = ("ragged rows" if arr is None else arr.shape) if show_shape else repr(given)
+        what = what() if callable(what) else what  # a callable: the hot paths build no text
+        raise refusal(loc, f"{name}{' ' if name else ''}{what}, got {got}")
+    return arr
+
+
+def _fits_shape(actual: tuple[int, ...], wanted: tuple[int | None, ...]) -> bool:
+    """Whether an array shape is ``wanted`` (a ``None`` entry: any length)."""
+    if len(actual) != len(wanted) or not actual:
+        return False
+    if None not in wanted[1:]:  # the common (None, n): any number of rows of n
+        return wanted[0] in (None, actual[0]) and actual[1:] == wanted[1:]
+    return all(w in (None, a) for a, w in zip(actual, wanted, strict=True))
+
+
+def bound_text(minimum: float | None, strict: bool) -> str:
+    """`` > 0`` / `` >= 0`` (or nothing) for the messages of :func:`numbers`."""
+    return "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
+
+
 def shaped(
     value: Any, shape: tuple[int | None, ...], name: str, finite: bool = False
 ) -> np.ndarray:
     """``value`` as a float64 array of ``shape`` (a leading ``None``: any length N, e.g.
-    one row per arm), with finite entries if ``finite``; ``ValueError`` naming ``name``
-    otherwise."""
-    try:
-        arr: np.ndarray | None = np.asarray(value, dtype=float)
-    except ValueError:  # ragged rows
-        arr = None
-    if (
-        arr is None
-        or (
-            arr.shape != shape
-            and not (shape and shape[0] is None and arr.shape[1:] == shape[1:] and arr.ndim)
-        )
-        or (finite and not np.all(np.isfinite(arr)))
-    ):
+    one row per arm), with finite entries if ``finite`` (:func:`numbers`)."""
+
+    def what() -> str:
         shown = str(shape).replace("None", "N")
-        raise ValueError(
-            f"{name} must have {'finite entries and ' if finite else ''}shape {shown}, "
-            f"got {'ragged rows' if arr is None else arr.shape}"
-        )
-    return arr
+        return f"must have {'finite entries and ' if finite else ''}shape {shown}"
+
+    return numbers(value, name, what, [shape], finite=finite, show_shape=True)
 
 
 def entry(
@@ -141,24 +210,31 @@ def entry(
 def stable_poles(value: Any, *shapes: tuple[int, ...]) -> np.ndarray:
     """``value`` as a complex array of one of ``shapes``: finite poles with negative real
     parts (a stable design); ``ValueError`` naming ``poles`` and what was given otherwise."""
-    try:
-        arr = np.asarray(value, dtype=complex)
-    except (TypeError, ValueError):
-        arr = np.full(0, np.nan)  # reported below
-    if arr.shape not in shapes or not np.all(np.isfinite(arr)) or np.any(arr.real >= 0.0):
-        allowed = " or ".join(map(str, shapes))
-        raise ValueError(
-            "poles must be finite numbers (complex allowed) with negative real parts, of "
-            f"shape {allowed}, got {value!r}"
-        )
-    return arr
+    what = (
+        "must be finite numbers (complex allowed) with negative real parts, of shape "
+        + " or ".join(map(str, shapes))
+    )
+    return numbers(value, "poles", what, shapes, dtype=complex, stable=True)
 
 
-def lookup(table: Mapping[str, T], name: Any, what: str) -> T:
-    """``table[name]``; ``ValueError`` naming the ``what`` and listing the valid names."""
+def lookup(table: Mapping[str, T], name: Any, what: str, loc: Sequence = ()) -> T:
+    """``table[name]``; ``FieldError`` (a ``ValueError``; ``loc`` continues a validator's
+    path) naming the ``what`` and listing the valid names."""
     if not isinstance(name, str) or name not in table:
-        raise ValueError(f"unknown {what} {name!r}; valid: {sorted(table)}")
+        raise refusal(loc, f"unknown {what} {name!r}; valid: {sorted(table)}")
     return table[name]
+
+
+def known(
+    names: Iterable[Any], valid: Iterable[str], what: str, of: str = "", loc: Sequence = ()
+) -> None:
+    """Refuse the ``names`` not in ``valid``: ``FieldError`` (``loc`` continues a
+    validator's path) reading ``unknown env kwarg(s) ['x'] for <of>; valid: [...]``."""
+    valid = set(valid)
+    unknown = sorted(set(names) - valid)
+    if unknown:
+        where = f" for {of}" if of else ""
+        raise refusal(loc, f"unknown {what}(s) {unknown}{where}; valid: {sorted(valid)}")
 
 
 def registered_env_id(value: Any) -> str:
@@ -167,9 +243,8 @@ def registered_env_id(value: Any) -> str:
     from gymnasium import registry
 
     env_id = value if not isinstance(value, str) or "/" in value else ENV_NAMESPACE + value
-    if not isinstance(env_id, str) or env_id not in registry:
-        valid = sorted(k for k in registry if k.startswith(ENV_NAMESPACE))
-        raise ValueError(f"unknown env id {value!r}; valid: {valid}")
+    if not (isinstance(env_id, str) and env_id in registry):  # refused, the package's ids listed
+        lookup({k: k for k in registry if k.startswith(ENV_NAMESPACE)}, value, "env id")
     return env_id
 
 
@@ -203,20 +278,10 @@ def per_joint_values(
     """A scalar or N finite numbers as an (N,) float array, optionally bounded below.
 
     ``minimum`` with ``strict`` means every value > minimum, else >= minimum. The error
-    names the option (``name``) and shows what was given.
+    names the option (``name``) and shows what was given (:func:`numbers`).
     """
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        arr = np.full(n + 1, np.nan)  # reported below
-    if arr.ndim == 0:
-        arr = np.full(n, float(arr))
-    ok = arr.shape == (n,) and bool(np.all(np.isfinite(arr)))
-    if ok and minimum is not None:
-        ok = bool(np.all(arr > minimum) if strict else np.all(arr >= minimum))
-    if not ok:
-        bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
-        raise ValueError(f"{name} must be one or {n} finite numbers{bound}, got {value!r}")
+    what = f"must be one or {n} finite numbers{bound_text(minimum, strict)}"
+    arr = numbers(value, name, what, [(n,)], broadcast=n, minimum=minimum, strict=strict)
     return arr.copy()
 
 
@@ -251,23 +316,12 @@ class Numbers:
     minimum: float | None = None
     strict: bool = True
 
-    def _fits(self, x: Any) -> bool:
-        low, strict = self.minimum, self.strict
-        return (
-            is_real(x)
-            and bool(np.isfinite(x))
-            and (low is None or (x > low if strict else x >= low))
-        )
-
     def check(self, value: Any) -> float | tuple[float, ...]:
         value = plain(value)
-        many = isinstance(value, (list, tuple))
-        if (many and not value) or not all(map(self._fits, value if many else [value])):
-            bound = (
-                "" if self.minimum is None else f" {'>' if self.strict else '>='} {self.minimum:g}"
-            )
-            raise ValueError(f"must be a finite number or a list of them{bound}, got {value!r}")
-        return tuple(float(x) for x in value) if many else float(value)
+        what = f"must be a finite number or a list of them{bound_text(self.minimum, self.strict)}"
+        shapes = [(), (None,)] if not isinstance(value, (list, tuple)) or value else [()]
+        arr = numbers(value, "", what, shapes, minimum=self.minimum, strict=self.strict, exact=True)
+        return tuple(arr.tolist()) if arr.ndim else float(arr)
 
     def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
         return core_schema.no_info_plain_validator_function(self.check)
@@ -309,6 +363,57 @@ class Matrix:
         return {"anyOf": [number, row, {"type": "array", "items": row, "minItems": 1}]}
 
 
+@dataclass(frozen=True)
+class PerSample:
+    """Annotation of a rate (1/s; a number or numbers, complex allowed: poles) whose
+    largest magnitude times the sampling period ``dt`` of the validation context must be
+    at most ``limit`` (``why``: what a faster one would break). Without a ``dt`` in the
+    context, or for a value that is not numbers (its form is the field's to check),
+    nothing is checked."""
+
+    limit: float
+    why: str = ""
+
+    def check(self, value: Any, info: core_schema.ValidationInfo) -> Any:
+        dt = (info.context or {}).get("dt")
+        try:
+            rate = float(np.abs(np.asarray(value, dtype=complex)).max(initial=0.0))
+        except (TypeError, ValueError):
+            rate = 0.0
+        limit = np.inf if dt is None else self.limit / dt
+        if rate > limit:
+            raise ValueError(
+                f"too fast for the sampling period dt = {dt:g} s: must be <= "
+                f"{self.limit:g}/dt = {limit:g} in magnitude{self.why}, got {value!r}"
+            )
+        return value
+
+    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
+        return core_schema.with_info_after_validator_function(self.check, handler(source))
+
+
+@dataclass(frozen=True)
+class Needs:
+    """Annotation of an option whose values ``when`` need what the robot model of the
+    validation context may lack: ``what`` (shown in the error, ``{n}`` the number of
+    joints), present when ``has(model)``. Without a model in the context nothing is
+    checked."""
+
+    when: tuple
+    what: str
+    has: Callable[[Any], bool]
+
+    def check(self, value: Any, info: core_schema.ValidationInfo) -> Any:
+        model = (info.context or {}).get("model")
+        if model is not None and value in self.when and not self.has(model):
+            what = self.what.format(n=model.n)
+            raise ValueError(f"{value!r} needs {what}, which robot {model.spec.name!r} lacks")
+        return value
+
+    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
+        return core_schema.with_info_after_validator_function(self.check, handler(source))
+
+
 def square_matrix(
     value: Any,
     size: int,
@@ -316,6 +421,7 @@ def square_matrix(
     blocks: tuple[int, ...] = (),
     symmetric: bool = False,
     psd_tolerance: float | None = None,
+    definite: bool = False,
 ) -> np.ndarray:
     """The (size, size) matrix of a :class:`Matrix` option (``options.<name>``) from its
     compact forms: a scalar (times the identity), one value per block of ``blocks`` (each
@@ -323,7 +429,8 @@ def square_matrix(
 
     ``symmetric``: the matrix must be symmetric (the mean of it and its transpose is
     returned); ``psd_tolerance``: its symmetric part must be positive semi-definite, to
-    ``-psd_tolerance * max(1, max|entry|)`` for a full matrix, exactly for a diagonal.
+    ``-psd_tolerance * max(1, max|entry|)`` for a full matrix, exactly for a diagonal;
+    ``definite``: positive definite (its smallest eigenvalue > 0).
     """
     try:
         arr = np.asarray(value, dtype=float)
@@ -336,18 +443,19 @@ def square_matrix(
         arr = np.repeat(arr, blocks)
     if arr.shape == (size,):
         arr = np.diag(arr)
-    if arr.shape != (size, size) or not np.all(np.isfinite(arr)):
-        per_block = f"{len(blocks)} block values, " if len(blocks) > 1 else ""
-        raise ValueError(
-            f"options.{name}: must be a scalar, {per_block}{size} diagonal entries or a "
-            f"{size}x{size} matrix, got {value!r}"
-        )
+    per_block = f"{len(blocks)} block values, " if len(blocks) > 1 else ""
+    what = f"must be a scalar, {per_block}{size} diagonal entries or a {size}x{size} matrix"
+    numbers(arr, f"options.{name}:", what, [(size, size)], shown=value)
     mean = 0.5 * (arr + arr.T)
     scale = max(1.0, float(np.abs(arr).max())) if full else 0.0
-    if (symmetric and not np.allclose(arr, arr.T)) or (
-        psd_tolerance is not None and np.linalg.eigvalsh(mean).min() < -psd_tolerance * scale
+    lowest = np.linalg.eigvalsh(mean).min() if psd_tolerance is not None or definite else 0.0
+    if (
+        (symmetric and not np.allclose(arr, arr.T))
+        or (psd_tolerance is not None and lowest < -psd_tolerance * scale)
+        or (definite and lowest <= 0.0)
     ):
-        shape = "symmetric positive semi-definite" if symmetric else "positive semi-definite"
+        semi = "" if definite else "semi-"
+        shape = f"{'symmetric ' if symmetric else ''}positive {semi}definite"
         raise ValueError(f"options.{name}: must be {shape}, got {value!r}")
     return mean if symmetric else arr
 
@@ -434,6 +542,13 @@ class FieldError(ValueError):
     def __init__(self, loc: Sequence[int | str], message: str) -> None:
         super().__init__(message)
         self.loc = tuple(loc)
+
+
+def refusal(loc: Sequence[int | str], message: str) -> ValueError:
+    """The ``ValueError`` of a refused value: a :class:`FieldError` continuing a
+    validator's path when ``loc`` is given (a plain ``ValueError`` otherwise, as users
+    see it named in a pre-run check's message)."""
+    return FieldError(loc, message) if loc else ValueError(message)
 
 
 _UNION_TAGS = frozenset({"int", "float", "str", "bool", "list", "dict", "tuple", "none"})
@@ -553,21 +668,34 @@ def _wrong_type(item: Any) -> bool:
     return item["type"].endswith("_type") or item["type"] == "is_instance_of"
 
 
-def validated_options(model: type[M], arguments: Mapping[str, Any]) -> M:
+def validated_options(
+    model: type[M], arguments: Mapping[str, Any], context: Mapping[str, Any] | None = None
+) -> M:
     """The options of a constructor validated by their model: ``arguments`` is the
-    constructor's ``locals()`` (only the model's fields are read); errors read
-    ``options.<name>: ...``, a ``TypeError`` when every problem is a value of the wrong
-    type (a string for a number, 1 for a bool), a ``ValueError`` otherwise."""
-    given = {key: value for key, value in arguments.items() if key in model.model_fields}
-    return checked(lambda: model.model_validate(plain(given)), "options", model, by_kind=True)
+    constructor's ``locals()`` (only the model's fields are read); ``context`` (the robot
+    ``model`` and the sampling period ``dt``) is what :class:`PerSample` and
+    :class:`Needs` fields read. Errors read ``options.<name>: ...``, a ``TypeError`` when
+    every problem is a value of the wrong type (a string for a number, 1 for a bool), a
+    ``ValueError`` otherwise."""
+    given = plain({key: value for key, value in arguments.items() if key in model.model_fields})
+    validate = partial(model.model_validate, given, context=context)
+    return checked(validate, "options", model, by_kind=True)
 
 
-def option_value(name: str, value: Any, kind: Any, prefix: str = "options.") -> Any:
+def option_value(
+    name: str,
+    value: Any,
+    kind: Any,
+    prefix: str = "options.",
+    context: Mapping[str, Any] | None = None,
+) -> Any:
     """One constructor option (or function argument, ``prefix=""``) validated by the
-    (annotated) type ``kind``: errors read ``options.<name>: ...``, a ``TypeError`` for a
-    value of the wrong type, a ``ValueError`` otherwise (as :func:`validated_options`)."""
+    (annotated) type ``kind`` (with the validation ``context``): errors read
+    ``options.<name>: ...``, a ``TypeError`` for a value of the wrong type, a
+    ``ValueError`` otherwise (as :func:`validated_options`)."""
     adapter = TypeAdapter(kind)
-    return checked(lambda: adapter.validate_python(plain(value)), prefix + name, by_kind=True)
+    validate = partial(adapter.validate_python, plain(value), context=context)
+    return checked(validate, prefix + name, by_kind=True)
 
 
 @contextmanager

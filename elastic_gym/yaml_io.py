@@ -134,14 +134,14 @@ def load_yaml(source: str | Path, what: str | None = None) -> Any:
     where = what or str(source)
     if isinstance(source, Path):
         try:
-            if source.stat().st_size > MAX_BYTES:
-                raise YAMLInputError(where, f"larger than {MAX_BYTES} bytes")
-            text = source.read_text()
+            with source.open("rb") as handle:  # a larger file is not read beyond the bound
+                raw = handle.read(MAX_BYTES + 1)
+            text = raw.decode(errors="replace" if len(raw) > MAX_BYTES else "strict")
         except (OSError, UnicodeDecodeError) as exc:
             raise YAMLInputError(where, f"cannot be read: {exc}") from None
     else:
         text = source
-    if len(text.encode(errors="replace")) > MAX_BYTES:
+    if len(text.encode(errors="replace")) > MAX_BYTES:  # a file's own bytes too, see above
         raise YAMLInputError(where, f"larger than {MAX_BYTES} bytes")
     loader = _BoundedLoader(text)
     try:

@@ -438,7 +438,7 @@ def test_bad_calls_and_robot_kinds():
         ({"algorithm": "PPO"}, ValueError, "algorithm together .*: policy \\(a path\\) missing"),
         ({"preprocess": 3}, TypeError, "options.preprocess: Input should be callable"),
         ({"residual": 5}, TypeError, "options.residual: "),
-        ({"residual_options": {"omega": 3.0}}, ValueError, "options.residual_options: apply"),
+        ({"residual_options": {"omega": 3.0}}, ValueError, "options.residual_options: applies"),
         ({"residual_scale": 0.0}, ValueError, "options.residual_scale"),
     ],
 )

@@ -245,7 +245,7 @@ def test_critic_plant_without_randomization_or_on_other_algorithms_is_refused():
         make_policy_vec_env(TWO_LINK, 2, "true", critic_plant=True, action=TORQUE)
     with pytest.raises(ValueError, match="ppo only"):
         resolve_hyperparams("recurrentppo", TWO_LINK, {"critic_plant": True})
-    with pytest.raises(ValueError, match="critic_plant needs the MlpPolicy"):
+    with pytest.raises(ValueError, match="critic_plant: applies only when policy is the MlpPolicy"):
         resolve_hyperparams("ppo", TWO_LINK, {"critic_plant": True, "policy": "CnnPolicy"})
 
 

@@ -225,7 +225,8 @@ def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
     env = run.stack.make()
     model = env.unwrapped.model
     env.close()
-    with pytest.raises(ValueError, match=r"^best: applies to a run folder, not to a loaded run$"):
+    loaded = r"^best: applies only when run is a run folder, not a loaded run$"
+    with pytest.raises(ValueError, match=loaded):
         TrainedPolicyController(model, 1e-3, run, best=True)
 
 

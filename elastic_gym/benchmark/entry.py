@@ -25,7 +25,7 @@ from pydantic import AfterValidator, Field, PrivateAttr, StrictStr, model_valida
 from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry, resolve_class
 from elastic_gym.evaluation.scenario_models import ClassPath
 from elastic_gym.observers.registry import OBSERVERS, source_class
-from elastic_gym.validation import StrictModel, at_most_one
+from elastic_gym.validation import StrictModel, at_most_one, only_when
 
 TRUE_STATE = "true"
 TRAINED_POLICY = "trained-policy"
@@ -70,8 +70,11 @@ class Entry(StrictModel):
     @model_validator(mode="after")
     def _one_kind(self) -> Entry:
         at_most_one({"controller": self.controller, "run": self.run}, required=True)
-        if self.run is not None and (self.options or self.source_options):
-            raise ValueError("a run folder takes no options: its config.yaml has them")
+        only_when(
+            self.run is None,
+            {"options": self.options, "source_options": self.source_options},
+            "a controller is named (a run folder's config.yaml has them)",
+        )
         return self
 
     @property

@@ -33,7 +33,15 @@ from elastic_gym.evaluation.scenario import (
     merge,
 )
 from elastic_gym.evaluation.scenario_models import env_parameters
-from elastic_gym.validation import StrictModel, distinct, ordered, registered_env_id, validated
+from elastic_gym.validation import (
+    StrictModel,
+    distinct,
+    errors_at,
+    known,
+    ordered,
+    registered_env_id,
+    validated,
+)
 from elastic_gym.yaml_io import load_yaml
 
 SUITE_DIR = Path(__file__).resolve().parent / "suites"
@@ -310,9 +318,8 @@ def suite_scenario(
     :attr:`Cell.id`), the suite's seeds, duration and physics step, no model error.
 
     ``robots`` restricts the cells to some robots (``ValueError`` for an unknown one)."""
-    unknown = sorted(set(robots or ()) - set(suite.robots))
-    if unknown:
-        raise ValueError(f"robots: unknown robot(s) {unknown}; valid: {sorted(suite.robots)}")
+    with errors_at("robots"):
+        known(robots or (), suite.robots, "robot")
     cells = [c for c in suite.cells if robots is None or c.robot in robots]
     return Scenario(
         name=name,

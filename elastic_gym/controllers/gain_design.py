@@ -16,7 +16,7 @@ integral of the link error), :func:`lqr_gain`, :func:`pole_placement_gain` and
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import pinocchio as pin
@@ -25,10 +25,16 @@ from scipy.optimize import brentq
 from scipy.signal import place_poles
 
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import PositiveFinite, option_value, stable_poles
+from elastic_gym.validation import Needs, PositiveFinite, option_value, stable_poles
 
 Block = Literal["motor", "link"]
 """The state block of a decentralized PD (:func:`pd_gain`)."""
+ON_ELASTIC = Needs(
+    ("motor", "motor-offset"), "elastic joints (motor positions)", lambda model: model.elastic
+)
+"""A motor-side law needs an elastic arm (checked against the robot of the validation
+context): a :class:`~elastic_gym.validation.Needs` shared by the PD blocks and the
+motor-offset action of the training package."""
 
 BANDWIDTH_SEARCH = (0.1, 20.0)  # bracket of w / omega for the bisection
 
@@ -176,9 +182,7 @@ def pd_gain(model: RobotModel, kp: np.ndarray, kd: np.ndarray, block: Block) -> 
     """Decentralized PD as an N x dim(x) gain acting on the ``"motor"`` or ``"link"`` block."""
     n = model.n
     blocks = 4 if model.elastic else 2
-    option_value("block", block, Block, prefix="")
-    if block == "motor" and not model.elastic:
-        raise ValueError("a motor-side PD needs an elastic arm")
+    option_value("block", block, Annotated[Block, ON_ELASTIC], prefix="", context={"model": model})
     position = 0 if block == "motor" or not model.elastic else 1
     gain = np.zeros((n, blocks * n))
     gain[:, position * n : (position + 1) * n] = np.diag(kp)

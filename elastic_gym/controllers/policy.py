@@ -33,10 +33,10 @@ from elastic_gym.controllers.vector import (
 )
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
-    FieldError,
     StrictModel,
     all_or_none,
     lookup,
+    only_when,
     per_joint_values,
     validated_options,
 )
@@ -113,10 +113,12 @@ class PolicyOptions(StrictModel):
     def _paired(self) -> PolicyOptions:
         path = self.policy if isinstance(self.policy, (str, os.PathLike)) else None
         all_or_none({"policy (a path)": path, "algorithm": self.algorithm})
-        if self.residual_options and not isinstance(self.residual, str):
-            raise FieldError(
-                ("residual_options",), "apply only when residual is a controller's registry name"
-            )
+        only_when(
+            isinstance(self.residual, str),
+            {"residual_options": self.residual_options},
+            "residual is a controller's registry name",
+            loc=("residual_options",),
+        )
         return self
 
 

@@ -45,6 +45,7 @@ from elastic_gym.validation import (
     StrictModel,
     at_most_one,
     errors_at,
+    only_when,
     shaped,
     square_matrix,
     validated_options,
@@ -86,9 +87,8 @@ class StateFeedbackOptions(FeedforwardOptions):
     @field_validator("feedback")
     @classmethod
     def _pure_feedforward(cls, feedback: bool, info: ValidationInfo) -> bool:
-        designs = [info.data.get(k) for k in ("gain", "weights", "poles")]
-        if not feedback and any(d is not None for d in designs):
-            raise ValueError("False (pure feedforward) takes no gain, weights or poles")
+        designs = {k: info.data.get(k) for k in ("gain", "weights", "poles")}
+        only_when(feedback, designs, "feedback is true (False: pure feedforward)")
         return feedback
 
 

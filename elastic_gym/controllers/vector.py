@@ -29,7 +29,7 @@ from elastic_gym.controllers.base import Controller, public_info
 from elastic_gym.controllers.invdyn import checked_reference_rows, info_time, state_vector
 from elastic_gym.controllers.registry import controller_class
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import check_applies, checked_count
+from elastic_gym.validation import check_applies, checked_count, only_when
 
 ARM0 = np.array([0])
 
@@ -193,9 +193,9 @@ def make_vector_controller(
     """The controller of N arms: the batched twin of a built-in (a registry name, or its
     class), a :class:`ControllerArray` for any other :class:`Controller` class. A built
     controller instance (then without options) is run by its twin or copied per arm."""
+    built = isinstance(name_or_class, Controller)
+    only_when(not built, {"options": options}, "a controller is named or given as a class")
     if isinstance(name_or_class, Controller):
-        if options:
-            raise ValueError("options apply only when a controller is named or given as a class")
         twin = type(name_or_class).__dict__.get("vector_twin")
         return twin.of(name_or_class, n_arms) if twin else ControllerArray(name_or_class, n_arms)
     cls = controller_class(name_or_class) if isinstance(name_or_class, str) else name_or_class

@@ -56,7 +56,7 @@ from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec, substeps
 from elastic_gym.robots.urdf_tools import joint_limits
-from elastic_gym.validation import checked_count, errors_at, per_joint_values, validated
+from elastic_gym.validation import checked_count, errors_at, numbers, per_joint_values, validated
 
 STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
 
@@ -757,15 +757,10 @@ class ArmBatch:
         given = validated(model, options, "options").initial_state
         n, values = self.n_joints, {}
         for key, value in ({} if given is None else given.model_dump(exclude_none=True)).items():
-            arr = np.array(value, dtype=float)
-            if arr.shape != (n,) or (
-                key.startswith("d") and np.any(np.abs(arr) > self.max_velocity)
-            ):
-                raise ValueError(
-                    f"options.initial_state.{key}: must be {n} numbers"
-                    + (f" of magnitude <= {self.max_velocity:g}" if key.startswith("d") else "")
-                    + f", got {value!r}"
-                )
+            speed = self.max_velocity if key.startswith("d") else None
+            within = "" if speed is None else f" of magnitude <= {speed:g}"
+            what = f"must be {n} numbers{within}"
+            arr = numbers(value, f"options.initial_state.{key}:", what, [(n,)], bound=speed)
             if key == "q":
                 self._check_within_limits("options.initial_state.q", arr)
             values[key] = arr

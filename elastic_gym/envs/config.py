@@ -43,6 +43,7 @@ from elastic_gym.validation import (
     all_or_none,
     at_most_one,
     checked,
+    numbers,
     ordered,
     plain,
 )
@@ -105,8 +106,10 @@ class Range(StrictModel):
     @model_validator(mode="after")
     def _ordered(self) -> Range:
         ordered(self.low, self.high)
-        if self.log and self.low <= 0.0:
-            raise ValueError(f"a log-uniform range needs low > 0, got {self.low}")
+        if self.log:
+            numbers(
+                self.low, "", "a log-uniform range needs low > 0", [()], minimum=0.0, strict=True
+            )
         return self
 
 

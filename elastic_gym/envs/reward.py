@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
-from elastic_gym.validation import ConfigModel, NonNegativeFinite, PositiveFinite
+from elastic_gym.validation import ConfigModel, NonNegativeFinite, PositiveFinite, numbers
 
 DEFAULT_SIGMAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)  # rad, one kernel per decade
 DEFAULT_VELOCITY_SIGMAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)  # rad/s
@@ -113,16 +113,13 @@ def _checked(error, error_rate, torque, previous_torque, torque_limit, torsion):
         "torque_limit": torque_limit,
     }
     out = {}
+    rows = [shape] if len(shape) == 2 else []  # (arms, joints)
     for name, value in arrays.items():
-        arr = np.asarray(value, dtype=float)
-        allowed = [shape, shape[1:]] if name == "torque_limit" else [shape]
-        if len(shape) != 2 or arr.shape not in allowed:
-            raise ValueError(
-                f"reward input {name!r} must have shape (arms, joints)"
-                + (" or (joints,)" if len(allowed) > 1 else "")
-                + f" (error has {shape}), got {arr.shape}"
-            )
-        out[name] = arr
+        limit = name == "torque_limit"  # one row for every arm allowed
+        what = f"must have shape (arms, joints){' or (joints,)' * limit} (error has {shape})"
+        shapes = [*rows, shape[1:]] if limit and rows else rows
+        where = f"reward input {name!r}"
+        out[name] = numbers(value, where, what, shapes, finite=False, show_shape=True)
     return (
         out["error"],
         out["error_rate"],

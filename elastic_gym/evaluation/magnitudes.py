@@ -14,7 +14,7 @@ import numpy as np
 from pydantic import ConfigDict, Field, PrivateAttr, StrictBool, StrictInt, model_validator
 
 from elastic_gym.evaluation.scenario_models import NOMINAL, Real, Variation
-from elastic_gym.validation import FieldError, StrictModel, all_or_none, at_most_one
+from elastic_gym.validation import FieldError, StrictModel, all_or_none, at_most_one, numbers
 
 
 class Magnitudes(StrictModel):
@@ -40,14 +40,16 @@ class Magnitudes(StrictModel):
         all_or_none({"range": self.range, "num": self.num}, loc=("num",))
         if self.range is not None and self.num is not None:
             low, high = self.range
-            if self.log and not (low > 0 and high > 0):
-                raise FieldError(("range",), f"log: true needs bounds > 0, got {list(self.range)}")
+            if self.log:
+                needs = "log: true needs bounds > 0"
+                numbers(self.range, "", needs, [(2,)], minimum=0.0, strict=True, loc=("range",))
             points = (np.geomspace if self.log else np.linspace)(low, high, self.num)
             values = tuple(float(f"{v:.12g}") for v in points)  # 1.2000000000000002 -> 1.2
             vars(self).update(values=values, range=None, num=None)
-        for i, v in enumerate(self.values):
-            if self.log and v <= 0:
-                raise FieldError(("values", i), f"must be finite and > 0, got {v!r}")
+        for i, v in enumerate(self.values if self.log else ()):
+            numbers(
+                v, "", "must be finite and > 0", [()], minimum=0.0, strict=True, loc=("values", i)
+            )
         if len({f"{v:g}" for v in self.values}) < len(self.values):
             raise FieldError(("values",), f"magnitudes repeat: {list(self.values)}")
         return self

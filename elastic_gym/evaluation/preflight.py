@@ -20,6 +20,7 @@ import os
 import time
 from collections.abc import Generator, Iterator, Sequence
 from dataclasses import dataclass
+from typing import NoReturn
 
 import gymnasium as gym
 import numpy as np
@@ -80,7 +81,13 @@ def _named(path: str | None) -> Iterator[None]:
         if not user_failure(exc):
             raise
         if path is not None:
-            raise ScenarioError(path, describe_failure(exc)) from None
+            _refuse(path, exc)
+
+
+def _refuse(path: str, exc: BaseException, when: str = "") -> NoReturn:
+    """The refusal of a pre-run check: :class:`ScenarioError` naming ``path`` and what
+    failed (``when``: at which step, for a worker process that died)."""
+    raise ScenarioError(path, f"{describe_failure(exc)}{' ' if when else ''}{when}") from None
 
 
 def _make_env(entry_id: str, kwargs: dict, path: str) -> gym.Env:
@@ -117,7 +124,7 @@ class _EnvCheck:
 
     def after_death(self, exc: WorkerDiedError) -> float:
         """The process running the checks died: refused."""
-        raise ScenarioError(self.path, f"{describe_failure(exc)} while the env was checked")
+        _refuse(self.path, exc, "while the env was checked")
 
 
 STAGES = ("env", "observer", "controller", "reset", "loop")  # of a sample, in order
@@ -160,7 +167,7 @@ class _Sample:
             "controller": f"{controller_path}.options",
             "reset": source_path,
         }[self.stage]
-        raise ScenarioError(path, f"{describe_failure(exc)} {_WHILE[self.stage]}")
+        _refuse(path, exc, _WHILE[self.stage])
 
 
 def _check(job: _EnvCheck | _Sample) -> float | ScenarioError:

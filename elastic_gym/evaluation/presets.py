@@ -37,6 +37,5 @@ def load_scenario(path: str | Path, name: str | None = None) -> Scenario:
         data = load_yaml(path)
     except YAMLInputError as exc:
         raise ScenarioError(exc.where, exc.problem) from None
-    if not isinstance(data, Mapping):
-        raise ScenarioError(str(path), "the file must contain a mapping of scenario fields")
-    return Scenario.from_dict(data, name or data.get("name") or path.stem)
+    named = data.get("name") if isinstance(data, Mapping) else None  # else: refused below
+    return Scenario.from_dict(data, name or named or path.stem)

@@ -59,6 +59,7 @@ from elastic_gym.validation import (
     StrictModel,
     distinct,
     format_validation_error,
+    known,
 )
 
 __all__ = [
@@ -163,12 +164,8 @@ class Scenario(StrictModel):
         magnitude is a valid kwarg of every env."""
         labels = {s.label for s in self.state_sources}
         for i, controller in enumerate(self.controllers):
-            missing = sorted(set(controller.sources or ()) - labels)
-            if missing:
-                raise FieldError(
-                    ("controllers", i, "sources"),
-                    f"unknown state source label(s) {missing}; valid: {sorted(labels)}",
-                )
+            where = ("controllers", i, "sources")
+            known(controller.sources or (), labels, "state source label", loc=where)
         tables: dict[str, Mapping[str, Any]] = {"axes": self.axis_table, "sweeps": self.sweep_table}
         for table, items in tables.items():
             for name, values in items.items():
@@ -185,8 +182,10 @@ class Scenario(StrictModel):
 
     @classmethod
     def from_dict(cls, data: Mapping, name: str | None = None) -> Scenario:
-        """Validate a mapping (parsed YAML, or Python objects) into a scenario."""
-        return _validated(cls, {**data, "name": name} if name else data)
+        """Validate a mapping (parsed YAML, or Python objects) into a scenario (anything
+        else is refused by the model)."""
+        named = name and isinstance(data, Mapping)
+        return _validated(cls, {**data, "name": name} if named else data)
 
     @property
     def sweeps(self) -> tuple[Sweep, ...]:

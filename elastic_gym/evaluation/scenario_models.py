@@ -41,9 +41,10 @@ from elastic_gym.model import ParameterScaling
 from elastic_gym.observers.registry import state_sources
 from elastic_gym.validation import (
     ENV_NAMESPACE,
-    FieldError,
     StrictModel,
     distinct,
+    known,
+    lookup,
     registered_env_id,
 )
 
@@ -148,12 +149,7 @@ def check_env_kwargs(env_id: str, kwargs: Mapping, loc: tuple = ()) -> None:
     if is_package_env(env_id):
         checked_kwargs(dict(kwargs), loc)
         return
-    valid = env_parameters(env_id)
-    unknown = set(kwargs) - valid
-    if unknown:
-        raise FieldError(
-            loc, f"unknown env kwarg(s) {sorted(unknown)} for {env_id}; valid: {sorted(valid)}"
-        )
+    known(kwargs, env_parameters(env_id), "env kwarg", of=env_id, loc=loc)
 
 
 # ---------------------------------------------------------------------------- entries
@@ -211,11 +207,8 @@ class _Named(BareEntry):
 
     @model_validator(mode="after")
     def _defaults(self) -> _Named:
-        valid = set(type(self).registry())
-        if self.cls is None and self.name not in valid:
-            raise FieldError(
-                ("name",), f"unknown {self.kind} {self.name!r}; valid: {sorted(valid)}"
-            )
+        if self.cls is None:
+            lookup(dict.fromkeys(type(self).registry()), self.name, self.kind, loc=("name",))
         if not self.label:
             vars(self)["label"] = self.name
         return self

@@ -20,7 +20,7 @@ import numpy as np
 
 from elastic_gym.arms import as_batch
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import PositiveFinite, check_applies, option_value, shaped
+from elastic_gym.validation import PositiveFinite, check_applies, numbers, option_value, shaped
 
 ELASTIC_STATE = ("theta", "q", "dtheta", "dq")
 RIGID_STATE = ("q", "dq")
@@ -91,14 +91,9 @@ class Observer(ABC):
         return self._estimate_rows(initial_estimate, [(self.state_dim,)])
 
     def _estimate_rows(self, value: Any, shapes: list[tuple[int, ...]]) -> np.ndarray:
-        x = np.asarray(value, dtype=float)
-        if x.shape not in shapes or not np.all(np.isfinite(x)):
-            rows = " (or one row per arm)" if len(shapes) > 1 else ""
-            raise ValueError(
-                f"initial_estimate must be {self.state_dim} finite numbers {self.state_names}"
-                f"{rows}, got shape {x.shape}"
-            )
-        return x.copy()
+        rows = " (or one row per arm)" if len(shapes) > 1 else ""
+        what = f"must be {self.state_dim} finite numbers {self.state_names}{rows}"
+        return numbers(value, "initial_estimate", what, shapes, show_shape=True).copy()
 
 
 ARM0 = np.array([0])

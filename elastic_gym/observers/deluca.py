@@ -18,7 +18,7 @@ paper's observer). Initial estimate at rest (Sec. IV); batched over N arms.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import StrictBool, ValidationInfo, field_validator
@@ -35,6 +35,8 @@ from elastic_gym.observers.deluca_gains import (
     validate_poles,
 )
 from elastic_gym.validation import (
+    Needs,
+    PerSample,
     PositiveFinite,
     StrictModel,
     at_most_one,
@@ -67,13 +69,31 @@ def foh_discretization(
     return phi, gamma0 - gamma1, gamma1
 
 
+def directions_per_joint(model: RobotModel) -> bool:
+    """Whether the accelerometers measure at least one direction per joint (eq. (10))."""
+    return 3 * model.n_sensors >= model.n
+
+
+PoleRate = PerSample(MAX_POLE_STEP, " (faster poles overflow the matrix exponential)")
+"""The bound |lambda| dt <= :data:`MAX_POLE_STEP` of the poles (or of the bandwidth)."""
+
+
 class DeLucaOptions(StrictModel):
     """The plain-data options of :class:`DeLucaObserver` (see its arguments); the poles
-    and the per-joint bandwidth are checked against the robot by the observer."""
+    and the per-joint bandwidth are checked against the robot by the observer, their
+    magnitude against ``dt`` and the accelerometers against the robot by the validation
+    context."""
 
-    acceleration: Literal["ideal", "accelerometer"] = "accelerometer"
-    poles: Any = None
-    bandwidth: PositiveFinite | list[PositiveFinite] | None = None
+    acceleration: Annotated[
+        Literal["ideal", "accelerometer"],
+        Needs(
+            ("accelerometer",),
+            "at least {n} measured directions (eq. (10), M >= N)",
+            directions_per_joint,
+        ),
+    ] = "accelerometer"
+    poles: Annotated[Any, PoleRate] = None
+    bandwidth: Annotated[PositiveFinite | list[PositiveFinite] | None, PoleRate] = None
     use_coupling: StrictBool = True
     dls_threshold: PositiveFinite = 0.01
     dls_damping: PositiveFinite = 0.01
@@ -126,7 +146,9 @@ class DeLucaObserver(BatchedObserver):
     ) -> None:
         super().__init__(model, dt)
         n = self.n
-        options = validated_options(DeLucaOptions, locals())
+        if poles is None and bandwidth is None:  # checked against dt like a given one
+            bandwidth = DEFAULT_BANDWIDTH
+        options = validated_options(DeLucaOptions, locals(), {"model": model, "dt": self.dt})
         self.acceleration = options.acceleration
         self.use_coupling = options.use_coupling
         self.dls_threshold = options.dls_threshold
@@ -134,22 +156,12 @@ class DeLucaObserver(BatchedObserver):
         self.velocity_saturation = options.velocity_saturation
         # instance attribute: only the ideal variant needs the true q'' (Theorem 1)
         self.privileged = ("link_acceleration",) if acceleration == "ideal" else ()
-        if acceleration == "accelerometer" and 3 * model.n_sensors < n:
-            raise ValueError(
-                f"options.acceleration: 'accelerometer' needs at least {n} measured directions "
-                f"(eq. (10), M >= N); robot {model.spec.name!r} has {3 * model.n_sensors}"
-            )
         self._sensors = model.copy().chain  # own scratch buffer
 
         K, B, D = model.K, model.B, model.D
-        radius = DEFAULT_BANDWIDTH if options.bandwidth is None else options.bandwidth
         with errors_at("options.poles" if poles is not None else "options.bandwidth"):
-            self.poles = butterworth_poles(radius, n) if poles is None else validate_poles(poles, n)
-            if self.dt * np.abs(self.poles).max() > MAX_POLE_STEP:
-                raise ValueError(
-                    f"poles up to {np.abs(self.poles).max():.3g} rad/s are too fast for the "
-                    f"sampling period {self.dt} s (|lambda| dt must be <= {MAX_POLE_STEP})"
-                )
+            given = options.bandwidth if poles is None else None
+            self.poles = validate_poles(poles, n) if given is None else butterworth_poles(given, n)
         self.gains = deluca_gains(self.poles, K, B, D)
         self.A_obs = error_matrix(self.gains, K, B, D)
 

@@ -29,10 +29,13 @@ from elastic_gym.observers.base import BatchedObserver, arm_count
 from elastic_gym.observers.integration import rk4
 from elastic_gym.validation import (
     Matrix,
+    Needs,
     NonNegativeFinite,
+    PerSample,
     StrictModel,
+    at_most_one,
     entry,
-    is_real,
+    numbers,
     square_matrix,
     validated_options,
 )
@@ -59,6 +62,13 @@ MAX_SUBSTEPS = 100
 stiffest elastic mode of the package (596 rad/s); more only multiply the cost."""
 PSD_TOLERANCE = 1e-12
 """Relative rounding a given full covariance may have below zero in its eigenvalues."""
+DISCOUNT = " (alpha above 1/dt discounts the past by more than e^2 per sample, eq. (15))"
+"""Why alpha is bounded by 1/dt (:class:`~elastic_gym.validation.PerSample`)."""
+
+
+def has_sensors(model: RobotModel) -> bool:
+    """Whether the robot carries accelerometers (for ``use_accelerometers``)."""
+    return model.n_sensors > 0
 
 
 # ----------------------------------------------------------------------------- options
@@ -69,13 +79,15 @@ CovarianceValue = Annotated[Any, Matrix(MAX_VARIANCE)]
 
 
 def covariance_option(
-    value: CovarianceValue, name: str, block_sizes: tuple[int, ...]
+    value: CovarianceValue, name: str, block_sizes: tuple[int, ...], definite: bool = False
 ) -> np.ndarray:
     """A symmetric positive semi-definite covariance from a compact option value (its
     entries validated by :data:`CovarianceValue`): a scalar (the same variance everywhere),
     one variance per block (``len(block_sizes)`` values, each repeated over its block),
-    the full diagonal, or the full symmetric matrix (:func:`square_matrix`)."""
-    return square_matrix(value, sum(block_sizes), name, block_sizes, True, PSD_TOLERANCE)
+    the full diagonal, or the full symmetric matrix (:func:`square_matrix`); positive
+    definite if ``definite``."""
+    size = sum(block_sizes)
+    return square_matrix(value, size, name, block_sizes, True, PSD_TOLERANCE, definite)
 
 
 def default_process_noise(model: RobotModel, dt: float) -> np.ndarray:
@@ -240,12 +252,13 @@ Deviation = Annotated[float, Field(strict=True, ge=0, le=MAX_STD, allow_inf_nan=
 class EKFOptions(StrictModel):
     """The plain-data options of :class:`ExtendedKalmanFilter` (see its arguments); the
     forms of the covariances Q, R, P0 are checked against the robot's dimensions by
-    :func:`covariance_option`, alpha against 1/dt by the filter."""
+    :func:`covariance_option`; alpha (<= 1/dt) and ``use_accelerometers`` against the
+    validation context (the robot ``model`` and ``dt``)."""
 
-    alpha: NonNegativeFinite = DEFAULT_ALPHA
+    alpha: Annotated[NonNegativeFinite, PerSample(1.0, DISCOUNT)] = DEFAULT_ALPHA
     Q: CovarianceValue | None = None
     P0: CovarianceValue | None = None
-    use_accelerometers: StrictBool = False
+    use_accelerometers: Annotated[StrictBool, Needs((True,), "accelerometers", has_sensors)] = False
     encoder_resolution: Deviation | None = None
     encoder_noise_std: Deviation | None = None
     accelerometer_std: Annotated[Deviation, Field(gt=0)] = DEFAULT_ACCELEROMETER_STD
@@ -255,13 +268,10 @@ class EKFOptions(StrictModel):
     @field_validator("R")
     @classmethod
     def _R_or_sensor_options(cls, R: Any, info: ValidationInfo) -> Any:
-        if R is not None:
-            given = [k for k in ("encoder_resolution", "encoder_noise_std") if info.data.get(k)]
-            if given or info.data.get("accelerometer_std") != DEFAULT_ACCELEROMETER_STD:
-                raise ValueError(
-                    f"replaces the sensor options {given or ['accelerometer_std']}; "
-                    "give one or the other"
-                )
+        given = [k for k in ("encoder_resolution", "encoder_noise_std") if info.data.get(k)]
+        if info.data.get("accelerometer_std") != DEFAULT_ACCELEROMETER_STD:
+            given.append("accelerometer_std")
+        at_most_one({"R": R, ", ".join(given): given or None})  # R replaces the sensor options
         return R
 
 
@@ -319,16 +329,7 @@ class ExtendedKalmanFilter(BatchedObserver):
     ) -> None:
         super().__init__(model, dt)
         n = self.n
-        options = validated_options(EKFOptions, locals())
-        if options.alpha > 1.0 / self.dt:
-            raise ValueError(
-                f"options.alpha: must be <= 1/dt = {1.0 / self.dt:g} (it would discount the "
-                f"past by more than e^2 per sample), got {alpha!r}"
-            )
-        if use_accelerometers and model.n_sensors == 0:
-            raise ValueError(
-                f"options.use_accelerometers: robot {model.spec.name!r} has no accelerometers"
-            )
+        options = validated_options(EKFOptions, locals(), {"model": model, "dt": self.dt})
         self.alpha, self.use_accelerometers = options.alpha, use_accelerometers
         self.substeps = substeps
         self.Q = (
@@ -337,16 +338,10 @@ class ExtendedKalmanFilter(BatchedObserver):
             else covariance_option(options.Q, "Q", (n, n))
         )
         blocks = (n, 3 * model.n_sensors) if use_accelerometers else (n,)
-        self.R = (
-            self._sensor_covariance(options)
-            if options.R is None
-            else covariance_option(options.R, "R", blocks)
-        )
-        if np.linalg.eigvalsh(self.R).min() <= 0.0:
-            raise ValueError(
-                "options.R: must be positive definite (or the encoder/accelerometer noise it is "
-                "built from)"
-            )
+        R, name = options.R, "R"
+        if R is None:  # from the sensor options
+            R, name = self._sensor_covariance(options).tolist(), "R (from the sensor noise)"
+        self.R = covariance_option(R, name, blocks, definite=True)
         self.P0 = (
             np.diag(np.repeat(np.asarray(DEFAULT_INITIAL_STD) ** 2, n))
             if P0 is None
@@ -405,8 +400,7 @@ class ExtendedKalmanFilter(BatchedObserver):
         self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
     ) -> np.ndarray:
         """One predict (eqs. (4)-(8), (15)) and correct (eqs. (9)-(18)) cycle of ``arms``."""
-        if not (is_real(dt) and np.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt must be a positive number, got {dt!r}")
+        numbers(dt, "dt", "must be a positive number", [()], minimum=0.0, strict=True, exact=True)
         arms = np.arange(len(self._x)) if arms is None else np.asarray(arms)
         tau = self.checked_torque(torque, len(self._x))[arms]
         y = self._measurements(obs, arms)

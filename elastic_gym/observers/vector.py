@@ -31,7 +31,7 @@ from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, Observer
 from elastic_gym.observers.registry import make_observer
 from elastic_gym.observers.sensors import RawSensors
-from elastic_gym.validation import elastic_base
+from elastic_gym.validation import elastic_base, only_when
 
 NON_FINITE_STATE = "non-finite state"
 NON_FINITE_ESTIMATE = "non-finite state estimate"
@@ -42,12 +42,12 @@ def build_observer(
 ) -> Observer:
     """The wrapper's own observer: built by name on ``model`` (default: the env's nominal
     model), or a private copy of a given instance (envs never share an observer)."""
+    named = isinstance(observer, str)
+    only_when(named, {"model": model, "observer options": options}, "observer is a name")
     if isinstance(observer, str):
         return make_observer(observer, model or base.model, base.control_dt, **options)
     if not isinstance(observer, Observer):
         raise TypeError(f"observer must be an Observer or a registry name, got {observer!r}")
-    if options or model is not None:
-        raise ValueError("model and observer options apply only when observer is a name")
     own = observer.model.spec
     if own.name != base.robot.name or own.n_joints != base.robot.n_joints:
         raise ValueError(

@@ -16,12 +16,16 @@ every period from the state and the reference of that period:
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, StrictBool, StrictStr, model_validator
 
-from elastic_gym.controllers.gain_design import bandwidth_pd_gains, nominal_configuration
+from elastic_gym.controllers.gain_design import (
+    ON_ELASTIC,
+    bandwidth_pd_gains,
+    nominal_configuration,
+)
 from elastic_gym.controllers.policy import RESIDUAL_DEADZONE, residual_torque
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
@@ -29,6 +33,7 @@ from elastic_gym.validation import (
     Finite,
     PositiveFinite,
     all_or_none,
+    option_value,
     per_joint_values,
 )
 
@@ -93,12 +98,9 @@ class ActionMap:
         self.n = model.n
         self.torque_limit = np.asarray(model.torque_limit, dtype=float)
         self.kp = self.kd = np.zeros(self.n)
+        kind = Annotated[str, ON_ELASTIC]  # on rigid arms: 'torque' or 'residual'
+        option_value("kind", config.kind, kind, prefix="action ", context={"model": model})
         if config.kind == "motor-offset":
-            if not model.elastic:
-                raise ValueError(
-                    "action kind 'motor-offset' needs an elastic arm (motor "
-                    "positions); use 'torque' or 'residual' on rigid arms"
-                )
             if config.kp is None:
                 self.kp, self.kd = bandwidth_pd_gains(
                     model, nominal_configuration(model), config.bandwidth, config.damping_ratio

@@ -15,7 +15,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import inspect
-import math
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -44,7 +43,10 @@ from elastic_gym.validation import (
     Finite,
     StrictModel,
     checked,
+    known,
     lookup,
+    numbers,
+    only_when,
     plain,
     registered_env_id,
     validated,
@@ -150,12 +152,7 @@ def resolve_settings(
     settings = validated(Settings, ours)
     allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters)
     allowed -= EXCLUDED_ARGUMENTS | {"_init_setup_model"}
-    unknown = set(merged) - allowed
-    if unknown:
-        raise ValueError(
-            f"unknown hyper-parameter(s) {sorted(unknown)} for {algo}; "
-            f"valid: {sorted(allowed | set(Settings.model_fields))}"
-        )
+    known(merged, allowed | set(Settings.model_fields), "hyper-parameter", of=algo)  # ours popped
     for key in SCHEDULED:
         if isinstance(merged.get(key), str):
             merged[key] = _schedule(key, merged[key])
@@ -201,19 +198,15 @@ def _check_values(algo: str, merged: dict) -> None:
 def _check_critic_state(algo: str, merged: dict, key: str) -> None:
     """``critic_state`` / ``critic_plant`` need PPO with its MLP policy, whose features
     extractor they split (:class:`~elastic_gym.training.critic.PrivilegedCriticPolicy`)."""
-    if algo != "ppo":
-        raise ValueError(
-            f"critic_state / critic_plant (a critic with privileged inputs) is implemented "
-            f"for ppo only, not {algo}"
-        )
-    if merged.get("policy", "MlpPolicy") != "MlpPolicy":
-        raise ValueError(f"{key} needs the MlpPolicy, got policy {merged['policy']!r}")
+    privileged = {key: True}
+    ppo = "algo is ppo (a critic with privileged inputs is implemented for ppo only)"
+    only_when(algo == "ppo", privileged, f"{ppo}, not {algo}")
+    policy = merged.get("policy", "MlpPolicy")
+    only_when(policy == "MlpPolicy", privileged, f"policy is the MlpPolicy, got {policy!r}")
     kwargs = merged.get("policy_kwargs") or {}
-    if isinstance(kwargs, dict) and kwargs.get("share_features_extractor"):
-        raise ValueError(
-            f"{key} gives the critic its own features extractor: drop "
-            "policy_kwargs.share_features_extractor"
-        )
+    shared = isinstance(kwargs, dict) and bool(kwargs.get("share_features_extractor"))
+    own = "the critic has its own features extractor: drop policy_kwargs.share_features_extractor"
+    only_when(not shared, privileged, own)
 
 
 def linear_schedule(initial: float, progress_remaining: float) -> float:
@@ -223,14 +216,12 @@ def linear_schedule(initial: float, progress_remaining: float) -> float:
 
 
 def _schedule(key: str, text: str):
+    """``lin_<value>`` as :func:`linear_schedule` of the value (a finite number > 0)."""
     prefix, _, value = text.partition("_")
-    try:
-        initial = float(value)
-    except ValueError:
-        initial = math.nan
-    if prefix != "lin" or not math.isfinite(initial) or initial <= 0:
-        raise ValueError(f"{key} {text!r}: give a number or 'lin_<number > 0>' (linear decay)")
-    return functools.partial(linear_schedule, initial)
+    what = "must be a number or 'lin_<number > 0>' (linear decay)"
+    given = value if prefix == "lin" else None  # None: refused
+    initial = numbers(given, key, what, [()], minimum=0.0, strict=True, shown=text)
+    return functools.partial(linear_schedule, float(initial))
 
 
 def _policy_kwargs(value) -> dict:
@@ -303,8 +294,9 @@ class TrainConfig(ConfigModel):
 
     @classmethod
     def from_dict(cls, data: dict) -> TrainConfig:
-        """A run's config from a mapping of its fields (``ValueError`` naming the field)."""
-        return validated(cls, data)
+        """A run's config from a mapping of its fields (``ValueError`` naming the field;
+        anything else, ``None`` of an empty file too, is refused by the model)."""
+        return checked(functools.partial(cls.model_validate, plain(data)), model=cls)
 
     def settings(self) -> tuple[Settings, dict]:
         """(our settings, the algorithm's arguments) of this run (:func:`resolve_settings`)."""

@@ -25,7 +25,7 @@ from elastic_gym.training.observation import ErrorIntegral, ObservationBuilder, 
 from elastic_gym.training.policy_env import SENSORS
 from elastic_gym.training.rollouts import PolicyActor, at_bound
 from elastic_gym.training.trained import TrainedRun, load_run
-from elastic_gym.validation import StrictModel, validated_options
+from elastic_gym.validation import StrictModel, only_when, validated_options
 
 
 class TrainedPolicyOptions(StrictModel):
@@ -99,9 +99,10 @@ class TrainedPolicyController(Controller):
     ) -> None:
         super().__init__(model, dt)
         validated_options(TrainedPolicyOptions, locals())
+        only_when(
+            not isinstance(run, TrainedRun), {"best": best}, "run is a run folder, not a loaded run"
+        )
         if isinstance(run, TrainedRun):
-            if best:
-                raise ValueError("best: applies to a run folder, not to a loaded run")
             trained, run = run, run.config.out_dir
         else:
             trained = load_run(run, best=best)

@@ -30,6 +30,7 @@ from elastic_gym.training import vector as vector_policy
 from elastic_gym.training import wrappers as policy
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
+from elastic_gym.validation import only_when
 
 
 def check_state_source(state: str) -> None:
@@ -54,10 +55,9 @@ def _stack(
     ``observer_wrappers`` and ``policy_wrappers``: the single-env ones, or their vector
     twins on a vector env. Raw sensors take no observer and no observer options."""
     check_state_source(state)
+    only_when(state != SENSORS, {"observer_options": observer_options}, "state is an observer")
     if state != SENSORS:
         env = observer_wrappers.ObserverWrapper(env, state, **(observer_options or {}))
-    elif observer_options:
-        raise ValueError("observer_options given but the state source is raw 'sensors'")
     env = policy_wrappers.PolicyAction(env, action)
     if decimation > 1:
         env = policy_wrappers.ActionRepeat(env, decimation)

@@ -19,6 +19,7 @@ import pickle
 import shutil
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -33,9 +34,11 @@ FINISHED = "summary.json"
 RUN_OUTPUTS = (*RUN_FILES, "best_model.zip", FINISHED, "evaluations.npz", CURVE_FILE, "tb")
 
 
-def _before_the_deadzone(data: dict) -> dict:
+def _before_the_deadzone(data: Any) -> Any:
     """A run saved before actions had ``residual_deadzone`` applied its residual without
     one: say so explicitly, so that today's default does not change its actions."""
+    if not isinstance(data, dict):
+        return data  # not a config: refused by TrainConfig
     action = data.get("action", {})
     hyperparams = data.get("hyperparams")
     shipped = hyperparams.get("action") if isinstance(hyperparams, dict) else None
@@ -48,7 +51,7 @@ def _before_the_deadzone(data: dict) -> dict:
 
 # Applied in order to a saved config.yaml before it is validated: each makes a folder
 # written before a field existed mean what it meant when it was written.
-MIGRATIONS: tuple[Callable[[dict], dict], ...] = (_before_the_deadzone,)
+MIGRATIONS: tuple[Callable[[Any], Any], ...] = (_before_the_deadzone,)
 
 
 def missing_folders(path: str | Path) -> list[Path]:
@@ -173,8 +176,6 @@ class RunFolder:
         path = self.path / "config.yaml"
         try:
             data = load_yaml(path)
-            if not isinstance(data, dict):
-                raise ValueError(f"must hold a mapping, got {type(data).__name__}")
             for migrate in MIGRATIONS:
                 data = migrate(data)
             return TrainConfig.from_dict(data)
