@@ -733,15 +733,9 @@ class ArmBatch:
             obs["acceleration"] if n_sensors else no_readings,
             obs["reference"],
         )
-        c, dt = self.reward_config, self.control_dt
         reward_constants = (
             self._limit_row,
-            c._inverse_sigmas,
-            c._inverse_velocity_sigmas,
-            c._weights,
-            c.rate_time / dt,
-            c.torsion_scale,
-            dt,
+            *self.reward_config.kernel_constants(self.control_dt),
         )
         self._noise_draws = [(encoder.noise, noise_std)]
         if n_sensors:

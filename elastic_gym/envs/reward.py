@@ -75,6 +75,18 @@ class RewardConfig(ConfigModel):
         c = self
         return np.array([c.track, c.velocity, c.torque, c.rate, c.torsion, c.penalty_bound])
 
+    def kernel_constants(self, dt: float) -> tuple:
+        """The arguments of :func:`_reward_kernel` after the torque limit and the torsion
+        (the configuration at the control period ``dt``), in the kernel's order."""
+        return (
+            self._inverse_sigmas,
+            self._inverse_velocity_sigmas,
+            self._weights,
+            self.rate_time / dt,
+            self.torsion_scale,
+            dt,
+        )
+
     @property
     def penalty_bound(self) -> float:
         """Largest penalty per second (added back as a constant so that r >= 0)."""
@@ -197,22 +209,16 @@ def batch_reward(
 ) -> np.ndarray:
     """:func:`total_reward` without the input checks (float64 arrays of the right shapes):
     one compiled loop over the arms, the hot path of the envs."""
-    c = config
     limit = torque_limit if torque_limit.ndim == 2 else torque_limit[None]
     out = np.empty(len(error))
-    _reward_kernel(
+    _reward_kernel(  # type: ignore[call-arg]  # numba's Dispatcher stub takes no star-args
         error,
         error_rate,
         torque,
         previous_torque,
         limit,
         torsion,
-        c._inverse_sigmas,
-        c._inverse_velocity_sigmas,
-        c._weights,
-        c.rate_time / dt,
-        c.torsion_scale,
-        dt,
+        *config.kernel_constants(dt),
         out,
     )
     return out
