@@ -53,6 +53,7 @@ from elastic_gym.envs.sensors import (
 from elastic_gym.envs.simulator import ArmSimulator, _link_dynamics_kernel
 from elastic_gym.envs.tasks import make_task
 from elastic_gym.model import ParameterScaling, RobotModel
+from elastic_gym.model.packed import Packed
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec, substeps
 from elastic_gym.robots.urdf_tools import joint_limits
@@ -108,27 +109,31 @@ def _clip_torque(command, low, high, tau, saturated):
 
 
 @njit(cache=True)
-def _post_step_kernel(theta, dtheta, q, dq, transmission, dynamics, limits, sensors, out):
+def _post_step_kernel(tau, previous, reference, slot, reward, packed):
     """The end of a control period of every arm in one call, the same kernels in the same
     order as :meth:`ArmBatch.step` calls them one by one (so bit for bit the same):
 
     1. q'' and the noise-free accelerometer readings (eq. (9)): the simulator's
        :func:`~elastic_gym.envs.simulator._link_dynamics_kernel` (``transmission``,
-       ``dynamics``: its arguments; no link-side torque);
+       ``dynamics``: its arguments after the motor torques ``tau``; no link-side torque);
     2. the termination codes (:func:`_break_codes`, ``limits``: its arguments after the
        state); if an arm broke, returns False here (the caller measures with the hold of
        non-finite readings);
     3. the encoders' and accelerometers' readings (:func:`~elastic_gym.envs.sensors.
        _shared_readings`: one error model for every arm, no filter), through the sensor
-       delay line, into the observation with the reference q_d, q_d';
-    4. the reward (:func:`~elastic_gym.envs.reward._reward_kernel`) at e = q - q_d,
-       e' = q' - q_d', torsion theta - q.
+       delay line (``slot``: its newest slot), into the observation with the reference
+       q_d, q_d' (``reference`` (N, 5, n));
+    4. the reward (:func:`~elastic_gym.envs.reward._reward_kernel`, into ``reward`` (N,))
+       at e = q - q_d, e' = q' - q_d', torsion theta - q, the torques ``tau`` and
+       ``previous``.
 
-    ``sensors``: (elastic, encoder std, block, next, resolution, has accelerometers, bias,
-    std, block, next, range, resolution, readings (encoders, accelerometers), delay lines
-    (L, N, size) of both, newest slot, delays (N,), observation arrays (position,
-    acceleration, reference), reference (N, 5, n)). ``out``: (tau, previous tau, torque
-    limit row, reward constants after the torque limit, reward (N,))."""
+    ``packed``: a :class:`~elastic_gym.model.packed.Packed` of what holds for the episode,
+    (theta, theta', q, q', transmission, dynamics, limits, sensors, the torque limit row
+    and the reward constants after it); ``sensors``: (elastic, encoder std, block, next,
+    resolution, has accelerometers, bias, std, block, next, range, resolution, readings
+    (encoders, accelerometers), delay lines (L, N, size) of both, delays (N,), observation
+    arrays (position, acceleration, reference))."""
+    theta, dtheta, q, dq, transmission, dynamics, limits, sensors, rewards = packed.values
     (
         elastic,
         enc_std,
@@ -146,15 +151,13 @@ def _post_step_kernel(theta, dtheta, q, dq, transmission, dynamics, limits, sens
         acc_reading,
         position_line,
         acc_line,
-        slot,
         delay,
         position_obs,
         acc_obs,
         reference_obs,
-        reference,
     ) = sensors
     forces = dynamics[3]
-    _link_dynamics_kernel(theta, dtheta, q, dq, transmission, None, *dynamics)
+    _link_dynamics_kernel(theta, dtheta, q, dq, (tau, *transmission), None, *dynamics)
     if _break_codes(q, dq, theta, dtheta, *limits):
         return False
     _shared_readings(
@@ -198,8 +201,7 @@ def _post_step_kernel(theta, dtheta, q, dq, transmission, dynamics, limits, sens
             error[k, j] = q[k, j] - reference[k, 0, j]
             error_rate[k, j] = dq[k, j] - reference[k, 1, j]
             torsion[k, j] = theta[k, j] - q[k, j]
-    tau, previous, limit = out[0], out[1], out[2]
-    _reward_kernel(error, error_rate, tau, previous, limit, torsion, *out[3:])
+    _reward_kernel(error, error_rate, tau, previous, rewards[0], torsion, *rewards[1:], reward)
     return True
 
 
@@ -638,26 +640,17 @@ class ArmBatch:
         forces: np.ndarray | None
         reasons: np.ndarray | None
         if isinstance(fusion, tuple):
-            transmission, dynamics, limits, head, tail, reward_constants = fusion
+            packed, ddq, forces = fusion
             reward = np.empty(self.n_arms)
             for noise, std in self._noise_draws:  # the generators' blocks, in sensor order
                 if std > 0.0:
                     noise.refill(self.rngs)
             finished = _post_step_kernel(
-                sim.theta,
-                sim.dtheta,
-                sim.q,
-                sim.dq,
-                (tau, *transmission),
-                dynamics,
-                limits,
-                (*head, self._slot, *tail, self.reference),
-                (tau, self.previous_torque, *reward_constants, reward),
+                tau, self.previous_torque, self.reference, self._slot, reward, packed
             )
-            self.ddq = dynamics[2]
+            self.ddq = ddq
             if finished:
                 return reward, None
-            forces = dynamics[3]
             reasons = REASONS[self._codes]
         else:
             if self.model.n_sensors:  # q'' and the accelerometers' noise-free readings at once
@@ -674,10 +667,11 @@ class ArmBatch:
         return self._reward(), reasons
 
     def _fusion_arguments(self) -> tuple | bool:
-        """The arguments of :func:`_post_step_kernel` that hold for the episode (None in
-        ``self._fusion``: not yet built; rebuilt after every reset), or False when the
-        batch needs the step by step path: model (2), an arm with its own sensor error
-        model, an accelerometer filter."""
+        """(the :class:`~elastic_gym.model.packed.Packed` arguments of
+        :func:`_post_step_kernel` that hold for the episode, its q'' and accelerometer
+        readings arrays) (None in ``self._fusion``: not yet built; rebuilt after every
+        reset), or False when the batch needs the step by step path: model (2), an arm
+        with its own sensor error model, an accelerometer filter."""
         sim, encoder, acc = self.sim, self.encoder, self.accelerometer_array
         plants, n_sensors = sim.plants, self.model.n_sensors
         resolution, noise_std = encoder._shared
@@ -695,7 +689,7 @@ class ArmBatch:
         N, n = self.n_arms, self.n_joints
         shape = (N, n)
         ddq, forces = np.empty(shape), np.empty((N, 3 * n_sensors))
-        transmission = (
+        transmission = (  # the transmission kernel's arguments after tau
             *plants.transmission,
             self.robot.elastic,
             np.empty(shape),
@@ -709,7 +703,7 @@ class ArmBatch:
         no_readings = np.zeros((N, 0))
         obs, lines = self.obs, self._measured
         position = self.position_key
-        head = (
+        sensors = (
             self.robot.elastic,
             noise_std,
             encoder.noise.block,
@@ -726,21 +720,18 @@ class ArmBatch:
             np.empty((N, size)),
             lines[position],
             lines["acceleration"] if n_sensors else no_readings[None],
-        )
-        tail = (
             self.sensor_delay,
             obs[position],
             obs["acceleration"] if n_sensors else no_readings,
             obs["reference"],
         )
-        reward_constants = (
-            self._limit_row,
-            *self.reward_config.kernel_constants(self.control_dt),
-        )
+        rewards = (self._limit_row, *self.reward_config.kernel_constants(self.control_dt))
         self._noise_draws = [(encoder.noise, noise_std)]
         if n_sensors:
             self._noise_draws.append((acc.noise, sample_std))
-        return transmission, dynamics, limits, head, tail, reward_constants
+        state = (sim.theta, sim.dtheta, sim.q, sim.dq)
+        packed = Packed((*state, transmission, dynamics, limits, sensors, rewards))
+        return packed, ddq, forces
 
     def _initial_state_options(self, options: dict | None) -> dict[str, np.ndarray]:
         """The reset ``options`` validated (types and angle magnitudes by their model, the
