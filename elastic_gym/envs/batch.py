@@ -94,18 +94,37 @@ def _break_codes(q, dq, theta, dtheta, lower, upper, max_velocity, codes):
 
 
 @njit(cache=True)
-def _clip_torque(command, low, high, tau, saturated):
-    """tau = min(max(command, low), high) per joint, as numpy's maximum and minimum give it
-    (NaN stays NaN), and per arm whether any joint's torque changed (NaN: changed)."""
+def _clip_torque(command, external, low, high, tau, saturated):
+    """tau = min(max(command + external, low), high) per joint (``external`` None: none),
+    as numpy's addition, maximum and minimum give it (NaN stays NaN), and per arm whether
+    any joint's torque changed in the clip (NaN: changed)."""
     for k in range(command.shape[0]):
         changed = False
         for j in range(command.shape[1]):
             c = command[k, j]
+            if external is not None:
+                c = c + external[k, j]
             v = low[j] if c < low[j] else c
             v = high[j] if v > high[j] else v
             tau[k, j] = v
             changed = changed or v != c
         saturated[k] = changed
+
+
+@njit(cache=True)
+def _advance_clock(steps, stepping, dt, max_steps, time, truncated):
+    """steps += 1 for the stepping arms (``stepping`` None: every arm), time = steps dt
+    (numpy's int64 by float64 product) and truncated = steps >= max_steps (not written
+    when ``max_steps`` is None); returns whether any arm is truncated."""
+    ended = False
+    for k in range(steps.shape[0]):
+        if stepping is None or stepping[k]:
+            steps[k] += 1
+        time[k] = steps[k] * dt
+        if max_steps is not None:
+            truncated[k] = steps[k] >= max_steps
+            ended = ended or truncated[k]
+    return ended
 
 
 @njit(cache=True)
@@ -600,20 +619,24 @@ class ArmBatch:
         command = actions if every else np.where(stepping[:, None], actions, 0.0)
         command = self.plant_state.delayed(command)
         external = self.task.external_torque(self._time, sim.q)
-        if external is not None:
-            command = command + (external if every else np.where(stepping[:, None], external, 0.0))
+        if external is not None and not every:
+            external = np.where(stepping[:, None], external, 0.0)
         tau: np.ndarray = np.empty(command.shape)
         self.saturated = np.empty(len(command), dtype=bool)
-        _clip_torque(command, self._minus_limit, self.torque_limit, tau, self.saturated)
+        _clip_torque(command, external, self._minus_limit, self.torque_limit, tau, self.saturated)
         pulse = self.plant_state.before_step(self._time)
         sim.step(tau, self.n_substeps, pulse)
-        self.steps += 1 if every else stepping
-        self._time = self.steps * self.control_dt
+        N, limit = self.n_arms, self.max_steps
+        time = np.empty(N)
+        truncated = self._no_arm if limit is None else np.empty(N, dtype=bool)
+        ended = _advance_clock(
+            self.steps, None if every else stepping, self.control_dt, limit, time, truncated
+        )
+        self._time = time
         self.previous_torque, self.torque = self.torque, tau
         self.reference = self.task.reference(self._time)
         self._slot = (self._slot + 1) % self._sensor_line
         reward, reasons = self._end_of_period(tau, pulse, every, stepping)
-        truncated = self._no_arm if self.max_steps is None else self.steps >= self.max_steps
         if reasons is None:  # the common case: no arm broke its physics
             self.reasons = self._no_reasons
             terminated = self._no_arm
@@ -625,7 +648,7 @@ class ArmBatch:
         if not every:
             reward = np.where(stepping, reward, 0.0)
             truncated = truncated & stepping
-        if reasons is not None or self.max_steps is not None:  # else no episode ended
+        if reasons is not None or ended:  # else no episode ended
             self.running &= ~(terminated | truncated)
         return reward, terminated, truncated
 
