@@ -225,6 +225,22 @@ def _post_step_kernel(tau, previous, reference, slot, reward, packed):
 
 
 @njit(cache=True)
+def _arm_values(k, theta, q, dtheta, dq, ddq, reference, torque, out):
+    """One fresh copy of arm k's info arrays, flat: theta, q, theta', q', q'', the
+    reference's rows (q_d .. q_d^(4)) and tau, n numbers each."""
+    n = q.shape[1]
+    for j in range(n):
+        out[j] = theta[k, j]
+        out[n + j] = q[k, j]
+        out[2 * n + j] = dtheta[k, j]
+        out[3 * n + j] = dq[k, j]
+        out[4 * n + j] = ddq[k, j]
+        for r in range(reference.shape[1]):
+            out[(5 + r) * n + j] = reference[k, r, j]
+        out[(5 + reference.shape[1]) * n + j] = torque[k, j]
+
+
+@njit(cache=True)
 def _at_range(readings, limit):
     """Whether any |reading| >= limit (a NaN reading is not), as numpy's
     ``np.fmax.reduce(np.abs(readings)) >= limit`` gives it."""
@@ -921,18 +937,12 @@ class ArmBatch:
         }
 
     def _arm_info(self, k: int) -> dict:
-        """:meth:`info` of the one arm ``k`` (plain values; the same items, one copy of
-        the state and the reference)."""
+        """:meth:`info` of the one arm ``k`` (plain values; the same items, one compiled
+        copy of the state, the reference and the torque)."""
         sim, n = self.sim, self.n_joints
-        x = np.concatenate(
-            (
-                sim.theta[k],
-                sim.q[k],
-                sim.dtheta[k],
-                sim.dq[k],
-                self.ddq[k],
-                self.reference[k].ravel(),
-            )
+        x = np.empty((6 + len(REFERENCE_KEYS)) * n)
+        _arm_values(
+            k, sim.theta, sim.q, sim.dtheta, sim.dq, self.ddq, self.reference, self.torque, x
         )
         return {
             "time": float(self._time[k]),
@@ -944,7 +954,7 @@ class ArmBatch:
                 "ddq": x[4 * n : 5 * n],
                 "x": x[: 4 * n],
             },
-            "torque": self.torque[k].copy(),
+            "torque": x[10 * n :],
             "torque_saturated": bool(self.saturated[k]),
             "acceleration_saturated": self._acceleration_saturated(k, True),
             "reference": {  # REFERENCE_KEYS
