@@ -9,11 +9,11 @@ is in ``info["true_state"]``. Action: motor torque (N m), clipped to the torque 
 
 from __future__ import annotations
 
-import math
 from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
+from numba import njit
 
 from elastic_gym.envs.batch import ArmBatch, with_batch_options
 from elastic_gym.envs.config import RenderMode
@@ -35,11 +35,21 @@ def validated_actions(action, n_arms: int, n_joints: int) -> np.ndarray:
     shape = (n_joints,) if n_arms == 0 else (n_arms, n_joints)
     if arr.shape != shape:
         raise ValueError(f"action must have shape {shape}, got {arr.shape}")
-    arr = arr.astype(np.float64)
-    # a finite sum has finite terms (one reduction; the elementwise test only when it is not)
-    if not math.isfinite(arr.sum()) and not np.isfinite(arr).all():
-        raise ValueError(f"action must be finite, got {arr}")
-    return arr.reshape(-1, n_joints)
+    arr = arr.astype(np.float64).reshape(-1, n_joints)
+    if not _all_finite(arr):
+        raise ValueError(f"action must be finite, got {arr.reshape(shape)}")
+    return arr
+
+
+@njit(cache=True)
+def _all_finite(values):
+    """Whether every entry of ``values`` (2-D) is finite (one compiled loop: a numpy
+    reduction costs more than the whole test for the few numbers of an action)."""
+    for k in range(values.shape[0]):
+        for j in range(values.shape[1]):
+            if not np.isfinite(values[k, j]):
+                return False
+    return True
 
 
 def _from_batch(name: str, doc: str) -> property:

@@ -53,6 +53,7 @@ from elastic_gym.envs.sensors import (
 from elastic_gym.envs.simulator import ArmSimulator, _link_dynamics_kernel
 from elastic_gym.envs.tasks import make_task
 from elastic_gym.model import ParameterScaling, RobotModel
+from elastic_gym.model.packed import Packed
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec, substeps
 from elastic_gym.robots.urdf_tools import joint_limits
@@ -93,13 +94,16 @@ def _break_codes(q, dq, theta, dtheta, lower, upper, max_velocity, codes):
 
 
 @njit(cache=True)
-def _clip_torque(command, low, high, tau, saturated):
-    """tau = min(max(command, low), high) per joint, as numpy's maximum and minimum give it
-    (NaN stays NaN), and per arm whether any joint's torque changed (NaN: changed)."""
+def _clip_torque(command, external, low, high, tau, saturated):
+    """tau = min(max(command + external, low), high) per joint (``external`` None: none),
+    as numpy's addition, maximum and minimum give it (NaN stays NaN), and per arm whether
+    any joint's torque changed in the clip (NaN: changed)."""
     for k in range(command.shape[0]):
         changed = False
         for j in range(command.shape[1]):
             c = command[k, j]
+            if external is not None:
+                c = c + external[k, j]
             v = low[j] if c < low[j] else c
             v = high[j] if v > high[j] else v
             tau[k, j] = v
@@ -108,27 +112,47 @@ def _clip_torque(command, low, high, tau, saturated):
 
 
 @njit(cache=True)
-def _post_step_kernel(theta, dtheta, q, dq, transmission, dynamics, limits, sensors, out):
+def _advance_clock(steps, stepping, dt, max_steps, time, truncated):
+    """steps += 1 for the stepping arms (``stepping`` None: every arm), time = steps dt
+    (numpy's int64 by float64 product) and truncated = steps >= max_steps (not written
+    when ``max_steps`` is None); returns whether any arm is truncated."""
+    ended = False
+    for k in range(steps.shape[0]):
+        if stepping is None or stepping[k]:
+            steps[k] += 1
+        time[k] = steps[k] * dt
+        if max_steps is not None:
+            truncated[k] = steps[k] >= max_steps
+            ended = ended or truncated[k]
+    return ended
+
+
+@njit(cache=True)
+def _post_step_kernel(tau, previous, reference, slot, reward, packed):
     """The end of a control period of every arm in one call, the same kernels in the same
     order as :meth:`ArmBatch.step` calls them one by one (so bit for bit the same):
 
     1. q'' and the noise-free accelerometer readings (eq. (9)): the simulator's
        :func:`~elastic_gym.envs.simulator._link_dynamics_kernel` (``transmission``,
-       ``dynamics``: its arguments; no link-side torque);
+       ``dynamics``: its arguments after the motor torques ``tau``; no link-side torque);
     2. the termination codes (:func:`_break_codes`, ``limits``: its arguments after the
        state); if an arm broke, returns False here (the caller measures with the hold of
        non-finite readings);
     3. the encoders' and accelerometers' readings (:func:`~elastic_gym.envs.sensors.
        _shared_readings`: one error model for every arm, no filter), through the sensor
-       delay line, into the observation with the reference q_d, q_d';
-    4. the reward (:func:`~elastic_gym.envs.reward._reward_kernel`) at e = q - q_d,
-       e' = q' - q_d', torsion theta - q.
+       delay line (``slot``: its newest slot), into the observation with the reference
+       q_d, q_d' (``reference`` (N, 5, n));
+    4. the reward (:func:`~elastic_gym.envs.reward._reward_kernel`, into ``reward`` (N,))
+       at e = q - q_d, e' = q' - q_d', torsion theta - q, the torques ``tau`` and
+       ``previous``.
 
-    ``sensors``: (elastic, encoder std, block, next, resolution, has accelerometers, bias,
-    std, block, next, range, resolution, readings (encoders, accelerometers), delay lines
-    (L, N, size) of both, newest slot, delays (N,), observation arrays (position,
-    acceleration, reference), reference (N, 5, n)). ``out``: (tau, previous tau, torque
-    limit row, reward constants after the torque limit, reward (N,))."""
+    ``packed``: a :class:`~elastic_gym.model.packed.Packed` of what holds for the episode,
+    (theta, theta', q, q', transmission, dynamics, limits, sensors, the torque limit row
+    and the reward constants after it); ``sensors``: (elastic, encoder std, block, next,
+    resolution, has accelerometers, bias, std, block, next, range, resolution, readings
+    (encoders, accelerometers), delay lines (L, N, size) of both, delays (N,), observation
+    arrays (position, acceleration, reference))."""
+    theta, dtheta, q, dq, transmission, dynamics, limits, sensors, rewards = packed.values
     (
         elastic,
         enc_std,
@@ -146,15 +170,13 @@ def _post_step_kernel(theta, dtheta, q, dq, transmission, dynamics, limits, sens
         acc_reading,
         position_line,
         acc_line,
-        slot,
         delay,
         position_obs,
         acc_obs,
         reference_obs,
-        reference,
     ) = sensors
     forces = dynamics[3]
-    _link_dynamics_kernel(theta, dtheta, q, dq, transmission, None, *dynamics)
+    _link_dynamics_kernel(theta, dtheta, q, dq, (tau, *transmission), None, *dynamics)
     if _break_codes(q, dq, theta, dtheta, *limits):
         return False
     _shared_readings(
@@ -198,9 +220,24 @@ def _post_step_kernel(theta, dtheta, q, dq, transmission, dynamics, limits, sens
             error[k, j] = q[k, j] - reference[k, 0, j]
             error_rate[k, j] = dq[k, j] - reference[k, 1, j]
             torsion[k, j] = theta[k, j] - q[k, j]
-    tau, previous, limit = out[0], out[1], out[2]
-    _reward_kernel(error, error_rate, tau, previous, limit, torsion, *out[3:])
+    _reward_kernel(error, error_rate, tau, previous, rewards[0], torsion, *rewards[1:], reward)
     return True
+
+
+@njit(cache=True)
+def _arm_values(k, theta, q, dtheta, dq, ddq, reference, torque, out):
+    """One fresh copy of arm k's info arrays, flat: theta, q, theta', q', q'', the
+    reference's rows (q_d .. q_d^(4)) and tau, n numbers each."""
+    n = q.shape[1]
+    for j in range(n):
+        out[j] = theta[k, j]
+        out[n + j] = q[k, j]
+        out[2 * n + j] = dtheta[k, j]
+        out[3 * n + j] = dq[k, j]
+        out[4 * n + j] = ddq[k, j]
+        for r in range(reference.shape[1]):
+            out[(5 + r) * n + j] = reference[k, r, j]
+        out[(5 + reference.shape[1]) * n + j] = torque[k, j]
 
 
 @njit(cache=True)
@@ -598,20 +635,24 @@ class ArmBatch:
         command = actions if every else np.where(stepping[:, None], actions, 0.0)
         command = self.plant_state.delayed(command)
         external = self.task.external_torque(self._time, sim.q)
-        if external is not None:
-            command = command + (external if every else np.where(stepping[:, None], external, 0.0))
+        if external is not None and not every:
+            external = np.where(stepping[:, None], external, 0.0)
         tau: np.ndarray = np.empty(command.shape)
         self.saturated = np.empty(len(command), dtype=bool)
-        _clip_torque(command, self._minus_limit, self.torque_limit, tau, self.saturated)
+        _clip_torque(command, external, self._minus_limit, self.torque_limit, tau, self.saturated)
         pulse = self.plant_state.before_step(self._time)
         sim.step(tau, self.n_substeps, pulse)
-        self.steps += 1 if every else stepping
-        self._time = self.steps * self.control_dt
+        N, limit = self.n_arms, self.max_steps
+        time = np.empty(N)
+        truncated = self._no_arm if limit is None else np.empty(N, dtype=bool)
+        ended = _advance_clock(
+            self.steps, None if every else stepping, self.control_dt, limit, time, truncated
+        )
+        self._time = time
         self.previous_torque, self.torque = self.torque, tau
         self.reference = self.task.reference(self._time)
         self._slot = (self._slot + 1) % self._sensor_line
         reward, reasons = self._end_of_period(tau, pulse, every, stepping)
-        truncated = self._no_arm if self.max_steps is None else self.steps >= self.max_steps
         if reasons is None:  # the common case: no arm broke its physics
             self.reasons = self._no_reasons
             terminated = self._no_arm
@@ -623,7 +664,7 @@ class ArmBatch:
         if not every:
             reward = np.where(stepping, reward, 0.0)
             truncated = truncated & stepping
-        if reasons is not None or self.max_steps is not None:  # else no episode ended
+        if reasons is not None or ended:  # else no episode ended
             self.running &= ~(terminated | truncated)
         return reward, terminated, truncated
 
@@ -638,26 +679,17 @@ class ArmBatch:
         forces: np.ndarray | None
         reasons: np.ndarray | None
         if isinstance(fusion, tuple):
-            transmission, dynamics, limits, head, tail, reward_constants = fusion
+            packed, ddq, forces = fusion
             reward = np.empty(self.n_arms)
             for noise, std in self._noise_draws:  # the generators' blocks, in sensor order
                 if std > 0.0:
                     noise.refill(self.rngs)
             finished = _post_step_kernel(
-                sim.theta,
-                sim.dtheta,
-                sim.q,
-                sim.dq,
-                (tau, *transmission),
-                dynamics,
-                limits,
-                (*head, self._slot, *tail, self.reference),
-                (tau, self.previous_torque, *reward_constants, reward),
+                tau, self.previous_torque, self.reference, self._slot, reward, packed
             )
-            self.ddq = dynamics[2]
+            self.ddq = ddq
             if finished:
                 return reward, None
-            forces = dynamics[3]
             reasons = REASONS[self._codes]
         else:
             if self.model.n_sensors:  # q'' and the accelerometers' noise-free readings at once
@@ -674,10 +706,11 @@ class ArmBatch:
         return self._reward(), reasons
 
     def _fusion_arguments(self) -> tuple | bool:
-        """The arguments of :func:`_post_step_kernel` that hold for the episode (None in
-        ``self._fusion``: not yet built; rebuilt after every reset), or False when the
-        batch needs the step by step path: model (2), an arm with its own sensor error
-        model, an accelerometer filter."""
+        """(the :class:`~elastic_gym.model.packed.Packed` arguments of
+        :func:`_post_step_kernel` that hold for the episode, its q'' and accelerometer
+        readings arrays) (None in ``self._fusion``: not yet built; rebuilt after every
+        reset), or False when the batch needs the step by step path: model (2), an arm
+        with its own sensor error model, an accelerometer filter."""
         sim, encoder, acc = self.sim, self.encoder, self.accelerometer_array
         plants, n_sensors = sim.plants, self.model.n_sensors
         resolution, noise_std = encoder._shared
@@ -695,7 +728,7 @@ class ArmBatch:
         N, n = self.n_arms, self.n_joints
         shape = (N, n)
         ddq, forces = np.empty(shape), np.empty((N, 3 * n_sensors))
-        transmission = (
+        transmission = (  # the transmission kernel's arguments after tau
             *plants.transmission,
             self.robot.elastic,
             np.empty(shape),
@@ -709,7 +742,7 @@ class ArmBatch:
         no_readings = np.zeros((N, 0))
         obs, lines = self.obs, self._measured
         position = self.position_key
-        head = (
+        sensors = (
             self.robot.elastic,
             noise_std,
             encoder.noise.block,
@@ -726,21 +759,18 @@ class ArmBatch:
             np.empty((N, size)),
             lines[position],
             lines["acceleration"] if n_sensors else no_readings[None],
-        )
-        tail = (
             self.sensor_delay,
             obs[position],
             obs["acceleration"] if n_sensors else no_readings,
             obs["reference"],
         )
-        reward_constants = (
-            self._limit_row,
-            *self.reward_config.kernel_constants(self.control_dt),
-        )
+        rewards = (self._limit_row, *self.reward_config.kernel_constants(self.control_dt))
         self._noise_draws = [(encoder.noise, noise_std)]
         if n_sensors:
             self._noise_draws.append((acc.noise, sample_std))
-        return transmission, dynamics, limits, head, tail, reward_constants
+        state = (sim.theta, sim.dtheta, sim.q, sim.dq)
+        packed = Packed((*state, transmission, dynamics, limits, sensors, rewards))
+        return packed, ddq, forces
 
     def _initial_state_options(self, options: dict | None) -> dict[str, np.ndarray]:
         """The reset ``options`` validated (types and angle magnitudes by their model, the
@@ -907,18 +937,12 @@ class ArmBatch:
         }
 
     def _arm_info(self, k: int) -> dict:
-        """:meth:`info` of the one arm ``k`` (plain values; the same items, one copy of
-        the state and the reference)."""
+        """:meth:`info` of the one arm ``k`` (plain values; the same items, one compiled
+        copy of the state, the reference and the torque)."""
         sim, n = self.sim, self.n_joints
-        x = np.concatenate(
-            (
-                sim.theta[k],
-                sim.q[k],
-                sim.dtheta[k],
-                sim.dq[k],
-                self.ddq[k],
-                self.reference[k].ravel(),
-            )
+        x = np.empty((6 + len(REFERENCE_KEYS)) * n)
+        _arm_values(
+            k, sim.theta, sim.q, sim.dtheta, sim.dq, self.ddq, self.reference, self.torque, x
         )
         return {
             "time": float(self._time[k]),
@@ -930,7 +954,7 @@ class ArmBatch:
                 "ddq": x[4 * n : 5 * n],
                 "x": x[: 4 * n],
             },
-            "torque": self.torque[k].copy(),
+            "torque": x[10 * n :],
             "torque_saturated": bool(self.saturated[k]),
             "acceleration_saturated": self._acceleration_saturated(k, True),
             "reference": {  # REFERENCE_KEYS

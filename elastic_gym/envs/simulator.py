@@ -31,6 +31,7 @@ from numba import njit
 from elastic_gym.envs.plant import PAYLOAD_LINK, PlantArray, last_link, payload_urdf
 from elastic_gym.model import RobotModel, SerialChain
 from elastic_gym.model.chain import _dynamics_and_forces_kernel
+from elastic_gym.model.packed import Packed
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_without_limits
 from elastic_gym.validation import lookup
@@ -107,12 +108,15 @@ def _link_dynamics_kernel(theta, dtheta, q, dq, transmission, link_torque, *dyna
 
 
 @njit(cache=True)
-def _substep_kernel(joint_states, theta, dtheta, q, dq, *transmission):
+def _substep_kernel(joint_states, tau, packed):
     """q and q' of every arm from PyBullet's flat joint states (q, q' per joint, arm by arm;
-    empty: the state is current), in place, then :func:`_transmission_kernel` (its
-    arguments after the state: ``transmission``): one dispatch per substep."""
+    empty: the state is current), in place, then :func:`_transmission_kernel` at the motor
+    torques ``tau``: one dispatch per substep. ``packed``: a
+    :class:`~elastic_gym.model.packed.Packed` of (theta, theta', q, q', the kernel's
+    arguments after tau)."""
+    theta, dtheta, q, dq, transmission = packed.values
     _unpack_joint_states(joint_states, q, dq)
-    _transmission_kernel(theta, dtheta, q, dq, *transmission)
+    _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
 
 
 @njit(cache=True)
@@ -259,6 +263,7 @@ class ArmSimulator:
             (np.zeros(shape), np.zeros(shape)) if self._elastic else (self.q, self.dq)
         )
         self._no_states = np.empty(0)
+        self._packed: tuple | None = None  # see _substep_arguments
         self._count = 2 * n_arms * n  # numbers read from PyBullet per substep
 
     @property
@@ -401,6 +406,17 @@ class ArmSimulator:
         link, tau_j, ddtheta = np.empty(shape), np.empty(shape), np.empty(shape)
         return self._transmission(tau, link_torque, link, tau_j, ddtheta, 0.0)
 
+    def _substep_arguments(self) -> Packed:
+        """:func:`_substep_kernel`'s packed arguments (the state, the plants' transmission
+        constants, the buffers, the physics step), packed again when the plants change."""
+        transmission = self.plants.transmission
+        if self._packed is None or self._packed[0] is not transmission:
+            link, tau_j, ddtheta = self._buffers
+            constants = (*transmission, True, link, tau_j, ddtheta, self.physics_dt)
+            state = (self.theta, self.dtheta, self.q, self.dq)
+            self._packed = (transmission, Packed((*state, constants)))
+        return self._packed[1]
+
     def _transmission_arguments(self, tau, elastic: bool, link, tau_j, ddtheta, dt: float):
         """The arguments of the transmission kernel after the state (q, theta and rates)."""
         return (tau, *self.plants.transmission, elastic, link, tau_j, ddtheta, dt)
@@ -436,14 +452,14 @@ class ArmSimulator:
         # on PyBullet's step); otherwise after PyBullet's step
         plants = self.plants
         fused = self._elastic and not plants.has_coupling
-        link, tau_j, ddtheta_buffer = self._buffers
+        link = self._buffers[0]
         if fused:  # the kernel's arguments after the state, with the motors integrated
-            constants = self._transmission_arguments(tau, True, link, tau_j, ddtheta_buffer, dt)
+            packed = self._substep_arguments()
         states = self._no_states  # PyBullet's joint states not yet in q, q'
         one = bodies[0] if len(bodies) == 1 else None
         for _ in range(n_substeps):
             if fused:  # the last substep's joint states read and the transmission in one call
-                _substep_kernel(states, self.theta, self.dtheta, self.q, self.dq, *constants)
+                _substep_kernel(states, tau, packed)
                 link_tau = link if link_torque is None else link + link_torque
             else:
                 _unpack_joint_states(states, self.q, self.dq)

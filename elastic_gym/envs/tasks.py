@@ -17,10 +17,12 @@ from dataclasses import dataclass, field
 from typing import Annotated, ClassVar
 
 import numpy as np
+from numba import njit
 from pydantic import Field, StrictBool
 
 from elastic_gym.envs.trajectories import RestToRestPath, rest_to_rest
 from elastic_gym.model import RobotModel
+from elastic_gym.model.chain import _gravity_kernel
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.validation import (
     Finite,
@@ -223,6 +225,17 @@ class RegulationTask(Task):
         return self.held(self.targets, arms)
 
 
+@njit(cache=True)
+def _excitation_kernel(cosine, offset, amplitude, q, tau, gravity):
+    """tau = (offset + amplitude cos(...)) + g(q) per arm and joint, in numpy's order of
+    operations (the cosines given: numpy's); ``gravity``: the chain's
+    :meth:`~elastic_gym.model.SerialChain.gravity_arguments`."""
+    _gravity_kernel(q, tau, gravity)
+    for k in range(tau.shape[0]):
+        for j in range(tau.shape[1]):
+            tau[k, j] = (offset[j] + amplitude[j] * cosine[k, j]) + tau[k, j]
+
+
 @dataclass
 class ExcitationTask(Task):
     """Open-loop torque tau_ext(t, q) = [g(q)] + offset + amplitude * cos(frequency t + phase).
@@ -265,9 +278,13 @@ class ExcitationTask(Task):
         return self.held(self.holds, arms)
 
     def external_torque(self, t: np.ndarray, q: np.ndarray) -> np.ndarray:
-        tau = self._offset + self._amplitude * np.cos(self._frequency * t[:, None] + self._phase)
-        if self.gravity_compensation:
-            tau = tau + self.model.chain.gravity(q)
+        cosine = np.cos(self._frequency * t[:, None] + self._phase)
+        if not self.gravity_compensation:
+            return self._offset + self._amplitude * cosine
+        chain = self.model.chain
+        tau = np.empty(cosine.shape)
+        gravity = chain.gravity_arguments()
+        _excitation_kernel(cosine, self._offset, self._amplitude, q, tau, gravity)
         return tau
 
 

@@ -19,6 +19,7 @@ import pinocchio as pin
 from numba import njit
 
 from elastic_gym.model.lapack import svd_workspace, thin_svd
+from elastic_gym.model.packed import Packed
 from elastic_gym.validation import shaped
 
 # ---------------------------------------------------------------------------- kernels
@@ -456,6 +457,15 @@ def _dynamics_kernel(mode, q, dq, ddq, tau, added_inertia, w, M_out, h_out, cons
 
 
 @njit(cache=True)
+def _gravity_kernel(q, h, packed):
+    """g(q) into h: :func:`_dynamics_kernel` in the ``_GRAVITY`` mode, its other arguments
+    in ``packed`` (:meth:`SerialChain.gravity_arguments`)."""
+    unused, w, constants = packed.values
+    gravity = np.int64(_GRAVITY)  # int64 as from Python
+    _dynamics_kernel(gravity, q, q, q, q, unused, w, unused, h, constants)
+
+
+@njit(cache=True)
 def _dynamics_and_forces_kernel(q, dq, tau, added_inertia, w, ddq, forces, constants):
     """Forward dynamics into ``ddq``, then the readings of eq. (9) at that q'' into
     ``forces``: the two :class:`SerialChain` calls in one dispatch from Python."""
@@ -606,9 +616,11 @@ class SerialChain:
         work = _work_size(self.n)
         self._work = np.empty(work)
         self._work_complex = np.empty(work, dtype=np.complex128)  # complex-step tangents
+        self._packed: Packed | None = None  # see gravity_arguments
 
     def __getstate__(self) -> dict:
-        return {k: v for k, v in vars(self).items() if k not in ("_work", "_work_complex")}
+        scratch = ("_work", "_work_complex", "_packed")
+        return {k: v for k, v in vars(self).items() if k not in scratch}
 
     def __setstate__(self, state: dict) -> None:
         vars(self).update(state)
@@ -744,8 +756,15 @@ class SerialChain:
         q = _batch(q, self.n, "q")
         self._rows(q)
         h = np.empty(q.shape)
-        self._dynamics(_GRAVITY, q, q, q, q, self._no_inertia, self._no_inertia, h)
+        _gravity_kernel(q, h, self.gravity_arguments())
         return h
+
+    def gravity_arguments(self) -> Packed:
+        """The arguments of :func:`_gravity_kernel` after q and h (packed once per chain),
+        for compiled callers composing g(q) with their own loops."""
+        if self._packed is None:
+            self._packed = Packed((self._no_inertia, self._work, self._kernel_constants()))
+        return self._packed
 
     def forward_dynamics(
         self,
