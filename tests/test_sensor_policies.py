@@ -66,6 +66,25 @@ def sensor_runs(tmp_path_factory):
     return {key: config.out_dir for key, config in configs.items()}
 
 
+@pytest.fixture(scope="module")
+def memory_runs(sensor_runs, tmp_path_factory):
+    """The raw-sensor runs and a tiny PPO run on the De Luca estimate whose actor sees
+    the last three feature frames (``observation.frames``)."""
+    config = TrainConfig(
+        algo="ppo",
+        state="deluca",
+        total_steps=128,
+        out_dir=str(tmp_path_factory.mktemp("observer-stacked")),
+        observation={"frames": 3},
+        env_kwargs=EPISODE,
+        eval_freq=10**9,
+        eval_episodes=2,
+        hyperparams={"n_envs": 4, **TINY_NETS, "policy_kwargs": {"net_arch": [16]}},
+    )
+    train(config, progress_bar=False)
+    return {**sensor_runs, "observer-stacked": config.out_dir}
+
+
 class _Logged:
     """A per-arm policy actor that records the actions it returns."""
 
@@ -99,12 +118,15 @@ def _own_predictions(run, seed: int, steps: int) -> np.ndarray:
     return np.array(actions)
 
 
-@pytest.mark.parametrize("kind", ["lstm", "stacked"])
-def test_each_arm_gets_the_policys_own_prediction_with_its_memory(sensor_runs, kind):
-    """In one world of three arms on raw sensors, the action of arm i at every policy step
-    is the policy's predict() on the training stack seeded i, with its own LSTM state
-    (or frame stack) carried per arm; an LSTM that forgot its state acts otherwise."""
-    run = load_run(sensor_runs[kind])
+@pytest.mark.parametrize("kind", ["lstm", "stacked", "observer-stacked"])
+def test_each_arm_gets_the_policys_own_prediction_with_its_memory(memory_runs, kind):
+    """In one world of three arms (raw sensors, or the De Luca estimate seen in frames),
+    the action of arm i at every policy step is the policy's predict() on the training
+    stack seeded i, with its own LSTM state (or frame stack) carried per arm; an LSTM that
+    forgot its state acts otherwise."""
+    run = load_run(memory_runs[kind])
+    if kind == "observer-stacked":
+        assert run.stack.frame_stack == 3
     group = evaluation_runs(run, 3, 40)
     world = build_world(group)
     logs: list[list] = [[] for _ in group.runs]

@@ -221,6 +221,32 @@ def test_raw_sensor_policy_env_stacks_frames():
     env.close()
 
 
+def test_a_state_source_is_seen_in_frames_oldest_first_and_raw_sensors_refuse_them():
+    """``observation.frames`` k: the actor sees the last k feature vectors of the
+    memoryless stack, oldest first (the reset frame repeated until k steps were taken);
+    raw sensors are stacked by ``frame_stack`` and refuse ``frames``."""
+    kwargs = {"decimation": 5, "action": {"kind": "motor-offset"}}
+    plain = make_policy_env("elastic_gym/TwoLinkElastic-v0", "deluca", **kwargs)
+    framed = make_policy_env("elastic_gym/TwoLinkElastic-v0", "deluca", frame_stack=3, **kwargs)
+    seen = [plain.reset(seed=3)[0]]
+    stacked = [framed.reset(seed=3)[0]]
+    for k in range(4):
+        action = np.full(2, 0.3 * (-1) ** k, dtype=np.float32)
+        seen.append(plain.step(action)[0])
+        stacked.append(framed.step(action)[0])
+    size = seen[0].size
+    assert stacked[0].shape == (3 * size,)
+    np.testing.assert_array_equal(stacked[0], np.tile(seen[0], 3))
+    for t in range(2, 5):
+        np.testing.assert_array_equal(stacked[t], np.concatenate(seen[t - 2 : t + 1]))
+    plain.close()
+    framed.close()
+    config = TrainConfig(algo="ppo", state="deluca", observation={"frames": 4})
+    assert PolicyStack.of(config, config.settings()[0]).frame_stack == 4
+    with pytest.raises(ValueError, match=r"observation\.frames: applies only when the state"):
+        TrainConfig(algo="ppo", state="sensors", observation={"frames": 4})
+
+
 SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arch": [32, 32]}}
 
 

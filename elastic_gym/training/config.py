@@ -37,7 +37,7 @@ from pydantic import (
 from elastic_gym.envs.config import MakeKwargsMapping
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.observation import ObservationConfig
-from elastic_gym.training.policy_env import check_state_source
+from elastic_gym.training.policy_env import SENSORS, check_state_source
 from elastic_gym.validation import (
     ConfigModel,
     Finite,
@@ -306,8 +306,10 @@ class TrainConfig(ConfigModel):
         """The action and observation configs: the hyper-parameter ``settings``'
         overridden field by field by the run's own."""
         action = {**settings.action, **self.action}
-        observation = {**settings.observation, **self.observation}
-        return ActionConfig.from_config(action), ObservationConfig.from_config(observation)
+        observation = ObservationConfig.from_config({**settings.observation, **self.observation})
+        frames = {"observation.frames": observation.frames > 1}
+        only_when(self.state != SENSORS, frames, "the state is an observer or the truth")
+        return ActionConfig.from_config(action), observation
 
     def training_env_kwargs(self, settings: Settings) -> dict:
         """The env kwargs of the run: the hyper-parameter file's ``env_kwargs`` (in

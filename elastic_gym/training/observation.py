@@ -52,7 +52,9 @@ class ObservationConfig(ConfigModel):
     """Which features the policy sees and their scales (module docstring).
 
     ``features=None`` selects the defaults of :func:`default_features` for the state
-    source and action kind.
+    source and action kind. ``frames`` > 1: the actor sees the last ``frames`` feature
+    vectors of a state source, oldest first (memory without a recurrent policy; raw sensors
+    are stacked by the run's ``frame_stack`` instead).
     """
 
     section = "observation"
@@ -69,6 +71,7 @@ class ObservationConfig(ConfigModel):
     torsion_scale: PositiveFinite = 0.05
     torsion_rate_scale: PositiveFinite = 1.0
     preview_scale: PositiveFinite = 0.1
+    frames: StrictInt = Field(1, ge=1)  # a state source's last feature vectors, oldest first
 
 
 def default_features(

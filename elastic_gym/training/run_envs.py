@@ -34,7 +34,8 @@ class PolicyStack:
         state, observer_options: the state source the policy sees.
         action, observation: the policy's action and observation configs.
         decimation: env steps per policy step.
-        frame_stack: frames of raw sensors the policy sees (1 on a state source).
+        frame_stack: frames the policy sees: the run's ``frame_stack`` of raw sensors, the
+            observation's ``frames`` of a state source.
     """
 
     env_id: str
@@ -57,7 +58,7 @@ class PolicyStack:
             action=action,
             observation=observation,
             decimation=settings.decimation,
-            frame_stack=config.frame_stack if config.state == SENSORS else 1,
+            frame_stack=config.frame_stack if config.state == SENSORS else observation.frames,
             env_kwargs=config.training_env_kwargs(settings),
             observer_options=dict(config.observer_options),
         )
