@@ -411,15 +411,15 @@ class ArmSimulator:
         constants, the buffers, the physics step), packed again when the plants change."""
         transmission = self.plants.transmission
         if self._packed is None or self._packed[0] is not transmission:
-            link, tau_j, ddtheta = self._buffers
-            constants = (*transmission, True, link, tau_j, ddtheta, self.physics_dt)
+            constants = self._transmission_arguments(True, *self._buffers, self.physics_dt)
             state = (self.theta, self.dtheta, self.q, self.dq)
             self._packed = (transmission, Packed((*state, constants)))
         return self._packed[1]
 
-    def _transmission_arguments(self, tau, elastic: bool, link, tau_j, ddtheta, dt: float):
-        """The arguments of the transmission kernel after the state (q, theta and rates)."""
-        return (tau, *self.plants.transmission, elastic, link, tau_j, ddtheta, dt)
+    def _transmission_arguments(self, elastic: bool, link, tau_j, ddtheta, dt: float):
+        """The arguments of the transmission kernel after the state (q, theta and rates)
+        and the motor torques."""
+        return (*self.plants.transmission, elastic, link, tau_j, ddtheta, dt)
 
     def _transmission(self, tau, link_torque, link, tau_j, ddtheta, dt: float):
         """:meth:`accelerations` into the given arrays (``dt``: see the kernel)."""
@@ -429,7 +429,8 @@ class ArmSimulator:
             self.dtheta,
             self.q,
             self.dq,
-            *self._transmission_arguments(tau, self._elastic, link, tau_j, ddtheta, dt),
+            tau,
+            *self._transmission_arguments(self._elastic, link, tau_j, ddtheta, dt),
         )
         if link_torque is not None:
             link += link_torque
@@ -499,13 +500,11 @@ class ArmSimulator:
             return plants.chain.forward_dynamics_and_forces(self.q, self.dq, link_tau)
         shape = self.q.shape  # model (1) or friction: the transmission kernel, as above
         ddq, forces = np.empty(shape), np.empty((shape[0], 3 * plants.chain.n_sensors))
-        transmission = self._transmission_arguments(
+        transmission = (
             np.ascontiguousarray(tau, dtype=np.float64),
-            self._elastic,
-            np.empty(shape),
-            np.empty(shape),
-            np.empty(shape),
-            0.0,
+            *self._transmission_arguments(
+                self._elastic, np.empty(shape), np.empty(shape), np.empty(shape), 0.0
+            ),
         )
         _link_dynamics_kernel(
             self.theta,
