@@ -90,11 +90,12 @@ def test_metrics_over_arms_equal_each_arms_own(elastic, tracking):
 
 # ------------------------------------------------------------------ a grid both ways
 def small_policy(obs: dict) -> np.ndarray:
-    """A deterministic 'policy' (obs -> action in [-1, 1]) for the residual controller."""
-    state = np.asarray(obs["state"])
-    return np.tanh(
-        state[..., : state.shape[-1] // 2] - obs["reference"][..., : state.shape[-1] // 2]
-    )
+    """A deterministic 'policy' (obs -> one action in [-1, 1] per joint) for the residual
+    controller: the link position error (the reference is [q_d, dq_d], the state starts
+    with q on either arm)."""
+    reference = np.asarray(obs["reference"])
+    n = reference.shape[-1] // 2
+    return np.tanh(np.asarray(obs["state"])[..., :n] - reference[..., :n])
 
 
 class FullTorque(Controller):
@@ -203,6 +204,9 @@ def test_rows_of_a_grid_batched_equal_one_arm_per_world(tmp_path, arm):
     assert statuses["full-torque", 0].startswith("terminated: velocity limit")
     assert statuses["picky", 0] == "ok"
     assert statuses["picky", 1] == "failed: RuntimeError: refused"
+    others = {(row["controller"], row["status"]) for row in alone}
+    assert {status for name, status in others if name not in ("full-torque", "picky")} == {"ok"}
+    assert any(name in ("residual", "policy") for name, _ in others)
     for a, b in zip(alone, batched, strict=True):
         assert a.keys() == b.keys()
         differ = {k: (a[k], b[k]) for k in a if k != "sim_wall_ratio" and not _same(a[k], b[k])}
