@@ -461,17 +461,23 @@ runpy.run_module("elastic_gym.cli", run_name="__main__")
 """
 
 
-def compare_with_file_size_limit(tmp_path: Path, limit: int, out: Path, runs: int):
+def fine_compare_args(tmp_path: Path, out: Path, runs: int) -> list[str]:
+    """``elastic-gym compare`` arguments of ``runs`` seeds of a fine controller into ``out``
+    (its config and ``faulty.py`` written in ``tmp_path``)."""
     import yaml
 
     (tmp_path / "faulty.py").write_text(USER_CODE)
     config = tmp_path / "grid.yaml"
     data = faulty_scenario({"fine": {}}, seeds=range(runs), duration=0.02).to_dict()
     config.write_text(yaml.safe_dump(data))
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
     args = ["compare", "--config", str(config), "--output", str(out), "--workers", "1"]
+    return [*args, "--no-progress", "--no-plots"]
+
+
+def compare_with_file_size_limit(tmp_path: Path, limit: int, out: Path, runs: int):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
     return subprocess.run(
-        [sys.executable, "-c", FSIZE_LIMIT, str(limit), *args, "--no-progress", "--no-plots"],
+        [sys.executable, "-c", FSIZE_LIMIT, str(limit), *fine_compare_args(tmp_path, out, runs)],
         env=env,
         capture_output=True,
         text=True,
@@ -492,14 +498,15 @@ def test_compare_on_a_filling_disk_keeps_its_rows_and_says_so(tmp_path):
     assert "Traceback" not in done.stderr
 
 
-def test_a_disk_full_before_the_run_leaves_nothing_that_blocks_a_rerun(tmp_path):
+def test_a_disk_full_before_the_run_leaves_nothing_that_blocks_a_rerun(tmp_path, user_module):
+    from elastic_gym.cli import main
+
     out = tmp_path / "out"
     done = compare_with_file_size_limit(tmp_path, 50, out, runs=1)
     assert done.returncode == 1, done.stderr
     assert f"disk full: nothing written in {out}/" in done.stderr
     assert not out.exists()
-    rerun = compare_with_file_size_limit(tmp_path, 10**7, out, runs=1)
-    assert rerun.returncode == 0, rerun.stderr
+    assert main(fine_compare_args(tmp_path, out, runs=1)) == 0  # the rerun, in this process
     assert rows_of(out / "runs.csv")[0]["status"] == "ok"
 
 
@@ -571,19 +578,34 @@ def test_train_on_a_read_only_folder_is_refused_before_building_anything(tmp_pat
 
 
 # ------------------------------------------------------------ unbounded episodes, big batches
-def test_training_with_episodes_that_never_end_is_refused_not_hung(tmp_path):
+@contextlib.contextmanager
+def failing_after(seconds: float):
+    """Fail the test (not hang it) if the block runs longer than ``seconds`` (SIGALRM)."""
+
+    def expired(signum, frame):
+        pytest.fail(f"still running after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def test_training_with_episodes_that_never_end_is_refused_not_hung(tmp_path, capsys):
+    """In this process (the exit codes of a real ``elastic-gym`` process are those of
+    ``main``: the compare tests above run it as one)."""
     pytest.importorskip("stable_baselines3")
+    from elastic_gym.cli import main
+
     out = tmp_path / "run"
     args = ["train", "--state", "true", "--steps", "64", "--out", str(out), "--no-progress"]
-    done = subprocess.run(
-        [sys.executable, "-m", "elastic_gym.cli", *args, "--env-kwargs", "{episode_time: null}"],
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
-    assert done.returncode == 2, done.stderr
-    assert "env_kwargs.episode_time: None (episodes that never end)" in done.stderr
+    with failing_after(240.0), pytest.raises(SystemExit) as stopped:
+        main([*args, "--env-kwargs", "{episode_time: null}"])
+    assert stopped.value.code == 2
+    assert "env_kwargs.episode_time: None (episodes that never end)" in capsys.readouterr().err
     assert not out.exists()
 
 

@@ -25,7 +25,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from elastic_gym.training.config import Settings, TrainConfig
 from elastic_gym.training.rollouts import Evaluation
 from elastic_gym.training.run_folder import CURVE_FILE
-from elastic_gym.training.trained import TrainedRun, episode_duration, evaluate_run
+from elastic_gym.training.trained import TrainedRun, evaluate_run
 
 COLUMNS = (
     "policy_steps",
@@ -42,8 +42,8 @@ COLUMNS = (
 
 class LearningCurve(BaseCallback):
     """Evaluations during training -> ``learning_curve.csv``, ``evaluations.npz`` and
-    ``best_model.zip`` in ``out_dir`` (module docstring). Refuses (``ValueError``) a run
-    whose evaluation episodes never end (``episode_time=None``).
+    ``best_model.zip`` in ``out_dir`` (module docstring); :func:`~elastic_gym.training.train.train`
+    refuses a run whose evaluation episodes never end (``episode_time=None``) before it.
 
     Args:
         config, settings: the run's config and resolved hyper-parameters.
@@ -65,7 +65,6 @@ class LearningCurve(BaseCallback):
     ) -> None:
         super().__init__()
         self.config, self.settings, self.normalizer = config, settings, normalizer
-        episode_duration(config.env_id, config.training_env_kwargs(settings))
         self.episodes = config.eval_episodes
         self.out = Path(out_dir)
         self.every, self.seed, self.decimation = every, seed, settings.decimation

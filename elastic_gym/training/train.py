@@ -36,6 +36,7 @@ from elastic_gym.training.config import (
 )
 from elastic_gym.training.run_envs import PolicyStack, training_vec_env
 from elastic_gym.training.run_folder import RunFolder, missing_folders, remove_empty
+from elastic_gym.training.trained import episode_duration
 
 
 @dataclass(frozen=True)
@@ -91,6 +92,7 @@ def train(
     from elastic_gym.parallel import single_threaded
 
     settings, algo_kwargs = config.settings()  # a bad config changes nothing
+    episode_duration(config.env_id, config.training_env_kwargs(settings))  # bounded evaluations
     folder = RunFolder(config.out_dir)
     with folder.create(overwrite, lock), single_threaded():
         return _train(config, settings, algo_kwargs, folder, progress_bar, verbose)
