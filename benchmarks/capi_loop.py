@@ -105,55 +105,101 @@ _maximum_force = _declare("b3JointControlSetMaximumForce", _I, _V, _I, _D)
 
 
 class World:
-    """N arms of a robot, fixed bases on a grid, default motors off, made through the
-    Python API (``python=True``) or the C API."""
+    """N arms of a robot, fixed bases 2 m apart, inertias from the URDF, default motors
+    off: the joints (PyBullet indices and velocity dofs, from a Python client of their
+    own) and the set-up shared by both APIs."""
 
-    def __init__(self, robot: str, n_arms: int, physics_dt: float, python: bool) -> None:
+    def __init__(self, robot: str, n_arms: int) -> None:
         spec = get_robot(robot)
-        urdf = urdf_without_limits(spec.urdf)
-        bases = [(2.0 * k, 0.0, 0.0) for k in range(n_arms)]
-        self.python = python
-        self.shadow = p.connect(p.DIRECT)  # joint indices and dofs by name
-        shadow_body = p.loadURDF(urdf, useFixedBase=True, physicsClientId=self.shadow)
-        infos = [
-            p.getJointInfo(shadow_body, j, physicsClientId=self.shadow)
-            for j in range(p.getNumJoints(shadow_body, physicsClientId=self.shadow))
-        ]
-        by_name = {info[1].decode(): info for info in infos}
-        self.joints = [by_name[name][0] for name in spec.joint_names]
-        self.dofs = np.array([by_name[name][4] for name in spec.joint_names], dtype=np.intc)
+        self.gravity, self.urdf = spec.gravity, urdf_without_limits(spec.urdf)
+        self.bases = [(2.0 * k, 0.0, 0.0) for k in range(n_arms)]
+        lookup = p.connect(p.DIRECT)
+        body = p.loadURDF(self.urdf, useFixedBase=True, physicsClientId=lookup)
+        infos = {
+            info[1].decode(): info
+            for info in (
+                p.getJointInfo(body, j, physicsClientId=lookup)
+                for j in range(p.getNumJoints(body, physicsClientId=lookup))
+            )
+        }
+        p.disconnect(lookup)
+        self.joints = [infos[name][0] for name in spec.joint_names]
+        self.dofs = np.array([infos[name][4] for name in spec.joint_names], dtype=np.intc)
         self.n_joints = len(self.joints)
-        if python:
-            c = self.client = p.connect(p.DIRECT)
-            p.setGravity(*spec.gravity, physicsClientId=c)
-            p.setTimeStep(physics_dt, physicsClientId=c)
-            self.bodies = [
-                p.loadURDF(
-                    urdf,
-                    basePosition=base,
-                    useFixedBase=True,
-                    flags=p.URDF_USE_INERTIA_FROM_FILE,
-                    physicsClientId=c,
-                )
-                for base in bases
-            ]
-            for body in self.bodies:
+
+
+class PythonWorld(World):
+    """The world made and stepped through PyBullet's Python functions: the bare loop of
+    ``bench.BarePyBullet`` / ``batched.BareBatch``."""
+
+    def __init__(self, robot: str, n_arms: int, physics_dt: float) -> None:
+        super().__init__(robot, n_arms)
+        c = self.client = p.connect(p.DIRECT)
+        p.setGravity(*self.gravity, physicsClientId=c)
+        p.setTimeStep(physics_dt, physicsClientId=c)
+        self.bodies = [
+            p.loadURDF(
+                self.urdf,
+                basePosition=base,
+                useFixedBase=True,
+                flags=p.URDF_USE_INERTIA_FROM_FILE,
+                physicsClientId=c,
+            )
+            for base in self.bases
+        ]
+        for body in self.bodies:
+            p.setJointMotorControlArray(
+                body,
+                self.joints,
+                p.VELOCITY_CONTROL,
+                forces=[0.0] * self.n_joints,
+                physicsClientId=c,
+            )
+
+    def step(self, torques: np.ndarray, n_substeps: int) -> None:
+        """``n_substeps`` physics steps under ``torques`` (N, n)."""
+        c, joints, forces = self.client, self.joints, torques.tolist()
+        for _ in range(n_substeps):
+            for body, arm_forces in zip(self.bodies, forces, strict=True):
                 p.setJointMotorControlArray(
-                    body,
-                    self.joints,
-                    p.VELOCITY_CONTROL,
-                    forces=[0.0] * self.n_joints,
-                    physicsClientId=c,
+                    body, joints, p.TORQUE_CONTROL, forces=arm_forces, physicsClientId=c
                 )
-            return
+            p.stepSimulation(physicsClientId=c)
+            for body in self.bodies:
+                p.getJointStates(body, joints, physicsClientId=c)
+
+    def joint_states(self) -> np.ndarray:
+        """q, q' of every joint, (N, 2 n)."""
+        c = self.client
+        return np.array(
+            [
+                [
+                    x
+                    for state in p.getJointStates(body, self.joints, physicsClientId=c)
+                    for x in state[:2]
+                ]
+                for body in self.bodies
+            ]
+        )
+
+    def close(self) -> None:
+        p.disconnect(self.client)
+
+
+class CompiledWorld(World):
+    """The same world made through the C API (ctypes) and stepped by
+    :func:`compiled_substeps`."""
+
+    def __init__(self, robot: str, n_arms: int, physics_dt: float) -> None:
+        super().__init__(robot, n_arms)
         self.handle = _connect()
         command = _physics_parameters(self.handle)
-        _set_gravity(command, *spec.gravity)
+        _set_gravity(command, *self.gravity)
         _set_time_step(command, physics_dt)
         _submit_c(self.handle, command)
         bodies = []
-        for base in bases:
-            command = _load_urdf(self.handle, urdf.encode())
+        for base in self.bases:
+            command = _load_urdf(self.handle, self.urdf.encode())
             _fixed_base(command, 1)
             _urdf_flags(command, p.URDF_USE_INERTIA_FROM_FILE)
             _start_position(command, *base)
@@ -169,18 +215,7 @@ class World:
         self._sensor = np.empty(9)
 
     def step(self, torques: np.ndarray, n_substeps: int) -> None:
-        """``n_substeps`` physics steps under ``torques`` (N, n)."""
-        if self.python:  # bench.BarePyBullet / batched.BareBatch
-            c, joints, forces = self.client, self.joints, torques.tolist()
-            for _ in range(n_substeps):
-                for body, arm_forces in zip(self.bodies, forces, strict=True):
-                    p.setJointMotorControlArray(
-                        body, joints, p.TORQUE_CONTROL, forces=arm_forces, physicsClientId=c
-                    )
-                p.stepSimulation(physicsClientId=c)
-                for body in self.bodies:
-                    p.getJointStates(body, joints, physicsClientId=c)
-            return
+        """``n_substeps`` physics steps under ``torques`` (N, n), in one compiled call."""
         compiled_substeps(
             self.handle,
             self.bodies,
@@ -193,25 +228,10 @@ class World:
         )
 
     def joint_states(self) -> np.ndarray:
-        """q, q' of every joint, (N, 2 n)."""
-        if not self.python:
-            return self.states.copy()
-        rows = [
-            [
-                x
-                for state in p.getJointStates(body, self.joints, physicsClientId=self.client)
-                for x in state[:2]
-            ]
-            for body in self.bodies
-        ]
-        return np.array(rows)
+        return self.states.copy()
 
     def close(self) -> None:
-        p.disconnect(self.shadow)
-        if self.python:
-            p.disconnect(self.client)
-        else:
-            _disconnect(self.handle)
+        _disconnect(self.handle)
 
 
 def compare(robot: str, n_arms: int, physics_dt: float, block: int, repeats: int) -> dict:
@@ -219,8 +239,8 @@ def compare(robot: str, n_arms: int, physics_dt: float, block: int, repeats: int
     loop per arm and 1 ms control period."""
     n_substeps = round(1e-3 / physics_dt)
     worlds = {
-        name: World(robot, n_arms, physics_dt, python)
-        for name, python in (("python", True), ("compiled", False))
+        "python": PythonWorld(robot, n_arms, physics_dt),
+        "compiled": CompiledWorld(robot, n_arms, physics_dt),
     }
     rng = np.random.default_rng(0)
     torques = 0.05 * rng.standard_normal((block, n_arms, worlds["python"].n_joints))
