@@ -62,7 +62,7 @@ _state_command = _external("b3RequestActualStateCommandInit", _POINTER(_POINTER,
 _joint_state = _external("b3GetJointState", types.intc(_POINTER, _POINTER, types.intc, _POINTER))
 
 
-@njit(cache=False)
+@njit
 def compiled_substeps(client, bodies, dofs, joints, torques, n_substeps, states, sensor):
     """``n_substeps`` physics steps of every arm under its motor torques (N, n); q, q' of
     the last one into ``states`` (N, 2 n). ``sensor``: 9 doubles (``b3JointSensorState``)."""
