@@ -49,7 +49,13 @@ import batched_compare
 import gymnasium as gym
 import numpy as np
 import pybullet as p
-from timing import ensure_single_thread_blas, interleaved_best, print_table, seconds_per_call
+from timing import (
+    ensure_single_thread_blas,
+    interleaved_best,
+    machine_line,
+    print_table,
+    seconds_per_call,
+)
 
 import elastic_gym
 from elastic_gym.controllers.base import public_info
@@ -578,9 +584,8 @@ def table_compare(scale: Scale) -> None:
 
 
 def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool, tables: set[int]) -> None:
-    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     print(
-        f"{os.cpu_count()} CPUs, load average {load} (other processes slow the timings; "
+        f"{machine_line()} (other processes slow the timings; "
         "each value is the best of interleaved blocks)\n"
     )
     env_costs = table_env(env_ids, scale) if tables & {1, 2, 3} else {}

@@ -27,13 +27,18 @@ from __future__ import annotations
 
 import argparse
 import ctypes
-import os
 
 import llvmlite.binding as llvm
 import numpy as np
 import pybullet as p
 from numba import njit, types
-from timing import ensure_single_thread_blas, interleaved_best, print_table, seconds_per_call
+from timing import (
+    ensure_single_thread_blas,
+    interleaved_best,
+    machine_line,
+    print_table,
+    seconds_per_call,
+)
 
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.urdf_tools import urdf_without_limits
@@ -271,8 +276,7 @@ def main() -> None:
     args = parser.parse_args()
     ensure_single_thread_blas()
     block, repeats = (100, 3) if args.quick else (400, 7)
-    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-    print(f"{os.cpu_count()} CPUs, load average {load}")
+    print(machine_line())
     rows = []
     for n_arms in (1, 64):
         for physics_dt in (0.5e-3, 1e-3 / 16):

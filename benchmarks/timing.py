@@ -37,6 +37,13 @@ def ensure_single_thread_blas() -> None:
     os.execve(sys.executable, [sys.executable, *sys.argv], {**os.environ, **SINGLE_THREAD_ENV})
 
 
+def machine_line() -> str:
+    """The header of a benchmark's output: the CPUs and the load average while it runs
+    (other processes slow the timings)."""
+    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    return f"{os.cpu_count()} CPUs, load average {load}"
+
+
 def seconds_per_call(
     function: Callable[..., object],
     arguments: Sequence[tuple],
