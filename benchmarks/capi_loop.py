@@ -5,33 +5,23 @@
 
 The floor of every ratio in ``bench.py`` is the bare Python loop over PyBullet's Python
 functions (per substep: ``setJointMotorControlArray(TORQUE)`` + ``stepSimulation`` +
-``getJointStates`` per arm). PyBullet's extension module also exports its C client API
-(``b3JointControlCommandInit2``, ``b3InitStepSimulationCommand``,
-``b3SubmitClientCommandAndWaitStatus``, ``b3RequestActualStateCommandInit``,
-``b3GetJointState``, ...): the same commands the Python functions build. A numba kernel
-can call them directly, so a whole control period's substeps (and the transmission
-kernel between them) could run without returning to Python.
+``getJointStates`` per arm). The simulator steps its world through PyBullet's C API from
+compiled code instead (:mod:`elastic_gym.envs.bullet_capi`), with the same commands.
 
-This script measures what that is worth before the simulator is built on it: two worlds
-made the same way, one through the Python API, one through the C API (set up with
-ctypes, stepped by a compiled kernel), are stepped with the same torques; it checks that
-their joint states stay equal bit for bit and prints the cost per arm and control period
-of each loop (CPU time, best of interleaved blocks, as ``bench.py``).
-
-What the Python API's world handle is cannot be read (PyBullet keeps its clients in a
-static table), so a simulator using the compiled loop must create and set up its world
-through the C API itself.
+This script measures that floor: two worlds made the same way are stepped with the same
+torques, one through the Python functions, one by
+:func:`~elastic_gym.envs.bullet_capi.substep` in a compiled loop; it checks that their
+joint states stay equal bit for bit and prints the cost per arm and control period of
+each loop (CPU time, best of interleaved blocks, as ``bench.py``).
 """
 
 from __future__ import annotations
 
 import argparse
-import ctypes
 
-import llvmlite.binding as llvm
 import numpy as np
 import pybullet as p
-from numba import njit, types
+from numba import njit
 from timing import (
     ensure_single_thread_blas,
     interleaved_best,
@@ -40,138 +30,61 @@ from timing import (
     seconds_per_call,
 )
 
+from elastic_gym.envs import bullet_capi
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.urdf_tools import urdf_without_limits
 
-_LIB = ctypes.CDLL(p.__file__)  # the loaded extension module: the same symbols
-_POINTER = types.intp  # handles passed as integers (same registers on x86-64 and arm64)
-_TORQUE_CONTROL, _VELOCITY_CONTROL = 1, 0  # CONTROL_MODE_* of PyBullet's C API
 
-
-def _external(name: str, signature):
-    """A C API function numba calls by name (the address bound to a symbol of its own)."""
-    symbol = f"elastic_gym_bench_{name}"
-    llvm.add_symbol(symbol, ctypes.cast(getattr(_LIB, name), ctypes.c_void_p).value)
-    return types.ExternalFunction(symbol, signature)
-
-
-_submit = _external("b3SubmitClientCommandAndWaitStatus", _POINTER(_POINTER, _POINTER))
-_step_command = _external("b3InitStepSimulationCommand", _POINTER(_POINTER))
-_control_command = _external(
-    "b3JointControlCommandInit2", _POINTER(_POINTER, types.intc, types.intc)
-)
-_set_torque = _external(
-    "b3JointControlSetDesiredForceTorque", types.intc(_POINTER, types.intc, types.double)
-)
-_state_command = _external("b3RequestActualStateCommandInit", _POINTER(_POINTER, types.intc))
-_joint_state = _external("b3GetJointState", types.intc(_POINTER, _POINTER, types.intc, _POINTER))
-
-
-@njit
-def compiled_substeps(client, bodies, dofs, joints, torques, n_substeps, states, sensor):
-    """``n_substeps`` physics steps of every arm under its motor torques (N, n); q, q' of
-    the last one into ``states`` (N, 2 n). ``sensor``: 9 doubles (``b3JointSensorState``)."""
+@njit(cache=True)
+def compiled_substeps(slot, world, torques, n_substeps, states):
+    """``n_substeps`` physics steps of every arm under its torques (N, n); q, q' of the
+    last one into ``states`` (flat)."""
     for _ in range(n_substeps):
-        for k in range(bodies.shape[0]):
-            command = _control_command(client, bodies[k], _TORQUE_CONTROL)
-            for j in range(dofs.shape[0]):
-                _set_torque(command, dofs[j], torques[k, j])
-            _submit(client, command)
-        _submit(client, _step_command(client))
-        for k in range(bodies.shape[0]):
-            status = _submit(client, _state_command(client, bodies[k]))
-            for j in range(joints.shape[0]):
-                _joint_state(client, status, joints[j], sensor.ctypes.data)
-                states[k, 2 * j] = sensor[0]
-                states[k, 2 * j + 1] = sensor[1]
-
-
-def _declare(name: str, restype, *argtypes):
-    function = getattr(_LIB, name)
-    function.restype, function.argtypes = restype, list(argtypes)
-    return function
-
-
-_V, _I, _D = ctypes.c_void_p, ctypes.c_int, ctypes.c_double
-_connect = _declare("b3ConnectPhysicsDirect", _V)
-_disconnect = _declare("b3DisconnectSharedMemory", None, _V)
-_submit_c = _declare("b3SubmitClientCommandAndWaitStatus", _V, _V, _V)
-_physics_parameters = _declare("b3InitPhysicsParamCommand", _V, _V)
-_set_gravity = _declare("b3PhysicsParamSetGravity", _I, _V, _D, _D, _D)
-_set_time_step = _declare("b3PhysicsParamSetTimeStep", _I, _V, _D)
-_load_urdf = _declare("b3LoadUrdfCommandInit", _V, _V, ctypes.c_char_p)
-_fixed_base = _declare("b3LoadUrdfCommandSetUseFixedBase", _I, _V, _I)
-_urdf_flags = _declare("b3LoadUrdfCommandSetFlags", _I, _V, _I)
-_start_position = _declare("b3LoadUrdfCommandSetStartPosition", _I, _V, _D, _D, _D)
-_body_index = _declare("b3GetStatusBodyIndex", _I, _V)
-_control_c = _declare("b3JointControlCommandInit2", _V, _V, _I, _I)
-_desired_velocity = _declare("b3JointControlSetDesiredVelocity", _I, _V, _I, _D)
-_maximum_force = _declare("b3JointControlSetMaximumForce", _I, _V, _I, _D)
+        bullet_capi.substep(slot[0], world, torques, None, states)
 
 
 class World:
-    """N arms of a robot, fixed bases 2 m apart, inertias from the URDF, default motors
-    off: the joints (PyBullet indices and velocity dofs, from a Python client of their
-    own) and the set-up shared by both APIs."""
-
-    def __init__(self, robot: str, n_arms: int) -> None:
-        spec = get_robot(robot)
-        self.gravity, self.urdf = spec.gravity, urdf_without_limits(spec.urdf)
-        self.bases = [(2.0 * k, 0.0, 0.0) for k in range(n_arms)]
-        lookup = p.connect(p.DIRECT)
-        body = p.loadURDF(self.urdf, useFixedBase=True, physicsClientId=lookup)
-        infos = {
-            info[1].decode(): info
-            for info in (
-                p.getJointInfo(body, j, physicsClientId=lookup)
-                for j in range(p.getNumJoints(body, physicsClientId=lookup))
-            )
-        }
-        p.disconnect(lookup)
-        self.joints = [infos[name][0] for name in spec.joint_names]
-        self.dofs = np.array([infos[name][4] for name in spec.joint_names], dtype=np.intc)
-        self.n_joints = len(self.joints)
-
-
-class PythonWorld(World):
-    """The world made and stepped through PyBullet's Python functions: the bare loop of
-    ``bench.BarePyBullet`` / ``batched.BareBatch``."""
+    """N arms of a robot in a world of the Python API: fixed bases 2 m apart, inertias
+    from the URDF, default motors off."""
 
     def __init__(self, robot: str, n_arms: int, physics_dt: float) -> None:
-        super().__init__(robot, n_arms)
+        spec = get_robot(robot)
+        urdf = urdf_without_limits(spec.urdf)
         c = self.client = p.connect(p.DIRECT)
-        p.setGravity(*self.gravity, physicsClientId=c)
+        p.setGravity(*spec.gravity, physicsClientId=c)
         p.setTimeStep(physics_dt, physicsClientId=c)
         self.bodies = [
             p.loadURDF(
-                self.urdf,
-                basePosition=base,
+                urdf,
+                basePosition=(2.0 * k, 0.0, 0.0),
                 useFixedBase=True,
                 flags=p.URDF_USE_INERTIA_FROM_FILE,
                 physicsClientId=c,
             )
-            for base in self.bases
+            for k in range(n_arms)
         ]
+        infos = {
+            info[1].decode(): info
+            for info in (
+                p.getJointInfo(self.bodies[0], j, physicsClientId=c)
+                for j in range(p.getNumJoints(self.bodies[0], physicsClientId=c))
+            )
+        }
+        self.joints = [infos[name][0] for name in spec.joint_names]
+        self.n_joints = len(self.joints)
         for body in self.bodies:
             p.setJointMotorControlArray(
-                body,
-                self.joints,
-                p.VELOCITY_CONTROL,
-                forces=[0.0] * self.n_joints,
+                body, self.joints, p.VELOCITY_CONTROL, forces=[0.0] * self.n_joints,
                 physicsClientId=c,
-            )
-
-    def step(self, torques: np.ndarray, n_substeps: int) -> None:
-        """``n_substeps`` physics steps under ``torques`` (N, n)."""
-        c, joints, forces = self.client, self.joints, torques.tolist()
-        for _ in range(n_substeps):
-            for body, arm_forces in zip(self.bodies, forces, strict=True):
-                p.setJointMotorControlArray(
-                    body, joints, p.TORQUE_CONTROL, forces=arm_forces, physicsClientId=c
-                )
-            p.stepSimulation(physicsClientId=c)
-            for body in self.bodies:
-                p.getJointStates(body, joints, physicsClientId=c)
+            )  # fmt: skip
+        dofs = [infos[name][4] for name in spec.joint_names]
+        self.world = (
+            np.array(self.bodies, dtype=np.intc),
+            np.array([dofs] * n_arms, dtype=np.intc),
+            np.array(self.joints, dtype=np.intc),
+            np.empty(bullet_capi.SENSOR_STATE_DOUBLES),
+        )
+        self.states = np.empty(2 * n_arms * self.n_joints)
 
     def joint_states(self) -> np.ndarray:
         """q, q' of every joint, (N, 2 n)."""
@@ -191,52 +104,36 @@ class PythonWorld(World):
         p.disconnect(self.client)
 
 
+class PythonWorld(World):
+    """Stepped through PyBullet's Python functions: the bare loop of
+    ``bench.BarePyBullet`` / ``batched.BareBatch``."""
+
+    def step(self, torques: np.ndarray, n_substeps: int) -> None:
+        """``n_substeps`` physics steps under ``torques`` (N, n)."""
+        c, joints, forces = self.client, self.joints, torques.tolist()
+        for _ in range(n_substeps):
+            for body, arm_forces in zip(self.bodies, forces, strict=True):
+                p.setJointMotorControlArray(
+                    body, joints, p.TORQUE_CONTROL, forces=arm_forces, physicsClientId=c
+                )
+            p.stepSimulation(physicsClientId=c)
+            for body in self.bodies:
+                p.getJointStates(body, joints, physicsClientId=c)
+
+
 class CompiledWorld(World):
-    """The same world made through the C API (ctypes) and stepped by
-    :func:`compiled_substeps`."""
+    """Stepped through PyBullet's C API by :func:`compiled_substeps`."""
 
     def __init__(self, robot: str, n_arms: int, physics_dt: float) -> None:
-        super().__init__(robot, n_arms)
-        self.handle = _connect()
-        command = _physics_parameters(self.handle)
-        _set_gravity(command, *self.gravity)
-        _set_time_step(command, physics_dt)
-        _submit_c(self.handle, command)
-        bodies = []
-        for base in self.bases:
-            command = _load_urdf(self.handle, self.urdf.encode())
-            _fixed_base(command, 1)
-            _urdf_flags(command, p.URDF_USE_INERTIA_FROM_FILE)
-            _start_position(command, *base)
-            bodies.append(_body_index(_submit_c(self.handle, command)))
-            command = _control_c(self.handle, bodies[-1], _VELOCITY_CONTROL)
-            for dof in self.dofs:
-                _desired_velocity(command, int(dof), 0.0)
-                _maximum_force(command, int(dof), 0.0)
-            _submit_c(self.handle, command)
-        self.bodies = np.array(bodies, dtype=np.intc)
-        self.joint_array = np.array(self.joints, dtype=np.intc)
-        self.states = np.empty((n_arms, 2 * self.n_joints))
-        self._sensor = np.empty(9)
+        super().__init__(robot, n_arms, physics_dt)
+        slot = bullet_capi.client_slot(self.client)
+        if slot is None:
+            raise SystemExit("PyBullet's C handles cannot be read here (see bullet_capi)")
+        self.slot = slot
 
     def step(self, torques: np.ndarray, n_substeps: int) -> None:
         """``n_substeps`` physics steps under ``torques`` (N, n), in one compiled call."""
-        compiled_substeps(
-            self.handle,
-            self.bodies,
-            self.dofs,
-            self.joint_array,
-            torques,
-            n_substeps,
-            self.states,
-            self._sensor,
-        )
-
-    def joint_states(self) -> np.ndarray:
-        return self.states.copy()
-
-    def close(self) -> None:
-        _disconnect(self.handle)
+        compiled_substeps(self.slot, self.world, torques, n_substeps, self.states)
 
 
 def compare(robot: str, n_arms: int, physics_dt: float, block: int, repeats: int) -> dict:

@@ -72,7 +72,7 @@ def _steps(env_id: str, **kwargs) -> None:
 
 def rigid() -> None:
     """A rigid arm (q'' and the readings from Python), which compiles the env's kernels
-    but the elastic transmission's."""
+    and the control period's (the transmission's too: a rigid arm's link friction)."""
     _steps("elastic_gym/TwoLinkRigid-v0")
 
 

@@ -28,9 +28,10 @@ import numpy as np
 import pybullet as p
 from numba import njit
 
+from elastic_gym.envs import bullet_capi
 from elastic_gym.envs.plant import PAYLOAD_LINK, PlantArray, last_link, payload_urdf
 from elastic_gym.model import RobotModel, SerialChain
-from elastic_gym.model.chain import _dynamics_and_forces_kernel
+from elastic_gym.model.chain import _dynamics_and_forces_kernel, forward_dynamics_kernel
 from elastic_gym.model.packed import Packed
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_without_limits
@@ -120,6 +121,86 @@ def _substep_kernel(joint_states, tau, packed):
 
 
 @njit(cache=True)
+def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, states):
+    """``n_substeps`` physics steps through PyBullet's C API (``slot``: the client's
+    handle, see :func:`~elastic_gym.envs.bullet_capi.client_slot`), each under the link
+    torques of the motor torques ``tau`` at the state the last one read, plus
+    ``link_torque`` (or None): the loop of :meth:`ArmSimulator.step` in one dispatch.
+    Model (1) and rigid arms (``coupling`` None): :func:`_transmission_kernel`, the motors
+    advanced before the physics step; model (2): :func:`_coupled_link_torque`, the motors
+    advanced after it. ``world``: (bodies, velocity indices (N, n), joint indices, sensor
+    buffer); ``packed``: as :func:`_substep_kernel`'s; ``states``: the flat joint states
+    buffer. Returns a :mod:`~elastic_gym.envs.bullet_capi` code."""
+    handle = slot[0]
+    if handle == 0:
+        return bullet_capi.DISCONNECTED
+    theta, dtheta, q, dq, transmission = packed.values
+    for substep in range(n_substeps):
+        if substep > 0:
+            _unpack_joint_states(states, q, dq)
+        if coupling is None:
+            _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
+            code = bullet_capi.substep(handle, world, transmission[10], link_torque, states)
+        else:
+            link_tau = _coupled_link_torque(packed, tau, link_torque, coupling)
+            code = bullet_capi.substep(handle, world, link_tau, None, states)
+            _integrate_motors(theta, dtheta, transmission[12], transmission[13])
+        if code != bullet_capi.OK:
+            return code
+    _unpack_joint_states(states, q, dq)
+    return bullet_capi.OK
+
+
+@njit(cache=True)
+def _rowwise_matvec_into(A, X, out):
+    """:func:`rowwise_matvec` (A (N, n, n), X (N, n)) into ``out``, summed in its order."""
+    N, n = X.shape
+    for k in range(N):
+        for i in range(n):
+            total = X[k, 0] * A[k, i, 0]
+            for j in range(1, n):
+                total = total + X[k, j] * A[k, i, j]
+            out[k, i] = total
+
+
+@njit(cache=True)
+def _coupled_link_torque(packed, tau, link_torque, coupling):
+    """Model (2) at the current state, as :meth:`ArmSimulator.accelerations` computes it
+    (bit for bit): tau_J, theta'' into the transmission buffers, the link torque
+    tau_J - d(q') (+ ``link_torque``) - S theta'' returned. ``coupling``: a
+    :class:`~elastic_gym.model.packed.Packed` of (S, S B^-1, S^T, -S B^-1 S^T, the chain's
+    forward dynamics arguments, four (N, n) buffers)."""
+    theta, dtheta, q, dq, transmission = packed.values
+    K, D, B_inv, viscous, c_pos, c_neg, smoothing, friction, coulomb = transmission[:9]
+    link, tau_j, ddtheta = transmission[10], transmission[11], transmission[12]
+    S, SBinv, ST, schur, dynamics, relative, product, rhs, ddq = coupling.values
+    _transmission_kernel(
+        theta, dtheta, q, dq, tau, K, D, B_inv, viscous, c_pos, c_neg, smoothing, friction,
+        coulomb, True, link, tau_j, ddtheta, 0.0,
+    )  # fmt: skip
+    N, n = q.shape
+    for k in range(N):
+        for j in range(n):
+            if link_torque is not None:
+                link[k, j] += link_torque[k, j]
+            relative[k, j] = tau[k, j] - tau_j[k, j]
+    _rowwise_matvec_into(SBinv, relative, product)
+    for k in range(N):
+        for j in range(n):
+            rhs[k, j] = link[k, j] - product[k, j]
+    forward_dynamics_kernel(q, dq, rhs, schur, ddq, dynamics)
+    _rowwise_matvec_into(ST, ddq, product)
+    for k in range(N):
+        for j in range(n):
+            ddtheta[k, j] = B_inv[k, j] * (relative[k, j] - product[k, j])
+    _rowwise_matvec_into(S, ddtheta, product)
+    for k in range(N):
+        for j in range(n):
+            rhs[k, j] = link[k, j] - product[k, j]
+    return rhs
+
+
+@njit(cache=True)
 def _unpack_joint_states(joint_states, q, dq):
     """q[k, j], q'[k, j] = joint_states[2 (k n + j)], joint_states[2 (k n + j) + 1] (none
     when ``joint_states`` is empty)."""
@@ -196,6 +277,10 @@ class ArmSimulator:
             with :meth:`set_payload_mass`.
 
     State arrays have a leading arm axis: ``q``, ``dq``, ``theta``, ``dtheta`` (N, n).
+
+    Where PyBullet's C API can be reached (:mod:`~elastic_gym.envs.bullet_capi`), a control
+    period's substeps run in one compiled call (:func:`_period_kernel`); otherwise
+    :meth:`step` does the same work bit for bit through PyBullet's Python functions.
     """
 
     def __init__(
@@ -265,6 +350,21 @@ class ArmSimulator:
         self._no_states = np.empty(0)
         self._packed: tuple | None = None  # see _substep_arguments
         self._count = 2 * n_arms * n  # numbers read from PyBullet per substep
+        # PyBullet's C API (None: the Python functions step the world)
+        self._slot = None if gui else bullet_capi.client_slot(c)
+        self._states = np.empty(self._count)
+        self._world = (
+            np.array(self.bodies, dtype=np.intc),
+            np.array(
+                [
+                    [p.getJointInfo(body, j, physicsClientId=c)[4] for j in self.joint_indices]
+                    for body in self.bodies
+                ],
+                dtype=np.intc,
+            ),
+            np.array(self.joint_indices, dtype=np.intc),
+            np.empty(bullet_capi.SENSOR_STATE_DOUBLES),
+        )
 
     @property
     def chain(self) -> SerialChain:
@@ -406,15 +506,23 @@ class ArmSimulator:
         link, tau_j, ddtheta = np.empty(shape), np.empty(shape), np.empty(shape)
         return self._transmission(tau, link_torque, link, tau_j, ddtheta, 0.0)
 
-    def _substep_arguments(self) -> Packed:
+    def _substep_arguments(self) -> tuple[Packed, Packed | None]:
         """:func:`_substep_kernel`'s packed arguments (the state, the plants' transmission
-        constants, the buffers, the physics step), packed again when the plants change."""
-        transmission = self.plants.transmission
+        constants, the buffers, the physics step) and :func:`_coupled_link_torque`'s (None
+        without model (2)), packed again when the plants change."""
+        plants = self.plants
+        transmission = plants.transmission
         if self._packed is None or self._packed[0] is not transmission:
-            constants = self._transmission_arguments(True, *self._buffers, self.physics_dt)
+            constants = self._transmission_arguments(self._elastic, *self._buffers, self.physics_dt)
             state = (self.theta, self.dtheta, self.q, self.dq)
-            self._packed = (transmission, Packed((*state, constants)))
-        return self._packed[1]
+            coupling = None
+            if plants.has_coupling:
+                matrices = (plants.S, plants.SBinv, plants.ST, plants.schur_inertia)
+                buffers = tuple(np.empty(self.q.shape) for _ in range(4))
+                dynamics = plants.chain.forward_dynamics_arguments()
+                coupling = Packed((*matrices, dynamics, *buffers))
+            self._packed = (transmission, Packed((*state, constants)), coupling)
+        return self._packed[1], self._packed[2]
 
     def _transmission_arguments(self, elastic: bool, link, tau_j, ddtheta, dt: float):
         """The arguments of the transmission kernel after the state (q, theta and rates)
@@ -446,35 +554,44 @@ class ArmSimulator:
     def step(self, tau: np.ndarray, n_substeps: int, link_torque: np.ndarray | None = None) -> None:
         """Advance ``n_substeps`` physics steps holding the motor torques ``tau`` (N, n) and
         the external link-side torques ``link_torque`` (N, n, default none)."""
-        c, dt, joints, bodies = self.client, self.physics_dt, self.joint_indices, self.bodies
-        control, set_torques = p.TORQUE_CONTROL, p.setJointMotorControlArray
         tau = np.ascontiguousarray(tau, dtype=np.float64)
-        # model (1): the motors advance inside the transmission kernel (they do not depend
-        # on PyBullet's step); otherwise after PyBullet's step
-        plants = self.plants
-        fused = self._elastic and not plants.has_coupling
+        packed, coupling = self._substep_arguments()
+        if self._slot is not None:
+            code = _period_kernel(
+                self._slot, self._world, n_substeps, tau, link_torque, packed, coupling,
+                self._states,
+            )  # fmt: skip
+            bullet_capi.raise_for(code)
+            return
+        # the same loop through PyBullet's Python functions: without model (2)'s coupling
+        # the transmission kernel advances the motors (they do not depend on PyBullet's
+        # step), with it they are advanced after PyBullet's step
         link = self._buffers[0]
-        if fused:  # the kernel's arguments after the state, with the motors integrated
-            packed = self._substep_arguments()
         states = self._no_states  # PyBullet's joint states not yet in q, q'
-        one = bodies[0] if len(bodies) == 1 else None
         for _ in range(n_substeps):
-            if fused:  # the last substep's joint states read and the transmission in one call
+            if coupling is None:  # the last substep's joint states and the transmission
                 _substep_kernel(states, tau, packed)
                 link_tau = link if link_torque is None else link + link_torque
             else:
                 _unpack_joint_states(states, self.q, self.dq)
                 link_tau, ddtheta, _ = self.accelerations(tau, link_torque)
-            if one is not None:
-                set_torques(one, joints, control, forces=link_tau[0].tolist(), physicsClientId=c)
-            else:
-                for body, forces in zip(bodies, link_tau.tolist(), strict=True):
-                    set_torques(body, joints, control, forces=forces, physicsClientId=c)
-            p.stepSimulation(physicsClientId=c)
-            if self._elastic and not fused:
-                _integrate_motors(self.theta, self.dtheta, ddtheta, dt)
-            states = self._joint_states()
+            states = self._python_substep(link_tau)
+            if coupling is not None:
+                _integrate_motors(self.theta, self.dtheta, ddtheta, self.physics_dt)
         _unpack_joint_states(states, self.q, self.dq)
+
+    def _python_substep(self, link_tau: np.ndarray) -> np.ndarray:
+        """One physics step under the link torques ``link_tau`` (N, n) through PyBullet's
+        Python functions: the joint states read after it (as :meth:`_joint_states`)."""
+        c, joints, bodies = self.client, self.joint_indices, self.bodies
+        control, set_torques = p.TORQUE_CONTROL, p.setJointMotorControlArray
+        if len(bodies) == 1:
+            set_torques(bodies[0], joints, control, forces=link_tau[0].tolist(), physicsClientId=c)
+        else:
+            for body, forces in zip(bodies, link_tau.tolist(), strict=True):
+                set_torques(body, joints, control, forces=forces, physicsClientId=c)
+        p.stepSimulation(physicsClientId=c)
+        return self._joint_states()
 
     def link_acceleration(
         self, tau: np.ndarray, link_torque: np.ndarray | None = None

@@ -466,6 +466,16 @@ def _gravity_kernel(q, h, packed):
 
 
 @njit(cache=True)
+def forward_dynamics_kernel(q, dq, tau, added_inertia, ddq, packed):
+    """q'' of (M(q) + M_a) q'' + n(q, q') = tau into ``ddq``: :func:`_dynamics_kernel` in
+    the ``_FORWARD`` mode, its other arguments in ``packed``
+    (:meth:`SerialChain.forward_dynamics_arguments`)."""
+    unused, w, constants = packed.values
+    forward = np.int64(_FORWARD)  # int64 as from Python
+    _dynamics_kernel(forward, q, dq, q, tau, added_inertia, w, unused, ddq, constants)
+
+
+@njit(cache=True)
 def _dynamics_and_forces_kernel(q, dq, tau, added_inertia, w, ddq, forces, constants):
     """Forward dynamics into ``ddq``, then the readings of eq. (9) at that q'' into
     ``forces``: the two :class:`SerialChain` calls in one dispatch from Python."""
@@ -765,6 +775,11 @@ class SerialChain:
         if self._packed is None:
             self._packed = Packed((self._no_inertia, self._work, self._kernel_constants()))
         return self._packed
+
+    def forward_dynamics_arguments(self) -> Packed:
+        """The arguments of :func:`forward_dynamics_kernel` after q'' (the same pack as
+        :meth:`gravity_arguments`), for compiled callers (the simulator's model (2))."""
+        return self.gravity_arguments()
 
     def forward_dynamics(
         self,
