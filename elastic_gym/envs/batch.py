@@ -50,7 +50,7 @@ from elastic_gym.envs.sensors import (
     _shared_readings,
     every_arm,
 )
-from elastic_gym.envs.simulator import ArmSimulator, _link_dynamics_kernel
+from elastic_gym.envs.simulator import ArmSimulator, _end_of_period_dynamics
 from elastic_gym.envs.tasks import make_task
 from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.model.packed import Packed
@@ -133,8 +133,9 @@ def _post_step_kernel(tau, previous, reference, slot, reward, packed):
     order as :meth:`ArmBatch.step` calls them one by one (so bit for bit the same):
 
     1. q'' and the noise-free accelerometer readings (eq. (9)): the simulator's
-       :func:`~elastic_gym.envs.simulator._link_dynamics_kernel` (``transmission``,
-       ``dynamics``: its arguments after the motor torques ``tau``; no link-side torque);
+       :func:`~elastic_gym.envs.simulator._end_of_period_dynamics` (``transmission``,
+       ``dynamics``: the arguments after the motor torques ``tau`` of its
+       ``_link_dynamics_kernel``; no link-side torque; ``coupling``: model (2)'s);
     2. the termination codes (:func:`_break_codes`, ``limits``: its arguments after the
        state); if an arm broke, returns False here (the caller measures with the hold of
        non-finite readings);
@@ -147,12 +148,13 @@ def _post_step_kernel(tau, previous, reference, slot, reward, packed):
        ``previous``.
 
     ``packed``: a :class:`~elastic_gym.model.packed.Packed` of what holds for the episode,
-    (theta, theta', q, q', transmission, dynamics, limits, sensors, the torque limit row
-    and the reward constants after it); ``sensors``: (elastic, encoder std, block, next,
-    resolution, has accelerometers, bias, std, block, next, range, resolution, readings
-    (encoders, accelerometers), delay lines (L, N, size) of both, delays (N,), observation
-    arrays (position, acceleration, reference))."""
-    theta, dtheta, q, dq, transmission, dynamics, limits, sensors, rewards = packed.values
+    (theta, theta', q, q', transmission, coupling (None without model (2)), dynamics,
+    limits, sensors, the torque limit row and the reward constants after it); ``sensors``:
+    (elastic, encoder std, block, next, resolution, has accelerometers, bias, std, block,
+    next, range, resolution, readings (encoders, accelerometers), delay lines (L, N, size)
+    of both, delays (N,), observation arrays (position, acceleration, reference))."""
+    theta, dtheta, q, dq, transmission, coupling = packed.values[:6]
+    dynamics, limits, sensors, rewards = packed.values[6:]
     (
         elastic,
         enc_std,
@@ -176,7 +178,7 @@ def _post_step_kernel(tau, previous, reference, slot, reward, packed):
         reference_obs,
     ) = sensors
     forces = dynamics[3]
-    _link_dynamics_kernel(theta, dtheta, q, dq, (tau, *transmission), None, *dynamics)
+    _end_of_period_dynamics(theta, dtheta, q, dq, tau, transmission, coupling, dynamics)
     if _break_codes(q, dq, theta, dtheta, *limits):
         return False
     _shared_readings(
@@ -709,15 +711,14 @@ class ArmBatch:
         """(the :class:`~elastic_gym.model.packed.Packed` arguments of
         :func:`_post_step_kernel` that hold for the episode, its q'' and accelerometer
         readings arrays) (None in ``self._fusion``: not yet built; rebuilt after every
-        reset), or False when the batch needs the step by step path: model (2), an arm
-        with its own sensor error model, an accelerometer filter."""
+        reset), or False when the batch needs the step by step path: an arm with its own
+        sensor error model, an accelerometer filter."""
         sim, encoder, acc = self.sim, self.encoder, self.accelerometer_array
         plants, n_sensors = sim.plants, self.model.n_sensors
         resolution, noise_std = encoder._shared
         sample_std, alpha, limit, acc_resolution = acc._shared
         if (
-            plants.has_coupling
-            or resolution is None
+            resolution is None
             or noise_std is None
             or (
                 n_sensors
@@ -769,7 +770,8 @@ class ArmBatch:
         if n_sensors:
             self._noise_draws.append((acc.noise, sample_std))
         state = (sim.theta, sim.dtheta, sim.q, sim.dq)
-        packed = Packed((*state, transmission, dynamics, limits, sensors, rewards))
+        coupling = sim.coupling_arguments()
+        packed = Packed((*state, transmission, coupling, dynamics, limits, sensors, rewards))
         return packed, ddq, forces
 
     def _initial_state_options(self, options: dict | None) -> dict[str, np.ndarray]:

@@ -31,7 +31,11 @@ from numba import njit
 from elastic_gym.envs import bullet_capi
 from elastic_gym.envs.plant import PAYLOAD_LINK, PlantArray, last_link, payload_urdf
 from elastic_gym.model import RobotModel, SerialChain
-from elastic_gym.model.chain import _dynamics_and_forces_kernel, forward_dynamics_kernel
+from elastic_gym.model.chain import (
+    _dynamics_and_forces_kernel,
+    forward_dynamics_kernel,
+    specific_forces_kernel,
+)
 from elastic_gym.model.packed import Packed
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_without_limits
@@ -142,7 +146,9 @@ def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, 
             _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
             code = bullet_capi.substep(handle, world, transmission[10], link_torque, states)
         else:
-            link_tau = _coupled_link_torque(packed, tau, link_torque, coupling)
+            link_tau = _coupled_link_torque(
+                theta, dtheta, q, dq, tau, link_torque, transmission, coupling
+            )
             code = bullet_capi.substep(handle, world, link_tau, None, states)
             _integrate_motors(theta, dtheta, transmission[12], transmission[13])
         if code != bullet_capi.OK:
@@ -164,13 +170,14 @@ def _rowwise_matvec_into(A, X, out):
 
 
 @njit(cache=True)
-def _coupled_link_torque(packed, tau, link_torque, coupling):
+def _coupled_link_torque(theta, dtheta, q, dq, tau, link_torque, transmission, coupling):
     """Model (2) at the current state, as :meth:`ArmSimulator.accelerations` computes it
-    (bit for bit): tau_J, theta'' into the transmission buffers, the link torque
-    tau_J - d(q') (+ ``link_torque``) - S theta'' returned. ``coupling``: a
-    :class:`~elastic_gym.model.packed.Packed` of (S, S B^-1, S^T, -S B^-1 S^T, the chain's
-    forward dynamics arguments, four (N, n) buffers)."""
-    theta, dtheta, q, dq, transmission = packed.values
+    (bit for bit): tau_J, theta'' into the transmission buffers (``transmission``: the
+    transmission kernel's arguments after tau, its time step not used), q'' into
+    ``coupling``'s, the link torque tau_J - d(q') (+ ``link_torque``) - S theta''
+    returned. ``coupling``: a :class:`~elastic_gym.model.packed.Packed` of (S, S B^-1,
+    S^T, -S B^-1 S^T, the chain's forward dynamics arguments, four (N, n) buffers, the
+    last q'')."""
     K, D, B_inv, viscous, c_pos, c_neg, smoothing, friction, coulomb = transmission[:9]
     link, tau_j, ddtheta = transmission[10], transmission[11], transmission[12]
     S, SBinv, ST, schur, dynamics, relative, product, rhs, ddq = coupling.values
@@ -198,6 +205,30 @@ def _coupled_link_torque(packed, tau, link_torque, coupling):
         for j in range(n):
             rhs[k, j] = link[k, j] - product[k, j]
     return rhs
+
+
+@njit(cache=True)
+def _coupled_dynamics_kernel(theta, dtheta, q, dq, tau, transmission, coupling, dynamics):
+    """Model (2)'s q'' (:func:`_coupled_link_torque`) and the readings of eq. (9) at it
+    into ``dynamics``' q'' and forces (its layout: ``SerialChain.
+    dynamics_and_forces_arguments``): :meth:`ArmSimulator.link_acceleration` and
+    ``SerialChain.specific_forces`` in one dispatch."""
+    _coupled_link_torque(theta, dtheta, q, dq, tau, None, transmission, coupling)
+    found = coupling.values[8]
+    unused, w, ddq, forces, constants = dynamics
+    ddq[:] = found
+    specific_forces_kernel(q, dq, ddq, w, unused, forces, constants)
+
+
+@njit(cache=True)
+def _end_of_period_dynamics(theta, dtheta, q, dq, tau, transmission, coupling, dynamics):
+    """q'' and the noise-free readings of eq. (9) at the end of a control period:
+    :func:`_link_dynamics_kernel` (no link-side torque), or for model (2) (``coupling``
+    not None) :func:`_coupled_dynamics_kernel`."""
+    if coupling is None:
+        _link_dynamics_kernel(theta, dtheta, q, dq, (tau, *transmission), None, *dynamics)
+    else:
+        _coupled_dynamics_kernel(theta, dtheta, q, dq, tau, transmission, coupling, dynamics)
 
 
 @njit(cache=True)
@@ -523,6 +554,11 @@ class ArmSimulator:
                 coupling = Packed((*matrices, dynamics, *buffers))
             self._packed = (transmission, Packed((*state, constants)), coupling)
         return self._packed[1], self._packed[2]
+
+    def coupling_arguments(self) -> Packed | None:
+        """:func:`_coupled_link_torque`'s ``coupling`` (None without model (2)), for
+        compiled callers (the batch's end of a control period)."""
+        return self._substep_arguments()[1]
 
     def _transmission_arguments(self, elastic: bool, link, tau_j, ddtheta, dt: float):
         """The arguments of the transmission kernel after the state (q, theta and rates)

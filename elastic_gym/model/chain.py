@@ -476,6 +476,14 @@ def forward_dynamics_kernel(q, dq, tau, added_inertia, ddq, packed):
 
 
 @njit(cache=True)
+def specific_forces_kernel(q, dq, ddq, w, unused, forces, constants):
+    """The readings of eq. (9) at q'' into ``forces`` (:meth:`SerialChain.specific_forces`;
+    the other arguments as :meth:`SerialChain.dynamics_and_forces_arguments` gives them)."""
+    readings = np.int64(_FORCES)  # int64 as from Python
+    _sensors_kernel(readings, q, dq, ddq, w, unused, forces, constants)
+
+
+@njit(cache=True)
 def _dynamics_and_forces_kernel(q, dq, tau, added_inertia, w, ddq, forces, constants):
     """Forward dynamics into ``ddq``, then the readings of eq. (9) at that q'' into
     ``forces``: the two :class:`SerialChain` calls in one dispatch from Python."""
