@@ -79,3 +79,11 @@ def test_a_world_disconnected_behind_the_env_raises_pybullet_error():
     p.disconnect(physicsClientId=sim.client)
     with pytest.raises(p.error, match="Not connected"):
         env.step(np.zeros(2))
+
+
+def test_the_symbol_lookup_reads_elf_files_only():
+    assert bullet_capi._elf_symbols(__file__, ("sPhysicsClients1",)) == {}  # not ELF
+    if sys.platform.startswith("linux"):
+        found = bullet_capi._elf_symbols(p.__file__, ("sPhysicsClients1", "no_such_symbol"))
+        assert set(found) == {"sPhysicsClients1"}
+        assert found["sPhysicsClients1"][1] == 8 * 1024  # MAX_PHYSICS_CLIENTS pointers

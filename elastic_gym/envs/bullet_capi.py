@@ -30,6 +30,7 @@ from numba import njit, types
 _LIBRARY = ctypes.CDLL(p.__file__)  # the loaded extension module: the same symbols
 _HANDLE = types.intp  # C pointers as integers (the same registers on x86-64 and arm64)
 _TABLE = "sPhysicsClients1"  # pybullet.c: static b3PhysicsClientHandle [MAX_PHYSICS_CLIENTS]
+_MAX_CLIENTS = 1024  # MAX_PHYSICS_CLIENTS of pybullet.c
 _ANCHOR = "b3SubmitClientCommandAndWaitStatus"  # an exported function: the load address
 
 TORQUE_CONTROL = 1  # CONTROL_MODE_TORQUE of SharedMemoryPublic.h
@@ -63,10 +64,10 @@ _state_command = _external("b3RequestActualStateCommandInit", _HANDLE(_HANDLE, t
 _joint_state = _external("b3GetJointState", types.intc(_HANDLE, _HANDLE, types.intc, _HANDLE))
 
 
-def _elf_symbols(path: str, names: tuple[str, ...]) -> dict[str, int]:
-    """The values (addresses before loading) of the named symbols in the symbol table
-    (``SHT_SYMTAB``) of the 64-bit little-endian ELF file at ``path``; empty when the file
-    is not one or has no such table."""
+def _elf_symbols(path: str, names: tuple[str, ...]) -> dict[str, tuple[int, int]]:
+    """(value (the address before loading), size) of each named symbol found once in the
+    symbol table (``SHT_SYMTAB``) of the 64-bit little-endian ELF file at ``path``; empty
+    when the file is not one or has no such table."""
     with open(path, "rb") as f:
         header = f.read(64)
         if header[:6] != b"\x7fELF\x02\x01":
@@ -92,9 +93,9 @@ def _elf_symbols(path: str, names: tuple[str, ...]) -> dict[str, int]:
     values = {}
     for name in names:
         at = strings.find(b"\0" + name.encode() + b"\0")
-        hits = symbols["value"][symbols["name"] == at + 1] if at >= 0 else []
-        if len(hits) == 1:
-            values[name] = int(hits[0])
+        hits = symbols[symbols["name"] == at + 1]
+        if at >= 0 and len(hits) == 1:
+            values[name] = (int(hits["value"][0]), int(hits["size"][0]))
     return values
 
 
@@ -107,10 +108,10 @@ def _table_address() -> int | None:
         values = _elf_symbols(p.__file__, (_TABLE, _ANCHOR))
     except OSError:
         return None
-    if len(values) != 2:
+    if len(values) != 2 or values[_TABLE][1] != 8 * _MAX_CLIENTS:  # not the known table
         return None
     loaded = ctypes.cast(getattr(_LIBRARY, _ANCHOR), ctypes.c_void_p).value
-    return None if loaded is None else loaded - values[_ANCHOR] + values[_TABLE]
+    return None if loaded is None else loaded - values[_ANCHOR][0] + values[_TABLE][0]
 
 
 _can_submit = _LIBRARY.b3CanSubmitCommand
@@ -121,7 +122,7 @@ def client_slot(client: int) -> np.ndarray | None:
     """A live int64 view (1,) of PyBullet's handle of the connection ``client`` (0 once
     it is disconnected), or None when the handle cannot be read here."""
     table = _table_address()
-    if table is None or not 0 <= client < 1024:  # MAX_PHYSICS_CLIENTS
+    if table is None or not 0 <= client < _MAX_CLIENTS:
         return None
     slot = np.ctypeslib.as_array((ctypes.c_int64 * 1).from_address(table + 8 * client))
     if slot[0] == 0 or _can_submit(int(slot[0])) != 1:
