@@ -87,3 +87,15 @@ def test_the_symbol_lookup_reads_elf_files_only():
         found = bullet_capi._elf_symbols(p.__file__, ("sPhysicsClients1", "no_such_symbol"))
         assert set(found) == {"sPhysicsClients1"}
         assert found["sPhysicsClients1"][1] == 8 * 1024  # MAX_PHYSICS_CLIENTS pointers
+
+
+def test_a_build_missing_a_c_function_steps_through_python(monkeypatch):
+    monkeypatch.setattr(bullet_capi, "_MISSING", ["b3GetJointState"])
+    bullet_capi._table_address.cache_clear()
+    try:
+        client = p.connect(p.DIRECT)
+        assert bullet_capi.client_slot(client) is None
+        p.disconnect(client)
+    finally:
+        monkeypatch.undo()
+        bullet_capi._table_address.cache_clear()

@@ -27,7 +27,6 @@ import numpy as np
 import pybullet as p
 from numba import njit, types
 
-_LIBRARY = ctypes.CDLL(p.__file__)  # the loaded extension module: the same symbols
 _HANDLE = types.intp  # C pointers as integers (the same registers on x86-64 and arm64)
 _TABLE = "sPhysicsClients1"  # pybullet.c: static b3PhysicsClientHandle [MAX_PHYSICS_CLIENTS]
 _MAX_CLIENTS = 1024  # MAX_PHYSICS_CLIENTS of pybullet.c
@@ -45,11 +44,34 @@ ERRORS = {
 }
 
 
+def _load() -> ctypes.CDLL | None:
+    """The loaded extension module, opened again for its symbols (None if it cannot be)."""
+    try:
+        return ctypes.CDLL(p.__file__)
+    except OSError:
+        return None
+
+
+_LIBRARY = _load()
+_MISSING: list[str] = []  # C API functions this build does not export
+
+
+def _address(name: str) -> int | None:
+    """Where the exported C function ``name`` is, or None."""
+    function = getattr(_LIBRARY, name, None)
+    return None if function is None else ctypes.cast(function, ctypes.c_void_p).value
+
+
 def _external(name: str, signature) -> types.ExternalFunction:
     """The exported C function ``name``, callable from numba under a symbol of its own
-    (by name, so that numba's cache holds no address)."""
-    symbol = f"elastic_gym_{name}"
-    llvm.add_symbol(symbol, ctypes.cast(getattr(_LIBRARY, name), ctypes.c_void_p).value)
+    (by name, so that numba's cache holds no address). A function the build does not
+    export stays unbound: no handle is then read (:func:`client_slot`), so no kernel
+    calling it is compiled."""
+    symbol, address = f"elastic_gym_{name}", _address(name)
+    if address is None:
+        _MISSING.append(name)
+    else:
+        llvm.add_symbol(symbol, address)
     return types.ExternalFunction(symbol, signature)
 
 
@@ -62,6 +84,8 @@ _set_torque = _external(
 )
 _state_command = _external("b3RequestActualStateCommandInit", _HANDLE(_HANDLE, types.intc))
 _joint_state = _external("b3GetJointState", types.intc(_HANDLE, _HANDLE, types.intc, _HANDLE))
+if _address("b3CanSubmitCommand") is None:  # client_slot's check of a handle
+    _MISSING.append("b3CanSubmitCommand")
 
 
 def _elf_symbols(path: str, names: tuple[str, ...]) -> dict[str, tuple[int, int]]:
@@ -102,7 +126,7 @@ def _elf_symbols(path: str, names: tuple[str, ...]) -> dict[str, tuple[int, int]
 @functools.cache
 def _table_address() -> int | None:
     """Where ``sPhysicsClients1`` is in this process, or None if it cannot be found."""
-    if not sys.platform.startswith("linux"):
+    if not sys.platform.startswith("linux") or _MISSING:
         return None
     try:
         values = _elf_symbols(p.__file__, (_TABLE, _ANCHOR))
@@ -110,12 +134,15 @@ def _table_address() -> int | None:
         return None
     if len(values) != 2 or values[_TABLE][1] != 8 * _MAX_CLIENTS:  # not the known table
         return None
-    loaded = ctypes.cast(getattr(_LIBRARY, _ANCHOR), ctypes.c_void_p).value
+    loaded = _address(_ANCHOR)
     return None if loaded is None else loaded - values[_ANCHOR][0] + values[_TABLE][0]
 
 
-_can_submit = _LIBRARY.b3CanSubmitCommand
-_can_submit.restype, _can_submit.argtypes = ctypes.c_int, [ctypes.c_void_p]
+def _can_submit(handle: int) -> int:
+    """``b3CanSubmitCommand(handle)``."""
+    function = _LIBRARY.b3CanSubmitCommand  # type: ignore[union-attr]  # table found: loaded
+    function.restype, function.argtypes = ctypes.c_int, [ctypes.c_void_p]
+    return function(handle)
 
 
 def client_slot(client: int) -> np.ndarray | None:
