@@ -77,13 +77,7 @@ class World:
                 body, self.joints, p.VELOCITY_CONTROL, forces=[0.0] * self.n_joints,
                 physicsClientId=c,
             )  # fmt: skip
-        dofs = [infos[name][4] for name in spec.joint_names]
-        self.world = (
-            np.array(self.bodies, dtype=np.intc),
-            np.array([dofs] * n_arms, dtype=np.intc),
-            np.array(self.joints, dtype=np.intc),
-            np.empty(bullet_capi.SENSOR_STATE_DOUBLES),
-        )
+        self.world = bullet_capi.world_arrays(c, self.bodies, self.joints)
         self.states = np.empty(2 * n_arms * self.n_joints)
 
     def joint_states(self) -> np.ndarray:

@@ -157,6 +157,21 @@ def client_slot(client: int) -> np.ndarray | None:
     return slot
 
 
+def world_arrays(client: int, bodies: list[int], joints: list[int]) -> tuple:
+    """The ``world`` of :func:`substep`: (bodies, the joints' velocity indices per body
+    (N, n), the joint indices, a sensor buffer), for the bodies ``bodies`` of the
+    connection ``client`` and their actuated joints ``joints``."""
+    velocity_index = [
+        [p.getJointInfo(body, j, physicsClientId=client)[4] for j in joints] for body in bodies
+    ]
+    return (
+        np.array(bodies, dtype=np.intc),
+        np.array(velocity_index, dtype=np.intc),
+        np.array(joints, dtype=np.intc),
+        np.empty(SENSOR_STATE_DOUBLES),
+    )
+
+
 @njit(cache=True)
 def apply_torques(handle, bodies, dofs, torques, extra):
     """``setJointMotorControlArray(body, joints, TORQUE_CONTROL, forces=torques[k] (+

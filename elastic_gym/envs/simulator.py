@@ -385,16 +385,9 @@ class ArmSimulator:
         self._slot = None if gui else bullet_capi.client_slot(c)
         self._states = np.empty(self._count)
         self._world = (
-            np.array(self.bodies, dtype=np.intc),
-            np.array(
-                [
-                    [p.getJointInfo(body, j, physicsClientId=c)[4] for j in self.joint_indices]
-                    for body in self.bodies
-                ],
-                dtype=np.intc,
-            ),
-            np.array(self.joint_indices, dtype=np.intc),
-            np.empty(bullet_capi.SENSOR_STATE_DOUBLES),
+            None
+            if self._slot is None
+            else bullet_capi.world_arrays(c, self.bodies, self.joint_indices)
         )
 
     @property
