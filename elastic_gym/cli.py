@@ -272,7 +272,12 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
         metavar="KEY=VALUE",
         help="override hyper-parameters, e.g. learning_rate=1e-4 n_envs=2",
     )
-    parser.add_argument("--hyperparams-file", metavar="YAML")
+    parser.add_argument(
+        "--hyperparams-file",
+        metavar="YAML",
+        help="hyper-parameter file: a path, or the name of a shipped one (ppo-robust.yaml,"
+        " recurrentppo-robust.yaml, ppo-residual-robust.yaml)",
+    )
     parser.add_argument(
         "--eval-freq",
         type=int,

@@ -194,6 +194,27 @@ def test_bad_hyperparameters(tmp_path):
     }
 
 
+def test_a_shipped_recipe_is_found_by_its_name_from_any_directory(tmp_path, monkeypatch):
+    """``--hyperparams-file ppo-robust.yaml`` outside the repository reads the shipped
+    recipe; a file of that name in the working directory is the user's and wins; a name
+    that is neither is refused naming it."""
+    from elastic_gym.training.config import load_hyperparams_file
+
+    monkeypatch.chdir(tmp_path)
+    env_id = "elastic_gym/TwoLinkElastic-v0"
+    shipped = load_hyperparams_file("ppo-robust.yaml")
+    assert shipped[env_id]["env_kwargs"]["randomize"]["plant_scaling.link_mass"] == {
+        "low": 0.7,
+        "high": 1.3,
+    }
+    (tmp_path / "ppo-robust.yaml").write_text("default: {n_timesteps: 1000}\n")
+    assert load_hyperparams_file("ppo-robust.yaml") == {"default": {"n_timesteps": 1000}}
+    with pytest.raises(ValueError, match=r"no-such-recipe\.yaml: cannot be read"):
+        resolve_hyperparams("ppo", env_id, file="no-such-recipe.yaml")
+    with pytest.raises(ValueError, match="cannot be read"):  # a path is never looked up
+        resolve_hyperparams("ppo", env_id, file="sub/ppo.yaml")
+
+
 def test_shipped_hyperparameters_are_valid():
     """Every algorithm's settings resolve for every id, and their action parameterization
     applies to its robot (motor offsets only on elastic arms)."""

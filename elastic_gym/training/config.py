@@ -118,9 +118,22 @@ class HyperparameterFile(RootModel[dict[str, HyperparameterEntry]]):
     """A hyper-parameter file: env ids (or ``default``) -> entry."""
 
 
+def hyperparams_path(path: str | Path) -> Path:
+    """The file ``path`` names: a path that exists, or else the bare name of a file shipped
+    in ``elastic_gym/training/hyperparams`` (``ppo-robust.yaml``), so that the shipped
+    recipes work from any directory and from an installed package. Anything else is
+    returned as given (the reader then names it in its error)."""
+    given = Path(path)
+    if given.exists() or given.name != str(path):
+        return given
+    shipped = Path(str(resources.files("elastic_gym.training") / "hyperparams" / given.name))
+    return shipped if shipped.is_file() else given
+
+
 def load_hyperparams_file(path: str | Path) -> dict:
-    """Parse a hyper-parameter YAML file; errors name the file and the problem."""
-    data = load_yaml(Path(path))  # an empty file (None) is refused too: not a mapping
+    """Parse a hyper-parameter YAML file (:func:`hyperparams_path`); errors name the file
+    and the problem."""
+    data = load_yaml(hyperparams_path(path))  # an empty file (None) is refused too
     checked(lambda: HyperparameterFile.model_validate(data), str(path), HyperparameterFile)
     return data
 
