@@ -226,14 +226,18 @@ class RegulationTask(Task):
 
 
 @njit(cache=True)
-def _excitation_kernel(cosine, offset, amplitude, q, tau, gravity):
-    """tau = (offset + amplitude cos(...)) + g(q) per arm and joint, in numpy's order of
-    operations (the cosines given: numpy's); ``gravity``: the chain's
-    :meth:`~elastic_gym.model.SerialChain.gravity_arguments`."""
-    _gravity_kernel(q, tau, gravity)
+def _excitation_kernel(t, frequency, phase, offset, amplitude, q, tau, gravity):
+    """tau = (offset + amplitude cos(frequency t + phase)) [+ g(q)] per arm and joint
+    (``gravity`` None: no g(q); else the chain's
+    :meth:`~elastic_gym.model.SerialChain.gravity_arguments`)."""
+    if gravity is None:
+        tau[:] = 0.0
+    else:
+        _gravity_kernel(q, tau, gravity)
     for k in range(tau.shape[0]):
         for j in range(tau.shape[1]):
-            tau[k, j] = (offset[j] + amplitude[j] * cosine[k, j]) + tau[k, j]
+            cosine = np.cos(frequency[j] * t[k] + phase[j])
+            tau[k, j] = (offset[j] + amplitude[j] * cosine) + tau[k, j]
 
 
 @dataclass
@@ -278,13 +282,11 @@ class ExcitationTask(Task):
         return self.held(self.holds, arms)
 
     def external_torque(self, t: np.ndarray, q: np.ndarray) -> np.ndarray:
-        cosine = np.cos(self._frequency * t[:, None] + self._phase)
-        if not self.gravity_compensation:
-            return self._offset + self._amplitude * cosine
-        chain = self.model.chain
-        tau = np.empty(cosine.shape)
-        gravity = chain.gravity_arguments()
-        _excitation_kernel(cosine, self._offset, self._amplitude, q, tau, gravity)
+        tau = np.empty(q.shape)
+        gravity = self.model.chain.gravity_arguments() if self.gravity_compensation else None
+        _excitation_kernel(
+            t, self._frequency, self._phase, self._offset, self._amplitude, q, tau, gravity
+        )
         return tau
 
 
