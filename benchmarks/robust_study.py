@@ -432,7 +432,8 @@ def differences(row: Row, seed: int, runs: Path) -> list[str]:
         expected.algo, expected.env_id, expected.hyperparams, expected.hyperparams_file
     )
     keys = sorted(set(shipped) | set(saved.hyperparams))
-    return names + [key for key in keys if shipped.get(key) != saved.hyperparams.get(key)]
+    changed = [key for key in keys if shipped.get(key) != saved.hyperparams.get(key)]
+    return names + [key for key in changed if key not in names]  # env_kwargs is both
 
 
 def write_runs(rows, runs: Path, out: Path) -> None:
