@@ -28,6 +28,7 @@ from gymnasium import spaces
 from numba import njit
 
 from elastic_gym.arms import REFERENCE_KEYS
+from elastic_gym.envs import bullet_capi
 from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, arm_kwargs
 from elastic_gym.envs.config import (
     EPISODE_TIME,
@@ -50,8 +51,8 @@ from elastic_gym.envs.sensors import (
     _shared_readings,
     every_arm,
 )
-from elastic_gym.envs.simulator import ArmSimulator, _end_of_period_dynamics
-from elastic_gym.envs.tasks import make_task
+from elastic_gym.envs.simulator import ArmSimulator, _end_of_period_dynamics, _period_kernel
+from elastic_gym.envs.tasks import make_task, open_loop_torque_kernel, reference_kernel
 from elastic_gym.model import ParameterScaling, RobotModel
 from elastic_gym.model.packed import Packed
 from elastic_gym.robots.catalog import get_robot
@@ -224,6 +225,44 @@ def _post_step_kernel(tau, previous, reference, slot, reward, packed):
             torsion[k, j] = theta[k, j] - q[k, j]
     _reward_kernel(error, error_rate, tau, previous, rewards[0], torsion, *rewards[1:], reward)
     return True
+
+
+@njit(cache=True)
+def _control_period_kernel(command, slot, reward, truncated, packed, end):
+    """A control period of every arm in one call, the kernels of :meth:`ArmBatch.step`'s
+    step by step path in its order (so bit for bit the same):
+
+    1. the task's open-loop torque at the period's start
+       (:func:`~elastic_gym.envs.tasks.open_loop_torque_kernel`) added to ``command`` and
+       clipped to the torque limits (:func:`_clip_torque`);
+    2. the physics substeps (:func:`~elastic_gym.envs.simulator._period_kernel`);
+    3. the clock (:func:`_advance_clock`, ``truncated`` written when episodes have a
+       length) and the torques shifted (previous <- current <- the clipped torque);
+    4. the reference at the new time (:func:`~elastic_gym.envs.tasks.reference_kernel`);
+    5. the end of the period, :func:`_post_step_kernel` (``end``: its packed arguments,
+       ``slot``: the newest slot of the sensor delay line, ``reward`` (N,) its output).
+
+    ``packed``: a :class:`~elastic_gym.model.packed.Packed` of the batch's arrays changed
+    in place (see :meth:`ArmBatch._period_arguments`). Returns (the physics' bullet_capi
+    code, whether an arm is truncated, whether every arm's physics held); after a code
+    other than OK nothing past step 2 has run."""
+    (low, high, tau, saturated, external, task_torque, q, physics, n_substeps) = packed.values[:9]
+    (steps, dt, max_steps, time, torque, previous, reference, task_reference) = packed.values[9:]
+    if open_loop_torque_kernel(time, q, external, task_torque):
+        _clip_torque(command, external, low, high, tau, saturated)
+    else:
+        _clip_torque(command, None, low, high, tau, saturated)
+    world_slot, world, state, coupling, states = physics
+    code = _period_kernel(world_slot, world, n_substeps, tau, None, state, coupling, states)
+    if code != bullet_capi.OK:
+        return code, False, False
+    ended = _advance_clock(steps, None, dt, max_steps, time, truncated)
+    for k in range(tau.shape[0]):
+        for j in range(tau.shape[1]):
+            previous[k, j] = torque[k, j]
+            torque[k, j] = tau[k, j]
+    reference_kernel(time, task_reference, reference)
+    return code, ended, _post_step_kernel(tau, previous, reference, slot, reward, end)
 
 
 @njit(cache=True)
@@ -487,6 +526,8 @@ class ArmBatch:
         self.running = np.zeros(N, dtype=bool)  # an episode is under way (reset, not ended)
         self.torque = np.zeros((N, n))
         self.previous_torque = np.zeros((N, n))
+        self._tau = np.zeros((N, n))  # the clipped torque of a period being computed
+        self._external = np.zeros((N, n))  # the task's open-loop torque of that period
         self.saturated = np.zeros(N, dtype=bool)
         self.ddq = np.zeros((N, n))
         self.reference = np.zeros((N, len(REFERENCE_KEYS), n))
@@ -516,6 +557,7 @@ class ArmBatch:
         self._slot = 0  # slot of the newest reading in the delay line
         self.plant_state = PlantState(self)
         self._limit_row = self.torque_limit[None]
+        # arrays of the state are changed in place (the packed kernel arguments share them)
         self._fusion: tuple | bool | None = None  # see _fusion_arguments
         self._noise_draws: list = []
 
@@ -559,6 +601,7 @@ class ArmBatch:
         """Truncate episodes after ``steps`` control periods (instead of ``episode_time``)."""
         self.max_steps = int(steps)
         self.episode_time = self.max_steps * self.control_dt
+        self._fusion = None  # the period's packed arguments hold the length
 
     @property
     def plant_model(self) -> RobotModel:
@@ -571,8 +614,8 @@ class ArmBatch:
 
     @property
     def time(self) -> np.ndarray:
-        """Simulated time of each arm's episode (s)."""
-        return self._time
+        """Simulated time of each arm's episode (s), a copy."""
+        return self._time.copy()
 
     # ------------------------------------------------------------------ episodes
     @contextlib.contextmanager
@@ -609,7 +652,7 @@ class ArmBatch:
         self.accelerometer_array.reset(arms, self.rngs)
         self.encoder.restart(arms)
         self.steps[arms] = 0
-        self._time = self.steps * self.control_dt
+        self._time[:] = self.steps * self.control_dt
         self.running[arms] = True
         self.reasons[arms] = None
         self.saturated[arms] = False
@@ -617,7 +660,7 @@ class ArmBatch:
         self.previous_torque[arms] = self.torque[arms]
         self.plant_state.reset_commands(arms, self.torque[arms])
         self.ddq[arms] = self.sim.link_acceleration(self.torque)[arms]
-        self.reference[arms] = self.task.reference(self.time[arms], arms)
+        self.reference[arms] = self.task.reference(self._time[arms], arms)
         self._observe(arms, first=True)
         self._fusion = None  # the arms' sensors and plants may have changed
 
@@ -633,28 +676,64 @@ class ArmBatch:
         self._check_open()
         every = stepping is None or bool(stepping.all())
         stepping = self._all if stepping is None else stepping
-        sim = self.sim
         command = actions if every else np.where(stepping[:, None], actions, 0.0)
         command = self.plant_state.delayed(command)
+        pulse = self.plant_state.before_step(self._time)
+        fusion = self._fusion if every and pulse is None else False
+        if fusion is None:
+            fusion = self._fusion = self._fusion_arguments()
+        if isinstance(fusion, tuple) and fusion[3] is not None:  # one compiled call
+            return self._compiled_step(command, fusion)
+        sim = self.sim
         external = self.task.external_torque(self._time, sim.q)
         if external is not None and not every:
             external = np.where(stepping[:, None], external, 0.0)
-        tau: np.ndarray = np.empty(command.shape)
-        self.saturated = np.empty(len(command), dtype=bool)
+        tau = self._tau
         _clip_torque(command, external, self._minus_limit, self.torque_limit, tau, self.saturated)
-        pulse = self.plant_state.before_step(self._time)
         sim.step(tau, self.n_substeps, pulse)
-        N, limit = self.n_arms, self.max_steps
-        time = np.empty(N)
-        truncated = self._no_arm if limit is None else np.empty(N, dtype=bool)
+        truncated = self._truncation()
         ended = _advance_clock(
-            self.steps, None if every else stepping, self.control_dt, limit, time, truncated
+            self.steps,
+            None if every else stepping,
+            self.control_dt,
+            self.max_steps,
+            self._time,
+            truncated,
         )
-        self._time = time
-        self.previous_torque, self.torque = self.torque, tau
-        self.reference = self.task.reference(self._time)
+        self.previous_torque[:] = self.torque
+        self.torque[:] = tau
+        self.reference[:] = self.task.reference(self._time)
         self._slot = (self._slot + 1) % self._sensor_line
-        reward, reasons = self._end_of_period(tau, pulse, every, stepping)
+        reward, reasons = self._end_of_period(tau, pulse, fusion, every, stepping)
+        return self._outcome(reward, reasons, truncated, ended, every, stepping)
+
+    def _compiled_step(self, command: np.ndarray, fusion: tuple) -> tuple:
+        """:meth:`step` of every arm without link torque pulses: the control period in one
+        compiled call (:func:`_control_period_kernel`), bit for bit the step by step path."""
+        end, ddq, forces, period = fusion
+        self._refill_noise()  # (no other draw happens in a period)
+        reward = np.empty(self.n_arms)
+        truncated = self._truncation()
+        slot = (self._slot + 1) % self._sensor_line
+        code, ended, held = _control_period_kernel(command, slot, reward, truncated, period, end)
+        bullet_capi.raise_for(code)
+        self._slot = slot
+        self.ddq = ddq
+        reasons = None
+        if not held:  # an arm broke its physics: the readings that are not finite are held
+            reasons = REASONS[self._codes]
+            self._observe(self._arms, first=False, finite=False, forces=forces)
+            reward = self._reward()
+        return self._outcome(reward, reasons, truncated, ended, True, self._all)
+
+    def _truncation(self) -> np.ndarray:
+        """A fresh array for the truncation flags (the shared False one without a length)."""
+        return self._no_arm if self.max_steps is None else np.empty(self.n_arms, dtype=bool)
+
+    def _outcome(self, reward, reasons, truncated, ended: bool, every: bool, stepping) -> tuple:
+        """(reward, terminated, truncated) of the stepping arms (zero/False elsewhere) from
+        the period's reward, termination reasons (None: no arm broke) and truncation; the
+        reasons are kept and the ended episodes stop running."""
         if reasons is None:  # the common case: no arm broke its physics
             self.reasons = self._no_reasons
             terminated = self._no_arm
@@ -670,22 +749,24 @@ class ArmBatch:
             self.running &= ~(terminated | truncated)
         return reward, terminated, truncated
 
-    def _end_of_period(self, tau, pulse, every: bool, stepping: np.ndarray):
+    def _refill_noise(self) -> None:
+        """Fresh noise blocks where the fused sensors' are used up (before a reading)."""
+        for noise, std in self._noise_draws:  # the generators' blocks, in sensor order
+            if std > 0.0:
+                noise.refill(self.rngs)
+
+    def _end_of_period(self, tau, pulse, fusion: tuple | bool, every: bool, stepping: np.ndarray):
         """(reward, termination reasons or None) at the end of a control period: q'' and
         the accelerometers' noise-free readings, termination, measurements, reward; in one
-        compiled call (:func:`_post_step_kernel`) where the batch allows it."""
+        compiled call (:func:`_post_step_kernel`) where ``fusion`` (the batch's
+        :meth:`_fusion_arguments`, or False) allows it."""
         sim = self.sim
-        fusion = self._fusion if every and pulse is None else False
-        if fusion is None:
-            fusion = self._fusion = self._fusion_arguments()
         forces: np.ndarray | None
         reasons: np.ndarray | None
         if isinstance(fusion, tuple):
-            packed, ddq, forces = fusion
+            packed, ddq, forces = fusion[:3]
             reward = np.empty(self.n_arms)
-            for noise, std in self._noise_draws:  # the generators' blocks, in sensor order
-                if std > 0.0:
-                    noise.refill(self.rngs)
+            self._refill_noise()
             finished = _post_step_kernel(
                 tau, self.previous_torque, self.reference, self._slot, reward, packed
             )
@@ -710,9 +791,9 @@ class ArmBatch:
     def _fusion_arguments(self) -> tuple | bool:
         """(the :class:`~elastic_gym.model.packed.Packed` arguments of
         :func:`_post_step_kernel` that hold for the episode, its q'' and accelerometer
-        readings arrays) (None in ``self._fusion``: not yet built; rebuilt after every
-        reset), or False when the batch needs the step by step path: an arm with its own
-        sensor error model, an accelerometer filter."""
+        readings arrays, :meth:`_period_arguments`) (None in ``self._fusion``: not yet
+        built; rebuilt after every reset), or False when the batch needs the step by step
+        path: an arm with its own sensor error model, an accelerometer filter."""
         sim, encoder, acc = self.sim, self.encoder, self.accelerometer_array
         plants, n_sensors = sim.plants, self.model.n_sensors
         resolution, noise_std = encoder._shared
@@ -772,7 +853,42 @@ class ArmBatch:
         state = (sim.theta, sim.dtheta, sim.q, sim.dq)
         coupling = sim.coupling_arguments()
         packed = Packed((*state, transmission, coupling, dynamics, limits, sensors, rewards))
-        return packed, ddq, forces
+        return packed, ddq, forces, self._period_arguments()
+
+    def _period_arguments(self) -> Packed | None:
+        """:func:`_control_period_kernel`'s ``packed``, or None where the simulator cannot
+        step through PyBullet's C API: the torque limits (low, high), the clipped torque,
+        the saturation flags and the open-loop torque (outputs), the task's
+        :meth:`~elastic_gym.envs.tasks.Task.external_torque_arguments`, q, the simulator's
+        :meth:`~elastic_gym.envs.simulator.ArmSimulator.period_arguments`, the substeps
+        per period, the clock (steps, control period, episode length in periods or None,
+        time), the torques (current, previous), the reference and the task's
+        :meth:`~elastic_gym.envs.tasks.Task.reference_arguments`."""
+        sim, task = self.sim, self.task
+        physics = sim.period_arguments()
+        if physics is None:
+            return None
+        return Packed(
+            (
+                self._minus_limit,
+                self.torque_limit,
+                self._tau,
+                self.saturated,
+                self._external,
+                task.external_torque_arguments(),
+                sim.q,
+                physics,
+                self.n_substeps,
+                self.steps,
+                self.control_dt,
+                self.max_steps,
+                self._time,
+                self.torque,
+                self.previous_torque,
+                self.reference,
+                task.reference_arguments(),
+            )
+        )
 
     def _initial_state_options(self, options: dict | None) -> dict[str, np.ndarray]:
         """The reset ``options`` validated (types and angle magnitudes by their model, the

@@ -548,6 +548,15 @@ class ArmSimulator:
             self._packed = (transmission, Packed((*state, constants)), coupling)
         return self._packed[1], self._packed[2]
 
+    def period_arguments(self) -> tuple | None:
+        """:func:`_period_kernel`'s arguments but the substep count, the torques and the
+        link torque, (slot, world, packed, coupling, states), for compiled callers (the
+        batch's control period), or None where PyBullet's C API cannot be reached."""
+        if self._slot is None:
+            return None
+        packed, coupling = self._substep_arguments()
+        return self._slot, self._world, packed, coupling, self._states
+
     def coupling_arguments(self) -> Packed | None:
         """:func:`_coupled_link_torque`'s ``coupling`` (None without model (2)), for
         compiled callers (the batch's end of a control period)."""

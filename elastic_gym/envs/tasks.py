@@ -20,7 +20,12 @@ import numpy as np
 from numba import njit
 from pydantic import Field, StrictBool
 
-from elastic_gym.envs.trajectories import RestToRestPath, rest_to_rest
+from elastic_gym.envs.trajectories import (
+    RestToRestPath,
+    _rest_to_rest_kernel,
+    rest_to_rest,
+    timing_coefficients,
+)
 from elastic_gym.model import RobotModel
 from elastic_gym.model.chain import _gravity_kernel
 from elastic_gym.robots.spec import RobotSpec
@@ -104,6 +109,18 @@ class Task(ABC):
 
     def external_torque(self, t: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """Open-loop torque (n_arms, N) added to the action; None when there is none."""
+        return None
+
+    def external_torque_arguments(self) -> tuple | None:
+        """For compiled callers: :func:`_excitation_kernel`'s arguments after t, q and the
+        output (the open-loop torque of :meth:`external_torque`), or None (no torque)."""
+        return None
+
+    def reference_arguments(self) -> tuple | None:
+        """For compiled callers: :func:`~elastic_gym.envs.trajectories.
+        _rest_to_rest_kernel`'s arguments after t (the output last), the arrays this task
+        changes in place at a reset, or None: the reference holds still during an
+        episode (the one computed at the reset)."""
         return None
 
     def configured_points(self) -> dict[str, np.ndarray]:
@@ -195,6 +212,14 @@ class TrackingTask(Task):
     def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
         return rest_to_rest(t, self.paths[arms], self.move_time, self.dwell_time, REFERENCE_ORDER)
 
+    def reference_arguments(self) -> tuple:
+        return (
+            self.paths,
+            float(self.move_time),
+            float(self.dwell_time),
+            timing_coefficients(REFERENCE_ORDER),
+        )
+
 
 @dataclass
 class RegulationTask(Task):
@@ -226,7 +251,7 @@ class RegulationTask(Task):
 
 
 @njit(cache=True)
-def _excitation_kernel(t, frequency, phase, offset, amplitude, q, tau, gravity):
+def _excitation_kernel(t, q, tau, frequency, phase, offset, amplitude, gravity):
     """tau = (offset + amplitude cos(frequency t + phase)) [+ g(q)] per arm and joint
     (``gravity`` None: no g(q); else the chain's
     :meth:`~elastic_gym.model.SerialChain.gravity_arguments`)."""
@@ -238,6 +263,27 @@ def _excitation_kernel(t, frequency, phase, offset, amplitude, q, tau, gravity):
         for j in range(tau.shape[1]):
             cosine = np.cos(frequency[j] * t[k] + phase[j])
             tau[k, j] = (offset[j] + amplitude[j] * cosine) + tau[k, j]
+
+
+@njit(cache=True)
+def open_loop_torque_kernel(t, q, out, arguments):
+    """:meth:`Task.external_torque` at times ``t`` (N,) and configurations ``q`` into
+    ``out`` for compiled callers (``arguments``: the task's
+    :meth:`~Task.external_torque_arguments`); returns False (``out`` untouched) for a
+    task without one."""
+    if arguments is None:
+        return False
+    _excitation_kernel(t, q, out, *arguments)
+    return True
+
+
+@njit(cache=True)
+def reference_kernel(t, arguments, out):
+    """:meth:`Task.reference` of every arm at times ``t`` (N,) into ``out`` (N, 5, n) for
+    compiled callers (``arguments``: the task's :meth:`~Task.reference_arguments`; None:
+    a reference that holds still, ``out`` untouched)."""
+    if arguments is not None:
+        _rest_to_rest_kernel(t, *arguments, out)
 
 
 @dataclass
@@ -283,11 +329,12 @@ class ExcitationTask(Task):
 
     def external_torque(self, t: np.ndarray, q: np.ndarray) -> np.ndarray:
         tau = np.empty(q.shape)
-        gravity = self.model.chain.gravity_arguments() if self.gravity_compensation else None
-        _excitation_kernel(
-            t, self._frequency, self._phase, self._offset, self._amplitude, q, tau, gravity
-        )
+        _excitation_kernel(t, q, tau, *self.external_torque_arguments())
         return tau
+
+    def external_torque_arguments(self) -> tuple:
+        gravity = self.model.chain.gravity_arguments() if self.gravity_compensation else None
+        return self._frequency, self._phase, self._offset, self._amplitude, gravity
 
 
 TASKS: dict[str, type[Task]] = {

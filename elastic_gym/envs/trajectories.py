@@ -31,6 +31,14 @@ _COEFFICIENTS = _timing_coefficients()
 _POWERS = np.arange(len(TIMING_LAW))
 
 
+def timing_coefficients(order: int) -> np.ndarray:
+    """Rows 0..order of the timing law's derivative coefficients (ascending powers of u),
+    the ``coefficients`` of :func:`_rest_to_rest_kernel` (a view: not to be written)."""
+    if order > MAX_ORDER:
+        raise ValueError(f"order must be <= {MAX_ORDER}")
+    return _COEFFICIENTS[: order + 1]
+
+
 def timing_law(u: np.ndarray | float, order: int = 4) -> np.ndarray:
     """s(u) and its derivatives d^k s / du^k for k = 0..order, shape (order + 1, *u.shape)."""
     x = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
@@ -85,8 +93,7 @@ def rest_to_rest(
     to i + 1 in ``move_time`` seconds after a ``dwell_time`` pause; after the last
     waypoint the reference stays there. Rows: q_d, q_d', ..., q_d^(order) at ``t[k]``.
     """
-    if order > MAX_ORDER:
-        raise ValueError(f"order must be <= {MAX_ORDER}")
+    coefficients = timing_coefficients(order)
     t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
     waypoints = np.ascontiguousarray(waypoints, dtype=np.float64)
     if waypoints.ndim != 3 or len(t) != len(waypoints):  # the kernel does not check bounds
@@ -95,9 +102,7 @@ def rest_to_rest(
             f"{waypoints.shape} (N, n_points, n)"
         )
     out = np.empty((len(t), order + 1, waypoints.shape[2]))
-    _rest_to_rest_kernel(
-        t, waypoints, float(move_time), float(dwell_time), _COEFFICIENTS[: order + 1], out
-    )
+    _rest_to_rest_kernel(t, waypoints, float(move_time), float(dwell_time), coefficients, out)
     return out
 
 
