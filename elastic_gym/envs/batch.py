@@ -266,9 +266,11 @@ def _control_period_kernel(command, slot, reward, truncated, packed, end):
 
 
 @njit(cache=True)
-def _arm_values(k, theta, q, dtheta, dq, ddq, reference, torque, out):
+def _arm_values(k, theta, q, dtheta, dq, ddq, reference, torque, readings, limit, out):
     """One fresh copy of arm k's info arrays, flat: theta, q, theta', q', q'', the
-    reference's rows (q_d .. q_d^(4)) and tau, n numbers each."""
+    reference's rows (q_d .. q_d^(4)) and tau, n numbers each; returns whether one of its
+    accelerometer ``readings`` (N, 3 n_sensors) is at the range ``limit`` (N,)
+    (:func:`_at_range`)."""
     n = q.shape[1]
     for j in range(n):
         out[j] = theta[k, j]
@@ -279,6 +281,7 @@ def _arm_values(k, theta, q, dtheta, dq, ddq, reference, torque, out):
         for r in range(reference.shape[1]):
             out[(5 + r) * n + j] = reference[k, r, j]
         out[(5 + reference.shape[1]) * n + j] = torque[k, j]
+    return _at_range(readings[k], limit[k])
 
 
 @njit(cache=True)
@@ -534,6 +537,7 @@ class ArmBatch:
         self.reasons = np.full(N, None, dtype=object)
         self._no_reasons = np.full(N, None, dtype=object)  # never written to
         self._no_arm = np.zeros(N, dtype=bool)
+        self._no_readings = np.zeros((N, 0))  # the accelerometers of an arm without any
         self._codes = np.zeros(N, dtype=np.int64)
         self._all = np.ones(N, dtype=bool)
         self._arms = every_arm(N)  # (the sensors' whole-array path)
@@ -821,7 +825,7 @@ class ArmBatch:
         dynamics = plants.chain.dynamics_and_forces_arguments(ddq, forces)
         limits = (self.joint_lower, self.joint_upper, self.max_velocity, self._codes)
         size = 3 * n_sensors
-        no_readings = np.zeros((N, 0))
+        no_readings = self._no_readings
         obs, lines = self.obs, self._measured
         position = self.position_key
         sensors = (
@@ -1045,7 +1049,7 @@ class ArmBatch:
             "true_state": state,
             "torque": self.torque[arms].copy(),
             "torque_saturated": self.saturated[arms].copy(),
-            "acceleration_saturated": self._acceleration_saturated(arms, False),
+            "acceleration_saturated": self._acceleration_saturated(arms),
             "reference": {
                 key: x[:, start + k * n : start + (k + 1) * n]
                 for k, key in enumerate(REFERENCE_KEYS)
@@ -1059,8 +1063,18 @@ class ArmBatch:
         copy of the state, the reference and the torque)."""
         sim, n = self.sim, self.n_joints
         x = np.empty((6 + len(REFERENCE_KEYS)) * n)
-        _arm_values(
-            k, sim.theta, sim.q, sim.dtheta, sim.dq, self.ddq, self.reference, self.torque, x
+        at_range = _arm_values(
+            k,
+            sim.theta,
+            sim.q,
+            sim.dtheta,
+            sim.dq,
+            self.ddq,
+            self.reference,
+            self.torque,
+            self.obs.get("acceleration", self._no_readings),
+            self.accelerometer_array.range,
+            x,
         )
         return {
             "time": float(self._time[k]),
@@ -1074,7 +1088,7 @@ class ArmBatch:
             },
             "torque": x[10 * n :],
             "torque_saturated": bool(self.saturated[k]),
-            "acceleration_saturated": self._acceleration_saturated(k, True),
+            "acceleration_saturated": at_range,
             "reference": {  # REFERENCE_KEYS
                 "q": x[5 * n : 6 * n],
                 "dq": x[6 * n : 7 * n],
@@ -1086,12 +1100,10 @@ class ArmBatch:
             "plant": self.plant_state.info(k),
         }
 
-    def _acceleration_saturated(self, arms, one: bool):
+    def _acceleration_saturated(self, arms) -> np.ndarray:
         """Whether an observed accelerometer reading is at the sensor's range (clipped)."""
         if not self.model.n_sensors:
-            return False if one else np.zeros(len(self._time[arms]), dtype=bool)
-        if one:  # any |reading| >= limit (NaN readings: not saturated)
-            return _at_range(self.obs["acceleration"][arms], self.accelerometer_array.range[arms])
+            return np.zeros(len(self._time[arms]), dtype=bool)
         readings = np.abs(self.obs["acceleration"][arms])
         limit = self.accelerometer_array.range[arms]
         return (readings >= limit[:, None]).any(axis=-1)
