@@ -228,9 +228,10 @@ def _post_step_kernel(tau, previous, reference, slot, reward, packed):
 
 
 @njit(cache=True)
-def _control_period_kernel(command, slot, reward, truncated, packed, end):
-    """A control period of every arm in one call, the kernels of :meth:`ArmBatch.step`'s
-    step by step path in its order (so bit for bit the same):
+def _control_period_kernel(command, truncated, packed):
+    """A control period of every arm up to its end (:func:`_post_step_kernel`) in one call,
+    the kernels of :meth:`ArmBatch._period_step_by_step` in its order (so bit for bit the
+    same):
 
     1. the task's open-loop torque at the period's start
        (:func:`~elastic_gym.envs.tasks.open_loop_torque_kernel`) added to ``command`` and
@@ -238,14 +239,13 @@ def _control_period_kernel(command, slot, reward, truncated, packed, end):
     2. the physics substeps (:func:`~elastic_gym.envs.simulator._period_kernel`);
     3. the clock (:func:`_advance_clock`, ``truncated`` written when episodes have a
        length) and the torques shifted (previous <- current <- the clipped torque);
-    4. the reference at the new time (:func:`~elastic_gym.envs.tasks.reference_kernel`);
-    5. the end of the period, :func:`_post_step_kernel` (``end``: its packed arguments,
-       ``slot``: the newest slot of the sensor delay line, ``reward`` (N,) its output).
+    4. the reference at the new time (:func:`~elastic_gym.envs.tasks.reference_kernel`).
 
     ``packed``: a :class:`~elastic_gym.model.packed.Packed` of the batch's arrays changed
     in place (see :meth:`ArmBatch._period_arguments`). Returns (the physics' bullet_capi
-    code, whether an arm is truncated, whether every arm's physics held); after a code
-    other than OK nothing past step 2 has run."""
+    code, whether an arm is truncated); after a code other than OK nothing past step 2
+    has run. (The end of the period is a call of its own: compiled into this kernel it
+    would cost each of its variants as much compile time again, for 3 us per step.)"""
     (low, high, tau, saturated, external, task_torque, q, physics, n_substeps) = packed.values[:9]
     (steps, dt, max_steps, time, torque, previous, reference, task_reference) = packed.values[9:]
     if open_loop_torque_kernel(time, q, external, task_torque):
@@ -255,14 +255,14 @@ def _control_period_kernel(command, slot, reward, truncated, packed, end):
     world_slot, world, state, coupling, states = physics
     code = _period_kernel(world_slot, world, n_substeps, tau, None, state, coupling, states)
     if code != bullet_capi.OK:
-        return code, False, False
+        return code, False
     ended = _advance_clock(steps, None, dt, max_steps, time, truncated)
     for k in range(tau.shape[0]):
         for j in range(tau.shape[1]):
             previous[k, j] = torque[k, j]
             torque[k, j] = tau[k, j]
     reference_kernel(time, task_reference, reference)
-    return code, ended, _post_step_kernel(tau, previous, reference, slot, reward, end)
+    return code, ended
 
 
 @njit(cache=True)
@@ -686,8 +686,19 @@ class ArmBatch:
         fusion = self._fusion if every and pulse is None else False
         if fusion is None:
             fusion = self._fusion = self._fusion_arguments()
-        if isinstance(fusion, tuple) and fusion[3] is not None:  # one compiled call
-            return self._compiled_step(command, fusion)
+        truncated = self._truncation()
+        if isinstance(fusion, tuple) and fusion[3] is not None:  # the period in one call
+            code, ended = _control_period_kernel(command, truncated, fusion[3])
+            bullet_capi.raise_for(code)
+        else:
+            ended = self._period_step_by_step(command, pulse, every, stepping, truncated)
+        self._slot = (self._slot + 1) % self._sensor_line
+        reward, reasons = self._end_of_period(self._tau, pulse, fusion, every, stepping)
+        return self._outcome(reward, reasons, truncated, ended, every, stepping)
+
+    def _period_step_by_step(self, command, pulse, every: bool, stepping, truncated) -> bool:
+        """What :func:`_control_period_kernel` does, call by call (a GUI world, torque
+        pulses, arms that do not all step): returns whether an arm is truncated."""
         sim = self.sim
         external = self.task.external_torque(self._time, sim.q)
         if external is not None and not every:
@@ -695,7 +706,6 @@ class ArmBatch:
         tau = self._tau
         _clip_torque(command, external, self._minus_limit, self.torque_limit, tau, self.saturated)
         sim.step(tau, self.n_substeps, pulse)
-        truncated = self._truncation()
         ended = _advance_clock(
             self.steps,
             None if every else stepping,
@@ -707,28 +717,7 @@ class ArmBatch:
         self.previous_torque[:] = self.torque
         self.torque[:] = tau
         self.reference[:] = self.task.reference(self._time)
-        self._slot = (self._slot + 1) % self._sensor_line
-        reward, reasons = self._end_of_period(tau, pulse, fusion, every, stepping)
-        return self._outcome(reward, reasons, truncated, ended, every, stepping)
-
-    def _compiled_step(self, command: np.ndarray, fusion: tuple) -> tuple:
-        """:meth:`step` of every arm without link torque pulses: the control period in one
-        compiled call (:func:`_control_period_kernel`), bit for bit the step by step path."""
-        end, ddq, forces, period = fusion
-        self._refill_noise()  # (no other draw happens in a period)
-        reward = np.empty(self.n_arms)
-        truncated = self._truncation()
-        slot = (self._slot + 1) % self._sensor_line
-        code, ended, held = _control_period_kernel(command, slot, reward, truncated, period, end)
-        bullet_capi.raise_for(code)
-        self._slot = slot
-        self.ddq = ddq
-        reasons = None
-        if not held:  # an arm broke its physics: the readings that are not finite are held
-            reasons = REASONS[self._codes]
-            self._observe(self._arms, first=False, finite=False, forces=forces)
-            reward = self._reward()
-        return self._outcome(reward, reasons, truncated, ended, True, self._all)
+        return ended
 
     def _truncation(self) -> np.ndarray:
         """A fresh array for the truncation flags (the shared False one without a length)."""
@@ -753,12 +742,6 @@ class ArmBatch:
             self.running &= ~(terminated | truncated)
         return reward, terminated, truncated
 
-    def _refill_noise(self) -> None:
-        """Fresh noise blocks where the fused sensors' are used up (before a reading)."""
-        for noise, std in self._noise_draws:  # the generators' blocks, in sensor order
-            if std > 0.0:
-                noise.refill(self.rngs)
-
     def _end_of_period(self, tau, pulse, fusion: tuple | bool, every: bool, stepping: np.ndarray):
         """(reward, termination reasons or None) at the end of a control period: q'' and
         the accelerometers' noise-free readings, termination, measurements, reward; in one
@@ -770,7 +753,9 @@ class ArmBatch:
         if isinstance(fusion, tuple):
             packed, ddq, forces = fusion[:3]
             reward = np.empty(self.n_arms)
-            self._refill_noise()
+            for noise, std in self._noise_draws:  # the generators' blocks, in sensor order
+                if std > 0.0:
+                    noise.refill(self.rngs)
             finished = _post_step_kernel(
                 tau, self.previous_torque, self.reference, self._slot, reward, packed
             )
