@@ -1,11 +1,13 @@
-"""The end of a control period in one compiled call equals the step by step path.
+"""A control period in compiled calls equals the step by step path.
 
 :func:`~elastic_gym.envs.batch._post_step_kernel` runs the kernels that
 ``ArmBatch.step`` otherwise calls one by one (transmission + forward dynamics +
 accelerometer readings, termination codes, shared sensor error model, sensor delay line,
 observation, reward). Batches of every id, with sensor noise and delays and with arms
 breaking their physics, must give bit for bit the same observations, rewards,
-terminations and info as the same batch forced onto the step by step path.
+terminations and info as the same batch forced onto the step by step path. So must
+:func:`~elastic_gym.envs.batch._control_period_kernel` (the clip to the reference in
+one call) against a task without compiled form, stepped call by call.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import pytest
 
 import elastic_gym
 from elastic_gym.envs.batch import ArmBatch
+from elastic_gym.envs.tasks import TASKS
 
 KWARGS = {
     "elastic_gym/TwoLinkElastic-v0": {"sensor_delay": 2, "encoder": {"noise_std": 1e-4}},
@@ -79,3 +82,30 @@ def test_fused_end_of_period_equals_step_by_step(env_id, monkeypatch):
     assert used
     assert breaks > 0  # arms broke their physics: the kernel's early return, autoresets
     assert fused == reference
+
+
+@pytest.mark.parametrize("task", sorted(TASKS))
+def test_compiled_period_equals_a_task_stepped_call_by_call(task, monkeypatch):
+    """The period kernel against the same task without its compiled form (a task of a
+    user's would be stepped so): every leaf of every step equal, an episode length hit."""
+
+    def rollout(compiled: bool) -> tuple[list, bool]:
+        if not compiled:
+            monkeypatch.setattr(TASKS[task], "compiled_arguments", lambda self: None)
+        env = gym.make("elastic_gym/TwoLinkElastic-v0", task=task, episode_time=0.1)
+        rng = np.random.default_rng(2)
+        out = _leaves(env.reset(seed=3), [])
+        high = env.action_space.high
+        for _ in range(250):
+            result = env.step(rng.uniform(-0.3, 0.3, len(high)) * high)
+            out = _leaves(result, out)
+            if result[2] or result[3]:
+                out = _leaves(env.reset(), out)
+        used = env.unwrapped.batch._fusion[3] is not None
+        env.close()
+        monkeypatch.undo()
+        return out, used
+
+    (fast, used), (reference, unused) = rollout(True), rollout(False)
+    assert used and not unused
+    assert fast == reference

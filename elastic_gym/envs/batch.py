@@ -846,17 +846,18 @@ class ArmBatch:
 
     def _period_arguments(self) -> Packed | None:
         """:func:`_control_period_kernel`'s ``packed``, or None where the simulator cannot
-        step through PyBullet's C API: the torque limits (low, high), the clipped torque,
-        the saturation flags and the open-loop torque (outputs), the task's
-        :meth:`~elastic_gym.envs.tasks.Task.external_torque_arguments`, q, the simulator's
-        :meth:`~elastic_gym.envs.simulator.ArmSimulator.period_arguments`, the substeps
-        per period, the clock (steps, control period, episode length in periods or None,
-        time), the torques (current, previous), the reference and the task's
-        :meth:`~elastic_gym.envs.tasks.Task.reference_arguments`."""
-        sim, task = self.sim, self.task
-        physics = sim.period_arguments()
-        if physics is None:
+        step through PyBullet's C API or the task has no compiled form: the torque limits
+        (low, high), the clipped torque, the saturation flags and the open-loop torque
+        (outputs), the task's open-loop torque arguments, q, the simulator's
+        :meth:`~elastic_gym.envs.simulator.ArmSimulator.period_arguments`, the substeps per
+        period, the clock (steps, control period, episode length in periods or None,
+        time), the torques (current, previous), the reference and the task's reference
+        arguments (:meth:`~elastic_gym.envs.tasks.Task.compiled_arguments`)."""
+        sim = self.sim
+        physics, task = sim.period_arguments(), self.task.compiled_arguments()
+        if physics is None or task is None:
             return None
+        task_torque, task_reference = task
         return Packed(
             (
                 self._minus_limit,
@@ -864,7 +865,7 @@ class ArmBatch:
                 self._tau,
                 self.saturated,
                 self._external,
-                task.external_torque_arguments(),
+                task_torque,
                 sim.q,
                 physics,
                 self.n_substeps,
@@ -875,7 +876,7 @@ class ArmBatch:
                 self.torque,
                 self.previous_torque,
                 self.reference,
-                task.reference_arguments(),
+                task_reference,
             )
         )
 

@@ -111,16 +111,13 @@ class Task(ABC):
         """Open-loop torque (n_arms, N) added to the action; None when there is none."""
         return None
 
-    def external_torque_arguments(self) -> tuple | None:
-        """For compiled callers: :func:`_excitation_kernel`'s arguments after t, q and the
-        output (the open-loop torque of :meth:`external_torque`), or None (no torque)."""
-        return None
-
-    def reference_arguments(self) -> tuple | None:
-        """For compiled callers: :func:`~elastic_gym.envs.trajectories.
-        _rest_to_rest_kernel`'s arguments after t (the output last), the arrays this task
-        changes in place at a reset, or None: the reference holds still during an
-        episode (the one computed at the reset)."""
+    def compiled_arguments(self) -> tuple[tuple | None, tuple | None] | None:
+        """For compiled callers (the batch's control period): the ``arguments`` of
+        :func:`open_loop_torque_kernel` (None: no open-loop torque) and of
+        :func:`reference_kernel` (None: the reference holds still during an episode), the
+        arrays a reset changes in place; or None for a task computed in Python only (the
+        batch then steps it call by call). A subclass that overrides
+        :meth:`external_torque` or :meth:`reference` overrides this too."""
         return None
 
     def configured_points(self) -> dict[str, np.ndarray]:
@@ -212,13 +209,9 @@ class TrackingTask(Task):
     def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
         return rest_to_rest(t, self.paths[arms], self.move_time, self.dwell_time, REFERENCE_ORDER)
 
-    def reference_arguments(self) -> tuple:
-        return (
-            self.paths,
-            float(self.move_time),
-            float(self.dwell_time),
-            timing_coefficients(REFERENCE_ORDER),
-        )
+    def compiled_arguments(self) -> tuple[None, tuple]:
+        coefficients = timing_coefficients(REFERENCE_ORDER)
+        return None, (self.paths, float(self.move_time), float(self.dwell_time), coefficients)
 
 
 @dataclass
@@ -249,6 +242,9 @@ class RegulationTask(Task):
     def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
         return self.held(self.targets, arms)
 
+    def compiled_arguments(self) -> tuple[None, None]:
+        return None, None
+
 
 @njit(cache=True)
 def _excitation_kernel(t, q, tau, frequency, phase, offset, amplitude, gravity):
@@ -269,7 +265,7 @@ def _excitation_kernel(t, q, tau, frequency, phase, offset, amplitude, gravity):
 def open_loop_torque_kernel(t, q, out, arguments):
     """:meth:`Task.external_torque` at times ``t`` (N,) and configurations ``q`` into
     ``out`` for compiled callers (``arguments``: the task's
-    :meth:`~Task.external_torque_arguments`); returns False (``out`` untouched) for a
+    :meth:`~Task.compiled_arguments`); returns False (``out`` untouched) for a
     task without one."""
     if arguments is None:
         return False
@@ -280,7 +276,7 @@ def open_loop_torque_kernel(t, q, out, arguments):
 @njit(cache=True)
 def reference_kernel(t, arguments, out):
     """:meth:`Task.reference` of every arm at times ``t`` (N,) into ``out`` (N, 5, n) for
-    compiled callers (``arguments``: the task's :meth:`~Task.reference_arguments`; None:
+    compiled callers (``arguments``: the task's :meth:`~Task.compiled_arguments`; None:
     a reference that holds still, ``out`` untouched)."""
     if arguments is not None:
         _rest_to_rest_kernel(t, *arguments, out)
@@ -329,12 +325,16 @@ class ExcitationTask(Task):
 
     def external_torque(self, t: np.ndarray, q: np.ndarray) -> np.ndarray:
         tau = np.empty(q.shape)
-        _excitation_kernel(t, q, tau, *self.external_torque_arguments())
+        _excitation_kernel(t, q, tau, *self._torque_arguments())
         return tau
 
-    def external_torque_arguments(self) -> tuple:
+    def _torque_arguments(self) -> tuple:
+        """:func:`_excitation_kernel`'s arguments after t, q and the output."""
         gravity = self.model.chain.gravity_arguments() if self.gravity_compensation else None
         return self._frequency, self._phase, self._offset, self._amplitude, gravity
+
+    def compiled_arguments(self) -> tuple[tuple, None]:
+        return self._torque_arguments(), None
 
 
 TASKS: dict[str, type[Task]] = {
