@@ -21,7 +21,15 @@ from elastic_gym.envs.batch import ArmBatch
 from elastic_gym.envs.tasks import TASKS
 
 KWARGS = {
-    "elastic_gym/TwoLinkElastic-v0": {"sensor_delay": 2, "encoder": {"noise_std": 1e-4}},
+    "elastic_gym/TwoLinkElastic-v0": {
+        "sensor_delay": 2,
+        "encoder": {"noise_std": 1e-4},
+        # plants drawn at every (auto)reset: the packed arguments follow the new plants
+        "randomize": {
+            "plant_scaling.link_mass": {"low": 0.8, "high": 1.2},
+            "unmodelled_friction.coulomb": {"low": 0.0, "high": 0.01},
+        },
+    },
     "elastic_gym/KR15Elastic-v0": {"task": "regulation"},  # model (2)
     "elastic_gym/IiwaElastic-v0": {"sensor_delay": 1},
     "elastic_gym/TwoLinkRigid-v0": {"encoder": {"noise_std": 1e-4}},
