@@ -9,7 +9,7 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from elastic_gym.envs.config import Range
+from elastic_gym.envs.config import PlantRange
 from elastic_gym.envs.randomization import draw
 
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
@@ -101,9 +101,9 @@ def test_randomization_does_not_change_the_task_draws():
 def test_uniform_and_log_uniform_draws():
     rng = np.random.default_rng(0)
     ranges = {
-        "plant_scaling.link_mass": Range(low=0.5, high=2.0),
-        "plant_scaling.stiffness": Range(low=0.1, high=10.0, log=True),
-        "sensor_delay": Range(low=1, high=3),
+        "plant_scaling.link_mass": PlantRange(low=0.5, high=2.0),
+        "plant_scaling.stiffness": PlantRange(low=0.1, high=10.0, log=True),
+        "sensor_delay": PlantRange(low=1, high=3),
     }
     samples = [draw(ranges, rng) for _ in range(4000)]
     mass = np.array([s["plant_scaling.link_mass"] for s in samples])
@@ -114,6 +114,36 @@ def test_uniform_and_log_uniform_draws():
     assert abs((stiffness.mean() + 1.0) / 2.0 - 0.5) < 4 * sigma  # log10 x uniform in [-1, 1]
     assert set(delays) == {1, 2, 3}
     assert mass.min() >= 0.5 and mass.max() <= 2.0
+
+
+def test_a_range_with_a_probability_draws_at_that_share_of_the_resets():
+    """u ~ U[0, 1) < p draws from the range, else the path takes ``otherwise`` (default
+    low); the env's plant and info["plant"] hold the value in force at every reset."""
+    rng = np.random.default_rng(3)
+    ranges = {
+        "plant_scaling.link_mass": PlantRange(low=1.2, high=1.4, probability=0.3),
+        "sensor_delay": PlantRange(low=1, high=2, probability=0.25, otherwise=0),
+    }
+    samples = [draw(ranges, rng) for _ in range(4000)]
+    mass = np.array([s["plant_scaling.link_mass"] for s in samples])
+    delays = np.array([s["sensor_delay"] for s in samples])
+    drawn = mass != 1.2
+    sigma = np.sqrt(0.3 * 0.7 / len(samples))  # of a share p
+    assert abs(drawn.mean() - 0.3) < 4 * sigma
+    assert mass[drawn].min() > 1.2 and mass[drawn].max() <= 1.4
+    assert abs((delays > 0).mean() - 0.25) < 4 * np.sqrt(0.25 * 0.75 / len(samples))
+    assert set(delays) == {0, 1, 2}
+    assert all(isinstance(s["sensor_delay"], int) for s in samples)
+    randomize = {"sensor_delay": {"low": 2, "high": 2, "probability": 0.5, "otherwise": 0}}
+    env = gym.make(TWO_LINK, randomize=randomize, encoder={"noise_std": 0.0})
+    seen = set()
+    for seed in range(12):
+        _, info = env.reset(seed=seed)
+        delay = info["plant"]["sensor_delay"]
+        seen.add(delay)
+        alone = gym.make(TWO_LINK, sensor_delay=int(delay), encoder={"noise_std": 0.0})
+        assert _same(_run(env, [np.ones(2)] * 4, seed), _run(alone, [np.ones(2)] * 4, seed))
+    assert seen == {0.0, 2.0}
 
 
 def test_vector_env_info_has_a_leading_arm_axis_and_pickles():
@@ -168,6 +198,33 @@ def test_vector_env_info_has_a_leading_arm_axis_and_pickles():
         ),
         (
             {"plant_scaling.stiffness": {"low": 1.0, "high": 100.0}},
+            "too coarse for the stiffest joint mode",
+        ),
+        (
+            {"sensor_delay": {"low": 0, "high": 1, "probability": 0.0}},
+            r"randomize\.sensor_delay\.probability: Input should be greater than 0",
+        ),
+        (
+            {"sensor_delay": {"low": 0, "high": 1, "otherwise": 0}},
+            "otherwise is used only with a probability below 1",
+        ),
+        (
+            {"sensor_delay": {"low": 0, "high": 1, "probability": 0.5, "otherwise": 0.5}},
+            "sensor_delay takes integers",
+        ),
+        (
+            {"sensor_delay": {"low": 0, "high": 1, "probability": 0.5, "otherwise": 5000}},
+            r"randomize\['sensor_delay'\]\.otherwise: sensor_delay of 5000 control periods",
+        ),
+        (
+            {
+                "plant_scaling.stiffness": {
+                    "low": 1.0,
+                    "high": 1.1,
+                    "probability": 0.1,
+                    "otherwise": 100.0,
+                }
+            },
             "too coarse for the stiffest joint mode",
         ),
         (

@@ -35,7 +35,7 @@ from elastic_gym.envs.config import (
     PER_ARM_KEYS,
     ElasticResetOptions,
     EnvConfig,
-    Range,
+    PlantRange,
     RigidResetOptions,
 )
 from elastic_gym.envs.memory import check_batch_memory
@@ -474,7 +474,7 @@ class ArmBatch:
             with errors_at(f"per_arm[{i}]"):
                 settings = shared_settings if merged is None else resolver.settings(arm)
             ranges = {
-                path: validated(Range, spec, f"{where}randomize[{path!r}]")
+                path: validated(PlantRange, spec, f"{where}randomize[{path!r}]")
                 for path, spec in (arm.get("randomize") or {}).items()
             }
             corners = check_ranges(ranges, arm, resolver, where)
@@ -550,7 +550,7 @@ class ArmBatch:
         self.sensor_delay = np.array([s.sensor_delay for s in self.settings])
         self.actuator_delay = np.array([s.actuator_delay for s in self.settings])
         highs = [s.sensor_delay for s in self.settings] + [
-            int(r["sensor_delay"].high) for r in self.ranges if "sensor_delay" in r
+            int(r["sensor_delay"].maximum) for r in self.ranges if "sensor_delay" in r
         ]
         self._sensor_line = 1 + max(highs)
         self._measured = {

@@ -10,7 +10,7 @@ pulses, given or drawn at every reset from the arm's plant stream; a pulse acts 
 control periods that start in [time, time + duration)) and ``payload`` (a point mass at
 the last actuated link, optionally changing at a given time). ``per_arm``: N mappings of
 the per-arm kwargs (:data:`PER_ARM_KEYS`), each deep-merged into the shared kwargs for its
-arm. ``randomize``: parameter path -> :class:`Range`, drawn at every reset.
+arm. ``randomize``: parameter path -> :class:`PlantRange`, drawn at every reset.
 """
 
 from __future__ import annotations
@@ -113,6 +113,32 @@ class Range(StrictModel):
         return self
 
 
+class PlantRange(Range):
+    """A ``randomize`` range: a reset draws from it with ``probability`` (default 1, every
+    reset); at the other resets the path takes ``otherwise`` (default ``low``), e.g.
+    ``{low: 1, high: 1, probability: 0.2, otherwise: 0}`` delays a fifth of the
+    episodes."""
+
+    probability: Annotated[Finite, Field(gt=0.0, le=1.0)] = 1.0
+    otherwise: Finite | None = None
+
+    @model_validator(mode="after")
+    def _otherwise_used(self) -> PlantRange:
+        if self.otherwise is not None and self.probability == 1.0:
+            raise ValueError("otherwise is used only with a probability below 1")
+        return self
+
+    @property
+    def fallback(self) -> float:
+        """The value at the resets that do not draw."""
+        return self.low if self.otherwise is None else self.otherwise
+
+    @property
+    def maximum(self) -> float:
+        """The largest value the range gives."""
+        return max(self.high, self.fallback)
+
+
 class PositiveRange(Range):
     low: PositiveFinite
 
@@ -199,7 +225,7 @@ class ArmOptions(StrictModel):
     actuator_delay: Periods | None = None
     payload: PayloadConfig | None = None
     torque_pulses: TorquePulsesConfig | None = None
-    randomize: dict[str, Range] | None = None
+    randomize: dict[str, PlantRange] | None = None
 
 
 class EnvConfig(StrictModel):
@@ -226,7 +252,7 @@ class EnvConfig(StrictModel):
     actuator_delay: Periods = 0
     payload: PayloadConfig | None = None
     torque_pulses: TorquePulsesConfig | None = None
-    randomize: dict[str, Range] | None = None
+    randomize: dict[str, PlantRange] | None = None
     per_arm: list[ArmOptions] | None = None
     episode_time: PositiveFinite | None = EPISODE_TIME
 

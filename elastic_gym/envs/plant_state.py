@@ -28,7 +28,7 @@ class PlantState:
         settings, ranges = batch.settings, batch.ranges
         self.pulses = TorquePulses(N, n)
         highs = [s.actuator_delay for s in settings] + [
-            int(r["actuator_delay"].high) for r in ranges if "actuator_delay" in r
+            int(r["actuator_delay"].maximum) for r in ranges if "actuator_delay" in r
         ]
         self._line = 1 + max(highs)
         self._commands = np.zeros((self._line, N, n))

@@ -1,14 +1,16 @@
 """Domain randomization: each arm draws its plant at every reset (the ``randomize`` kwarg).
 
-``randomize`` maps a parameter path to a :class:`~elastic_gym.envs.config.Range`, e.g.
-``{"plant_scaling.link_mass": {"low": 0.7, "high": 1.3}, "sensor_delay": {"low": 0,
+``randomize`` maps a parameter path to a :class:`~elastic_gym.envs.config.PlantRange`,
+e.g. ``{"plant_scaling.link_mass": {"low": 0.7, "high": 1.3}, "sensor_delay": {"low": 0,
 "high": 2}}``. At every reset each arm draws, from its own plant stream, one value per path
 in the order of :data:`PATHS`: uniform in [low, high], log-uniform (``log: true``:
 exp(U(log low, log high))) or, for the integer paths, an integer uniform in
-{low, ..., high}. The value replaces the arm's own setting of that path (a scalar: every
-joint gets it). The plant stream of an arm is a generator seeded from its reset seed's
-``SeedSequence`` with its own spawn key, apart from the task and sensor stream: turning
-randomization on changes no task draw, and the same seed gives the same draws.
+{low, ..., high}. A range with ``probability`` p < 1 first draws u ~ U[0, 1): the value
+is drawn as above when u < p, else it is the range's ``otherwise`` (default ``low``).
+The value replaces the arm's own setting of that path (a scalar: every joint gets it).
+The plant stream of an arm is a generator seeded from its reset seed's ``SeedSequence``
+with its own spawn key, apart from the task and sensor stream: turning randomization on
+changes no task draw, and the same seed gives the same draws.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from elastic_gym.envs.arm_config import ArmResolver, ArmSettings, deep_merge
-from elastic_gym.envs.config import Range
+from elastic_gym.envs.config import PlantRange
 from elastic_gym.validation import errors_at, lookup
 
 PLANT_STREAM = 0x706C616E  # spawn key of the plant stream ("plan")
@@ -74,14 +76,16 @@ def with_values(kwargs: Mapping, values: Mapping[str, float | int]) -> dict:
     return out
 
 
-def draw(ranges: Mapping[str, Range], rng: np.random.Generator) -> dict[str, float | int]:
+def draw(ranges: Mapping[str, PlantRange], rng: np.random.Generator) -> dict[str, float | int]:
     """One value per path of ``ranges``, in the order of :data:`PATHS`."""
     values: dict[str, float | int] = {}
     for path, integer in PATHS.items():
         spec = ranges.get(path)
         if spec is None:
             continue
-        if integer:
+        if spec.probability < 1.0 and rng.random() >= spec.probability:
+            values[path] = int(spec.fallback) if integer else float(spec.fallback)
+        elif integer:
             values[path] = int(rng.integers(int(spec.low), int(spec.high) + 1))
         elif spec.log:
             values[path] = float(np.exp(rng.uniform(np.log(spec.low), np.log(spec.high))))
@@ -90,8 +94,17 @@ def draw(ranges: Mapping[str, Range], rng: np.random.Generator) -> dict[str, flo
     return values
 
 
+def _ends(spec: PlantRange) -> dict[str, float]:
+    """The values a range can give at its extremes: low, high and, drawn at a share of
+    the resets, ``otherwise``."""
+    ends = {"low": spec.low, "high": spec.high}
+    if spec.otherwise is not None:
+        ends["otherwise"] = spec.otherwise
+    return ends
+
+
 def check_ranges(
-    ranges: Mapping[str, Range], kwargs: Mapping, resolver: ArmResolver, prefix: str = ""
+    ranges: Mapping[str, PlantRange], kwargs: Mapping, resolver: ArmResolver, prefix: str = ""
 ) -> list[ArmSettings]:
     """Refuse unknown paths, non-integer ends of integer paths and ends outside a
     parameter's admissible range; returns the settings of the corners of the
@@ -100,14 +113,14 @@ def check_ranges(
     for path, spec in ranges.items():
         with errors_at(where):
             integer = lookup(PATHS, path, "parameter path")
-        if integer and (spec.low != int(spec.low) or spec.high != int(spec.high)):
+        ends = _ends(spec)
+        if integer and any(value != int(value) for value in ends.values()):
             raise ValueError(f"{where}[{path!r}]: {path} takes integers, got {spec}")
-        for end in ("low", "high"):
-            value = int(getattr(spec, end)) if integer else getattr(spec, end)
+        for end, value in ends.items():
             with errors_at(f"{where}[{path!r}].{end}"):
-                resolver.settings(with_values(kwargs, {path: value}))
+                resolver.settings(with_values(kwargs, {path: int(value) if integer else value}))
     modes = [p for p in MODE_PATHS if p in ranges]
-    corners = itertools.product(*[(ranges[p].low, ranges[p].high) for p in modes])
+    corners = itertools.product(*[tuple(_ends(ranges[p]).values()) for p in modes])
     return [
         resolver.settings(with_values(kwargs, dict(zip(modes, c, strict=True)))) for c in corners
     ]
