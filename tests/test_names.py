@@ -15,10 +15,12 @@ from elastic_gym.robots.catalog import ROBOTS, get_robot
 
 
 def test_comparison_imports_training_only_when_a_trained_policy_is_named():
+    """... and matplotlib only to plot: a comparison's workers import the package."""
     code = (
         "import sys\n"
         "import elastic_gym.cli, elastic_gym.controllers, elastic_gym.evaluation\n"
         "assert not [m for m in sys.modules if m.startswith('elastic_gym.training')]\n"
+        "assert 'matplotlib' not in sys.modules\n"
         "from elastic_gym.evaluation.controllers import comparison_controller, controller_names\n"
         "assert 'trained-policy' in controller_names()\n"
         "assert comparison_controller('motor-pd').__name__ == 'MotorPD'\n"

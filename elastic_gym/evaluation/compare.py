@@ -25,7 +25,6 @@ from typing import Any
 import yaml
 from rich.console import Console
 
-from elastic_gym.evaluation.curves import plot_all_curves
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE, plan_groups
 from elastic_gym.evaluation.margins import margin_rows, write_margins
 from elastic_gym.evaluation.output import (
@@ -38,7 +37,6 @@ from elastic_gym.evaluation.output import (
     write_atomic,
     write_problem,
 )
-from elastic_gym.evaluation.plots import plot_results
 from elastic_gym.evaluation.preflight import check_plot_names, preflight
 from elastic_gym.evaluation.report import (
     as_table,
@@ -194,6 +192,8 @@ def _compare(
         curves = sweep_curves(scenario, rows)
         files += write_margins(margin_rows(curves), context_columns(scenario), out, scenario.name)
         if plots:
+            from elastic_gym.evaluation.curves import plot_all_curves  # matplotlib, see _Sink
+
             files += plot_all_curves(curves, out / CURVE_DIR)
     console.print(markdown, soft_wrap=True, markup=False)  # long lines are not cut
     console.print(failed_note, markup=False, end="")
@@ -232,6 +232,10 @@ class _Sink:
         if self.remaining[group] == 0:
             members = sorted(self.waiting.pop(group), key=lambda r: r.spec.index)
             if members:
+                # imported here: matplotlib is not needed by the workers, which import this
+                # package, nor by comparisons without plots
+                from elastic_gym.evaluation.plots import plot_results
+
                 self.plots += plot_results(members, self.plot_dir)
 
 
