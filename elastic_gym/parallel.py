@@ -149,12 +149,15 @@ def for_each_result(
     describe: Callable[[Any], str] = repr,
     crashed: Callable[[Any, WorkerDiedError], Any] | None = None,
     size: Callable[[Any], int] | None = None,
+    pool: WorkerPool | None = None,
 ) -> None:
     """Compute ``function(job)`` for every job in parallel and call ``on_result(index,
     result)`` in this process as each one completes (in completion order).
 
     ``size(job)``: how many items of the progress bar a job counts for (default 1: a
-    batch of runs counts as its runs).
+    batch of runs counts as its runs). ``pool``: the worker processes of
+    :func:`worker_processes` to run on (``backend="process"``; at most ``workers`` of
+    them), kept for the caller's next call; default: new ones, ended on return.
 
     A worker process that dies while running a job (``os._exit``, a segmentation
     fault): with ``crashed``, ``crashed(job, WorkerDiedError)`` is that job's result and the
@@ -205,7 +208,7 @@ def for_each_result(
                         ok, outcome = False, exc
                     settle(index, ok, outcome)
         else:
-            _run_processes(function, jobs, workers, settle)
+            _run_processes(function, jobs, workers, settle, pool)
 
 
 def run_jobs(
@@ -261,9 +264,15 @@ def _call(function: Callable[[Any], Any], job: Any) -> Any:
     return function(job)
 
 
-def _run_processes(function, jobs, workers, settle) -> None:
-    with WorkerPool(function, workers, spawn_env=single_threaded) as pool:
-        for index, ok, outcome in pool.results(list(jobs)):
+def worker_processes(workers: int) -> WorkerPool:
+    """``workers`` processes that several :func:`for_each_result` calls can share
+    (``pool=``), so each worker starts (imports) once; a context manager that ends them."""
+    return WorkerPool(workers, spawn_env=single_threaded)
+
+
+def _run_processes(function, jobs, workers, settle, pool: WorkerPool | None) -> None:
+    with contextlib.nullcontext(pool) if pool is not None else worker_processes(workers) as used:
+        for index, ok, outcome in used.results(function, list(jobs), workers):
             settle(index, ok, outcome)
 
 

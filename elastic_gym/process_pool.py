@@ -114,9 +114,9 @@ def _picklable_error(exc: BaseException) -> BaseException:
     return exc
 
 
-def _worker(connection: Connection, function: Callable[[Any], Any], parent_pid: int) -> None:
-    """Worker loop: receive ``job``, send ``(True, result)`` or ``(False, exception)``;
-    ``None`` (or a closed pipe, or a dead parent) ends it."""
+def _worker(connection: Connection, parent_pid: int) -> None:
+    """Worker loop: receive ``(function, job)``, send ``(True, function(job))`` or
+    ``(False, exception)``; ``None`` (or a closed pipe, or a dead parent) ends it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent(parent_pid)
     while True:
@@ -124,12 +124,13 @@ def _worker(connection: Connection, function: Callable[[Any], Any], parent_pid: 
             if os.getppid() != parent_pid:
                 os._exit(1)
         try:
-            job = connection.recv()
+            message = connection.recv()
         except (EOFError, OSError):
             return
-        if job is None:
+        if message is None:
             return
         try:
+            function, job = message
             reply: tuple[bool, Any] = (True, function(job))
         except BaseException as exc:  # sent to the parent, which decides
             reply = (False, _picklable_error(exc))
@@ -140,13 +141,9 @@ def _worker(connection: Connection, function: Callable[[Any], Any], parent_pid: 
 
 
 class _Worker:
-    def __init__(
-        self, context, function: Callable[[Any], Any], spawn_env: Callable, main: bool
-    ) -> None:
+    def __init__(self, context, spawn_env: Callable, main: bool) -> None:
         self.connection, child = context.Pipe()
-        self.process = context.Process(
-            target=_worker, args=(child, function, os.getpid()), daemon=True
-        )
+        self.process = context.Process(target=_worker, args=(child, os.getpid()), daemon=True)
         with spawn_env(), contextlib.nullcontext() if main else main_not_imported():
             self.process.start()
         child.close()
@@ -169,7 +166,9 @@ class _Queue:
 
 
 class WorkerPool:
-    """``workers`` spawned processes computing ``function(job)``.
+    """Up to ``workers`` spawned processes computing ``function(job)`` for the jobs of
+    each :meth:`results` call; the workers of one call stay for the next (one pool can
+    serve several functions: their imports are paid once).
 
     ``spawn_env``: a context manager entered while a worker starts (e.g. the
     environment variables it inherits). Use as a context manager: leaving it ends every
@@ -178,14 +177,14 @@ class WorkerPool:
 
     def __init__(
         self,
-        function: Callable[[Any], Any],
         workers: int,
         spawn_env: Callable[[], contextlib.AbstractContextManager] = contextlib.nullcontext,
     ) -> None:
         self._context = multiprocessing.get_context("spawn")
-        self._function, self._spawn_env = function, spawn_env
+        self._spawn_env = spawn_env
         self._size = workers
         self._workers: list[_Worker] = []
+        self._running = False  # a results() call is under way
         self._main = False  # whether the workers import __main__ (set by results)
 
     def __enter__(self) -> WorkerPool:
@@ -194,43 +193,64 @@ class WorkerPool:
     def __exit__(self, *exc_info) -> None:
         self.stop()
 
-    def results(self, jobs: list[Any]) -> Iterator[tuple[int, bool, Any]]:
-        """Yield ``(index, True, result)``, ``(index, False, exception)`` for every job in
-        completion order; a job whose worker died gives :class:`WorkerDiedError`."""
-        queue = _Queue(jobs)
-        size = min(self._size, len(jobs))
-        main = refers_to_main(self._function, jobs)
+    def start(self, function: Callable[[Any], Any], jobs: list[Any]) -> None:
+        """Spawn the workers now, for ``function`` and ``jobs`` to come (whether they
+        need ``__main__``), so that their start overlaps what this process does next."""
+        self._spawn(refers_to_main(function, jobs), self._size)
+
+    def results(
+        self, function: Callable[[Any], Any], jobs: list[Any], workers: int | None = None
+    ) -> Iterator[tuple[int, bool, Any]]:
+        """Yield ``(index, True, function(job))``, ``(index, False, exception)`` for every
+        job in completion order, on at most ``workers`` of the pool's workers (default:
+        all); a job whose worker died gives :class:`WorkerDiedError`. One call at a time;
+        a call left early (an exception, a generator closed) ends the workers still
+        running its jobs, so the next call never receives their results."""
+        if self._running:
+            raise RuntimeError("a WorkerPool runs the jobs of one results() call at a time")
+        queue = _Queue([(function, job) for job in jobs])
+        size = min(self._size if workers is None else workers, len(jobs))
+        self._spawn(refers_to_main(function, jobs), size)
+        self._running = True
+        try:
+            busy = sum(self._give(worker, queue) for worker in self._workers[:size])
+            while busy:
+                waiting = [w for w in self._workers if w.job is not None]
+                ready = wait(
+                    [w.connection for w in waiting] + [w.process.sentinel for w in waiting]
+                )
+                for worker in waiting:
+                    if worker.connection not in ready and worker.process.sentinel not in ready:
+                        continue
+                    index, outcome = worker.job, self._collect(worker)
+                    worker.job = None
+                    busy -= 1
+                    if outcome is None:  # the worker died: replaced if a job waits
+                        self._workers.remove(worker)
+                        worker.process.join()
+                        outcome = (False, WorkerDiedError(worker.process.exitcode))
+                        if queue.waiting():
+                            worker = self._new_worker()
+                            self._workers.append(worker)
+                    if worker in self._workers:
+                        busy += self._give(worker, queue)
+                    yield (index, *outcome)
+        finally:
+            self._running = False
+            if any(worker.job is not None for worker in self._workers):
+                self.stop()
+
+    def _spawn(self, main: bool, size: int) -> None:
+        """At least ``size`` workers, importing ``__main__`` if ``main``."""
         if main and not self._main:
             self.stop()  # workers started without __main__ cannot rebuild these jobs
         if not self._workers:
             self._main = main
         while len(self._workers) < size:
             self._workers.append(self._new_worker())
-        busy = 0
-        for worker in self._workers:
-            busy += self._give(worker, queue)
-        while busy:
-            waiting = [w for w in self._workers if w.job is not None]
-            ready = wait([w.connection for w in waiting] + [w.process.sentinel for w in waiting])
-            for worker in waiting:
-                if worker.connection not in ready and worker.process.sentinel not in ready:
-                    continue
-                index, outcome = worker.job, self._collect(worker)
-                worker.job = None
-                busy -= 1
-                if outcome is None:  # the worker died: replaced if a job waits
-                    self._workers.remove(worker)
-                    worker.process.join()
-                    outcome = (False, WorkerDiedError(worker.process.exitcode))
-                    if queue.waiting():
-                        worker = self._new_worker()
-                        self._workers.append(worker)
-                if worker in self._workers:
-                    busy += self._give(worker, queue)
-                yield (index, *outcome)
 
     def _new_worker(self) -> _Worker:
-        return _Worker(self._context, self._function, self._spawn_env, self._main)
+        return _Worker(self._context, self._spawn_env, self._main)
 
     @staticmethod
     def _give(worker: _Worker, queue: _Queue) -> int:

@@ -49,6 +49,7 @@ from elastic_gym.evaluation.runner import (
     RunResult,
     RunSpec,
     SkippedRun,
+    group_workers,
     plan_runs,
     run_groups,
 )
@@ -148,31 +149,32 @@ def _compare(
     check_output_folder(out, overwrite)
     if plots:
         check_plot_names(scenario, runs)
-    with interrupts_raised():  # a real Ctrl-C is not taken for the sampled user code's own
-        estimate = preflight(scenario, groups, n_workers)
-    skipped_note = _skipped_note(skipped)
-    console.print(
-        f"[bold]{scenario.name}[/bold]: {len(runs)} runs in {len(groups)} "
-        f"{'world' if len(groups) == 1 else 'worlds'} on {n_workers} "
-        f"{'worker' if n_workers == 1 else 'workers'}, {estimate}"
-    )
-    console.print(skipped_note, markup=False, end="")
+    with group_workers(groups, n_workers, backend) as pool:  # started: the check runs in one
+        with interrupts_raised():  # a real Ctrl-C is not taken for the sampled user code's own
+            estimate = preflight(scenario, groups, n_workers, pool)
+        skipped_note = _skipped_note(skipped)
+        console.print(
+            f"[bold]{scenario.name}[/bold]: {len(runs)} runs in {len(groups)} "
+            f"{'world' if len(groups) == 1 else 'worlds'} on {n_workers} "
+            f"{'worker' if n_workers == 1 else 'workers'}, {estimate}"
+        )
+        console.print(skipped_note, markup=False, end="")
 
-    if overwrite:
-        clear_results(out)
-    out.mkdir(parents=True, exist_ok=True)
-    try:
-        write_atomic(out / "scenario.yaml", yaml.safe_dump(scenario.to_dict(), sort_keys=False))
-    except OSError as exc:
-        raise ResultsWriteError(f"{write_problem(exc)}: nothing written in {out}/") from exc
-    sink = _Sink(out, runs, plots)
-    try:
-        run_groups(groups, sink.add_group, n_workers, backend, progress)
-    except BaseException as exc:
-        rows = sink.csv.finish()
-        kept = f"kept the {len(rows)} finished of {len(runs)} runs in {out}/"
-        _write_tables(scenario, out, rows, skipped_note + f"\nInterrupted: {kept}.\n")
-        raise with_detail(exc, kept)  # noqa: B904 - with_detail sets the cause
+        if overwrite:
+            clear_results(out)
+        out.mkdir(parents=True, exist_ok=True)
+        try:
+            write_atomic(out / "scenario.yaml", yaml.safe_dump(scenario.to_dict(), sort_keys=False))
+        except OSError as exc:
+            raise ResultsWriteError(f"{write_problem(exc)}: nothing written in {out}/") from exc
+        sink = _Sink(out, runs, plots)
+        try:
+            run_groups(groups, sink.add_group, n_workers, backend, progress, pool)
+        except BaseException as exc:
+            rows = sink.csv.finish()
+            kept = f"kept the {len(rows)} finished of {len(runs)} runs in {out}/"
+            _write_tables(scenario, out, rows, skipped_note + f"\nInterrupted: {kept}.\n")
+            raise with_detail(exc, kept)  # noqa: B904 - with_detail sets the cause
     rows = sink.csv.finish()
     failed = [row["status"] for row in rows if row["status"].startswith("failed")]
     failed_note = (

@@ -41,7 +41,7 @@ from elastic_gym.evaluation.runner import (
 )
 from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError
 from elastic_gym.parallel import for_each_result, user_failure
-from elastic_gym.process_pool import WorkerDiedError
+from elastic_gym.process_pool import WorkerDiedError, WorkerPool
 
 SAMPLE_TIME = 0.05  # CPU s of closed loop timed per (env, controller, source) combination
 SAMPLE_STEPS = (3, 1000)  # fewest and most steps of a sample
@@ -178,9 +178,10 @@ def _check(job: _EnvCheck | _Sample) -> float | ScenarioError:
         return exc
 
 
-def _run_checks(jobs: list[_EnvCheck | _Sample]) -> list[float]:
-    """Every job's cost, the jobs run in order in one worker process; raises the first
-    refusal (a job's own, or that of a job whose process died: ``after_death``)."""
+def _run_checks(jobs: list[_EnvCheck | _Sample], pool: WorkerPool | None = None) -> list[float]:
+    """Every job's cost, the jobs run in order in one worker process (of ``pool``, or
+    spawned for them); raises the first refusal (a job's own, or that of a job whose
+    process died: ``after_death``, which checks again in processes of its own)."""
     costs: dict[int, float] = {}
 
     def deliver(index: int, outcome: float | ScenarioError | WorkerDiedError) -> None:
@@ -198,18 +199,22 @@ def _run_checks(jobs: list[_EnvCheck | _Sample]) -> list[float]:
         progress=False,
         describe=lambda job: f"the pre-run check {job}",
         crashed=lambda job, exc: exc,
+        pool=pool,
     )
     return [costs[i] for i in range(len(jobs))]
 
 
-def preflight(scenario: Scenario, groups: Sequence[RunGroup], workers: int) -> Estimate:
+def preflight(
+    scenario: Scenario, groups: Sequence[RunGroup], workers: int, pool: WorkerPool | None = None
+) -> Estimate:
     """Build everything the runs of ``groups`` need once (see the module docstring);
     raise :class:`ScenarioError` on the first failure; return the estimated wall time.
 
     The checks run in a worker process (:func:`~elastic_gym.parallel.for_each_result`
-    with one worker): user code that ends that process (``os._exit``, a signal, a
-    segmentation fault) while its controller, observer or world is built is refused
-    naming the field; in the closed loop it is left to the runs (their rows say so).
+    with one worker; one of ``pool``, the runs' own workers, when given): user code that
+    ends that process (``os._exit``, a signal, a segmentation fault) while its
+    controller, observer or world is built is refused naming the field; in the closed
+    loop it is left to the runs (their rows say so).
     """
     controller_index = {c.label: i for i, c in enumerate(scenario.controllers)}
     source_index = {s.label: i for i, s in enumerate(scenario.state_sources)}
@@ -230,7 +235,7 @@ def preflight(scenario: Scenario, groups: Sequence[RunGroup], workers: int) -> E
                 )
                 keys[len(jobs)] = key
                 jobs.append(_Sample(sample, paths, f"envs[{i}].kwargs"))
-    costs = _run_checks(jobs)
+    costs = _run_checks(jobs, pool)
     cost = {key: costs[index] for index, key in keys.items()}
     # a group's runs may come from several env entries (per-arm plants): its first run's
     # sample stands for all of them

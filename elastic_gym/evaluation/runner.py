@@ -47,8 +47,14 @@ from elastic_gym.observers.registry import OBSERVERS, make_observer, source_clas
 from elastic_gym.observers.sensors import RawSensors
 from elastic_gym.observers.vector import ObserverWrapper as VectorObserverWrapper
 from elastic_gym.observers.vector import SensorWrapper
-from elastic_gym.parallel import DEFAULT_BACKEND, for_each_result, resolve_workers, user_failure
-from elastic_gym.process_pool import WorkerDiedError
+from elastic_gym.parallel import (
+    DEFAULT_BACKEND,
+    for_each_result,
+    resolve_workers,
+    user_failure,
+    worker_processes,
+)
+from elastic_gym.process_pool import WorkerDiedError, WorkerPool, refers_to_main
 from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import RobotSpec
 
@@ -631,10 +637,26 @@ def execute(
     return [results[spec.index] for spec in runs]
 
 
-def run_groups(groups, on_results, workers: int, backend: str, progress: bool) -> None:
-    """Run the worlds ``groups`` (:func:`run_group`) on ``workers`` processes or Ray, calling
-    ``on_results(group, results)`` as each ends; a world whose worker died gives its runs'
-    rows through :func:`crashed_results`; the progress bar counts runs."""
+def group_workers(groups, workers: int, backend: str) -> contextlib.AbstractContextManager:
+    """The worker processes that will run ``groups`` (:func:`run_groups`), started now so
+    that the pre-run check (:func:`~elastic_gym.evaluation.preflight.preflight`) runs in
+    one of them while the others start: a context manager giving the pool, or None where
+    the runs need none (Ray; one worker for jobs that refer to ``__main__``, run in this
+    process)."""
+    if backend != "process" or (workers == 1 and refers_to_main(run_group, groups)):
+        return contextlib.nullcontext()
+    pool = worker_processes(min(workers, len(groups)))
+    pool.start(run_group, list(groups))
+    return pool
+
+
+def run_groups(
+    groups, on_results, workers: int, backend: str, progress: bool, pool: WorkerPool | None = None
+) -> None:
+    """Run the worlds ``groups`` (:func:`run_group`) on ``workers`` processes (of ``pool``
+    when given) or Ray, calling ``on_results(group, results)`` as each ends; a world whose
+    worker died gives its runs' rows through :func:`crashed_results`; the progress bar
+    counts runs."""
     for_each_result(
         run_group,
         groups,
@@ -646,6 +668,7 @@ def run_groups(groups, on_results, workers: int, backend: str, progress: bool) -
         describe=describe_group,
         crashed=crashed_results,
         size=len,
+        pool=pool,
     )
 
 

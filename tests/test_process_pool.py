@@ -1,0 +1,87 @@
+"""The worker pool: one set of processes serves several calls (the pre-run check and
+the runs of a comparison), and a call left early never hands its results to the next."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rich.console import Console
+
+from elastic_gym.controllers.base import Controller
+from elastic_gym.evaluation import Scenario, compare
+from elastic_gym.parallel import worker_processes
+
+
+def pid_of(job: int) -> tuple[int, int]:
+    return job, os.getpid()
+
+
+def slow_square(job: int) -> int:
+    time.sleep(0.05 * job)
+    return job * job
+
+
+def test_one_pool_runs_two_functions_in_the_same_processes():
+    with worker_processes(2) as pool:
+        first = {pid for _, ok, (_, pid) in pool.results(pid_of, list(range(8))) if ok}
+        squares = {index: value for index, _, value in pool.results(slow_square, [3, 1, 2])}
+        second = {pid for _, _, (_, pid) in pool.results(pid_of, list(range(8)), workers=1)}
+    assert squares == {0: 9, 1: 1, 2: 4}
+    assert len(first) == 2 and os.getpid() not in first
+    assert len(second) == 1 and second <= first  # workers=1: one of the same processes
+
+
+def test_a_call_left_early_does_not_leak_its_results_into_the_next():
+    with worker_processes(2) as pool:
+        results = pool.results(slow_square, [4, 4, 4, 4])
+        next(results)
+        with pytest.raises(RuntimeError, match="one results\\(\\) call at a time"):
+            next(pool.results(slow_square, [1]))
+        results.close()  # the other worker is still busy with a job of this call
+        assert sorted(value for _, _, value in pool.results(slow_square, [1, 2, 3])) == [1, 4, 9]
+
+
+class PidLog(Controller):
+    """Zero torque; appends the pid of the process that builds it to ``log``."""
+
+    name = "pid-log"
+
+    def __init__(self, model, dt, log: str = ""):
+        super().__init__(model, dt)
+        with open(log, "a") as handle:
+            handle.write(f"{os.getpid()}\n")
+
+    def __call__(self, obs, info):
+        return np.zeros(self.n)
+
+
+def test_the_pre_run_check_runs_in_a_worker_of_the_runs(tmp_path: Path):
+    """One worker: the check and every run are built in the same process, not this one
+    (a spawned process costs seconds of imports)."""
+    log = tmp_path / "pids.txt"
+    scenario = Scenario.from_dict(
+        {
+            "name": "pids",
+            "duration": 0.01,
+            "seeds": [0, 1],
+            "envs": [{"id": "TwoLinkElastic-v0"}],
+            "controllers": [{"name": "pid-log", "class": PidLog, "options": {"log": str(log)}}],
+            "state_sources": ["true"],
+        }
+    )
+    compare(
+        scenario,
+        output_dir=tmp_path / "out",
+        workers=1,
+        batch_size=1,
+        progress=False,
+        plots=False,
+        console=Console(quiet=True),
+    )
+    pids = log.read_text().split()
+    assert len(pids) >= 3  # the check's build and the two runs'
+    assert len(set(pids)) == 1 and pids[0] != str(os.getpid())
