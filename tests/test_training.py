@@ -19,7 +19,7 @@ from elastic_gym.training import (
     parse_overrides,
     train,
 )
-from elastic_gym.training.config import Settings, resolve_hyperparams
+from elastic_gym.training.config import Settings, load_hyperparams_file, resolve_hyperparams
 from elastic_gym.training.rollouts import evaluate_policy
 from elastic_gym.training.run_envs import PolicyStack
 
@@ -199,8 +199,6 @@ def test_a_shipped_recipe_is_found_by_its_name_from_any_directory(tmp_path, monk
     """``--hyperparams-file ppo-robust.yaml`` outside the repository reads the shipped
     recipe; a file of that name in the working directory is the user's and wins; a name
     that is neither is refused naming it."""
-    from elastic_gym.training.config import load_hyperparams_file
-
     monkeypatch.chdir(tmp_path)
     env_id = "elastic_gym/TwoLinkElastic-v0"
     shipped = Path(__file__).parents[1] / "elastic_gym/training/hyperparams/ppo-robust.yaml"
@@ -230,6 +228,32 @@ def test_shipped_hyperparameters_are_valid():
             action, _ = config.policy_configs(settings)
             ActionMap(action, env.unwrapped.model)
         env.close()
+
+
+@pytest.mark.parametrize(
+    "recipe", ["ppo-robust.yaml", "recurrentppo-robust.yaml", "ppo-residual-robust.yaml"]
+)
+def test_shipped_robust_recipes_randomize_every_plant_parameter(recipe):
+    """Link mass and inertia, unmodelled friction, K, B, D and the sensor delay are drawn
+    (the delay is 1 ms in some episodes); the env accepts the ranges."""
+    import gymnasium as gym
+
+    entry = load_hyperparams_file(recipe)["elastic_gym/TwoLinkElastic-v0"]
+    ranges = entry["env_kwargs"]["randomize"]
+    assert set(ranges) >= {
+        "plant_scaling.link_mass",
+        "plant_scaling.link_inertia",
+        "plant_scaling.stiffness",
+        "plant_scaling.motor_inertia",
+        "plant_scaling.damping",
+        "unmodelled_friction.coulomb",
+        "sensor_delay",
+    }
+    assert ranges["sensor_delay"]["high"] == 1
+    env = gym.make("elastic_gym/TwoLinkElastic-v0", **entry["env_kwargs"])
+    delays = {env.reset(seed=seed)[1]["plant"]["sensor_delay"] for seed in range(20)}
+    assert delays == {0.0, 1.0}
+    env.close()
 
 
 def test_raw_sensor_policy_env_stacks_frames():
