@@ -241,7 +241,11 @@ class WorkerPool:
                 self.stop()
 
     def _spawn(self, main: bool, size: int) -> None:
-        """At least ``size`` workers, importing ``__main__`` if ``main``."""
+        """At least ``size`` live workers, importing ``__main__`` if ``main`` (a worker
+        that died while idle, between two calls, is replaced)."""
+        for worker in [w for w in self._workers if not w.process.is_alive()]:
+            self._workers.remove(worker)
+            worker.process.join()
         if main and not self._main:
             self.stop()  # workers started without __main__ cannot rebuild these jobs
         if not self._workers:

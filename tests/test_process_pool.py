@@ -4,6 +4,7 @@ the runs of a comparison), and a call left early never hands its results to the 
 from __future__ import annotations
 
 import os
+import signal
 import time
 from pathlib import Path
 
@@ -43,6 +44,18 @@ def test_a_call_left_early_does_not_leak_its_results_into_the_next():
             next(pool.results(slow_square, [1]))
         results.close()  # the other worker is still busy with a job of this call
         assert sorted(value for _, _, value in pool.results(slow_square, [1, 2, 3])) == [1, 4, 9]
+
+
+def test_a_worker_that_died_between_two_calls_is_replaced():
+    with worker_processes(1) as pool:
+        [(_, _, (_, pid))] = pool.results(pid_of, [0])
+        os.kill(pid, signal.SIGKILL)
+        for _ in range(100):  # until the kernel has ended it
+            if not pool._workers[0].process.is_alive():
+                break
+            time.sleep(0.05)
+        [(_, ok, (_, other))] = pool.results(pid_of, [1])
+    assert ok and other != pid
 
 
 class PidLog(Controller):
