@@ -148,6 +148,28 @@ def test_payload_change_at_its_time_in_pybullet_and_in_the_plant_model():
     assert p.getDynamicsInfo(sim.bodies[0], link, physicsClientId=sim.client)[0] == 1.0
 
 
+def test_info_plant_of_one_arm_is_a_fresh_dict_at_every_step():
+    """The one-arm ``info["plant"]`` keeps its plain values between steps: a caller that
+    changes the dict it got changes no later info, and a reset with new draws shows them."""
+    env = gym.make(
+        TWO_LINK,
+        randomize={"plant_scaling.link_mass": {"low": 0.8, "high": 1.2}},
+        payload={"mass": 1.0},
+    )
+    _, info = env.reset(seed=3)
+    first = dict(info["plant"])
+    info["plant"]["payload.mass"] = -1.0
+    info["plant"]["mine"] = True
+    _, _, _, _, info = env.step(np.zeros(2))
+    assert info["plant"] == {**first, "torque_pulse": info["plant"]["torque_pulse"]}
+    assert info["plant"]["torque_pulse"] is not first["torque_pulse"]
+    _, info = env.reset(seed=4)
+    assert info["plant"]["plant_scaling.link_mass"] != first["plant_scaling.link_mass"]
+    vector = env.unwrapped.batch.info(np.array([0]))["plant"]
+    assert info["plant"]["plant_scaling.link_mass"] == vector["plant_scaling.link_mass"][0]
+    env.close()
+
+
 def test_rigid_arm_pulse_and_payload():
     env = gym.make(
         RIGID,

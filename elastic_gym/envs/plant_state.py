@@ -43,6 +43,7 @@ class PlantState:
         ]
         paths = [p for p in PATHS if any(p in r for r in ranges)]
         self.drawn = {path: np.full(N, np.nan) for path in paths}
+        self._arm_values: dict[int, dict] = {}  # info's plain values of one arm, by arm
         for arm, arm_settings in enumerate(settings):
             self._set_payload(arm, arm_settings, initial=True)
             pulses = arm_settings.pulses
@@ -53,6 +54,7 @@ class PlantState:
     def reset(self, arms: np.ndarray) -> None:
         """New episodes of ``arms``: their draws (plant stream), initial payloads."""
         batch = self.batch
+        self._arm_values.clear()
         for arm in arms:
             if self._stream[arm] and batch._plant_sources[arm] is not batch.rngs[arm]:
                 batch._plant_sources[arm] = batch.rngs[arm]
@@ -72,6 +74,7 @@ class PlantState:
     def apply(self, arm: int, settings: ArmSettings) -> None:
         """Give arm ``arm`` the plant and sensors of ``settings``."""
         batch = self.batch
+        self._arm_values.clear()
         batch.settings[arm] = settings
         batch.sim.plants.set(arm, batch.resolver.plant_model(settings))
         batch.sim.set_link_scaling(arm, settings.scaling)
@@ -88,6 +91,7 @@ class PlantState:
         if payload is None:
             return
         batch = self.batch
+        self._arm_values.clear()
         if initial or self.payload_mass[arm] != payload.mass:
             if not initial:
                 batch.sim.plants.set(arm, batch.resolver.plant_model(settings))
@@ -117,6 +121,7 @@ class PlantState:
         due = time >= self._change_time if self._changes else None
         if due is not None and due.any():
             batch = self.batch
+            self._arm_values.clear()
             for arm in np.flatnonzero(due).tolist():
                 mass = batch.settings[arm].payload.change.mass
                 batch.sim.plants.set(arm, batch.resolver.plant_model(batch.settings[arm], mass))
@@ -128,15 +133,32 @@ class PlantState:
     # ------------------------------------------------------------------ outputs
     def info(self, arms) -> dict:
         """``info["plant"]`` of ``arms`` (an int: one arm's plain values)."""
-        one = isinstance(arms, (int, np.integer))
-        out = {
-            path: values[arms].item() if one else values[arms].copy()
-            for path, values in self.drawn.items()
-        }
-        delay, mass = self.batch.actuator_delay[arms], self.payload_mass[arms]
-        out["actuator_delay"] = int(delay) if one else delay.copy()
-        out["payload.mass"] = float(mass) if one else mass.copy()  # the current mass
+        if isinstance(arms, (int, np.integer)):
+            return self._one_arm_info(int(arms))
+        out = {path: values[arms].copy() for path, values in self.drawn.items()}
+        out["actuator_delay"] = self.batch.actuator_delay[arms].copy()
+        out["payload.mass"] = self.payload_mass[arms].copy()  # the current mass
         out["torque_pulse"] = self.pulses.current[arms].copy()
+        self._pulse_schedule(arms, out)
+        return out
+
+    def _one_arm_info(self, k: int) -> dict:
+        """:meth:`info` of arm ``k``; its plain values change only at a reset or a payload
+        change, so they are kept between steps (a dict copy costs less than reading them)."""
+        values = self._arm_values.get(k)
+        if values is None:
+            values = {path: drawn[k].item() for path, drawn in self.drawn.items()}
+            values["actuator_delay"] = int(self.batch.actuator_delay[k])
+            values["payload.mass"] = float(self.payload_mass[k])  # the current mass
+            self._arm_values[k] = values
+        out = values.copy()
+        out["torque_pulse"] = self.pulses.current[k].copy()
+        self._pulse_schedule(k, out)
+        return out
+
+    def _pulse_schedule(self, arms, out: dict) -> None:
+        """The torque pulses' times, durations and amplitudes of ``arms`` into ``out`` (NaN
+        for unused slots), where the batch has pulses."""
         pulses = self.pulses
         if pulses.start.shape[1]:
             unused = ~np.isfinite(pulses.start[arms])
@@ -147,7 +169,7 @@ class PlantState:
             out["torque_pulses.amplitudes"] = np.where(
                 unused[..., None], np.nan, pulses.amplitude[arms]
             )
-        return out
 
     def __getstate__(self) -> dict:
-        return {k: v for k, v in vars(self).items() if k != "batch"}
+        """The state without the batch and without the kept info values (read again)."""
+        return {k: v for k, v in vars(self).items() if k not in ("batch", "_arm_values")}
