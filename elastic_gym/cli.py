@@ -276,7 +276,7 @@ def add_train_parser(subcommands: argparse._SubParsersAction) -> None:
         "--hyperparams-file",
         metavar="YAML",
         help="hyper-parameter file: a path, or the name of a shipped one (ppo-robust.yaml,"
-        " recurrentppo-robust.yaml, ppo-residual-robust.yaml)",
+        " recurrentppo-deluca-robust.yaml, recurrentppo-robust.yaml, ppo-residual-robust.yaml)",
     )
     parser.add_argument(
         "--eval-freq",

@@ -108,12 +108,9 @@ def test_the_rows_are_the_train_commands_they_print(tmp_path):
     keys = [row.key for row in rs.ROWS]
     assert len(keys) == len(set(keys)) == len(rs.TRAINING)
     seeds = {row.key: row.seeds for row in rs.ROWS}
-    assert seeds["ppo-deluca-robust"] == seeds["rppo-sensors-robust"] == (0, 1, 2)
-    assert all(
-        len(s) == 1
-        for key, s in seeds.items()
-        if key not in ("ppo-deluca-robust", "rppo-sensors-robust")
-    )
+    three = ("ppo-deluca-robust", "rppo-deluca-robust", "rppo-sensors-robust")
+    assert all(seeds[key] == (0, 1, 2) for key in three)
+    assert all(len(s) == 1 for key, s in seeds.items() if key not in three)
     for row in rs.ROWS:
         config = row.config(1, tmp_path)
         assert config.out_dir == str(tmp_path / row.key / "seed1") and config.seed == 1
@@ -125,6 +122,10 @@ def test_the_rows_are_the_train_commands_they_print(tmp_path):
     config = rppo.config(0, tmp_path)
     assert (config.algo, config.state, config.frame_stack) == ("recurrentppo", "sensors", 1)
     assert Path(config.hyperparams_file).name == "recurrentppo-robust.yaml"
+    (memory,) = [row for row in rs.ROWS if row.key == "rppo-deluca-robust"]
+    config = memory.config(0, tmp_path)
+    assert (config.algo, config.state) == ("recurrentppo", "deluca")
+    assert Path(config.hyperparams_file).name == "recurrentppo-deluca-robust.yaml"
     (residual,) = [row for row in rs.ROWS if row.key == "residual-integral-robust"]
     assert residual.config(0, tmp_path).action == {
         "kind": "residual",
@@ -162,6 +163,8 @@ def test_the_targets_compute_their_verdicts_from_the_numbers():
             ("ppo-deluca-robust", "coulomb1%"): [1e-3, 1e-3, 1e-3],
             (integral, "coulomb1%"): [1.5e-3],
             ("ppo-deluca-robust", "nominal"): [7e-4, 7e-4, 7e-4],  # at the bound: met
+            ("rppo-deluca-robust", "mass1.3"): [1e-3, 1e-3, 1e-3],
+            ("rppo-deluca-robust", "nominal"): [8e-4, 6e-4, 7.3e-4],  # mean 7.1e-4: missed
             (integral, "nominal"): [1e-4],
             ("rppo-sensors-robust", "K0.9"): [2e-3],
             (fd, "K0.9"): [3e-3],
@@ -173,12 +176,15 @@ def test_the_targets_compute_their_verdicts_from_the_numbers():
         wall="1000.0",
     )
     lines = {t.name: t for t in rs.targets(records)}
-    assert len(lines) == 11
+    assert len(lines) == 14
     verdicts = {name: t.verdict for name, t in lines.items()}
     mass = lines["randomized PPO on De Luca, link mass ×1.3"]
     assert (mass.measured, mass.bound, mass.verdict) == (pytest.approx(2e-3), 2e-3, "missed")
     assert verdicts["randomized PPO on De Luca, Coulomb 1 %"] == "met"
     assert verdicts["randomized PPO on De Luca, nominal"] == "met"
+    assert verdicts["randomized RecurrentPPO on De Luca, link mass ×1.3"] == "met"
+    assert verdicts["randomized RecurrentPPO on De Luca, nominal"] == "missed"
+    assert verdicts["randomized RecurrentPPO on De Luca, Coulomb 1 %"] == "—"  # not evaluated
     k_motor = lines["randomized RecurrentPPO on raw sensors, K ×0.9, vs motor PD"]
     k_eq13 = lines["randomized RecurrentPPO on raw sensors, K ×0.9, vs eq. (13)"]
     assert (k_motor.verdict, k_eq13.verdict) == ("met", "missed")
@@ -226,7 +232,7 @@ def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     targets = (out / "targets.md").read_text()
     assert "| nominal PPO on the true state, training wall time |" in targets
     verdicts = [line.rsplit("|", 2)[1].strip() for line in targets.splitlines()[2:]]
-    assert verdicts.count("—") == 9  # the rows and loops not evaluated here
+    assert verdicts.count("—") == 12  # the rows and loops not evaluated here
     assert (out / "robust_rms.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "learning_curves.png").is_file()
     assert "elastic-gym" in (out / "stamp.md").read_text()

@@ -231,7 +231,13 @@ def test_shipped_hyperparameters_are_valid():
 
 
 @pytest.mark.parametrize(
-    "recipe", ["ppo-robust.yaml", "recurrentppo-robust.yaml", "ppo-residual-robust.yaml"]
+    "recipe",
+    [
+        "ppo-robust.yaml",
+        "recurrentppo-deluca-robust.yaml",
+        "recurrentppo-robust.yaml",
+        "ppo-residual-robust.yaml",
+    ],
 )
 def test_shipped_robust_recipes_randomize_every_plant_parameter(recipe):
     """Link mass and inertia, unmodelled friction, K, B, D and the sensor delay are drawn
