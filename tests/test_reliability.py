@@ -1036,7 +1036,8 @@ def test_record_video_writes_every_frame_of_an_episode(tmp_path):
     env = gym.make(TWO_LINK, render_mode="rgb_array", episode_time=0.02)
     env.reset(seed=0)
     height, width, _ = env.render().shape
-    env = RecordVideo(env, str(tmp_path), episode_trigger=lambda _: True, disable_logger=True)
+    folder = tmp_path / "videos"  # a new folder: RecordVideo warns when it overwrites one
+    env = RecordVideo(env, str(folder), episode_trigger=lambda _: True, disable_logger=True)
     env.reset(seed=0)
     steps = 0
     while True:
@@ -1045,7 +1046,7 @@ def test_record_video_writes_every_frame_of_an_episode(tmp_path):
         if terminated or truncated:
             break
     env.close()
-    video = tmp_path / "rl-video-episode-0.mp4"
+    video = folder / "rl-video-episode-0.mp4"
     frames, _ = imageio_ffmpeg.count_frames_and_secs(str(video))
     assert steps == 20 and frames == steps + 1  # the reset's frame and one per step
     reader = imageio_ffmpeg.read_frames(str(video))
