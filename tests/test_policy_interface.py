@@ -119,6 +119,34 @@ def test_features_equal_their_definitions():
     env.close()
 
 
+def test_full_state_adds_the_torsion_rate_to_the_default_selection_only():
+    """``full_state`` lets the default actor of an elastic arm's state source see theta'
+    (the torsion rate); raw sensors, rigid arms and explicit features are unchanged, and
+    the shipped PPO defaults set it."""
+    from elastic_gym.training import TrainConfig
+
+    def selected(env_id, state, **observation):
+        env = make_policy_env(env_id, state, observation=observation)
+        features = env.get_wrapper_attr("builder").features
+        env.close()
+        return features
+
+    rigid = "elastic_gym/TwoLinkRigid-v0"
+    without = ("error", "error_rate", "reference", "torsion", "last_action")
+    full = ("error", "error_rate", "reference", "torsion", "torsion_rate", "last_action")
+    assert selected(ENV_ID, "true") == without
+    assert selected(ENV_ID, "true", full_state=True) == full
+    assert selected(ENV_ID, "deluca", full_state=True) == full
+    assert selected(ENV_ID, "sensors", full_state=True) == selected(ENV_ID, "sensors")
+    assert selected(rigid, "true", full_state=True) == selected(rigid, "true")
+    assert "torsion_rate" not in selected(rigid, "true", full_state=True)
+    explicit = selected(ENV_ID, "true", full_state=True, features=["error", "reference"])
+    assert explicit == ("error", "reference")
+    config = TrainConfig(env_id=ENV_ID, algo="ppo")
+    _, observation = config.policy_configs(config.settings()[0])
+    assert observation.full_state and observation.features is None
+
+
 def test_arms_of_a_batch_are_independent():
     """Builder and action map on (N, ...) arrays: row i equals the same arm alone."""
     env = gym.make(ENV_ID)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import AfterValidator, Field, StrictInt
+from pydantic import AfterValidator, Field, StrictBool, StrictInt
 
 from elastic_gym.validation import ConfigModel, PositiveFinite, distinct
 
@@ -52,7 +52,10 @@ class ObservationConfig(ConfigModel):
     """Which features the policy sees and their scales (module docstring).
 
     ``features=None`` selects the defaults of :func:`default_features` for the state
-    source and action kind. ``frames`` > 1: the actor sees the last ``frames`` feature
+    source and action kind; ``full_state`` adds ``torsion_rate`` to that selection on
+    elastic arms, so that the state features hold the whole state (q, theta, q',
+    theta') relative to the reference (without it theta' is unseen; explicit
+    ``features`` are taken as given). ``frames`` > 1: the actor sees the last ``frames`` feature
     vectors of a state source, oldest first (memory without a recurrent policy; raw sensors
     are stacked by the run's ``frame_stack`` instead).
     """
@@ -72,19 +75,23 @@ class ObservationConfig(ConfigModel):
     torsion_rate_scale: PositiveFinite = 1.0
     preview_scale: PositiveFinite = 0.1
     frames: StrictInt = Field(1, ge=1)  # a state source's last feature vectors, oldest first
+    full_state: StrictBool = False  # the default selection with torsion_rate (elastic)
 
 
 def default_features(
-    sensors: bool, elastic: bool, residual: bool, preview: bool
+    sensors: bool, elastic: bool, residual: bool, preview: bool, full_state: bool = False
 ) -> tuple[str, ...]:
-    """The default selection: tracking error and rate, reference (and preview), torsion,
-    last action (state sources); motor error and accelerations instead of the state
-    features on raw sensors; the base torque for residual policies."""
+    """The default selection: tracking error and rate, reference (and preview), torsion
+    (and with ``full_state`` its rate), last action (state sources); motor error and
+    accelerations instead of the state features on raw sensors; the base torque for
+    residual policies."""
     chosen = {"reference", "last_action"}
     if sensors:
         chosen |= {"motor_error", "acceleration"} if elastic else {"motor_error"}
     else:
-        chosen |= {"error", "error_rate"} | ({"torsion"} if elastic else set())
+        chosen |= {"error", "error_rate"}
+        if elastic:
+            chosen |= {"torsion", "torsion_rate"} if full_state else {"torsion"}
     if residual:
         chosen.add("base_torque")
     if preview:
@@ -196,7 +203,7 @@ class ObservationBuilder:
         self.n, self.elastic, self.sensors = n, elastic, sensors
         self.torque_limit = np.asarray(torque_limit, dtype=float)
         self.features = config.features or default_features(
-            sensors, elastic, residual, bool(config.preview)
+            sensors, elastic, residual, bool(config.preview), config.full_state
         )
         problems = []
         for name in self.features:
