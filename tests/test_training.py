@@ -230,6 +230,28 @@ def test_shipped_hyperparameters_are_valid():
         env.close()
 
 
+def test_a_run_trained_without_normalization_loads_and_evaluates(tmp_path):
+    """``normalize: false``: the saved VecNormalize has no observation statistics; the run
+    folder still loads, acts on the raw features and evaluates on the comparison's loop
+    (SB3's unpickled wrapper recursed when asked for the missing statistics)."""
+    config = TrainConfig(
+        algo="ppo",
+        state="deluca",
+        total_steps=128,
+        out_dir=str(tmp_path / "raw"),
+        env_kwargs=SHORT_EPISODES,
+        hyperparams={"n_envs": 2, "n_steps": 64, "batch_size": 64, "normalize": False},
+        eval_freq=128,
+        eval_episodes=1,
+    )
+    run = load_run(train(config, progress_bar=False).out_dir)
+    assert not run.normalizer.norm_obs
+    features = np.linspace(-1.0, 1.0, run.model.observation_space.shape[0], dtype=np.float32)
+    assert np.array_equal(run.normalizer.normalize_obs(features[None])[0], features)
+    evaluation = evaluate_run(run, 1, 100_000, SHORT_EPISODES)
+    assert np.isfinite(evaluation.rms) and evaluation.rms > 0
+
+
 @pytest.mark.parametrize(
     ("recipe", "delays_drawn"),
     [

@@ -58,7 +58,10 @@ def check_spaces(trained: TrainedRun, features: int, n_joints: int, run: str | P
     entries = f"config.yaml ({trained.config.env_id}, state {trained.config.state!r}) gives "
     entries += f"{expected} entries"
     checks = [("model.zip takes observations", model.observation_space.shape, expected, entries)]
-    statistics = getattr(getattr(trained.normalizer, "obs_rms", None), "mean", None)
+    # vars(): an unpickled VecNormalize without observation statistics (normalize: false)
+    # recurses in SB3's __getattr__ instead of raising AttributeError
+    obs_rms = None if trained.normalizer is None else vars(trained.normalizer).get("obs_rms")
+    statistics = getattr(obs_rms, "mean", None)
     if statistics is not None:
         checks.append(
             ("vecnormalize.pkl takes observations", np.shape(statistics), expected, entries)
