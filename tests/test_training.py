@@ -29,6 +29,22 @@ SHORT_EPISODES = {"max_episode_steps": 200}
 pytestmark = pytest.mark.usefixtures("single_thread_torch")
 
 
+def short_deluca_run(out_dir: Path, algo: str, hyperparams: dict):
+    """128 policy steps on the De Luca estimate with short episodes, one learning-curve
+    point halfway."""
+    config = TrainConfig(
+        algo=algo,
+        state="deluca",
+        total_steps=128,
+        out_dir=str(out_dir),
+        env_kwargs=SHORT_EPISODES,
+        hyperparams=hyperparams,
+        eval_freq=64,
+        eval_episodes=1,
+    )
+    return train(config, progress_bar=False)
+
+
 @pytest.mark.parametrize(
     ("algo", "hyperparams"),
     [
@@ -37,17 +53,7 @@ pytestmark = pytest.mark.usefixtures("single_thread_torch")
     ],
 )
 def test_short_run_saves_reloads_and_acts_the_same(tmp_path, algo, hyperparams):
-    config = TrainConfig(
-        algo=algo,
-        state="deluca",
-        total_steps=128,
-        out_dir=str(tmp_path / algo),
-        env_kwargs=SHORT_EPISODES,
-        hyperparams=hyperparams,
-        eval_freq=64,
-        eval_episodes=1,
-    )
-    result = train(config, progress_bar=False)
+    result = short_deluca_run(tmp_path / algo, algo, hyperparams)
     for name in (
         "model.zip",
         "vecnormalize.pkl",
@@ -234,17 +240,8 @@ def test_a_run_trained_without_normalization_loads_and_evaluates(tmp_path):
     """``normalize: false``: the saved VecNormalize has no observation statistics; the run
     folder still loads, acts on the raw features and evaluates on the comparison's loop
     (SB3's unpickled wrapper recursed when asked for the missing statistics)."""
-    config = TrainConfig(
-        algo="ppo",
-        state="deluca",
-        total_steps=128,
-        out_dir=str(tmp_path / "raw"),
-        env_kwargs=SHORT_EPISODES,
-        hyperparams={"n_envs": 2, "n_steps": 64, "batch_size": 64, "normalize": False},
-        eval_freq=128,
-        eval_episodes=1,
-    )
-    run = load_run(train(config, progress_bar=False).out_dir)
+    hyperparams = {"n_envs": 2, "n_steps": 64, "batch_size": 64, "normalize": False}
+    run = load_run(short_deluca_run(tmp_path / "raw", "ppo", hyperparams).out_dir)
     assert not run.normalizer.norm_obs
     features = np.linspace(-1.0, 1.0, run.model.observation_space.shape[0], dtype=np.float32)
     assert np.array_equal(run.normalizer.normalize_obs(features[None])[0], features)
