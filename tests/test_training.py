@@ -317,6 +317,17 @@ def test_a_state_source_is_seen_in_frames_oldest_first_and_raw_sensors_refuse_th
         TrainConfig(algo="ppo", state="sensors", observation={"frames": 4})
 
 
+RESIDUAL_FEATURES = [
+    "error",
+    "error_rate",
+    "error_integral",
+    "reference",
+    "torsion",
+    "torsion_rate",
+    "last_action",
+    "base_torque",
+    "base_motor_error",
+]
 SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arch": [32, 32]}}
 
 
@@ -325,7 +336,11 @@ SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arc
     [
         ({"kind": "torque"}, "sac", SHORT_SAC),
         ({"kind": "motor-offset"}, "sac", SHORT_SAC),
-        ({"kind": "residual", "residual": "feedforward-state-feedback"}, "sac", SHORT_SAC),
+        (
+            {"kind": "residual", "residual": "integral-state-feedback", "residual_deadzone": 0.0},
+            "sac",  # every feature a residual on a state source can see, every action acts
+            {**SHORT_SAC, "observation": {"features": RESIDUAL_FEATURES}},
+        ),
         (
             {"kind": "motor-offset"},
             "ppo",  # one env (DummyVecEnv); a critic with the truth

@@ -131,7 +131,7 @@ class VectorIntegralStateFeedback(VectorStateFeedback):
         self.integral[arms] = np.linalg.solve(K_I, torque[..., None])[..., 0]
 
     def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:
-        x_d, tau_d = self.desired(t, ref)
+        x_d, tau_d = self.tracked(t, x, ref)
         previous = self._time
         ahead = t > previous + TIME_TOLERANCE  # False right after a reset (NaN)
         arms = np.flatnonzero(ahead & ~self._saturated)

@@ -181,6 +181,7 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
     """Eq. (13) on N arms: tau_i = K_P (x_d,i - xi_i) + tau_d,i, INVDYN batched.
 
     Also the law of the decentralized PD controllers (eq. (13) with a block gain).
+    ``state_error`` (N, dim): x - x_d of every arm at the last call (:meth:`tracked`).
     """
 
     def _bind(self, controller: FeedforwardStateFeedback, n_arms: int) -> None:
@@ -188,9 +189,11 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
         self.gain = controller.gain
         self.feedforward = controller.feedforward
         self.invdyn = InverseDynamics(controller.model, controller.fd_step, self.n_arms)
+        self.state_error = np.zeros((self.n_arms, self.state_dim))
 
     def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
         self.invdyn.reset(arms)
+        self.state_error[arms] = 0.0
 
     def desired(self, t: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(x_d (N, dim), tau_d (N, n)): INVDYN, or the static reference."""
@@ -198,6 +201,13 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
             return self.invdyn(t, ref)
         return static_reference(self.model, ref)
 
-    def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    def tracked(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(x_d, tau_d) of :meth:`desired`; keeps x - x_d as :attr:`state_error`, the error
+        the feedback of eq. (13) acts on at this call (zero since an arm's reset)."""
         x_d, tau_d = self.desired(t, ref)
+        self.state_error = x - x_d
+        return x_d, tau_d
+
+    def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        x_d, tau_d = self.tracked(t, x, ref)
         return arm_rows(self.gain, x_d - x) + tau_d

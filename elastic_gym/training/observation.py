@@ -6,7 +6,10 @@ accelerometers): ``error``, ``error_rate`` and ``error_integral`` (:class:`Error
 the integral action's information) of the state source, ``reference``
 (q_d .. q_d^(k-1), scaled per order), ``preview`` (q_d(t + h) - q_d(t) for horizons h),
 ``torsion`` and ``torsion_rate`` (elastic state), ``motor_error`` and ``acceleration``
-(raw sensors), ``last_action`` and ``base_torque`` (residual). The reference and its
+(raw sensors), ``last_action``, ``base_torque`` and ``base_motor_error`` (residual: the
+motor half theta - theta_d, theta' - theta_d' of the base's state error x - x_d of eq. (13),
+zero on the nominal plant while it tracks; a heavier load shows there before the links
+move). The reference and its
 preview are no measurement: the task defines them in advance. :class:`TrueStateFeatures`
 computes the state features of the true state, what a privileged critic sees
 (:mod:`elastic_gym.training.critic`).
@@ -34,10 +37,12 @@ FEATURES = (
     "acceleration",
     "last_action",
     "base_torque",
+    "base_motor_error",
 )
 STATE_FEATURES = frozenset({"error", "error_rate", "error_integral", "torsion", "torsion_rate"})
 TRUE_STATE_FEATURES = ("error", "error_rate", "torsion", "torsion_rate")  # memoryless
-ELASTIC_FEATURES = frozenset({"torsion", "torsion_rate", "motor_error"})
+ELASTIC_FEATURES = frozenset({"torsion", "torsion_rate", "motor_error", "base_motor_error"})
+RESIDUAL_FEATURES = frozenset({"base_torque", "base_motor_error"})
 SENSOR_FEATURES = frozenset({"motor_error", "acceleration"})
 GRAVITY = 9.81
 
@@ -106,6 +111,22 @@ def _given(value: np.ndarray | None, feature: str) -> np.ndarray:
     return value
 
 
+def base_state_error(base) -> np.ndarray | None:
+    """x - x_d (N, dim) of a residual's base (vector) controller at its last call, None
+    for a base without a desired state (only eq. (13), its integral and PD variants keep
+    one: ``state_error``)."""
+    return getattr(base, "state_error", None)
+
+
+def check_base_error(features: tuple[str, ...], base) -> None:
+    """Refuse ``base_motor_error`` when the residual's base keeps no state error x - x_d."""
+    if "base_motor_error" in features and base_state_error(base) is None:
+        raise ValueError(
+            "observation feature 'base_motor_error' needs a residual base with a desired "
+            f"state x_d (eq. (13), its integral action or PD variants), not {base.name!r}"
+        )
+
+
 @dataclass
 class ObservationInputs:
     """What the features are computed from, every array with a leading arm axis N.
@@ -113,7 +134,8 @@ class ObservationInputs:
     ``state`` (N, 4n | 2n) for state sources, ``motor_position`` (N, n) and
     ``acceleration`` (N, 3m) for raw sensors; ``reference`` (N, 5, n) rows q_d .. q_d^(4);
     ``preview`` (N, H, n) q_d at the preview horizons; ``last_action`` (N, n);
-    ``base_torque`` (N, n); ``error_integral`` (N, n) of :class:`ErrorIntegral`.
+    ``base_torque`` (N, n) and ``base_error`` (N, 4n) x - x_d of the residual's base at its
+    last call; ``error_integral`` (N, n) of :class:`ErrorIntegral`.
     """
 
     reference: np.ndarray
@@ -123,6 +145,7 @@ class ObservationInputs:
     acceleration: np.ndarray | None = None
     preview: np.ndarray | None = None
     base_torque: np.ndarray | None = None
+    base_error: np.ndarray | None = None
     error_integral: np.ndarray | None = None
 
 
@@ -213,8 +236,8 @@ class ObservationBuilder:
                 problems.append(f"{name!r} needs raw sensors")
             if name in ELASTIC_FEATURES and not elastic:
                 problems.append(f"{name!r} needs an elastic arm")
-            if name == "base_torque" and not residual:
-                problems.append("'base_torque' needs a residual action")
+            if name in RESIDUAL_FEATURES and not residual:
+                problems.append(f"{name!r} needs a residual action")
             if name == "preview" and not config.preview:
                 problems.append("'preview' needs preview horizons")
             if name == "acceleration" and not n_accelerations:
@@ -225,6 +248,7 @@ class ObservationBuilder:
             "reference": (config.reference_order + 1) * n,
             "preview": len(config.preview) * n,
             "acceleration": n_accelerations,
+            "base_motor_error": 2 * n,
         }
         self.sizes = {name: sizes.get(name, n) for name in self.features}
         self.size = sum(self.sizes.values())
@@ -255,6 +279,11 @@ class ObservationBuilder:
             return _given(x.acceleration, name) / GRAVITY
         if name == "error_integral":
             return _given(x.error_integral, name) / c.error_integral_scale
+        if name == "base_motor_error":
+            e = _given(x.base_error, name)
+            return np.concatenate(
+                [e[:, :n] / c.error_scale, e[:, 2 * n : 3 * n] / c.error_rate_scale], axis=1
+            )
         s = _given(x.state, name)
         if self.elastic:
             theta, q, dtheta, dq = (s[:, i * n : (i + 1) * n] for i in range(4))

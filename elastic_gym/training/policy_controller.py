@@ -3,8 +3,8 @@
 The policy sees what it saw in training and acts the same way: every ``decimation``
 calls it gets the features of :class:`~elastic_gym.training.observation.ObservationBuilder`
 (from the state source, the reference in ``info``, its last action and the residual's
-last base torque), normalized with the saved ``VecNormalize`` statistics; at every call
-its held action becomes a torque through the same
+last base torque and state error), normalized with the saved ``VecNormalize``
+statistics; at every call its held action becomes a torque through the same
 :class:`~elastic_gym.training.actions.ActionMap` (motor PD, residual base, ...).
 """
 
@@ -21,7 +21,13 @@ from elastic_gym.controllers import Controller, make_controller
 from elastic_gym.controllers.vector import ARM0, ControllerTwin, make_vector_controller, twin_of
 from elastic_gym.model import RobotModel
 from elastic_gym.training.actions import ActionMap
-from elastic_gym.training.observation import ErrorIntegral, ObservationBuilder, ObservationInputs
+from elastic_gym.training.observation import (
+    ErrorIntegral,
+    ObservationBuilder,
+    ObservationInputs,
+    base_state_error,
+    check_base_error,
+)
 from elastic_gym.training.policy_env import SENSORS
 from elastic_gym.training.rollouts import PolicyActor, at_bound
 from elastic_gym.training.trained import TrainedRun, load_run
@@ -161,11 +167,14 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             if controller.base is None
             else make_vector_controller(controller.base, self.model, self.dt, N)
         )
+        if self.base is not None:
+            check_base_error(controller.builder.features, self.base)
         self.actors = [PolicyActor(trained.model, trained.normalizer) for _ in range(N)]
         self._calls = np.zeros(N, dtype=np.int64)
         self._action = np.zeros((N, n))
         self._last_action = np.zeros((N, n))
         self._last_base = np.zeros((N, n))
+        self._last_base_error = np.zeros((N, self.state_dim))
         size = controller.builder.size
         self._frames = np.zeros((N, controller.frame_stack, size), dtype=np.float32)
         self._previous_motor = np.zeros((N, n))  # encoders at the last call (raw sensors)
@@ -195,8 +204,9 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         for i in arms:
             self.actors[i].start()
         self._calls[arms] = 0
-        for held in (self._action, self._last_action, self._last_base, self._acts, self._at_bound):
-            held[arms] = 0.0
+        held = (self._action, self._last_action, self._last_base, self._last_base_error)
+        for values in (*held, self._acts, self._at_bound):
+            values[arms] = 0.0
         if self.controller.sensors:
             self._previous_motor[arms] = np.asarray(obs["motor_position"], dtype=float)[arms]
         self._integral.restart(arms, np.broadcast_to(info["time"], (self.n_arms,)))
@@ -210,6 +220,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             reference=reference[arms],
             last_action=self._last_action[arms],
             base_torque=self._last_base[arms],
+            base_error=self._last_base_error[arms],
         )
         if x is None:  # raw sensors
             inputs.motor_position = np.asarray(obs["motor_position"], dtype=float)[arms]
@@ -261,6 +272,9 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._calls += 1
         base = np.zeros((self.n_arms, n)) if self.base is None else self.base(obs, info)
         self._last_base = base
+        error = base_state_error(self.base)
+        if error is not None:
+            self._last_base_error = error.copy()
         theta, dtheta = self._motor_state(obs, x)
         if c.sensors:
             self._previous_motor = np.asarray(obs["motor_position"], dtype=float).copy()

@@ -32,6 +32,8 @@ from elastic_gym.training.observation import (
     ObservationConfig,
     ObservationInputs,
     TrueStateFeatures,
+    base_state_error,
+    check_base_error,
 )
 from elastic_gym.validation import checked_count
 
@@ -88,7 +90,8 @@ class PolicyAction(_ArmResets):
     A residual's base controller is a vector controller of all arms
     (:func:`~elastic_gym.controllers.vector.make_vector_controller`).
     ``info["base_torque"]`` (N, n) holds the residual's base torque (zeros for other
-    kinds).
+    kinds) and, for a base with a desired state, ``info["base_error"]`` (N, dim) its state
+    error x - x_d at that call (zeros after a reset).
     """
 
     def __init__(
@@ -117,6 +120,13 @@ class PolicyAction(_ArmResets):
         self._info: dict = {}
         self._previous_motor = np.zeros((self.num_envs, self.n))
         self._base = np.zeros((self.num_envs, self.n))
+        error = base_state_error(self.controller)
+        self._base_error = None if error is None else np.zeros_like(error)
+
+    def _base_info(self, info: dict) -> None:
+        info["base_torque"] = self._base.copy()
+        if self._base_error is not None:
+            info["base_error"] = self._base_error.copy()
 
     def _restart(self, arms, obs: Mapping, info: Mapping) -> None:
         if self.controller is not None and len(arms):
@@ -130,7 +140,9 @@ class PolicyAction(_ArmResets):
         self._restart(arms, obs, info)
         self._obs, self._info = obs, info
         self._base[arms] = 0.0
-        info["base_torque"] = self._base.copy()
+        if self._base_error is not None:
+            self._base_error[arms] = 0.0
+        self._base_info(info)
         return obs, info
 
     def step(self, actions):
@@ -138,6 +150,9 @@ class PolicyAction(_ArmResets):
         obs, info, n = self._obs, self._info, self.n
         if self.controller is not None:
             self._base = self.controller(obs, public_info(info))
+            error = base_state_error(self.controller)
+            if error is not None:
+                self._base_error = error.copy()
         theta = dtheta = None
         if self.map.needs_motor_state:
             if self.sensors:  # backward difference of the encoders
@@ -149,7 +164,7 @@ class PolicyAction(_ArmResets):
         torque = self.map.torque(a, theta, dtheta, reference_rows(info), self._base)
         obs, reward, terminated, truncated, info = self.env.step(torque)
         self._restart(self._restarted(terminated, truncated), obs, info)
-        info["base_torque"] = self._base.copy()
+        self._base_info(info)
         self._obs, self._info = obs, info
         return obs, reward, terminated, truncated, info
 
@@ -176,6 +191,7 @@ class PolicyObservation(_ArmResets):
             action_config.kind == "residual",
             batch.torque_limit,
         )
+        check_base_error(self.builder.features, wrapper_attribute(env, "controller"))
         self.frame_stack = checked_count(frame_stack, "frame_stack", 1)
         self.n = batch.n_joints
         size = self.builder.size * frame_stack
@@ -203,6 +219,7 @@ class PolicyObservation(_ArmResets):
             acceleration=obs.get("acceleration"),
             preview=preview,
             base_torque=info["base_torque"],
+            base_error=info.get("base_error"),
             error_integral=None if self._integral is None else self._integral.value,
         )
         return self.builder.build(inputs)

@@ -48,7 +48,8 @@ class PolicyAction(_CheckedActions[vector.PolicyAction], gym.utils.RecordConstru
             ``torque`` and ``motor-offset`` kinds).
         action: an :class:`ActionConfig` or its fields.
 
-    ``info["base_torque"]`` holds the residual's base torque (zeros for other kinds).
+    ``info["base_torque"]`` holds the residual's base torque (zeros for other kinds),
+    ``info["base_error"]`` its base's state error x - x_d (a base with a desired state).
     """
 
     def __init__(self, env: gym.Env, action: ActionConfig | dict | None = None) -> None:
@@ -56,6 +57,7 @@ class PolicyAction(_CheckedActions[vector.PolicyAction], gym.utils.RecordConstru
         _CheckedActions.__init__(self, env, functools.partial(vector.PolicyAction, action=action))
         self.action_config = self.vector.action_config
         self.map = self.vector.map
+        self.controller = self.vector.controller  # the residual's base (vector, N = 1)
 
     @property
     def _info(self) -> dict:
