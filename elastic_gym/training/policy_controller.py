@@ -2,8 +2,8 @@
 
 The policy sees what it saw in training and acts the same way: every ``decimation``
 calls it gets the features of :class:`~elastic_gym.training.observation.ObservationBuilder`
-(from the state source, the reference in ``info``, its last action and the residual's
-last base torque and state error), normalized with the saved ``VecNormalize``
+(from the state source, the reference in ``info``, its last action, the residual's last
+base torque and its base's state error now), normalized with the saved ``VecNormalize``
 statistics; at every call its held action becomes a torque through the same
 :class:`~elastic_gym.training.actions.ActionMap` (motor PD, residual base, ...).
 """
@@ -174,7 +174,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._action = np.zeros((N, n))
         self._last_action = np.zeros((N, n))
         self._last_base = np.zeros((N, n))
-        self._last_base_error = np.zeros((N, self.state_dim))
+        self._base_error = np.zeros((N, self.state_dim))  # x - x_d of this call's base
         size = controller.builder.size
         self._frames = np.zeros((N, controller.frame_stack, size), dtype=np.float32)
         self._previous_motor = np.zeros((N, n))  # encoders at the last call (raw sensors)
@@ -204,9 +204,8 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         for i in arms:
             self.actors[i].start()
         self._calls[arms] = 0
-        held = (self._action, self._last_action, self._last_base, self._last_base_error)
-        for values in (*held, self._acts, self._at_bound):
-            values[arms] = 0.0
+        for held in (self._action, self._last_action, self._last_base, self._acts, self._at_bound):
+            held[arms] = 0.0
         if self.controller.sensors:
             self._previous_motor[arms] = np.asarray(obs["motor_position"], dtype=float)[arms]
         self._integral.restart(arms, np.broadcast_to(info["time"], (self.n_arms,)))
@@ -220,7 +219,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             reference=reference[arms],
             last_action=self._last_action[arms],
             base_torque=self._last_base[arms],
-            base_error=self._last_base_error[arms],
+            base_error=self._base_error[arms],
         )
         if x is None:  # raw sensors
             inputs.motor_position = np.asarray(obs["motor_position"], dtype=float)[arms]
@@ -260,6 +259,10 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         c, n = self.controller, self.n
         reference = self.references(info)
         x = None if c.sensors else self.states(obs)
+        base = np.zeros((self.n_arms, n)) if self.base is None else self.base(obs, info)
+        error = base_state_error(self.base)
+        if error is not None:
+            self._base_error = error
         acting = np.flatnonzero(self._calls % c.decimation == 0)  # at 1 / (decimation dt)
         if len(acting):
             features = c.builder.build(self._inputs(obs, info, x, reference, acting))
@@ -270,11 +273,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             self._acts[acting] += 1
             self._at_bound[acting] += at_bound(self._action[acting])
         self._calls += 1
-        base = np.zeros((self.n_arms, n)) if self.base is None else self.base(obs, info)
         self._last_base = base
-        error = base_state_error(self.base)
-        if error is not None:
-            self._last_base_error = error.copy()
         theta, dtheta = self._motor_state(obs, x)
         if c.sensors:
             self._previous_motor = np.asarray(obs["motor_position"], dtype=float).copy()

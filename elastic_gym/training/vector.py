@@ -89,9 +89,10 @@ class PolicyAction(_ArmResets):
 
     A residual's base controller is a vector controller of all arms
     (:func:`~elastic_gym.controllers.vector.make_vector_controller`).
-    ``info["base_torque"]`` (N, n) holds the residual's base torque (zeros for other
-    kinds) and, for a base with a desired state, ``info["base_error"]`` (N, dim) its state
-    error x - x_d at that call (zeros after a reset).
+    ``info["base_torque"]`` (N, n) holds the residual's base torque of the step just
+    taken (zeros for other kinds and after a reset). The base is called on each
+    observation as it arrives (its torque is applied at the next step); for a base with a
+    desired state ``info["base_error"]`` (N, dim) is its state error x - x_d there.
     """
 
     def __init__(
@@ -119,14 +120,19 @@ class PolicyAction(_ArmResets):
         self._obs: dict = {}
         self._info: dict = {}
         self._previous_motor = np.zeros((self.num_envs, self.n))
-        self._base = np.zeros((self.num_envs, self.n))
-        error = base_state_error(self.controller)
-        self._base_error = None if error is None else np.zeros_like(error)
+        self._base = np.zeros((self.num_envs, self.n))  # applied in the step just taken
+        self._next_base = np.zeros((self.num_envs, self.n))  # for the current observation
 
-    def _base_info(self, info: dict) -> None:
-        info["base_torque"] = self._base.copy()
-        if self._base_error is not None:
-            info["base_error"] = self._base_error.copy()
+    def _call_base(self, obs: Mapping, info: dict) -> None:
+        """The residual's base on the current observation: its torque for the next step
+        and, for a base with a desired state, ``info["base_error"]`` (x - x_d). A second
+        call at the same instant (the other arms of a masked reset) changes nothing."""
+        if self.controller is None:
+            return
+        self._next_base = self.controller(obs, public_info(info))
+        error = base_state_error(self.controller)
+        if error is not None:
+            info["base_error"] = error.copy()
 
     def _restart(self, arms, obs: Mapping, info: Mapping) -> None:
         if self.controller is not None and len(arms):
@@ -140,19 +146,14 @@ class PolicyAction(_ArmResets):
         self._restart(arms, obs, info)
         self._obs, self._info = obs, info
         self._base[arms] = 0.0
-        if self._base_error is not None:
-            self._base_error[arms] = 0.0
-        self._base_info(info)
+        info["base_torque"] = self._base.copy()
+        self._call_base(obs, info)
         return obs, info
 
     def step(self, actions):
         a = validated_actions(actions, self.num_envs, self.n)
         obs, info, n = self._obs, self._info, self.n
-        if self.controller is not None:
-            self._base = self.controller(obs, public_info(info))
-            error = base_state_error(self.controller)
-            if error is not None:
-                self._base_error = error.copy()
+        self._base = self._next_base.copy()
         theta = dtheta = None
         if self.map.needs_motor_state:
             if self.sensors:  # backward difference of the encoders
@@ -164,7 +165,8 @@ class PolicyAction(_ArmResets):
         torque = self.map.torque(a, theta, dtheta, reference_rows(info), self._base)
         obs, reward, terminated, truncated, info = self.env.step(torque)
         self._restart(self._restarted(terminated, truncated), obs, info)
-        self._base_info(info)
+        info["base_torque"] = self._base.copy()
+        self._call_base(obs, info)
         self._obs, self._info = obs, info
         return obs, reward, terminated, truncated, info
 
