@@ -201,7 +201,9 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
             return self.invdyn(t, ref)
         return static_reference(self.model, ref)
 
-    def tracked(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, ...]:
+    def tracked(
+        self, t: np.ndarray, x: np.ndarray, ref: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(x_d, tau_d) of :meth:`desired`; keeps x - x_d as :attr:`state_error`, the error
         the feedback of eq. (13) acts on at this call (zero since an arm's reset)."""
         x_d, tau_d = self.desired(t, ref)

@@ -8,11 +8,10 @@ the integral action's information) of the state source, ``reference``
 ``torsion`` and ``torsion_rate`` (elastic state), ``motor_error`` and ``acceleration``
 (raw sensors), ``last_action``, ``base_torque`` and ``base_motor_error`` (residual: the
 motor half theta - theta_d, theta' - theta_d' of the base's state error x - x_d of eq. (13),
-zero on the nominal plant while it tracks; a heavier load shows there before the links
-move). The reference and its
-preview are no measurement: the task defines them in advance. :class:`TrueStateFeatures`
-computes the state features of the true state, what a privileged critic sees
-(:mod:`elastic_gym.training.critic`).
+zero on the nominal plant while it tracks; on the true state a heavier load shows there
+before the links move). The reference and its preview are no measurement: the task
+defines them in advance. :class:`TrueStateFeatures` computes the state features of the
+true state, what a privileged critic sees (:mod:`elastic_gym.training.critic`).
 """
 
 from __future__ import annotations
@@ -134,8 +133,9 @@ class ObservationInputs:
     ``state`` (N, 4n | 2n) for state sources, ``motor_position`` (N, n) and
     ``acceleration`` (N, 3m) for raw sensors; ``reference`` (N, 5, n) rows q_d .. q_d^(4);
     ``preview`` (N, H, n) q_d at the preview horizons; ``last_action`` (N, n);
-    ``base_torque`` (N, n) and ``base_error`` (N, 4n) x - x_d of the residual's base at its
-    last call; ``error_integral`` (N, n) of :class:`ErrorIntegral`.
+    ``base_torque`` (N, n) of the residual's base in the last control period and
+    ``base_error`` (N, 4n) its x - x_d on the current state; ``error_integral`` (N, n) of
+    :class:`ErrorIntegral`.
     """
 
     reference: np.ndarray
