@@ -317,7 +317,7 @@ def test_a_state_source_is_seen_in_frames_oldest_first_and_raw_sensors_refuse_th
         TrainConfig(algo="ppo", state="sensors", observation={"frames": 4})
 
 
-RESIDUAL_FEATURES = [
+EVERY_STATE_RESIDUAL_FEATURE = [
     "error",
     "error_rate",
     "error_integral",
@@ -339,7 +339,7 @@ SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arc
         (
             {"kind": "residual", "residual": "integral-state-feedback", "residual_deadzone": 0.0},
             "sac",  # every feature a residual on a state source can see, every action acts
-            {**SHORT_SAC, "observation": {"features": RESIDUAL_FEATURES}},
+            {**SHORT_SAC, "observation": {"features": EVERY_STATE_RESIDUAL_FEATURE}},
         ),
         (
             {"kind": "motor-offset"},
