@@ -87,7 +87,7 @@ TRAINING = (
     ),
     (
         "residual-integral-robust",
-        1,
+        3,
         "ppo-residual-robust.yaml",
         f"--algo ppo --state deluca --residual {INTEGRAL}",
     ),
@@ -358,8 +358,9 @@ def plot(lines: list[dict], out: Path) -> None:
             x.append(group - 0.4 + (index + 0.5) * width)
             height.append(line[plant])
             several = line[f"{plant} min"] != ""
-            low.append(line[plant] - line[f"{plant} min"] if several else 0.0)
-            high.append(line[f"{plant} max"] - line[plant] if several else 0.0)
+            # the mean of equal seeds' RMS may round past their min or max: no whisker then
+            low.append(max(line[plant] - line[f"{plant} min"], 0.0) if several else 0.0)
+            high.append(max(line[f"{plant} max"] - line[plant], 0.0) if several else 0.0)
         if not x:
             continue
         ax.bar(
