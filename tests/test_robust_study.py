@@ -108,7 +108,12 @@ def test_the_rows_are_the_train_commands_they_print(tmp_path):
     keys = [row.key for row in rs.ROWS]
     assert len(keys) == len(set(keys)) == len(rs.TRAINING)
     seeds = {row.key: row.seeds for row in rs.ROWS}
-    three = ("ppo-deluca-robust", "rppo-deluca-robust", "rppo-sensors-robust")
+    three = (
+        "ppo-deluca-robust",
+        "rppo-deluca-robust",
+        "rppo-sensors-robust",
+        "residual-integral-robust",
+    )
     assert all(seeds[key] == (0, 1, 2) for key in three)
     assert all(len(s) == 1 for key, s in seeds.items() if key not in three)
     for row in rs.ROWS:
