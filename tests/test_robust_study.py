@@ -283,3 +283,17 @@ def test_unknown_rows_plants_and_no_episodes_are_refused(argv, message, tmp_path
         rs.run(rs.ROBUST_STUDY, [*argv, "--runs", str(tmp_path / "runs"), "--out", str(out)])
     assert exit_.value.code == 2 and message in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / "runs").exists()
+
+
+def test_the_figure_draws_seeds_of_equal_rms(tmp_path):
+    """Three seeds of equal RMS: their mean rounds below their minimum (a negative
+    whisker matplotlib refuses); the figure draws them without whiskers."""
+    x = next(v for v in (1.141e-5 * (1 + k * 1e-9) for k in range(1000)) if np.mean([v] * 3) < v)
+    records = [
+        {**r, "label": "residual", "state": "deluca", "algo": "ppo", "policy_steps": ""}
+        for r in _records({("residual-integral-robust", "nominal"): [x, x, x]})
+    ]
+    (line,) = rs.table(records)
+    assert line["nominal"] < line["nominal min"] == x
+    rs.plot([line], tmp_path)
+    assert (tmp_path / "robust_rms.png").stat().st_size > 0
