@@ -158,6 +158,47 @@ def test_invdyn_neglected_coupling_terms_are_tiny_for_kr15_without_damping():
     assert neglected_torque < 1e-4 * np.abs(tau_d[:, 1]).max()
 
 
+@pytest.mark.parametrize("robot", ["two_link_elastic", "kr15_elastic"])
+@pytest.mark.parametrize("feedforward", [True, False])
+def test_link_mass_sensitivity_gives_the_law_on_the_heavier_model(robot, feedforward):
+    """INVDYN is linear in the link masses: eq. (13) on a model with link masses scaled by
+    s equals eq. (13) on the nominal model plus sum_i (s_i - 1) d tau / d s_i, along a
+    move and off the desired state (same gain: the design stays the nominal one)."""
+    from elastic_gym.controllers.vector import make_vector_controller
+
+    model = model_of(robot)
+    path, arms = reference_path(model), np.arange(2)
+    s = np.linspace(1.3, 0.8, model.n)
+    nominal = make_vector_controller(
+        "feedforward-state-feedback", model, 1e-3, 2, feedforward=feedforward
+    )
+    nominal.track_link_mass()
+    heavier = make_vector_controller(
+        "feedforward-state-feedback",
+        model.perturbed(link_mass=tuple(s)),
+        1e-3,
+        2,
+        feedforward=feedforward,
+    )
+    heavier.gain = nominal.gain
+    for controller in (nominal, heavier):
+        controller.reset_arms({}, {}, arms)
+    rng = np.random.default_rng(0)
+    worst = change = 0.0
+    for t in np.arange(0.0, 0.5, 2e-3):
+        ref = np.stack([path.evaluate(t)] * 2)
+        x_d = np.concatenate([ref[:, 0], ref[:, 0], ref[:, 1], ref[:, 1]], axis=1)
+        x = x_d + 1e-3 * rng.standard_normal(x_d.shape)
+        times = np.full(2, t)
+        tau = nominal.torques(times, x, ref)
+        predicted = tau + np.einsum("i,aij->aj", s - 1.0, nominal.link_mass_sensitivity)
+        expected = heavier.torques(times, x, ref)
+        worst = max(worst, np.abs(predicted - expected).max())
+        change = max(change, np.abs(expected - tau).max())
+    assert change > 1.0  # N m: the masses matter
+    assert worst < 1e-9 * change
+
+
 # --------------------------------------------------------------------- gain design
 @pytest.mark.parametrize("robot", ["two_link_elastic", "kr15_elastic", "iiwa_elastic"])
 def test_state_feedback_design_places_slowest_poles_at_omega(robot):

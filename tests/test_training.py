@@ -153,6 +153,58 @@ def test_residual_policy_env_starts_from_the_classical_controller():
     assert max(errors) < 1e-3  # zero residual = eq. (13), which tracks
 
 
+def test_a_residual_on_link_masses_is_the_base_on_the_corrected_model():
+    """``residual_space: link-mass``: an action in the deadzone is the base exactly; a
+    constant action s = 1.3 on links 30 % heavier removes most of the base's error, the
+    error of a model that knows the load (the base's own gains)."""
+    kwargs = {
+        "max_episode_steps": 1000,
+        "task": "tracking",
+        "task_options": {"n_moves": 1, "move_time": 0.6, "dwell_time": 0.2},
+        "accelerometer": "ideal",
+    }
+    action = {
+        "kind": "residual",
+        "residual": "integral-state-feedback",
+        "residual_space": "link-mass",
+        "residual_scale": 0.6,
+        "residual_deadzone": 0.2,
+    }
+
+    def run(a: float, space: str = "link-mass") -> np.ndarray:
+        env = make_policy_env(
+            "elastic_gym/TwoLinkElastic-v0",
+            "true",
+            {**kwargs, "plant_scaling": {"link_mass": 1.3}},
+            decimation=10,
+            action={**action, "residual_space": space},
+            observation={"features": ["error"]},
+        )
+        env.reset(seed=3)
+        errors, done = [], False
+        while not done:
+            _, _, terminated, truncated, info = env.step(np.full(2, a))
+            errors.append(info["true_state"]["q"] - info["reference"]["q"])
+            done = terminated or truncated
+        env.close()
+        return np.array(errors)
+
+    base = run(0.0, "torque")  # a zero torque residual: the base alone
+    np.testing.assert_array_equal(run(0.2), base)
+    knows = run(0.2 + 0.8 * 0.3 / 0.6)  # s = 1 + 0.6 rho(a) = 1.3
+    rms_base, rms_knows = (float(np.sqrt(np.mean(e**2))) for e in (base, knows))
+    assert rms_base > 1e-3  # the base sags under the unmodelled load
+    assert rms_knows < 0.1 * rms_base
+    with pytest.raises(ValueError, match="needs kind 'residual'"):
+        ActionConfig(kind="torque", residual_space="link-mass")
+    with pytest.raises(ValueError, match="needs a base with INVDYN"):
+        make_policy_env(
+            "elastic_gym/TwoLinkRigid-v0",
+            "true",
+            action={**action, "residual": "feedback-linearization"},
+        )
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -340,6 +392,16 @@ SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arc
             {"kind": "residual", "residual": "integral-state-feedback", "residual_deadzone": 0.0},
             "sac",  # every feature a residual on a state source can see, every action acts
             {**SHORT_SAC, "observation": {"features": EVERY_STATE_RESIDUAL_FEATURE}},
+        ),
+        (
+            {
+                "kind": "residual",
+                "residual": "integral-state-feedback",
+                "residual_space": "link-mass",
+                "residual_deadzone": 0.0,
+            },
+            "ppo",  # the residual scales the base's link masses
+            {"n_envs": 1, "n_steps": 50, "batch_size": 50, "n_epochs": 2},
         ),
         (
             {"kind": "motor-offset"},

@@ -313,6 +313,49 @@ class InverseDynamics:
         return x_d, tau_d
 
 
+class LinkMassSensitivity:
+    """How INVDYN's (x_d, tau_d) change with the link masses of the model, for N arms.
+
+    ``link_mass`` scaling (:class:`~elastic_gym.model.ParameterScaling`) multiplies all
+    inertial parameters of a link (mass, first moment, rotational inertia) by s_i. The
+    RNEA torque tau_r is linear in them, and INVDYN (Sec. V-B) is linear in tau_r: the
+    torsion equation K delta + D delta' = tau_J is linear, theta_d = q_d + delta and
+    tau_d = B theta_d'' + S^T q_d'' + tau_J. So INVDYN of a model with scales s is exactly
+
+        (x_d, tau_d)(s) = (x_d, tau_d)(1) + sum_i (s_i - 1) (d x_d / d s_i, d tau_d / d s_i),
+
+    the derivative of link i being INVDYN of the model with link i twice as heavy minus
+    the nominal one. Call ``sensitivity(t, ref, x_d, tau_d)`` with the nominal INVDYN's
+    (x_d, tau_d) of the same call (same times, increasing, as for :class:`InverseDynamics`).
+    Without ``feedforward`` the reference is the static one (:func:`static_reference`),
+    also linear in the masses.
+    """
+
+    def __init__(
+        self, model: RobotModel, fd_step: float, n_arms: int, feedforward: bool = True
+    ) -> None:
+        self.feedforward = feedforward
+        heavier = np.eye(model.n) + 1.0  # row i: link i twice as heavy
+        self.models = [model.perturbed(link_mass=tuple(row)) for row in heavier]
+        self.invdyn = [InverseDynamics(m, fd_step, n_arms) for m in self.models]
+
+    def reset(self, arms: np.ndarray | None = None) -> None:
+        for invdyn in self.invdyn:
+            invdyn.reset(arms)
+
+    def __call__(
+        self, t, ref: np.ndarray, x_d: np.ndarray, tau_d: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(d x_d / d s (N, n, dim), d tau_d / d s (N, n, n)), row i of each arm: link i."""
+        rows = [
+            invdyn(t, ref) if self.feedforward else static_reference(invdyn.model, ref)
+            for invdyn in self.invdyn
+        ]
+        dx = np.stack([x - x_d for x, _ in rows], axis=1)
+        dtau = np.stack([tau - tau_d for _, tau in rows], axis=1)
+        return dx, dtau
+
+
 def static_reference(model: RobotModel, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Reference without INVDYN: the gravity-compensated static state at q_d.
 

@@ -32,6 +32,7 @@ from elastic_gym.controllers.invdyn import (
     DEFAULT_FD_STEP,
     FdStep,
     InverseDynamics,
+    LinkMassSensitivity,
     info_time,
     reference_derivatives,
     static_reference,
@@ -182,6 +183,8 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
 
     Also the law of the decentralized PD controllers (eq. (13) with a block gain).
     ``state_error`` (N, dim): x - x_d of every arm at the last call (:meth:`tracked`).
+    After :meth:`track_link_mass`, ``link_mass_sensitivity`` (N, n, n) holds at every call
+    the change of the torque per unit change of each link's mass scale in the model.
     """
 
     def _bind(self, controller: FeedforwardStateFeedback, n_arms: int) -> None:
@@ -190,10 +193,27 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
         self.feedforward = controller.feedforward
         self.invdyn = InverseDynamics(controller.model, controller.fd_step, self.n_arms)
         self.state_error = np.zeros((self.n_arms, self.state_dim))
+        self._mass_sensitivity: LinkMassSensitivity | None = None
+        self.link_mass_sensitivity: np.ndarray | None = None
+
+    def track_link_mass(self) -> None:
+        """From the next reset on, keep ``link_mass_sensitivity`` (N, n, n): row i of an
+        arm is d tau / d s_i = K_P d x_d / d s_i + d tau_d / d s_i, the torque of this law
+        with the model's link i mass scaled by 1 + c minus its torque, divided by c (exact
+        for every c: :class:`~elastic_gym.controllers.invdyn.LinkMassSensitivity`). The
+        feedback on x - x_d and any integral of the link error do not depend on the
+        masses. Costs n more INVDYN evaluations per call."""
+        c = self.controller
+        self._mass_sensitivity = LinkMassSensitivity(
+            c.model, c.fd_step, self.n_arms, self.feedforward
+        )
+        self.link_mass_sensitivity = np.zeros((self.n_arms, self.n, self.n))
 
     def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
         self.invdyn.reset(arms)
         self.state_error[arms] = 0.0
+        if self._mass_sensitivity is not None:
+            self._mass_sensitivity.reset(arms)
 
     def desired(self, t: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(x_d (N, dim), tau_d (N, n)): INVDYN, or the static reference."""
@@ -208,6 +228,9 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
         the feedback of eq. (13) acts on at this call (zero since an arm's reset)."""
         x_d, tau_d = self.desired(t, ref)
         self.state_error = x - x_d
+        if self._mass_sensitivity is not None:
+            dx_d, dtau_d = self._mass_sensitivity(t, ref, x_d, tau_d)
+            self.link_mass_sensitivity = np.matmul(dx_d, self.gain.T) + dtau_d
         return x_d, tau_d
 
     def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:

@@ -1,17 +1,17 @@
 """What a policy's action means: torque, motor-position offsets through a motor PD, or a
-residual torque on a classical controller. Pure logic on arrays with a leading arm axis.
-
-The action a in [-1, 1]^n, held for ``decimation`` control periods, becomes a torque at
-every period from the state and the reference of that period:
+residual on a classical controller. Pure logic on arrays with a leading arm axis. The action
+a in [-1, 1]^n, held for ``decimation`` control periods, becomes a torque at every period:
 
 * ``torque``: tau = tau_max * a;
 * ``motor-offset``: a constant-gain motor PD tracks q_d + offset_scale * a,
   tau = kp (q_d + offset_scale * a - theta) + kd (q_d' - theta') [+ g(q_d)], no model
   term without ``gravity_compensation``; kp, kd explicit or kp = J w^2, kd = 2 zeta J w;
 * ``residual`` (Residual Policy Learning, Silver et al. 2018): tau = tau_base +
-  residual_scale * tau_max * rho(a), tau_base from a classical controller, with the
-  deadzone rho(a) = sign(a) max(|a| - d, 0) / (1 - d), d = ``residual_deadzone``: exactly
-  zero while |a| <= d, the full bound reachable.
+  residual_scale * tau_max * rho(a), rho(a) = sign(a) max(|a| - d, 0) / (1 - d) a deadzone
+  (d = ``residual_deadzone``); with ``residual_space: link-mass`` the residual scales the
+  link masses of the base's model instead, s_i = 1 + residual_scale * rho(a_i), and
+  tau = tau_base + sum_i (s_i - 1) d tau_base / d s_i, the base's law on that model
+  (exact: :class:`~elastic_gym.controllers.invdyn.LinkMassSensitivity`).
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from elastic_gym.validation import (
 )
 
 KINDS = ("torque", "motor-offset", "residual")
+RESIDUAL_SPACES = ("torque", "link-mass")
 Gains = Finite | list[Finite] | None  # one or n numbers; checked against n by ActionMap
 
 
@@ -52,8 +53,12 @@ class ActionConfig(ConfigModel):
         gravity_compensation: add g(q_d) of the nominal model (a model term).
         residual: name of the base controller (registry of ``elastic_gym.controllers``).
         residual_options: options of the base controller.
-        residual_scale: bound of the residual torque as a fraction of tau_max.
+        residual_scale: bound of the residual torque as a fraction of tau_max (the
+            ``torque`` space), or of the link-mass change as a fraction of the model's
+            masses (``link-mass``).
         residual_deadzone: |a| below which the residual is exactly zero, in [0, 1).
+        residual_space: ``"torque"`` (added to the base's torque) or ``"link-mass"``
+            (scales the link masses of the base's model).
     """
 
     section = "action"
@@ -68,6 +73,7 @@ class ActionConfig(ConfigModel):
     residual_options: dict[str, Any] = Field(default_factory=dict)
     residual_scale: PositiveFinite = Field(0.1, le=1)
     residual_deadzone: Finite = Field(RESIDUAL_DEADZONE, ge=0, lt=1)
+    residual_space: Literal[RESIDUAL_SPACES] = "torque"  # type: ignore[valid-type]
 
     @model_validator(mode="after")
     def _consistent(self) -> ActionConfig:
@@ -76,7 +82,14 @@ class ActionConfig(ConfigModel):
         all_or_none(
             {"kind 'residual'": residual_kind, "residual (a controller name)": self.residual}
         )
+        if self.residual_space == "link-mass" and self.kind != "residual":
+            raise ValueError("residual_space 'link-mass' needs kind 'residual'")
         return self
+
+    @property
+    def on_link_masses(self) -> bool:
+        """True when the residual scales the link masses of its base's model."""
+        return self.kind == "residual" and self.residual_space == "link-mass"
 
     @property
     def model_free(self) -> bool:
@@ -109,6 +122,12 @@ class ActionMap:
                 self.kp = per_joint_values(config.kp, self.n, "action 'kp'", 0.0, strict=True)
                 self.kd = per_joint_values(config.kd, self.n, "action 'kd'", 0.0)
 
+    def mass_change(self, action: np.ndarray) -> np.ndarray:
+        """s - 1 (N, n) of the link-mass residual for actions (N, n) (module docstring)."""
+        config = self.config
+        ones = np.ones(self.n)
+        return residual_torque(action, ones, config.residual_scale, config.residual_deadzone)
+
     @property
     def needs_motor_state(self) -> bool:
         return self.config.kind == "motor-offset"
@@ -120,19 +139,24 @@ class ActionMap:
         motor_velocity: np.ndarray | None = None,
         reference: np.ndarray | None = None,
         base_torque: np.ndarray | None = None,
+        base_sensitivity: np.ndarray | None = None,
     ) -> np.ndarray:
         """Motor torque (N, n) for actions (N, n) in [-1, 1] (clipped).
 
         ``motor_position``, ``motor_velocity`` (N, n) and ``reference`` (N, >= 2, n) rows
         q_d, q_d', ... are needed by ``motor-offset``; ``base_torque`` (N, n) by
-        ``residual``.
+        ``residual``, and on link masses also ``base_sensitivity`` (N, n, n), row i of an
+        arm d tau_base / d s_i (the base's ``link_mass_sensitivity``).
         """
         a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
-        kind = self.config.kind
-        if kind == "torque":
+        config = self.config
+        if config.kind == "torque":
             return self.torque_limit * a
-        if kind == "residual":
-            config = self.config
+        if config.on_link_masses:
+            assert base_torque is not None and base_sensitivity is not None
+            change = self.mass_change(a)
+            return base_torque + np.matmul(change[:, None, :], base_sensitivity)[:, 0]
+        if config.kind == "residual":
             return base_torque + residual_torque(
                 a, self.torque_limit, config.residual_scale, config.residual_deadzone
             )
@@ -143,3 +167,22 @@ class ActionMap:
         if self.config.gravity_compensation:
             tau = tau + np.array([self.model.gravity(q) for q in q_d])
         return tau
+
+
+def track_link_masses(config: ActionConfig, base) -> None:
+    """Have a residual's vector base keep its link-mass sensitivity when the residual acts
+    on link masses (a clear error for a base without a model feedforward)."""
+    if not config.on_link_masses:
+        return
+    track = getattr(base, "track_link_mass", None)
+    if track is None:
+        raise ValueError(
+            "residual_space 'link-mass' needs a base with INVDYN (eq. (13), its integral "
+            f"action or PD variants), not {base.name!r}"
+        )
+    track()
+
+
+def base_sensitivity(config: ActionConfig, base) -> np.ndarray | None:
+    """The base's d tau / d s (N, n, n) at its last call, for a residual on link masses."""
+    return base.link_mass_sensitivity.copy() if config.on_link_masses else None

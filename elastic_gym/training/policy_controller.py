@@ -20,7 +20,7 @@ from elastic_gym.arms import as_batch
 from elastic_gym.controllers import Controller, make_controller
 from elastic_gym.controllers.vector import ARM0, ControllerTwin, make_vector_controller, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.training.actions import ActionMap
+from elastic_gym.training.actions import ActionMap, base_sensitivity, track_link_masses
 from elastic_gym.training.observation import (
     ErrorIntegral,
     ObservationBuilder,
@@ -169,6 +169,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         )
         if self.base is not None:
             check_base_error(controller.builder.features, self.base)
+            track_link_masses(controller.map.config, self.base)
         self.actors = [PolicyActor(trained.model, trained.normalizer) for _ in range(N)]
         self._calls = np.zeros(N, dtype=np.int64)
         self._action = np.zeros((N, n))
@@ -260,6 +261,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         reference = self.references(info)
         x = None if c.sensors else self.states(obs)
         base = np.zeros((self.n_arms, n)) if self.base is None else self.base(obs, info)
+        sensitivity = base_sensitivity(c.map.config, self.base)
         error = base_state_error(self.base)
         if error is not None:
             self._base_error = error
@@ -277,4 +279,4 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         theta, dtheta = self._motor_state(obs, x)
         if c.sensors:
             self._previous_motor = np.asarray(obs["motor_position"], dtype=float).copy()
-        return c.map.torque(self._action, theta, dtheta, reference, base)
+        return c.map.torque(self._action, theta, dtheta, reference, base, sensitivity)

@@ -25,7 +25,12 @@ from elastic_gym.controllers import public_info
 from elastic_gym.controllers.vector import make_vector_controller
 from elastic_gym.envs.arm_env import validated_actions
 from elastic_gym.observers.vector import true_state_vector
-from elastic_gym.training.actions import ActionConfig, ActionMap
+from elastic_gym.training.actions import (
+    ActionConfig,
+    ActionMap,
+    base_sensitivity,
+    track_link_masses,
+)
 from elastic_gym.training.observation import (
     ErrorIntegral,
     ObservationBuilder,
@@ -115,6 +120,7 @@ class PolicyAction(_ArmResets):
                 self.num_envs,
                 **self.action_config.residual_options,
             )
+            track_link_masses(self.action_config, self.controller)
         self.single_action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._obs: dict = {}
@@ -122,6 +128,8 @@ class PolicyAction(_ArmResets):
         self._previous_motor = np.zeros((self.num_envs, self.n))
         self._base = np.zeros((self.num_envs, self.n))  # applied in the step just taken
         self._next_base = np.zeros((self.num_envs, self.n))  # for the current observation
+        self._sensitivity: np.ndarray | None = None  # d tau_base / d s, step just taken
+        self._next_sensitivity: np.ndarray | None = None  # ... for the current observation
 
     def _call_base(self, obs: Mapping, info: dict) -> None:
         """The residual's base on the current observation: its torque for the next step
@@ -130,6 +138,7 @@ class PolicyAction(_ArmResets):
         if self.controller is None:
             return
         self._next_base = self.controller(obs, public_info(info))
+        self._next_sensitivity = base_sensitivity(self.action_config, self.controller)
         error = base_state_error(self.controller)
         if error is not None:
             info["base_error"] = error.copy()
@@ -154,6 +163,7 @@ class PolicyAction(_ArmResets):
         a = validated_actions(actions, self.num_envs, self.n)
         obs, info, n = self._obs, self._info, self.n
         self._base = self._next_base.copy()
+        self._sensitivity = self._next_sensitivity
         theta = dtheta = None
         if self.map.needs_motor_state:
             if self.sensors:  # backward difference of the encoders
@@ -162,7 +172,9 @@ class PolicyAction(_ArmResets):
                 self._previous_motor = theta.copy()
             else:
                 theta, dtheta = obs["state"][:, :n], obs["state"][:, 2 * n : 3 * n]
-        torque = self.map.torque(a, theta, dtheta, reference_rows(info), self._base)
+        torque = self.map.torque(
+            a, theta, dtheta, reference_rows(info), self._base, self._sensitivity
+        )
         obs, reward, terminated, truncated, info = self.env.step(torque)
         self._restart(self._restarted(terminated, truncated), obs, info)
         info["base_torque"] = self._base.copy()
