@@ -195,8 +195,22 @@ def test_a_residual_on_link_masses_is_the_base_on_the_corrected_model():
     rms_base, rms_knows = (float(np.sqrt(np.mean(e**2))) for e in (base, knows))
     assert rms_base > 1e-3  # the base sags under the unmodelled load
     assert rms_knows < 0.1 * rms_base
+    # the action as the rate of s: integrated from 1 to its bound 1.3 in 3 ms, then held
+    action.update(residual_rate=100.0, residual_scale=0.3)
+    adapts = run(1.0)
+    assert float(np.sqrt(np.mean(adapts**2))) < 0.1 * rms_base
+    np.testing.assert_array_equal(run(0.2), base)  # the deadzone holds s = 1
     with pytest.raises(ValueError, match="needs kind 'residual'"):
         ActionConfig(kind="torque", residual_space="link-mass")
+    with pytest.raises(ValueError, match="residual_rate needs"):
+        ActionConfig(kind="residual", residual="motor-pd", residual_rate=1.0)
+    with pytest.raises(ValueError, match="'link_mass_estimate' needs"):
+        make_policy_env(
+            "elastic_gym/TwoLinkElastic-v0",
+            "true",
+            action={**action, "residual_rate": None},
+            observation={"features": ["error", "link_mass_estimate"]},
+        )
     with pytest.raises(ValueError, match="needs a base with INVDYN"):
         make_policy_env(
             "elastic_gym/TwoLinkRigid-v0",
@@ -402,6 +416,23 @@ SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arc
             },
             "ppo",  # the residual scales the base's link masses
             {"n_envs": 1, "n_steps": 50, "batch_size": 50, "n_epochs": 2},
+        ),
+        (
+            {
+                "kind": "residual",
+                "residual": "integral-state-feedback",
+                "residual_space": "link-mass",
+                "residual_rate": 20.0,
+                "residual_deadzone": 0.0,
+            },
+            "ppo",  # ... at the rate of its action, and sees its scales
+            {
+                "n_envs": 1,
+                "n_steps": 50,
+                "batch_size": 50,
+                "n_epochs": 2,
+                "observation": {"features": ["error", "error_integral", "link_mass_estimate"]},
+            },
         ),
         (
             {"kind": "motor-offset"},

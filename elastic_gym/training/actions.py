@@ -11,7 +11,8 @@ a in [-1, 1]^n, held for ``decimation`` control periods, becomes a torque at eve
   (d = ``residual_deadzone``); with ``residual_space: link-mass`` the residual scales the
   link masses of the base's model instead, s_i = 1 + residual_scale * rho(a_i), and
   tau = tau_base + sum_i (s_i - 1) d tau_base / d s_i, the base's law on that model
-  (exact: :class:`~elastic_gym.controllers.invdyn.LinkMassSensitivity`).
+  (exact: :class:`~elastic_gym.controllers.invdyn.LinkMassSensitivity`); with
+  ``residual_rate`` the action is the rate of s instead (:class:`LinkMassEstimate`).
 """
 
 from __future__ import annotations
@@ -59,6 +60,10 @@ class ActionConfig(ConfigModel):
         residual_deadzone: |a| below which the residual is exactly zero, in [0, 1).
         residual_space: ``"torque"`` (added to the base's torque) or ``"link-mass"``
             (scales the link masses of the base's model).
+        residual_rate: on link masses, the action sets the rate of the scales instead,
+            s' = residual_rate * rho(a) (1/s), from s = 1 at every reset, within
+            1 +- residual_scale (an adaptation law with a deadzone: the scales hold
+            while |a| <= d). The policy sees them as the feature ``link_mass_estimate``.
     """
 
     section = "action"
@@ -74,6 +79,7 @@ class ActionConfig(ConfigModel):
     residual_scale: PositiveFinite = Field(0.1, le=1)
     residual_deadzone: Finite = Field(RESIDUAL_DEADZONE, ge=0, lt=1)
     residual_space: Literal[RESIDUAL_SPACES] = "torque"  # type: ignore[valid-type]
+    residual_rate: PositiveFinite | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> ActionConfig:
@@ -84,6 +90,8 @@ class ActionConfig(ConfigModel):
         )
         if self.residual_space == "link-mass" and self.kind != "residual":
             raise ValueError("residual_space 'link-mass' needs kind 'residual'")
+        if self.residual_rate is not None and not self.on_link_masses:
+            raise ValueError("residual_rate needs kind 'residual' with residual_space 'link-mass'")
         return self
 
     @property
@@ -140,13 +148,15 @@ class ActionMap:
         reference: np.ndarray | None = None,
         base_torque: np.ndarray | None = None,
         base_sensitivity: np.ndarray | None = None,
+        mass_change: np.ndarray | None = None,
     ) -> np.ndarray:
         """Motor torque (N, n) for actions (N, n) in [-1, 1] (clipped).
 
         ``motor_position``, ``motor_velocity`` (N, n) and ``reference`` (N, >= 2, n) rows
         q_d, q_d', ... are needed by ``motor-offset``; ``base_torque`` (N, n) by
         ``residual``, and on link masses also ``base_sensitivity`` (N, n, n), row i of an
-        arm d tau_base / d s_i (the base's ``link_mass_sensitivity``).
+        arm d tau_base / d s_i (the base's ``link_mass_sensitivity``), and with
+        ``residual_rate`` ``mass_change`` (N, n), s - 1 of the :class:`LinkMassEstimate`.
         """
         a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
         config = self.config
@@ -154,7 +164,7 @@ class ActionMap:
             return self.torque_limit * a
         if config.on_link_masses:
             assert base_torque is not None and base_sensitivity is not None
-            change = self.mass_change(a)
+            change = self.mass_change(a) if mass_change is None else mass_change
             return base_torque + np.matmul(change[:, None, :], base_sensitivity)[:, 0]
         if config.kind == "residual":
             return base_torque + residual_torque(
@@ -186,3 +196,51 @@ def track_link_masses(config: ActionConfig, base) -> None:
 def base_sensitivity(config: ActionConfig, base) -> np.ndarray | None:
     """The base's d tau / d s (N, n, n) at its last call, for a residual on link masses."""
     return base.link_mass_sensitivity.copy() if config.on_link_masses else None
+
+
+class LinkMassEstimate:
+    """The link-mass scales s of a residual with ``residual_rate``, per arm: s - 1 = 0 at
+    a (re)start, then at every control period s - 1 += dt * residual_rate * rho(a), kept
+    within +- residual_scale (rho the deadzone of :func:`residual_torque`).
+
+    Args:
+        config: the action parameterization (``residual_rate`` set).
+        n_arms, n: arms and links. dt: control period (s).
+    """
+
+    def __init__(self, config: ActionConfig, n_arms: int, n: int, dt: float) -> None:
+        assert config.residual_rate is not None
+        self.config, self.dt, self.rate = config, float(dt), float(config.residual_rate)
+        self.change = np.zeros((n_arms, n))  # s - 1
+
+    def restart(self, arms: np.ndarray) -> None:
+        self.change[arms] = 0.0
+
+    def advance(self, action: np.ndarray) -> np.ndarray:
+        """One control period under the actions (N, n); returns s - 1 (N, n)."""
+        c = self.config
+        rate = residual_torque(action, np.ones(self.change.shape[1]), 1.0, c.residual_deadzone)
+        step = self.dt * self.rate * rate
+        self.change = np.clip(self.change + step, -c.residual_scale, c.residual_scale)
+        return self.change
+
+    @property
+    def feature(self) -> np.ndarray:
+        """(s - 1) / residual_scale (N, n), in [-1, 1]: the feature ``link_mass_estimate``."""
+        return self.change / self.config.residual_scale
+
+
+def link_mass_estimate(config: ActionConfig, n_arms: int, n: int, dt: float):
+    """The :class:`LinkMassEstimate` of N arms when the residual integrates its action
+    (``residual_rate``), else None."""
+    return None if config.residual_rate is None else LinkMassEstimate(config, n_arms, n, dt)
+
+
+def check_estimate_feature(features: tuple[str, ...], config: ActionConfig) -> None:
+    """Refuse the feature ``link_mass_estimate`` unless the residual integrates link-mass
+    scales (``residual_rate``)."""
+    if "link_mass_estimate" in features and config.residual_rate is None:
+        raise ValueError(
+            "observation feature 'link_mass_estimate' needs a residual on link masses with "
+            "residual_rate"
+        )

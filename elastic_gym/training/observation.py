@@ -6,10 +6,10 @@ accelerometers): ``error``, ``error_rate`` and ``error_integral`` (:class:`Error
 the integral action's information) of the state source, ``reference``
 (q_d .. q_d^(k-1), scaled per order), ``preview`` (q_d(t + h) - q_d(t) for horizons h),
 ``torsion`` and ``torsion_rate`` (elastic state), ``motor_error`` and ``acceleration``
-(raw sensors), ``last_action``, ``base_torque`` and ``base_motor_error`` (residual: the
+(raw sensors), ``last_action``, ``base_torque``, ``base_motor_error`` (residual: the
 motor half theta - theta_d, theta' - theta_d' of the base's state error x - x_d of eq. (13),
-zero on the nominal plant while it tracks; on the true state a heavier load shows there
-before the links move). The reference and its preview are no measurement: the task
+zero on the nominal plant while it tracks) and ``link_mass_estimate`` (a residual that
+integrates link-mass scales: its scales). The reference and its preview are no measurement: the task
 defines them in advance. :class:`TrueStateFeatures` computes the state features of the
 true state, what a privileged critic sees (:mod:`elastic_gym.training.critic`).
 """
@@ -37,11 +37,12 @@ FEATURES = (
     "last_action",
     "base_torque",
     "base_motor_error",
+    "link_mass_estimate",
 )
 STATE_FEATURES = frozenset({"error", "error_rate", "error_integral", "torsion", "torsion_rate"})
 TRUE_STATE_FEATURES = ("error", "error_rate", "torsion", "torsion_rate")  # memoryless
 ELASTIC_FEATURES = frozenset({"torsion", "torsion_rate", "motor_error", "base_motor_error"})
-RESIDUAL_FEATURES = frozenset({"base_torque", "base_motor_error"})
+RESIDUAL_FEATURES = frozenset({"base_torque", "base_motor_error", "link_mass_estimate"})
 SENSOR_FEATURES = frozenset({"motor_error", "acceleration"})
 GRAVITY = 9.81
 
@@ -135,7 +136,8 @@ class ObservationInputs:
     ``preview`` (N, H, n) q_d at the preview horizons; ``last_action`` (N, n);
     ``base_torque`` (N, n) of the residual's base in the last control period and
     ``base_error`` (N, 4n) its x - x_d on the current state; ``error_integral`` (N, n) of
-    :class:`ErrorIntegral`.
+    :class:`ErrorIntegral`; ``link_mass_estimate`` (N, n) the residual's link-mass scales
+    (s - 1) / residual_scale.
     """
 
     reference: np.ndarray
@@ -147,6 +149,7 @@ class ObservationInputs:
     base_torque: np.ndarray | None = None
     base_error: np.ndarray | None = None
     error_integral: np.ndarray | None = None
+    link_mass_estimate: np.ndarray | None = None
 
 
 class ErrorIntegral:
@@ -277,6 +280,8 @@ class ObservationBuilder:
             return (_given(x.motor_position, name) - ref[:, 0]) / c.torsion_scale
         if name == "acceleration":
             return _given(x.acceleration, name) / GRAVITY
+        if name == "link_mass_estimate":
+            return _given(x.link_mass_estimate, name)
         if name == "error_integral":
             return _given(x.error_integral, name) / c.error_integral_scale
         if name == "base_motor_error":

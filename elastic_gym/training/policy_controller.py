@@ -20,7 +20,13 @@ from elastic_gym.arms import as_batch
 from elastic_gym.controllers import Controller, make_controller
 from elastic_gym.controllers.vector import ARM0, ControllerTwin, make_vector_controller, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.training.actions import ActionMap, base_sensitivity, track_link_masses
+from elastic_gym.training.actions import (
+    ActionMap,
+    base_sensitivity,
+    check_estimate_feature,
+    link_mass_estimate,
+    track_link_masses,
+)
 from elastic_gym.training.observation import (
     ErrorIntegral,
     ObservationBuilder,
@@ -182,6 +188,8 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._acts = np.zeros(N)
         self._at_bound = np.zeros(N)
         self._integral = ErrorIntegral(N, n, controller.elastic)
+        check_estimate_feature(controller.builder.features, controller.map.config)
+        self._estimate = link_mass_estimate(controller.map.config, N, n, self.dt)
 
     @property
     def arm_diagnostics(self) -> dict[str, np.ndarray]:
@@ -210,6 +218,8 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         if self.controller.sensors:
             self._previous_motor[arms] = np.asarray(obs["motor_position"], dtype=float)[arms]
         self._integral.restart(arms, np.broadcast_to(info["time"], (self.n_arms,)))
+        if self._estimate is not None:
+            self._estimate.restart(arms)
 
     def _inputs(
         self, obs: Mapping, info: Mapping, x: np.ndarray | None, reference: np.ndarray, arms
@@ -221,6 +231,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             last_action=self._last_action[arms],
             base_torque=self._last_base[arms],
             base_error=self._base_error[arms],
+            link_mass_estimate=None if self._estimate is None else self._estimate.feature[arms],
         )
         if x is None:  # raw sensors
             inputs.motor_position = np.asarray(obs["motor_position"], dtype=float)[arms]
@@ -279,4 +290,5 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         theta, dtheta = self._motor_state(obs, x)
         if c.sensors:
             self._previous_motor = np.asarray(obs["motor_position"], dtype=float).copy()
-        return c.map.torque(self._action, theta, dtheta, reference, base, sensitivity)
+        change = None if self._estimate is None else self._estimate.advance(self._action)
+        return c.map.torque(self._action, theta, dtheta, reference, base, sensitivity, change)

@@ -29,6 +29,8 @@ from elastic_gym.training.actions import (
     ActionConfig,
     ActionMap,
     base_sensitivity,
+    check_estimate_feature,
+    link_mass_estimate,
     track_link_masses,
 )
 from elastic_gym.training.observation import (
@@ -98,6 +100,8 @@ class PolicyAction(_ArmResets):
     taken (zeros for other kinds and after a reset). The base is called on each
     observation as it arrives (its torque is applied at the next step); for a base with a
     desired state ``info["base_error"]`` (N, dim) is its state error x - x_d there.
+    A residual that integrates link-mass scales (``residual_rate``) keeps them in
+    ``estimate`` and gives them as ``info["link_mass_estimate"]`` (N, n).
     """
 
     def __init__(
@@ -130,6 +134,7 @@ class PolicyAction(_ArmResets):
         self._next_base = np.zeros((self.num_envs, self.n))  # for the current observation
         self._sensitivity: np.ndarray | None = None  # d tau_base / d s, step just taken
         self._next_sensitivity: np.ndarray | None = None  # ... for the current observation
+        self.estimate = link_mass_estimate(self.action_config, self.num_envs, self.n, self.dt)
 
     def _call_base(self, obs: Mapping, info: dict) -> None:
         """The residual's base on the current observation: its torque for the next step
@@ -148,6 +153,12 @@ class PolicyAction(_ArmResets):
             self.controller.reset_arms(obs, public_info(info), arms)
         if self.sensors:
             self._previous_motor[arms] = obs["motor_position"][arms]
+        if self.estimate is not None:
+            self.estimate.restart(arms)
+
+    def _give_estimate(self, info: dict) -> None:
+        if self.estimate is not None:
+            info["link_mass_estimate"] = self.estimate.feature.copy()
 
     def reset(self, *, seed=None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -156,6 +167,7 @@ class PolicyAction(_ArmResets):
         self._obs, self._info = obs, info
         self._base[arms] = 0.0
         info["base_torque"] = self._base.copy()
+        self._give_estimate(info)
         self._call_base(obs, info)
         return obs, info
 
@@ -172,12 +184,14 @@ class PolicyAction(_ArmResets):
                 self._previous_motor = theta.copy()
             else:
                 theta, dtheta = obs["state"][:, :n], obs["state"][:, 2 * n : 3 * n]
+        change = None if self.estimate is None else self.estimate.advance(a)
         torque = self.map.torque(
-            a, theta, dtheta, reference_rows(info), self._base, self._sensitivity
+            a, theta, dtheta, reference_rows(info), self._base, self._sensitivity, change
         )
         obs, reward, terminated, truncated, info = self.env.step(torque)
         self._restart(self._restarted(terminated, truncated), obs, info)
         info["base_torque"] = self._base.copy()
+        self._give_estimate(info)
         self._call_base(obs, info)
         self._obs, self._info = obs, info
         return obs, reward, terminated, truncated, info
@@ -206,6 +220,7 @@ class PolicyObservation(_ArmResets):
             batch.torque_limit,
         )
         check_base_error(self.builder.features, wrapper_attribute(env, "controller"))
+        check_estimate_feature(self.builder.features, action_config)
         self.frame_stack = checked_count(frame_stack, "frame_stack", 1)
         self.n = batch.n_joints
         size = self.builder.size * frame_stack
@@ -235,6 +250,7 @@ class PolicyObservation(_ArmResets):
             base_torque=info["base_torque"],
             base_error=info.get("base_error"),
             error_integral=None if self._integral is None else self._integral.value,
+            link_mass_estimate=info.get("link_mass_estimate"),
         )
         return self.builder.build(inputs)
 
