@@ -44,20 +44,23 @@ from elastic_gym.validation import (
 RESIDUAL_DEADZONE = 0.2  # default |a| below which a residual adds exactly nothing
 
 
-def residual_torque(
-    action: np.ndarray, torque_limit: np.ndarray, scale: float, deadzone: float = 0.0
-) -> np.ndarray:
-    """The residual correction added to a base controller's torque.
-
-    ``scale * torque_limit * sign(a) max(|a| - d, 0) / (1 - d)`` with ``a`` the action
-    clipped to [-1, 1] and ``d`` the ``deadzone`` in [0, 1): exactly zero while |a| <= d,
-    continuous at d, and ``scale * torque_limit`` at |a| = 1 (d = 0: linear in a). Works
-    on one arm (n,) or on N arms (N, n).
-    """
+def deadzone(action: np.ndarray, width: float = 0.0) -> np.ndarray:
+    """rho(a) = sign(a) max(|a| - d, 0) / (1 - d) of the action clipped to [-1, 1], d the
+    ``width`` in [0, 1): exactly zero while |a| <= d, continuous at d, 1 at |a| = 1 (d = 0:
+    the clipped action). Works on one arm (n,) or on N arms (N, n)."""
     a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
-    if deadzone:
-        a = np.sign(a) * np.maximum(np.abs(a) - deadzone, 0.0) / (1.0 - deadzone)
-    return scale * torque_limit * a
+    if width:
+        a = np.sign(a) * np.maximum(np.abs(a) - width, 0.0) / (1.0 - width)
+    return a
+
+
+def residual_torque(
+    action: np.ndarray, torque_limit: np.ndarray, scale: float, deadzone_width: float = 0.0
+) -> np.ndarray:
+    """The residual correction added to a base controller's torque:
+    ``scale * torque_limit * rho(a)``, rho the :func:`deadzone` of width
+    ``deadzone_width``."""
+    return scale * torque_limit * deadzone(action, deadzone_width)
 
 
 def load_sb3_model(path: str | os.PathLike, algorithm: str | type):

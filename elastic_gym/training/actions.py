@@ -27,7 +27,7 @@ from elastic_gym.controllers.gain_design import (
     bandwidth_pd_gains,
     nominal_configuration,
 )
-from elastic_gym.controllers.policy import RESIDUAL_DEADZONE, residual_torque
+from elastic_gym.controllers.policy import RESIDUAL_DEADZONE, deadzone, residual_torque
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
     ConfigModel,
@@ -133,8 +133,7 @@ class ActionMap:
     def mass_change(self, action: np.ndarray) -> np.ndarray:
         """s - 1 (N, n) of the link-mass residual for actions (N, n) (module docstring)."""
         config = self.config
-        ones = np.ones(self.n)
-        return residual_torque(action, ones, config.residual_scale, config.residual_deadzone)
+        return config.residual_scale * deadzone(action, config.residual_deadzone)
 
     @property
     def needs_motor_state(self) -> bool:
@@ -201,7 +200,7 @@ def base_sensitivity(config: ActionConfig, base) -> np.ndarray | None:
 class LinkMassEstimate:
     """The link-mass scales s of a residual with ``residual_rate``, per arm: s - 1 = 0 at
     a (re)start, then at every control period s - 1 += dt * residual_rate * rho(a), kept
-    within +- residual_scale (rho the deadzone of :func:`residual_torque`).
+    within +- residual_scale (rho the :func:`~elastic_gym.controllers.policy.deadzone`).
 
     Args:
         config: the action parameterization (``residual_rate`` set).
@@ -219,8 +218,7 @@ class LinkMassEstimate:
     def advance(self, action: np.ndarray) -> np.ndarray:
         """One control period under the actions (N, n); returns s - 1 (N, n)."""
         c = self.config
-        rate = residual_torque(action, np.ones(self.change.shape[1]), 1.0, c.residual_deadzone)
-        step = self.dt * self.rate * rate
+        step = self.dt * self.rate * deadzone(action, c.residual_deadzone)
         self.change = np.clip(self.change + step, -c.residual_scale, c.residual_scale)
         return self.change
 

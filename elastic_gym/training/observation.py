@@ -8,10 +8,11 @@ the integral action's information) of the state source, ``reference``
 ``torsion`` and ``torsion_rate`` (elastic state), ``motor_error`` and ``acceleration``
 (raw sensors), ``last_action``, ``base_torque``, ``base_motor_error`` (residual: the
 motor half theta - theta_d, theta' - theta_d' of the base's state error x - x_d of eq. (13),
-zero on the nominal plant while it tracks) and ``link_mass_estimate`` (a residual that
-integrates link-mass scales: its scales). The reference and its preview are no measurement: the task
-defines them in advance. :class:`TrueStateFeatures` computes the state features of the
-true state, what a privileged critic sees (:mod:`elastic_gym.training.critic`).
+zero on the nominal plant while it tracks) and ``link_mass_estimate`` (the scales of a
+residual that integrates link-mass scales). The reference and its preview are no
+measurement: the task defines them in advance. :class:`TrueStateFeatures` computes the
+state features of the true state, what a privileged critic sees
+(:mod:`elastic_gym.training.critic`).
 """
 
 from __future__ import annotations
