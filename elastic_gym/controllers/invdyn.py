@@ -334,10 +334,11 @@ class LinkMassSensitivity:
     def __init__(
         self, model: RobotModel, fd_step: float, n_arms: int, feedforward: bool = True
     ) -> None:
-        self.feedforward = feedforward
         heavier = np.eye(model.n) + 1.0  # row i: link i twice as heavy
         self.models = [model.perturbed(link_mass=tuple(row)) for row in heavier]
-        self.invdyn = [InverseDynamics(m, fd_step, n_arms) for m in self.models]
+        self.invdyn = (
+            [InverseDynamics(m, fd_step, n_arms) for m in self.models] if feedforward else []
+        )
 
     def reset(self, arms: np.ndarray | None = None) -> None:
         for invdyn in self.invdyn:
@@ -347,10 +348,10 @@ class LinkMassSensitivity:
         self, t, ref: np.ndarray, x_d: np.ndarray, tau_d: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """(d x_d / d s (N, n, dim), d tau_d / d s (N, n, n)), row i of each arm: link i."""
-        rows = [
-            invdyn(t, ref) if self.feedforward else static_reference(invdyn.model, ref)
-            for invdyn in self.invdyn
-        ]
+        if self.invdyn:
+            rows = [invdyn(t, ref) for invdyn in self.invdyn]
+        else:
+            rows = [static_reference(model, ref) for model in self.models]
         dx = np.stack([x - x_d for x, _ in rows], axis=1)
         dtau = np.stack([tau - tau_d for _, tau in rows], axis=1)
         return dx, dtau

@@ -197,7 +197,7 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
         self.link_mass_sensitivity: np.ndarray | None = None
 
     def track_link_mass(self) -> None:
-        """From the next reset on, keep ``link_mass_sensitivity`` (N, n, n): row i of an
+        """From the next call on, keep ``link_mass_sensitivity`` (N, n, n): row i of an
         arm is d tau / d s_i = K_P d x_d / d s_i + d tau_d / d s_i, the torque of this law
         with the model's link i mass scaled by 1 + c minus its torque, divided by c (exact
         for every c: :class:`~elastic_gym.controllers.invdyn.LinkMassSensitivity`). The
