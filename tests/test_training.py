@@ -156,7 +156,8 @@ def test_residual_policy_env_starts_from_the_classical_controller():
 def test_a_residual_on_link_masses_is_the_base_on_the_corrected_model():
     """``residual_space: link-mass``: an action in the deadzone is the base exactly; a
     constant action s = 1.3 on links 30 % heavier removes most of the base's error, the
-    error of a model that knows the load (the base's own gains)."""
+    error of a model that knows the load (the base's own gains); one shared scale is the
+    same law with one action entry."""
     kwargs = {
         "max_episode_steps": 1000,
         "task": "tracking",
@@ -171,19 +172,21 @@ def test_a_residual_on_link_masses_is_the_base_on_the_corrected_model():
         "residual_deadzone": 0.2,
     }
 
-    def run(a: float, space: str = "link-mass") -> np.ndarray:
+    def run(a: float, space: str = "link-mass", shared: bool = False) -> np.ndarray:
         env = make_policy_env(
             "elastic_gym/TwoLinkElastic-v0",
             "true",
             {**kwargs, "plant_scaling": {"link_mass": 1.3}},
             decimation=10,
-            action={**action, "residual_space": space},
-            observation={"features": ["error"]},
+            action={**action, "residual_space": space, "residual_shared": shared},
+            observation={"features": ["error", "last_action"]},
         )
         env.reset(seed=3)
+        assert env.action_space.shape == (1 if shared else 2,)
+        assert env.observation_space.shape == (2 + env.action_space.shape[0],)
         errors, done = [], False
         while not done:
-            _, _, terminated, truncated, info = env.step(np.full(2, a))
+            _, _, terminated, truncated, info = env.step(np.full(env.action_space.shape, a))
             errors.append(info["true_state"]["q"] - info["reference"]["q"])
             done = terminated or truncated
         env.close()
@@ -195,15 +198,19 @@ def test_a_residual_on_link_masses_is_the_base_on_the_corrected_model():
     rms_base, rms_knows = (float(np.sqrt(np.mean(e**2))) for e in (base, knows))
     assert rms_base > 1e-3  # the base sags under the unmodelled load
     assert rms_knows < 0.1 * rms_base
+    np.testing.assert_array_equal(run(0.2 + 0.8 * 0.3 / 0.6, shared=True), knows)
     # the action as the rate of s: integrated from 1 to its bound 1.3 in 3 ms, then held
     action.update(residual_rate=100.0, residual_scale=0.3)
     adapts = run(1.0)
     assert float(np.sqrt(np.mean(adapts**2))) < 0.1 * rms_base
     np.testing.assert_array_equal(run(0.2), base)  # the deadzone holds s = 1
+    np.testing.assert_array_equal(run(1.0, shared=True), adapts)
     with pytest.raises(ValueError, match="needs kind 'residual'"):
         ActionConfig(kind="torque", residual_space="link-mass")
     with pytest.raises(ValueError, match="residual_rate needs"):
         ActionConfig(kind="residual", residual="motor-pd", residual_rate=1.0)
+    with pytest.raises(ValueError, match="residual_shared needs"):
+        ActionConfig(kind="residual", residual="motor-pd", residual_shared=True)
     with pytest.raises(ValueError, match="'link_mass_estimate' needs"):
         make_policy_env(
             "elastic_gym/TwoLinkElastic-v0",
@@ -216,6 +223,43 @@ def test_a_residual_on_link_masses_is_the_base_on_the_corrected_model():
             "elastic_gym/TwoLinkRigid-v0",
             "true",
             action={**action, "residual": "feedback-linearization"},
+        )
+
+
+@pytest.mark.parametrize(("state", "rtol"), [("true", 1e-4), ("deluca", 1e-2)])
+def test_link_mass_fit_is_the_load_at_a_reset_at_rest(state, rtol):
+    """``link_mass_fit``: an arm reset at rest in the static equilibrium of links 30 %
+    heavier than the model (q = q_d, theta the true static torsion) shows the load as the
+    fitted scales, per link and shared, held until the next reset; on the nominal plant
+    they are zero (De Luca: the encoders' quantization and noise)."""
+    action = {
+        "kind": "residual",
+        "residual": "integral-state-feedback",
+        "residual_space": "link-mass",
+        "residual_scale": 0.6,
+    }
+    for shared in (False, True):
+        for scale, fitted in ((1.3, 0.3), (1.0, 0.0)):
+            env = make_policy_env(
+                "elastic_gym/TwoLinkElastic-v0",
+                state,
+                {"plant_scaling": {"link_mass": scale}, "task": "tracking"},
+                action={**action, "residual_shared": shared},
+                observation={"features": ["link_mass_fit"]},
+            )
+            obs, info = env.reset(seed=2)
+            assert obs.shape == (1 if shared else 2,)
+            np.testing.assert_allclose(obs * 0.6, fitted, rtol=rtol, atol=0.2 * rtol)
+            for _ in range(5):  # held while the base moves the motor
+                held, *_ = env.step(np.ones(env.action_space.shape))
+                np.testing.assert_array_equal(held, obs)
+            env.close()
+    with pytest.raises(ValueError, match="'link_mass_fit' needs"):
+        make_policy_env(
+            "elastic_gym/TwoLinkElastic-v0",
+            "true",
+            action={**action, "residual_space": "torque"},
+            observation={"features": ["error", "link_mass_fit"]},
         )
 
 
@@ -432,6 +476,26 @@ SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arc
                 "batch_size": 50,
                 "n_epochs": 2,
                 "observation": {"features": ["error", "error_integral", "link_mass_estimate"]},
+            },
+        ),
+        (
+            {
+                "kind": "residual",
+                "residual": "integral-state-feedback",
+                "residual_space": "link-mass",
+                "residual_rate": 20.0,
+                "residual_shared": True,
+                "residual_deadzone": 0.0,
+            },
+            "ppo",  # ... one scale for all links: one action entry; the fitted load
+            {
+                "n_envs": 1,
+                "n_steps": 50,
+                "batch_size": 50,
+                "n_epochs": 2,
+                "observation": {
+                    "features": ["error", "last_action", "link_mass_estimate", "link_mass_fit"]
+                },
             },
         ),
         (

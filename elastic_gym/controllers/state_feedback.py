@@ -184,7 +184,8 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
     Also the law of the decentralized PD controllers (eq. (13) with a block gain).
     ``state_error`` (N, dim): x - x_d of every arm at the last call (:meth:`tracked`).
     After :meth:`track_link_mass`, ``link_mass_sensitivity`` (N, n, n) holds at every call
-    the change of the torque per unit change of each link's mass scale in the model.
+    the change of the torque per unit change of each link's mass scale in the model, and
+    ``link_mass_state_sensitivity`` (N, n, dim) that of the desired state x_d.
     """
 
     def _bind(self, controller: FeedforwardStateFeedback, n_arms: int) -> None:
@@ -195,6 +196,7 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
         self.state_error = np.zeros((self.n_arms, self.state_dim))
         self._mass_sensitivity: LinkMassSensitivity | None = None
         self.link_mass_sensitivity: np.ndarray | None = None
+        self.link_mass_state_sensitivity: np.ndarray | None = None
 
     def track_link_mass(self) -> None:
         """From the next call on, keep ``link_mass_sensitivity`` (N, n, n): row i of an
@@ -208,6 +210,7 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
             c.model, c.fd_step, self.n_arms, self.feedforward
         )
         self.link_mass_sensitivity = np.zeros((self.n_arms, self.n, self.n))
+        self.link_mass_state_sensitivity = np.zeros((self.n_arms, self.n, self.state_dim))
 
     def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
         self.invdyn.reset(arms)
@@ -230,6 +233,7 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
         self.state_error = x - x_d
         if self._mass_sensitivity is not None:
             dx_d, dtau_d = self._mass_sensitivity(t, ref, x_d, tau_d)
+            self.link_mass_state_sensitivity = dx_d
             self.link_mass_sensitivity = np.matmul(dx_d, self.gain.T) + dtau_d
         return x_d, tau_d
 

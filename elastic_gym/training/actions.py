@@ -3,21 +3,20 @@ residual on a classical controller. Pure logic on arrays with a leading arm axis
 a in [-1, 1]^n, held for ``decimation`` control periods, becomes a torque at every period:
 
 * ``torque``: tau = tau_max * a;
-* ``motor-offset``: a constant-gain motor PD tracks q_d + offset_scale * a,
-  tau = kp (q_d + offset_scale * a - theta) + kd (q_d' - theta') [+ g(q_d)], no model
-  term without ``gravity_compensation``; kp, kd explicit or kp = J w^2, kd = 2 zeta J w;
+* ``motor-offset``: a motor PD tracks q_d + offset_scale * a, tau = kp (q_d + offset_scale
+  * a - theta) + kd (q_d' - theta') [+ g(q_d) with ``gravity_compensation``];
 * ``residual`` (Residual Policy Learning, Silver et al. 2018): tau = tau_base +
   residual_scale * tau_max * rho(a), rho(a) = sign(a) max(|a| - d, 0) / (1 - d) a deadzone
   (d = ``residual_deadzone``); with ``residual_space: link-mass`` the residual scales the
   link masses of the base's model instead, s_i = 1 + residual_scale * rho(a_i), and
   tau = tau_base + sum_i (s_i - 1) d tau_base / d s_i, the base's law on that model
-  (exact: :class:`~elastic_gym.controllers.invdyn.LinkMassSensitivity`); with
-  ``residual_rate`` the action is the rate of s instead (:class:`LinkMassEstimate`).
+  (:class:`~elastic_gym.controllers.invdyn.LinkMassSensitivity`), one shared s with
+  ``residual_shared``, the rate of s with ``residual_rate`` (:class:`LinkMassEstimate`).
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, cast
 
 import numpy as np
 from pydantic import Field, StrictBool, StrictStr, model_validator
@@ -64,6 +63,8 @@ class ActionConfig(ConfigModel):
             s' = residual_rate * rho(a) (1/s), from s = 1 at every reset, within
             1 +- residual_scale (an adaptation law with a deadzone: the scales hold
             while |a| <= d). The policy sees them as the feature ``link_mass_estimate``.
+        residual_shared: on link masses, one scale for all links (s_i = s, the one
+            entry of the action), as a payload or a uniformly heavier arm changes them.
     """
 
     section = "action"
@@ -80,6 +81,7 @@ class ActionConfig(ConfigModel):
     residual_deadzone: Finite = Field(RESIDUAL_DEADZONE, ge=0, lt=1)
     residual_space: Literal[RESIDUAL_SPACES] = "torque"  # type: ignore[valid-type]
     residual_rate: PositiveFinite | None = None
+    residual_shared: StrictBool = False
 
     @model_validator(mode="after")
     def _consistent(self) -> ActionConfig:
@@ -92,12 +94,20 @@ class ActionConfig(ConfigModel):
             raise ValueError("residual_space 'link-mass' needs kind 'residual'")
         if self.residual_rate is not None and not self.on_link_masses:
             raise ValueError("residual_rate needs kind 'residual' with residual_space 'link-mass'")
+        if self.residual_shared and not self.on_link_masses:
+            raise ValueError(
+                "residual_shared needs kind 'residual' with residual_space 'link-mass'"
+            )
         return self
 
     @property
     def on_link_masses(self) -> bool:
         """True when the residual scales the link masses of its base's model."""
         return self.kind == "residual" and self.residual_space == "link-mass"
+
+    def action_size(self, n: int) -> int:
+        """Entries of an action for an arm of n joints: 1 for a shared link-mass scale."""
+        return 1 if self.residual_shared else n
 
     @property
     def model_free(self) -> bool:
@@ -117,6 +127,7 @@ class ActionMap:
         self.config = config
         self.model = model
         self.n = model.n
+        self.size = config.action_size(model.n)  # entries of an action
         self.torque_limit = np.asarray(model.torque_limit, dtype=float)
         self.kp = self.kd = np.zeros(self.n)
         kind = Annotated[str, ON_ELASTIC]  # on rigid arms: 'torque' or 'residual'
@@ -131,7 +142,8 @@ class ActionMap:
                 self.kd = per_joint_values(config.kd, self.n, "action 'kd'", 0.0)
 
     def mass_change(self, action: np.ndarray) -> np.ndarray:
-        """s - 1 (N, n) of the link-mass residual for actions (N, n) (module docstring)."""
+        """s - 1 (N, size) of the link-mass residual for actions (N, size) (module
+        docstring)."""
         config = self.config
         return config.residual_scale * deadzone(action, config.residual_deadzone)
 
@@ -149,13 +161,14 @@ class ActionMap:
         base_sensitivity: np.ndarray | None = None,
         mass_change: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Motor torque (N, n) for actions (N, n) in [-1, 1] (clipped).
+        """Motor torque (N, n) for actions (N, size) in [-1, 1] (clipped).
 
         ``motor_position``, ``motor_velocity`` (N, n) and ``reference`` (N, >= 2, n) rows
         q_d, q_d', ... are needed by ``motor-offset``; ``base_torque`` (N, n) by
         ``residual``, and on link masses also ``base_sensitivity`` (N, n, n), row i of an
         arm d tau_base / d s_i (the base's ``link_mass_sensitivity``), and with
-        ``residual_rate`` ``mass_change`` (N, n), s - 1 of the :class:`LinkMassEstimate`.
+        ``residual_rate`` ``mass_change`` (N, size), s - 1 of the :class:`LinkMassEstimate`
+        (size 1: one scale for all links).
         """
         a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
         config = self.config
@@ -164,6 +177,7 @@ class ActionMap:
         if config.on_link_masses:
             assert base_torque is not None and base_sensitivity is not None
             change = self.mass_change(a) if mass_change is None else mass_change
+            change = np.broadcast_to(change, (len(change), self.n))
             return base_torque + np.matmul(change[:, None, :], base_sensitivity)[:, 0]
         if config.kind == "residual":
             return base_torque + residual_torque(
@@ -204,19 +218,19 @@ class LinkMassEstimate:
 
     Args:
         config: the action parameterization (``residual_rate`` set).
-        n_arms, n: arms and links. dt: control period (s).
+        n_arms: arms. size: scales per arm (links, or 1 shared). dt: control period (s).
     """
 
-    def __init__(self, config: ActionConfig, n_arms: int, n: int, dt: float) -> None:
+    def __init__(self, config: ActionConfig, n_arms: int, size: int, dt: float) -> None:
         assert config.residual_rate is not None
         self.config, self.dt, self.rate = config, float(dt), float(config.residual_rate)
-        self.change = np.zeros((n_arms, n))  # s - 1
+        self.change = np.zeros((n_arms, size))  # s - 1
 
     def restart(self, arms: np.ndarray) -> None:
         self.change[arms] = 0.0
 
     def advance(self, action: np.ndarray) -> np.ndarray:
-        """One control period under the actions (N, n); returns s - 1 (N, n)."""
+        """One control period under the actions (N, size); returns s - 1 (N, size)."""
         c = self.config
         step = self.dt * self.rate * deadzone(action, c.residual_deadzone)
         self.change = np.clip(self.change + step, -c.residual_scale, c.residual_scale)
@@ -224,21 +238,80 @@ class LinkMassEstimate:
 
     @property
     def feature(self) -> np.ndarray:
-        """(s - 1) / residual_scale (N, n), in [-1, 1]: the feature ``link_mass_estimate``."""
+        """(s - 1) / residual_scale (N, size), in [-1, 1]: the feature
+        ``link_mass_estimate``."""
         return self.change / self.config.residual_scale
 
 
 def link_mass_estimate(config: ActionConfig, n_arms: int, n: int, dt: float):
-    """The :class:`LinkMassEstimate` of N arms when the residual integrates its action
-    (``residual_rate``), else None."""
-    return None if config.residual_rate is None else LinkMassEstimate(config, n_arms, n, dt)
+    """The :class:`LinkMassEstimate` of N arms of n joints when the residual integrates
+    its action (``residual_rate``), else None."""
+    if config.residual_rate is None:
+        return None
+    return LinkMassEstimate(config, n_arms, config.action_size(n), dt)
 
 
-def check_estimate_feature(features: tuple[str, ...], config: ActionConfig) -> None:
+FIT_BOUND = 10.0  # |feature| bound of link_mass_fit (in units of residual_scale)
+
+
+def link_mass_fit(config: ActionConfig, base) -> np.ndarray | None:
+    """The link-mass scales that explain the base's motor-position error, per arm, as the
+    feature ``link_mass_fit``: (s_fit - 1) / residual_scale (N, size), within +-FIT_BOUND;
+    None unless the residual acts on link masses.
+
+    theta_d of INVDYN is linear in the scales (:class:`~elastic_gym.controllers.invdyn.
+    LinkMassSensitivity`): at standstill in the static equilibrium of links s times the
+    model's, q = q_d and theta - theta_d(1) = J (s - 1), J (n, size) the columns
+    d theta_d / d s_i (summed for a shared scale). s_fit - 1 is its damped least-squares
+    solution (damping 1e-6 of the mean eigenvalue of J^T J): the load exactly at a reset
+    at rest, before the base has acted (a static load identification). Once the base
+    moves the motor, theta carries its action, so :class:`LinkMassFit` holds the value
+    of each arm's reset.
+    """
+    if not config.on_link_masses:
+        return None
+    n = base.n
+    columns = base.link_mass_state_sensitivity[:, :, :n]  # (N, n links, n joints)
+    if config.residual_shared:
+        columns = columns.sum(axis=1, keepdims=True)
+    normal = np.matmul(columns, columns.transpose(0, 2, 1))  # J^T J (N, size, size)
+    size = normal.shape[-1]
+    damping = 1e-6 * np.trace(normal, axis1=1, axis2=2) / size + 1e-300
+    normal = normal + damping[:, None, None] * np.eye(size)
+    right = np.matmul(columns, base.state_error[:, :n, None])  # J^T (theta - theta_d)
+    fit = np.linalg.solve(normal, right)[:, :, 0]
+    return np.clip(fit / config.residual_scale, -FIT_BOUND, FIT_BOUND)
+
+
+class LinkMassFit:
+    """Each arm's :func:`link_mass_fit` at its last reset, held (the feature
+    ``link_mass_fit``). Call :meth:`latch` with the arms just reset, after the base's
+    call on their first observation."""
+
+    def __init__(self, config: ActionConfig, n_arms: int, n: int) -> None:
+        self.config = config
+        self.value = np.zeros((n_arms, config.action_size(n)))
+
+    def latch(self, base, arms: np.ndarray) -> None:
+        if len(arms):
+            self.value[arms] = cast(np.ndarray, link_mass_fit(self.config, base))[arms]
+
+
+def load_fit(config: ActionConfig, n_arms: int, n: int) -> LinkMassFit | None:
+    """The :class:`LinkMassFit` of N arms of n joints for a residual on link masses, else
+    None."""
+    return LinkMassFit(config, n_arms, n) if config.on_link_masses else None
+
+
+def check_link_mass_features(features: tuple[str, ...], config: ActionConfig) -> None:
     """Refuse the feature ``link_mass_estimate`` unless the residual integrates link-mass
-    scales (``residual_rate``)."""
+    scales (``residual_rate``), and ``link_mass_fit`` unless it acts on link masses."""
     if "link_mass_estimate" in features and config.residual_rate is None:
         raise ValueError(
             "observation feature 'link_mass_estimate' needs a residual on link masses with "
             "residual_rate"
+        )
+    if "link_mass_fit" in features and not config.on_link_masses:
+        raise ValueError(
+            "observation feature 'link_mass_fit' needs a residual with residual_space 'link-mass'"
         )

@@ -8,11 +8,11 @@ the integral action's information) of the state source, ``reference``
 ``torsion`` and ``torsion_rate`` (elastic state), ``motor_error`` and ``acceleration``
 (raw sensors), ``last_action``, ``base_torque``, ``base_motor_error`` (residual: the
 motor half theta - theta_d, theta' - theta_d' of the base's state error x - x_d of eq. (13),
-zero on the nominal plant while it tracks) and ``link_mass_estimate`` (the scales of a
-residual that integrates link-mass scales). The reference and its preview are no
-measurement: the task defines them in advance. :class:`TrueStateFeatures` computes the
-state features of the true state, what a privileged critic sees
-(:mod:`elastic_gym.training.critic`).
+zero on the nominal plant while it tracks), ``link_mass_estimate`` and ``link_mass_fit``
+(a residual's link-mass scales, and those its base's motor error showed at the reset). The
+reference and its preview are no measurement: the task defines them in advance.
+:class:`TrueStateFeatures` computes the state features of the true state, what a
+privileged critic sees (:mod:`elastic_gym.training.critic`).
 """
 
 from __future__ import annotations
@@ -39,11 +39,16 @@ FEATURES = (
     "base_torque",
     "base_motor_error",
     "link_mass_estimate",
+    "link_mass_fit",
 )
 STATE_FEATURES = frozenset({"error", "error_rate", "error_integral", "torsion", "torsion_rate"})
 TRUE_STATE_FEATURES = ("error", "error_rate", "torsion", "torsion_rate")  # memoryless
-ELASTIC_FEATURES = frozenset({"torsion", "torsion_rate", "motor_error", "base_motor_error"})
-RESIDUAL_FEATURES = frozenset({"base_torque", "base_motor_error", "link_mass_estimate"})
+ELASTIC_FEATURES = frozenset(
+    {"torsion", "torsion_rate", "motor_error", "base_motor_error", "link_mass_fit"}
+)
+RESIDUAL_FEATURES = frozenset(
+    {"base_torque", "base_motor_error", "link_mass_estimate", "link_mass_fit"}
+)
 SENSOR_FEATURES = frozenset({"motor_error", "acceleration"})
 GRAVITY = 9.81
 
@@ -134,11 +139,12 @@ class ObservationInputs:
 
     ``state`` (N, 4n | 2n) for state sources, ``motor_position`` (N, n) and
     ``acceleration`` (N, 3m) for raw sensors; ``reference`` (N, 5, n) rows q_d .. q_d^(4);
-    ``preview`` (N, H, n) q_d at the preview horizons; ``last_action`` (N, n);
-    ``base_torque`` (N, n) of the residual's base in the last control period and
-    ``base_error`` (N, 4n) its x - x_d on the current state; ``error_integral`` (N, n) of
-    :class:`ErrorIntegral`; ``link_mass_estimate`` (N, n) the residual's link-mass scales
-    (s - 1) / residual_scale.
+    ``preview`` (N, H, n) q_d at the preview horizons; ``last_action`` (N, a), a the
+    action's entries; ``base_torque`` (N, n) of the residual's base in the last control
+    period and ``base_error`` (N, 4n) its x - x_d on the current state; ``error_integral``
+    (N, n) of :class:`ErrorIntegral`; ``link_mass_estimate`` (N, a) the residual's
+    link-mass scales (s - 1) / residual_scale; ``link_mass_fit`` (N, a) the scales that fit
+    the base's motor error at the arm's reset, (s_fit - 1) / residual_scale.
     """
 
     reference: np.ndarray
@@ -151,6 +157,7 @@ class ObservationInputs:
     base_error: np.ndarray | None = None
     error_integral: np.ndarray | None = None
     link_mass_estimate: np.ndarray | None = None
+    link_mass_fit: np.ndarray | None = None
 
 
 class ErrorIntegral:
@@ -191,6 +198,8 @@ class ObservationBuilder:
             instead of a state. ``n_accelerations``: accelerometer channels (3 m).
         residual: residual policy (``base_torque`` available).
         torque_limit: tau_max (n,), scales the base torque.
+        action_size: entries of an action (default n), of ``last_action`` and
+            ``link_mass_estimate`` and ``link_mass_fit``.
     """
 
     @classmethod
@@ -202,6 +211,7 @@ class ObservationBuilder:
         elastic: bool,
         residual: bool,
         torque_limit: np.ndarray,
+        action_size: int | None = None,
     ) -> ObservationBuilder:
         """The builder for an env (or one arm of a vector env) whose observations have the
         Dict ``space``: raw sensors when it has no ``state``, its accelerometer channels."""
@@ -214,6 +224,7 @@ class ObservationBuilder:
             residual,
             torque_limit,
             0 if accelerations is None else accelerations.shape[0],
+            action_size,
         )
 
     def __init__(
@@ -225,6 +236,7 @@ class ObservationBuilder:
         residual: bool,
         torque_limit: np.ndarray,
         n_accelerations: int = 0,
+        action_size: int | None = None,
     ) -> None:
         self.config = config
         self.n, self.elastic, self.sensors = n, elastic, sensors
@@ -253,6 +265,9 @@ class ObservationBuilder:
             "preview": len(config.preview) * n,
             "acceleration": n_accelerations,
             "base_motor_error": 2 * n,
+            "last_action": n if action_size is None else action_size,
+            "link_mass_estimate": n if action_size is None else action_size,
+            "link_mass_fit": n if action_size is None else action_size,
         }
         self.sizes = {name: sizes.get(name, n) for name in self.features}
         self.size = sum(self.sizes.values())
@@ -283,6 +298,8 @@ class ObservationBuilder:
             return _given(x.acceleration, name) / GRAVITY
         if name == "link_mass_estimate":
             return _given(x.link_mass_estimate, name)
+        if name == "link_mass_fit":
+            return _given(x.link_mass_fit, name)
         if name == "error_integral":
             return _given(x.error_integral, name) / c.error_integral_scale
         if name == "base_motor_error":

@@ -23,8 +23,9 @@ from elastic_gym.model import RobotModel
 from elastic_gym.training.actions import (
     ActionMap,
     base_sensitivity,
-    check_estimate_feature,
+    check_link_mass_features,
     link_mass_estimate,
+    load_fit,
     track_link_masses,
 )
 from elastic_gym.training.observation import (
@@ -60,11 +61,11 @@ def check_robot(config, model: RobotModel, run: str | Path) -> None:
         )
 
 
-def check_spaces(trained: TrainedRun, features: int, n_joints: int, run: str | Path) -> None:
+def check_spaces(trained: TrainedRun, features: int, actions: int, run: str | Path) -> None:
     """Refuse a run folder whose ``model.zip`` (or ``vecnormalize.pkl``) does not take the
     observations its ``config.yaml`` rebuilds (``features`` entries, plus the critic's
-    privileged ones) or does not give ``n_joints`` actions: e.g. a ``config.yaml`` edited
-    or copied from another run."""
+    privileged ones) or does not give the ``actions`` entries of its action: e.g. a
+    ``config.yaml`` edited or copied from another run."""
     model = trained.model
     expected = features + getattr(model.policy, "privileged_size", 0)
     entries = f"config.yaml ({trained.config.env_id}, state {trained.config.state!r}) gives "
@@ -78,8 +79,8 @@ def check_spaces(trained: TrainedRun, features: int, n_joints: int, run: str | P
         checks.append(
             ("vecnormalize.pkl takes observations", np.shape(statistics), expected, entries)
         )
-    joints = f"the comparison's robot has {n_joints} joints"
-    checks.append(("model.zip gives actions", model.action_space.shape, n_joints, joints))
+    joints = f"its action on the comparison's robot has {actions} entries"
+    checks.append(("model.zip gives actions", model.action_space.shape, actions, joints))
     for what, shape, size, why in checks:
         if tuple(shape) != (size,):
             raise ValueError(
@@ -133,6 +134,7 @@ class TrainedPolicyController(Controller):
             action.kind == "residual",
             model.torque_limit,
             3 * model.n_sensors,
+            self.map.size,
         )
         if "preview" in self.builder.features:
             raise ValueError(
@@ -141,7 +143,7 @@ class TrainedPolicyController(Controller):
             )
         self.frame_stack = trained.stack.frame_stack
         check_robot(config, model, run)
-        check_spaces(trained, self.builder.size * self.frame_stack, self.n, run)
+        check_spaces(trained, self.builder.size * self.frame_stack, self.map.size, run)
         self.base = None
         if action.residual is not None:  # kind "residual"
             self.base = make_controller(action.residual, model, dt, **action.residual_options)
@@ -178,8 +180,8 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             track_link_masses(controller.map.config, self.base)
         self.actors = [PolicyActor(trained.model, trained.normalizer) for _ in range(N)]
         self._calls = np.zeros(N, dtype=np.int64)
-        self._action = np.zeros((N, n))
-        self._last_action = np.zeros((N, n))
+        self._action = np.zeros((N, controller.map.size))
+        self._last_action = np.zeros((N, controller.map.size))
         self._last_base = np.zeros((N, n))
         self._base_error = np.zeros((N, self.state_dim))  # x - x_d of this call's base
         size = controller.builder.size
@@ -188,8 +190,9 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._acts = np.zeros(N)
         self._at_bound = np.zeros(N)
         self._integral = ErrorIntegral(N, n, controller.elastic)
-        check_estimate_feature(controller.builder.features, controller.map.config)
+        check_link_mass_features(controller.builder.features, controller.map.config)
         self._estimate = link_mass_estimate(controller.map.config, N, n, self.dt)
+        self._fit = load_fit(controller.map.config, N, n)
 
     @property
     def arm_diagnostics(self) -> dict[str, np.ndarray]:
@@ -232,6 +235,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             base_torque=self._last_base[arms],
             base_error=self._base_error[arms],
             link_mass_estimate=None if self._estimate is None else self._estimate.feature[arms],
+            link_mass_fit=None if self._fit is None else self._fit.value[arms],
         )
         if x is None:  # raw sensors
             inputs.motor_position = np.asarray(obs["motor_position"], dtype=float)[arms]
@@ -273,6 +277,8 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         x = None if c.sensors else self.states(obs)
         base = np.zeros((self.n_arms, n)) if self.base is None else self.base(obs, info)
         sensitivity = base_sensitivity(c.map.config, self.base)
+        if self._fit is not None:  # at each arm's first call after its reset
+            self._fit.latch(self.base, np.flatnonzero(self._calls == 0))
         error = base_state_error(self.base)
         if error is not None:
             self._base_error = error

@@ -29,8 +29,9 @@ from elastic_gym.training.actions import (
     ActionConfig,
     ActionMap,
     base_sensitivity,
-    check_estimate_feature,
+    check_link_mass_features,
     link_mass_estimate,
+    load_fit,
     track_link_masses,
 )
 from elastic_gym.training.observation import (
@@ -101,7 +102,9 @@ class PolicyAction(_ArmResets):
     observation as it arrives (its torque is applied at the next step); for a base with a
     desired state ``info["base_error"]`` (N, dim) is its state error x - x_d there.
     A residual that integrates link-mass scales (``residual_rate``) keeps them in
-    ``estimate`` and gives them as ``info["link_mass_estimate"]`` (N, n).
+    ``estimate`` and gives them as ``info["link_mass_estimate"]`` (N, a); a residual on
+    link masses gives the scales its base's motor error showed at each arm's reset as
+    ``info["link_mass_fit"]`` (N, a) (:class:`~elastic_gym.training.actions.LinkMassFit`).
     """
 
     def __init__(
@@ -125,7 +128,7 @@ class PolicyAction(_ArmResets):
                 **self.action_config.residual_options,
             )
             track_link_masses(self.action_config, self.controller)
-        self.single_action_space = spaces.Box(-1.0, 1.0, (self.n,), dtype=np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (self.map.size,), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._obs: dict = {}
         self._info: dict = {}
@@ -135,8 +138,9 @@ class PolicyAction(_ArmResets):
         self._sensitivity: np.ndarray | None = None  # d tau_base / d s, step just taken
         self._next_sensitivity: np.ndarray | None = None  # ... for the current observation
         self.estimate = link_mass_estimate(self.action_config, self.num_envs, self.n, self.dt)
+        self.fit = load_fit(self.action_config, self.num_envs, self.n)
 
-    def _call_base(self, obs: Mapping, info: dict) -> None:
+    def _call_base(self, obs: Mapping, info: dict, restarted: np.ndarray) -> None:
         """The residual's base on the current observation: its torque for the next step
         and, for a base with a desired state, ``info["base_error"]`` (x - x_d). A second
         call at the same instant (the other arms of a masked reset) changes nothing."""
@@ -144,6 +148,9 @@ class PolicyAction(_ArmResets):
             return
         self._next_base = self.controller(obs, public_info(info))
         self._next_sensitivity = base_sensitivity(self.action_config, self.controller)
+        if self.fit is not None:
+            self.fit.latch(self.controller, restarted)
+            info["link_mass_fit"] = self.fit.value.copy()
         error = base_state_error(self.controller)
         if error is not None:
             info["base_error"] = error.copy()
@@ -168,11 +175,11 @@ class PolicyAction(_ArmResets):
         self._base[arms] = 0.0
         info["base_torque"] = self._base.copy()
         self._give_estimate(info)
-        self._call_base(obs, info)
+        self._call_base(obs, info, arms)
         return obs, info
 
     def step(self, actions):
-        a = validated_actions(actions, self.num_envs, self.n)
+        a = validated_actions(actions, self.num_envs, self.map.size)
         obs, info, n = self._obs, self._info, self.n
         self._base = self._next_base.copy()
         self._sensitivity = self._next_sensitivity
@@ -189,10 +196,11 @@ class PolicyAction(_ArmResets):
             a, theta, dtheta, reference_rows(info), self._base, self._sensitivity, change
         )
         obs, reward, terminated, truncated, info = self.env.step(torque)
-        self._restart(self._restarted(terminated, truncated), obs, info)
+        restarted = self._restarted(terminated, truncated)
+        self._restart(restarted, obs, info)
         info["base_torque"] = self._base.copy()
         self._give_estimate(info)
-        self._call_base(obs, info)
+        self._call_base(obs, info, restarted)
         self._obs, self._info = obs, info
         return obs, reward, terminated, truncated, info
 
@@ -218,15 +226,17 @@ class PolicyObservation(_ArmResets):
             batch.robot.elastic,
             action_config.kind == "residual",
             batch.torque_limit,
+            action_config.action_size(batch.n_joints),
         )
         check_base_error(self.builder.features, wrapper_attribute(env, "controller"))
-        check_estimate_feature(self.builder.features, action_config)
+        check_link_mass_features(self.builder.features, action_config)
         self.frame_stack = checked_count(frame_stack, "frame_stack", 1)
         self.n = batch.n_joints
+        self.action_size = action_config.action_size(self.n)
         size = self.builder.size * frame_stack
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self._last_action = np.zeros((self.num_envs, self.n))
+        self._last_action = np.zeros((self.num_envs, self.action_size))
         self._frames = np.zeros((self.num_envs, frame_stack, self.builder.size), np.float32)
         self._integral = (
             ErrorIntegral(self.num_envs, self.n, batch.robot.elastic)
@@ -251,6 +261,7 @@ class PolicyObservation(_ArmResets):
             base_error=info.get("base_error"),
             error_integral=None if self._integral is None else self._integral.value,
             link_mass_estimate=info.get("link_mass_estimate"),
+            link_mass_fit=info.get("link_mass_fit"),
         )
         return self.builder.build(inputs)
 
@@ -277,7 +288,7 @@ class PolicyObservation(_ArmResets):
         return self._frames.reshape(self.num_envs, -1).copy(), info
 
     def step(self, actions):
-        a = validated_actions(actions, self.num_envs, self.n)
+        a = validated_actions(actions, self.num_envs, self.action_size)
         obs, reward, terminated, truncated, info = self.env.step(a)
         self._last_action = np.clip(a, -1.0, 1.0)
         restarted = self._restarted(terminated, truncated)
