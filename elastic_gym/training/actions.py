@@ -11,7 +11,7 @@ a in [-1, 1]^n, held for ``decimation`` control periods, becomes a torque at eve
   link masses of the base's model instead, s_i = 1 + residual_scale * rho(a_i), and
   tau = tau_base + sum_i (s_i - 1) d tau_base / d s_i, the base's law on that model
   (:class:`~elastic_gym.controllers.invdyn.LinkMassSensitivity`), one shared s with
-  ``residual_shared``, the rate of s with ``residual_rate`` (:class:`LinkMassEstimate`).
+  ``residual_shared``, the rate of s with ``residual_rate`` (:class:`LinkMassResidual`).
 """
 
 from __future__ import annotations
@@ -192,25 +192,6 @@ class ActionMap:
         return tau
 
 
-def track_link_masses(config: ActionConfig, base) -> None:
-    """Have a residual's vector base keep its link-mass sensitivity when the residual acts
-    on link masses (a clear error for a base without a model feedforward)."""
-    if not config.on_link_masses:
-        return
-    track = getattr(base, "track_link_mass", None)
-    if track is None:
-        raise ValueError(
-            "residual_space 'link-mass' needs a base with INVDYN (eq. (13), its integral "
-            f"action or PD variants), not {base.name!r}"
-        )
-    track()
-
-
-def base_sensitivity(config: ActionConfig, base) -> np.ndarray | None:
-    """The base's d tau / d s (N, n, n) at its last call, for a residual on link masses."""
-    return base.link_mass_sensitivity.copy() if config.on_link_masses else None
-
-
 class LinkMassEstimate:
     """The link-mass scales s of a residual with ``residual_rate``, per arm: s - 1 = 0 at
     a (re)start, then at every control period s - 1 += dt * residual_rate * rho(a), kept
@@ -241,14 +222,6 @@ class LinkMassEstimate:
         """(s - 1) / residual_scale (N, size), in [-1, 1]: the feature
         ``link_mass_estimate``."""
         return self.change / self.config.residual_scale
-
-
-def link_mass_estimate(config: ActionConfig, n_arms: int, n: int, dt: float):
-    """The :class:`LinkMassEstimate` of N arms of n joints when the residual integrates
-    its action (``residual_rate``), else None."""
-    if config.residual_rate is None:
-        return None
-    return LinkMassEstimate(config, n_arms, config.action_size(n), dt)
 
 
 FIT_BOUND = 10.0  # |feature| bound of link_mass_fit (in units of residual_scale)
@@ -297,10 +270,64 @@ class LinkMassFit:
             self.value[arms] = cast(np.ndarray, link_mass_fit(self.config, base))[arms]
 
 
-def load_fit(config: ActionConfig, n_arms: int, n: int) -> LinkMassFit | None:
-    """The :class:`LinkMassFit` of N arms of n joints for a residual on link masses, else
-    None."""
-    return LinkMassFit(config, n_arms, n) if config.on_link_masses else None
+class LinkMassResidual:
+    """What a residual on link masses keeps of each arm beside its vector base: the
+    base's d tau / d s at its last call, the scales integrated from the action with
+    ``residual_rate`` (:class:`LinkMassEstimate`) and the load fitted at each reset
+    (:class:`LinkMassFit`). The training stack and the trained-policy controller each
+    hold one and, per control period: :meth:`restart` the arms reset, call the base,
+    :meth:`after_base`, read :meth:`features`, then :meth:`advance` under the action.
+
+    Args:
+        config: the action parameterization (on link masses).
+        base: the residual's vector base, a law with INVDYN (a clear error otherwise).
+        n_arms: arms. dt: control period (s).
+    """
+
+    def __init__(self, config: ActionConfig, base, n_arms: int, dt: float) -> None:
+        track = getattr(base, "track_link_mass", None)
+        if track is None:
+            raise ValueError(
+                "residual_space 'link-mass' needs a base with INVDYN (eq. (13), its integral "
+                f"action or PD variants), not {base.name!r}"
+            )
+        track()
+        self.base = base
+        self.fit = LinkMassFit(config, n_arms, base.n)
+        self.estimate = (
+            None
+            if config.residual_rate is None
+            else LinkMassEstimate(config, n_arms, config.action_size(base.n), dt)
+        )
+
+    def restart(self, arms: np.ndarray) -> None:
+        if self.estimate is not None:
+            self.estimate.restart(arms)
+
+    def after_base(self, reset_arms: np.ndarray) -> np.ndarray:
+        """Latch the fit of the arms just reset; the base's d tau / d s (N, n, n) of the
+        call just made, a copy."""
+        self.fit.latch(self.base, reset_arms)
+        return self.base.link_mass_sensitivity.copy()
+
+    def features(self) -> dict[str, np.ndarray]:
+        """The features ``link_mass_fit`` and, with ``residual_rate``,
+        ``link_mass_estimate`` of every arm (N, size), copies."""
+        values = {"link_mass_fit": self.fit.value.copy()}
+        if self.estimate is not None:
+            values["link_mass_estimate"] = self.estimate.feature.copy()
+        return values
+
+    def advance(self, action: np.ndarray) -> np.ndarray | None:
+        """s - 1 (N, size) under the actions (N, size) when they set its rate (one control
+        period of :class:`LinkMassEstimate`); None when they set s itself."""
+        return None if self.estimate is None else self.estimate.advance(action)
+
+
+def link_mass_residual(config: ActionConfig, base, n_arms: int, dt: float):
+    """The :class:`LinkMassResidual` of a residual on link masses over its vector base,
+    else None."""
+    return LinkMassResidual(config, base, n_arms, dt) if config.on_link_masses else None
 
 
 def check_link_mass_features(features: tuple[str, ...], config: ActionConfig) -> None:

@@ -22,11 +22,8 @@ from elastic_gym.controllers.vector import ARM0, ControllerTwin, make_vector_con
 from elastic_gym.model import RobotModel
 from elastic_gym.training.actions import (
     ActionMap,
-    base_sensitivity,
     check_link_mass_features,
-    link_mass_estimate,
-    load_fit,
-    track_link_masses,
+    link_mass_residual,
 )
 from elastic_gym.training.observation import (
     ErrorIntegral,
@@ -177,7 +174,6 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         )
         if self.base is not None:
             check_base_error(controller.builder.features, self.base)
-            track_link_masses(controller.map.config, self.base)
         self.actors = [PolicyActor(trained.model, trained.normalizer) for _ in range(N)]
         self._calls = np.zeros(N, dtype=np.int64)
         self._action = np.zeros((N, controller.map.size))
@@ -191,8 +187,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._at_bound = np.zeros(N)
         self._integral = ErrorIntegral(N, n, controller.elastic)
         check_link_mass_features(controller.builder.features, controller.map.config)
-        self._estimate = link_mass_estimate(controller.map.config, N, n, self.dt)
-        self._fit = load_fit(controller.map.config, N, n)
+        self._link_mass = link_mass_residual(controller.map.config, self.base, N, self.dt)
 
     @property
     def arm_diagnostics(self) -> dict[str, np.ndarray]:
@@ -221,21 +216,21 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         if self.controller.sensors:
             self._previous_motor[arms] = np.asarray(obs["motor_position"], dtype=float)[arms]
         self._integral.restart(arms, np.broadcast_to(info["time"], (self.n_arms,)))
-        if self._estimate is not None:
-            self._estimate.restart(arms)
+        if self._link_mass is not None:
+            self._link_mass.restart(arms)
 
     def _inputs(
         self, obs: Mapping, info: Mapping, x: np.ndarray | None, reference: np.ndarray, arms
     ) -> ObservationInputs:
         """The policy's feature inputs of the acting ``arms``: the state (and the error
         integral, advanced to this policy step), or the raw sensors."""
+        link_mass = {} if self._link_mass is None else self._link_mass.features()
         inputs = ObservationInputs(
             reference=reference[arms],
             last_action=self._last_action[arms],
             base_torque=self._last_base[arms],
             base_error=self._base_error[arms],
-            link_mass_estimate=None if self._estimate is None else self._estimate.feature[arms],
-            link_mass_fit=None if self._fit is None else self._fit.value[arms],
+            **{name: value[arms] for name, value in link_mass.items()},
         )
         if x is None:  # raw sensors
             inputs.motor_position = np.asarray(obs["motor_position"], dtype=float)[arms]
@@ -276,9 +271,9 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         reference = self.references(info)
         x = None if c.sensors else self.states(obs)
         base = np.zeros((self.n_arms, n)) if self.base is None else self.base(obs, info)
-        sensitivity = base_sensitivity(c.map.config, self.base)
-        if self._fit is not None:  # at each arm's first call after its reset
-            self._fit.latch(self.base, np.flatnonzero(self._calls == 0))
+        sensitivity = None
+        if self._link_mass is not None:  # the fit of each arm's first call after its reset
+            sensitivity = self._link_mass.after_base(np.flatnonzero(self._calls == 0))
         error = base_state_error(self.base)
         if error is not None:
             self._base_error = error
@@ -296,5 +291,5 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         theta, dtheta = self._motor_state(obs, x)
         if c.sensors:
             self._previous_motor = np.asarray(obs["motor_position"], dtype=float).copy()
-        change = None if self._estimate is None else self._estimate.advance(self._action)
+        change = None if self._link_mass is None else self._link_mass.advance(self._action)
         return c.map.torque(self._action, theta, dtheta, reference, base, sensitivity, change)

@@ -28,11 +28,8 @@ from elastic_gym.observers.vector import true_state_vector
 from elastic_gym.training.actions import (
     ActionConfig,
     ActionMap,
-    base_sensitivity,
     check_link_mass_features,
-    link_mass_estimate,
-    load_fit,
-    track_link_masses,
+    link_mass_residual,
 )
 from elastic_gym.training.observation import (
     ErrorIntegral,
@@ -101,10 +98,10 @@ class PolicyAction(_ArmResets):
     taken (zeros for other kinds and after a reset). The base is called on each
     observation as it arrives (its torque is applied at the next step); for a base with a
     desired state ``info["base_error"]`` (N, dim) is its state error x - x_d there.
-    A residual that integrates link-mass scales (``residual_rate``) keeps them in
-    ``estimate`` and gives them as ``info["link_mass_estimate"]`` (N, a); a residual on
-    link masses gives the scales its base's motor error showed at each arm's reset as
-    ``info["link_mass_fit"]`` (N, a) (:class:`~elastic_gym.training.actions.LinkMassFit`).
+    A residual on link masses keeps its arms' scales in ``link_mass``
+    (:class:`~elastic_gym.training.actions.LinkMassResidual`) and gives its features as
+    ``info["link_mass_fit"]`` (N, a), the scales its base's motor error showed at each
+    arm's reset, and with ``residual_rate`` ``info["link_mass_estimate"]`` (N, a).
     """
 
     def __init__(
@@ -117,6 +114,7 @@ class PolicyAction(_ArmResets):
         self.n, self.dt = batch.n_joints, batch.control_dt
         self.sensors = "state" not in cast(spaces.Dict, env.single_observation_space).spaces
         self.controller = None
+        self.link_mass = None
         if self.action_config.residual is not None:  # kind "residual"
             if self.sensors:
                 raise ValueError("a residual policy needs a state source for its base controller")
@@ -127,7 +125,9 @@ class PolicyAction(_ArmResets):
                 self.num_envs,
                 **self.action_config.residual_options,
             )
-            track_link_masses(self.action_config, self.controller)
+            self.link_mass = link_mass_residual(
+                self.action_config, self.controller, self.num_envs, self.dt
+            )
         self.single_action_space = spaces.Box(-1.0, 1.0, (self.map.size,), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._obs: dict = {}
@@ -137,8 +137,6 @@ class PolicyAction(_ArmResets):
         self._next_base = np.zeros((self.num_envs, self.n))  # for the current observation
         self._sensitivity: np.ndarray | None = None  # d tau_base / d s, step just taken
         self._next_sensitivity: np.ndarray | None = None  # ... for the current observation
-        self.estimate = link_mass_estimate(self.action_config, self.num_envs, self.n, self.dt)
-        self.fit = load_fit(self.action_config, self.num_envs, self.n)
 
     def _call_base(self, obs: Mapping, info: dict, restarted: np.ndarray) -> None:
         """The residual's base on the current observation: its torque for the next step
@@ -147,10 +145,9 @@ class PolicyAction(_ArmResets):
         if self.controller is None:
             return
         self._next_base = self.controller(obs, public_info(info))
-        self._next_sensitivity = base_sensitivity(self.action_config, self.controller)
-        if self.fit is not None:
-            self.fit.latch(self.controller, restarted)
-            info["link_mass_fit"] = self.fit.value.copy()
+        if self.link_mass is not None:
+            self._next_sensitivity = self.link_mass.after_base(restarted)
+            info.update(self.link_mass.features())
         error = base_state_error(self.controller)
         if error is not None:
             info["base_error"] = error.copy()
@@ -160,12 +157,8 @@ class PolicyAction(_ArmResets):
             self.controller.reset_arms(obs, public_info(info), arms)
         if self.sensors:
             self._previous_motor[arms] = obs["motor_position"][arms]
-        if self.estimate is not None:
-            self.estimate.restart(arms)
-
-    def _give_estimate(self, info: dict) -> None:
-        if self.estimate is not None:
-            info["link_mass_estimate"] = self.estimate.feature.copy()
+        if self.link_mass is not None:
+            self.link_mass.restart(arms)
 
     def reset(self, *, seed=None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -174,7 +167,6 @@ class PolicyAction(_ArmResets):
         self._obs, self._info = obs, info
         self._base[arms] = 0.0
         info["base_torque"] = self._base.copy()
-        self._give_estimate(info)
         self._call_base(obs, info, arms)
         return obs, info
 
@@ -191,7 +183,7 @@ class PolicyAction(_ArmResets):
                 self._previous_motor = theta.copy()
             else:
                 theta, dtheta = obs["state"][:, :n], obs["state"][:, 2 * n : 3 * n]
-        change = None if self.estimate is None else self.estimate.advance(a)
+        change = None if self.link_mass is None else self.link_mass.advance(a)
         torque = self.map.torque(
             a, theta, dtheta, reference_rows(info), self._base, self._sensitivity, change
         )
@@ -199,7 +191,6 @@ class PolicyAction(_ArmResets):
         restarted = self._restarted(terminated, truncated)
         self._restart(restarted, obs, info)
         info["base_torque"] = self._base.copy()
-        self._give_estimate(info)
         self._call_base(obs, info, restarted)
         self._obs, self._info = obs, info
         return obs, reward, terminated, truncated, info
