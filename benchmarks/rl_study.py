@@ -210,6 +210,12 @@ def train_all(rows, runs: Path, start: float) -> None:
 
 
 # ---------------------------------------------------------------- evaluation
+def classical_key(controller: str, source: str, options: dict | None = None) -> str:
+    """The row key of a classical controller (with non-default ``options``) on a source."""
+    variant = "".join(f"+{name}={value}" for name, value in (options or {}).items())
+    return f"{controller}{variant}-{source}"
+
+
 def classical_evaluation(
     env_id: str,
     controller: str,
@@ -217,16 +223,17 @@ def classical_evaluation(
     env_kwargs: dict,
     episodes: int = EVAL_EPISODES,
     seed: int = EVAL_SEED,
+    options: dict | None = None,
 ) -> Evaluation:
-    """A classical controller on the evaluation episodes, through the policy stack: a
-    residual on it whose action is zero applies exactly its torque."""
+    """A classical controller (with ``options``) on the evaluation episodes, through the
+    policy stack: a residual on it whose action is zero applies exactly its torque."""
     envs = make_policy_vec_env(
         env_id,
         episodes,
         source,
         env_kwargs,
         decimation=10,
-        action={"kind": "residual", "residual": controller},
+        action={"kind": "residual", "residual": controller, "residual_options": options or {}},
         autoreset_mode=AutoresetMode.NEXT_STEP,
     )
     try:
@@ -354,13 +361,15 @@ def evaluate_all(study: Study, rows, runs: Path, out: Path, start: float) -> lis
         task = TASK if env_id == TWO_LINK else {}
         names = dict.fromkeys(name for row in rows if row.env_id == env_id for name in row.plants)
         plants = {name: study.plants[name] for name in names}
-        for controller, label, sources in table:
+        for controller, label, sources, *options in table:
             for source in sources:
-                key = f"{controller}-{source}" + ("-kr15" if env_id == KR15 else "")
+                key = classical_key(controller, source, *options)
+                key += "-kr15" if env_id == KR15 else ""
                 for plant, kwargs in plants.items():
                     if missing(key, "", plant):
+                        env_kwargs = {**task, **kwargs}
                         evaluation = classical_evaluation(
-                            env_id, controller, source, {**task, **kwargs}, episodes, first
+                            env_id, controller, source, env_kwargs, episodes, first, *options
                         )
                         add(key, label, env_id, source, "", "", plant, evaluation)
                         log(f"evaluated {key} on {plant}: {evaluation.rms:.2e}", start)
@@ -721,11 +730,11 @@ class Study:
     ``rows``: objects with ``key``, ``label``, ``state``, ``algo``, ``env_id``, ``seeds``,
     ``plants`` (names of ``plants``), ``eval_task``, ``steps`` (None: the row's own) and
     ``config(seed, runs) -> TrainConfig`` (:class:`Row`); ``plants``: name -> env kwargs
-    of an evaluation plant; ``classical``: (controller, label, state sources) evaluated on
-    TwoLinkElastic (``kr15_classical`` on KR15); ``zero_offset``: also the motor-offset PD
-    with a zero action; ``report(records, out, rows, runs)`` writes the study's tables and
-    returns their file names; ``command(row, seed, runs)``: the ``elastic-gym train`` command of a
-    run (None: the study has none)."""
+    of an evaluation plant; ``classical``: (controller, label, state sources[, options])
+    evaluated on TwoLinkElastic (``kr15_classical`` on KR15); ``zero_offset``: also the
+    motor-offset PD with a zero action; ``report(records, out, rows, runs)`` writes the
+    study's tables and returns their file names; ``command(row, seed, runs)``: the
+    ``elastic-gym train`` command of a run (None: the study has none)."""
 
     name: str
     description: str

@@ -63,6 +63,7 @@ from rl_study import (
 )
 
 INTEGRAL = "integral-state-feedback"
+LOAD_IDENTIFIED = {"load_identification": "shared"}  # one scale for all links, the plants'
 ENCODERS = "finite-difference"  # motor encoders, filtered differences: no K, B or accelerometer
 HYPERPARAMS = Path(elastic_gym.__file__).resolve().parent / "training" / "hyperparams"
 
@@ -108,9 +109,15 @@ CHANGES = {  # name -> (label, the change from the default plant)
 PLANTS = {name: {**DEFAULT_PLANT, **change} for name, (_, change) in CHANGES.items()}
 PLANT_LABELS = {name: label for name, (label, _) in CHANGES.items()}
 
-CLASSICAL = (  # (controller, label, state sources)
+CLASSICAL = (  # (controller, label, state sources[, options])
     (EQ13, "eq. (13)", ("true", "deluca")),
     (INTEGRAL, "eq. (13) + integral action", ("true", "deluca")),
+    (
+        INTEGRAL,
+        "eq. (13) + integral action, load identified at the reset",
+        ("true", "deluca"),
+        LOAD_IDENTIFIED,
+    ),
     ("motor-pd", "motor PD", ("true", "deluca", ENCODERS)),
 )
 SOURCES = {"true": "true", "deluca": "De Luca", ENCODERS: "encoders", "sensors": "raw sensors"}

@@ -430,6 +430,7 @@ def test_policy_controller_with_saved_sb3_model_and_vecnormalize(tmp_path):
         ("feedforward-state-feedback", {"feedback": False, "poles": [-1.0] * 8}, ValueError),
         ("feedforward-state-feedback", {"design_configuration": [0.0]}, ValueError),
         ("feedforward-state-feedback", {"fd_step": 0.0}, ValueError),
+        ("integral-state-feedback", {"load_identification": "yes"}, ValueError),
         ("motor-pd", {"kp": [1.0, 2.0]}, ValueError),
         ("motor-pd", {"kp": [-1.0, 2.0], "kd": 1.0}, ValueError),
         ("policy", {"policy": 3.0}, TypeError),
@@ -454,6 +455,8 @@ def test_bad_calls_and_robot_kinds():
         make_controller("feedback-linearization", rigid, 1e-3, friction_velocity="x")
     with pytest.raises(ValueError, match="K_P"):
         make_controller("cristofaro-tracking", rigid, 1e-3, K_P=[1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="load_identification: the load shows in the joint"):
+        make_controller("link-pd", rigid, 1e-3, load_identification="shared")
     controller = make_controller("feedforward-state-feedback", elastic, 1e-3)
     obs, info = elastic_obs()
     with pytest.raises(ValueError, match="reference"):

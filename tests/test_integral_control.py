@@ -19,10 +19,12 @@ STEPS = 1500
 LATE = 300  # the last 0.3 s, at rest 0.5 s after the motion ended
 
 
-def run(controller: str, link_mass: float = 1.0) -> dict:
+def run(controller: str, link_mass: float = 1.0, **options) -> dict:
     env = TrueStateWrapper(gym.make(TWO_LINK, plant_scaling={"link_mass": link_mass}, **TRACK))
     base = env.unwrapped
-    out = simulate(env, make_controller(controller, base.model, base.control_dt), STEPS)
+    law = make_controller(controller, base.model, base.control_dt, **options)
+    out = simulate(env, law, STEPS)
+    out["link_mass_change"] = law.link_mass_change
     out["late"] = float(np.max(np.linalg.norm(out["error"][-LATE:], axis=1)))
     out["rms"] = float(np.sqrt(np.mean(np.sum(out["error"] ** 2, axis=1))))
     return out
@@ -56,6 +58,28 @@ def test_integral_action_does_no_harm_on_the_nominal_arm(runs):
     # measured RMS 1.79e-4 vs 2.00e-4 rad
     assert integral["rms"] < 1.1 * plain["rms"]
     assert integral["late"] < 1e-5 and plain["late"] < 1e-5  # vs 7.9e-3 with heavier links
+
+
+@pytest.mark.parametrize("identification", ["per-link", "shared"])
+@pytest.mark.parametrize("controller", ["integral-state-feedback", "feedforward-state-feedback"])
+def test_load_identification_finds_the_link_masses_and_tracks_as_on_the_nominal_arm(
+    runs, controller, identification
+):
+    """At the reset the arm rests in the static equilibrium of its real links; the motor
+    positions show their load through INVDYN's linear dependence on the link masses, and
+    the law on the identified model tracks as the nominal law on the nominal arm, where
+    it identifies nothing."""
+    nominal = run(controller, 1.0, load_identification=identification)
+    np.testing.assert_allclose(nominal["link_mass_change"], 0.0, atol=1e-7)
+    plain = runs[(controller, 1.0)]["rms"]
+    assert abs(nominal["rms"] - plain) < 1e-3 * plain
+    for link_mass in (0.7, 1.3):
+        identified = run(controller, link_mass, load_identification=identification)
+        np.testing.assert_allclose(identified["link_mass_change"], link_mass - 1, atol=1e-4)
+        # measured 1.00-1.02x the nominal arm's RMS; integral action alone is 20x above it
+        assert identified["rms"] < 1.05 * plain
+        if link_mass == 1.3:
+            assert identified["rms"] < 0.1 * runs[("integral-state-feedback", 1.3)]["rms"]
 
 
 def test_augmented_design_is_stable_and_keeps_the_fast_poles():

@@ -42,6 +42,8 @@ CASES = [
     (TWO_LINK, "feedforward-state-feedback", {"feedforward": False}),
     (TWO_LINK, "integral-state-feedback", {}),
     (KR15, "integral-state-feedback", {}),
+    (KR15, "integral-state-feedback", {"load_identification": "per-link"}),
+    (TWO_LINK, "motor-pd", {"load_identification": "shared"}),
     (TWO_LINK, "motor-pd", {}),
     (KR15, "motor-pd", {"feedforward": False}),
     (TWO_LINK, "link-pd", {}),

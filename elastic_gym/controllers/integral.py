@@ -57,7 +57,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
         omega: slowest closed-loop pole (rad/s) of the underlying eq. (13) design.
         integral_weight: LQR weight of z relative to J^2 w^6 (see module docstring).
         integral_limit: bound of |K_I z| as a fraction of the model's torque limit.
-        feedforward, design_configuration, fd_step: as for eq. (13).
+        feedforward, design_configuration, fd_step, load_identification: as for eq. (13).
 
     ``design`` holds the configuration, the method and the poles of the augmented
     nominal closed loop (dimension N + dim(x)); ``integral`` is the state z. The law
@@ -77,6 +77,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
         feedforward: bool = True,
         design_configuration=None,
         fd_step: float = DEFAULT_FD_STEP,
+        load_identification: str = "none",
     ) -> None:
         validated_options(IntegralOptions, locals())
         self.integral_weight = integral_weight
@@ -89,6 +90,7 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
             feedforward=feedforward,
             design_configuration=design_configuration,
             fd_step=fd_step,
+            load_identification=load_identification,
         )
         q0 = np.asarray(self.design["configuration"])
         A, Bu = integral_linearization(model, q0)

@@ -357,6 +357,29 @@ class LinkMassSensitivity:
         return dx, dtau
 
 
+def fit_link_masses(state_sensitivity: np.ndarray, motor_error: np.ndarray, shared: bool):
+    """The link-mass scales s - 1 (N, n, or N, 1 if ``shared``) that explain a motor
+    position error at standstill: a static load identification from the encoders.
+
+    theta_d of INVDYN is linear in the scales (:class:`LinkMassSensitivity`): at rest in
+    the static equilibrium of links s times the model's, q = q_d and theta - theta_d(1) =
+    J (s - 1), J (n, n) the columns d theta_d / d s_i (the motor rows of
+    ``state_sensitivity`` (N, n, dim)), summed into one for a shared scale. The answer is
+    the damped least-squares solution (damping 1e-6 of the mean eigenvalue of J^T J).
+    ``motor_error`` (N, n): theta - theta_d(1) of the same call.
+    """
+    n = motor_error.shape[1]
+    columns = state_sensitivity[:, :, :n]  # (N, n links, n joints)
+    if shared:
+        columns = columns.sum(axis=1, keepdims=True)
+    normal = np.matmul(columns, columns.transpose(0, 2, 1))  # J^T J (N, size, size)
+    size = normal.shape[-1]
+    damping = 1e-6 * np.trace(normal, axis1=1, axis2=2) / size + 1e-300
+    normal = normal + damping[:, None, None] * np.eye(size)
+    right = np.matmul(columns, motor_error[:, :, None])  # J^T (theta - theta_d)
+    return np.linalg.solve(normal, right)[:, :, 0]
+
+
 def static_reference(model: RobotModel, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Reference without INVDYN: the gravity-compensated static state at q_d.
 

@@ -83,6 +83,7 @@ class _BlockPD(FeedforwardStateFeedback):
         feedforward: bool = True,
         design_configuration=None,
         fd_step: float = DEFAULT_FD_STEP,
+        load_identification: str = "none",
     ) -> None:
         validated_options(PDOptions, locals())
         self.damping_ratio = damping_ratio
@@ -95,6 +96,7 @@ class _BlockPD(FeedforwardStateFeedback):
             feedforward=feedforward,
             design_configuration=design_configuration,
             fd_step=fd_step,
+            load_identification=load_identification,
         )
 
     def _design(self, A, Bu, q0, omega, gain, weights, poles) -> tuple[np.ndarray, str]:
@@ -119,7 +121,7 @@ class MotorPD(_BlockPD):
 
     Args: ``omega`` (rad/s) and ``damping_ratio`` of the per-joint bandwidth rule, or
     explicit ``kp``, ``kd`` (one or N numbers); ``feedforward``, ``design_configuration``,
-    ``fd_step`` as in :class:`FeedforwardStateFeedback`.
+    ``fd_step``, ``load_identification`` as in :class:`FeedforwardStateFeedback`.
     """
 
     name = "motor-pd"

@@ -14,7 +14,7 @@ experiment ("close to the robot natural frequency"). The same law runs on rigid 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Annotated, Any, ClassVar
+from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import StrictBool, ValidationInfo, field_validator
@@ -33,6 +33,7 @@ from elastic_gym.controllers.invdyn import (
     FdStep,
     InverseDynamics,
     LinkMassSensitivity,
+    fit_link_masses,
     info_time,
     reference_derivatives,
     static_reference,
@@ -60,12 +61,16 @@ class LQRWeights(StrictModel):
     R: Annotated[Any, Matrix()]
 
 
+LOAD_IDENTIFICATION = ("none", "per-link", "shared")
+
+
 class FeedforwardOptions(StrictModel):
     """The INVDYN and linearization options shared by eq. (13) and its variants."""
 
     feedforward: StrictBool = True
     design_configuration: list[Finite] | None = None
     fd_step: FdStep = DEFAULT_FD_STEP
+    load_identification: Literal[LOAD_IDENTIFICATION] = "none"  # type: ignore[valid-type]
 
 
 class StateFeedbackOptions(FeedforwardOptions):
@@ -110,6 +115,9 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
         design_configuration: configuration q0 of the linearization (default: the middle
             of the robot's workspace).
         fd_step: step (s) of the central difference giving tau_r'' inside INVDYN.
+        load_identification: ``"per-link"`` or ``"shared"`` (one scale for all links)
+            identifies the link masses at each reset from the encoders and runs the law
+            on that model from then on (:class:`VectorStateFeedback`; elastic arms).
 
     At most one of ``gain``, ``weights``, ``poles`` may be given.
     ``design`` holds the configuration, method and closed-loop poles of the nominal
@@ -131,12 +139,19 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
         feedforward: bool = True,
         design_configuration=None,
         fd_step: float = DEFAULT_FD_STEP,
+        load_identification: str = "none",
     ) -> None:
         super().__init__(model, dt)
         options = validated_options(StateFeedbackOptions, locals())
         self.dim = (4 if self.elastic else 2) * self.n
         self.feedforward = feedforward
         self.fd_step = fd_step
+        if load_identification != "none" and not self.elastic:
+            raise ValueError(
+                "options.load_identification: the load shows in the joint torsion at rest, "
+                "which a rigid arm does not have (use 'none')"
+            )
+        self.load_identification = load_identification
         q0 = self._configuration(design_configuration)
         A, Bu = linearize(model, q0)
         if feedback:
@@ -176,6 +191,12 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
         x_d, tau_d = self._law.desired(np.array([info_time(info)]), ref[None])
         return x_d[0], tau_d[0]
 
+    @property
+    def link_mass_change(self) -> np.ndarray:
+        """s - 1 (n,): the link-mass scales identified at the last reset
+        (``load_identification``; zeros without)."""
+        return self._law.link_mass_change[0]
+
 
 @twin_of(FeedforwardStateFeedback)
 class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
@@ -186,6 +207,13 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
     After :meth:`track_link_mass`, ``link_mass_sensitivity`` (N, n, n) holds at every call
     the change of the torque per unit change of each link's mass scale in the model, and
     ``link_mass_state_sensitivity`` (N, n, dim) that of the desired state x_d.
+
+    With ``load_identification``, the first call after an arm's reset identifies the
+    link masses from its motor error, s - 1 =
+    :func:`~elastic_gym.controllers.invdyn.fit_link_masses` (exact for an arm at rest in
+    its static equilibrium, as the envs reset), kept in ``link_mass_change`` (N, n), and
+    every call runs the law on that model: (x_d, tau_d)(s) = (x_d, tau_d)(1) +
+    sum_i (s_i - 1) d (x_d, tau_d) / d s_i, INVDYN being linear in the masses.
     """
 
     def _bind(self, controller: FeedforwardStateFeedback, n_arms: int) -> None:
@@ -197,6 +225,11 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
         self._mass_sensitivity: LinkMassSensitivity | None = None
         self.link_mass_sensitivity: np.ndarray | None = None
         self.link_mass_state_sensitivity: np.ndarray | None = None
+        self.identification = controller.load_identification
+        self.link_mass_change = np.zeros((self.n_arms, self.n))
+        self._unidentified = np.ones(self.n_arms, dtype=bool)
+        if self.identification != "none":
+            self.track_link_mass()
 
     def track_link_mass(self) -> None:
         """From the next call on, keep ``link_mass_sensitivity`` (N, n, n): row i of an
@@ -215,6 +248,8 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
     def reset_arms(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> None:
         self.invdyn.reset(arms)
         self.state_error[arms] = 0.0
+        self.link_mass_change[arms] = 0.0
+        self._unidentified[arms] = True
         if self._mass_sensitivity is not None:
             self._mass_sensitivity.reset(arms)
 
@@ -227,15 +262,31 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
     def tracked(
         self, t: np.ndarray, x: np.ndarray, ref: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(x_d, tau_d) of :meth:`desired`; keeps x - x_d as :attr:`state_error`, the error
-        the feedback of eq. (13) acts on at this call (zero since an arm's reset)."""
+        """(x_d, tau_d) of :meth:`desired` (on the identified model with
+        ``load_identification``); keeps x - x_d as :attr:`state_error`, the error the
+        feedback of eq. (13) acts on at this call."""
         x_d, tau_d = self.desired(t, ref)
-        self.state_error = x - x_d
         if self._mass_sensitivity is not None:
             dx_d, dtau_d = self._mass_sensitivity(t, ref, x_d, tau_d)
+            if self.identification != "none":
+                x_d, tau_d = self._identified(x, x_d, tau_d, dx_d, dtau_d)
             self.link_mass_state_sensitivity = dx_d
             self.link_mass_sensitivity = np.matmul(dx_d, self.gain.T) + dtau_d
+        self.state_error = x - x_d
         return x_d, tau_d
+
+    def _identified(self, x, x_d, tau_d, dx_d, dtau_d) -> tuple[np.ndarray, np.ndarray]:
+        """Identify the link masses of the arms just reset; (x_d, tau_d) on each arm's
+        identified model."""
+        arms = np.flatnonzero(self._unidentified)
+        if len(arms):
+            n = self.n
+            error = x[arms, :n] - x_d[arms, :n]
+            shared = self.identification == "shared"
+            self.link_mass_change[arms] = fit_link_masses(dx_d[arms], error, shared)
+            self._unidentified[arms] = False
+        change = self.link_mass_change[:, None, :]
+        return x_d + np.matmul(change, dx_d)[:, 0], tau_d + np.matmul(change, dtau_d)[:, 0]
 
     def torques(self, t: np.ndarray, x: np.ndarray, ref: np.ndarray) -> np.ndarray:
         x_d, tau_d = self.tracked(t, x, ref)

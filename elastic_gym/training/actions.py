@@ -26,6 +26,7 @@ from elastic_gym.controllers.gain_design import (
     bandwidth_pd_gains,
     nominal_configuration,
 )
+from elastic_gym.controllers.invdyn import fit_link_masses
 from elastic_gym.controllers.policy import RESIDUAL_DEADZONE, deadzone, residual_torque
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
@@ -232,27 +233,17 @@ def link_mass_fit(config: ActionConfig, base) -> np.ndarray | None:
     feature ``link_mass_fit``: (s_fit - 1) / residual_scale (N, size), within +-FIT_BOUND;
     None unless the residual acts on link masses.
 
-    theta_d of INVDYN is linear in the scales (:class:`~elastic_gym.controllers.invdyn.
-    LinkMassSensitivity`): at standstill in the static equilibrium of links s times the
-    model's, q = q_d and theta - theta_d(1) = J (s - 1), J (n, size) the columns
-    d theta_d / d s_i (summed for a shared scale). s_fit - 1 is its damped least-squares
-    solution (damping 1e-6 of the mean eigenvalue of J^T J): the load exactly at a reset
-    at rest, before the base has acted (a static load identification). Once the base
-    moves the motor, theta carries its action, so :class:`LinkMassFit` holds the value
-    of each arm's reset.
+    s_fit - 1 is :func:`~elastic_gym.controllers.invdyn.fit_link_masses` of the base's
+    last call: the load exactly at a reset at rest, before the base has acted (a static
+    load identification). Once the base moves the motor, theta carries its action, so
+    :class:`LinkMassFit` holds the value of each arm's reset.
     """
     if not config.on_link_masses:
         return None
     n = base.n
-    columns = base.link_mass_state_sensitivity[:, :, :n]  # (N, n links, n joints)
-    if config.residual_shared:
-        columns = columns.sum(axis=1, keepdims=True)
-    normal = np.matmul(columns, columns.transpose(0, 2, 1))  # J^T J (N, size, size)
-    size = normal.shape[-1]
-    damping = 1e-6 * np.trace(normal, axis1=1, axis2=2) / size + 1e-300
-    normal = normal + damping[:, None, None] * np.eye(size)
-    right = np.matmul(columns, base.state_error[:, :n, None])  # J^T (theta - theta_d)
-    fit = np.linalg.solve(normal, right)[:, :, 0]
+    fit = fit_link_masses(
+        base.link_mass_state_sensitivity, base.state_error[:, :n], config.residual_shared
+    )
     return np.clip(fit / config.residual_scale, -FIT_BOUND, FIT_BOUND)
 
 
