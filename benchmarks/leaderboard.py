@@ -36,6 +36,11 @@ CLASSICAL = {
     "eq13@finite-difference": {"controller": EQ13, "source": "finite-difference"},
     "eq13-integral@deluca": {"controller": INTEGRAL, "source": "deluca"},
     "eq13-integral@ekf": {"controller": INTEGRAL, "source": "ekf"},
+    "eq13-integral-loadid@deluca": {
+        "controller": INTEGRAL,
+        "source": "deluca",
+        "options": {"load_identification": "shared"},
+    },
     "motor-pd@finite-difference": {"controller": "motor-pd", "source": "finite-difference"},
     "link-pd@deluca": {"controller": "link-pd", "source": "deluca"},
     # oracle references: the same laws on the true state

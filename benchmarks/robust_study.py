@@ -114,7 +114,7 @@ CLASSICAL = (  # (controller, label, state sources[, options])
     (INTEGRAL, "eq. (13) + integral action", ("true", "deluca")),
     (
         INTEGRAL,
-        "eq. (13) + integral action, load identified at the reset",
+        "eq. (13) + integral action, load identified",
         ("true", "deluca"),
         LOAD_IDENTIFIED,
     ),
