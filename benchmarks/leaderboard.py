@@ -46,6 +46,11 @@ CLASSICAL = {
     # oracle references: the same laws on the true state
     "eq13@true": {"controller": EQ13, "source": "true"},
     "eq13-integral@true": {"controller": INTEGRAL, "source": "true"},
+    "eq13-integral-loadid@true": {
+        "controller": INTEGRAL,
+        "source": "true",
+        "options": {"load_identification": "shared"},
+    },
     "motor-pd@true": {"controller": "motor-pd", "source": "true"},
     "link-pd@true": {"controller": "link-pd", "source": "true"},
 }
