@@ -209,7 +209,11 @@ def test_the_targets_compute_their_verdicts_from_the_numbers():
 
 def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     runs, out = tmp_path / "runs", tmp_path / "out"
-    classical = ((rs.EQ13, "eq. (13)", ("deluca",)), ("motor-pd", "motor PD", (rs.ENCODERS,)))
+    classical = (
+        (rs.EQ13, "eq. (13)", ("deluca",)),
+        ("motor-pd", "motor PD", (rs.ENCODERS,)),
+        (rs.INTEGRAL, "integral action, load identified", ("true",), rs.LOAD_IDENTIFIED),
+    )
     small = "--algo ppo --state true --hyperparams n_envs=4 batches=1 batch_size=64"
     small += " --eval-freq 1024 --eval-episodes 1"  # two learning-curve points, not twenty
     rows = (rs.Row("ppo-true-nominal", (0,), None, small),)  # the shipped 64 arms: too slow
@@ -220,11 +224,15 @@ def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     assert (runs / "ppo-true-nominal" / "seed0" / "summary.json").is_file()
     with open(out / "evaluations.csv") as handle:
         records = list(csv.DictReader(handle))
-    keys = ["feedforward-state-feedback-deluca", "motor-pd-finite-difference", "ppo-true-nominal"]
+    identified = "integral-state-feedback+load_identification=shared-true"  # with its options
+    keys = ["feedforward-state-feedback-deluca", "motor-pd-finite-difference", identified]
+    keys.append("ppo-true-nominal")
     expected = {(key, plant) for key in keys for plant in ("nominal", "mass1.3")}
     assert {(r["row"], r["plant"]) for r in records} == expected
     assert len(records) == len(expected)  # one episode each
     assert {r["episode_seed"] for r in records} == {"100000"}
+    load = {r["plant"]: float(r["tracking_rms"]) for r in records if r["row"] == identified}
+    assert load["mass1.3"] < 1.2 * load["nominal"]  # the options reached the controller
     table = (out / "table.md").read_text().splitlines()
     assert len(table) == 2 + len(keys)
     assert "link mass ×1.3" in table[0] and "K ×0.9" in table[0]
