@@ -11,7 +11,8 @@
 * the batched closed loop of the comparisons: vector env + vector De Luca observer (or
   the batched EKF) + vector eq. (13), per arm-step at N = 64, at the env's physics step
   and at 1/16 ms, against the bare N-arm PyBullet loop of the same world and substeps
-  (target <= 2.5), and the EKF loop against the De Luca loop (target <= 3);
+  (target <= 2.5), the EKF loop against the De Luca loop (target <= 3), and the De Luca
+  loop with eq. (13) identifying the load at the reset against it;
 * PPO policy steps/s end to end (rollouts + updates) on one batch of arms
   (:class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`) and on SB3's ``SubprocVecEnv``
   with one worker per core, with the same stack (true state, action repeat 10,
@@ -155,13 +156,21 @@ def throughput_and_loop(env_id: str, n_arms: int, block: int, repeats: int) -> d
 
 
 class ClosedLoop:
-    """N arms under a vector observer and vector eq. (13): one control period per step."""
+    """N arms under a vector observer and vector eq. (13) (with ``controller_options``):
+    one control period per step."""
 
-    def __init__(self, env_id: str, n_arms: int, observer: str, **kwargs) -> None:
+    def __init__(
+        self,
+        env_id: str,
+        n_arms: int,
+        observer: str,
+        controller_options: dict | None = None,
+        **kwargs,
+    ) -> None:
         self.envs = vector.ObserverWrapper(vector_env(env_id, n_arms, **kwargs), observer)
         batch = self.envs.unwrapped.batch
         self.controller = make_vector_controller(
-            LOOP_CONTROLLER, batch.model, batch.control_dt, n_arms
+            LOOP_CONTROLLER, batch.model, batch.control_dt, n_arms, **(controller_options or {})
         )
         obs, info = self.envs.reset(seed=0)
         self.controller.reset_arms(obs, public_info(info), np.arange(n_arms))
@@ -178,10 +187,14 @@ class ClosedLoop:
 def closed_loop_costs(
     env_id: str, n_arms: int, physics_dt: float | None, block: int, repeats: int
 ) -> dict[str, float]:
-    """Seconds per arm-step of the batched closed loop with De Luca and with the EKF, and
-    of the bare N-arm PyBullet loop of the same world and substeps."""
+    """Seconds per arm-step of the batched closed loop with De Luca, with the EKF and with
+    De Luca and eq. (13) identifying the load at the reset (``load-id``: n more INVDYN
+    evaluations per call), and of the bare N-arm PyBullet loop of the same world and
+    substeps."""
     kwargs = {} if physics_dt is None else {"physics_dt": physics_dt}
     loops = {name: ClosedLoop(env_id, n_arms, name, **kwargs) for name in ("deluca", "ekf")}
+    identify = {"load_identification": "shared"}
+    loops["load-id"] = ClosedLoop(env_id, n_arms, "deluca", identify, **kwargs)
     bare = BareBatch(loops["deluca"].envs)
     steps = max(5, block // n_arms)
     timed = {"bare": bare.step, **{name: loop.step for name, loop in loops.items()}}

@@ -23,7 +23,8 @@ Tables (BLAS single-threaded: "one core"; see ``timing.py`` for the method):
 6. the batched closed loop of the comparisons (``batched.py``): vector env + vector De
    Luca (or batched EKF) + vector eq. (13), 64 arms, per arm-step, at the env's physics
    step and at 1/16 ms, / the bare 64-arm PyBullet loop of the same world and substeps
-   (target <= 2.5x), and the EKF loop / the De Luca loop (target <= 3x);
+   (target <= 2.5x), the EKF loop / the De Luca loop (target <= 3x), and the loop with
+   eq. (13) identifying the load at the reset / the De Luca loop;
 7. ``compare`` of one grid (``batched_compare.py``) with one arm per world
    (``--batch-size 1``) / batched, CPU time of the whole execution, at the env's 0.5 ms
    physics step and at the comparisons' 1/16 ms (targets >= 8x and >= 2.5x).
@@ -534,6 +535,7 @@ def table_batched_loop(vec_id: str, scale: Scale) -> None:
                 fmt(loop_ratio),
                 fmt(1e6 * costs["ekf"]),
                 fmt(ekf_ratio),
+                fmt(costs["load-id"] / costs["deluca"]),
                 f"{'yes' if loop_ratio <= batched.TARGET_LOOP_RATIO else 'no'} / "
                 f"{'yes' if ekf_ratio <= batched.TARGET_EKF_RATIO else 'no'}",
             )
@@ -550,6 +552,7 @@ def table_batched_loop(vec_id: str, scale: Scale) -> None:
             "vs bare",
             "EKF loop [us]",
             "vs De Luca loop",
+            "load-id loop vs De Luca loop",
             "targets met",
         ),
         rows,
