@@ -16,7 +16,7 @@ a in [-1, 1]^n, held for ``decimation`` control periods, becomes a torque at eve
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, cast
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, StrictBool, StrictStr, model_validator
@@ -228,37 +228,32 @@ class LinkMassEstimate:
 FIT_BOUND = 10.0  # |feature| bound of link_mass_fit (in units of residual_scale)
 
 
-def link_mass_fit(config: ActionConfig, base) -> np.ndarray | None:
-    """The link-mass scales that explain the base's motor-position error, per arm, as the
-    feature ``link_mass_fit``: (s_fit - 1) / residual_scale (N, size), within +-FIT_BOUND;
-    None unless the residual acts on link masses.
-
-    s_fit - 1 is :func:`~elastic_gym.controllers.invdyn.fit_link_masses` of the base's
-    last call: the load exactly at a reset at rest, before the base has acted (a static
-    load identification). Once the base moves the motor, theta carries its action, so
-    :class:`LinkMassFit` holds the value of each arm's reset.
-    """
-    if not config.on_link_masses:
-        return None
-    n = base.n
-    fit = fit_link_masses(
-        base.link_mass_state_sensitivity, base.state_error[:, :n], config.residual_shared
-    )
-    return np.clip(fit / config.residual_scale, -FIT_BOUND, FIT_BOUND)
-
-
 class LinkMassFit:
-    """Each arm's :func:`link_mass_fit` at its last reset, held (the feature
-    ``link_mass_fit``). Call :meth:`latch` with the arms just reset, after the base's
-    call on their first observation."""
+    """The feature ``link_mass_fit`` of each arm: (s_fit - 1) / residual_scale (N, size),
+    within +-FIT_BOUND, the link-mass scales that explained its base's motor-position
+    error at its last reset, held. Call :meth:`latch` with the arms just reset, after the
+    base's call on their first observation.
+
+    s_fit - 1 is :func:`~elastic_gym.controllers.invdyn.fit_link_masses` of that call: the
+    load exactly at a reset at rest, before the base has acted (a static load
+    identification). Once the base moves the motor, theta carries its action, so the
+    value of each arm's reset is held.
+    """
 
     def __init__(self, config: ActionConfig, n_arms: int, n: int) -> None:
         self.config = config
         self.value = np.zeros((n_arms, config.action_size(n)))
 
     def latch(self, base, arms: np.ndarray) -> None:
-        if len(arms):
-            self.value[arms] = cast(np.ndarray, link_mass_fit(self.config, base))[arms]
+        if not len(arms):
+            return
+        config, n = self.config, base.n
+        fit = fit_link_masses(
+            base.link_mass_state_sensitivity[arms],
+            base.state_error[arms, :n],
+            config.residual_shared,
+        )
+        self.value[arms] = np.clip(fit / config.residual_scale, -FIT_BOUND, FIT_BOUND)
 
 
 class LinkMassResidual:

@@ -260,14 +260,15 @@ class ObservationBuilder:
                 problems.append("'acceleration' needs accelerometers")
         if problems:
             raise ValueError("observation features: " + "; ".join(problems))
+        actions = n if action_size is None else action_size
         sizes = {
             "reference": (config.reference_order + 1) * n,
             "preview": len(config.preview) * n,
             "acceleration": n_accelerations,
             "base_motor_error": 2 * n,
-            "last_action": n if action_size is None else action_size,
-            "link_mass_estimate": n if action_size is None else action_size,
-            "link_mass_fit": n if action_size is None else action_size,
+            "last_action": actions,
+            "link_mass_estimate": actions,
+            "link_mass_fit": actions,
         }
         self.sizes = {name: sizes.get(name, n) for name in self.features}
         self.size = sum(self.sizes.values())
