@@ -42,17 +42,17 @@ def test_motor_offset_pd_with_the_invdyn_offset_tracks():
     base = env.unwrapped
     action_map = env.get_wrapper_attr("map")
     invdyn = make_controller("feedforward-state-feedback", base.model, base.control_dt)
-    kp, kd = action_map.kp, action_map.kd
     env.reset(seed=3)
     invdyn.reset({}, {})
     errors, done, offsets = [], False, []
     while not done:
         info = public_info(_innermost_info(env))
         x_d, tau_d = invdyn.desired(info)
-        q_d, dq_d = info["reference"]["q"], info["reference"]["dq"]
-        offset = x_d[:2] - q_d + (tau_d - kd * (dq_d - x_d[4:6])) / kp
-        offsets.append(offset)
-        _, _, terminated, truncated, step_info = env.step(offset / config.offset_scale)
+        action = action_map.motor_offset_action(
+            tau_d[None], x_d[None, :2], x_d[None, 4:6], reference_rows(info)[None]
+        )[0]
+        offsets.append(action * config.offset_scale)
+        _, _, terminated, truncated, step_info = env.step(action)
         errors.append(step_info["true_state"]["q"] - step_info["reference"]["q"])
         done = terminated or truncated
     env.close()

@@ -29,9 +29,10 @@ pytestmark = pytest.mark.usefixtures("single_thread_torch")
 
 @pytest.fixture(scope="module")
 def sensor_runs(tmp_path_factory):
-    """Two tiny runs on raw sensors: RecurrentPPO (an LSTM, one frame) and PPO on a stack
-    of three frames; both with the default motor-offset action (the encoders' backward
-    difference in its D term)."""
+    """Three tiny runs on raw sensors: RecurrentPPO (an LSTM, one frame), PPO on a stack
+    of three frames, and a RecurrentPPO policy distilled from the plant teacher that sees
+    the motor error at the reset; all with the default motor-offset action (the encoders'
+    backward difference in its D term)."""
     import torch
 
     threads = torch.get_num_threads()
@@ -57,6 +58,19 @@ def sensor_runs(tmp_path_factory):
             out_dir=str(root / "stacked"),
             frame_stack=3,
             hyperparams={"n_envs": 4, **TINY_NETS, "policy_kwargs": {"net_arch": [16]}},
+            **common,
+        ),
+        "distilled": TrainConfig(
+            algo="recurrentppo",
+            out_dir=str(root / "distilled"),
+            frame_stack=1,
+            hyperparams={
+                "n_envs": 4,
+                "decimation": 10,
+                "observation": {"features": ["reference", "motor_error", "reset_motor_error"]},
+                "distill": {"iterations": 1, "steps": 5, "batch_size": 4},
+                "policy_kwargs": {"lstm_hidden_size": 16, "net_arch": [16], "log_std_init": 0.0},
+            },
             **common,
         ),
     }
@@ -118,7 +132,7 @@ def _own_predictions(run, seed: int, steps: int) -> np.ndarray:
     return np.array(actions)
 
 
-@pytest.mark.parametrize("kind", ["lstm", "stacked", "observer-stacked"])
+@pytest.mark.parametrize("kind", ["lstm", "stacked", "observer-stacked", "distilled"])
 def test_each_arm_gets_the_policys_own_prediction_with_its_memory(memory_runs, kind):
     """In one world of three arms (raw sensors, or the De Luca estimate seen in frames),
     the action of arm i at every policy step is the policy's predict() on the training
@@ -187,7 +201,7 @@ def test_sensor_policy_rows_batched_equal_one_arm_per_world(sensor_runs):
     batched = execute(runs, workers=1, progress=False)
     alone = execute(runs, workers=1, progress=False, batch_size=1)
     policy_rows = [r for r in batched if r.spec.controller.name == "trained-policy"]
-    assert len(policy_rows) == 6 and all(r.ok for r in batched)
+    assert len(policy_rows) == 9 and all(r.ok for r in batched)
     for a, b in zip(batched, alone, strict=True):
         assert a.metrics.keys() == b.metrics.keys()
         for key, value in a.metrics.items():
@@ -198,7 +212,7 @@ def test_sensor_policy_rows_batched_equal_one_arm_per_world(sensor_runs):
     assert not any(k.startswith("est_rms") for r in policy_rows for k in r.metrics)
 
 
-@pytest.mark.parametrize("kind", ["lstm", "stacked"])
+@pytest.mark.parametrize("kind", ["lstm", "stacked", "distilled"])
 def test_evaluate_run_is_the_comparison_row_of_the_same_run_seed_and_plant(sensor_runs, kind):
     """evaluate_run runs on the comparison's loop: its tracking RMS of episode seed s is
     the track_rms of the comparison row of the same run, seed and plant, to 1e-12, and its

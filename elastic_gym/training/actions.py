@@ -192,6 +192,23 @@ class ActionMap:
             tau = tau + np.array([self.model.gravity(q) for q in q_d])
         return tau
 
+    def motor_offset_action(
+        self,
+        torque: np.ndarray,
+        motor_position: np.ndarray,
+        motor_velocity: np.ndarray,
+        reference: np.ndarray,
+    ) -> np.ndarray:
+        """The ``motor-offset`` action (rows, n), unclipped, whose motor PD applies
+        ``torque`` at this motor state and reference (rows q_d, q_d', ...): the inverse of
+        :meth:`torque`, a = ((tau [- g(q_d)] - kd (q_d' - theta')) / kp + theta - q_d) /
+        offset_scale."""
+        q_d, dq_d = reference[:, 0], reference[:, 1]
+        if self.config.gravity_compensation:
+            torque = torque - np.array([self.model.gravity(q) for q in q_d])
+        offset = (torque - self.kd * (dq_d - motor_velocity)) / self.kp + motor_position - q_d
+        return offset / self.config.offset_scale
+
 
 class LinkMassEstimate:
     """The link-mass scales s of a residual with ``residual_rate``, per arm: s - 1 = 0 at

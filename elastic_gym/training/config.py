@@ -98,6 +98,7 @@ class Settings(StrictModel):
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
     env_kwargs: MakeKwargsMapping = Field(default_factory=dict)
+    distill: dict[str, Any] | None = None
 
     @property
     def batch_kwargs(self) -> list[dict]:

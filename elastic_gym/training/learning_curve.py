@@ -90,6 +90,11 @@ class LearningCurve(BaseCallback):
         if not self.timesteps or self.timesteps[-1] != self.num_timesteps:
             self._evaluate()
 
+    def record(self, policy_steps: int) -> None:
+        """Evaluate now, at ``policy_steps`` (training outside ``learn``: distillation)."""
+        self.num_timesteps = policy_steps
+        self._evaluate()
+
     def _evaluate(self) -> None:
         began = time.perf_counter()
         run = TrainedRun(self.model, self.normalizer, self.config, self.settings)

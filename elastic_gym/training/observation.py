@@ -5,10 +5,11 @@ Features (:class:`ObservationConfig`, in this order when selected; n joints, m
 accelerometers): ``error``, ``error_rate`` and ``error_integral`` (:class:`ErrorIntegral`,
 the integral action's information) of the state source, ``reference``
 (q_d .. q_d^(k-1), scaled per order), ``preview`` (q_d(t + h) - q_d(t) for horizons h),
-``torsion`` and ``torsion_rate`` (elastic state), ``motor_error`` and ``acceleration``
-(raw sensors), ``last_action``, ``base_torque``, ``base_motor_error`` (residual: the
-motor half theta - theta_d, theta' - theta_d' of the base's state error x - x_d of eq. (13),
-zero on the nominal plant while it tracks), ``link_mass_estimate`` and ``link_mass_fit``
+``torsion`` and ``torsion_rate`` (elastic state), ``motor_error``, ``reset_motor_error``
+(:class:`ResetMotorError`) and ``acceleration`` (raw sensors), ``last_action``,
+``base_torque``, ``base_motor_error`` (residual: the motor half theta - theta_d,
+theta' - theta_d' of the base's state error x - x_d of eq. (13), zero on the nominal plant
+while it tracks), ``link_mass_estimate`` and ``link_mass_fit``
 (a residual's link-mass scales, and those its base's motor error showed at the reset). The
 reference and its preview are no measurement: the task defines them in advance.
 :class:`TrueStateFeatures` computes the state features of the true state, what a
@@ -34,6 +35,7 @@ FEATURES = (
     "torsion",
     "torsion_rate",
     "motor_error",
+    "reset_motor_error",
     "acceleration",
     "last_action",
     "base_torque",
@@ -44,12 +46,19 @@ FEATURES = (
 STATE_FEATURES = frozenset({"error", "error_rate", "error_integral", "torsion", "torsion_rate"})
 TRUE_STATE_FEATURES = ("error", "error_rate", "torsion", "torsion_rate")  # memoryless
 ELASTIC_FEATURES = frozenset(
-    {"torsion", "torsion_rate", "motor_error", "base_motor_error", "link_mass_fit"}
+    {
+        "torsion",
+        "torsion_rate",
+        "motor_error",
+        "reset_motor_error",
+        "base_motor_error",
+        "link_mass_fit",
+    }
 )
 RESIDUAL_FEATURES = frozenset(
     {"base_torque", "base_motor_error", "link_mass_estimate", "link_mass_fit"}
 )
-SENSOR_FEATURES = frozenset({"motor_error", "acceleration"})
+SENSOR_FEATURES = frozenset({"motor_error", "reset_motor_error", "acceleration"})
 GRAVITY = 9.81
 
 
@@ -144,7 +153,8 @@ class ObservationInputs:
     period and ``base_error`` (N, 4n) its x - x_d on the current state; ``error_integral``
     (N, n) of :class:`ErrorIntegral`; ``link_mass_estimate`` (N, a) the residual's
     link-mass scales (s - 1) / residual_scale; ``link_mass_fit`` (N, a) the scales that fit
-    the base's motor error at the arm's reset, (s_fit - 1) / residual_scale.
+    the base's motor error at the arm's reset, (s_fit - 1) / residual_scale;
+    ``reset_motor_error`` (N, n) of :class:`ResetMotorError`.
     """
 
     reference: np.ndarray
@@ -158,6 +168,26 @@ class ObservationInputs:
     error_integral: np.ndarray | None = None
     link_mass_estimate: np.ndarray | None = None
     link_mass_fit: np.ndarray | None = None
+    reset_motor_error: np.ndarray | None = None
+
+
+class ResetMotorError:
+    """Each arm's motor error theta - q_d at its last reset, held: at rest in the static
+    equilibrium on the reference's start, the torsion K^-1 g(q) of eq. (1), which shows the
+    ratio of the arm's load to its stiffness before any action moves the motors (raw
+    sensors: the policy's own action makes the later motor errors).
+
+    Args:
+        n_arms, n: arms and joints.
+    """
+
+    def __init__(self, n_arms: int, n: int) -> None:
+        self.value = np.zeros((n_arms, n))
+
+    def latch(self, arms: np.ndarray, motor_position: np.ndarray, reference: np.ndarray) -> None:
+        """Arms ``arms`` were reset: ``motor_position`` (N, n) and ``reference`` (N, >= 1,
+        n) rows q_d, ... of all arms."""
+        self.value[arms] = motor_position[arms] - reference[arms, 0]
 
 
 class ErrorIntegral:
@@ -295,6 +325,8 @@ class ObservationBuilder:
             return _given(x.base_torque, name) / self.torque_limit
         if name == "motor_error":
             return (_given(x.motor_position, name) - ref[:, 0]) / c.torsion_scale
+        if name == "reset_motor_error":
+            return _given(x.reset_motor_error, name) / c.torsion_scale
         if name == "acceleration":
             return _given(x.acceleration, name) / GRAVITY
         if name == "link_mass_estimate":

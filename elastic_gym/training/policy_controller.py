@@ -29,6 +29,7 @@ from elastic_gym.training.observation import (
     ErrorIntegral,
     ObservationBuilder,
     ObservationInputs,
+    ResetMotorError,
     base_state_error,
     check_base_error,
 )
@@ -186,6 +187,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._acts = np.zeros(N)
         self._at_bound = np.zeros(N)
         self._integral = ErrorIntegral(N, n, controller.elastic)
+        self._reset_error = ResetMotorError(N, n)
         check_link_mass_features(controller.builder.features, controller.map.config)
         self._link_mass = link_mass_residual(controller.map.config, self.base, N, self.dt)
 
@@ -214,7 +216,10 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         for held in (self._action, self._last_action, self._last_base, self._acts, self._at_bound):
             held[arms] = 0.0
         if self.controller.sensors:
-            self._previous_motor[arms] = np.asarray(obs["motor_position"], dtype=float)[arms]
+            motor = np.asarray(obs["motor_position"], dtype=float)
+            self._previous_motor[arms] = motor[arms]
+            if self.controller.elastic:
+                self._reset_error.latch(arms, motor, self.references(info))
         self._integral.restart(arms, np.broadcast_to(info["time"], (self.n_arms,)))
         if self._link_mass is not None:
             self._link_mass.restart(arms)
@@ -230,6 +235,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             last_action=self._last_action[arms],
             base_torque=self._last_base[arms],
             base_error=self._base_error[arms],
+            reset_motor_error=self._reset_error.value[arms],
             **{name: value[arms] for name, value in link_mass.items()},
         )
         if x is None:  # raw sensors

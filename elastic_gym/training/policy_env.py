@@ -7,6 +7,7 @@ PyBullet world with the vector twins)::
     gym.make(env_id)                      1 kHz loop, sensors only
     ObserverWrapper / TrueStateWrapper    state source ("sensors": the raw observation)
     PolicyAction                          a in [-1, 1]^n -> torque at 1 kHz
+    (PlantTeacher)                        teacher: the teacher's action (distillation, N arms)
     ActionRepeat(decimation)              policy rate = 1 kHz / decimation
     PolicyObservation                     flat features
     (FrameStackObservation + Flatten)     raw sensors: the last frames
@@ -50,6 +51,7 @@ def _stack(
     frame_stack: int,
     critic_state: bool,
     critic_plant: bool = False,
+    teacher: bool = False,
 ) -> Any:
     """The stack of the module docstring on ``env`` with the wrappers of the modules
     ``observer_wrappers`` and ``policy_wrappers``: the single-env ones, or their vector
@@ -59,6 +61,12 @@ def _stack(
     if state != SENSORS:
         env = observer_wrappers.ObserverWrapper(env, state, **(observer_options or {}))
     env = policy_wrappers.PolicyAction(env, action)
+    if teacher:
+        if policy_wrappers is not vector_policy:
+            raise ValueError("the plant teacher (distillation) needs a vector env: n_envs > 1")
+        from elastic_gym.training.teacher import PlantTeacher
+
+        env = PlantTeacher(env, decimation)
     if decimation > 1:
         env = policy_wrappers.ActionRepeat(env, decimation)
     env = policy_wrappers.PolicyObservation(env, observation, frame_stack)
@@ -135,8 +143,11 @@ def make_policy_vec_env(
     autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
     critic_state: bool = False,
     critic_plant: bool = False,
+    teacher: bool = False,
 ) -> gym.vector.VectorEnv:
-    """The stack of :func:`make_policy_env` on ``n_arms`` arms in one PyBullet world.
+    """The stack of :func:`make_policy_env` on ``n_arms`` arms in one PyBullet world;
+    ``teacher``: with the plant teacher's action in ``info["teacher_action"]``
+    (:class:`~elastic_gym.training.teacher.PlantTeacher`, distillation).
 
     Autoreset is ``DISABLED`` by default: :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`
     resets the arms whose episode ended.
@@ -161,4 +172,5 @@ def make_policy_vec_env(
         frame_stack,
         critic_state,
         critic_plant,
+        teacher,
     )

@@ -96,14 +96,16 @@ class PolicyStack:
         critic_state: bool = False,
         autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
         critic_plant: bool = False,
+        teacher: bool = False,
     ) -> gym.vector.VectorEnv:
         """The stack on ``n_arms`` arms of one PyBullet world (a Gymnasium vector env with
         ``autoreset_mode``); ``env_kwargs``, ``critic_state`` and ``critic_plant`` as in
-        :meth:`make`."""
+        :meth:`make`; ``teacher``: with the plant teacher's labels (distillation)."""
         return make_policy_vec_env(
             self.env_id,
             n_arms,
             autoreset_mode=autoreset_mode,
+            teacher=teacher,
             **self._options(env_kwargs, critic_state, critic_plant),
         )
 
@@ -113,11 +115,17 @@ class PolicyStack:
         env_kwargs: dict | None = None,
         critic_state: bool = False,
         critic_plant: bool = False,
+        teacher: bool = False,
     ):
-        """The stack on ``n_arms`` arms of one PyBullet world as an SB3 ``VecEnv``."""
+        """The stack on ``n_arms`` arms of one PyBullet world as an SB3 ``VecEnv`` (with
+        ``teacher``, the teacher's label in each arm's info)."""
         from elastic_gym.training.sb3_vec_env import SB3VecEnv
+        from elastic_gym.training.teacher import LABEL
 
-        return SB3VecEnv(self.make_vec(n_arms, env_kwargs, critic_state, critic_plant=critic_plant))
+        envs = self.make_vec(
+            n_arms, env_kwargs, critic_state, critic_plant=critic_plant, teacher=teacher
+        )
+        return SB3VecEnv(envs, info_keys=(LABEL,) if teacher else ())
 
 
 def training_vec_env(stack: PolicyStack, settings: Settings, n_envs: int, seed: int):
@@ -135,14 +143,18 @@ def training_vec_env(stack: PolicyStack, settings: Settings, n_envs: int, seed: 
     one_env = n_envs == 1 and isinstance(settings.batches, int)  # a count: at most n_envs
     if n_envs % len(batches) and not one_env:
         raise ValueError(f"the number of batches ({len(batches)}) must divide n_envs ({n_envs})")
-    critic = {"critic_state": settings.critic_state, "critic_plant": settings.critic_plant}
+    privileged = {"critic_state": settings.critic_state, "critic_plant": settings.critic_plant}
     venv: VecEnv
+    if settings.distill is not None:
+        if one_env:
+            raise ValueError("distill needs a batch of arms: n_envs > 1")
+        privileged["teacher"] = True
     if one_env:
-        venv = DummyVecEnv([functools.partial(stack.make, None, **critic)])
+        venv = DummyVecEnv([functools.partial(stack.make, None, **privileged)])
         venv.action_space.seed(seed)
     else:
         factories = [
-            functools.partial(stack.sb3_vec_env, n_envs // len(batches), kwargs, **critic)
+            functools.partial(stack.sb3_vec_env, n_envs // len(batches), kwargs, **privileged)
             for kwargs in batches
         ]
         venv = factories[0]() if len(factories) == 1 else ProcessBatches(factories)

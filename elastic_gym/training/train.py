@@ -34,6 +34,7 @@ from elastic_gym.training.config import (
     default_policy,
     merged_hyperparams,
 )
+from elastic_gym.training.distill import check_distill
 from elastic_gym.training.run_envs import PolicyStack, training_vec_env
 from elastic_gym.training.run_folder import RunFolder, missing_folders, remove_empty
 from elastic_gym.training.trained import episode_duration
@@ -92,6 +93,8 @@ def train(
     from elastic_gym.parallel import single_threaded
 
     settings, algo_kwargs = config.settings()  # a bad config changes nothing
+    action = config.policy_configs(settings)[0]
+    check_distill(settings, config.algo, action.kind, config.total_steps)
     episode_duration(config.env_id, config.training_env_kwargs(settings))  # bounded evaluations
     folder = RunFolder(config.out_dir)
     with folder.create(overwrite, lock), single_threaded():
@@ -148,12 +151,15 @@ def _train(
         every = config.eval_freq or max(total // 20, 1)
         curve = LearningCurve(config, settings, venv, out, every, config.seed + 10_000)
         start = time.perf_counter()
-        model.learn(
-            total_timesteps=total,
-            callback=curve,
-            progress_bar=progress_bar,
-            tb_log_name=config.algo,
-        )
+        if settings.distill is None:
+            model.learn(
+                total_timesteps=total,
+                callback=curve,
+                progress_bar=progress_bar,
+                tb_log_name=config.algo,
+            )
+        else:
+            _distill(model, venv, settings, curve, config.seed, progress_bar, verbose)
         wall = time.perf_counter() - start
 
         model.save(out / "model.zip")
@@ -189,6 +195,26 @@ def _train(
     return result
 
 
+def _distill(model, venv, settings: Settings, curve, seed: int, progress: bool, verbose: int):
+    """Train ``model`` by distillation (:mod:`elastic_gym.training.distill`), the learning
+    curve evaluated at the start and after every iteration."""
+    from stable_baselines3.common.utils import configure_logger
+
+    from elastic_gym.training.distill import DistillConfig, distill
+
+    model.set_logger(configure_logger(verbose, model.tensorboard_log, "distill"))
+    curve.init_callback(model)
+    curve.on_training_start({}, {})
+    distill(
+        model,
+        venv,
+        DistillConfig.from_config(settings.distill),
+        seed,
+        after_iteration=curve.record,
+        progress=progress,
+    )
+
+
 def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
     """Everything that can be checked before the first training run: distinct run
     folders (``--seeds 0 0``), free run folders, valid hyper-parameters, and the policy
@@ -205,6 +231,8 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
     for config in configs:
         RunFolder(config.out_dir).check(overwrite)
         settings, _ = config.settings()
+        action = config.policy_configs(settings)[0]
+        check_distill(settings, config.algo, action.kind, config.total_steps)
         setting = config.model_copy(update={"seed": 0, "out_dir": ""}).to_dict()
         if repr(setting) not in built:
             built.add(repr(setting))

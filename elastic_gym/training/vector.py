@@ -36,6 +36,7 @@ from elastic_gym.training.observation import (
     ObservationBuilder,
     ObservationConfig,
     ObservationInputs,
+    ResetMotorError,
     TrueStateFeatures,
     base_state_error,
     check_base_error,
@@ -234,6 +235,11 @@ class PolicyObservation(_ArmResets):
             if "error_integral" in self.builder.features
             else None
         )
+        self._reset_error = (
+            ResetMotorError(self.num_envs, self.n)
+            if "reset_motor_error" in self.builder.features
+            else None
+        )
 
     def _features(self, obs: Mapping, info: Mapping) -> np.ndarray:
         preview = None
@@ -253,8 +259,13 @@ class PolicyObservation(_ArmResets):
             error_integral=None if self._integral is None else self._integral.value,
             link_mass_estimate=info.get("link_mass_estimate"),
             link_mass_fit=info.get("link_mass_fit"),
+            reset_motor_error=None if self._reset_error is None else self._reset_error.value,
         )
         return self.builder.build(inputs)
+
+    def _latch(self, arms: np.ndarray, obs: Mapping, info: Mapping) -> None:
+        if self._reset_error is not None and len(arms):
+            self._reset_error.latch(arms, obs["motor_position"], reference_rows(info))
 
     def _integrate(self, obs: Mapping, info: Mapping, restarted: np.ndarray) -> None:
         """Advance the error integral of every arm, restart it for ``restarted``."""
@@ -275,6 +286,7 @@ class PolicyObservation(_ArmResets):
         self._last_action[arms] = 0.0
         if self._integral is not None:
             self._integral.restart(arms, info["time"])
+        self._latch(arms, obs, info)
         self._frames[arms] = self._features(obs, info)[arms, None]
         return self._frames.reshape(self.num_envs, -1).copy(), info
 
@@ -285,6 +297,7 @@ class PolicyObservation(_ArmResets):
         restarted = self._restarted(terminated, truncated)
         self._last_action[restarted] = 0.0
         self._integrate(obs, info, restarted)
+        self._latch(restarted, obs, info)
         return (
             self._observation(self._features(obs, info), restarted),
             reward,

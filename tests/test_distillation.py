@@ -1,0 +1,233 @@
+"""Distillation of the plant teacher into a raw-sensor policy: the teacher's motor-offset
+actions track every plant it knows, the feature the student identifies the load from is the
+static torsion at the reset, DAgger fits the student, and what distillation cannot use is
+refused."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+
+from elastic_gym.training import ActionConfig, ActionMap, TrainConfig, load_run, train
+from elastic_gym.training.config import Settings
+from elastic_gym.training.distill import DistillConfig, check_distill, distill
+from elastic_gym.training.policy_env import make_policy_vec_env
+from elastic_gym.training.rollouts import evaluate_arms
+
+ENV_ID = "elastic_gym/TwoLinkElastic-v0"
+TASK = {"task_options": {"n_moves": 1, "move_time": 0.6, "dwell_time": 0.2}}
+EXACT = {"encoder": {"resolution": 0.0, "noise_std": 0.0}, "accelerometer": "ideal"}
+STUDENT = {"features": ["reference", "motor_error", "reset_motor_error", "acceleration"]}
+
+pytestmark = pytest.mark.usefixtures("single_thread_torch")
+
+
+def _teacher_env(n_arms: int, env_kwargs: dict, autoreset=AutoresetMode.NEXT_STEP):
+    return make_policy_vec_env(
+        ENV_ID,
+        n_arms,
+        state="sensors",
+        env_kwargs={**TASK, **env_kwargs},
+        decimation=10,
+        action={"kind": "motor-offset"},
+        observation=STUDENT,
+        frame_stack=1,
+        autoreset_mode=autoreset,
+        teacher=True,
+    )
+
+
+def _follow(env, seed: int, actions: list | None = None):
+    """Run every arm on the teacher's labels (or replay ``actions``); the evaluation and
+    the actions applied."""
+    last, applied = {}, []
+    step, reset = env.step, env.reset
+
+    def labelled_reset(**kwargs):
+        obs, info = reset(**kwargs)
+        last["label"] = info["teacher_action"]
+        return obs, info
+
+    def labelled_step(action):
+        out = step(action)
+        last["label"] = out[-1]["teacher_action"]
+        return out
+
+    env.reset, env.step = labelled_reset, labelled_step
+
+    def act(_obs):
+        action = last["label"] if actions is None else actions[len(applied)]
+        applied.append(action)
+        return action
+
+    return evaluate_arms(env, act, seed), applied
+
+
+def test_motor_offset_action_inverts_the_motor_pd():
+    """ActionMap.torque(motor_offset_action(tau, ...), ...) is tau, with and without the
+    gravity compensation (the action unclipped, inside [-1, 1])."""
+    env = make_policy_vec_env(ENV_ID, 1, state="sensors", action={"kind": "motor-offset"})
+    model = env.unwrapped.batch.model
+    env.close()
+    rng = np.random.default_rng(0)
+    for gravity in (False, True):
+        config = ActionConfig(kind="motor-offset", gravity_compensation=gravity)
+        action_map = ActionMap(config, model)
+        reference = rng.normal(size=(5, 5, 2)) * 0.3
+        theta = reference[:, 0] + rng.normal(size=(5, 2)) * 0.005
+        dtheta = reference[:, 1] + rng.normal(size=(5, 2)) * 0.05
+        torque = action_map.torque(rng.uniform(-0.5, 0.5, (5, 2)), theta, dtheta, reference)
+        action = action_map.motor_offset_action(torque, theta, dtheta, reference)
+        assert np.abs(action).max() < 1.0
+        np.testing.assert_allclose(
+            action_map.torque(action, theta, dtheta, reference), torque, rtol=1e-12, atol=1e-12
+        )
+
+
+PLANTS = {  # plant -> (its env kwargs, whether the nominal teacher's actions fail on it)
+    "nominal": ({}, False),
+    "K x0.9": ({"plant_scaling": {"stiffness": 0.9}}, True),
+    "B x1.1": ({"plant_scaling": {"motor_inertia": 1.1}}, False),  # its labels change 0.4 %
+    "link mass x1.3": ({"plant_scaling": {"link_mass": 1.3}}, True),
+    "Coulomb 3 %": ({"unmodelled_friction": {"coulomb": 0.03}}, True),
+    "sensor delay 1 ms": ({"sensor_delay": 1}, True),
+}
+
+
+@pytest.mark.parametrize("plant", PLANTS)
+def test_the_plant_teacher_tracks_every_plant_it_knows(plant):
+    """Its actions held at 100 Hz through the 1 kHz motor PD track every plant to < 1e-4
+    rad RMS (INVDYN of the plant's own model, with its friction and sensor delay); the
+    nominal plant's teacher actions replayed on a plant whose K, load, friction or delay
+    differ are far worse (the teacher knows the plant)."""
+    kwargs, differs = PLANTS[plant]
+    env = _teacher_env(2, kwargs)
+    evaluation, _ = _follow(env, 7)
+    env.close()
+    assert evaluation.rms < 1e-4
+    if differs:
+        nominal = _teacher_env(2, {})
+        _, actions = _follow(nominal, 7)
+        nominal.close()
+        env = _teacher_env(2, kwargs)
+        replayed, _ = _follow(env, 7, actions)
+        env.close()
+        assert replayed.rms > 3 * evaluation.rms
+
+
+def test_reset_motor_error_is_the_static_torsion_held_until_the_next_reset():
+    """The feature reset_motor_error is theta - q at the reset (the arm rests on the
+    reference's start), over torsion_scale; it holds while the motors move and takes the
+    new torsion when an arm restarts."""
+    env = _teacher_env(3, {**EXACT, "plant_scaling": {"link_mass": 1.2}})
+    obs, info = env.reset(seed=4)
+    state = info["true_state"]
+    np.testing.assert_allclose(state["q"], info["reference"]["q"], atol=1e-12)
+    columns = slice(8, 10)  # after reference (3 rows x 2) and motor_error (2)
+    torsion = (state["theta"] - state["q"]) / 0.05
+    np.testing.assert_allclose(obs[:, columns], torsion, rtol=1e-6)
+    assert np.abs(torsion).max() > 0.05  # gravity loads the springs
+    for _ in range(30):
+        obs, _, terminated, truncated, info = env.step(info["teacher_action"])
+    np.testing.assert_allclose(obs[:, columns], torsion, rtol=1e-6)
+    assert not np.allclose(obs[:, 6:8], torsion)  # the motor error moved on
+    env.close()
+
+
+def test_distill_refuses_what_it_cannot_use():
+    """distill needs RecurrentPPO, the motor-offset action, a batch of arms and no RL
+    steps (total steps refused); its own keys are checked."""
+    good = Settings(n_envs=4, distill={})
+    check_distill(good, "recurrentppo", "motor-offset", None)
+    cases = [
+        (good, "ppo", "motor-offset", None, "algo recurrentppo"),
+        (good, "recurrentppo", "torque", None, "motor-offset"),
+        (Settings(n_envs=1, distill={}), "recurrentppo", "motor-offset", None, "n_envs > 1"),
+        (good, "recurrentppo", "motor-offset", 1000, "imitation only"),
+        (
+            Settings(n_envs=4, distill={"iteration": 3}),
+            "recurrentppo",
+            "motor-offset",
+            None,
+            "iteration",
+        ),
+    ]
+    for settings, algo, kind, total, match in cases:
+        with pytest.raises(ValueError, match=match):
+            check_distill(settings, algo, kind, total)
+
+
+def test_distillation_fits_the_teacher_and_its_run_loads(tmp_path):
+    """A tiny distilled run: the fit loss falls far below the labels' mean square (the
+    student learns the teacher's actions), the learning curve has the start and one row per
+    iteration at the policy steps collected, and the run folder loads and evaluates."""
+    config = TrainConfig(
+        algo="recurrentppo",
+        state="sensors",
+        frame_stack=1,
+        out_dir=str(tmp_path / "distilled"),
+        env_kwargs={**TASK, "episode_time": 0.5},
+        eval_episodes=2,
+        hyperparams={
+            "n_envs": 4,
+            "decimation": 10,
+            "action": {"kind": "motor-offset"},
+            "observation": {**STUDENT, "reference_order": 4},
+            "distill": {"iterations": 2, "steps": 150, "batch_size": 4, "learning_rate": 3e-3},
+            "policy_kwargs": {"lstm_hidden_size": 16, "net_arch": [32]},
+        },
+    )
+    result = train(config, progress_bar=False)
+    with open(tmp_path / "distilled" / "learning_curve.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(r["policy_steps"]) for r in rows] == [0, 200, 400]  # 4 arms x 50 steps
+    assert result.policy_steps == 400
+    run = load_run(config.out_dir)
+    assert run.settings.distill["iterations"] == 2
+    assert np.isfinite(float(rows[-1]["tracking_rms"]))
+
+
+def test_distill_lowers_the_loss_of_the_student(tmp_path):
+    """DAgger on 4 arms: the fit's mean squared error to the teacher's labels ends far
+    below the labels' own mean square (what a zero action scores)."""
+    from sb3_contrib import RecurrentPPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from elastic_gym.training.run_envs import PolicyStack, training_vec_env
+
+    config = TrainConfig(
+        algo="recurrentppo",
+        state="sensors",
+        frame_stack=1,
+        env_kwargs={**TASK, "episode_time": 0.5},
+        hyperparams={
+            "n_envs": 4,
+            "decimation": 10,
+            "action": {"kind": "motor-offset"},
+            "observation": {**STUDENT, "reference_order": 4},
+            "distill": {},
+        },
+    )
+    settings, _ = config.settings()
+    venv = VecNormalize(training_vec_env(PolicyStack.of(config, settings), settings, 4, 0))
+    model = RecurrentPPO(
+        "MlpLstmPolicy",
+        venv,
+        n_steps=16,
+        batch_size=16,
+        seed=0,
+        device="cpu",
+        policy_kwargs={"lstm_hidden_size": 16, "net_arch": [32]},
+    )
+    try:
+        obs = venv.reset()
+        labels = np.stack([info["teacher_action"] for info in venv.unwrapped.reset_infos])
+        assert obs.shape == (4, venv.observation_space.shape[0])
+        losses = distill(model, venv, DistillConfig(iterations=2, steps=200, batch_size=4), 0)
+    finally:
+        venv.close()
+    mean_square = float(np.mean(labels**2))
+    assert losses[-1] < 0.05 * mean_square
