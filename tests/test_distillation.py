@@ -140,24 +140,27 @@ def test_reset_motor_error_is_the_static_torsion_held_until_the_next_reset():
 def test_distill_refuses_what_it_cannot_use():
     """distill needs RecurrentPPO, the motor-offset action, a batch of arms and no RL
     steps (total steps refused); its own keys are checked."""
-    good = Settings(n_envs=4, distill={})
+    good = Settings(n_envs=4, distill=DistillConfig())
     check_distill(good, "recurrentppo", "motor-offset", None)
     cases = [
         (good, "ppo", "motor-offset", None, "algo recurrentppo"),
         (good, "recurrentppo", "torque", None, "motor-offset"),
-        (Settings(n_envs=1, distill={}), "recurrentppo", "motor-offset", None, "n_envs > 1"),
-        (good, "recurrentppo", "motor-offset", 1000, "imitation only"),
         (
-            Settings(n_envs=4, distill={"iteration": 3}),
+            Settings(n_envs=1, distill=DistillConfig()),
             "recurrentppo",
             "motor-offset",
             None,
-            "iteration",
+            "n_envs > 1",
         ),
+        (good, "recurrentppo", "motor-offset", 1000, "imitation only"),
     ]
     for settings, algo, kind, total, match in cases:
         with pytest.raises(ValueError, match=match):
             check_distill(settings, algo, kind, total)
+    for distill_keys in ({"iteration": 3}, {"teacher_mix": 1.5}, {"steps": 0}):
+        bad = TrainConfig(algo="recurrentppo", hyperparams={"distill": distill_keys})
+        with pytest.raises(ValueError, match="distill"):
+            bad.settings()
 
 
 def test_distillation_fits_the_teacher_and_its_run_loads(tmp_path):
@@ -186,7 +189,7 @@ def test_distillation_fits_the_teacher_and_its_run_loads(tmp_path):
     assert [int(r["policy_steps"]) for r in rows] == [0, 200, 400]  # 4 arms x 50 steps
     assert result.policy_steps == 400
     run = load_run(config.out_dir)
-    assert run.settings.distill["iterations"] == 2
+    assert run.settings.distill == DistillConfig(**config.hyperparams["distill"])
     assert np.isfinite(float(rows[-1]["tracking_rms"]))
 
 

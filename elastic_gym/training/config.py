@@ -3,7 +3,7 @@
 Hyper-parameters live in ``hyperparams/<algo>.yaml``, one entry per env id plus
 ``default``: the algorithm's constructor arguments and our keys (``n_timesteps``,
 ``n_envs``, ``batches``, ``decimation``, ``normalize``, ``critic_state``,
-``critic_plant``, ``action``, ``observation``, ``env_kwargs``). Command-line overrides
+``critic_plant``, ``action``, ``observation``, ``env_kwargs``, ``distill``). Command-line overrides
 (``key=value``) win over the file, which wins over the defaults; a run's own ``action`` /
 ``observation`` fields and env kwargs win key by key (a run naming its own ``task`` drops
 the file's ``task_options``). ``learning_rate`` and ``clip_range`` may be
@@ -36,6 +36,7 @@ from pydantic import (
 
 from elastic_gym.envs.config import MakeKwargsMapping
 from elastic_gym.training.actions import ActionConfig
+from elastic_gym.training.distill import DistillConfig
 from elastic_gym.training.observation import ObservationConfig
 from elastic_gym.training.policy_env import SENSORS, check_state_source
 from elastic_gym.validation import (
@@ -98,7 +99,7 @@ class Settings(StrictModel):
     action: dict[str, Any] = Field(default_factory=dict)
     observation: dict[str, Any] = Field(default_factory=dict)
     env_kwargs: MakeKwargsMapping = Field(default_factory=dict)
-    distill: dict[str, Any] | None = None
+    distill: DistillConfig | None = None  # train by distillation instead of RL
 
     @property
     def batch_kwargs(self) -> list[dict]:

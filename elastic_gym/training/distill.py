@@ -126,7 +126,6 @@ def check_distill(settings, algo: str, action_kind: str, total_steps: int | None
     ``n_timesteps`` is not used)."""
     if settings.distill is None:
         return
-    DistillConfig.from_config(settings.distill)
     problems = []
     if algo != "recurrentppo":
         problems.append(f"the algo recurrentppo (the student is its LSTM actor), not {algo!r}")

@@ -200,7 +200,7 @@ def _distill(model, venv, settings: Settings, curve, seed: int, progress: bool, 
     curve evaluated at the start and after every iteration."""
     from stable_baselines3.common.utils import configure_logger
 
-    from elastic_gym.training.distill import DistillConfig, distill
+    from elastic_gym.training.distill import distill
 
     model.set_logger(configure_logger(verbose, model.tensorboard_log, "distill"))
     curve.init_callback(model)
@@ -208,7 +208,7 @@ def _distill(model, venv, settings: Settings, curve, seed: int, progress: bool, 
     distill(
         model,
         venv,
-        DistillConfig.from_config(settings.distill),
+        settings.distill,
         seed,
         after_iteration=curve.record,
         progress=progress,
