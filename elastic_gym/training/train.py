@@ -202,6 +202,7 @@ def _distill(model, venv, settings: Settings, curve, seed: int, progress: bool, 
 
     from elastic_gym.training.distill import distill
 
+    assert settings.distill is not None
     model.set_logger(configure_logger(verbose, model.tensorboard_log, "distill"))
     curve.init_callback(model)
     curve.on_training_start({}, {})
