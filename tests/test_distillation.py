@@ -20,7 +20,7 @@ from elastic_gym.training.rollouts import evaluate_arms
 ENV_ID = "elastic_gym/TwoLinkElastic-v0"
 TASK = {"task_options": {"n_moves": 1, "move_time": 0.6, "dwell_time": 0.2}}
 EXACT = {"encoder": {"resolution": 0.0, "noise_std": 0.0}, "accelerometer": "ideal"}
-STUDENT = {"features": ["reference", "motor_error", "reset_motor_error", "acceleration"]}
+STUDENT = {"features": ["reference", "motor_error", "reset_rest", "acceleration"]}
 
 pytestmark = pytest.mark.usefixtures("single_thread_torch")
 
@@ -118,22 +118,36 @@ def test_the_plant_teacher_tracks_every_plant_it_knows(plant):
         assert replayed.rms > 3 * evaluation.rms
 
 
-def test_reset_motor_error_is_the_static_torsion_held_until_the_next_reset():
-    """The feature reset_motor_error is theta - q at the reset (the arm rests on the
-    reference's start), over torsion_scale; it holds while the motors move and takes the
-    new torsion when an arm restarts."""
-    env = _teacher_env(3, {**EXACT, "plant_scaling": {"link_mass": 1.2}})
-    obs, info = env.reset(seed=4)
+def _rest(info) -> np.ndarray:
+    """The feature reset_rest of the true state of ``info``: torsion / torsion_scale, q."""
     state = info["true_state"]
-    np.testing.assert_allclose(state["q"], info["reference"]["q"], atol=1e-12)
-    columns = slice(8, 10)  # after reference (3 rows x 2) and motor_error (2)
-    torsion = (state["theta"] - state["q"]) / 0.05
-    np.testing.assert_allclose(obs[:, columns], torsion, rtol=1e-6)
-    assert np.abs(torsion).max() > 0.05  # gravity loads the springs
-    for _ in range(30):
+    return np.hstack([(state["theta"] - state["q"]) / 0.05, state["q"]])
+
+
+def test_reset_rest_is_the_static_torsion_held_until_the_next_reset():
+    """The feature reset_rest is theta - q at the reset (the arm rests on the reference's
+    start), over torsion_scale, and that start q_d(0); it holds while the motors move and
+    takes the new values when an arm restarts (a masked reset, as in training)."""
+    env = _teacher_env(
+        3, {**EXACT, "plant_scaling": {"link_mass": 1.2}}, autoreset=AutoresetMode.DISABLED
+    )
+    obs, info = env.reset(seed=4)
+    np.testing.assert_allclose(info["true_state"]["q"], info["reference"]["q"], atol=1e-12)
+    columns = slice(8, 12)  # after reference (3 rows x 2) and motor_error (2)
+    rest = _rest(info)
+    np.testing.assert_allclose(obs[:, columns], rest, rtol=1e-6, atol=1e-7)
+    assert np.abs(rest[:, :2]).max() > 0.05  # gravity loads the springs
+    ended = np.zeros(3, dtype=bool)
+    while not ended.any():
         obs, _, terminated, truncated, info = env.step(info["teacher_action"])
-    np.testing.assert_allclose(obs[:, columns], torsion, rtol=1e-6)
-    assert not np.allclose(obs[:, 6:8], torsion)  # the motor error moved on
+        ended = terminated | truncated
+        np.testing.assert_allclose(obs[:, columns], rest, rtol=1e-6, atol=1e-7)
+    assert not np.allclose(obs[:, 6:8], rest[:, :2])  # the motor error moved on
+    ended[0] = False  # arm 0 runs on past its end: its features stay
+    obs, info = env.reset(options={"reset_mask": ended})
+    np.testing.assert_allclose(obs[ended, columns], _rest(info)[ended], rtol=1e-6, atol=1e-7)
+    assert not np.allclose(_rest(info)[ended], rest[ended])
+    np.testing.assert_allclose(obs[0, columns], rest[0], rtol=1e-6, atol=1e-7)
     env.close()
 
 

@@ -67,7 +67,7 @@ def sensor_runs(tmp_path_factory):
             hyperparams={
                 "n_envs": 4,
                 "decimation": 10,
-                "observation": {"features": ["reference", "motor_error", "reset_motor_error"]},
+                "observation": {"features": ["reference", "motor_error", "reset_rest"]},
                 "distill": {"iterations": 1, "steps": 5, "batch_size": 4},
                 "policy_kwargs": {"lstm_hidden_size": 16, "net_arch": [16], "log_std_init": 0.0},
             },

@@ -5,8 +5,8 @@ Features (:class:`ObservationConfig`, in this order when selected; n joints, m
 accelerometers): ``error``, ``error_rate`` and ``error_integral`` (:class:`ErrorIntegral`,
 the integral action's information) of the state source, ``reference``
 (q_d .. q_d^(k-1), scaled per order), ``preview`` (q_d(t + h) - q_d(t) for horizons h),
-``torsion`` and ``torsion_rate`` (elastic state), ``motor_error``, ``reset_motor_error``
-(:class:`ResetMotorError`) and ``acceleration`` (raw sensors), ``last_action``,
+``torsion`` and ``torsion_rate`` (elastic state), ``motor_error``, ``reset_rest``
+(:class:`RestAtReset`) and ``acceleration`` (raw sensors), ``last_action``,
 ``base_torque``, ``base_motor_error`` (residual: the motor half theta - theta_d,
 theta' - theta_d' of the base's state error x - x_d of eq. (13), zero on the nominal plant
 while it tracks), ``link_mass_estimate`` and ``link_mass_fit``
@@ -35,7 +35,7 @@ FEATURES = (
     "torsion",
     "torsion_rate",
     "motor_error",
-    "reset_motor_error",
+    "reset_rest",
     "acceleration",
     "last_action",
     "base_torque",
@@ -50,7 +50,7 @@ ELASTIC_FEATURES = frozenset(
         "torsion",
         "torsion_rate",
         "motor_error",
-        "reset_motor_error",
+        "reset_rest",
         "base_motor_error",
         "link_mass_fit",
     }
@@ -58,7 +58,7 @@ ELASTIC_FEATURES = frozenset(
 RESIDUAL_FEATURES = frozenset(
     {"base_torque", "base_motor_error", "link_mass_estimate", "link_mass_fit"}
 )
-SENSOR_FEATURES = frozenset({"motor_error", "reset_motor_error", "acceleration"})
+SENSOR_FEATURES = frozenset({"motor_error", "reset_rest", "acceleration"})
 GRAVITY = 9.81
 
 
@@ -154,7 +154,7 @@ class ObservationInputs:
     (N, n) of :class:`ErrorIntegral`; ``link_mass_estimate`` (N, a) the residual's
     link-mass scales (s - 1) / residual_scale; ``link_mass_fit`` (N, a) the scales that fit
     the base's motor error at the arm's reset, (s_fit - 1) / residual_scale;
-    ``reset_motor_error`` (N, n) of :class:`ResetMotorError`.
+    ``reset_rest`` (N, 2n) of :class:`RestAtReset`.
     """
 
     reference: np.ndarray
@@ -168,26 +168,29 @@ class ObservationInputs:
     error_integral: np.ndarray | None = None
     link_mass_estimate: np.ndarray | None = None
     link_mass_fit: np.ndarray | None = None
-    reset_motor_error: np.ndarray | None = None
+    reset_rest: np.ndarray | None = None
 
 
-class ResetMotorError:
-    """Each arm's motor error theta - q_d at its last reset, held: at rest in the static
-    equilibrium on the reference's start, the torsion K^-1 g(q) of eq. (1), which shows the
-    ratio of the arm's load to its stiffness before any action moves the motors (raw
-    sensors: the policy's own action makes the later motor errors).
+class RestAtReset:
+    """Each arm at rest at its last reset, held: the motor error theta - q_d there and the
+    position q_d (N, 2n). The arm rests on the reference's start in the static
+    equilibrium, so the motor error is the torsion K^-1 g(q) of eq. (1): with the position,
+    it shows the ratio of the arm's load to its stiffness before any action moves the
+    motors (raw sensors: the policy's own action makes the later motor errors).
 
     Args:
         n_arms, n: arms and joints.
     """
 
     def __init__(self, n_arms: int, n: int) -> None:
-        self.value = np.zeros((n_arms, n))
+        self.n = n
+        self.value = np.zeros((n_arms, 2 * n))
 
     def latch(self, arms: np.ndarray, motor_position: np.ndarray, reference: np.ndarray) -> None:
         """Arms ``arms`` were reset: ``motor_position`` (N, n) and ``reference`` (N, >= 1,
         n) rows q_d, ... of all arms."""
-        self.value[arms] = motor_position[arms] - reference[arms, 0]
+        position = reference[arms, 0]
+        self.value[arms] = np.hstack([motor_position[arms] - position, position])
 
 
 class ErrorIntegral:
@@ -296,6 +299,7 @@ class ObservationBuilder:
             "preview": len(config.preview) * n,
             "acceleration": n_accelerations,
             "base_motor_error": 2 * n,
+            "reset_rest": 2 * n,
             "last_action": actions,
             "link_mass_estimate": actions,
             "link_mass_fit": actions,
@@ -325,8 +329,9 @@ class ObservationBuilder:
             return _given(x.base_torque, name) / self.torque_limit
         if name == "motor_error":
             return (_given(x.motor_position, name) - ref[:, 0]) / c.torsion_scale
-        if name == "reset_motor_error":
-            return _given(x.reset_motor_error, name) / c.torsion_scale
+        if name == "reset_rest":
+            rest = _given(x.reset_rest, name)
+            return np.hstack([rest[:, :n] / c.torsion_scale, rest[:, n:]])
         if name == "acceleration":
             return _given(x.acceleration, name) / GRAVITY
         if name == "link_mass_estimate":

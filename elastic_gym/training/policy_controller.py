@@ -29,7 +29,7 @@ from elastic_gym.training.observation import (
     ErrorIntegral,
     ObservationBuilder,
     ObservationInputs,
-    ResetMotorError,
+    RestAtReset,
     base_state_error,
     check_base_error,
 )
@@ -187,7 +187,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._acts = np.zeros(N)
         self._at_bound = np.zeros(N)
         self._integral = ErrorIntegral(N, n, controller.elastic)
-        self._reset_error = ResetMotorError(N, n)
+        self._reset_error = RestAtReset(N, n)
         check_link_mass_features(controller.builder.features, controller.map.config)
         self._link_mass = link_mass_residual(controller.map.config, self.base, N, self.dt)
 
@@ -235,7 +235,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             last_action=self._last_action[arms],
             base_torque=self._last_base[arms],
             base_error=self._base_error[arms],
-            reset_motor_error=self._reset_error.value[arms],
+            reset_rest=self._reset_error.value[arms],
             **{name: value[arms] for name, value in link_mass.items()},
         )
         if x is None:  # raw sensors

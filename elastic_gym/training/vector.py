@@ -36,7 +36,7 @@ from elastic_gym.training.observation import (
     ObservationBuilder,
     ObservationConfig,
     ObservationInputs,
-    ResetMotorError,
+    RestAtReset,
     TrueStateFeatures,
     base_state_error,
     check_base_error,
@@ -236,9 +236,7 @@ class PolicyObservation(_ArmResets):
             else None
         )
         self._reset_error = (
-            ResetMotorError(self.num_envs, self.n)
-            if "reset_motor_error" in self.builder.features
-            else None
+            RestAtReset(self.num_envs, self.n) if "reset_rest" in self.builder.features else None
         )
 
     def _features(self, obs: Mapping, info: Mapping) -> np.ndarray:
@@ -259,7 +257,7 @@ class PolicyObservation(_ArmResets):
             error_integral=None if self._integral is None else self._integral.value,
             link_mass_estimate=info.get("link_mass_estimate"),
             link_mass_fit=info.get("link_mass_fit"),
-            reset_motor_error=None if self._reset_error is None else self._reset_error.value,
+            reset_rest=None if self._reset_error is None else self._reset_error.value,
         )
         return self.builder.build(inputs)
 
