@@ -112,6 +112,7 @@ def test_the_rows_are_the_train_commands_they_print(tmp_path):
         "ppo-deluca-robust",
         "rppo-deluca-robust",
         "rppo-sensors-robust",
+        "rppo-sensors-distilled",
         "residual-integral-robust",
     )
     assert all(seeds[key] == (0, 1, 2) for key in three)
@@ -127,6 +128,14 @@ def test_the_rows_are_the_train_commands_they_print(tmp_path):
     config = rppo.config(0, tmp_path)
     assert (config.algo, config.state, config.frame_stack) == ("recurrentppo", "sensors", 1)
     assert Path(config.hyperparams_file).name == "recurrentppo-robust.yaml"
+    (distilled,) = [row for row in rs.ROWS if row.key == "rppo-sensors-distilled"]
+    config = distilled.config(0, tmp_path)
+    assert (config.algo, config.state, config.frame_stack) == ("recurrentppo", "sensors", 1)
+    assert config.settings()[0].distill is not None
+    assert (
+        distilled.label
+        == "RecurrentPPO, distilled from the plant teacher (DAgger), trained randomized"
+    )
     (memory,) = [row for row in rs.ROWS if row.key == "rppo-deluca-robust"]
     config = memory.config(0, tmp_path)
     assert (config.algo, config.state) == ("recurrentppo", "deluca")
@@ -172,6 +181,7 @@ def test_the_targets_compute_their_verdicts_from_the_numbers():
             ("rppo-deluca-robust", "nominal"): [8e-4, 6e-4, 7.3e-4],  # mean 7.1e-4: missed
             (integral, "nominal"): [1e-4],
             ("rppo-sensors-robust", "K0.9"): [2e-3],
+            ("rppo-sensors-distilled", "K0.9"): [0.5e-3, 0.7e-3, 0.9e-3],  # mean 7e-4
             (fd, "K0.9"): [3e-3],
             (eq13, "K0.9"): [3e-3],  # a third: 1e-3
             ("residual-integral-robust", "mass1.3"): [0.9e-3],
@@ -181,7 +191,7 @@ def test_the_targets_compute_their_verdicts_from_the_numbers():
         wall="1000.0",
     )
     lines = {t.name: t for t in rs.targets(records)}
-    assert len(lines) == 14
+    assert len(lines) == 18
     verdicts = {name: t.verdict for name, t in lines.items()}
     mass = lines["randomized PPO on De Luca, link mass ×1.3"]
     assert (mass.measured, mass.bound, mass.verdict) == (pytest.approx(2e-3), 2e-3, "missed")
@@ -194,6 +204,8 @@ def test_the_targets_compute_their_verdicts_from_the_numbers():
     k_eq13 = lines["randomized RecurrentPPO on raw sensors, K ×0.9, vs eq. (13)"]
     assert (k_motor.verdict, k_eq13.verdict) == ("met", "missed")
     assert k_eq13.bound == pytest.approx(1e-3, rel=1e-12)
+    k_distilled = lines["randomized RecurrentPPO distilled on raw sensors, K ×0.9, vs eq. (13)"]
+    assert (k_distilled.measured, k_distilled.verdict) == (pytest.approx(7e-4), "met")
     residual = lines["randomized residual on eq. (13) + integral action, De Luca, link mass ×1.3"]
     assert residual.bound == pytest.approx(1e-3) and residual.verdict == "met"
     nominal = lines["randomized residual on eq. (13) + integral action, De Luca, nominal"]
@@ -245,7 +257,7 @@ def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     targets = (out / "targets.md").read_text()
     assert "| nominal PPO on the true state, training wall time |" in targets
     verdicts = [line.rsplit("|", 2)[1].strip() for line in targets.splitlines()[2:]]
-    assert verdicts.count("—") == 12  # the rows and loops not evaluated here
+    assert verdicts.count("—") == 16  # the rows and loops not evaluated here
     assert (out / "robust_rms.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "learning_curves.png").is_file()
     assert "elastic-gym" in (out / "stamp.md").read_text()
