@@ -23,7 +23,16 @@ from elastic_gym.validation import ConfigModel, PositiveFinite
 
 
 class DistillConfig(ConfigModel):
-    """The ``distill`` hyper-parameter (module docstring)."""
+    """The ``distill`` hyper-parameter (module docstring).
+
+    Attributes:
+        iterations: DAgger iterations.
+        episodes: rounds of one episode on every arm per iteration.
+        steps: Adam steps per fit. batch_size: episodes per Adam step.
+        learning_rate: Adam's learning rate.
+        teacher_mix: the share of arms the teacher drives at iteration i is
+            ``teacher_mix ** i`` (all of them at the first).
+    """
 
     section = "distill"
     iterations: int = Field(8, ge=1)
