@@ -9,6 +9,7 @@ import csv
 
 import numpy as np
 import pytest
+import torch
 from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training import ActionConfig, ActionMap, TrainConfig, load_run, train
@@ -177,10 +178,10 @@ def test_distill_refuses_what_it_cannot_use():
             bad.settings()
 
 
-def test_distillation_fits_the_teacher_and_its_run_loads(tmp_path):
-    """A tiny distilled run: the fit loss falls far below the labels' mean square (the
-    student learns the teacher's actions), the learning curve has the start and one row per
-    iteration at the policy steps collected, and the run folder loads and evaluates."""
+def test_a_distilled_run_loads_and_retrains_bit_for_bit(tmp_path):
+    """A tiny distilled run: the learning curve has the start and one row per iteration
+    at the policy steps collected, the run folder loads and evaluates, and the same
+    command trains the same weights and normalization bit for bit."""
     config = TrainConfig(
         algo="recurrentppo",
         state="sensors",
@@ -205,6 +206,12 @@ def test_distillation_fits_the_teacher_and_its_run_loads(tmp_path):
     run = load_run(config.out_dir)
     assert run.settings.distill == DistillConfig(**config.hyperparams["distill"])
     assert np.isfinite(float(rows[-1]["tracking_rms"]))
+    again = config.model_copy(update={"out_dir": str(tmp_path / "again")})
+    train(again, progress_bar=False)
+    rerun = load_run(again.out_dir)
+    for name, value in run.model.policy.state_dict().items():
+        assert torch.equal(value, rerun.model.policy.state_dict()[name]), name
+    assert np.array_equal(run.normalizer.obs_rms.mean, rerun.normalizer.obs_rms.mean)
 
 
 def test_distill_lowers_the_loss_of_the_student(tmp_path):
