@@ -7,11 +7,10 @@ the integral action's information) of the state source, ``reference``
 (q_d .. q_d^(k-1), scaled per order), ``preview`` (q_d(t + h) - q_d(t) for horizons h),
 ``torsion`` and ``torsion_rate`` (elastic state), ``motor_error``, ``reset_rest``
 (:class:`RestAtReset`) and ``acceleration`` (raw sensors), ``last_action``,
-``base_torque``, ``base_motor_error`` (residual: the motor half theta - theta_d,
-theta' - theta_d' of the base's state error x - x_d of eq. (13), zero on the nominal plant
-while it tracks), ``link_mass_estimate`` and ``link_mass_fit``
-(a residual's link-mass scales, and those its base's motor error showed at the reset). The
-reference and its preview are no measurement: the task defines them in advance.
+``base_torque``, ``base_motor_error`` (residual: the motor half of the base's x - x_d of
+eq. (13), zero on the nominal plant while it tracks), ``link_mass_estimate`` and
+``link_mass_fit`` (a residual's link-mass scales, and those its base's motor error showed
+at the reset). The reference and its preview are no measurement: the task defines them.
 :class:`TrueStateFeatures` computes the state features of the true state, what a
 privileged critic sees (:mod:`elastic_gym.training.critic`).
 """
