@@ -1,5 +1,5 @@
 """Distillation of the privileged plant teacher into a recurrent raw-sensor policy: DAgger
-(Ross, Gordon & Bagnell, AISTATS 2011) before RecurrentPPO's own training.
+(Ross, Gordon & Bagnell, AISTATS 2011) trains a RecurrentPPO policy instead of RL.
 
 Iteration i runs one episode on every training arm (``episodes`` rounds of them). A share
 beta_i = ``teacher_mix`` ** i of the arms acts with the teacher's action
@@ -124,8 +124,7 @@ def fit(model, normalizer, episodes: Episodes, config: DistillConfig, rng) -> fl
         loss.backward()
         optimizer.step()
         losses.append(loss.item())
-    total = float(np.mean(losses[-max(1, config.steps // 10) :]))
-    return total
+    return float(np.mean(losses[-max(1, config.steps // 10) :]))
 
 
 def check_distill(settings, algo: str, action_kind: str, total_steps: int | None) -> None:
