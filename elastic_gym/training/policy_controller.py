@@ -187,7 +187,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
         self._acts = np.zeros(N)
         self._at_bound = np.zeros(N)
         self._integral = ErrorIntegral(N, n, controller.elastic)
-        self._reset_error = RestAtReset(N, n)
+        self._rest = RestAtReset(N, n)
         check_link_mass_features(controller.builder.features, controller.map.config)
         self._link_mass = link_mass_residual(controller.map.config, self.base, N, self.dt)
 
@@ -219,7 +219,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             motor = np.asarray(obs["motor_position"], dtype=float)
             self._previous_motor[arms] = motor[arms]
             if self.controller.elastic:
-                self._reset_error.latch(arms, motor, self.references(info))
+                self._rest.latch(arms, motor, self.references(info))
         self._integral.restart(arms, np.broadcast_to(info["time"], (self.n_arms,)))
         if self._link_mass is not None:
             self._link_mass.restart(arms)
@@ -235,7 +235,7 @@ class VectorTrainedPolicy(ControllerTwin[TrainedPolicyController]):
             last_action=self._last_action[arms],
             base_torque=self._last_base[arms],
             base_error=self._base_error[arms],
-            reset_rest=self._reset_error.value[arms],
+            reset_rest=self._rest.value[arms],
             **{name: value[arms] for name, value in link_mass.items()},
         )
         if x is None:  # raw sensors

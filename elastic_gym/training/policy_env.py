@@ -61,9 +61,7 @@ def _stack(
     if state != SENSORS:
         env = observer_wrappers.ObserverWrapper(env, state, **(observer_options or {}))
     env = policy_wrappers.PolicyAction(env, action)
-    if teacher:
-        if policy_wrappers is not vector_policy:
-            raise ValueError("the plant teacher (distillation) needs a vector env: n_envs > 1")
+    if teacher:  # only make_policy_vec_env asks for it
         from elastic_gym.training.teacher import PlantTeacher
 
         env = PlantTeacher(env, decimation)

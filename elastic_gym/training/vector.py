@@ -235,7 +235,7 @@ class PolicyObservation(_ArmResets):
             if "error_integral" in self.builder.features
             else None
         )
-        self._reset_error = (
+        self._rest = (
             RestAtReset(self.num_envs, self.n) if "reset_rest" in self.builder.features else None
         )
 
@@ -257,13 +257,13 @@ class PolicyObservation(_ArmResets):
             error_integral=None if self._integral is None else self._integral.value,
             link_mass_estimate=info.get("link_mass_estimate"),
             link_mass_fit=info.get("link_mass_fit"),
-            reset_rest=None if self._reset_error is None else self._reset_error.value,
+            reset_rest=None if self._rest is None else self._rest.value,
         )
         return self.builder.build(inputs)
 
     def _latch(self, arms: np.ndarray, obs: Mapping, info: Mapping) -> None:
-        if self._reset_error is not None and len(arms):
-            self._reset_error.latch(arms, obs["motor_position"], reference_rows(info))
+        if self._rest is not None and len(arms):
+            self._rest.latch(arms, obs["motor_position"], reference_rows(info))
 
     def _integrate(self, obs: Mapping, info: Mapping, restarted: np.ndarray) -> None:
         """Advance the error integral of every arm, restart it for ``restarted``."""
