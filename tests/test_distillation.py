@@ -13,7 +13,6 @@ import torch
 from gymnasium.vector import AutoresetMode
 
 from elastic_gym.training import ActionConfig, ActionMap, TrainConfig, load_run, train
-from elastic_gym.training.config import Settings
 from elastic_gym.training.distill import DistillConfig, check_distill, distill
 from elastic_gym.training.policy_env import make_policy_vec_env
 from elastic_gym.training.rollouts import evaluate_arms
@@ -155,23 +154,24 @@ def test_reset_rest_is_the_static_torsion_held_until_the_next_reset():
 def test_distill_refuses_what_it_cannot_use():
     """distill needs RecurrentPPO, the motor-offset action, a batch of arms and no RL
     steps (total steps refused); its own keys are checked."""
-    good = Settings(n_envs=4, distill=DistillConfig())
-    check_distill(good, "recurrentppo", "motor-offset", None)
+
+    def run(algo="recurrentppo", total_steps=None, **hyperparams) -> TrainConfig:
+        keys = {"n_envs": 4, "action": {"kind": "motor-offset"}, "distill": {}, **hyperparams}
+        return TrainConfig(algo=algo, total_steps=total_steps, hyperparams=keys)
+
+    def check(config: TrainConfig) -> None:
+        check_distill(config, config.settings()[0])
+
+    check(run())
     cases = [
-        (good, "ppo", "motor-offset", None, "algo recurrentppo"),
-        (good, "recurrentppo", "torque", None, "motor-offset"),
-        (
-            Settings(n_envs=1, distill=DistillConfig()),
-            "recurrentppo",
-            "motor-offset",
-            None,
-            "n_envs > 1",
-        ),
-        (good, "recurrentppo", "motor-offset", 1000, "imitation only"),
+        (run(algo="ppo"), "algo recurrentppo"),
+        (run(action={"kind": "torque"}), "motor-offset"),
+        (run(n_envs=1), "n_envs > 1"),
+        (run(total_steps=1000), "imitation only"),
     ]
-    for settings, algo, kind, total, match in cases:
+    for config, match in cases:
         with pytest.raises(ValueError, match=match):
-            check_distill(settings, algo, kind, total)
+            check(config)
     for distill_keys in ({"iteration": 3}, {"teacher_mix": 1.5}, {"steps": 0}):
         bad = TrainConfig(algo="recurrentppo", hyperparams={"distill": distill_keys})
         with pytest.raises(ValueError, match="distill"):

@@ -182,7 +182,6 @@ class RestAtReset:
     """
 
     def __init__(self, n_arms: int, n: int) -> None:
-        self.n = n
         self.value = np.zeros((n_arms, 2 * n))
 
     def latch(self, arms: np.ndarray, motor_position: np.ndarray, reference: np.ndarray) -> None:

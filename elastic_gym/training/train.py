@@ -93,8 +93,7 @@ def train(
     from elastic_gym.parallel import single_threaded
 
     settings, algo_kwargs = config.settings()  # a bad config changes nothing
-    action = config.policy_configs(settings)[0]
-    check_distill(settings, config.algo, action.kind, config.total_steps)
+    check_distill(config, settings)
     episode_duration(config.env_id, config.training_env_kwargs(settings))  # bounded evaluations
     folder = RunFolder(config.out_dir)
     with folder.create(overwrite, lock), single_threaded():
@@ -232,8 +231,7 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
     for config in configs:
         RunFolder(config.out_dir).check(overwrite)
         settings, _ = config.settings()
-        action = config.policy_configs(settings)[0]
-        check_distill(settings, config.algo, action.kind, config.total_steps)
+        check_distill(config, settings)
         setting = config.model_copy(update={"seed": 0, "out_dir": ""}).to_dict()
         if repr(setting) not in built:
             built.add(repr(setting))
