@@ -16,7 +16,10 @@
 * PPO policy steps/s end to end (rollouts + updates) on one batch of arms
   (:class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`) and on SB3's ``SubprocVecEnv``
   with one worker per core, with the same stack (true state, action repeat 10,
-  flattened observation, actions in [-1, 1], VecNormalize) and the same rollout size.
+  flattened observation, actions in [-1, 1], VecNormalize) and the same rollout size;
+* the training stack of the distilled recipe (``recurrentppo-distilled.yaml``: raw
+  sensors, motor-offset action, action repeat 10) with the plant teacher's labels /
+  without them, per policy step (table 8).
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ from elastic_gym.controllers.vector import make_vector_controller
 from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.observers import ObserverWrapper, TrueStateWrapper, vector
 from elastic_gym.training import vector as training_vector
+from elastic_gym.training.config import resolve_settings
+from elastic_gym.training.policy_env import make_policy_vec_env
 from elastic_gym.training.wrappers import ActionRepeat
 
 AT_REST = {"task": "excitation", "task_options": {"amplitude": 0.0}, "episode_time": None}
@@ -48,6 +53,7 @@ FINE_PHYSICS_DT = 1.0 / 16000.0  # the comparisons' physics step
 LOOP_CONTROLLER = "feedforward-state-feedback"  # eq. (13)
 PPO_DECIMATION = 10
 PPO_ROLLOUT = 1024  # policy steps per rollout, whatever the number of envs
+DISTILLED_RECIPE = "recurrentppo-distilled.yaml"
 
 
 def vector_env(env_id: str, n_arms: int, **kwargs) -> gym.vector.VectorEnv:
@@ -261,3 +267,38 @@ def ppo_policy_steps_per_second(
         )
         venv.close()
     return rates
+
+
+def teacher_costs(env_id: str, n_arms: int, policy_steps: int, repeats: int) -> dict[str, float]:
+    """CPU seconds per policy step of ``n_arms`` arms in the training stack of the
+    distilled recipe (its env kwargs with the plant draws, action, observation and
+    decimation), ``"teacher"`` with the plant teacher's labels and ``"without"`` them."""
+    settings, _ = resolve_settings("recurrentppo", env_id, file=DISTILLED_RECIPE)
+
+    def stack(teacher: bool) -> gym.vector.VectorEnv:
+        return make_policy_vec_env(
+            env_id,
+            n_arms,
+            state="sensors",
+            env_kwargs=settings.env_kwargs,
+            decimation=settings.decimation,
+            action=settings.action,
+            observation=settings.observation,
+            autoreset_mode=AutoresetMode.NEXT_STEP,
+            teacher=teacher,
+        )
+
+    envs = {"without": stack(False), "teacher": stack(True)}
+    actions = np.zeros((n_arms, *envs["without"].single_action_space.shape))
+    for env in envs.values():
+        env.reset(seed=0)
+    best = interleaved_best(
+        {
+            name: functools.partial(seconds_per_call, env.step, [(actions,)] * policy_steps)
+            for name, env in envs.items()
+        },
+        repeats,
+    )
+    for env in envs.values():
+        env.close()
+    return best

@@ -27,7 +27,9 @@ Tables (BLAS single-threaded: "one core"; see ``timing.py`` for the method):
    eq. (13) identifying the load at the reset / the De Luca loop;
 7. ``compare`` of one grid (``batched_compare.py``) with one arm per world
    (``--batch-size 1``) / batched, CPU time of the whole execution, at the env's 0.5 ms
-   physics step and at the comparisons' 1/16 ms (targets >= 8x and >= 2.5x).
+   physics step and at the comparisons' 1/16 ms (targets >= 8x and >= 2.5x);
+8. the distillation's training stack (``batched.py``): policy step of 32 arms with the
+   plant teacher's labels / without them.
 
 ``--tables 1 5`` runs only some tables.
 """
@@ -94,6 +96,7 @@ FULL = Scale(block=500, repeats=7, vec_steps=3000, ppo_steps=8192)
 QUICK = Scale(block=150, repeats=3, vec_steps=500, ppo_steps=2048)
 BATCH_SIZES = (1, 8, 64, 256)
 BATCH_ARMS = 64  # throughput, closed loop and PPO rows
+TEACHER_ARMS = 32  # the distilled recipe's arms per batch
 
 
 def make_env(env_id: str, **kwargs) -> gym.Env:
@@ -586,6 +589,22 @@ def table_compare(scale: Scale) -> None:
     )
 
 
+def table_teacher(vec_id: str, scale: Scale) -> None:
+    costs = batched.teacher_costs(vec_id, TEACHER_ARMS, scale.block // 5, scale.repeats)
+    print_table(
+        f"8. the distilled recipe's training stack, {vec_id}, {TEACHER_ARMS} arms: CPU "
+        "time per policy step (10 control periods) with the plant teacher's labels",
+        ("without teacher [ms]", "with teacher [ms]", "ratio"),
+        [
+            (
+                fmt(1e3 * costs["without"]),
+                fmt(1e3 * costs["teacher"]),
+                fmt(costs["teacher"] / costs["without"]),
+            )
+        ],
+    )
+
+
 def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool, tables: set[int]) -> None:
     print(
         f"{machine_line()} (other processes slow the timings; "
@@ -604,6 +623,8 @@ def run(env_ids: list[str], scale: Scale, vec_id: str, profile: bool, tables: se
         table_batched_loop(vec_id, scale)
     if 7 in tables:
         table_compare(scale)
+    if 8 in tables:
+        table_teacher(vec_id, scale)
     if profile:
         for env_id in env_ids:
             top, per_step = profile_closed_loop(env_id, scale.block, top=15)
@@ -631,8 +652,8 @@ def main(argv: list[str] | None = None) -> int:
         "--tables",
         nargs="+",
         type=int,
-        default=[1, 2, 3, 4, 5, 6, 7],
-        choices=[1, 2, 3, 4, 5, 6, 7],
+        default=[1, 2, 3, 4, 5, 6, 7, 8],
+        choices=[1, 2, 3, 4, 5, 6, 7, 8],
         help="tables to run (default: all)",
     )
     args = parser.parse_args(argv)

@@ -158,6 +158,41 @@ def test_invdyn_neglected_coupling_terms_are_tiny_for_kr15_without_damping():
     assert neglected_torque < 1e-4 * np.abs(tau_d[:, 1]).max()
 
 
+@pytest.mark.parametrize(
+    ("robot", "damping"),
+    [
+        ("two_link_elastic", None),
+        ("two_link_elastic", 0.0),
+        ("kr15_elastic", None),
+        ("two_link_rigid", None),
+    ],
+)
+def test_invdyn_trajectory_is_the_successive_calls_bit_for_bit(robot, damping):
+    """InverseDynamics.trajectory over two blocks of periods (the plant teacher's
+    planning) returns exactly the rows of one call per period, for model (1) with and
+    without damping, model (2) (the coupled filters) and a rigid arm; it refuses a batch
+    and time running back."""
+    changes = {} if damping is None else {"damping": (damping,) * len(get_robot(robot).joint_names)}
+    model = model_of(robot, **changes)
+    path, times = reference_path(model), np.arange(0.0, 0.6, 1e-3)
+    refs = np.array([path.evaluate(t) for t in times])
+    one_by_one = InverseDynamics(model)
+    calls = [one_by_one(t, ref) for t, ref in zip(times, refs, strict=True)]
+    planner, half = InverseDynamics(model), len(times) // 2
+    blocks = [
+        planner.trajectory(times[:half], refs[:half]),
+        planner.trajectory(times[half:], refs[half:]),
+    ]
+    for k in range(2):
+        planned = np.vstack([block[k] for block in blocks])
+        assert np.array_equal(planned, np.array([call[k] for call in calls]))
+    with pytest.raises(ValueError, match="one arm"):
+        InverseDynamics(model, n_arms=2).trajectory(times, refs)
+    if model.elastic:
+        with pytest.raises(ValueError, match="went back"):
+            planner.trajectory(times[:2], refs[:2])
+
+
 @pytest.mark.parametrize("robot", ["two_link_elastic", "kr15_elastic"])
 @pytest.mark.parametrize("feedforward", [True, False])
 def test_link_mass_sensitivity_gives_the_law_on_the_heavier_model(robot, feedforward):

@@ -175,6 +175,28 @@ def _torsion_kernel(t, u, du, ddu, K, D, viscous, rate, c, clock, v0, dv0, delta
             clock[i] = t[i]
 
 
+@njit(cache=True)
+def _torsion_trajectory_kernel(t, u, du, ddu, K, D, viscous, rate, c, clock, v0, dv0, delta, out):
+    """T successive :meth:`TorsionFilter.update` of one arm, row k at time t[k]."""
+    for k in range(len(t)):
+        _torsion_kernel(
+            t[k : k + 1],
+            u[k : k + 1],
+            du[k : k + 1],
+            ddu[k : k + 1],
+            K,
+            D,
+            viscous,
+            rate,
+            c,
+            clock,
+            v0,
+            dv0,
+            delta,
+            out[:, k : k + 1],
+        )
+
+
 class TorsionFilter:
     """Exact integration of K delta + D delta' = u(t), per joint (D = 0 joints: algebraic).
 
@@ -223,21 +245,47 @@ class TorsionFilter:
         self, t, u: np.ndarray, du: np.ndarray, ddu: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         shape = self._delta.shape
-        t = np.ascontiguousarray(t, dtype=np.float64).reshape(shape[0])
+        t = self._checked_times(np.ascontiguousarray(t, dtype=np.float64).reshape(shape[0]))
+        out = np.empty((4, *shape))
+        rows, state = self._rows(shape, u, du, ddu), self._kernel_state()
+        _torsion_kernel(t, *rows, *state, out)  # type: ignore[call-arg]  # stub: no star-args
+        d0, d1, d2, d3 = out[:, 0] if self.single else out
+        return d0, d1, d2, d3
+
+    def trajectory(
+        self, times, u: np.ndarray, du: np.ndarray, ddu: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """T successive :meth:`update` of a one-arm filter at increasing ``times`` (T,),
+        u and its derivatives (T, n), in one compiled loop: the (T, n) torsions and
+        derivatives, exactly those of the T updates."""
+        if len(self._delta) != 1:
+            raise ValueError("trajectory() filters one arm, not a batch of them")
+        times = np.ascontiguousarray(times, dtype=np.float64).reshape(-1)
+        self._checked_times(times[:1])
+        if np.any(np.diff(times) < -TIME_TOLERANCE):
+            raise ValueError("trajectory() needs increasing times")
+        shape = (len(times), len(self.K))
+        out = np.empty((4, *shape))
+        rows, state = self._rows(shape, u, du, ddu), self._kernel_state()
+        _torsion_trajectory_kernel(times, *rows, *state, out)  # type: ignore[call-arg]  # stub
+        d0, d1, d2, d3 = out
+        return d0, d1, d2, d3
+
+    def _checked_times(self, t: np.ndarray) -> np.ndarray:
         back = t < self._time - TIME_TOLERANCE  # False where not started (NaN)
         if back.any():
             raise ValueError(
                 f"controller time went back from {self._time[back]} to {t[back]}; call reset()"
             )
-        u, du, ddu = (
-            np.ascontiguousarray(a, dtype=np.float64).reshape(shape) for a in (u, du, ddu)
-        )
-        out = np.empty((4, *shape))
-        _torsion_kernel(
-            t,
-            u,
-            du,
-            ddu,
+        return t
+
+    @staticmethod
+    def _rows(shape, *arrays) -> tuple[np.ndarray, ...]:
+        return tuple(np.ascontiguousarray(a, dtype=np.float64).reshape(shape) for a in arrays)
+
+    def _kernel_state(self) -> tuple[np.ndarray, ...]:
+        """The constants and the memory the kernels read and update in place."""
+        return (
             self.K,
             self.D,
             self.viscous,
@@ -247,10 +295,7 @@ class TorsionFilter:
             self._v,
             self._dv,
             self._delta,
-            out,
         )
-        d0, d1, d2, d3 = out[:, 0] if self.single else out
-        return d0, d1, d2, d3
 
 
 class InverseDynamics:
@@ -291,26 +336,52 @@ class InverseDynamics:
         x_d, tau_d = self._arms(t, ref[None] if self.single else ref)
         return (x_d[0], tau_d[0]) if self.single else (x_d, tau_d)
 
+    def trajectory(self, times: np.ndarray, refs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """INVDYN at each of one arm's increasing ``times`` (T,) with ``refs`` (T, 5, n):
+        exactly the rows of T successive calls, with the rigid torques of all T periods in
+        one kernel call (only the torsion filter steps period by period). Returns (T, dim)
+        and (T, n). For a single-arm instance (no ``n_arms``)."""
+        if not self.single:
+            raise ValueError("trajectory() plans one arm: build InverseDynamics without n_arms")
+        refs = np.asarray(refs, dtype=float)
+        if not self.model.elastic:
+            return self._arms(None, refs)
+        rigid = self.rigid_torque.derivatives(refs, self.needs_second)
+        times = np.asarray(times, dtype=float)
+        return self._state_and_torque(refs, *self._torsion(times, refs, *rigid, trajectory=True))
+
     def _arms(self, t, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        model = self.model
-        q, dq, ddq = ref[:, 0], ref[:, 1], ref[:, 2]
-        if not model.elastic:
+        q, dq = ref[:, 0], ref[:, 1]
+        if not self.model.elastic:
             return np.concatenate([q, dq], axis=1), self.rigid_torque.torque(ref)
-        tau_r, dtau_r, ddtau_r = self.rigid_torque.derivatives(ref, self.needs_second)
+        rigid = self.rigid_torque.derivatives(ref, self.needs_second)
+        return self._state_and_torque(ref, *self._torsion(t, ref, *rigid))
+
+    def _torsion(self, t, ref, tau_r, dtau_r, ddtau_r, *, trajectory=False) -> tuple:
+        """The torsion delta, delta', delta'' and tau_J at time ``t`` from the rigid
+        torques: one update of the torsion filter(s), or T of them along a
+        ``trajectory`` (``t`` (T,), one arm's rows)."""
+
+        def update(f: TorsionFilter, *rows):
+            return f.trajectory(*rows) if trajectory else f.update(*rows)
+
         if self.uncoupled_filter is None:
-            tau_j = tau_r
-            delta, d1, d2, _ = self.filter.update(t, tau_r, dtau_r, ddtau_r)
-        else:
-            S_T = model.S.T
-            _, _, c2, c3 = self.uncoupled_filter.update(t, tau_r, dtau_r, ddtau_r)
-            tau_j = tau_r + (ddq + c2) @ S_T
-            dtau_j = dtau_r + (ref[:, 3] + c3) @ S_T
-            ddtau_j = ddtau_r + ref[:, 4] @ S_T  # S delta0 neglected (used only if D = 0)
-            delta, d1, d2, _ = self.filter.update(t, tau_j, dtau_j, ddtau_j)
-        ddtheta = ddq + d2
+            delta, d1, d2, _ = update(self.filter, t, tau_r, dtau_r, ddtau_r)
+            return delta, d1, d2, tau_r
+        S_T = self.model.S.T
+        _, _, c2, c3 = update(self.uncoupled_filter, t, tau_r, dtau_r, ddtau_r)
+        tau_j = tau_r + (ref[:, 2] + c2) @ S_T
+        dtau_j = dtau_r + (ref[:, 3] + c3) @ S_T
+        ddtau_j = ddtau_r + ref[:, 4] @ S_T  # S delta0 neglected (used only if D = 0)
+        delta, d1, d2, _ = update(self.filter, t, tau_j, dtau_j, ddtau_j)
+        return delta, d1, d2, tau_j
+
+    def _state_and_torque(self, ref, delta, d1, d2, tau_j) -> tuple[np.ndarray, np.ndarray]:
+        """x_d = (q_d + delta, q_d, q_d' + delta', q_d') and tau_d = B theta_d'' + S^T q_d''
+        + tau_J (module docstring)."""
+        q, dq, ddq = ref[:, 0], ref[:, 1], ref[:, 2]
         x_d = np.concatenate([q + delta, q, dq + d1, dq], axis=1)
-        tau_d = model.B * ddtheta + ddq @ model.S + tau_j
-        return x_d, tau_d
+        return x_d, self.model.B * (ddq + d2) + ddq @ self.model.S + tau_j
 
 
 class LinkMassSensitivity:

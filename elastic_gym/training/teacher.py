@@ -50,15 +50,13 @@ class _ArmPlan:
         """The mean of a_k .. a_(k + hold - 1)."""
         while len(self.actions) < k + hold:
             self._plan()
-        return self.actions[k : k + hold].mean(axis=0)
+        return self.actions[k : k + hold].sum(axis=0) / hold  # np.mean's arithmetic
 
     def _plan(self) -> None:
         first, n = len(self.actions), self.map.n
         times = self.start + self.dt * np.arange(first, first + BLOCK)
         refs = self.task.reference(times, np.full(BLOCK, self.arm))
-        planned = [self.invdyn(t, ref) for t, ref in zip(times, refs, strict=True)]
-        x_d = np.array([x for x, _ in planned])
-        tau_d = np.array([tau for _, tau in planned])
+        x_d, tau_d = self.invdyn.trajectory(times, refs)
         self.motor = np.concatenate([self.motor, np.hstack([x_d[:, :n], x_d[:, 2 * n : 3 * n]])])
         seen = np.clip(np.arange(first, first + BLOCK) - self.delay, 0, None)  # delayed encoders
         motor = self.motor[seen]
