@@ -194,7 +194,13 @@ def test_a_distilled_run_loads_and_retrains_bit_for_bit(tmp_path):
             "decimation": 10,
             "action": {"kind": "motor-offset"},
             "observation": {**STUDENT, "reference_order": 4},
-            "distill": {"iterations": 2, "steps": 150, "batch_size": 4, "learning_rate": 3e-3},
+            "distill": {
+                "iterations": 2,
+                "steps": 150,
+                "batch_size": 4,
+                "learning_rate": 3e-3,
+                "final_learning_rate": 3e-4,  # the cosine schedule retrains bit for bit too
+            },
             "policy_kwargs": {"lstm_hidden_size": 16, "net_arch": [32]},
         },
     )

@@ -7,7 +7,8 @@ beta_i = ``teacher_mix`` ** i of the arms acts with the teacher's action
 deterministic one; every step is labelled with the teacher's action. The student, the
 RecurrentPPO actor (its LSTM, MLP and Gaussian mean), is then fitted to all the labels
 collected so far: mean squared error over whole episodes (backpropagation through time
-from each episode's start), ``steps`` Adam steps at ``learning_rate`` on minibatches of
+from each episode's start), ``steps`` Adam steps at ``learning_rate`` (annealed along a
+cosine to ``final_learning_rate`` over each fit, if given) on minibatches of
 ``batch_size`` episodes drawn at random. An arm's steps after its first episode ends are not used.
 Observations are stored raw and normalized with the run's ``VecNormalize`` statistics at
 each fit (the statistics keep updating while the arms run).
@@ -29,7 +30,11 @@ class DistillConfig(ConfigModel):
         iterations: DAgger iterations.
         episodes: rounds of one episode on every arm per iteration.
         steps: Adam steps per fit. batch_size: episodes per Adam step.
-        learning_rate: Adam's learning rate.
+        learning_rate: Adam's learning rate (at the start of each fit).
+        final_learning_rate: if given, each fit's learning rate follows a cosine from
+            ``learning_rate`` down to it over the fit's steps (Loshchilov & Hutter,
+            ICLR 2017, without restarts within a fit): the fit ends near a minimum
+            instead of wherever the last steps of constant size left it.
         teacher_mix: the share of arms the teacher drives at iteration i is
             ``teacher_mix ** i`` (all of them at the first).
     """
@@ -40,6 +45,7 @@ class DistillConfig(ConfigModel):
     steps: int = Field(500, ge=1)
     batch_size: int = Field(16, ge=1)
     learning_rate: PositiveFinite = 1e-3
+    final_learning_rate: PositiveFinite | None = None
     teacher_mix: float = Field(0.5, ge=0.0, le=1.0)
 
 
@@ -107,6 +113,12 @@ def fit(model, normalizer, episodes: Episodes, config: DistillConfig, rng) -> fl
     labels = np.stack([_padded(label, length) for _, label, _ in data])  # (E, T, n)
     masks = np.stack([_padded(mask, length) for _, _, mask in data]).astype(np.float32)
     optimizer = torch.optim.Adam(policy.parameters(), lr=config.learning_rate)
+    final = config.final_learning_rate
+    schedule = (
+        None
+        if final is None
+        else torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, config.steps, final)
+    )
     lstm = policy.lstm_actor
     n_seq, length = min(config.batch_size, len(data)), obs.shape[1]
     zeros = torch.zeros(lstm.num_layers, n_seq, lstm.hidden_size)
@@ -123,6 +135,8 @@ def fit(model, normalizer, episodes: Episodes, config: DistillConfig, rng) -> fl
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
+        if schedule is not None:
+            schedule.step()
         losses.append(loss.item())
     return float(np.mean(losses[-max(1, config.steps // 10) :]))
 
