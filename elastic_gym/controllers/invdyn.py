@@ -351,9 +351,8 @@ class InverseDynamics:
         return self._state_and_torque(refs, *self._torsion(times, refs, *rigid, trajectory=True))
 
     def _arms(self, t, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        q, dq = ref[:, 0], ref[:, 1]
         if not self.model.elastic:
-            return np.concatenate([q, dq], axis=1), self.rigid_torque.torque(ref)
+            return np.concatenate([ref[:, 0], ref[:, 1]], axis=1), self.rigid_torque.torque(ref)
         rigid = self.rigid_torque.derivatives(ref, self.needs_second)
         return self._state_and_torque(ref, *self._torsion(t, ref, *rigid))
 
