@@ -14,7 +14,7 @@ import time
 from elastic_gym.evaluation import Scenario, plan_runs
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE, plan_groups
 from elastic_gym.evaluation.runner import run_group
-from elastic_gym.parallel import single_threaded
+from elastic_gym.runtime.parallel import single_threaded
 
 SEEDS = 16
 DURATION = 0.5  # s per run

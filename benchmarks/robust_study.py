@@ -43,7 +43,8 @@ from pathlib import Path
 import numpy as np
 
 import elastic_gym
-from elastic_gym.cli import build_parser, train_configs
+from elastic_gym.cli import build_parser
+from elastic_gym.cli.train import train_configs
 from elastic_gym.envs.config import PER_ARM_KEYS, EnvConfig
 from elastic_gym.training import TrainConfig
 from elastic_gym.training.config import merged_hyperparams

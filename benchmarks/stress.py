@@ -32,8 +32,8 @@ from timing import print_table
 import elastic_gym
 from elastic_gym.observers import ObserverWrapper, TrueStateWrapper
 from elastic_gym.observers.registry import OBSERVERS, applicable_observers
-from elastic_gym.parallel import run_jobs
 from elastic_gym.robots.catalog import get_robot
+from elastic_gym.runtime.parallel import run_jobs
 
 TASKS = ("tracking", "regulation", "excitation")
 TORQUE_SCALES = (0.01, 0.1, 1.0, 2.0)

@@ -21,7 +21,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from elastic_gym.parallel import SINGLE_THREAD_ENV
+from elastic_gym.runtime.parallel import SINGLE_THREAD_ENV
 
 TABLE_WIDTH = 160  # characters: tables are not cut to a narrow (or absent) terminal
 

@@ -74,3 +74,17 @@ def single_arm(value: Any) -> Any:
         }
     item = value[0]
     return item.item() if isinstance(item, np.generic) else item
+
+
+def elastic_base(env: Any, who: str, vector: bool = True) -> Any:
+    """``env.unwrapped`` if it is an elastic_gym env (one holding the ``batch`` of its arms);
+    ``TypeError`` naming ``who`` and how to make one otherwise."""
+    base = env.unwrapped
+    if getattr(base, "batch", None) is None:
+        kind, make = (
+            ("vector env", "gym.make_vec(..., vectorization_mode='vector_entry_point')")
+            if vector
+            else ("env", "gym.make('elastic_gym/...')")
+        )
+        raise TypeError(f"{who} needs an elastic_gym {kind} ({make}), got {env}")
+    return base

@@ -23,8 +23,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv, VectorWrapper
 from gymnasium.vector.utils import batch_space
 
-from elastic_gym.arms import as_batch, single_arm
-from elastic_gym.validation import elastic_base
+from elastic_gym.arms import as_batch, elastic_base, single_arm
 
 
 class OneArm(VectorEnv):

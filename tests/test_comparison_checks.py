@@ -23,7 +23,7 @@ from elastic_gym.evaluation.groups import plan_groups
 from elastic_gym.evaluation.preflight import preflight
 from elastic_gym.evaluation.runner import run_group
 from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
-from elastic_gym.parallel import single_threaded
+from elastic_gym.runtime.parallel import single_threaded
 
 QUIET = Console(quiet=True)
 

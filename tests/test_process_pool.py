@@ -14,7 +14,7 @@ from rich.console import Console
 
 from elastic_gym.controllers.base import Controller
 from elastic_gym.evaluation import Scenario, compare
-from elastic_gym.parallel import worker_processes
+from elastic_gym.runtime.parallel import worker_processes
 
 
 def pid_of(job: int) -> tuple[int, int]:

@@ -8,7 +8,7 @@ import pytest
 from test_evaluation import rigid_scenario
 
 from elastic_gym.evaluation import Scenario, execute, plan_runs
-from elastic_gym.parallel import SINGLE_THREAD_ENV
+from elastic_gym.runtime.parallel import SINGLE_THREAD_ENV
 
 
 @pytest.mark.usefixtures("single_thread_torch")
@@ -30,7 +30,7 @@ def test_ray_backend_gives_the_same_table_and_trains_two_seeds(tmp_path, capsys)
     runs = plan_runs(scenario)[0]
     local = execute(runs, workers=1, progress=False)
     out = tmp_path / "runs"
-    # what the backend starts with --workers 2 (elastic_gym.parallel._run_ray)
+    # what the backend starts with --workers 2 (elastic_gym.runtime.parallel._run_ray)
     ray.init(
         num_cpus=2,
         include_dashboard=False,

@@ -278,8 +278,8 @@ def test_user_code_that_ends_the_pre_run_checks_process_is_refused_naming_it(
 
 
 def test_one_worker_runs_in_a_child_unless_the_jobs_need_this_main():
-    from elastic_gym.parallel import run_jobs
-    from elastic_gym.process_pool import refers_to_main
+    from elastic_gym.runtime.parallel import run_jobs
+    from elastic_gym.runtime.process_pool import refers_to_main
 
     with pytest.raises(RuntimeError, match=r"^job 2 could not run: WorkerDiedError: .*exit code 5"):
         run_jobs(os_exit_on_two, [0, 1, 2, 3], workers=1, progress=False, describe="job {}".format)
@@ -289,7 +289,7 @@ def test_one_worker_runs_in_a_child_unless_the_jobs_need_this_main():
 
 
 def test_run_jobs_without_a_crash_handler_names_the_job_whose_worker_died():
-    from elastic_gym.parallel import run_jobs
+    from elastic_gym.runtime.parallel import run_jobs
 
     with pytest.raises(RuntimeError, match=r"^job 2 could not run: WorkerDiedError: .*exit code 5"):
         run_jobs(os_exit_on_two, [0, 1, 2, 3], workers=2, progress=False, describe="job {}".format)
@@ -363,7 +363,7 @@ def test_workers_end_when_compare_is_killed(tmp_path):
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_the_ray_runtime_ends_when_compare_is_killed(tmp_path):
     pytest.importorskip("ray")
-    from elastic_gym.orphan_reaper import ray_descendants
+    from elastic_gym.runtime.orphan_reaper import ray_descendants
 
     out = tmp_path / "out"
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
@@ -514,14 +514,14 @@ def test_a_disk_full_before_the_run_leaves_nothing_that_blocks_a_rerun(tmp_path,
 
 # ------------------------------------------------------------ a second writer
 def test_a_second_writer_of_an_output_folder_is_refused_with_the_holders_pid(tmp_path):
-    from elastic_gym.folder_lock import LOCK_FILE, FolderLockedError, folder_lock
+    from elastic_gym.runtime.folder_lock import LOCK_FILE, FolderLockedError, folder_lock
 
     folder = tmp_path / "out"
     holder = subprocess.Popen(
         [
             sys.executable,
             "-c",
-            "import sys, time\nfrom elastic_gym.folder_lock import folder_lock\n"
+            "import sys, time\nfrom elastic_gym.runtime.folder_lock import folder_lock\n"
             f"with folder_lock({str(folder)!r}):\n    print('locked', flush=True)\n"
             "    time.sleep(60)",
         ],
@@ -550,7 +550,7 @@ def test_a_second_writer_of_an_output_folder_is_refused_with_the_holders_pid(tmp
 def test_train_refuses_a_run_folder_that_another_training_writes(tmp_path):
     pytest.importorskip("stable_baselines3")
     from elastic_gym.cli import main
-    from elastic_gym.folder_lock import folder_lock
+    from elastic_gym.runtime.folder_lock import folder_lock
 
     out = tmp_path / "run"
     with folder_lock(out), pytest.raises(SystemExit) as stopped:

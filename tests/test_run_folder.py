@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from elastic_gym.parallel import Interrupted
+from elastic_gym.runtime.parallel import Interrupted
 from elastic_gym.training import RunFolder, TrainConfig
 
 

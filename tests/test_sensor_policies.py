@@ -11,7 +11,7 @@ import yaml
 
 from elastic_gym.benchmark import run_benchmark
 from elastic_gym.benchmark.scorecard import scorecard_markdown
-from elastic_gym.cli import with_trained_policy
+from elastic_gym.cli.compare import with_trained_policy
 from elastic_gym.evaluation import plan_runs
 from elastic_gym.evaluation.groups import RunGroup
 from elastic_gym.evaluation.runner import ClosedLoop, build_world, execute, run_group

@@ -30,8 +30,8 @@ from elastic_gym.benchmark.entry import Entry, describe_entry, resolve_entry
 from elastic_gym.benchmark.scorecard import JSON_FILE, Scorecard, build_scorecard, write_scorecard
 from elastic_gym.benchmark.scoring import compute_scores, score_episodes
 from elastic_gym.benchmark.suite import DEFAULT_SUITE, SuiteConfig, load_suite, suite_scenario
-from elastic_gym.folder_lock import check_free
-from elastic_gym.parallel import DEFAULT_BACKEND
+from elastic_gym.runtime.folder_lock import check_free
+from elastic_gym.runtime.parallel import DEFAULT_BACKEND
 from elastic_gym.validation import validated
 
 DEFAULT_OUTPUT_ROOT = Path("benchmark_out")

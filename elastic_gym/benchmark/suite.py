@@ -25,6 +25,7 @@ from typing import Annotated, Any
 from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
+from elastic_gym.envs.ids import registered_env_id
 from elastic_gym.evaluation.scenario import (
     ControllerEntry,
     EnvEntry,
@@ -33,15 +34,7 @@ from elastic_gym.evaluation.scenario import (
     merge,
 )
 from elastic_gym.evaluation.scenario_models import env_parameters
-from elastic_gym.validation import (
-    StrictModel,
-    distinct,
-    errors_at,
-    known,
-    ordered,
-    registered_env_id,
-    validated,
-)
+from elastic_gym.validation import StrictModel, distinct, errors_at, known, ordered, validated
 from elastic_gym.yaml_io import load_yaml
 
 SUITE_DIR = Path(__file__).resolve().parent / "suites"

@@ -22,7 +22,7 @@ from typing import ClassVar
 import numpy as np
 
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import check_applies
+from elastic_gym.robots.spec import check_applies
 
 PUBLIC_INFO_KEYS = ("time", "reference")
 

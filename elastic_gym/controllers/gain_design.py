@@ -25,7 +25,8 @@ from scipy.optimize import brentq
 from scipy.signal import place_poles
 
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import Needs, PositiveFinite, option_value, stable_poles
+from elastic_gym.model.option_checks import Needs, stable_poles
+from elastic_gym.validation import PositiveFinite, option_value
 
 Block = Literal["motor", "link"]
 """The state block of a decentralized PD (:func:`pd_gain`)."""

@@ -22,13 +22,8 @@ import numpy as np
 from elastic_gym.controllers.base import Controller
 from elastic_gym.controllers.vector import OneArmLaw, StateLaw, arm_rows, twin_of
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import (
-    Matrix,
-    PositiveFinite,
-    StrictModel,
-    square_matrix,
-    validated_options,
-)
+from elastic_gym.model.option_checks import square_matrix
+from elastic_gym.validation import Matrix, PositiveFinite, StrictModel, validated_options
 
 CRISTOFARO_LAMBDA = 0.5
 CRISTOFARO_KP = (40.0, 60.0)

@@ -40,6 +40,7 @@ from elastic_gym.controllers.invdyn import (
 )
 from elastic_gym.controllers.vector import OneArmLaw, StateLaw, arm_rows, twin_of
 from elastic_gym.model import RobotModel
+from elastic_gym.model.option_checks import square_matrix
 from elastic_gym.validation import (
     Finite,
     Matrix,
@@ -49,7 +50,6 @@ from elastic_gym.validation import (
     errors_at,
     only_when,
     shaped,
-    square_matrix,
     validated_options,
 )
 

@@ -29,7 +29,8 @@ from elastic_gym.controllers.base import Controller, public_info
 from elastic_gym.controllers.invdyn import checked_reference_rows, info_time, state_vector
 from elastic_gym.controllers.registry import controller_class
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import check_applies, checked_count, only_when
+from elastic_gym.robots.spec import check_applies
+from elastic_gym.validation import checked_count, only_when
 
 ARM0 = np.array([0])
 

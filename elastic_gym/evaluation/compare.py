@@ -6,13 +6,14 @@ checked first (:mod:`~elastic_gym.evaluation.preflight`). The output folder hold
 ``runs.csv`` (a row per run, as it finishes), ``summary.csv`` / ``summary.md``,
 ``scenario.yaml`` and ``plots/``; with sweeps also ``margins.csv`` / ``margins.md`` and
 ``curves/``. An earlier comparison's folder is refused unless ``overwrite``, a folder
-another process writes into always (:mod:`~elastic_gym.folder_lock`). A run that fails
+another process writes into always (:mod:`~elastic_gym.runtime.folder_lock`). A run that fails
 (raises, calls ``sys.exit``, kills its process) is a row ``failed: <Type>: <message>``
 (counted in ``summary.md`` and ``Comparison.failed``); a full disk raises
 :class:`~elastic_gym.evaluation.output.ResultsWriteError` saying what ``runs.csv`` kept.
 Runs and checks run in spawned workers (one with ``workers=1``), which import a script's
 ``__main__`` only for classes defined there: then several workers need the ``__main__``
-guard, and one worker runs them in this process (:func:`~elastic_gym.parallel.for_each_result`).
+guard, and one worker runs them in this process
+(:func:`~elastic_gym.runtime.parallel.for_each_result`).
 """
 
 from __future__ import annotations
@@ -55,8 +56,8 @@ from elastic_gym.evaluation.runner import (
 )
 from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
 from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
-from elastic_gym.folder_lock import check_writable, folder_lock
-from elastic_gym.parallel import (
+from elastic_gym.runtime.folder_lock import check_writable, folder_lock
+from elastic_gym.runtime.parallel import (
     DEFAULT_BACKEND,
     interrupts_raised,
     resolve_workers,

@@ -22,7 +22,7 @@ from dataclasses import replace
 from elastic_gym.evaluation.report import METRIC_KEYS
 from elastic_gym.evaluation.runner import RunResult, RunSpec, env_robot, execute, plan_runs
 from elastic_gym.evaluation.scenario import Scenario
-from elastic_gym.parallel import DEFAULT_BACKEND
+from elastic_gym.runtime.parallel import DEFAULT_BACKEND
 from elastic_gym.validation import checked_count
 
 REFINEMENT = 8

@@ -23,7 +23,7 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
-from elastic_gym.folder_lock import check_free
+from elastic_gym.runtime.folder_lock import check_free
 
 RESULT_FILES = (
     "runs.csv",

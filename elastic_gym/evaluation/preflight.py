@@ -40,8 +40,8 @@ from elastic_gym.evaluation.runner import (
     run_model,
 )
 from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError
-from elastic_gym.parallel import for_each_result, user_failure
-from elastic_gym.process_pool import WorkerDiedError, WorkerPool
+from elastic_gym.runtime.parallel import for_each_result, user_failure
+from elastic_gym.runtime.process_pool import WorkerDiedError, WorkerPool
 
 SAMPLE_TIME = 0.05  # CPU s of closed loop timed per (env, controller, source) combination
 SAMPLE_STEPS = (3, 1000)  # fewest and most steps of a sample
@@ -71,7 +71,7 @@ class Estimate:
 
 @contextlib.contextmanager
 def _named(path: str | None) -> Iterator[None]:
-    """What the code inside raises for itself (:func:`~elastic_gym.parallel.user_failure`:
+    """What the code inside raises for itself (:func:`~elastic_gym.runtime.parallel.user_failure`:
     any exception, ``sys.exit``, its own ``KeyboardInterrupt``) becomes a
     :class:`ScenarioError` naming ``path``; with ``path`` None it only ends the code
     inside (a sample's closed loop: the runs report it)."""
@@ -210,7 +210,7 @@ def preflight(
     """Build everything the runs of ``groups`` need once (see the module docstring);
     raise :class:`ScenarioError` on the first failure; return the estimated wall time.
 
-    The checks run in a worker process (:func:`~elastic_gym.parallel.for_each_result`
+    The checks run in a worker process (:func:`~elastic_gym.runtime.parallel.for_each_result`
     with one worker; one of ``pool``, the runs' own workers, when given): user code that
     ends that process (``os._exit``, a signal, a segmentation fault) while its
     controller, observer or world is built is refused naming the field; in the closed

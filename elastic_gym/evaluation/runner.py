@@ -9,7 +9,7 @@ public info, never the truth. An arm that terminates
 gets its status row while its batch mates go on; a world that raises is rerun one run at a
 time, so only the run that raised fails.
 
-:func:`execute` runs the worlds with :func:`elastic_gym.parallel.for_each_result`: spawned
+:func:`execute` runs the worlds with :func:`elastic_gym.runtime.parallel.for_each_result`: spawned
 worker processes or Ray (``backend="ray"``, the same job function), with a progress bar.
 """
 
@@ -47,16 +47,16 @@ from elastic_gym.observers.registry import OBSERVERS, make_observer, source_clas
 from elastic_gym.observers.sensors import RawSensors
 from elastic_gym.observers.vector import ObserverWrapper as VectorObserverWrapper
 from elastic_gym.observers.vector import SensorWrapper
-from elastic_gym.parallel import (
+from elastic_gym.robots.catalog import get_robot
+from elastic_gym.robots.spec import RobotSpec
+from elastic_gym.runtime.parallel import (
     DEFAULT_BACKEND,
     for_each_result,
     resolve_workers,
     user_failure,
     worker_processes,
 )
-from elastic_gym.process_pool import WorkerDiedError, WorkerPool, refers_to_main
-from elastic_gym.robots.catalog import get_robot
-from elastic_gym.robots.spec import RobotSpec
+from elastic_gym.runtime.process_pool import WorkerDiedError, WorkerPool, refers_to_main
 
 STATUS_OK = "ok"
 
@@ -621,7 +621,7 @@ def execute(
 
     ``workers=1`` with the process backend runs in one worker process (in this one, with
     single-threaded BLAS, when the runs refer to classes of ``__main__``:
-    :func:`~elastic_gym.parallel.for_each_result`). Every result stays in memory with its
+    :func:`~elastic_gym.runtime.parallel.for_each_result`). Every result stays in memory with its
     time series; :func:`compare <elastic_gym.evaluation.compare>` streams them to disk
     instead.
     """

@@ -36,17 +36,11 @@ from pydantic import (
 
 import elastic_gym  # noqa: F401 - registers the env ids
 from elastic_gym.envs.config import EnvKwargs, KwargsSchema, checked_kwargs
+from elastic_gym.envs.ids import ENV_NAMESPACE, registered_env_id
 from elastic_gym.evaluation.controllers import controller_names
 from elastic_gym.model import ParameterScaling
 from elastic_gym.observers.registry import state_sources
-from elastic_gym.validation import (
-    ENV_NAMESPACE,
-    StrictModel,
-    distinct,
-    known,
-    lookup,
-    registered_env_id,
-)
+from elastic_gym.validation import StrictModel, distinct, known, lookup
 
 TRUE_STATE = "true"
 NOMINAL = "nominal"

@@ -20,7 +20,8 @@ import numpy as np
 
 from elastic_gym.arms import as_batch
 from elastic_gym.model import RobotModel
-from elastic_gym.validation import PositiveFinite, check_applies, numbers, option_value, shaped
+from elastic_gym.robots.spec import check_applies
+from elastic_gym.validation import PositiveFinite, numbers, option_value, shaped
 
 ELASTIC_STATE = ("theta", "q", "dtheta", "dq")
 RIGID_STATE = ("q", "dq")

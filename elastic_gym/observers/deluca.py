@@ -25,6 +25,7 @@ from pydantic import StrictBool, ValidationInfo, field_validator
 from scipy.linalg import expm
 
 from elastic_gym.model import RobotModel
+from elastic_gym.model.option_checks import Needs, PerSample
 from elastic_gym.model.rows import rows_matmul
 from elastic_gym.observers.base import BatchedObserver, arm_count
 from elastic_gym.observers.deluca_gains import (
@@ -35,8 +36,6 @@ from elastic_gym.observers.deluca_gains import (
     validate_poles,
 )
 from elastic_gym.validation import (
-    Needs,
-    PerSample,
     PositiveFinite,
     StrictModel,
     at_most_one,

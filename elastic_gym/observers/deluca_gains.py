@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from elastic_gym.validation import per_joint_values, stable_poles
+from elastic_gym.model.option_checks import stable_poles
+from elastic_gym.validation import per_joint_values
 
 POLES_PER_JOINT = 4
 DEFAULT_BANDWIDTH = 250.0  # rad/s, the value found best on the KR15/2 (Sec. V-A)

@@ -25,18 +25,16 @@ from pydantic import Field, StrictBool, ValidationInfo, field_validator
 from scipy.linalg import expm
 
 from elastic_gym.model import RobotModel
+from elastic_gym.model.option_checks import Needs, PerSample, square_matrix
 from elastic_gym.observers.base import BatchedObserver, arm_count
 from elastic_gym.observers.integration import rk4
 from elastic_gym.validation import (
     Matrix,
-    Needs,
     NonNegativeFinite,
-    PerSample,
     StrictModel,
     at_most_one,
     entry,
     numbers,
-    square_matrix,
     validated_options,
 )
 

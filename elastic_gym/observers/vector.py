@@ -26,12 +26,12 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from elastic_gym.arms import arm_view
+from elastic_gym.arms import arm_view, elastic_base
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, Observer
 from elastic_gym.observers.registry import make_observer
 from elastic_gym.observers.sensors import RawSensors
-from elastic_gym.validation import elastic_base, only_when
+from elastic_gym.validation import only_when
 
 NON_FINITE_STATE = "non-finite state"
 NON_FINITE_ESTIMATE = "non-finite state estimate"

@@ -143,6 +143,16 @@ def joint_kind(elastic: bool) -> str:
     return "elastic" if elastic else "rigid"
 
 
+def check_applies(kind: str, name: str, applies_to: frozenset[str], model) -> None:
+    """Refuse an observer/controller built for elastic arms on a rigid robot and vice versa."""
+    arm = model.spec.kind
+    if arm not in applies_to:
+        raise ValueError(
+            f"{kind} {name!r} applies to {sorted(applies_to)} arms, "
+            f"not to the {arm} robot {model.spec.name!r}"
+        )
+
+
 @dataclass(frozen=True)
 class RobotSpec:
     """Everything needed to simulate and model one arm.

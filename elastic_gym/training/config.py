@@ -35,6 +35,7 @@ from pydantic import (
 )
 
 from elastic_gym.envs.config import MakeKwargsMapping
+from elastic_gym.envs.ids import registered_env_id
 from elastic_gym.training.actions import ActionConfig
 from elastic_gym.training.distill import DistillConfig
 from elastic_gym.training.observation import ObservationConfig
@@ -49,7 +50,6 @@ from elastic_gym.validation import (
     numbers,
     only_when,
     plain,
-    registered_env_id,
     validated,
 )
 from elastic_gym.yaml_io import load_yaml

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from elastic_gym.parallel import single_threaded
+from elastic_gym.runtime.parallel import single_threaded
 
 Act = Callable[[np.ndarray], np.ndarray]
 

@@ -23,7 +23,7 @@ from typing import Any
 
 import yaml
 
-from elastic_gym.folder_lock import check_free, check_writable, folder_lock
+from elastic_gym.runtime.folder_lock import check_free, check_writable, folder_lock
 from elastic_gym.schemas import schema_comment
 from elastic_gym.training.config import TrainConfig, algorithm_class
 from elastic_gym.yaml_io import load_yaml
@@ -99,14 +99,14 @@ class RunFolder:
     def check(self, overwrite: bool = False) -> None:
         """Raise if the folder cannot receive a run (changes nothing): ``NotADirectoryError``
         if it is a file, ``PermissionError`` if it cannot be written (a read-only file
-        system, :func:`~elastic_gym.folder_lock.check_writable`), ``FileExistsError`` if it
+        system, :func:`~elastic_gym.runtime.folder_lock.check_writable`), ``FileExistsError`` if it
         holds an earlier run and not ``overwrite``."""
         check_free(self.path, self.earlier_run, "an earlier run", "--out", overwrite)
 
     def lock(self) -> contextlib.AbstractContextManager:
         """The folder's writer lock for a ``with`` block
-        (:func:`~elastic_gym.folder_lock.folder_lock`: another writer is refused with
-        :class:`~elastic_gym.folder_lock.FolderLockedError`); checked writable first."""
+        (:func:`~elastic_gym.runtime.folder_lock.folder_lock`: another writer is refused with
+        :class:`~elastic_gym.runtime.folder_lock.FolderLockedError`); checked writable first."""
         check_writable(self.path)
         return folder_lock(self.path)
 
@@ -118,9 +118,9 @@ class RunFolder:
         it), checked (:meth:`check`); with ``overwrite`` the earlier run's files are
         removed. If the block raises or is interrupted, what the run wrote is removed,
         and the folders made for it if left empty; a ``KeyboardInterrupt`` becomes
-        :class:`~elastic_gym.parallel.Interrupted` saying so.
+        :class:`~elastic_gym.runtime.parallel.Interrupted` saying so.
         """
-        from elastic_gym.parallel import Interrupted
+        from elastic_gym.runtime.parallel import Interrupted
 
         with self.lock() if lock else contextlib.nullcontext():
             self.check(overwrite)

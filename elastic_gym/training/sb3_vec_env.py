@@ -22,7 +22,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env import VecEnv
 
-from elastic_gym.process_pool import main_not_imported, refers_to_main
+from elastic_gym.runtime.process_pool import main_not_imported, refers_to_main
 
 
 def _row(obs: Any, i: int) -> Any:

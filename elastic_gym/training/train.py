@@ -11,7 +11,7 @@ steps, default a twentieth of the run, and at the end) that keeps the best model
 TensorBoard logs and a progress bar. The run folder
 (:class:`~elastic_gym.training.run_folder.RunFolder`) is refused if it holds an earlier
 run (unless ``overwrite``) and removed if the run fails or is interrupted. Training runs
-with single-threaded torch and BLAS (:func:`elastic_gym.parallel.single_threaded`).
+with single-threaded torch and BLAS (:func:`elastic_gym.runtime.parallel.single_threaded`).
 A finished folder loads back with :func:`~elastic_gym.training.trained.load_run`.
 """
 
@@ -26,7 +26,7 @@ from pathlib import Path
 
 from gymnasium.spaces import flatdim
 
-from elastic_gym.parallel import DEFAULT_BACKEND
+from elastic_gym.runtime.parallel import DEFAULT_BACKEND
 from elastic_gym.training.config import (
     Settings,
     TrainConfig,
@@ -85,12 +85,12 @@ def train(
     """Train one policy; write the run folder; return what happened.
 
     Raises before training if the folder holds an earlier run (unless ``overwrite``),
-    is written by another process (:class:`~elastic_gym.folder_lock.FolderLockedError`;
+    is written by another process (:class:`~elastic_gym.runtime.folder_lock.FolderLockedError`;
     ``lock=False``: the caller holds the folder's lock) or the config is invalid;
     removes what it wrote if training fails or is interrupted (then
-    :class:`~elastic_gym.parallel.Interrupted` says so).
+    :class:`~elastic_gym.runtime.parallel.Interrupted` says so).
     """
-    from elastic_gym.parallel import single_threaded
+    from elastic_gym.runtime.parallel import single_threaded
 
     settings, algo_kwargs = config.settings()  # a bad config changes nothing
     check_distill(config, settings)
@@ -260,7 +260,7 @@ def train_many(
 def _train_many_locked(
     configs: list[TrainConfig], workers: int | None, backend: str, progress: bool, overwrite: bool
 ) -> list[TrainResult]:
-    from elastic_gym.parallel import for_each_result, with_detail
+    from elastic_gym.runtime.parallel import for_each_result, with_detail
 
     check_configs(configs, overwrite)
     created = {folder for c in configs for folder in missing_folders(c.out_dir)}

@@ -22,7 +22,7 @@ from elastic_gym.evaluation.groups import RunGroup
 from elastic_gym.evaluation.runner import RunResult, RunSpec, run_group
 from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry
 from elastic_gym.observers.registry import source_class
-from elastic_gym.parallel import single_threaded
+from elastic_gym.runtime.parallel import single_threaded
 from elastic_gym.training.config import Settings, TrainConfig
 from elastic_gym.training.rollouts import Evaluation, PolicyActor
 from elastic_gym.training.run_envs import PolicyStack

@@ -24,8 +24,8 @@ from typing import Any
 from rich.progress import Progress
 from threadpoolctl import threadpool_limits
 
-from elastic_gym.orphan_reaper import start_reaper
-from elastic_gym.process_pool import WorkerDiedError, WorkerPool, refers_to_main
+from elastic_gym.runtime.orphan_reaper import start_reaper
+from elastic_gym.runtime.process_pool import WorkerDiedError, WorkerPool, refers_to_main
 from elastic_gym.validation import checked_count, lookup
 
 BACKENDS = ("process", "ray")
@@ -163,11 +163,11 @@ def for_each_result(
     fault): with ``crashed``, ``crashed(job, WorkerDiedError)`` is that job's result and the
     other jobs go on (a fresh worker replaces the dead one); without it, a
     ``RuntimeError`` naming that job. Workers end when this process ends, however it
-    ends (:mod:`~elastic_gym.process_pool`; Ray: :mod:`~elastic_gym.orphan_reaper`).
+    ends (:mod:`~elastic_gym.runtime.process_pool`; Ray: :mod:`~elastic_gym.runtime.orphan_reaper`).
 
     ``backend="process"``: spawned worker processes, one with ``workers=1``; only jobs
     that refer to ``__main__`` (a class defined in a notebook or in the script; see
-    :func:`~elastic_gym.process_pool.refers_to_main`) run in this process with one worker,
+    :func:`~elastic_gym.runtime.process_pool.refers_to_main`) run in this process with one worker,
     where code that ends its process ends this one.
     ``backend="ray"``: a local Ray runtime with ``workers`` CPUs is started unless
     ``ray.init`` was already called, or the environment variable ``RAY_ADDRESS`` names a

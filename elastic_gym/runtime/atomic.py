@@ -1,0 +1,51 @@
+"""Files that are either the old version or the whole new one, never a truncated mix.
+
+A result file (a scorecard, a table, a figure, a run folder's config) is written to a
+temporary file beside its target and moved over it with `os.replace`, which POSIX makes
+atomic within one file system: a process killed or a disk that fills while writing leaves
+the earlier file (or none) and removes the temporary one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | os.PathLike, mode: str = "w", **open_kwargs: Any) -> Iterator[IO]:
+    """Open a temporary file beside `path` for writing (`mode` "w" or "wb"); on a normal
+    exit it is flushed to disk and renamed to `path`; on an exception it is removed and
+    `path` is left as it was."""
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_file writes whole files: mode 'w' or 'wb', got {mode!r}")
+    target = Path(path)
+    handle, scratch = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
+    try:
+        with open(handle, mode, **open_kwargs) as stream:
+            yield stream
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(scratch, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(scratch)
+        raise
+
+
+def write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> Path:
+    """Write `text` to `path` atomically (`atomic_file`); returns the path."""
+    with atomic_file(path, "w", encoding=encoding, newline="") as stream:
+        stream.write(text)
+    return Path(path)
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write `data` to `path` atomically (`atomic_file`); returns the path."""
+    with atomic_file(path, "wb") as stream:
+        stream.write(data)
+    return Path(path)
