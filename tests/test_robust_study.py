@@ -1,4 +1,4 @@
-"""The robustness study of policies (``benchmarks/robust_study.py``): its plants are the
+"""The robustness study of policies (``studies/robust_study.py``): its plants are the
 plants they say, its rows are the ``elastic-gym train`` commands they print, its targets
 are computed from the evaluations, and a tiny study writes every report file."""
 
@@ -18,7 +18,7 @@ import pytest
 
 from elastic_gym.training.run_envs import PolicyStack
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "studies"))
 import robust_study as rs
 
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"

@@ -4,6 +4,7 @@ state, one run or one per seed."""
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import TYPE_CHECKING
 
 from elastic_gym.cli.common import default, require_rl_extra, yaml_mapping
@@ -123,6 +124,12 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--workers", type=int, help="parallel runs (default: one per CPU)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--print-config",
+        action="store_true",
+        help="print the configuration of each run this command would train (a YAML list of "
+        "TrainConfig mappings) and exit without training or writing anything",
+    )
     parser.set_defaults(handler=run_train)
 
 
@@ -180,6 +187,11 @@ def run_train(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
+    if args.print_config:
+        import yaml
+
+        sys.stdout.write(yaml.safe_dump([c.to_dict() for c in train_configs(args)], sort_keys=False))
+        return 0
     require_rl_extra("elastic-gym train")
     from elastic_gym.training import RunFolder, train, train_many
 

@@ -1,8 +1,8 @@
 """Are a comparison's metrics converged in the physics step?
 
-    python benchmarks/convergence.py                       # the default grid, 1/8 refinement
-    python benchmarks/convergence.py --preset robustness --sweep nominal --seeds 0
-    python benchmarks/convergence.py --preset default --physics-dt 5e-4   # the old step
+    python studies/convergence.py                       # the default grid, 1/8 refinement
+    python studies/convergence.py --preset robustness --sweep nominal --seeds 0
+    python studies/convergence.py --preset default --physics-dt 5e-4   # the old step
 
 Runs every run of a preset at the scenario's physics step h and at h / 8 (same seeds)
 and prints, per metric, the worst relative difference and the runs that are not within

@@ -1,6 +1,6 @@
 """Size of each reward term for controllers and policies on the same tracking episodes.
 
-    python benchmarks/reward_terms.py [--seeds 0 1 2] [--policy RUN ...]
+    python studies/reward_terms.py [--seeds 0 1 2] [--policy RUN ...]
 
 Rows: eq. (13) on the true state, motor PD (INVDYN feedforward) on the motor encoders
 (filtered differences, the comparison's motor-only law), the motor-offset PD of the

@@ -1,8 +1,8 @@
 """Stress test of elastic-gym: many random-action episodes on every env id and wrapper.
 
-    python benchmarks/stress.py       # 100 episodes of <= 500 steps per (id, wrapper): 3000
-    python benchmarks/stress.py --episodes 20 --steps 500 --ids elastic_gym/KR15Elastic-v0
-    python benchmarks/stress.py --wrappers raw deluca ekf --workers 2
+    python studies/stress.py       # 100 episodes of <= 500 steps per (id, wrapper): 3000
+    python studies/stress.py --episodes 20 --steps 500 --ids elastic_gym/KR15Elastic-v0
+    python studies/stress.py --wrappers raw deluca ekf --workers 2
 
 Wrappers: ``raw`` (the sensor observation), ``true-state`` (``TrueStateWrapper``) and
 ``ObserverWrapper`` with every observer name that applies to the arm. Each episode draws
@@ -27,7 +27,9 @@ from dataclasses import dataclass, field
 
 import gymnasium as gym
 import numpy as np
-from timing import print_table
+from rich import box
+from rich.console import Console
+from rich.table import Table
 
 import elastic_gym
 from elastic_gym.observers import ObserverWrapper, TrueStateWrapper
@@ -202,20 +204,25 @@ def report(jobs: list[Job], tallies: list[Tally]) -> Tally:
             total.non_finite_steps,
         )
     )
-    print_table(
-        "stress: random-action episodes (targets: 0 crashes, 0 non-finite)",
-        (
-            "env",
-            "wrapper",
-            "episodes",
-            "steps",
-            "truncated",
-            "terminated (reason)",
-            "crashes",
-            "non-finite steps",
-        ),
-        rows,
+    headers = (
+        "env",
+        "wrapper",
+        "episodes",
+        "steps",
+        "truncated",
+        "terminated (reason)",
+        "crashes",
+        "non-finite steps",
     )
+    table = Table(
+        *headers,
+        title="stress: random-action episodes (targets: 0 crashes, 0 non-finite)",
+        box=box.MARKDOWN,
+        title_justify="left",
+    )
+    for row in rows:
+        table.add_row(*(str(cell) for cell in row))
+    Console(width=160).print(table)
     for line in total.first_errors:
         print("crash:", line)
     return total

@@ -1,9 +1,9 @@
 """Regenerate the shipped leaderboard of the elastic-gym benchmark.
 
-    python benchmarks/leaderboard.py                   # score every shipped entry, rebuild
-    python benchmarks/leaderboard.py --entries eq13@deluca motor-pd@finite-difference
-    python benchmarks/leaderboard.py --train           # first train the RL baselines
-    python benchmarks/leaderboard.py --rebuild         # only rebuild docs/leaderboard.md
+    python studies/leaderboard.py                   # score every shipped entry, rebuild
+    python studies/leaderboard.py --entries eq13@deluca motor-pd@finite-difference
+    python studies/leaderboard.py --train           # first train the RL baselines
+    python studies/leaderboard.py --rebuild         # only rebuild docs/leaderboard.md
 
 1. ``--train``: the RL baselines' run folders (``runs/benchmark/<name>``) with
    ``elastic-gym train``'s defaults and fixed training seeds (``RL_BASELINES``): pure PPO

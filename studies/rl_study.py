@@ -1,8 +1,8 @@
 """The RL study of the README: RL policies on the true state, on estimates and on raw
 sensors, next to eq. (13), eq. (13) with integral action and motor PD on the same sources.
 
-    nohup python benchmarks/rl_study.py > rl_study.log 2>&1 &    # the whole study, background
-    python benchmarks/rl_study.py --report                         # tables + figures only
+    nohup python studies/rl_study.py > rl_study.log 2>&1 &    # the whole study, background
+    python studies/rl_study.py --report                         # tables + figures only
 
 Steps (each skips what an earlier invocation finished, so an interrupted study resumes
 where it stopped; ``--fresh`` starts over):
@@ -23,7 +23,7 @@ where it stopped; ``--fresh`` starts over):
    policy stack (a residual action kind with a zero action is its base controller).
    Tracking RMS as the comparison's ``track_rms``: sqrt(mean |q - q_d|^2), norm over the
    joints, at the policy rate (100 Hz).
-3. Report, into ``--out`` (default ``docs/rl_study/``): ``table.md`` / ``table.csv`` (per
+3. Report, into ``--out`` (default ``docs/results/rl_study/``): ``table.md`` / ``table.csv`` (per
    row: mean over training seeds of the RMS over the evaluation episodes, and the range
    over training seeds), ``evaluations.csv`` (every run x plant x episode),
    ``targets.md`` (the targets of the study: measured, bound, met or missed),
@@ -759,7 +759,7 @@ RL_STUDY = Study(
     CLASSICAL,
     report,
     "runs/rl_study",
-    "docs/rl_study",
+    "docs/results/rl_study",
     kr15_classical=KR15_CLASSICAL,
 )
 

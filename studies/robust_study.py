@@ -2,10 +2,10 @@
 with domain randomization, next to eq. (13), eq. (13) with integral action and motor PD,
 on eight plants the model does not know.
 
-    python benchmarks/robust_study.py               # train what is missing, evaluate, report
-    python benchmarks/robust_study.py --report      # no training: evaluate finished runs, report
-    python benchmarks/robust_study.py --commands    # the elastic-gym train command of each run
-    python benchmarks/robust_study.py --runs DIR    # run folders DIR/<row>/seed<k>
+    python studies/robust_study.py               # train what is missing, evaluate, report
+    python studies/robust_study.py --report      # no training: evaluate finished runs, report
+    python studies/robust_study.py --commands    # the elastic-gym train command of each run
+    python studies/robust_study.py --runs DIR    # run folders DIR/<row>/seed<k>
 
 The training, evaluation and report machinery is the RL study's (``rl_study.py``: resumed
 training, cached evaluations, learning curves); this file holds what differs:
@@ -20,7 +20,7 @@ training, cached evaluations, learning curves); this file holds what differs:
    ``CLASSICAL`` on ``EVAL_EPISODES`` fresh episodes (seeds 100000 ...: never a training
    or learning-curve seed) of the comparison's tracking task on each plant of ``PLANTS``:
    every plant kwarg at the env's default (no randomization) but the one changed.
-3. Report into ``--out`` (default ``docs/robust_study/``): ``table.md`` / ``table.csv``
+3. Report into ``--out`` (default ``docs/results/robust_study/``): ``table.md`` / ``table.csv``
    (loop x source x plant: the RMS over the episodes' samples, mean and range over
    training seeds), ``evaluations.csv``, ``targets.md`` (the issue's four targets, computed
    from the evaluations), ``robust_rms.png``, ``rows.md``, ``runs.md`` (the runs
@@ -41,10 +41,9 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 import elastic_gym
-from elastic_gym.cli import build_parser
-from elastic_gym.cli.train import train_configs
 from elastic_gym.envs.config import PER_ARM_KEYS, EnvConfig
 from elastic_gym.training import TrainConfig
 from elastic_gym.training.config import merged_hyperparams
@@ -66,6 +65,7 @@ from rl_study import (
 INTEGRAL = "integral-state-feedback"
 LOAD_IDENTIFIED = {"load_identification": "shared"}  # one scale for all links, the plants'
 ENCODERS = "finite-difference"  # motor encoders, filtered differences: no K, B or accelerometer
+TRAIN_COMMAND = (sys.executable, "-m", "elastic_gym.cli", "train")  # the public command
 HYPERPARAMS = Path(elastic_gym.__file__).resolve().parent / "training" / "hyperparams"
 
 # key, training seeds, hyper-parameter file (None: the shipped one), `elastic-gym train` arguments
@@ -163,8 +163,15 @@ class Row:
         return [*argv, "--seeds", str(seed), "--out", str(runs / self.key / f"seed{seed}")]
 
     def config(self, seed: int, runs: Path) -> TrainConfig:
-        (config,) = train_configs(build_parser().parse_args(["train", *self.argv(seed, runs)]))
-        return config
+        """What ``elastic-gym train <argv> --print-config`` says the command trains."""
+        output = subprocess.run(
+            [*TRAIN_COMMAND, *self.argv(seed, runs), "--print-config"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+        (config,) = yaml.safe_load(output)
+        return TrainConfig.from_dict(config)
 
     @cached_property
     def _config(self) -> TrainConfig:
@@ -422,7 +429,7 @@ def stamp(out: Path) -> None:
     today = datetime.datetime.now(datetime.UTC).date().isoformat()
     (out / "stamp.md").write_text(
         f"elastic-gym {elastic_gym.__version__} (commit `{commit}`), {today}; "
-        f"regenerate: `python benchmarks/robust_study.py` (`--report` from the saved "
+        f"regenerate: `python studies/robust_study.py` (`--report` from the saved "
         f"evaluations, `--runs DIR` for other run folders).\n"
     )
 
@@ -523,7 +530,7 @@ ROBUST_STUDY = Study(
     CLASSICAL,
     report,
     "runs/robust_study",
-    "docs/robust_study",
+    "docs/results/robust_study",
     zero_offset=False,
     eval_episodes=EVAL_EPISODES,
     command=command,
