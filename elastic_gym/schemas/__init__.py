@@ -27,6 +27,8 @@ SCHEMAS = {
     "train": "elastic_gym.training.config:HyperparameterFile",  # hyper-parameter files
     "suite": "elastic_gym.benchmark.suite:SuiteConfig",
     "run": "elastic_gym.training.config:TrainConfig",  # a run folder's config.yaml
+    "log": "elastic_gym.logs.sidecar:LogSidecar",  # a sensor log's sidecar <log>.yaml
+    "robot": "elastic_gym.robots.description:RobotDescription",  # robot description files
 }
 
 
