@@ -6,8 +6,8 @@ of De Luca et al. (2007), model (1)/(2) — stiffness K, motor inertia B, dampin
 optionally the constant coupling S — the torque limits and the accelerometer mounts:
 
 `name: my_arm`, `urdf: my_arm.urdf`, `joint_names: [shoulder, elbow]`, `stiffness: [3000.0,
-1800.0]`, ... (the guide "Your robot's data" has a whole file). A sensor log's sidecar may name such a file instead of an env id. Errors name the file
-and the field (`my_arm.yaml: stiffness: ...`).
+1800.0]`, ... (the guide "Your robot's data" has a whole file). A sensor log's sidecar may
+name such a file instead of an env id. Errors name the file and the field.
 """
 
 from __future__ import annotations
