@@ -24,8 +24,9 @@ import sys
 
 import llvmlite.binding as llvm
 import numpy as np
-import pybullet as p
 from numba import njit, types
+
+from elastic_gym.envs.pybullet_quiet import pybullet as p
 
 _HANDLE = types.intp  # C pointers as integers (the same registers on x86-64 and arm64)
 _TABLE = "sPhysicsClients1"  # pybullet.c: static b3PhysicsClientHandle [MAX_PHYSICS_CLIENTS]

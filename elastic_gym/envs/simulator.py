@@ -25,11 +25,11 @@ import sys
 from itertools import chain
 
 import numpy as np
-import pybullet as p
 from numba import njit
 
 from elastic_gym.envs import bullet_capi
 from elastic_gym.envs.plant import PAYLOAD_LINK, PlantArray, last_link, payload_urdf
+from elastic_gym.envs.pybullet_quiet import pybullet as p
 from elastic_gym.model import RobotModel, SerialChain
 from elastic_gym.model.chain import (
     _dynamics_and_forces_kernel,

@@ -1,0 +1,35 @@
+"""The project's habits that code can hold: a quiet start, short commit subjects."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_importing_the_simulator_and_listing_presets_print_no_banner():
+    code = (
+        "import elastic_gym.envs; from elastic_gym.cli import main; "
+        "main(['compare', '--list-presets'])"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "pybullet build time" not in done.stdout + done.stderr
+    assert done.stdout.splitlines()[0].strip()  # the presets, first
+
+
+def test_the_commit_msg_hook_refuses_a_subject_over_72_characters():
+    config = yaml.safe_load((ROOT / ".pre-commit-config.yaml").read_text())
+    assert "commit-msg" in config["default_install_hook_types"]
+    (hook,) = [
+        h for r in config["repos"] for h in r["hooks"] if "commit-msg" in h.get("stages", [])
+    ]
+    assert hook["language"] == "pygrep" and "--multiline" in hook["args"]
+    refused = re.compile(hook["entry"])  # pygrep: a match anywhere in the file fails the hook
+    assert refused.search("x" * 73 + "\n\nbody\n")
+    assert not refused.search("x" * 72 + "\n\n" + "a long body line " * 10 + "\n")
+    assert not refused.search("short\n")
