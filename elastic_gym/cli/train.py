@@ -190,7 +190,8 @@ def run_train(args: argparse.Namespace) -> int:
     if args.print_config:
         import yaml
 
-        sys.stdout.write(yaml.safe_dump([c.to_dict() for c in train_configs(args)], sort_keys=False))
+        resolved = [config.to_dict() for config in train_configs(args)]
+        sys.stdout.write(yaml.safe_dump(resolved, sort_keys=False))
         return 0
     require_rl_extra("elastic-gym train")
     from elastic_gym.training import RunFolder, train, train_many

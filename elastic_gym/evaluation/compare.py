@@ -12,8 +12,7 @@ another process writes into always (:mod:`~elastic_gym.runtime.folder_lock`). A 
 :class:`~elastic_gym.evaluation.output.ResultsWriteError` saying what ``runs.csv`` kept.
 Runs and checks run in spawned workers (one with ``workers=1``), which import a script's
 ``__main__`` only for classes defined there: then several workers need the ``__main__``
-guard, and one worker runs them in this process
-(:func:`~elastic_gym.runtime.parallel.for_each_result`).
+guard, and one worker runs them here (:func:`~elastic_gym.runtime.parallel.for_each_result`).
 """
 
 from __future__ import annotations
