@@ -1,0 +1,375 @@
+"""A compiled 4th-order Runge-Kutta integrator of N elastic (or rigid) arms, per-arm plants.
+
+The state of arm k is x = (theta, q, theta', q') (De Luca et al. 2007, eq. (3)); its
+derivative x' = (theta', q', theta'', q'') under the motor torque tau and an external
+link-side torque tau_e, both held over a control period (events, such as a torque pulse
+or a payload picked up, happen on period boundaries):
+
+* model (1): tau_J = K (theta - q) + D (theta' - q'),
+  M(q) q'' + n(q, q') = tau_J - d(q') + tau_e,  theta'' = B^-1 (tau - tau_J);
+* model (2) with constant S, in the Schur-complement form:
+  (M(q) - S B^-1 S^T) q'' = tau_J - d(q') + tau_e - S B^-1 (tau - tau_J) - n(q, q'),
+  theta'' = B^-1 (tau - tau_J - S^T q'');
+* rigid arms: M(q) q'' + n(q, q') = tau - d(q') + tau_e, and theta = q;
+
+d(q') = F_v q' + c tanh(q' / v_s) the link friction (c = c+ or c- by the sign of q'),
+M and n from the chain's Newton-Euler recursion ([`SerialChain`][elastic_gym.model.SerialChain],
+so a payload or scaled links are a per-arm chain).
+
+One step of size h is the classical Runge-Kutta method (Hairer, Norsett & Wanner,
+*Solving ODEs I*, Table II.1.2): k1 = f(x), k2 = f(x + h/2 k1), k3 = f(x + h/2 k2),
+k4 = f(x + h k3), x+ = x + h (k1 + 2 k2 + 2 k3 + k4) / 6, global error O(h^4). The
+derivative at the new state, k5 = f(x+), is needed anyway (it is the next step's k1 and
+gives the period's final q'' and accelerometer readings); with it the weights
+(1/6, 1/3, 1/3, 0, 1/6) make a third-order solution (they satisfy the four order
+conditions of order 3), so e = x+ - x+^(3) = h (k4 - k5) / 6 estimates the local error of
+a third-order step at no extra cost, an upper bound of the RK4 step's own local error
+(as in the 'RK4(3)' pairs of Hairer et al., Sec. II.4).
+
+Step-size control, per arm and per control period T: the period is cut into m equal
+substeps; if the scaled error max_i |e_i| / tol_i of a substep exceeds 1, the period is
+integrated again from its start with 2 m (up to a maximum); after a period whose largest
+scaled error is below 1/32 (the error of a step twice as long, 16 times larger, is then
+below 1/2), the next period starts with m / 2. So each period ends exactly on the
+control boundary, with the held inputs' discontinuities there, and stiff stretches
+(the Coulomb tanh near q' = 0, a light wrist's torsion mode) get the substeps they need
+and no more. Positions are scaled by the position tolerance, rates by the rate
+tolerance.
+
+Exactness: every arm is integrated by itself (its own substep count, its own rows of
+the plant), by the same operations in the same order whatever N: arm i of a batch is
+bit-identical to the same arm alone. The substep counts are part of the state a caller
+must keep, reset and copy with it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from elastic_gym.model.chain import (
+    SerialChain,
+    _arm_params,
+    _cholesky_solve,
+    _mass_and_bias_arm,
+    _work_size,
+    _workspace,
+)
+from elastic_gym.model.packed import Packed
+
+MAX_SUBSTEPS = 256
+"""The most substeps of one control period by default (the step-size control stops
+halving the step there)."""
+
+SHRINK_BELOW = 1.0 / 32.0
+"""A period whose largest scaled error is below this lets the next one halve its substeps."""
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """Local error tolerances of one substep: positions (rad) and rates (rad/s)."""
+
+    position: float = 1e-9
+    rate: float = 1e-6
+
+
+@njit(cache=True, inline="always")
+def _friction(k, j, v, plant):
+    """d(q'_j) of arm k: F_v q' + c tanh(q' / v_s), c = c+ or c- by the sign."""
+    viscous, c_pos, c_neg, smoothing, has_friction, has_coulomb = plant[3:9]
+    if not has_friction:
+        return 0.0
+    d = viscous[k, j] * v
+    if has_coulomb:
+        s = np.tanh(v / smoothing[k])
+        d += (c_pos[k, j] if s > 0.0 else c_neg[k, j]) * s
+    return d
+
+
+@njit(cache=True, inline="always")
+def _derivative(k, x, tau, ext, plant, constants, stacked, ws, buf, out):
+    """out = x' of arm k at x (4 n), motor torques ``tau`` (n), link torques ``ext`` (n,
+    or an empty array: none). ``buf``: (4, n) scratch (tau_J, the link torque, theta'',
+    a product)."""
+    n = tau.shape[0]
+    K, D, B_inv = plant[0], plant[1], plant[2]
+    elastic, coupled, SBinv, schur, ST = plant[9], plant[10], plant[11], plant[12], plant[13]
+    small, links, bodies, dyn = ws
+    M, h, rhs = dyn
+    zero_n = bodies[8]
+    q = x[n : 2 * n]
+    dq = x[3 * n :]
+    tau_j, link, ddtheta = buf[0], buf[1], buf[2]
+    for j in range(n):
+        out[j] = x[2 * n + j]
+        out[n + j] = dq[j]
+        friction = _friction(k, j, dq[j], plant)
+        if elastic:
+            torque = K[k, j] * (x[j] - q[j]) + D[k, j] * (x[2 * n + j] - dq[j])
+            tau_j[j] = torque
+            link[j] = torque - friction
+            ddtheta[j] = tau[j] - torque  # B theta'' before the coupling and B^-1
+        else:
+            link[j] = tau[j] - friction
+        if ext.shape[0]:
+            link[j] += ext[j]
+    chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
+    _mass_and_bias_arm(
+        q, dq, zero_n, minus_gravity, chain, bodies_p, M, h, links, small, bodies, True
+    )
+    for a in range(n):
+        value = link[a] - h[a]
+        if coupled:
+            for c in range(n):
+                value -= SBinv[k, a, c] * ddtheta[c]
+                M[a, c] += schur[k, a, c]
+        rhs[a] = value
+    ddq = out[3 * n :]
+    _cholesky_solve(M, rhs, ddq)
+    for j in range(n):
+        if not elastic:
+            out[2 * n + j] = ddq[j]
+            continue
+        value = ddtheta[j]
+        if coupled:
+            for c in range(n):
+                value -= ST[k, j, c] * ddq[c]
+        out[2 * n + j] = B_inv[k, j] * value
+
+
+@njit(cache=True)
+def _arm_period(k, x0, tau, ext, period, m, packed, stages, buf, ws, stacked):
+    """Integrate arm k over ``period`` in m RK4 substeps from x0 (4 n) into stages[5];
+    stages[4] = f at the end. Returns the largest scaled error estimate of the substeps
+    (stops early once it exceeds 1). One call site of `_derivative` (inlined), in
+    a loop over the stages: five inlined copies of the Newton-Euler recursion cost more
+    in instruction cache than the loop's branches."""
+    plant, constants, inv_tol = packed.values[0], packed.values[1], packed.values[3]
+    size = x0.shape[0]
+    n = size // 4
+    x, xs = stages[5], stages[6]
+    h = period / m
+    half = 0.5 * h
+    sixth = h / 6.0
+    for i in range(size):
+        x[i] = x0[i]
+        xs[i] = x0[i]
+    worst = 0.0
+    stage = 0
+    done = 0
+    while True:
+        _derivative(k, xs, tau, ext, plant, constants, stacked, ws, buf, stages[stage])
+        if stage == 4:  # k5 = f(x+): the error of the substep, the next one's k1
+            k1, k4, k5 = stages[0], stages[3], stages[4]
+            for i in range(size):
+                e = abs(sixth * (k4[i] - k5[i])) * (inv_tol[0] if i < 2 * n else inv_tol[1])
+                if not e <= worst:  # NaN counts as too large
+                    worst = e if e == e else np.inf
+            done += 1
+            if worst > 1.0 or done == m:
+                return worst
+            for i in range(size):
+                k1[i] = k5[i]
+            stage = 1
+        else:
+            stage += 1
+        if stage == 4:  # x+ = x + h (k1 + 2 k2 + 2 k3 + k4) / 6
+            k1, k2, k3, k4 = stages[0], stages[1], stages[2], stages[3]
+            for i in range(size):
+                x[i] = x[i] + sixth * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+                xs[i] = x[i]
+        else:
+            step = h if stage == 3 else half
+            previous = stages[stage - 1]
+            for i in range(size):
+                xs[i] = x[i] + step * previous[i]
+
+
+@njit(cache=True)
+def rk4_period_kernel(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, packed):
+    """One control period of every arm (see the module docstring), in place: the state
+    (theta, theta', q, q' (N, n)) advanced under ``tau`` (N, n) and ``ext`` ((N, n) or
+    (N, 0): none), the substep counts ``substeps`` (N,) updated, q'' at the end into
+    ``ddq``. ``packed``: (plant, chain constants, the chain's scratch, 1 / tolerances,
+    the fewest and the most substeps). Returns the total number of substeps taken
+    (rejected ones included)."""
+    plant, constants, w, _, least, most = packed.values
+    N, n = q.shape
+    stacked = constants[1].shape[0] > 1
+    ws = _workspace(n, w)
+    stages = np.empty((7, 4 * n))
+    buf = np.empty((4, n))
+    x0 = np.empty(4 * n)
+    work = 0
+    no_ext = ext.shape[1] == 0
+    for k in range(N):
+        for j in range(n):
+            x0[j] = theta[k, j]
+            x0[n + j] = q[k, j]
+            x0[2 * n + j] = dtheta[k, j]
+            x0[3 * n + j] = dq[k, j]
+        m = min(max(substeps[k], least), most)
+        arm_ext = ext[k, :0] if no_ext else ext[k]
+        while True:
+            worst = _arm_period(k, x0, tau[k], arm_ext, period, m, packed, stages, buf, ws, stacked)
+            work += m
+            if worst <= 1.0 or m >= most:
+                break
+            m = min(2 * m, most)
+        if worst < SHRINK_BELOW and m // 2 >= least:
+            m = m // 2
+        substeps[k] = m
+        x, end = stages[5], stages[4]
+        for j in range(n):
+            theta[k, j] = x[j]
+            q[k, j] = x[n + j]
+            dtheta[k, j] = x[2 * n + j]
+            dq[k, j] = x[3 * n + j]
+            ddq[k, j] = end[3 * n + j]
+    return work
+
+
+@njit(cache=True)
+def derivative_kernel(theta, dtheta, q, dq, tau, ext, out, packed):
+    """x' (N, 4 n) of every arm at its state (the right-hand side the integrator steps)."""
+    plant, constants, w = packed.values[0], packed.values[1], packed.values[2]
+    N, n = q.shape
+    stacked = constants[1].shape[0] > 1
+    ws = _workspace(n, w)
+    buf = np.empty((4, n))
+    x = np.empty(4 * n)
+    no_ext = ext.shape[1] == 0
+    for k in range(N):
+        for j in range(n):
+            x[j] = theta[k, j]
+            x[n + j] = q[k, j]
+            x[2 * n + j] = dtheta[k, j]
+            x[3 * n + j] = dq[k, j]
+        arm_ext = ext[k, :0] if no_ext else ext[k]
+        _derivative(k, x, tau[k], arm_ext, plant, constants, stacked, ws, buf, out[k])
+
+
+class ArmIntegrator:
+    """RK4 with step-size control of N arms (see the module docstring).
+
+    Args:
+        chain: the arms' chain (one parameter set, or stacked per arm: a payload, scaled
+            links).
+        transmission: (K, D, B^-1, F_v, c+, c-, v_s (N,), has friction, has Coulomb)
+            with a leading arm axis (N, n), as ``PlantArray.transmission`` holds them.
+        coupling: (S B^-1, -S B^-1 S^T, S^T) (N, n, n) for model (2), or None.
+        elastic: elastic joints (model (1)/(2)) or rigid ones (theta = q).
+        tolerance: the local error tolerances of a substep.
+        substeps: (fewest, most) substeps of a control period; equal: a fixed step.
+
+    ``substeps_now`` (N,) holds each arm's substep count for its next period (state of
+    the arm: `reset` sets it, a copy of the arm copies it). The arrays are read at
+    every call (changes made in place between periods are seen: a plant changed at a
+    period boundary); after replacing one, call `repack`.
+    """
+
+    def __init__(
+        self,
+        chain: SerialChain,
+        transmission: tuple,
+        coupling: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+        elastic: bool,
+        tolerance: Tolerance | None = None,
+        substeps: tuple[int, int] = (1, MAX_SUBSTEPS),
+    ) -> None:
+        tolerance = tolerance or Tolerance()
+        if not (tolerance.position > 0.0 and tolerance.rate > 0.0):
+            raise ValueError(f"integrator tolerances must be > 0, got {tolerance}")
+        least, most = substeps
+        if not 1 <= least <= most <= 2**20:
+            raise ValueError(
+                f"integrator substeps (fewest, most) must satisfy 1 <= fewest <= most <= "
+                f"2^20, got {substeps}"
+            )
+        self.chain = chain
+        self.transmission = transmission
+        self.coupling = coupling
+        self.elastic = bool(elastic)
+        self.tolerance = tolerance
+        self.substeps = (int(least), int(most))
+        self.n_arms = len(transmission[0])
+        self.substeps_now = np.full(self.n_arms, least, dtype=np.int64)
+        self.repack()
+
+    def repack(self) -> None:
+        """Pack the kernels' arguments again (after an array was replaced)."""
+        n, arms = self.chain.n, self.n_arms
+        if self.coupling is None:
+            empty = np.zeros((arms, n, n))
+            coupling: tuple = (empty, empty, empty)
+        else:
+            coupling = tuple(np.ascontiguousarray(c, dtype=np.float64) for c in self.coupling)
+        plant = (*self.transmission, self.elastic, self.coupling is not None, *coupling)
+        tol = self.tolerance
+        self._work = np.empty(_work_size(n))
+        self._packed = Packed(
+            (
+                plant,
+                self.chain._kernel_constants(),
+                self._work,
+                np.array([1.0 / tol.position, 1.0 / tol.rate]),
+                np.int64(self.substeps[0]),
+                np.int64(self.substeps[1]),
+            )
+        )
+        self._no_ext = np.zeros((arms, 0))
+
+    def reset(self, arms: np.ndarray | slice = slice(None)) -> None:
+        """New episodes of ``arms``: their next period starts with the fewest substeps."""
+        self.substeps_now[arms] = self.substeps[0]
+
+    def _arrays(self, *arrays: np.ndarray) -> None:
+        shape = (self.n_arms, self.chain.n)
+        for a in arrays:
+            if a.shape != shape or a.dtype != np.float64 or not a.flags.c_contiguous:
+                raise ValueError(
+                    f"the integrator takes C-contiguous float64 arrays of shape {shape}, "
+                    f"got {a.dtype} {a.shape}"
+                )
+
+    def step(
+        self,
+        theta: np.ndarray,
+        dtheta: np.ndarray,
+        q: np.ndarray,
+        dq: np.ndarray,
+        tau: np.ndarray,
+        period: float,
+        link_torque: np.ndarray | None = None,
+        ddq: np.ndarray | None = None,
+    ) -> int:
+        """Advance every arm by ``period`` (s) under the motor torques ``tau`` and the
+        link torques ``link_torque`` (N, n; None: none), both held; the state arrays
+        (N, n) in place, q'' at the end into ``ddq`` if given. Returns the number of
+        substeps taken (rejected ones included)."""
+        ext = self._no_ext if link_torque is None else link_torque
+        out = np.empty(q.shape) if ddq is None else ddq
+        self._arrays(theta, dtheta, q, dq, tau, ext if ext.shape[1] else tau, out)
+        period = float(period)
+        if not period > 0.0:
+            raise ValueError(f"the integration period must be > 0 s, got {period}")
+        now, packed = self.substeps_now, self._packed
+        return int(rk4_period_kernel(theta, dtheta, q, dq, tau, ext, period, now, out, packed))
+
+    def derivative(
+        self,
+        theta: np.ndarray,
+        dtheta: np.ndarray,
+        q: np.ndarray,
+        dq: np.ndarray,
+        tau: np.ndarray,
+        link_torque: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """x' = (theta', q', theta'', q'') (N, 4 n) at the given state."""
+        ext = self._no_ext if link_torque is None else link_torque
+        self._arrays(theta, dtheta, q, dq, tau, ext if ext.shape[1] else tau)
+        out = np.empty((self.n_arms, 4 * self.chain.n))
+        derivative_kernel(theta, dtheta, q, dq, tau, ext, out, self._packed)
+        return out
