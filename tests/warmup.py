@@ -107,6 +107,22 @@ def loops() -> None:
         env.close()
 
 
+def integrator() -> None:
+    """The RK4 integrator of the arms: a control period (with and without link torques)
+    and the right-hand side."""
+    from elastic_gym.envs.plant import PlantArray
+    from elastic_gym.model import RobotModel
+    from elastic_gym.model.integrator import ArmIntegrator
+    from elastic_gym.robots.catalog import get_robot
+
+    plants = PlantArray([RobotModel(get_robot("two_link_elastic"))] * 2)
+    arms = ArmIntegrator(plants.chain, plants.transmission, None, True)
+    state = [np.zeros((2, 2)) for _ in range(4)]
+    arms.step(*state, np.zeros((2, 2)), 1e-3)
+    arms.step(*state, np.zeros((2, 2)), 1e-3, np.zeros((2, 2)))
+    arms.derivative(*state, np.zeros((2, 2)))
+
+
 # The two chain kernels first, one per part; then what links them (an env step, the rigid
 # arm's kernels in b while a compiles a complex kernel, then the elastic arm's in a while b
 # compiles the other); then the kernels of observers and controllers (complex step too).
@@ -120,7 +136,15 @@ PARTS = {
         "wait:complex",
         "loops",
     ],
-    "b": ["sensors", "wait:dynamics", "rigid", "mark:rigid", "dynamics_complex", "mark:complex"],
+    "b": [
+        "sensors",
+        "wait:dynamics",
+        "rigid",
+        "mark:rigid",
+        "dynamics_complex",
+        "mark:complex",
+        "integrator",
+    ],
 }
 
 
