@@ -1,0 +1,243 @@
+"""The identification problem of one log: measurements, parameters, residuals.
+
+The sensors of the log are the motor encoders theta, the motor torques tau and the
+accelerometers' specific forces y. Given the transmission parameters (K, D, B), the
+motor side gives the deflection delta (`transmission`), hence q = theta - delta, q' and
+q''; the residuals are then
+
+* accelerometers: y - f_A(q, q', q'') - b, with f_A the specific force of each mount
+  (De Luca et al. 2007, eq. (9)) and b a constant bias per axis;
+* link side: tau_J - Y(q, q', q'') pi, with tau_J = K delta + D delta' (= tau - B theta''
+  by the motor side) and pi the link parameters (one mass scale per link, viscous and
+  Coulomb friction per joint; `link_side`).
+
+(K, D, B) enter nonlinearly; b and pi enter linearly and are solved for inside every
+evaluation (variable projection, Golub & Pereyra 1973), so the outer nonlinear least
+squares has 3 n unknowns. Every signal is the log's through one zero-phase filter
+(`signals`); the residuals are taken on the decimated grid, the Coulomb column
+tanh(q' / v_s) at the full rate and then through the same filter (it is not
+band-limited). The link side alone fixes (K, D, masses) only up to a common scale; the
+motor torque fixes the scale (the accelerometers see q'' = theta'' - delta'' in
+absolute units, and gravity through the tilt of each sensor).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from elastic_gym.identification.link_side import LinkColumns, coulomb_column
+from elastic_gym.identification.signals import SpectralGrid
+from elastic_gym.identification.transmission import coupling_scaled, deflection_spectrum
+from elastic_gym.model import RobotModel
+
+
+def least_squares_solution(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """argmin |A p - b| for a tall A of full column rank: the normal equations of the
+    columns scaled to unit norm, solved with the pseudo-inverse (a column of zeros, e.g.
+    the Coulomb column of a joint that never moved, gets 0)."""
+    norm = np.linalg.norm(A, axis=0)
+    norm = np.where(norm > 0.0, norm, 1.0)
+    As = A / norm
+    return (np.linalg.pinv(As.T @ As) @ (As.T @ b)) / norm
+
+
+@dataclass(frozen=True)
+class Signals:
+    """The log's signals as the fit needs them.
+
+    ``time`` (T,), ``motor_position`` (T, n), ``torque`` (T, n), ``acceleration``
+    (T, 3 s) with ``sensor_names`` (s).
+    """
+
+    time: np.ndarray
+    motor_position: np.ndarray
+    torque: np.ndarray
+    acceleration: np.ndarray
+    sensor_names: tuple[str, ...]
+
+    @property
+    def dt(self) -> float:
+        return float((self.time[-1] - self.time[0]) / (len(self.time) - 1))
+
+
+@dataclass(frozen=True)
+class SamplingModel:
+    """What the log's sampling did to its signals (modelled, not fitted).
+
+    ``torque_hold``: each torque sample was held until the next one (zero-order hold);
+    ``delay``: the torque acted this many seconds after its logged time relative to the
+    measurements (e.g. the sensors' delay); ``accelerometer_cutoff_hz``: the
+    accelerometers' first-order low-pass y_k = a y_{k-1} + (1 - a) x_k,
+    a = exp(-2 pi f_c h), whose effect is undone on the measured readings (its inverse,
+    (1 - a z^-1) / (1 - a), is a stable two-tap filter).
+    """
+
+    torque_hold: bool = True
+    delay: float = 0.0
+    accelerometer_cutoff_hz: float | None = None
+
+
+@dataclass
+class Measurements:
+    """The filtered spectra and decimated samples of one log on one grid."""
+
+    grid: SpectralGrid
+    torque: np.ndarray  # spectrum (bins, n), hold and delay applied
+    motor_acceleration: np.ndarray  # spectrum of theta'' (bins, n)
+    theta: tuple[np.ndarray, np.ndarray, np.ndarray]  # theta, theta', theta'' decimated
+    acceleration: np.ndarray  # decimated readings (N, 3 s)
+    motor_velocity: np.ndarray  # theta' at every sample (T, n)
+
+    @classmethod
+    def of(cls, signals: Signals, grid: SpectralGrid, sampling: SamplingModel) -> Measurements:
+        bins = grid.bins
+        theta = grid.spectrum(signals.motor_position)
+        torque = grid.spectrum(signals.torque, hold=sampling.torque_hold, delay=sampling.delay)
+        readings = grid.spectrum(signals.acceleration)
+        if sampling.accelerometer_cutoff_hz is not None:
+            a = np.exp(-2.0 * np.pi * sampling.accelerometer_cutoff_hz * grid.dt)
+            readings *= ((1.0 - a * np.exp(-grid.jw * grid.dt)) / (1.0 - a))[:, None]
+        return cls(
+            grid=grid,
+            torque=torque[:bins],
+            motor_acceleration=grid.derivative(theta, 2)[:bins],
+            theta=tuple(grid.decimated(theta, k) for k in range(3)),  # type: ignore[arg-type]
+            acceleration=grid.decimated(readings),
+            motor_velocity=grid.full(theta, 1),
+        )
+
+
+@dataclass
+class Terms:
+    """The model's terms on the decimated grid at one (K, D, B).
+
+    ``predicted``: f_A(q, q', q'') (N, 3 s); ``rhs``: tau_J - S theta'' (N, n);
+    ``columns``: link-side columns (N, n, p) for [mass scales, viscous, Coulomb].
+    """
+
+    q: np.ndarray
+    dq: np.ndarray
+    ddq: np.ndarray
+    joint_torque: np.ndarray
+    predicted: np.ndarray
+    rhs: np.ndarray
+    columns: np.ndarray
+
+
+@dataclass
+class ElasticJointProblem:
+    """Parameters, terms and residuals of the identification of one log.
+
+    Nonlinear parameters: x = (log(K / K0), log(D / D0), log(B / B0)) relative to the
+    nominal model's values. Linear parameters: accelerometer biases (3 s) and link
+    parameters (n mass scales, n viscous, n Coulomb coefficients).
+    """
+
+    model: RobotModel
+    measurements: Measurements
+    coulomb_velocity: float = 0.01
+    columns: LinkColumns = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.n = self.model.n
+        self.columns = LinkColumns(self.model)
+        self.n_readings = self.measurements.acceleration.shape[1]
+
+    # ------------------------------------------------------------------ layout
+    @property
+    def nonlinear_names(self) -> list[str]:
+        names = self.model.spec.joint_names
+        return [f"{p}[{j}]" for p in ("stiffness", "damping", "motor_inertia") for j in names]
+
+    def link_names(self) -> list[str]:
+        names = self.model.spec.joint_names
+        return [f"{p}[{j}]" for p in ("link_mass", "viscous", "coulomb") for j in names]
+
+    def transmission(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(K, D, B) of the nonlinear parameters x."""
+        n, m = self.n, self.model
+        return m.K * np.exp(x[:n]), m.D * np.exp(x[n : 2 * n]), m.B * np.exp(x[2 * n :])
+
+    # ------------------------------------------------------------------ terms
+    def deflection(self, x: np.ndarray) -> np.ndarray:
+        """Spectrum (first bins, n) of the deflection delta at x."""
+        meas, grid, model = self.measurements, self.measurements.grid, self.model
+        K, D, B = self.transmission(x)
+        S = coupling_scaled(model.S, B, model.B) if model.has_coupling else None
+        return deflection_spectrum(
+            grid.jw[: grid.bins], meas.torque, meas.motor_acceleration, K, D, B, S
+        )
+
+    def coulomb_columns(self, x: np.ndarray) -> np.ndarray:
+        """The Coulomb columns tanh(q' / v_s) at x, computed at the full rate, filtered and
+        decimated (N, n). They change little with (K, D, B): the fit holds them during
+        one pass of the optimizer and refreshes them between passes."""
+        grid = self.measurements.grid
+        dq_full = self.measurements.motor_velocity - grid.full(self.deflection(x), 1)
+        return grid.decimated(grid.spectrum(coulomb_column(dq_full, self.coulomb_velocity)))
+
+    def terms(self, x: np.ndarray, coulomb: np.ndarray | None = None) -> Terms:
+        """The terms at x (``coulomb``: the Coulomb columns to use; None: at x)."""
+        meas, grid, model = self.measurements, self.measurements.grid, self.model
+        K, D, B = self.transmission(x)
+        S = coupling_scaled(model.S, B, model.B) if model.has_coupling else None
+        delta = self.deflection(x)
+        stack = np.concatenate([delta, grid.derivative(delta, 1), grid.derivative(delta, 2)], 1)
+        d0, d1, d2 = np.split(grid.decimated(stack), 3, axis=1)
+        theta, dtheta, ddtheta = meas.theta
+        q, dq, ddq = theta - d0, dtheta - d1, ddtheta - d2
+        joint_torque = K * d0 + D * d1
+        predicted = model.chain.specific_forces(q, dq, ddq)
+        rhs = joint_torque - (ddtheta @ S.T if S is not None else 0.0)
+        n, N = self.n, len(q)
+        columns = np.zeros((N, n, 3 * n))
+        columns[:, :, :n] = self.columns(q, dq, ddq)
+        joints = np.arange(n)
+        columns[:, joints, n + joints] = dq
+        columns[:, joints, 2 * n + joints] = (
+            self.coulomb_columns(x) if coulomb is None else coulomb
+        )
+        return Terms(q, dq, ddq, joint_torque, predicted, rhs, columns)
+
+    # ------------------------------------------------------------------ residuals
+    def solve_linear(
+        self, terms: Terms, rows: np.ndarray, weights: tuple[np.ndarray, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(biases (3 s), link parameters (3 n)) minimizing the weighted residuals on
+        ``rows`` at the given terms (``weights``: 1 / sigma per reading and per joint)."""
+        bias = np.mean(self.measurements.acceleration[rows] - terms.predicted[rows], axis=0)
+        w = weights[1]
+        A = (terms.columns[rows] * w[None, :, None]).reshape(-1, 3 * self.n)
+        b = (terms.rhs[rows] * w[None, :]).reshape(-1)
+        return bias, least_squares_solution(A, b)
+
+    def residuals(
+        self,
+        terms: Terms,
+        bias: np.ndarray,
+        link: np.ndarray,
+        rows: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(accelerometer residuals (N, 3 s), link-side residuals (N, n)) on ``rows``."""
+        readings = self.measurements.acceleration[rows] - terms.predicted[rows] - bias
+        link_side = terms.rhs[rows] - terms.columns[rows] @ link
+        return readings, link_side
+
+    def weighted(
+        self,
+        x: np.ndarray,
+        rows: np.ndarray,
+        weights: tuple[np.ndarray, np.ndarray],
+        linear: tuple[np.ndarray, np.ndarray] | None = None,
+        coulomb: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The stacked weighted residual at x; the linear parameters solved for (variable
+        projection) unless given."""
+        terms = self.terms(x, coulomb)
+        bias, link = self.solve_linear(terms, rows, weights) if linear is None else linear
+        readings, link_side = self.residuals(terms, bias, link, rows)
+        return np.concatenate(
+            [(readings * weights[0]).ravel(), (link_side * weights[1]).ravel()]
+        )

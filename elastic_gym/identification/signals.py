@@ -1,0 +1,156 @@
+"""Zero-phase low-pass filtering, exact derivatives and decimation of sampled signals.
+
+Identification compares terms of the elastic-joint model (De Luca et al. 2007, eq. (1))
+that need derivatives of the logged motor positions up to the fourth order. Every term
+goes through the same zero-phase filter, applied in the frequency domain:
+
+* the log (T samples at period h) is extended at both ends by an odd reflection
+  (2 x_0 - x_k, as `scipy.signal.filtfilt` pads) so that the periodic extension of the
+  FFT is continuous, and padded to a length with small prime factors;
+* X(f) is multiplied by the low-pass H(f): 1 below `pass_hz`, a raised cosine down to 0
+  at `stop_hz`, 0 above (real and even: no phase, no delay);
+* the k-th derivative is (i 2 pi f)^k X(f) — exact for the band-limited signal, unlike
+  finite differences, whose error (omega h)^2 / 12 would bias the stiffness;
+* a torque command held for one sample (zero-order hold, the torque column's meaning) is
+  the band-limited staircase: its spectrum is the samples' times
+  exp(-i pi f h) sinc(f h), a delay of half a sample and a small droop;
+* the filtered signal has no content above `stop_hz`, so it is sampled exactly at the
+  coarser period r h (r = `decimation`, with `stop_hz` below the Nyquist frequency
+  1 / (2 r h)) by an inverse FFT of the first bins only: the fit's residuals are
+  evaluated on the decimated grid, whose samples are nearly uncorrelated.
+
+The first and last `edge` seconds (the filter's transient against the padding) are left
+out of every residual (`SpectralGrid.interior`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft as sfft
+
+
+def raised_cosine_lowpass(freqs: np.ndarray, pass_hz: float, stop_hz: float) -> np.ndarray:
+    """H(f): 1 for f <= pass_hz, 0.5 (1 + cos(pi (f - pass_hz) / (stop_hz - pass_hz)))
+    between, 0 for f >= stop_hz."""
+    H = np.ones_like(freqs, dtype=float)
+    between = (freqs > pass_hz) & (freqs < stop_hz)
+    H[between] = 0.5 * (1.0 + np.cos(np.pi * (freqs[between] - pass_hz) / (stop_hz - pass_hz)))
+    H[freqs >= stop_hz] = 0.0
+    return H
+
+
+@dataclass(frozen=True)
+class Band:
+    """The zero-phase filter's pass band edge and stop frequency (Hz)."""
+
+    pass_hz: float
+    stop_hz: float
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.pass_hz < self.stop_hz:
+            raise ValueError(
+                f"filter band: need 0 < pass_hz < stop_hz, got {self.pass_hz}, {self.stop_hz}"
+            )
+
+
+def _odd_extension(x: np.ndarray, front: int, back: int) -> np.ndarray:
+    """x extended by ``front`` and ``back`` samples, odd reflections about its end points
+    (then held constant where the log is shorter than the padding)."""
+    T = len(x)
+    head_index = np.minimum(np.arange(front, 0, -1), T - 1)
+    tail_index = np.maximum(T - 2 - np.arange(back), 0)
+    head = 2.0 * x[0] - x[head_index]
+    tail = 2.0 * x[-1] - x[tail_index]
+    return np.concatenate([head, x, tail])
+
+
+class SpectralGrid:
+    """The frequency grid of one log: filtering, derivatives and decimated samples.
+
+    Args:
+        n_samples: samples T of the log.
+        dt: sample period h (s).
+        band: the zero-phase low-pass.
+        decimation: r; the residual grid has period r h (``band.stop_hz`` must lie below
+            its Nyquist frequency 1 / (2 r h)).
+        edge: seconds left out at each end of the log (the filter's transients).
+    """
+
+    def __init__(
+        self, n_samples: int, dt: float, band: Band, decimation: int, edge: float = 0.5
+    ) -> None:
+        r = int(decimation)
+        if r < 1:
+            raise ValueError(f"decimation must be >= 1, got {decimation}")
+        nyquist = 0.5 / (r * dt)
+        if band.stop_hz >= nyquist:
+            raise ValueError(
+                f"the filter's stop frequency {band.stop_hz:g} Hz must lie below the "
+                f"decimated grid's Nyquist frequency {nyquist:g} Hz (lower decimation)"
+            )
+        self.n_samples, self.dt, self.band, self.decimation = n_samples, dt, band, r
+        pad = r * int(np.ceil(edge / dt / r))  # a multiple of r: decimated samples align
+        coarse = sfft.next_fast_len(-(-(n_samples + 2 * pad) // r), real=True)
+        self.pad, self.length = pad, r * coarse
+        self.freqs = np.fft.rfftfreq(self.length, dt)
+        self.omega = 2.0 * np.pi * self.freqs
+        self.gain = raised_cosine_lowpass(self.freqs, band.pass_hz, band.stop_hz)
+        self.bins = coarse // 2 + 1  # the bins the decimated grid represents
+        self._jw = 1j * self.omega
+        edge_samples = max(int(round(edge / dt)), 0)
+        # decimated samples (original indices) and the interior ones
+        self.indices = np.arange(0, n_samples, r)
+        self.edge_samples = edge_samples
+        self.interior_mask = (self.indices >= edge_samples) & (
+            self.indices < n_samples - edge_samples
+        )
+
+    @property
+    def jw(self) -> np.ndarray:
+        """i omega on the grid's bins (rad/s)."""
+        return self._jw
+
+    def spectrum(self, x: np.ndarray, hold: bool = False, delay: float = 0.0) -> np.ndarray:
+        """Filtered spectrum (bins, channels) of the samples ``x`` (T, channels).
+
+        ``hold``: the samples are a zero-order-hold command (each value held for one
+        sample period); ``delay`` (s): the signal acts that much later than logged.
+        """
+        x = np.asarray(x, dtype=float)
+        flat = x.reshape(len(x), -1)
+        extended = _odd_extension(flat, self.pad, self.length - self.n_samples - self.pad)
+        X = sfft.rfft(extended, axis=0, workers=-1) * self.gain[:, None]
+        shift = delay + (0.5 * self.dt if hold else 0.0)
+        if shift:
+            X *= np.exp(-self._jw * shift)[:, None]
+        if hold:
+            X *= np.sinc(self.freqs * self.dt)[:, None]
+        return X
+
+    def derivative(self, X: np.ndarray, order: int) -> np.ndarray:
+        """The spectrum of the ``order``-th time derivative (``X``: the first bins of a
+        spectrum, or all)."""
+        return X * (self._jw[: len(X)] ** order)[:, None] if order else X
+
+    def full(self, X: np.ndarray, order: int = 0) -> np.ndarray:
+        """The filtered signal (or its derivative) at every sample of the log (T, channels);
+        ``X`` may hold the first bins only (the others are zero)."""
+        x = sfft.irfft(self.derivative(X, order), n=self.length, axis=0, workers=-1)
+        return x[self.pad : self.pad + self.n_samples]
+
+    def decimated(self, X: np.ndarray, order: int = 0) -> np.ndarray:
+        """The filtered signal (or its derivative) at the decimated samples
+        (``indices``), exact for the band-limited signal (an inverse FFT of the bins below
+        the coarse Nyquist frequency)."""
+        r = self.decimation
+        coarse = self.length // r
+        Y = self.derivative(X[: self.bins], order)
+        x = sfft.irfft(Y, n=coarse, axis=0, workers=-1) / r
+        start = self.pad // r
+        return x[start : start + len(self.indices)]
+
+    def filtered(self, x: np.ndarray) -> np.ndarray:
+        """``x`` (T, channels) through the zero-phase filter, at every sample."""
+        return self.full(self.spectrum(x))
