@@ -92,7 +92,7 @@ def choose_band(signals: Signals, model: RobotModel, dither_hz: float = 25.0) ->
 
     fs = 1.0 / signals.dt
     y = signals.acceleration - signals.acceleration.mean(axis=0)
-    f, psd = welch(y, fs=fs, nperseg=min(len(y), int(round(fs))), axis=0)
+    f, psd = welch(y, fs=fs, nperseg=min(len(y), round(fs)), axis=0)
     total = psd.sum(axis=1)
     floor = np.median(total[(f > 0.3 * fs) & (f < 0.45 * fs)])
     above = np.flatnonzero((total > 30.0 * floor) & (f < 0.3 * fs))
@@ -115,7 +115,7 @@ def _long_run_factor(residuals: np.ndarray, max_lag: int) -> float:
     for k in range(1, min(max_lag, len(r) - 1) + 1):
         rho = np.sum(r[k:] * r[:-k], axis=0) / var
         factor += 2.0 * (1.0 - k / (max_lag + 1)) * rho
-    return float(max(np.mean(factor), 1.0))
+    return max(float(np.mean(factor)), 1.0)
 
 
 def _fit_percent(measured: np.ndarray, residual: np.ndarray) -> np.ndarray:
@@ -136,7 +136,7 @@ def fit_log(signals: Signals, model: RobotModel, settings: FitSettings | None = 
     grid = SpectralGrid(T, signals.dt, band, r, settings.edge)
     measurements = Measurements.of(signals, grid, settings.sampling)
     problem = ElasticJointProblem(model, measurements, settings.coulomb_velocity)
-    split = int(round(T * (1.0 - settings.holdout)))
+    split = round(T * (1.0 - settings.holdout))
     rows = np.flatnonzero(grid.interior_mask & (grid.indices < split))
     holdout_rows = np.flatnonzero(grid.interior_mask & (grid.indices >= split))
     if len(rows) < 10 * (3 * model.n):
@@ -193,11 +193,7 @@ def fit_log(signals: Signals, model: RobotModel, settings: FitSettings | None = 
     names = [
         *problem.nonlinear_names,
         *problem.link_names(),
-        *(
-            f"bias[{name}_{axis}]"
-            for name in signals.sensor_names
-            for axis in "xyz"
-        ),
+        *(f"bias[{name}_{axis}]" for name in signals.sensor_names for axis in "xyz"),
     ]
     held_readings, held_link = problem.residuals(terms, bias, link, holdout_rows)
     holdout = {

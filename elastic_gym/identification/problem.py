@@ -196,9 +196,7 @@ class ElasticJointProblem:
         columns[:, :, :n] = self.columns(q, dq, ddq)
         joints = np.arange(n)
         columns[:, joints, n + joints] = dq
-        columns[:, joints, 2 * n + joints] = (
-            self.coulomb_columns(x) if coulomb is None else coulomb
-        )
+        columns[:, joints, 2 * n + joints] = self.coulomb_columns(x) if coulomb is None else coulomb
         return Terms(q, dq, ddq, joint_torque, predicted, rhs, columns)
 
     # ------------------------------------------------------------------ residuals
@@ -238,6 +236,4 @@ class ElasticJointProblem:
         terms = self.terms(x, coulomb)
         bias, link = self.solve_linear(terms, rows, weights) if linear is None else linear
         readings, link_side = self.residuals(terms, bias, link, rows)
-        return np.concatenate(
-            [(readings * weights[0]).ravel(), (link_side * weights[1]).ravel()]
-        )
+        return np.concatenate([(readings * weights[0]).ravel(), (link_side * weights[1]).ravel()])

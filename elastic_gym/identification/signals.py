@@ -99,7 +99,7 @@ class SpectralGrid:
         self.gain = raised_cosine_lowpass(self.freqs, band.pass_hz, band.stop_hz)
         self.bins = coarse // 2 + 1  # the bins the decimated grid represents
         self._jw = 1j * self.omega
-        edge_samples = max(int(round(edge / dt)), 0)
+        edge_samples = max(round(edge / dt), 0)
         # decimated samples (original indices) and the interior ones
         self.indices = np.arange(0, n_samples, r)
         self.edge_samples = edge_samples
