@@ -5,9 +5,9 @@
 `ElasticJointProblem`, from the nominal model, in `passes` rounds: after each round the
 weight of every accelerometer axis and every joint's link equation is set to 1 / its
 residual standard deviation (so that every channel counts by its own noise), and the
-fit repeats from the last estimate. It then computes, at the estimate:
+fit repeats from the last estimate. At the estimate it computes:
 
-* the Jacobian J of the weighted residual with respect to every parameter (the
+* the Jacobian J of the weighted residual with respect to every free parameter (the
   nonlinear ones by central differences, the linear ones exactly);
 * the covariance s^2 c (J^T J)^-1, s^2 the residual variance per degree of freedom and c
   the long-run variance factor 1 + 2 sum_k rho_k of the residuals' autocorrelation (the
@@ -15,6 +15,10 @@ fit repeats from the last estimate. It then computes, at the estimate:
 * the condition number of J with its columns scaled to unit norm;
 * the residuals on the held-out part of the log (the last `holdout` fraction), which
   the fit did not see.
+
+The checks of `excitation` then name what the log did not excite; those parameters are
+held at their nominal values and the fit is repeated without them (a parameter the data
+cannot tell is not silently given the value that fits the noise best).
 """
 
 from __future__ import annotations
@@ -25,12 +29,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from elastic_gym.identification.excitation import (
+    Thresholds,
+    TorsionBand,
+    poorly_excited,
+    torsion_band,
+)
+from elastic_gym.identification.link_side import BaseParameters
 from elastic_gym.identification.problem import (
     ElasticJointProblem,
     Measurements,
     SamplingModel,
     Signals,
     Terms,
+    least_squares_solution,
 )
 from elastic_gym.identification.signals import Band, SpectralGrid
 from elastic_gym.model import RobotModel
@@ -38,7 +50,8 @@ from elastic_gym.model import RobotModel
 
 @dataclass(frozen=True)
 class FitSettings:
-    """Options of the fit (None: chosen from the log, see `choose_band`)."""
+    """Options of the fit (``band`` None: chosen from the log, see `choose_band`;
+    ``decimation`` None: the coarsest grid the band allows)."""
 
     band: Band | None = None
     decimation: int | None = None
@@ -49,29 +62,55 @@ class FitSettings:
     bound: float = 4.0
     passes: int = 2
     max_lag: int = 20
+    thresholds: Thresholds = field(default_factory=Thresholds)
+    base_parameters: bool = True
+
+
+@dataclass(frozen=True)
+class BaseParameterFit:
+    """The base inertial parameters fitted to the log's link side."""
+
+    names: tuple[str, ...]
+    values: np.ndarray
+    standard_errors: np.ndarray
+    nominal: np.ndarray  # of the nominal model
+    scaled: np.ndarray  # of the nominal model with the fitted mass scales
+    condition_number: float
 
 
 @dataclass
 class FitResult:
-    """What `fit_log` found (values in SI units, per joint unless said otherwise)."""
+    """What `fit_log` found (values in SI units).
 
-    names: list[str]  # every parameter, in the order of ``values``
+    ``names``/``values``/``standard_errors``/``nominal``: every parameter (K, D, B per
+    joint, then mass scales, viscous and Coulomb friction per joint, then the biases per
+    accelerometer axis); a held parameter has its nominal value and a NaN standard error.
+    """
+
+    names: list[str]
     values: np.ndarray
     standard_errors: np.ndarray
     nominal: np.ndarray
-    correlation: np.ndarray
+    held: dict[str, str]  # name -> why it was held at its nominal value
+    warnings: list[str]
+    correlation: np.ndarray  # of the free parameters
+    free_names: list[str]
     condition_number: float
     sigma_readings: np.ndarray  # residual std per accelerometer axis (m/s^2)
     sigma_link: np.ndarray  # residual std per joint's link equation (N m)
     holdout: dict[str, np.ndarray]  # rms and fit (%) per channel on the held-out part
     terms: Terms  # at the estimate, on the decimated grid
+    bias: np.ndarray
+    link: np.ndarray
     rows: np.ndarray
     holdout_rows: np.ndarray
     problem: ElasticJointProblem
+    torsion: TorsionBand
+    base: BaseParameterFit | None
     band: Band
     decimation: int
     seconds: float
-    iterations: int
+    evaluations: int
     variance_factor: float
 
     def value(self, name: str) -> float:
@@ -82,12 +121,18 @@ class FitResult:
         index = [i for i, name in enumerate(self.names) if name.startswith(prefix + "[")]
         return self.values[index], self.standard_errors[index]
 
+    @property
+    def time(self) -> np.ndarray:
+        """Times (s from the log's start) of the decimated grid's samples."""
+        grid = self.problem.measurements.grid
+        return grid.indices * grid.dt
 
-def choose_band(signals: Signals, model: RobotModel, dither_hz: float = 25.0) -> Band:
+
+def choose_band(signals: Signals, dither_hz: float = 25.0) -> Band:
     """The filter band from the log: up to the highest frequency at which the
     accelerometers see more than noise (their power spectral density 30 times the floor
-    measured between 0.6 and 0.9 of the Nyquist frequency), at least `dither_hz`,
-    at most 0.3 of the sampling rate; the stop band starts 1.5 times higher."""
+    measured between 0.3 and 0.45 of the sampling rate), at least `dither_hz`, at most
+    0.2 of the sampling rate; the stop band starts 1.5 times higher."""
     from scipy.signal import welch
 
     fs = 1.0 / signals.dt
@@ -97,7 +142,7 @@ def choose_band(signals: Signals, model: RobotModel, dither_hz: float = 25.0) ->
     floor = np.median(total[(f > 0.3 * fs) & (f < 0.45 * fs)])
     above = np.flatnonzero((total > 30.0 * floor) & (f < 0.3 * fs))
     highest = f[above[-1]] if len(above) else dither_hz
-    pass_hz = float(np.clip(highest, dither_hz, 0.3 * fs / 1.5))
+    pass_hz = float(np.clip(highest, dither_hz, 0.2 * fs))
     return Band(pass_hz, 1.5 * pass_hz)
 
 
@@ -107,10 +152,12 @@ def _decimation(band: Band, dt: float) -> int:
 
 
 def _long_run_factor(residuals: np.ndarray, max_lag: int) -> float:
-    """1 + 2 sum_k rho_k (k = 1 .. max_lag, Bartlett weights) averaged over channels:
-    the variance of a mean of correlated residuals relative to independent ones."""
+    """1 + 2 sum_k (1 - k / (L + 1)) rho_k (k = 1 .. L, Bartlett weights) averaged over
+    channels: the variance of a mean of correlated residuals relative to independent
+    ones (at least 1)."""
     r = residuals - residuals.mean(axis=0)
     var = np.sum(r**2, axis=0)
+    var = np.where(var > 0, var, 1.0)
     factor = np.ones(r.shape[1])
     for k in range(1, min(max_lag, len(r) - 1) + 1):
         rho = np.sum(r[k:] * r[:-k], axis=0) / var
@@ -124,14 +171,74 @@ def _fit_percent(measured: np.ndarray, residual: np.ndarray) -> np.ndarray:
     return 100.0 * (1.0 - np.linalg.norm(residual, axis=0) / np.where(spread > 0, spread, 1.0))
 
 
+def _covariance(
+    jacobian: np.ndarray, weighted: np.ndarray, max_lag: int
+) -> tuple[np.ndarray, float, float]:
+    """(covariance, condition number of the column-scaled J, long-run factor)."""
+    dof = max(weighted.size - jacobian.shape[1], 1)
+    s2 = float(np.sum(weighted**2) / dof)
+    factor = _long_run_factor(weighted, max_lag)
+    norm = np.linalg.norm(jacobian, axis=0)
+    norm = np.where(norm > 0, norm, 1.0)
+    scaled = jacobian / norm
+    singular = np.linalg.svd(scaled, compute_uv=False)
+    condition = float(singular[0] / singular[-1]) if singular[-1] > 0 else float("inf")
+    cov = s2 * factor * np.linalg.pinv(scaled.T @ scaled) / np.outer(norm, norm)
+    return cov, condition, factor
+
+
+class _Fit:
+    """One fit of ``problem`` with the nonlinear parameters ``free`` (bool (3 n))."""
+
+    def __init__(
+        self, problem: ElasticJointProblem, rows: np.ndarray, settings: FitSettings
+    ) -> None:
+        self.problem, self.rows, self.settings = problem, rows, settings
+        self.evaluations = 0
+
+    def run(self, free: np.ndarray, start: np.ndarray) -> tuple[np.ndarray, tuple, set[int]]:
+        """(x, weights, indices of x at the bound) after ``settings.passes`` rounds."""
+        problem, rows = self.problem, self.rows
+        x = start.copy()
+        x[~free] = 0.0
+        weights = _weights(problem, x, rows)
+        bound = np.log(self.settings.bound)
+
+        def residual(z: np.ndarray, weights: tuple, coulomb: np.ndarray) -> np.ndarray:
+            full = x.copy()
+            full[free] = z
+            return problem.weighted(full, rows, weights, None, coulomb)
+
+        for _ in range(self.settings.passes):
+            if not free.any():
+                break
+            coulomb = problem.coulomb_columns(x)
+            solution = least_squares(
+                residual,
+                np.clip(x[free], -0.999 * bound, 0.999 * bound),
+                args=(weights, coulomb),
+                bounds=(-bound, bound),
+                method="trf",
+                x_scale=1.0,
+                diff_step=1e-7,
+                xtol=1e-10,
+                ftol=1e-10,
+            )
+            x[free] = solution.x
+            self.evaluations += solution.nfev
+            weights = _weights(problem, x, rows)
+        at_bound = {int(i) for i in np.flatnonzero(free & (np.abs(x) > 0.99 * bound))}
+        return x, weights, at_bound
+
+
 def fit_log(signals: Signals, model: RobotModel, settings: FitSettings | None = None) -> FitResult:
     """Identify K, D, B, the link mass scales, friction and accelerometer biases of the
     arm that wrote ``signals``, starting from ``model`` (the nominal model: kinematics,
     sensor mounts and the nominal inertial parameters the mass scales refer to)."""
     start = time.perf_counter()
     settings = settings or FitSettings()
-    T = len(signals.time)
-    band = settings.band or choose_band(signals, model)
+    T, n = len(signals.time), model.n
+    band = settings.band or choose_band(signals)
     r = settings.decimation or _decimation(band, signals.dt)
     grid = SpectralGrid(T, signals.dt, band, r, settings.edge)
     measurements = Measurements.of(signals, grid, settings.sampling)
@@ -139,62 +246,55 @@ def fit_log(signals: Signals, model: RobotModel, settings: FitSettings | None = 
     split = round(T * (1.0 - settings.holdout))
     rows = np.flatnonzero(grid.interior_mask & (grid.indices < split))
     holdout_rows = np.flatnonzero(grid.interior_mask & (grid.indices >= split))
-    if len(rows) < 10 * (3 * model.n):
+    if len(rows) < 10 * (6 * n + problem.n_readings):
         raise ValueError(
             f"the log is too short to identify: {len(rows)} samples on the "
             f"{1 / (r * signals.dt):g} Hz grid after leaving out {settings.edge} s at each "
             "end and the held-out part"
         )
-    n = model.n
-    x = np.zeros(3 * n)
-    weights = _weights(problem, x, rows)
-    iterations = 0
-    bound = np.log(settings.bound)
-    for _ in range(settings.passes):
-        coulomb = problem.coulomb_columns(x)
-        solution = least_squares(
-            problem.weighted,
-            x,
-            args=(rows, weights, None, coulomb),
-            bounds=(-bound, bound),
-            method="trf",
-            x_scale=1.0,
-            diff_step=1e-7,
-            xtol=1e-10,
-            ftol=1e-10,
-        )
-        x, iterations = solution.x, iterations + solution.nfev
-        weights = _weights(problem, x, rows)
-    terms = problem.terms(x)
-    bias, link = problem.solve_linear(terms, rows, weights)
-    readings, link_side = problem.residuals(terms, bias, link, rows)
-    jacobian = _jacobian(problem, x, (bias, link), rows, weights, terms)
-    weighted = np.concatenate([readings * weights[0], link_side * weights[1]], axis=1)
-    dof = max(weighted.size - jacobian.shape[1], 1)
-    s2 = float(np.sum(weighted**2) / dof)
-    factor = _long_run_factor(weighted, settings.max_lag)
-    column_norm = np.linalg.norm(jacobian, axis=0)
-    column_norm = np.where(column_norm > 0, column_norm, 1.0)
-    scaled = jacobian / column_norm
-    singular = np.linalg.svd(scaled, compute_uv=False)
-    condition = float(singular[0] / singular[-1]) if singular[-1] > 0 else float("inf")
-    inverse = np.linalg.pinv(scaled.T @ scaled)
-    cov = s2 * factor * inverse / np.outer(column_norm, column_norm)
-    se_all = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    d = np.where(se_all > 0, se_all, 1.0)
-    correlation = cov / np.outer(d, d)
-
-    K, D, B = problem.transmission(x)
-    values = np.concatenate([K, D, B, link, bias])
-    se = np.concatenate([np.concatenate([K, D, B]) * se_all[: 3 * n], se_all[3 * n :]])
-    nominal = np.concatenate(
-        [model.K, model.D, model.B, np.ones(n), np.zeros(2 * n), np.zeros(len(bias))]
+    torsion = torsion_band(
+        signals.acceleration, signals.motor_position, signals.dt, model, band.pass_hz
     )
-    names = [
-        *problem.nonlinear_names,
-        *problem.link_names(),
-        *(f"bias[{name}_{axis}]" for name in signals.sensor_names for axis in "xyz"),
-    ]
+    names = _names(problem, signals.sensor_names)
+    held: dict[str, str] = {}
+    warnings: list[str] = []
+    if not torsion.excited:
+        warnings.append(torsion.warning())
+        for name in names[: 2 * n]:
+            held[name] = "the log does not excite the joint torsion"
+    fitter = _Fit(problem, rows, settings)
+    x = np.zeros(3 * n)
+    for _attempt in range(3):
+        free = np.array([name not in held for name in names[: 3 * n]])
+        problem.hold_link(np.array([name in held for name in names[3 * n : 6 * n]]))
+        x, weights, at_bound = fitter.run(free, x)
+        estimate = _estimate(problem, x, rows, weights, settings, free)
+        values, se = _values(problem, x, estimate)
+        bounded = {names[i] for i in at_bound}
+        scale_torque = np.sqrt(np.mean(estimate["terms"].rhs[rows] ** 2, axis=0))
+        scale_velocity = np.sqrt(np.mean(estimate["terms"].dq[rows] ** 2, axis=0))
+        weak = poorly_excited(
+            names,
+            values,
+            se,
+            scale_torque,
+            scale_velocity,
+            model.spec.joint_names,
+            bounded,
+            settings.thresholds,
+        )
+        new = {k: v for k, v in weak.items() if k not in held and not k.startswith("bias[")}
+        if not new:
+            break
+        held.update(new)
+    for name, why in weak.items():
+        if name.startswith("bias["):
+            warnings.append(f"{name} is poorly identified: {why}")
+    for name, why in held.items():
+        if not why.startswith("the log does not excite"):
+            warnings.append(f"{name} is not identifiable from this log ({why}): held at nominal")
+    terms = estimate["terms"]
+    bias, link = estimate["bias"], estimate["link"]
     held_readings, held_link = problem.residuals(terms, bias, link, holdout_rows)
     holdout = {
         "readings_rms": np.sqrt(np.mean(held_readings**2, axis=0)),
@@ -202,26 +302,94 @@ def fit_log(signals: Signals, model: RobotModel, settings: FitSettings | None = 
         "link_rms": np.sqrt(np.mean(held_link**2, axis=0)),
         "link_fit": _fit_percent(terms.rhs[holdout_rows], held_link),
     }
+    base = (
+        _base_parameters(problem, terms, rows, weights, link, settings)
+        if settings.base_parameters
+        else None
+    )
     return FitResult(
         names=names,
         values=values,
         standard_errors=se,
-        nominal=nominal,
-        correlation=correlation,
-        condition_number=condition,
+        nominal=_nominal(model, problem.n_readings),
+        held=held,
+        warnings=warnings,
+        correlation=estimate["correlation"],
+        free_names=[name for name, keep in zip(names, estimate["free"], strict=True) if keep],
+        condition_number=estimate["condition"],
         sigma_readings=1.0 / weights[0],
         sigma_link=1.0 / weights[1],
         holdout=holdout,
         terms=terms,
+        bias=bias,
+        link=link,
         rows=rows,
         holdout_rows=holdout_rows,
         problem=problem,
+        torsion=torsion,
+        base=base,
         band=band,
         decimation=r,
         seconds=time.perf_counter() - start,
-        iterations=iterations,
-        variance_factor=factor,
+        evaluations=fitter.evaluations,
+        variance_factor=estimate["factor"],
     )
+
+
+def _names(problem: ElasticJointProblem, sensors: tuple[str, ...]) -> list[str]:
+    return [
+        *problem.nonlinear_names,
+        *problem.link_names(),
+        *(f"bias[{name}_{axis}]" for name in sensors for axis in "xyz"),
+    ]
+
+
+def _nominal(model: RobotModel, readings: int) -> np.ndarray:
+    n = model.n
+    return np.concatenate(
+        [model.K, model.D, model.B, np.ones(n), np.zeros(2 * n), np.zeros(readings)]
+    )
+
+
+def _estimate(
+    problem: ElasticJointProblem,
+    x: np.ndarray,
+    rows: np.ndarray,
+    weights: tuple[np.ndarray, np.ndarray],
+    settings: FitSettings,
+    free_nonlinear: np.ndarray,
+) -> dict:
+    """Terms, linear parameters, covariance of the free parameters at x."""
+    terms = problem.terms(x)
+    bias, link = problem.solve_linear(terms, rows, weights)
+    readings, link_side = problem.residuals(terms, bias, link, rows)
+    jacobian = _jacobian(problem, x, (bias, link), rows, weights, terms)
+    free = np.concatenate([free_nonlinear, problem.free_link, np.ones(len(bias), dtype=bool)])
+    weighted = np.concatenate([readings * weights[0], link_side * weights[1]], axis=1)
+    cov, condition, factor = _covariance(jacobian[:, free], weighted, settings.max_lag)
+    se = np.full(len(free), np.nan)
+    se[free] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    d = np.where(se[free] > 0, se[free], 1.0)
+    return {
+        "terms": terms,
+        "bias": bias,
+        "link": link,
+        "se": se,
+        "free": free,
+        "correlation": cov / np.outer(d, d),
+        "condition": condition,
+        "factor": factor,
+    }
+
+
+def _values(problem: ElasticJointProblem, x: np.ndarray, estimate: dict) -> tuple:
+    """(values, standard errors) of every parameter in SI units."""
+    n, se = problem.n, estimate["se"]
+    K, D, B = problem.transmission(x)
+    transmission = np.concatenate([K, D, B])
+    values = np.concatenate([transmission, estimate["link"], estimate["bias"]])
+    errors = np.concatenate([transmission * se[: 3 * n], se[3 * n :]])
+    return values, errors
 
 
 def _weights(
@@ -248,10 +416,9 @@ def _jacobian(
     weights: tuple[np.ndarray, np.ndarray],
     terms: Terms,
 ) -> np.ndarray:
-    """(residuals, parameters): nonlinear columns by central differences (linear
-    parameters held), the linear ones exactly (a bias shifts its axis, a link parameter
-    adds its column)."""
-    bias, link = linear
+    """(residuals, every parameter): nonlinear columns by central differences (linear
+    parameters and Coulomb columns held), the linear ones exactly (a bias shifts its axis,
+    a link parameter adds its column)."""
     N, s3, n = len(rows), problem.n_readings, problem.n
     coulomb = terms.columns[:, np.arange(n), 2 * n + np.arange(n)]
     step = 1e-5
@@ -271,3 +438,36 @@ def _jacobian(
     link_block = -(terms.columns[rows] * weights[1][None, :, None]).reshape(N * n, -1)
     J_link = np.vstack([np.zeros((N * s3, link_block.shape[1])), link_block])
     return np.hstack([J_nl, J_link, J_bias])
+
+
+def _base_parameters(
+    problem: ElasticJointProblem,
+    terms: Terms,
+    rows: np.ndarray,
+    weights: tuple[np.ndarray, np.ndarray],
+    link: np.ndarray,
+    settings: FitSettings,
+) -> BaseParameterFit:
+    """The base inertial parameters fitted to tau_J with the friction columns (one
+    weighted linear least squares on the fit's rows)."""
+    model, n = problem.model, problem.n
+    base = BaseParameters.of(model)
+    q, dq, ddq = (np.ascontiguousarray(a[rows]) for a in (terms.q, terms.dq, terms.ddq))
+    Y = base.columns(model, q, dq, ddq)
+    friction = terms.columns[rows][:, :, n:]
+    A = np.concatenate([Y, friction], axis=2)
+    w = weights[1]
+    Aw = (A * w[None, :, None]).reshape(-1, A.shape[2])
+    bw = (terms.rhs[rows] * w[None, :]).reshape(-1)
+    solution = least_squares_solution(Aw, bw)
+    residual = (bw - Aw @ solution).reshape(len(rows), n)
+    cov, condition, _ = _covariance(Aw, residual, settings.max_lag)
+    k = Y.shape[2]
+    return BaseParameterFit(
+        names=base.names,
+        values=solution[:k],
+        standard_errors=np.sqrt(np.clip(np.diag(cov)[:k], 0.0, None)),
+        nominal=base.nominal(model),
+        scaled=base.nominal(model, link[:n]),
+        condition_number=condition,
+    )

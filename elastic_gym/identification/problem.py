@@ -141,9 +141,16 @@ class ElasticJointProblem:
     columns: LinkColumns = field(init=False)
 
     def __post_init__(self) -> None:
-        self.n = self.model.n
+        self.n = n = self.model.n
         self.columns = LinkColumns(self.model)
         self.n_readings = self.measurements.acceleration.shape[1]
+        self.free_link = np.ones(3 * n, dtype=bool)
+        # the values of held link parameters: mass scale 1, no friction
+        self.held_link = np.concatenate([np.ones(n), np.zeros(2 * n)])
+
+    def hold_link(self, held: np.ndarray) -> None:
+        """Hold the link parameters ``held`` (bool (3 n)) at their nominal values."""
+        self.free_link = ~np.asarray(held, dtype=bool)
 
     # ------------------------------------------------------------------ layout
     @property
@@ -206,10 +213,14 @@ class ElasticJointProblem:
         """(biases (3 s), link parameters (3 n)) minimizing the weighted residuals on
         ``rows`` at the given terms (``weights``: 1 / sigma per reading and per joint)."""
         bias = np.mean(self.measurements.acceleration[rows] - terms.predicted[rows], axis=0)
-        w = weights[1]
-        A = (terms.columns[rows] * w[None, :, None]).reshape(-1, 3 * self.n)
-        b = (terms.rhs[rows] * w[None, :]).reshape(-1)
-        return bias, least_squares_solution(A, b)
+        w, free = weights[1], self.free_link
+        columns = terms.columns[rows]
+        rhs = terms.rhs[rows] - columns[:, :, ~free] @ self.held_link[~free]
+        A = (columns[:, :, free] * w[None, :, None]).reshape(-1, int(free.sum()))
+        b = (rhs * w[None, :]).reshape(-1)
+        link = self.held_link.copy()
+        link[free] = least_squares_solution(A, b)
+        return bias, link
 
     def residuals(
         self,

@@ -102,6 +102,7 @@ class RobotModel:
         self.has_coupling = bool(np.any(self.S != 0.0))
         self.B_inv = np.where(self.B > 0.0, 1.0 / np.where(self.B > 0.0, self.B, 1.0), 0.0)
         own = spec.friction.scaled(self.scaling.friction) if spec.friction is not None else None
+        self.added_friction = added_friction
         self.friction: LinkFriction | None = own.plus(added_friction) if own else added_friction
         self.torque_limit = np.asarray(spec.torque_limit, dtype=float)
         self.gravity_vector = np.asarray(spec.gravity, dtype=float)
@@ -191,7 +192,10 @@ class RobotModel:
                 combined[name] = tuple(
                     (self.scaling.per_joint(name, n) * extra.per_joint(name, n)).tolist()
                 )
-        return RobotModel(self.spec, ParameterScaling(**combined), self.accelerometers)
+        friction = self.added_friction
+        if friction is not None and extra.friction != 1.0:
+            friction = friction.scaled(extra.friction)
+        return RobotModel(self.spec, ParameterScaling(**combined), self.accelerometers, friction)
 
     # ------------------------------------------------------- rigid dynamics
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
@@ -389,4 +393,4 @@ class RobotModel:
 
     def with_accelerometers(self, mounts: tuple[AccelerometerMount, ...]) -> RobotModel:
         """Same model with another set of accelerometer mounts."""
-        return RobotModel(self.spec, self.scaling, tuple(mounts))
+        return RobotModel(self.spec, self.scaling, tuple(mounts), self.added_friction)
