@@ -58,6 +58,16 @@ def coulomb_column(dq: np.ndarray, smoothing_velocity: float) -> np.ndarray:
     return np.tanh(dq / smoothing_velocity)
 
 
+def body_names(model: RobotModel) -> tuple[str, ...]:
+    """The URDF link moved by each joint (the first body frame of the joint)."""
+    pm = model.pin_model
+    names = []
+    for j in range(1, model.n + 1):
+        bodies = [f.name for f in pm.frames if f.type == pin.FrameType.BODY and f.parentJoint == j]
+        names.append(bodies[0] if bodies else pm.names[j])
+    return tuple(names)
+
+
 def _regressor(model: RobotModel, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
     """Stacked joint torque regressors (N n, 10 n) at the samples (rows: sample-major)."""
     pm, data = model.pin_model, model.pin_model.createData()
@@ -105,7 +115,8 @@ class BaseParameters:
             # W_rest = W_kept X (in scaled columns): base = pi_kept + X pi_rest
             X = solve_triangular(R[:rank, :rank], R[:rank, rank:])
             combination[:, rest] = X * scale[rest][None, :] / scale[kept][:, None]
-        names = tuple(_expression(row, kept[i]) for i, row in enumerate(combination))
+        links = body_names(model)
+        names = tuple(_expression(row, kept[i], links) for i, row in enumerate(combination))
         return cls(kept, combination, names)
 
     def nominal(self, model: RobotModel, mass_scale: np.ndarray | None = None) -> np.ndarray:
@@ -125,14 +136,15 @@ class BaseParameters:
         return W.reshape(len(q), model.n, -1)
 
 
-def _expression(row: np.ndarray, lead: int, tolerance: float = 1e-9) -> str:
-    """``link2.mx + 0.5 link3.m``: the standard parameters of a base parameter."""
+def _expression(row: np.ndarray, lead: int, links: tuple[str, ...], tolerance: float = 1e-9) -> str:
+    """``link2.mx + 0.5 link3.m``: the standard parameters of a base parameter (first
+    moments and inertias in the link's joint frame)."""
     terms = []
     order = [lead] + [k for k in np.flatnonzero(np.abs(row) > tolerance) if k != lead]
     for k in order:
         body, name = divmod(int(k), 10)
         coefficient = row[k]
-        label = f"body{body + 1}.{STANDARD_NAMES[name]}"
+        label = f"{links[body]}.{STANDARD_NAMES[name]}"
         if k == lead:
             terms.append(label)
         else:

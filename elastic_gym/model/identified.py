@@ -40,11 +40,13 @@ Name = Annotated[StrictStr, Field(min_length=1)]
 
 class Estimate(StrictModel):
     """A fitted value with its standard error (None: not computed) and the nominal value
-    the fit started from."""
+    the fit started from; ``held``: the log did not identify it and the value is the
+    nominal one."""
 
     value: Finite
     std: NonNegativeFinite | None = None
     nominal: Finite | None = None
+    held: bool = False
 
 
 class PositiveEstimate(Estimate):
@@ -140,9 +142,7 @@ class IdentifiedModel(StrictModel):
             zero = base == 0.0
             if np.any(zero & (value != 0.0)):
                 joint = names[int(np.flatnonzero(zero & (value != 0.0))[0])]
-                raise ValueError(
-                    f"joints[{joint}].{field}: robot {spec.name!r} has none to scale"
-                )
+                raise ValueError(f"joints[{joint}].{field}: robot {spec.name!r} has none to scale")
             return tuple(np.where(zero, 1.0, value / np.where(zero, 1.0, base)).tolist())
 
         scaling = ParameterScaling(
