@@ -61,7 +61,7 @@ def identified_model(
     ]
     sensors = [m.name for m in model.accelerometers]
     accelerometers = []
-    for s, name in enumerate(sensors):
+    for name in sensors:
         rows = [index[f"bias[{name}_{axis}]"] for axis in "xyz"]
         accelerometers.append(
             AccelerometerBias(

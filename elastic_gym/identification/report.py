@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import io
 
-import numpy as np
 from matplotlib.figure import Figure
 
 from elastic_gym.identification.fit import FitResult
@@ -77,6 +76,7 @@ def _fmt(x: float | None, digits: int = 5) -> str:
 def report_markdown(result: FitResult, model_file: IdentifiedModel, title: str) -> str:
     """The report page (markdown) of an identification."""
     fit = model_file.fit
+    grid_hz = 1.0 / (result.decimation * result.problem.measurements.grid.dt)
     lines = [
         f"# Identification of {title}",
         "",
@@ -127,7 +127,7 @@ def report_markdown(result: FitResult, model_file: IdentifiedModel, title: str) 
         "## Fit",
         "",
         f"- filter: zero-phase, pass band to {_fmt(fit.pass_hz, 3)} Hz, stop from "
-        f"{_fmt(fit.stop_hz, 3)} Hz; residuals on a {1.0 / (result.decimation * result.problem.measurements.grid.dt):.4g} Hz grid",
+        f"{_fmt(fit.stop_hz, 3)} Hz; residuals on a {grid_hz:.4g} Hz grid",
         f"- condition number of the column-scaled Jacobian: {_fmt(fit.condition_number, 4)}",
         f"- torsion band {result.torsion.low_hz:.1f}–{result.torsion.high_hz:.1f} Hz: "
         f"accelerometers at {result.torsion.snr:.3g} times their noise floor",
