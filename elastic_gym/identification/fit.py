@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
+from threadpoolctl import threadpool_limits
 
 from elastic_gym.identification.excitation import (
     Thresholds,
@@ -38,6 +39,7 @@ from elastic_gym.identification.excitation import (
 from elastic_gym.identification.link_side import BaseParameters
 from elastic_gym.identification.problem import (
     ElasticJointProblem,
+    Frozen,
     Measurements,
     SamplingModel,
     Signals,
@@ -204,19 +206,19 @@ class _Fit:
         weights = _weights(problem, x, rows)
         bound = np.log(self.settings.bound)
 
-        def residual(z: np.ndarray, weights: tuple, coulomb: np.ndarray) -> np.ndarray:
+        def residual(z: np.ndarray, weights: tuple, frozen: Frozen) -> np.ndarray:
             full = x.copy()
             full[free] = z
-            return problem.weighted(full, rows, weights, None, coulomb)
+            return problem.weighted(full, rows, weights, None, frozen)
 
         for _ in range(self.settings.passes):
             if not free.any():
                 break
-            coulomb = problem.coulomb_columns(x)
+            frozen = problem.freeze(x)
             solution = least_squares(
                 residual,
                 np.clip(x[free], -0.999 * bound, 0.999 * bound),
-                args=(weights, coulomb),
+                args=(weights, frozen),
                 bounds=(-bound, bound),
                 method="trf",
                 x_scale=1.0,
@@ -234,9 +236,16 @@ class _Fit:
 def fit_log(signals: Signals, model: RobotModel, settings: FitSettings | None = None) -> FitResult:
     """Identify K, D, B, the link mass scales, friction and accelerometer biases of the
     arm that wrote ``signals``, starting from ``model`` (the nominal model: kinematics,
-    sensor mounts and the nominal inertial parameters the mass scales refer to)."""
+    sensor mounts and the nominal inertial parameters the mass scales refer to).
+
+    Linear algebra runs on one BLAS thread: the matrices are small, and threads fighting
+    over busy cores cost more than they give."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _fit_log(signals, model, settings or FitSettings())
+
+
+def _fit_log(signals: Signals, model: RobotModel, settings: FitSettings) -> FitResult:
     start = time.perf_counter()
-    settings = settings or FitSettings()
     T, n = len(signals.time), model.n
     band = settings.band or choose_band(signals)
     r = settings.decimation or _decimation(band, signals.dt)
@@ -420,14 +429,14 @@ def _jacobian(
     parameters and Coulomb columns held), the linear ones exactly (a bias shifts its axis,
     a link parameter adds its column)."""
     N, s3, n = len(rows), problem.n_readings, problem.n
-    coulomb = terms.columns[:, np.arange(n), 2 * n + np.arange(n)]
+    frozen = problem.freeze(x)
     step = 1e-5
     columns = []
     for i in range(len(x)):
         e = np.zeros_like(x)
         e[i] = step
-        plus = problem.weighted(x + e, rows, weights, linear, coulomb)
-        minus = problem.weighted(x - e, rows, weights, linear, coulomb)
+        plus = problem.weighted(x + e, rows, weights, linear, frozen)
+        minus = problem.weighted(x - e, rows, weights, linear, frozen)
         columns.append((plus - minus) / (2.0 * step))
     J_nl = np.stack(columns, axis=1)
     J_bias = np.zeros((N * s3 + N * n, s3))

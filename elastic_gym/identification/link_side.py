@@ -52,6 +52,13 @@ class LinkColumns:
         q, dq, ddq = (np.ascontiguousarray(x) for x in (q, dq, ddq))
         return np.stack([chain.rnea(q, dq, ddq) for chain in self.chains], axis=-1)
 
+    def mass_and_bias(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per body i: M_i(q) (N, n, n, bodies) and C_i(q, q') q' + g_i(q) (N, n, bodies),
+        so that the columns are M_i q'' + (C_i q' + g_i) for any q''."""
+        q, dq = np.ascontiguousarray(q), np.ascontiguousarray(dq)
+        parts = [chain.mass_and_bias(q, dq) for chain in self.chains]
+        return np.stack([M for M, _ in parts], axis=-1), np.stack([h for _, h in parts], axis=-1)
+
 
 def coulomb_column(dq: np.ndarray, smoothing_velocity: float) -> np.ndarray:
     """tanh(q' / v_s), the smoothed sign of `LinkFriction`."""

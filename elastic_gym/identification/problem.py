@@ -126,6 +126,18 @@ class Terms:
     columns: np.ndarray
 
 
+@dataclass(frozen=True)
+class Frozen:
+    """What the fit holds during one pass of the optimizer (refreshed between passes):
+    the link's M_i(q), C_i q' + g_i of every body and the Coulomb columns, at the link
+    motion of the pass's start. Within a pass (K, D, B) move q and q' by a fraction of the
+    deflection (small against the motion), and q'' enters the columns exactly."""
+
+    mass: np.ndarray  # (N, n, n, bodies)
+    bias: np.ndarray  # (N, n, bodies)
+    coulomb: np.ndarray  # (N, n)
+
+
 @dataclass
 class ElasticJointProblem:
     """Parameters, terms and residuals of the identification of one log.
@@ -185,8 +197,16 @@ class ElasticJointProblem:
         dq_full = self.measurements.motor_velocity - grid.full(self.deflection(x), 1)
         return grid.decimated(grid.spectrum(coulomb_column(dq_full, self.coulomb_velocity)))
 
-    def terms(self, x: np.ndarray, coulomb: np.ndarray | None = None) -> Terms:
-        """The terms at x (``coulomb``: the Coulomb columns to use; None: at x)."""
+    def freeze(self, x: np.ndarray) -> Frozen:
+        """The `Frozen` link terms at x."""
+        terms = self.terms(x)
+        mass, bias = self.columns.mass_and_bias(terms.q, terms.dq)
+        n = self.n
+        coulomb = terms.columns[:, np.arange(n), 2 * n + np.arange(n)]
+        return Frozen(mass, bias, coulomb)
+
+    def terms(self, x: np.ndarray, frozen: Frozen | None = None) -> Terms:
+        """The terms at x (``frozen``: the link terms to hold; None: all at x)."""
         meas, grid, model = self.measurements, self.measurements.grid, self.model
         K, D, B = self.transmission(x)
         S = coupling_scaled(model.S, B, model.B) if model.has_coupling else None
@@ -200,10 +220,14 @@ class ElasticJointProblem:
         rhs = joint_torque - (ddtheta @ S.T if S is not None else 0.0)
         n, N = self.n, len(q)
         columns = np.zeros((N, n, 3 * n))
-        columns[:, :, :n] = self.columns(q, dq, ddq)
         joints = np.arange(n)
         columns[:, joints, n + joints] = dq
-        columns[:, joints, 2 * n + joints] = self.coulomb_columns(x) if coulomb is None else coulomb
+        if frozen is None:
+            columns[:, :, :n] = self.columns(q, dq, ddq)
+            columns[:, joints, 2 * n + joints] = self.coulomb_columns(x)
+        else:
+            columns[:, :, :n] = np.einsum("kjlb,kl->kjb", frozen.mass, ddq) + frozen.bias
+            columns[:, joints, 2 * n + joints] = frozen.coulomb
         return Terms(q, dq, ddq, joint_torque, predicted, rhs, columns)
 
     # ------------------------------------------------------------------ residuals
@@ -240,11 +264,11 @@ class ElasticJointProblem:
         rows: np.ndarray,
         weights: tuple[np.ndarray, np.ndarray],
         linear: tuple[np.ndarray, np.ndarray] | None = None,
-        coulomb: np.ndarray | None = None,
+        frozen: Frozen | None = None,
     ) -> np.ndarray:
         """The stacked weighted residual at x; the linear parameters solved for (variable
         projection) unless given."""
-        terms = self.terms(x, coulomb)
+        terms = self.terms(x, frozen)
         bias, link = self.solve_linear(terms, rows, weights) if linear is None else linear
         readings, link_side = self.residuals(terms, bias, link, rows)
         return np.concatenate([(readings * weights[0]).ravel(), (link_side * weights[1]).ravel()])
