@@ -66,8 +66,8 @@ def identified_model(
         accelerometers.append(
             AccelerometerBias(
                 name=name,
-                bias=tuple(float(result.values[i]) for i in rows),  # type: ignore[arg-type]
-                std=tuple(float(result.standard_errors[i]) for i in rows),  # type: ignore[arg-type]
+                bias=tuple(float(result.values[i]) for i in rows),
+                std=tuple(float(result.standard_errors[i]) for i in rows),
             )
         )
     base = []

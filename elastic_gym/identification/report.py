@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import io
 
+import numpy as np
+
 from matplotlib.figure import Figure
 
 from elastic_gym.identification.fit import FitResult
@@ -163,7 +165,7 @@ def report_markdown(result: FitResult, model_file: IdentifiedModel, title: str) 
             "| base parameter | identified | nominal | from the mass scales |",
             "|---|---|---|---|",
         ]
-        scaled = result.base.scaled if result.base is not None else []
+        scaled = result.base.scaled if result.base is not None else np.zeros(0)
         for p, s in zip(model_file.base_parameters, scaled, strict=False):
             lines.append(
                 f"| {p.name} | {p.value:.5g} ± {_fmt(p.std, 2)} | {_fmt(p.nominal)} | {s:.5g} |"
