@@ -13,7 +13,6 @@ from __future__ import annotations
 import io
 
 import numpy as np
-
 from matplotlib.figure import Figure
 
 from elastic_gym.identification.fit import FitResult
