@@ -57,13 +57,23 @@ class Band:
 
 def _odd_extension(x: np.ndarray, front: int, back: int) -> np.ndarray:
     """x extended by ``front`` and ``back`` samples, odd reflections about its end points
-    (then held constant where the log is shorter than the padding)."""
+    (held constant where the log is shorter than the padding), the outer half of each
+    pad tapered (raised cosine) to the mean of the two outermost values, so that the FFT's
+    periodic extension joins smoothly too."""
     T = len(x)
     head_index = np.minimum(np.arange(front, 0, -1), T - 1)
     tail_index = np.maximum(T - 2 - np.arange(back), 0)
     head = 2.0 * x[0] - x[head_index]
     tail = 2.0 * x[-1] - x[tail_index]
-    return np.concatenate([head, x, tail])
+    out = np.concatenate([head, x, tail])
+    centre = 0.5 * (out[0] + out[-1])
+    window = np.ones(len(out))
+    for start, size, rising in ((0, front // 2, True), (len(out) - back // 2, back // 2, False)):
+        if size:
+            ramp = 0.5 * (1.0 - np.cos(np.pi * (np.arange(size) + 0.5) / size))
+            window[start : start + size] = ramp if rising else ramp[::-1]
+    shape = (-1,) + (1,) * (out.ndim - 1)
+    return centre + (out - centre) * window.reshape(shape)
 
 
 class SpectralGrid:

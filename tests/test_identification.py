@@ -1,0 +1,232 @@
+"""Identification of the elastic-joint model: the signal processing, the fit against an
+independent simulator of model (1), the excitation checks and the model file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from elastic_sim import simulate_log
+
+from elastic_gym.identification.fit import FitSettings, fit_log
+from elastic_gym.identification.link_side import BaseParameters, LinkColumns
+from elastic_gym.identification.model_file import identified_model
+from elastic_gym.identification.problem import Signals
+from elastic_gym.identification.signals import Band, SpectralGrid
+from elastic_gym.identification.transmission import deflection_spectrum
+from elastic_gym.model import RobotModel
+from elastic_gym.model.identified import IdentifiedModel, load_identified_model
+from elastic_gym.robots.catalog import get_robot
+from elastic_gym.robots.spec import LinkFriction
+
+DT = 1e-3
+
+
+BAND = Band(30.0, 45.0)
+
+
+def _grid(T: int = 6000, decimation: int = 10) -> SpectralGrid:
+    return SpectralGrid(T, DT, BAND, decimation, edge=0.5)
+
+
+def test_spectral_derivatives_are_exact_for_band_limited_signals():
+    grid = _grid()
+    t = np.arange(grid.n_samples) * DT
+    w = 2 * np.pi * np.array([0.7, 11.0, 23.0])
+    x = np.sin(np.outer(t, w) + 0.3).sum(axis=1, keepdims=True) + 0.2 * t[:, None]
+    X = grid.spectrum(x)
+    inner = grid.interior_mask
+    idx = grid.indices[inner]
+    for order in range(5):
+        exact = (w**order * np.sin(np.outer(t, w) + 0.3 + order * np.pi / 2)).sum(axis=1)
+        if order == 1:
+            exact = exact + 0.2
+        if order == 0:
+            exact = exact + 0.2 * t
+        full = grid.full(X, order)[:, 0]
+        decimated = grid.decimated(X, order)[:, 0]
+        scale = np.abs(exact).max()
+        # exact to 5e-5 of the signal 0.5 s from the log's ends (the filter's transient
+        # against the padding), to 1e-6 in the middle
+        assert np.max(np.abs(full[idx] - exact[idx])) < 5e-5 * scale
+        middle = slice(2500, 3500)
+        assert np.max(np.abs(full[middle] - exact[middle])) < 1e-6 * scale
+        assert np.max(np.abs(decimated[inner] - full[idx])) < 1e-9 * scale
+
+
+def test_held_torque_is_a_half_sample_delay_and_a_sinc_droop():
+    """The band-limited staircase of a sampled sine: the fundamental of a zero-order hold,
+    sinc(f h) sin(w (t - h / 2)) (its other harmonics lie above the band)."""
+    grid = _grid()
+    t = np.arange(grid.n_samples) * DT
+    f = 19.0
+    tau = np.sin(2 * np.pi * f * t)[:, None]
+    held = grid.full(grid.spectrum(tau, hold=True))[:, 0]
+    expected = np.sinc(f * DT) * np.sin(2 * np.pi * f * (t - DT / 2))
+    idx = grid.indices[grid.interior_mask]
+    assert np.max(np.abs(held[idx] - expected[idx])) < 1e-5
+    # the delay alone would be off by the droop 1 - sinc(f h) ~ 6e-4
+    assert np.max(np.abs(np.sin(2 * np.pi * f * (t - DT / 2)) - expected)[idx]) > 5e-4
+
+
+def test_deflection_solves_the_motor_side_of_model_2():
+    """S^T q'' + B theta'' + K delta + D delta' = tau with q'' = theta'' - delta'', for a
+    strictly upper triangular S (joint order)."""
+    rng = np.random.default_rng(0)
+    n, bins = 3, 50
+    jw = 1j * np.linspace(0.0, 200.0, bins)
+    tau = rng.normal(size=(bins, n)) + 1j * rng.normal(size=(bins, n))
+    ddtheta = rng.normal(size=(bins, n)) + 1j * rng.normal(size=(bins, n))
+    K, D, B = np.array([5e4, 8e4, 3e4]), np.array([150.0, 250.0, 80.0]), np.array([20, 20, 6.0])
+    S = np.zeros((n, n))
+    S[1, 2] = 0.1
+    delta = deflection_spectrum(jw, tau, ddtheta, K, D, B, S)
+    ddq = ddtheta - (jw**2)[:, None] * delta
+    lhs = ddq @ S + B * ddtheta + K * delta + D * jw[:, None] * delta
+    np.testing.assert_allclose(lhs, tau, rtol=1e-12, atol=1e-12)
+
+
+def test_link_columns_sum_to_the_inverse_dynamics():
+    model = RobotModel(get_robot("kr15_elastic"))
+    rng = np.random.default_rng(1)
+    q, dq, ddq = (rng.normal(size=(5, 3)) for _ in range(3))
+    columns = LinkColumns(model)(q, dq, ddq)
+    expected = np.array([model.rnea(q[k], dq[k], ddq[k]) for k in range(5)])
+    np.testing.assert_allclose(columns.sum(axis=2), expected, rtol=1e-12, atol=1e-9)
+    mass, bias = LinkColumns(model).mass_and_bias(q, dq)
+    np.testing.assert_allclose(np.einsum("kjlb,kl->kjb", mass, ddq) + bias, columns, atol=1e-9)
+
+
+def test_base_parameters_reproduce_the_regressor():
+    """Y pi = Y_base beta with beta = combination @ pi, for the true parameters."""
+    model = RobotModel(get_robot("two_link_elastic"))
+    base = BaseParameters.of(model)
+    assert len(base.names) == 6  # planar 2R: the classical 4 plus the two m z's
+    rng = np.random.default_rng(2)
+    q, dq, ddq = (rng.normal(size=(7, 2)) for _ in range(3))
+    beta = base.nominal(model)
+    torque = base.columns(model, q, dq, ddq) @ beta
+    expected = np.array([model.rnea(q[k], dq[k], ddq[k]) for k in range(7)])
+    np.testing.assert_allclose(torque, expected, atol=1e-10)
+
+
+# ---------------------------------------------------------------------------- the fit
+def _plant_and_log(dither: float, seconds: float = 8.0):
+    spec = get_robot("two_link_elastic")
+    limit = np.asarray(spec.torque_limit)
+    scaling = {
+        "stiffness": (1.2, 0.8),
+        "motor_inertia": (0.85, 1.25),
+        "damping": (1.3, 0.75),
+        "link_mass": (0.8, 1.2),
+    }
+    friction = LinkFriction(viscous=tuple(0.005 * limit), coulomb_pos=tuple(0.01 * limit))
+    plant = RobotModel(spec, scaling, added_friction=friction)
+    nominal = RobotModel(spec)
+    log = simulate_log(plant, nominal, seconds, seed=3, substeps=2, dither_fraction=dither)
+    signals = Signals(
+        log["time"],
+        log["theta"],
+        log["torque"],
+        log["acceleration"],
+        tuple(m.name for m in nominal.accelerometers),
+    )
+    return plant, nominal, scaling, friction, log, signals
+
+
+@pytest.mark.slow
+def test_identify_a_log_of_an_independent_simulator():
+    """RK4 of model (1) with friction, noise, biases: the issue's accuracy targets on 8 s."""
+    plant, nominal, scaling, friction, log, signals = _plant_and_log(dither=0.03)
+    result = fit_log(signals, nominal, FitSettings(holdout=0.25))
+    assert not result.held and not result.warnings
+    values = {name: result.group(name)[0] for name in ("stiffness", "damping", "motor_inertia")}
+    np.testing.assert_allclose(values["stiffness"], plant.K, rtol=0.01)
+    np.testing.assert_allclose(values["motor_inertia"], plant.B, rtol=0.02)
+    np.testing.assert_allclose(values["damping"], plant.D, rtol=0.15)
+    np.testing.assert_allclose(result.group("link_mass")[0], scaling["link_mass"], rtol=0.02)
+    np.testing.assert_allclose(result.group("viscous")[0], friction.viscous, rtol=0.25)
+    np.testing.assert_allclose(result.group("coulomb")[0], friction.coulomb_pos, rtol=0.25)
+    np.testing.assert_allclose(result.group("bias")[0], log["bias"], atol=0.005)
+    # the standard errors are honest: the errors of K and B within 5 of them
+    for name, truth in (("stiffness", plant.K), ("motor_inertia", plant.B)):
+        value, se = result.group(name)
+        assert np.all(np.abs(value - truth) < 5 * se + 1e-3 * truth)
+    # the held-out part is predicted as well as the fitted part
+    assert np.all(result.holdout["readings_rms"] < 2.0 * result.sigma_readings)
+    assert np.all(result.holdout["link_fit"] > 90.0)
+    # the model file gives the model that observers and controllers get
+    model = identified_model(result).robot_model(nominal)
+    np.testing.assert_allclose(model.K, values["stiffness"])
+    assert model.friction is not None
+    np.testing.assert_allclose(
+        model.friction.torque(np.array([1.0, -1.0])),
+        friction.torque(np.array([1.0, -1.0])),
+        rtol=0.25,
+    )
+
+
+@pytest.mark.slow
+def test_a_log_without_torsion_excitation_is_reported_not_fitted():
+    *_, nominal, _, _, _, signals = _plant_and_log(dither=0.0)
+    result = fit_log(signals, nominal, FitSettings(base_parameters=False))
+    assert result.torsion.snr < 30
+    assert any("does not excite the joint torsion" in w for w in result.warnings)
+    for name, nominal_value in (("stiffness", nominal.K), ("damping", nominal.D)):
+        value, se = result.group(name)
+        np.testing.assert_array_equal(value, nominal_value)
+        assert np.all(np.isnan(se))
+    file = identified_model(result)
+    assert all(joint.stiffness.held and joint.damping.held for joint in file.joints)
+    # everything held is named in a warning (the torsion one names K and D)
+    for name in result.held:
+        assert name.startswith(("stiffness", "damping")) or any(name in w for w in result.warnings)
+
+
+# ---------------------------------------------------------------------------- model file
+def _file(robot: str = "two_link_elastic", **joint_changes) -> IdentifiedModel:
+    spec = get_robot(robot)
+    joints = []
+    for j, name in enumerate(spec.joint_names):
+        joint = {
+            "name": name,
+            "stiffness": {"value": 1.1 * spec.stiffness[j]},
+            "damping": {"value": 0.9 * spec.damping[j]},
+            "motor_inertia": {"value": 1.2 * spec.motor_inertia[j]},
+            "link_mass_scale": {"value": 0.8},
+            "viscous_friction": {"value": 0.5},
+            "coulomb_friction": {"value": 1.5},
+        }
+        joint.update(joint_changes)
+        joints.append(joint)
+    return IdentifiedModel.model_validate({"robot": robot, "joints": joints})
+
+
+def test_model_file_gives_the_identified_robot_model(tmp_path):
+    path = tmp_path / "model.yaml"
+    path.write_text(_file().to_yaml())
+    file = load_identified_model(path)
+    nominal = RobotModel(get_robot("two_link_elastic"))
+    model = file.robot_model(nominal)
+    spec = nominal.spec
+    np.testing.assert_allclose(model.K, 1.1 * np.asarray(spec.stiffness))
+    np.testing.assert_allclose(model.D, 0.9 * np.asarray(spec.damping))
+    np.testing.assert_allclose(model.B, 1.2 * np.asarray(spec.motor_inertia))
+    q = np.array([0.3, -0.7])
+    np.testing.assert_allclose(model.gravity(q), 0.8 * nominal.gravity(q), rtol=1e-12)
+    np.testing.assert_allclose(model.mass_matrix(q), 0.8 * nominal.mass_matrix(q), rtol=1e-12)
+    dq = np.array([0.2, -0.3])
+    expected = 0.5 * dq + 1.5 * np.tanh(dq / file.coulomb_velocity)
+    np.testing.assert_allclose(model.link_friction(dq), expected)
+    # a model error on top keeps the identified friction
+    np.testing.assert_allclose(model.perturbed(link_mass=1.1).link_friction(dq), expected)
+
+
+def test_model_file_of_another_robot_or_with_bad_values_is_refused(tmp_path):
+    nominal = RobotModel(get_robot("kr15_elastic"))
+    with pytest.raises(ValueError, match="not of 'kr15_elastic'"):
+        _file().robot_model(nominal)
+    path = tmp_path / "bad.yaml"
+    text = _file().to_yaml().replace("value: 2750.0", "value: -2750.0", 1)
+    path.write_text(text)
+    with pytest.raises(ValueError, match=r"joints\[0\]\.stiffness\.value"):
+        load_identified_model(path)
