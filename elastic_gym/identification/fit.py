@@ -161,7 +161,7 @@ def choose_band(signals: Signals, model: RobotModel, margin: float = 1.25) -> Ba
     lever = np.maximum(np.linalg.norm(T, axis=0), 1e-3)
     with np.errstate(divide="ignore"):
         ratio = model.K * np.sqrt(s_a) / (lever * model.B * np.sqrt(s_theta))
-    crossover = np.min(ratio ** 0.25) / (2.0 * np.pi)
+    crossover = np.min(ratio**0.25) / (2.0 * np.pi)
     pass_hz = float(np.clip(margin * crossover, 10.0, 0.2 * fs))
     return Band(pass_hz, 1.5 * pass_hz)
 
