@@ -1,24 +1,13 @@
 """The fit: nonlinear least squares over (K, D, B), the rest solved linearly inside.
 
 `fit_log` runs `scipy.optimize.least_squares` (trust region reflective, bounds a factor
-`FitSettings.bound` around the nominal values) on the weighted residuals of
-`ElasticJointProblem`, from the nominal model, in `passes` rounds: after each round the
-weight of every accelerometer axis and every joint's link equation is set to 1 / its
-residual standard deviation (so that every channel counts by its own noise), and the
-fit repeats from the last estimate. At the estimate it computes:
-
-* the Jacobian J of the weighted residual with respect to every free parameter (the
-  nonlinear ones by central differences, the linear ones exactly);
-* the covariance s^2 c (J^T J)^-1, s^2 the residual variance per degree of freedom and c
-  the long-run variance factor 1 + 2 sum_k rho_k of the residuals' autocorrelation (the
-  decimated residuals are not quite independent), and from it the standard errors;
-* the condition number of J with its columns scaled to unit norm;
-* the residuals on the held-out part of the log (the last `holdout` fraction), which
-  the fit did not see.
-
-The checks of `excitation` then name what the log did not excite; those parameters are
-held at their nominal values and the fit is repeated without them (a parameter the data
-cannot tell is not silently given the value that fits the noise best).
+`FitSettings.bound` around the nominal values) from the nominal model in `passes` rounds,
+reweighting every accelerometer axis and joint equation by 1 / its residual standard
+deviation between rounds. At the estimate: the Jacobian of every free parameter, the
+covariance s^2 c (J^T J)^-1 (c: the residuals' long-run variance factor), the standard
+errors, the condition number of the column-scaled Jacobian and the residuals on the
+held-out end of the log. Parameters the log did not excite (`excitation`) are held at
+their nominal values and the fit is repeated without them.
 """
 
 from __future__ import annotations
@@ -150,9 +139,9 @@ def choose_band(signals: Signals, model: RobotModel, margin: float = 1.25) -> Ba
     B w^4 / K above the motor-side resonance (w^2 from theta'', w^2 from delta''), and a
     reading at lever L (m: the column norm of T_A) with L times that. It equals the
     accelerometer noise density S_a at w_j^4 = K_j sqrt(S_a) / (L_j B_j sqrt(S_theta_j));
-    above the smallest w_j / 2 pi the fit would chase encoder noise (its errors-in-variables
-    bias grows fast: measured on the two-link arm, K 0.06 % at a 25 Hz pass band, 1.7 % at
-    40 Hz). Clipped to [10 Hz, 0.2 f_s]; the stop band starts 1.5 times higher."""
+    above the smallest w_j / 2 pi the fit would chase encoder noise (an errors-in-variables
+    bias that grows fast with the band). Clipped to [10 Hz, 0.2 f_s]; the stop band starts
+    1.5 times higher."""
     fs = 1.0 / signals.dt
     s_a = float(np.mean(noise_floor(signals.acceleration, fs)))
     s_theta = noise_floor(signals.motor_position, fs)

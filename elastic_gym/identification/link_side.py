@@ -1,24 +1,14 @@
 """The link side of the elastic-joint model, linear in its parameters.
 
-De Luca et al. (2007), eq. (1), link side, with the friction d(q') of the link joints:
-
-    M(q) q'' + C(q, q') q' + g(q) + d(q') = tau_J        (model (2): + S theta'').
-
-The left side is linear in the ten inertial parameters of every body (mass, first
-moments, inertia; pinocchio's `computeJointTorqueRegressor`) and in the friction
-coefficients, d_j(q') = F_v,j q'_j + F_c,j tanh(q'_j / v_s) (viscous and Coulomb, the
-Coulomb sign smoothed over v_s as in the package's `LinkFriction`). Two
-parametrizations:
-
-* one scale per link (`LinkColumns`): body i's parameters are s_i times the nominal
-  ones (a uniformly denser link, the centre of mass unchanged, as `ParameterScaling`'s
-  `link_mass`); column i is the torque of body i alone, the recursive Newton-Euler of a
-  chain in which every other body is massless. Physically consistent by construction:
-  the model the observers and controllers get.
-* the base parameters (`BaseParameters`): the columns of the full regressor that are
-  linearly independent over generic motions (QR with column pivoting, Gautier & Khalil
-  1990), each a linear combination of the standard parameters; reported with their
-  standard errors where the log's motion identifies them.
+De Luca et al. (2007), eq. (1): M(q) q'' + C(q, q') q' + g(q) + d(q') = tau_J, with link
+friction d_j = F_v,j q'_j + F_c,j tanh(q'_j / v_s) (as the package's `LinkFriction`). The
+left side is linear in the ten inertial parameters of every body (pinocchio's
+`computeJointTorqueRegressor`) and in the friction coefficients. Two parametrizations:
+one scale per link (`LinkColumns`: body i's parameters s_i times the nominal ones, the
+`link_mass` of `ParameterScaling`; physically consistent, the model observers and
+controllers get) and the base parameters (`BaseParameters`: the regressor's linearly
+independent columns over generic motions by QR with column pivoting, Gautier & Khalil
+1990, each a combination of the standard parameters; reported with standard errors).
 """
 
 from __future__ import annotations

@@ -1,24 +1,12 @@
 """The identification problem of one log: measurements, parameters, residuals.
 
-The sensors of the log are the motor encoders theta, the motor torques tau and the
-accelerometers' specific forces y. Given the transmission parameters (K, D, B), the
-motor side gives the deflection delta (`transmission`), hence q = theta - delta, q' and
-q''; the residuals are then
-
-* accelerometers: y - f_A(q, q', q'') - b, with f_A the specific force of each mount
-  (De Luca et al. 2007, eq. (9)) and b a constant bias per axis;
-* link side: tau_J - Y(q, q', q'') pi, with tau_J = K delta + D delta' (= tau - B theta''
-  by the motor side) and pi the link parameters (one mass scale per link, viscous and
-  Coulomb friction per joint; `link_side`).
-
-(K, D, B) enter nonlinearly; b and pi enter linearly and are solved for inside every
-evaluation (variable projection, Golub & Pereyra 1973), so the outer nonlinear least
-squares has 3 n unknowns. Every signal is the log's through one zero-phase filter
-(`signals`); the residuals are taken on the decimated grid, the Coulomb column
-tanh(q' / v_s) at the full rate and then through the same filter (it is not
-band-limited). The link side alone fixes (K, D, masses) only up to a common scale; the
-motor torque fixes the scale (the accelerometers see q'' = theta'' - delta'' in
-absolute units, and gravity through the tilt of each sensor).
+Given (K, D, B), the motor side gives the deflection delta (`transmission`), hence
+q = theta - delta, q' and q''. Residuals: the accelerometers, y - f_A(q, q', q'') - b
+(De Luca et al. 2007, eq. (9); b a bias per axis), and the link side,
+tau_J - Y(q, q', q'') pi (eq. (1); `link_side`: mass scales, viscous and Coulomb
+friction). (K, D, B) enter nonlinearly; b and pi linearly and are solved for inside every
+evaluation (variable projection, Golub & Pereyra 1973). The link side alone fixes K, D
+and the masses only up to a common scale; the motor torque fixes the scale.
 """
 
 from __future__ import annotations

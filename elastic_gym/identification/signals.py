@@ -1,26 +1,13 @@
 """Zero-phase low-pass filtering, exact derivatives and decimation of sampled signals.
 
-Identification compares terms of the elastic-joint model (De Luca et al. 2007, eq. (1))
-that need derivatives of the logged motor positions up to the fourth order. Every term
-goes through the same zero-phase filter, applied in the frequency domain:
-
-* the log (T samples at period h) is extended at both ends by an odd reflection
-  (2 x_0 - x_k, as `scipy.signal.filtfilt` pads) so that the periodic extension of the
-  FFT is continuous, and padded to a length with small prime factors;
-* X(f) is multiplied by the low-pass H(f): 1 below `pass_hz`, a raised cosine down to 0
-  at `stop_hz`, 0 above (real and even: no phase, no delay);
-* the k-th derivative is (i 2 pi f)^k X(f) — exact for the band-limited signal, unlike
-  finite differences, whose error (omega h)^2 / 12 would bias the stiffness;
-* a torque command held for one sample (zero-order hold, the torque column's meaning) is
-  the band-limited staircase: its spectrum is the samples' times
-  exp(-i pi f h) sinc(f h), a delay of half a sample and a small droop;
-* the filtered signal has no content above `stop_hz`, so it is sampled exactly at the
-  coarser period r h (r = `decimation`, with `stop_hz` below the Nyquist frequency
-  1 / (2 r h)) by an inverse FFT of the first bins only: the fit's residuals are
-  evaluated on the decimated grid, whose samples are nearly uncorrelated.
-
-The first and last `edge` seconds (the filter's transient against the padding) are left
-out of every residual (`SpectralGrid.interior`).
+Every term of the fit goes through one zero-phase filter applied in the frequency domain:
+the log is padded (odd reflection about its end points, as `scipy.signal.filtfilt` pads)
+to a fast FFT length, X(f) is multiplied by a real raised-cosine low-pass H(f) (no delay),
+and the k-th derivative is (i 2 pi f)^k X(f), exact for the band-limited signal. A torque
+held for one sample (zero-order hold) is the band-limited staircase: its spectrum is the
+samples' times exp(-i pi f h) sinc(f h). The filtered signals have no content above the
+stop band and are sampled exactly on a coarser grid (an inverse FFT of the first bins):
+the residuals are evaluated there. The first and last `edge` seconds are left out.
 """
 
 from __future__ import annotations
