@@ -31,13 +31,18 @@ REPORT_FILE = "report.md"
 class LogLike(Protocol):
     """What identification reads of a log (a `SensorLog` is one)."""
 
-    time: np.ndarray
-    motor_position: np.ndarray
-    torque: np.ndarray
-    acceleration: np.ndarray
-    sensor_names: tuple[str, ...]
-    source: str
-
+    @property
+    def time(self) -> np.ndarray: ...
+    @property
+    def motor_position(self) -> np.ndarray: ...
+    @property
+    def torque(self) -> np.ndarray: ...
+    @property
+    def acceleration(self) -> np.ndarray: ...
+    @property
+    def sensor_names(self) -> tuple[str, ...]: ...
+    @property
+    def source(self) -> str: ...
     def nominal_model(self) -> RobotModel: ...
 
 
