@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from elastic_gym.model import RobotModel
+
 GRAVITY = 9.81
 
 
@@ -48,3 +50,105 @@ def write_csv_columns(path: Path, columns: dict, sidecar: str | None = None) -> 
     side = sidecar if sidecar is not None else "robot: TwoLinkElastic-v0\nsample_time: 0.001\n"
     path.with_suffix(".yaml").write_text(side)
     return path
+
+
+# ------------------------------------------------------------ an independent elastic simulator
+# For identification tests: not the envs' PyBullet plant but classical RK4 of x' = f(x) + G u
+# (De Luca et al. 2007, eq. (4); model (2) with S) through RobotModel.elastic_dynamics
+# (pinocchio's ABA), the torque held over each sample period, a motor PD with gravity
+# compensation tracking a multi-sine reference plus a multi-sine torque dither, and the sensor
+# model of the log format (quantized encoders; accelerometers f = R^T (a - g) + bias + white
+# noise). Row k: sensors at t_k, the torque held from t_k to t_k+1.
+
+
+def multisine_reference(rng, low, high, base_hz: float = 0.1, harmonics: int = 5):
+    """q_d(t), q_d'(t), q_d''(t): a random Fourier series in 60 % of [low, high]."""
+    n = len(low)
+    centre, half = (low + high) / 2, 0.3 * (high - low)
+    k = np.arange(1, harmonics + 1)
+    a = rng.normal(size=(harmonics, n)) / k[:, None]
+    b = rng.normal(size=(harmonics, n)) / k[:, None]
+    w = 2 * np.pi * base_hz * k
+    t = np.linspace(0, 1 / base_hz, 4000)
+    peak = np.max(np.abs(np.sin(np.outer(t, w)) @ a + np.cos(np.outer(t, w)) @ b), axis=0)
+    a, b = a * half / peak, b * half / peak
+
+    def reference(t: float):
+        s, c = np.sin(w * t), np.cos(w * t)
+        return centre + s @ a + c @ b, (c * w) @ a - (s * w) @ b, -(s * w**2) @ a - (c * w**2) @ b
+
+    return reference
+
+
+def multisine_dither(rng, amplitude, low_hz: float, high_hz: float, count: int = 40):
+    """tau_d(t): ``count`` sines per joint at log-uniform frequencies, random phases, RMS
+    ``amplitude`` per joint."""
+    n = len(amplitude)
+    f = np.exp(rng.uniform(np.log(low_hz), np.log(high_hz), size=(count, n)))
+    phase = rng.uniform(0, 2 * np.pi, size=(count, n))
+    scale = np.asarray(amplitude) * np.sqrt(2.0 / count)
+    return lambda t: scale * np.sum(np.sin(2 * np.pi * f * t + phase), axis=0)
+
+
+def simulate_log(
+    plant: RobotModel,
+    nominal: RobotModel,
+    seconds: float,
+    seed: int = 0,
+    dt: float = 1e-3,
+    substeps: int = 4,
+    dither_fraction: float = 0.03,
+    dither_hz: tuple[float, float] = (2.0, 25.0),
+    bias_std: float = 0.02,
+    noise_density: float = 1.5e-3,
+    encoder_resolution: float = 2 * np.pi / 2**20,
+    omega: float = 20.0,
+) -> dict:
+    """A closed-loop log of ``plant`` (controller on the ``nominal`` model), see the module
+    docstring. Returns time, motor_position, torque, acceleration, bias and truth."""
+    rng = np.random.default_rng(seed)
+    n = plant.n
+    low, high = np.asarray(plant.spec.workspace_low), np.asarray(plant.spec.workspace_high)
+    reference = multisine_reference(rng, low, high)
+    limit = plant.torque_limit
+    dither = multisine_dither(rng, dither_fraction * limit, *dither_hz)
+    q0 = reference(0.0)[0]
+    J = nominal.B + np.diag(nominal.mass_matrix(q0))
+    kp, kd = J * omega**2, 2 * 0.7 * J * omega
+    x = np.concatenate([plant.static_motor_position(q0), q0, np.zeros(2 * n)])
+    steps = round(seconds / dt)
+    bias = bias_std * rng.standard_normal(3 * plant.n_sensors)
+    sample_std = noise_density * np.sqrt(0.5 / dt)
+    out = {k: np.zeros((steps + 1, n)) for k in ("theta", "torque", "q", "dq", "dtheta")}
+    out["acceleration"] = np.zeros((steps + 1, 3 * plant.n_sensors))
+    h = dt / substeps
+    f = plant.elastic_dynamics
+    for k in range(steps + 1):
+        t = k * dt
+        theta_measured = np.round(x[:n] / encoder_resolution) * encoder_resolution
+        qd, dqd, ddqd = reference(t)
+        g = nominal.gravity(qd)
+        theta_d = qd + g / nominal.K
+        tau = (
+            g
+            + (nominal.mass_matrix(qd) @ ddqd + nominal.B * ddqd)
+            + kp * (theta_d - theta_measured)
+            + kd * (dqd - x[2 * n : 3 * n])
+            + dither(t)
+        )
+        tau = np.clip(tau, -limit, limit)
+        _, ddq = plant.elastic_accelerations(x, tau)
+        forces = plant.accelerometer_readings(x[n : 2 * n], x[3 * n :], ddq)
+        out["acceleration"][k] = forces + bias + sample_std * rng.standard_normal(len(forces))
+        out["theta"][k] = theta_measured
+        out["torque"][k] = tau
+        out["q"][k], out["dq"][k], out["dtheta"][k] = x[n : 2 * n], x[3 * n :], x[2 * n : 3 * n]
+        for _ in range(substeps):  # RK4, the torque held
+            k1 = f(x, tau)
+            k2 = f(x + 0.5 * h * k1, tau)
+            k3 = f(x + 0.5 * h * k2, tau)
+            k4 = f(x + h * k3, tau)
+            x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    out["time"] = np.arange(steps + 1) * dt
+    out["bias"] = bias
+    return out

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from elastic_sim import simulate_log
+from helpers import simulate_log
 
 from elastic_gym.identification.fit import FitSettings, fit_log
 from elastic_gym.identification.link_side import BaseParameters, LinkColumns
@@ -230,3 +230,73 @@ def test_model_file_of_another_robot_or_with_bad_values_is_refused(tmp_path):
     path.write_text(text)
     with pytest.raises(ValueError, match=r"joints\[0\]\.stiffness\.value"):
         load_identified_model(path)
+
+
+# ---------------------------------------------------------------------------- the command
+@pytest.fixture(scope="module")
+def simulated_csv(tmp_path_factory):
+    """A 10 s TwoLinkElastic log of the independent simulator, as CSV + sidecar."""
+    from elastic_gym.logs import SensorLog, write_log
+
+    plant, nominal, scaling, friction, log, _ = _plant_and_log(dither=0.03, seconds=10.0)
+    sensor_log = SensorLog.create(
+        {"robot": "TwoLinkElastic-v0", "sample_time": DT},
+        log["time"],
+        log["theta"],
+        log["torque"],
+        log["acceleration"],
+        state={"q": log["q"], "dq": log["dq"], "theta": log["theta"], "dtheta": log["dtheta"]},
+    )
+    path = tmp_path_factory.mktemp("log") / "run.csv"
+    write_log(path, sensor_log)
+    return path, plant
+
+
+@pytest.mark.slow
+def test_identify_command_writes_the_model_report_and_figure(simulated_csv, tmp_path, capsys):
+    from elastic_gym.cli import main
+
+    path, plant = simulated_csv
+    out = tmp_path / "identified"
+    assert main(["identify", str(path), "--output", str(out)]) == 0
+    assert {p.name for p in out.iterdir()} == {"model.yaml", "report.md", "identification.png"}
+    file = load_identified_model(out / "model.yaml")
+    np.testing.assert_allclose(file.values("stiffness"), plant.K, rtol=0.01)
+    np.testing.assert_allclose(file.values("motor_inertia"), plant.B, rtol=0.02)
+    assert file.fit.log == "run.csv" and len(file.fit.log_sha256) == 64
+    report = (out / "report.md").read_text()
+    assert "| K | N m/rad |" in report and "identification.png" in report
+    assert "joint1: K" in capsys.readouterr().out
+    # an earlier identification is not replaced without --overwrite
+    before = (out / "model.yaml").read_bytes()
+    with pytest.raises(SystemExit) as exit_info:
+        main(["identify", str(path), "--output", str(out), "--holdout", "0.3"])
+    assert exit_info.value.code == 2
+    assert (out / "model.yaml").read_bytes() == before
+
+
+def test_identify_refuses_what_it_cannot_fit_and_writes_nothing(tmp_path, capsys):
+    from helpers import synthetic_log_columns, write_csv_columns
+
+    from elastic_gym.cli import main
+    from elastic_gym.logs import SensorLog, write_log
+
+    out = tmp_path / "out"
+    short = write_csv_columns(tmp_path / "short.csv", synthetic_log_columns(rows=1500))
+    columns = synthetic_log_columns(rows=3000, state=False)
+    position = np.stack([columns["motor_position_1"], columns["motor_position_2"]], axis=1)
+    torque = np.stack([columns["torque_1"], columns["torque_2"]], axis=1)
+    rigid = SensorLog.create({"robot": "TwoLinkRigid-v0"}, columns["time"], position, torque)
+    rigid_path = write_log(tmp_path / "rigid.csv", rigid)[0]
+    cases = [
+        ([str(short)], "too short"),
+        ([str(short), "--holdout", "0.9"], "--holdout must be a fraction"),
+        ([str(tmp_path / "missing.csv")], "missing.csv"),
+        ([str(rigid_path)], "has rigid joints"),
+    ]
+    for arguments, message in cases:
+        with pytest.raises(SystemExit) as exit_info:
+            main(["identify", *arguments, "--output", str(out)])
+        assert exit_info.value.code == 2
+        assert message in capsys.readouterr().err
+        assert not out.exists()

@@ -1,6 +1,6 @@
 """An identified model file: the parameters `elastic-gym identify` fitted to a sensor log.
 
-The file is YAML validated by :class:`IdentifiedModel` (JSON Schema ``identified-model``
+The file is YAML validated by :class:`IdentifiedModel` (JSON Schema ``model``
 shipped with the package's other schemas). Per joint it holds the stiffness K, spring
 damping D, motor inertia B of De Luca et al. (2007), eq. (1), a mass scale of the link the
 joint moves (mass and rotational inertia scaled together, the centre of mass kept: the
@@ -34,7 +34,7 @@ from elastic_gym.validation import (
 from elastic_gym.yaml_io import load_yaml
 
 FORMAT = 1
-SCHEMA_NAME = "identified-model"
+SCHEMA_NAME = "model"
 Name = Annotated[StrictStr, Field(min_length=1)]
 
 
@@ -167,9 +167,10 @@ class IdentifiedModel(StrictModel):
         """The file's text, with the schema comment on its first line."""
         import yaml
 
-        header = f"# yaml-language-server: $schema={SCHEMA_NAME}.json\n"
+        from elastic_gym.schemas import schema_comment
+
         body = yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
-        return header + body
+        return schema_comment(SCHEMA_NAME) + body
 
 
 def load_identified_model(path: str | Path) -> IdentifiedModel:

@@ -29,6 +29,7 @@ SCHEMAS = {
     "run": "elastic_gym.training.config:TrainConfig",  # a run folder's config.yaml
     "log": "elastic_gym.logs.sidecar:LogSidecar",  # a sensor log's sidecar <log>.yaml
     "robot": "elastic_gym.robots.description:RobotDescription",  # robot description files
+    "model": "elastic_gym.model.identified:IdentifiedModel",  # elastic-gym identify's model file
 }
 
 
