@@ -275,6 +275,7 @@ def test_identify_command_writes_the_model_report_and_figure(simulated_csv, tmp_
     assert (out / "model.yaml").read_bytes() == before
 
 
+@pytest.mark.slow  # the command imports every subcommand: seconds on a busy machine
 def test_identify_refuses_what_it_cannot_fit_and_writes_nothing(tmp_path, capsys):
     from helpers import synthetic_log_columns, write_csv_columns
 
