@@ -84,7 +84,7 @@ def fourier_reference(rng, low, high, base_hz=0.1, harmonics=5):
     peak = np.max(np.abs(np.sin(np.outer(t, w)) @ a + np.cos(np.outer(t, w)) @ b), axis=0)
     a, b = a * half / peak, b * half / peak
 
-    def reference(t):
+    def reference(t):  # t scalar, or (T, 1) for every sample at once
         s, c = np.sin(w * t), np.cos(w * t)
         return centre + s @ a + c @ b, (c * w) @ a - (s * w) @ b, -(s * w**2) @ a - (c * w**2) @ b
 
@@ -146,17 +146,19 @@ def record(robot: str, plants: list[dict], seconds: float, seed: int, out: Path)
     kp, kd = J * omega**2, 2 * 0.7 * J * omega
     steps = round(seconds / dt)
     time_ = np.arange(steps + 1) * dt
+    # the reference's feedforward g + M q_d'' + B q_d'' and motor positions, all at once
+    qd, dqd, ddqd = (np.ascontiguousarray(x) for x in reference(time_[:, None]))
+    chain = nominal.chain
+    g = chain.gravity(qd)
+    feedforward = chain.rnea(qd, np.zeros_like(qd), ddqd) + nominal.B * ddqd
+    theta_d = qd + g / nominal.K
     log_theta, torque = np.zeros((steps + 1, N, n)), np.zeros((steps + 1, N, n))
     acc = np.zeros((steps + 1, N, 3 * nominal.n_sensors))
     for k in range(steps + 1):
         measured = encoder.measure(theta, rngs, arms)
         forces = array.chain.specific_forces(q, dq, ddq)
         acc[k] = accelerometers.measure(forces, rngs, arms)
-        qd, dqd, ddqd = reference(time_[k])
-        g = nominal.gravity(qd)
-        feedforward = g + nominal.mass_matrix(qd) @ ddqd + nominal.B * ddqd
-        theta_d = qd + g / nominal.K
-        tau = feedforward + kp * (theta_d - measured) + kd * (dqd - dtheta)
+        tau = feedforward[k] + kp * (theta_d[k] - measured) + kd * (dqd[k] - dtheta)
         tau = np.ascontiguousarray(np.clip(tau + tau_dither(time_[k]), -limit, limit))
         log_theta[k], torque[k] = measured, tau
         integrator.step(theta, dtheta, q, dq, tau, dt, ddq=ddq)
