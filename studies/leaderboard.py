@@ -1,103 +1,69 @@
-"""Regenerate the shipped leaderboard of the elastic-gym benchmark.
+"""Regenerate the shipped leaderboard of the elastic-gym benchmark from the cards' commands.
 
-    python studies/leaderboard.py                   # score every shipped entry, rebuild
+    python studies/leaderboard.py                   # re-score every shipped card, rebuild
     python studies/leaderboard.py --entries eq13@deluca motor-pd@finite-difference
-    python studies/leaderboard.py --train           # first train the RL baselines
     python studies/leaderboard.py --rebuild         # only rebuild docs/leaderboard.md
 
-1. ``--train``: the RL baselines' run folders (``runs/benchmark/<name>``) with
-   ``elastic-gym train``'s defaults and fixed training seeds (``RL_BASELINES``): pure PPO
-   on the De Luca estimate and the residual PPO on eq. (13), also on the De Luca estimate.
-   Training seeds are 0 .. n_envs - 1 (and 10 000 + k for the learning curve): never the
-   suite's evaluation seeds (90 000 ..). RecurrentPPO on the raw sensors
-   is not among them: the comparison runner feeds a controller a state source's estimate,
-   and a policy on raw sensors has none (``trained-policy`` refuses such a run).
-2. Scoring: every entry of ``CLASSICAL`` (and every RL baseline whose run folder exists)
-   with :func:`elastic_gym.benchmark.run_benchmark` on the whole suite, one entry after
-   the other on all CPUs; each writes ``benchmark_out/<entry>/`` and its scorecard JSON is
-   copied to ``docs/leaderboard/scorecards/<entry>.json``.
-3. ``elastic-gym benchmark --leaderboard``: ``docs/leaderboard.md``, ``.csv`` and ``.png``
-   from the scorecards in the repository.
+Every card in ``docs/leaderboard/scorecards/`` records the ``elastic-gym benchmark`` command
+that scores its entry (run from the repository's root). This script runs that command with
+``--output benchmark_out/<label> --overwrite``, copies the new card over the old one, and
+rebuilds the page, CSV and figure (``elastic-gym benchmark --leaderboard``). A new entry is
+scored once by hand (docs/benchmark.md) and its card copied in; from then on it is
+re-scored here. The RL entries' policies are in ``docs/leaderboard/runs/``, trained by the
+commands of ``docs/leaderboard/runs/COMMANDS.txt`` (training seeds 0 .., never the suite's
+evaluation seeds 90 000 ..).
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
-from elastic_gym.benchmark import rebuild_leaderboard, run_benchmark
+from elastic_gym.benchmark import read_scorecard
 from elastic_gym.benchmark.leaderboard import SCORECARD_DIR
 
-EQ13, INTEGRAL = "feedforward-state-feedback", "integral-state-feedback"
-CLASSICAL = {
-    "eq13@deluca": {"controller": EQ13, "source": "deluca"},
-    "eq13@ekf": {"controller": EQ13, "source": "ekf"},
-    "eq13@finite-difference": {"controller": EQ13, "source": "finite-difference"},
-    "eq13-integral@deluca": {"controller": INTEGRAL, "source": "deluca"},
-    "eq13-integral@ekf": {"controller": INTEGRAL, "source": "ekf"},
-    "eq13-integral-loadid@deluca": {
-        "controller": INTEGRAL,
-        "source": "deluca",
-        "options": {"load_identification": "shared"},
-    },
-    "motor-pd@finite-difference": {"controller": "motor-pd", "source": "finite-difference"},
-    "link-pd@deluca": {"controller": "link-pd", "source": "deluca"},
-    # oracle references: the same laws on the true state
-    "eq13@true": {"controller": EQ13, "source": "true"},
-    "eq13-integral@true": {"controller": INTEGRAL, "source": "true"},
-    "eq13-integral-loadid@true": {
-        "controller": INTEGRAL,
-        "source": "true",
-        "options": {"load_identification": "shared"},
-    },
-    "motor-pd@true": {"controller": "motor-pd", "source": "true"},
-    "link-pd@true": {"controller": "link-pd", "source": "true"},
-}
-RUNS = Path("runs/benchmark")
-RL_BASELINES = {  # name -> elastic-gym train arguments (seed 0, the shipped defaults)
-    "ppo@deluca": ["--algo", "ppo", "--state", "deluca"],
-    "residual-ppo@deluca": ["--algo", "ppo", "--state", "deluca", "--residual", EQ13],
-}
+OUTPUT = Path("benchmark_out")
 
 
-def train_baselines(names: list[str]) -> None:
-    from elastic_gym.cli import main
+def elastic_gym(args: list[str]) -> None:
+    """Run the console script (this interpreter's package) or stop with its exit code."""
+    print("$ elastic-gym " + shlex.join(args), flush=True)
+    done = subprocess.run([sys.executable, "-m", "elastic_gym.cli", *args], check=False)
+    if done.returncode:
+        sys.exit(done.returncode)
 
+
+def rescore(names: list[str], workers: int | None) -> None:
     for name in names:
-        folder = RUNS / name
-        if (folder / "config.yaml").exists():
-            print(f"{name}: {folder} exists, not retrained")
+        path = SCORECARD_DIR / f"{name}.json"
+        card = read_scorecard(path)
+        if card.command is None:
+            print(f"{name}: the card records no command (a Python callable); not re-scored")
             continue
-        main(["train", *RL_BASELINES[name], "--seeds", "0", "--out", str(folder)])
-
-
-def score(names: list[str], workers: int | None) -> None:
-    SCORECARD_DIR.mkdir(parents=True, exist_ok=True)
-    for name in names:
-        entry = CLASSICAL.get(name) or {"run": str(RUNS / name)}
-        out = Path("benchmark_out") / name
-        card = run_benchmark(
-            {**entry, "label": name}, output_dir=out, overwrite=True, workers=workers
-        )
-        shutil.copy(out / "scorecard.json", SCORECARD_DIR / f"{name}.json")
-        print(f"{name}: {card.scores.overall:.3f} in {card.wall_time:.0f} s")
+        out = OUTPUT / name
+        extra = ["--output", str(out), "--overwrite", "--no-progress"]
+        extra += ["--workers", str(workers)] if workers else []
+        elastic_gym([*shlex.split(card.command)[1:], *extra])
+        shutil.copy(out / "scorecard.json", path)
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--entries", nargs="+", help="score only these entries")
-    parser.add_argument("--train", action="store_true", help="train the RL baselines first")
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
+    parser.add_argument("--entries", nargs="+", metavar="LABEL", help="re-score only these")
     parser.add_argument("--rebuild", action="store_true", help="only rebuild the leaderboard")
     parser.add_argument("--workers", type=int)
     args = parser.parse_args()
-    rl = [n for n in RL_BASELINES if (RUNS / n / "config.yaml").exists() or args.train]
-    names = args.entries or [*CLASSICAL, *rl]
+    names = args.entries or sorted(p.stem for p in SCORECARD_DIR.glob("*.json"))
+    missing = [n for n in names if not (SCORECARD_DIR / f"{n}.json").exists()]
+    if missing:
+        parser.error(f"--entries: no card {missing} in {SCORECARD_DIR}")
     if not args.rebuild:
-        if args.train:
-            train_baselines([n for n in names if n in RL_BASELINES])
-        score(names, args.workers)
-    rebuild_leaderboard()
+        rescore(names, args.workers)
+    elastic_gym(["benchmark", "--leaderboard"])
 
 
 if __name__ == "__main__":

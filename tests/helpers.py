@@ -5,7 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import yaml
 
+from elastic_gym.benchmark.suite import SUITE_DIR
 from elastic_gym.model import RobotModel
 
 GRAVITY = 9.81
@@ -152,3 +154,32 @@ def simulate_log(
     out["time"] = np.arange(steps + 1) * dt
     out["bias"] = bias
     return out
+
+
+def shipped_suite_data() -> dict:
+    """The shipped benchmark suite ``elastic-gym-v1`` as YAML data."""
+    return yaml.safe_load((SUITE_DIR / "elastic-gym-v1.yaml").read_text())
+
+
+def tiny_suite_data() -> dict:
+    """The shipped suite cut to two cells of 0.1 s on TwoLinkElastic (10 seeds)."""
+    data = shipped_suite_data()
+    data["duration"] = 0.1
+    data["robots"] = {"two-link": data["robots"]["two-link"]}
+    data["tasks"] = {"smooth": data["tasks"]["smooth"]}
+    data["categories"] = {
+        "nominal": {**data["categories"]["nominal"], "cells": [{"task": "smooth", "label": "s"}]},
+        "latency": {
+            **data["categories"]["latency"],
+            "cells": [{"task": "smooth", "label": "d2", "plant": {"sensor_delay": 2}}],
+        },
+        # differs from the nominal cell only in per-arm kwargs: one world runs both
+        "link-model": {
+            **data["categories"]["link-model"],
+            "cells": [
+                {"task": "smooth", "label": "m", "plant": {"plant_scaling": {"link_mass": 1.1}}}
+            ],
+        },
+    }
+    data["precision"]["tasks"] = ["smooth"]
+    return data

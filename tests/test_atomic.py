@@ -29,3 +29,20 @@ def test_only_whole_file_modes_are_accepted(tmp_path):
     with pytest.raises(ValueError, match="whole files"), atomic_file(tmp_path / "x", "a"):
         pass
     assert not list(tmp_path.iterdir())
+
+
+def test_a_new_file_gets_the_umask_mode_and_a_replaced_one_keeps_its_mode(tmp_path):
+    import os
+    import stat
+
+    umask = os.umask(0o022)
+    try:
+        fresh = write_text(tmp_path / "page.md", "new")
+        assert stat.S_IMODE(fresh.stat().st_mode) == 0o644  # as open() would, not mkstemp's 0o600
+        kept = tmp_path / "card.json"
+        kept.write_text("old")
+        kept.chmod(0o640)
+        write_text(kept, "new")
+        assert stat.S_IMODE(kept.stat().st_mode) == 0o640
+    finally:
+        os.umask(umask)

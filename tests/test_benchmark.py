@@ -13,8 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from helpers import shipped_suite_data as shipped_data
+from helpers import tiny_suite_data
 
 from elastic_gym.benchmark import load_suite, read_scorecard, rebuild_leaderboard, run_benchmark
+from elastic_gym.benchmark.card import METRICS
 from elastic_gym.benchmark.entry import Entry, describe_entry, resolve_entry
 from elastic_gym.benchmark.scoring import (
     Episode,
@@ -38,34 +41,6 @@ def cli(args: list[str]) -> int:
         return main(args)
     except SystemExit as exc:
         return int(exc.code)
-
-
-def shipped_data() -> dict:
-    return yaml.safe_load(SHIPPED.read_text())
-
-
-def tiny_suite_data() -> dict:
-    """The shipped suite cut to two cells of 0.1 s on TwoLinkElastic (10 seeds)."""
-    data = shipped_data()
-    data["duration"] = 0.1
-    data["robots"] = {"two-link": data["robots"]["two-link"]}
-    data["tasks"] = {"smooth": data["tasks"]["smooth"]}
-    data["categories"] = {
-        "nominal": {**data["categories"]["nominal"], "cells": [{"task": "smooth", "label": "s"}]},
-        "latency": {
-            **data["categories"]["latency"],
-            "cells": [{"task": "smooth", "label": "d2", "plant": {"sensor_delay": 2}}],
-        },
-        # differs from the nominal cell only in per-arm kwargs: one world runs both
-        "link-model": {
-            **data["categories"]["link-model"],
-            "cells": [
-                {"task": "smooth", "label": "m", "plant": {"plant_scaling": {"link_mass": 1.1}}}
-            ],
-        },
-    }
-    data["precision"]["tasks"] = ["smooth"]
-    return data
 
 
 # ---------------------------------------------------------------- suite
@@ -130,6 +105,10 @@ def test_cells_merge_robot_task_and_perturbation_kwargs():
         ),
         (lambda d: d.update(physics_dt=2e-3), "physics_dt: Input should be less than or equal"),
         (lambda d: d["precision"].update(low=1.0), "low (1) must be < high (0.1)"),
+        (
+            lambda d: [c.update(weight=0) for c in [*d["categories"].values(), d["precision"]]],
+            "categories: every weight is 0",
+        ),
     ],
 )
 def test_bad_suites_are_refused_naming_the_field(change, message):
@@ -268,23 +247,31 @@ def test_scorecard_holds_the_comparisons_episodes_bit_for_bit(tiny_cards):
     assert len(runs) == len(suite.cells) * len(suite.seeds) == card.scores.episodes
     spec = runs[len(suite.seeds) + 3]  # latency cell, fourth seed
     # the mass cell shares the nominal cell's world (per-arm plants) and is scored too
-    assert [c.pass_share for c in card.cells if c.id == "two-link/link-model/m"]
+    assert "two-link/link-model/m" in card.cells
     direct = run_episode(spec)
-    cell = next(c for c in card.cells if c.id == spec.labels["env"])
-    episode = next(e for e in cell.episodes if e.seed == spec.seed)
-    assert episode.status == direct.status
-    for key in ("track_rms", "track_max", "torque_rms", "torque_rate_rms", "saturation_share"):
-        assert episode.metrics[key] == direct.metrics[key]
+    status, metrics = next(
+        (status, metrics)
+        for cell_id, seed, status, metrics in card.episode_rows()
+        if cell_id == spec.labels["env"] and seed == spec.seed
+    )
+    assert status == direct.status
+    for key in METRICS:  # every metric the card keeps, bit for bit
+        assert metrics[key] == direct.metrics[key] or (
+            math.isnan(metrics[key]) and not math.isfinite(direct.metrics[key])
+        )
     # the scores are the scoring of those episodes, and the JSON file reads back equal
     rows = [
-        {"env": c.id, "seed": e.seed, "status": e.status, **e.metrics}
-        for c in card.cells
-        for e in c.episodes
+        {"env": cell_id, "seed": seed, "status": status, **metrics}
+        for cell_id, seed, status, metrics in card.episode_rows()
     ]
     rescored = compute_scores(suite, score_episodes(suite, rows))
     assert rescored.overall == card.scores.overall
     assert read_scorecard(root / "eq13@deluca" / "scorecard.json") == card
-    assert card.suite.hash == suite.hash and card.entry["oracle"] is False
+    assert card.suite.hash == suite.hash and card.entry.oracle is False
+    assert card.command == (
+        "elastic-gym benchmark --controller feedforward-state-feedback --source deluca "
+        f"--label eq13@deluca --suite {suite_file}"
+    )
     assert (root / "eq13@true" / "scores.png").stat().st_size > 1000
 
 
@@ -303,11 +290,11 @@ def test_leaderboard_rebuilds_from_scorecards_and_refuses_other_suites(tiny_card
     for label in cards:
         (folder / f"{label}.json").write_text((root / label / "scorecard.json").read_text())
     page = tmp_path / "leaderboard.md"
-    files = rebuild_leaderboard(folder, page, suite_file)
+    files, _ = rebuild_leaderboard(folder, page, suite_file)
     text = page.read_text()
     implementable, oracle = text.split("## Oracle references")
     assert "eq13@deluca" in implementable.split("## Implementable entries")[1]
-    assert "eq13@true" in oracle.split("## Best")[0]
+    assert "eq13@true" in oracle.split("## Per entry")[0]
     assert all(Path(f).exists() for f in files)
     data = json.loads((folder / "eq13@true.json").read_text())
     data["suite"]["version"] = 2
@@ -330,7 +317,7 @@ def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_p
     )
     assert code == 0
     card = read_scorecard(tmp_path / "a" / "scorecard.json")
-    assert card.entry["source"] == observer and card.entry["controller"] == "motor-pd"
+    assert card.entry.source == observer and card.entry.controller == "motor-pd"
     assert re.search(r"30 runs .*on 1 worker, about \d+ s", capsys.readouterr().out)
     for bad, message in [
         (["--class", observer, "--source", "ekf"], "--class (an Observer) and --source"),
@@ -344,7 +331,11 @@ def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_p
         ),
         (["--controller", "motor-pd", "--output", str(tmp_path / "a")], "earlier scorecard"),
         (["--controller", "motor-pd", "--robot", "kr15"], "unknown robot(s) ['kr15']"),
-        ([], "give one of --leaderboard or --run or --controller/--class/--source"),
+        (
+            ["--controller", "motor-pd", "--label", "x" * 300],
+            "entry.label: the label is 300 characters long, more than 100 (it starts 'xxx",
+        ),
+        ([], "give one of --leaderboard or --verify or --upgrade or --run or --controller/"),
     ]:
         assert cli([*args, *bad]) == 2
         assert message in capsys.readouterr().err

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from elastic_gym.benchmark import run_benchmark
+from elastic_gym.benchmark import load_suite, run_benchmark
 from elastic_gym.benchmark.scorecard import scorecard_markdown
 from elastic_gym.cli.compare import with_trained_policy
 from elastic_gym.evaluation import plan_runs
@@ -269,7 +269,7 @@ def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
 def test_benchmark_scores_a_raw_sensor_run_as_implementable(sensor_runs, tmp_path):
     """`elastic-gym benchmark --run RUN` of a RecurrentPPO run on raw sensors: scored,
     source 'sensors', nothing privileged, not an oracle, and the scorecard says so."""
-    from tests.test_benchmark import tiny_suite_data
+    from helpers import tiny_suite_data
 
     data = tiny_suite_data()
     data["categories"] = {"nominal": data["categories"]["nominal"]}
@@ -283,12 +283,12 @@ def test_benchmark_scores_a_raw_sensor_run_as_implementable(sensor_runs, tmp_pat
         progress=False,
         figure=False,
     )
-    assert card.entry["source"] == "sensors" and card.entry["privileged"] == []
-    assert card.oracle is False and card.entry["run"]["state"] == "sensors"
+    assert card.entry.source == "sensors" and card.entry.privileged == []
+    assert card.entry.oracle is False and card.entry.run["state"] == "sensors"
     assert card.scores.episodes == len(data["seeds"])
-    assert all(e.status == "ok" for c in card.cells for e in c.episodes)
+    assert all(status == "ok" for _, _, status, _ in card.episode_rows())
     assert "implementable: the raw sensors, no estimate and no ground truth" in (
-        scorecard_markdown(card)
+        scorecard_markdown(card, load_suite(suite_file))
     )
 
 

@@ -22,6 +22,7 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, Field, PrivateAttr, StrictStr, model_validator
 
+from elastic_gym.benchmark.card import checked_label
 from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry, resolve_class
 from elastic_gym.evaluation.scenario_models import ClassPath
 from elastic_gym.observers.registry import OBSERVERS, source_class
@@ -57,7 +58,7 @@ class Entry(StrictModel):
     run folder's name).
     """
 
-    label: str | None = Field(default=None, min_length=1)
+    label: Annotated[str, AfterValidator(checked_label)] | None = None
     controller: Annotated[
         StrictStr | type | None, AfterValidator(_registered(_controller_class))
     ] = None
@@ -86,6 +87,17 @@ class Entry(StrictModel):
         return f"{_short(self.controller)}@{_short(self.source)}"
 
 
+def described(value: str | type | None) -> str | None:
+    """A controller or source as a command line names it: its registry name, or a class
+    as ``module:Class`` (``None`` for a class no import can find: one defined in a
+    function)."""
+    if not isinstance(value, type):
+        return value
+    if "<locals>" in value.__qualname__:
+        return None
+    return f"{value.__module__}:{value.__qualname__}"
+
+
 def _short(value: str | type | None) -> str:
     return value.__name__ if isinstance(value, type) else str(value).rpartition(":")[2]
 
@@ -105,24 +117,31 @@ def class_kind(path: str, option: str) -> str:
 
 class EntryArguments(StrictModel):
     """The entry options of ``elastic-gym benchmark``, checked together once: one of
-    ``--leaderboard``, ``--run`` or a closed loop (``--controller`` / ``--class`` /
-    ``--source``); ``--class`` (``cls``) takes the place of the controller or of the
-    source, whichever it is. :meth:`entry` gives the :class:`Entry` fields."""
+    ``--leaderboard``, ``--verify``, ``--upgrade``, ``--run`` or a closed loop
+    (``--controller`` / ``--class`` / ``--source``); ``--class`` (``cls``) takes the place
+    of the controller or of the source, whichever it is. `entry` gives the `Entry` fields."""
 
     controller: str | None = None
     cls: ClassPath = Field(default=None, alias="class")
     source: str | None = None
     run: str | None = None
     leaderboard: bool = False
+    verify: str | None = None
+    upgrade: list[str] | None = None
     options: dict[str, Any] = Field(default_factory=dict)
     source_options: dict[str, Any] = Field(default_factory=dict)
-    label: str | None = None
+    label: Annotated[str, AfterValidator(checked_label)] | None = None
     _class_kind: str = PrivateAttr("")
 
     @model_validator(mode="after")
     def _one_kind(self) -> EntryArguments:
         loop = self.controller or self.cls or self.source
-        kinds = {"--leaderboard": self.leaderboard or None, "--run": self.run}
+        kinds = {
+            "--leaderboard": self.leaderboard or None,
+            "--verify": self.verify,
+            "--upgrade": self.upgrade,
+            "--run": self.run,
+        }
         at_most_one({**kinds, "--controller/--class/--source": loop}, required=True)
         if self.cls is not None:
             self._class_kind = class_kind(self.cls, "--class")
@@ -180,7 +199,7 @@ def _run_entries(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
     except (FileNotFoundError, ValueError) as exc:
         raise ValueError(f"run: {exc}") from None
     source = _source_entry(config.state, dict(config.observer_options))
-    options = {"run": str(run.resolve()), "best": entry.best}
+    options = {"run": str(run), "best": entry.best}
     return ControllerEntry(name=TRAINED_POLICY, label=run.name, options=options), source
 
 

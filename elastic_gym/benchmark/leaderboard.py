@@ -1,220 +1,117 @@
-"""The leaderboard: a table, a CSV and a figure rebuilt from scorecard JSON files, no re-run.
+"""The leaderboard rebuilt from scorecard files: a page, a CSV and a figure; nothing is run.
 
-:func:`rebuild_leaderboard` reads every ``*.json`` of ``docs/leaderboard/scorecards/``
-(:func:`~elastic_gym.benchmark.scorecard.read_scorecard` validates each), refuses a card of
-another suite (name, version or hash different from the current suite's) or a duplicate
-label, and writes ``docs/leaderboard.md``, ``docs/leaderboard/leaderboard.csv`` and
-``docs/leaderboard/leaderboard.png``. Implementable entries and oracle references (entries
-whose state source read the ground truth) are separate tables, each ranked by the overall
-score; below them, for each score, the best implementable entry and its lead over the
-next one, the notes of ``docs/leaderboard/notes.md``, and each task's tolerances beside the
-spread the shipped entries measured.
+`rebuild_leaderboard` reads every ``*.json`` of the scorecard folder, validates each card
+(`elastic_gym.benchmark.card`) and checks it against the suite
+(`elastic_gym.benchmark.audit`: its scores recomputed from its episodes, its oracle flag
+derived), refuses two cards with one label, and only then writes the page
+(`elastic_gym.benchmark.page`), the CSV and the figure, each atomically. It writes exactly
+three files, at the paths it is given (defaults: ``docs/leaderboard.md`` and, in the
+folder named like the page, ``leaderboard.csv`` and ``leaderboard.png``), and replaces a
+file there only if an earlier rebuild wrote it (the page's first line, the CSV's header,
+the figure's ``Software`` text), unless ``overwrite``. A ``notes.md`` beside the scorecard
+folder (what the results show, in words) goes under the tables.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from elastic_gym.benchmark.scorecard import Scorecard, SuiteRef, fmt, read_scorecard, score_value
+from elastic_gym.benchmark.audit import CheckedCard, check_card
+from elastic_gym.benchmark.card import read_scorecard
+from elastic_gym.benchmark.markdown import plot_text
+from elastic_gym.benchmark.page import MARKER, leaderboard_markdown, shown_label, tables
+from elastic_gym.benchmark.scorecard import score_value
 from elastic_gym.benchmark.scoring import OVERALL, PRECISION
 from elastic_gym.benchmark.suite import DEFAULT_SUITE, SuiteConfig, load_suite
+from elastic_gym.runtime.atomic import write_bytes, write_text
 
 DOCS = Path("docs")
 SCORECARD_DIR = DOCS / "leaderboard" / "scorecards"
 PAGE = DOCS / "leaderboard.md"
 NOTES = "notes.md"  # beside the scorecard folder: what the leaderboard shows, in words
+CSV_FILE, FIGURE_FILE = "leaderboard.csv", "leaderboard.png"
+CSV_HEAD = ["entry", "oracle", "subset", "controller", "source", "robots"]
+SOFTWARE = "elastic-gym benchmark --leaderboard"
 
 
-def _identity(suite: SuiteRef | SuiteConfig) -> tuple[str, int, str]:
-    """What a scorecard must share with the suite it is ranked on."""
-    return suite.name, suite.version, suite.hash
+def default_outputs(page: str | Path) -> tuple[Path, Path]:
+    """The CSV and the figure of a page: in the folder named like the page without
+    ``.md`` (``docs/leaderboard/`` for ``docs/leaderboard.md``)."""
+    page = Path(page)
+    folder = page.with_suffix("")
+    return folder / CSV_FILE, folder / FIGURE_FILE
 
 
-def _shown(suite: SuiteRef | SuiteConfig) -> str:
-    return f"{suite.name} version {suite.version} (hash {suite.hash[:12]})"
-
-
-def load_cards(folder: Path, suite: SuiteConfig) -> list[Scorecard]:
-    """The scorecards of ``folder`` (sorted by file name), all of ``suite``."""
+def load_cards(folder: str | Path, suite: SuiteConfig) -> tuple[list[CheckedCard], list[str]]:
+    """The checked cards of ``folder`` (by file name) and the notes of what was derived
+    against a card's word; ``ValueError`` naming every refused card."""
     paths = sorted(Path(folder).glob("*.json"))
     if not paths:
         raise FileNotFoundError(f"no scorecard JSON file in {folder}")
-    cards: list = []
+    cards: list[CheckedCard] = []
+    problems: list[str] = []
     labels: dict[str, Path] = {}
     for path in paths:
-        card = read_scorecard(path)
-        if _identity(card.suite) != _identity(suite):
-            changed = " (the suite changed)" if card.suite.name == suite.name else ""
-            raise ValueError(
-                f"{path}: scorecard of suite {_shown(card.suite)}, not of {_shown(suite)}"
-                f"{changed}: re-run the entry on this suite"
+        try:
+            checked = check_card(read_scorecard(path), suite, str(path))
+        except ValueError as exc:
+            problems.append(str(exc))
+            continue
+        if checked.label in labels:
+            problems.append(
+                f"{path}: entry.label {checked.label!r} is also the label of "
+                f"{labels[checked.label]}"
             )
-        if card.label in labels:
-            raise ValueError(f"{path}: entry label {card.label!r} also in {labels[card.label]}")
-        labels[card.label] = path
-        cards.append(card)
-    return cards
+            continue
+        labels[checked.label] = path
+        cards.append(checked)
+    if problems:
+        count = f"{len(problems)} of {len(paths)} scorecards refused" if len(problems) > 1 else ""
+        raise ValueError((count + ": " if count else "") + " | ".join(problems))
+    return cards, [note for card in cards for note in card.notes]
 
 
 def _columns(suite: SuiteConfig) -> list[str]:
     return [OVERALL, PRECISION, *suite.categories]
 
 
-def _ranked(cards: Sequence[Scorecard]) -> list[Scorecard]:
-    return sorted(cards, key=lambda c: -(c.scores.overall or 0.0))
+def _ordered(cards: Sequence[CheckedCard]) -> list[CheckedCard]:
+    groups = tables(cards)
+    return [*groups["implementable"], *groups["oracle"], *groups["subset"]]
 
 
-def _table(cards: Sequence[Scorecard], columns: list[str]) -> list[str]:
-    lines = [
-        "| entry | controller | state source | robots | " + " | ".join(columns) + " |",
-        "|---|---|---|---|" + "---|" * len(columns),
-    ]
-    for card in _ranked(cards):
-        values = " | ".join(fmt(score_value(card, c)) for c in columns)
-        lines.append(
-            f"| {card.label} | `{card.entry['controller']}` | `{card.entry['source']}` | "
-            f"{', '.join(card.robots)} | {values} |"
-        )
-    return lines
-
-
-def winners(cards: Sequence[Scorecard], columns: list[str]) -> list[str]:
-    """One line per score column: the best implementable entry and its lead."""
-    lines = []
-    for column in columns:
-        values = {c.label: score_value(c, column) for c in cards}
-        ranked = sorted(
-            (c for c in cards if values[c.label] is not None),
-            key=lambda c: -float(values[c.label]),  # type: ignore[arg-type]
-        )
-        if not ranked:
-            continue
-        best = ranked[0]
-        ties = [c.label for c in ranked if score_value(c, column) == score_value(best, column)]
-        if len(ties) > 1:
-            lines.append(f"* {column}: {', '.join(ties)} tie at {fmt(score_value(best, column))}.")
-            continue
-        lead = ""
-        if len(ranked) > 1:
-            lead = (
-                f", {float(values[best.label]) - float(values[ranked[1].label]):.2f} ahead of "  # type: ignore[arg-type]
-                f"{ranked[1].label} ({fmt(score_value(ranked[1], column))})"
-            )
-        lines.append(f"* {column}: {best.label} ({fmt(score_value(best, column))}){lead}.")
-    return lines
-
-
-def spread_table(cards: Sequence[Scorecard], suite: SuiteConfig) -> list[str]:
-    """Per task and tolerance metric: the threshold, and each entry's range (min - max over
-    the completed episodes of the task's unperturbed cells) with its count of episodes
-    beyond the threshold: the measured spread the thresholds sit in."""
-    base = {c.id: c for c in suite.cells if not c.perturbed}
-    ordered = [
-        *_ranked([c for c in cards if not c.oracle]),
-        *_ranked([c for c in cards if c.oracle]),
-    ]
-    lines = [
-        "| task | metric | threshold | " + " | ".join(c.label for c in ordered) + " |",
-        "|---|---|---|" + "---|" * len(ordered),
-    ]
-    for name, task in suite.tasks.items():
-        for metric, limit in task.tolerance.limits().items():
-            cells = []
-            for card in ordered:
-                values = [
-                    e.metrics.get(metric)
-                    for cell in card.cells
-                    if cell.id in base and cell.task == name
-                    for e in cell.episodes
-                    if e.status == "ok"
-                ]
-                finite = [v for v in values if v is not None and math.isfinite(v)]
-                if not values:
-                    cells.append("-")
-                    continue
-                beyond = sum(1 for v in values if v is None or not v <= limit)
-                span = f"{min(finite):.2g} - {max(finite):.2g}" if finite else "n/a"
-                cells.append(f"{span} ({beyond}/{len(values)} over)")
-            lines.append(f"| {name} | {metric} | {limit:g} | " + " | ".join(cells) + " |")
-    return lines
-
-
-def leaderboard_markdown(cards: Sequence[Scorecard], suite: SuiteConfig, notes: str = "") -> str:
-    """The leaderboard page; ``notes`` (markdown) goes under the tables."""
+def csv_text(cards: Sequence[CheckedCard], suite: SuiteConfig) -> str:
+    """One row per card (implementable, oracle, subset; each ranked): what it is, its
+    scores (4 decimals) and where it was measured."""
     columns = _columns(suite)
-    implementable = [c for c in cards if not c.oracle]
-    oracle = [c for c in cards if c.oracle]
-    weights = ", ".join(f"{n} {c.weight:g}" for n, c in suite.categories.items())
-    commits = sorted({(c.package["version"], c.package.get("commit") or "?") for c in cards})
-    lines = [
-        f"# Leaderboard: {suite.name}",
-        "",
-        f"Suite {suite.name} version {suite.version} (sha256 `{suite.hash}`): "
-        f"{len(suite.cells)} cells x {len(suite.seeds)} seeds, {suite.duration:g} s "
-        f"episodes at a {suite.physics_dt * 1e3:g} ms physics step. Scores in [0, 1]: "
-        "a category's score is the share of its episodes that stay stable and within the "
-        "task's tolerances; precision maps the nominal tracking RMS log-linearly from "
-        f"{suite.precision.low:g} rad (1) to {suite.precision.high:g} rad (0); overall is "
-        f"the weighted mean (weights: {weights}, precision {suite.precision.weight:g}). "
-        "How to score and add an entry: [the submission guide](benchmark.md).",
-        "",
-        "Measured with elastic-gym "
-        + ", ".join(f"{v} (commit {c[:10]})" for v, c in commits)
-        + "; rebuilt from the scorecards in `docs/leaderboard/scorecards/` by "
-        "`elastic-gym benchmark --leaderboard`.",
-        "",
-        "## Implementable entries",
-        "",
-        *(_table(implementable, columns) if implementable else ["(none)"]),
-        "",
-        "## Oracle references (read the true state)",
-        "",
-        *(_table(oracle, columns) if oracle else ["(none)"]),
-        "",
-        "## Best implementable entry per score",
-        "",
-        *winners(implementable, columns),
-        "",
-        *([notes.strip(), ""] if notes.strip() else []),
-        "![per-category scores](leaderboard/leaderboard.png)",
-        "",
-        "## Tolerances and the measured spread",
-        "",
-        "Each task's thresholds against the range of each entry's completed episodes on the "
-        "task's unperturbed cells (both robots), with the count of those episodes beyond "
-        "the threshold.",
-        "",
-        *spread_table(cards, suite),
-        "",
-    ]
-    return "\n".join(lines)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow([*CSV_HEAD, *columns, "package", "commit"])
+    for checked in _ordered(cards):
+        card = checked.card
+        values = [score_value(card, c) for c in columns]
+        writer.writerow(
+            [
+                card.label,
+                checked.oracle,
+                checked.subset,
+                card.entry.controller,
+                card.entry.source,
+                " ".join(card.robots),
+                *("" if v is None else f"{v:.4f}" for v in values),
+                card.provenance.package,
+                card.provenance.commit or "",
+            ]
+        )
+    return buffer.getvalue()
 
 
-def write_csv(cards: Sequence[Scorecard], suite: SuiteConfig, path: Path) -> Path:
-    columns = _columns(suite)
-    with open(path, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["entry", "oracle", "controller", "source", *columns, "commit"])
-        for card in [
-            *_ranked([c for c in cards if not c.oracle]),
-            *_ranked([c for c in cards if c.oracle]),
-        ]:
-            writer.writerow(
-                [card.label, card.oracle, card.entry["controller"], card.entry["source"]]
-                + [
-                    ("" if score_value(card, c) is None else f"{score_value(card, c):.4f}")
-                    for c in columns
-                ]
-                + [card.package.get("commit") or ""]
-            )
-    return path
-
-
-def plot_leaderboard(cards: Sequence[Scorecard], suite: SuiteConfig, path: Path) -> Path:
-    """A heat map: entries (implementable, then oracle) x scores."""
+def plot_leaderboard(cards: Sequence[CheckedCard], suite: SuiteConfig) -> bytes:
+    """A heat map of entries (implementable, oracle, subset) x scores, as PNG bytes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -222,60 +119,90 @@ def plot_leaderboard(cards: Sequence[Scorecard], suite: SuiteConfig, path: Path)
     import numpy as np
 
     columns = _columns(suite)
-    ordered = [
-        *_ranked([c for c in cards if not c.oracle]),
-        *_ranked([c for c in cards if c.oracle]),
-    ]
+    ordered = _ordered(cards)
     data = np.array(
         [
-            [math.nan if score_value(c, k) is None else score_value(c, k) for k in columns]
+            [math.nan if (v := score_value(c.card, k)) is None else v for k in columns]
             for c in ordered
         ]
     )
     fig, ax = plt.subplots(
-        figsize=(1.1 * len(columns) + 3, 0.45 * len(ordered) + 1.5), constrained_layout=True
+        figsize=(0.8 * len(columns) + 3.2, 0.32 * len(ordered) + 1.4), constrained_layout=True
     )
     image = ax.imshow(data, cmap="viridis", vmin=0, vmax=1, aspect="auto")
-    ax.set_xticks(range(len(columns)), columns, rotation=30, ha="right")
-    labels = [f"{c.label} (oracle)" if c.oracle else c.label for c in ordered]
-    ax.set_yticks(range(len(ordered)), labels)
+    ax.set_xticks(range(len(columns)), columns, rotation=30, ha="right", fontsize=8)
+    ax.set_yticks(range(len(ordered)), [plot_text(shown_label(c)) for c in ordered], fontsize=8)
     for i, row in enumerate(data):
         for j, value in enumerate(row):
             if math.isfinite(value):
-                ax.text(
-                    j,
-                    i,
-                    f"{value:.2f}",
-                    ha="center",
-                    va="center",
-                    fontsize=8,
-                    color="white" if value < 0.6 else "black",
-                )
-    fig.colorbar(image, ax=ax, label="score")
-    ax.set_title(f"{suite.name} leaderboard", fontsize=10)
-    fig.savefig(path, dpi=110)
+                color = "white" if value < 0.6 else "black"
+                ax.text(j, i, f"{value:.2f}", ha="center", va="center", fontsize=7, color=color)
+    fig.colorbar(image, ax=ax, label="score", shrink=0.8)
+    ax.set_title(f"{suite.name}: every score of every entry", fontsize=9)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=100, metadata={"Software": SOFTWARE})
     plt.close(fig)
-    return path
+    return buffer.getvalue()
+
+
+def written_here(path: Path) -> bool:
+    """Whether ``path`` is a file an earlier rebuild wrote (page marker, CSV header,
+    figure ``Software`` text)."""
+    try:
+        if path.suffix == ".png":
+            from PIL import Image
+
+            with Image.open(path) as image:
+                return getattr(image, "text", {}).get("Software") == SOFTWARE
+        with open(path, encoding="utf-8") as handle:
+            first = handle.readline().rstrip("\n")
+    except (OSError, ValueError):
+        return False
+    return first == MARKER or first.startswith(",".join(CSV_HEAD) + ",")
+
+
+def check_targets(paths: Sequence[Path], overwrite: bool) -> None:
+    """``FileExistsError`` naming the first target that is not a file an earlier rebuild
+    wrote (unless ``overwrite``), ``IsADirectoryError`` for a folder."""
+    for path in paths:
+        if path.is_dir():
+            raise IsADirectoryError(f"{path}: a folder, not a file the leaderboard can write")
+        if path.exists() and not overwrite and not written_here(path):
+            raise FileExistsError(
+                f"{path}: exists and was not written by the leaderboard rebuild; choose "
+                "another path or replace it with --overwrite"
+            )
 
 
 def rebuild_leaderboard(
     scorecards: str | Path = SCORECARD_DIR,
     page: str | Path = PAGE,
     suite: SuiteConfig | str | Path = DEFAULT_SUITE,
-) -> list[Path]:
-    """Rebuild the leaderboard page, CSV and figure from the scorecards (module docstring).
-    The CSV and the figure go to the scorecards' parent folder; a ``notes.md`` there (what the
-    results show, in words) is put under the tables."""
+    csv_path: str | Path | None = None,
+    figure: str | Path | None = None,
+    overwrite: bool = False,
+) -> tuple[list[Path], list[str]]:
+    """Rebuild the page, CSV and figure from the scorecards (module docstring); return the
+    files written and the notes of what was derived against a card's word. Nothing is
+    written when a card is refused or a target may not be replaced."""
     if not isinstance(suite, SuiteConfig):
         suite = load_suite(suite)
-    cards = load_cards(Path(scorecards), suite)
     page = Path(page)
-    tables = Path(scorecards).parent
-    page.parent.mkdir(parents=True, exist_ok=True)
-    notes = tables / NOTES
-    page.write_text(leaderboard_markdown(cards, suite, notes.read_text() if notes.exists() else ""))
-    return [
-        page,
-        write_csv(cards, suite, tables / "leaderboard.csv"),
-        plot_leaderboard(cards, suite, tables / "leaderboard.png"),
-    ]
+    default_csv, default_figure = default_outputs(page)
+    csv_path = Path(csv_path) if csv_path is not None else default_csv
+    figure = Path(figure) if figure is not None else default_figure
+    cards, notes = load_cards(scorecards, suite)
+    check_targets([page, csv_path, figure], overwrite)
+    notes_file = Path(scorecards).parent / NOTES
+    text = leaderboard_markdown(
+        cards, suite, page, figure, notes_file.read_text() if notes_file.exists() else ""
+    )
+    outputs = {page: text.encode(), csv_path: csv_text(cards, suite).encode()}
+    outputs[figure] = plot_leaderboard(cards, suite)
+    for path, data in outputs.items():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if path.suffix == ".png":
+            write_bytes(path, data)
+        else:
+            write_text(path, data.decode())
+    return list(outputs), notes

@@ -26,10 +26,18 @@ from typing import Any
 
 from rich.console import Console
 
+from elastic_gym.benchmark.card import Scorecard
+from elastic_gym.benchmark.command import entry_command
 from elastic_gym.benchmark.entry import Entry, describe_entry, resolve_entry
-from elastic_gym.benchmark.scorecard import JSON_FILE, Scorecard, build_scorecard, write_scorecard
+from elastic_gym.benchmark.scorecard import JSON_FILE, build_scorecard, write_scorecard
 from elastic_gym.benchmark.scoring import compute_scores, score_episodes
-from elastic_gym.benchmark.suite import DEFAULT_SUITE, SuiteConfig, load_suite, suite_scenario
+from elastic_gym.benchmark.suite import (
+    DEFAULT_SUITE,
+    SuiteConfig,
+    list_suites,
+    load_suite,
+    suite_scenario,
+)
 from elastic_gym.runtime.folder_lock import check_free
 from elastic_gym.runtime.parallel import DEFAULT_BACKEND
 from elastic_gym.validation import validated
@@ -72,10 +80,12 @@ def run_benchmark(
     from elastic_gym.evaluation.output import check_output_folder
 
     entry = validated(Entry, entry, prefix="entry")
+    suite_name = suite_argument(suite)
     if not isinstance(suite, SuiteConfig):
         suite = load_suite(suite)
     controller, source = resolve_entry(entry)
     record = describe_entry(entry)
+    command = entry_command(entry, suite_name, robots) if suite_name else None
     if robots is None and entry.run is not None:
         robots = [r for r, e in suite.robots.items() if e.env == record["run"]["env_id"]]
         if not robots:
@@ -108,13 +118,22 @@ def run_benchmark(
     used = sorted({c.robot for c in suite.cells if c.id in {e.cell for e in episodes}})
     used.sort(key=list(suite.robots).index)
     wall, cpu = time.perf_counter() - start, _cpu_seconds() - cpu_start
-    card = build_scorecard(suite, record, used, episodes, scores, wall, cpu)
-    write_scorecard(card, out, figure)
+    card = build_scorecard(suite, record, used, episodes, scores, command, wall, cpu)
+    write_scorecard(card, out, suite, figure)
     print(
         f"{card.label}: overall {card.scores.overall:.3f}, {scores.passed} of "
         f"{scores.episodes} episodes pass ({wall:.0f} s, {cpu:.0f} s CPU); scorecard in {out}/"
     )
     return card
+
+
+def suite_argument(suite: SuiteConfig | str | Path) -> str | None:
+    """How a command line names ``suite``: a shipped suite by its name, a file by its
+    path as given (``None`` for a suite object that is neither)."""
+    if isinstance(suite, SuiteConfig):
+        shipped = suite.name in list_suites() and load_suite(suite.name).hash == suite.hash
+        return suite.name if shipped else None
+    return str(suite)
 
 
 def _cpu_seconds() -> float:

@@ -1,100 +1,41 @@
-"""The scorecard of one entry on one suite: JSON (the record), markdown and a figure.
+"""The scorecard of one entry on one suite: built from scored episodes, written as JSON
+(`elastic_gym.benchmark.card`, the record), markdown and a figure, each file atomically.
 
-JSON fields: ``format``; ``suite`` (name, version, sha256 hash); ``package`` (version, git
-commit of the checkout when there is one); ``entry`` (what was scored and what it read:
-:func:`~elastic_gym.benchmark.entry.describe_entry`); ``robots``; ``created`` (UTC);
-``wall_time`` and ``cpu_time`` (s, this process and its worker processes; local
-backend); ``scores`` (overall, precision, per category, per robot); ``cells`` (per
-cell: robot, category, label, task, tolerances, pass share, and every episode with its
-seed, status, metrics and the checks it failed). :func:`read_scorecard` validates a file.
+The markdown page and the figure are views of the card for people: scores per category
+and robot, then per cell the pass share, means of the completed episodes and the checks
+that failed. `write_scorecard` writes every file beside its target and renames it over
+it, so a full disk or a kill leaves the earlier file or the whole new one.
 """
 
 from __future__ import annotations
 
-import json
+import io
 import math
 import subprocess
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
-
-from pydantic import Field
 
 import elastic_gym
+from elastic_gym.benchmark.audit import card_episodes
+from elastic_gym.benchmark.card import (
+    FORMAT,
+    METRICS,
+    CellEpisodes,
+    EntryRecord,
+    Provenance,
+    Scorecard,
+    ScoreRecord,
+    SuiteRef,
+    card_text,
+)
+from elastic_gym.benchmark.markdown import code, plot_text, text
 from elastic_gym.benchmark.scoring import OVERALL, PRECISION, Episode, Scores
 from elastic_gym.benchmark.suite import SuiteConfig
 from elastic_gym.observers.sensors import SENSORS
-from elastic_gym.validation import StrictModel, validated
+from elastic_gym.runtime.atomic import write_bytes, write_text
 
-FORMAT = 1
 JSON_FILE, MARKDOWN_FILE, FIGURE_FILE = "scorecard.json", "scorecard.md", "scores.png"
-CELL_METRICS = (
-    "track_rms",
-    "track_max",
-    "overshoot_pct",
-    "settling_time",
-    "torsion_max",
-    "torque_rms",
-    "torque_rate_rms",
-    "saturation_share",
-)
-
-
-class SuiteRef(StrictModel):
-    name: str
-    version: int
-    hash: str = Field(pattern=r"^[0-9a-f]{64}$")
-
-
-class EpisodeRecord(StrictModel):
-    seed: int
-    status: str
-    passed: bool
-    failed_checks: list[str]
-    metrics: dict[str, float | None]
-
-
-class CellRecord(StrictModel):
-    id: str
-    robot: str
-    category: str
-    label: str
-    task: str
-    tolerance: dict[str, float]
-    pass_share: float
-    episodes: list[EpisodeRecord]
-
-
-class ScoreRecord(StrictModel):
-    overall: float | None
-    precision: float | None
-    categories: dict[str, float | None]
-    per_robot: dict[str, dict[str, float | None]]
-    episodes: int
-    passed: int
-
-
-class Scorecard(StrictModel):
-    """A scorecard (module docstring)."""
-
-    format: int
-    suite: SuiteRef
-    package: dict[str, str | None]
-    entry: dict[str, Any]
-    robots: list[str]
-    created: str
-    wall_time: float
-    cpu_time: float | None = None
-    scores: ScoreRecord
-    cells: list[CellRecord]
-
-    @property
-    def label(self) -> str:
-        return str(self.entry["label"])
-
-    @property
-    def oracle(self) -> bool:
-        return bool(self.entry.get("oracle", False))
+CARD_FILES = (MARKDOWN_FILE, FIGURE_FILE, JSON_FILE)  # the JSON last: it is the record
 
 
 def _finite(value: float) -> float | None:
@@ -123,48 +64,30 @@ def build_scorecard(
     robots: list[str],
     episodes: list[Episode],
     scores: Scores,
+    command: str | None,
     wall_time: float,
     cpu_time: float | None = None,
 ) -> Scorecard:
-    """The scorecard of scored episodes (:mod:`~elastic_gym.benchmark.scoring`)."""
-    cells = []
+    """The card of scored episodes (`elastic_gym.benchmark.scoring`) of ``entry`` (its
+    `describe_entry` record) on ``robots``; ``command`` reproduces it."""
+    cells: dict[str, CellEpisodes] = {}
     for cell in suite.cells:
-        mine = [e for e in episodes if e.cell == cell.id]
+        mine = {e.seed: e for e in episodes if e.cell == cell.id}
         if not mine:
             continue
-        cells.append(
-            CellRecord(
-                id=cell.id,
-                robot=cell.robot,
-                category=cell.category,
-                label=cell.label,
-                task=cell.task,
-                tolerance=cell.tolerance.limits(),
-                pass_share=sum(e.passed for e in mine) / len(mine),
-                episodes=[
-                    EpisodeRecord(
-                        seed=e.seed,
-                        status=e.status,
-                        passed=e.passed,
-                        failed_checks=list(e.failed_checks),
-                        metrics={k: _finite(v) for k, v in e.metrics.items()},
-                    )
-                    for e in mine
-                ],
-            )
-        )
+        rows = [mine[seed] for seed in suite.seeds]
+        columns = {m: [_finite(e.metrics.get(m, math.nan)) for e in rows] for m in METRICS}
+        cells[cell.id] = CellEpisodes(status=[e.status for e in rows], **columns)
     return Scorecard(
         format=FORMAT,
         suite=SuiteRef(name=suite.name, version=suite.version, hash=suite.hash),
-        package={"version": elastic_gym.__version__, "commit": git_commit()},
-        entry=entry,
+        entry=EntryRecord(**entry),
+        command=command,
         robots=robots,
-        created=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        wall_time=round(wall_time, 1),
-        cpu_time=None if cpu_time is None else round(cpu_time, 1),
+        seeds=list(suite.seeds),
         scores=ScoreRecord(
-            overall=_finite(scores.overall),
-            precision=_finite(scores.precision),
+            overall=scores.overall,
+            precision=scores.precision,
             categories={k: _finite(v) for k, v in scores.categories.items()},
             per_robot={
                 robot: {k: _finite(v) for k, v in values.items()}
@@ -174,17 +97,14 @@ def build_scorecard(
             passed=scores.passed,
         ),
         cells=cells,
+        provenance=Provenance(
+            package=elastic_gym.__version__,
+            commit=git_commit(),
+            created=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            wall_time=round(wall_time, 1),
+            cpu_time=None if cpu_time is None else round(cpu_time, 1),
+        ),
     )
-
-
-def read_scorecard(path: str | Path) -> Scorecard:
-    """A scorecard JSON file, validated (``ValueError`` naming the file and the field)."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not a scorecard JSON file: {exc}") from None
-    return validated(Scorecard, data, prefix=f"{path}:")
 
 
 def fmt(value: float | None, digits: int = 2) -> str:
@@ -199,22 +119,24 @@ def _mean(values: list[float | None]) -> float | None:
     return sum(finite) / len(finite) if finite else None
 
 
-def scorecard_markdown(card: Scorecard) -> str:
+def scorecard_markdown(card: Scorecard, suite: SuiteConfig) -> str:
     """The scorecard as a markdown page: scores per category (and robot), then per cell."""
-    entry, scores = card.entry, card.scores
-    kind = "oracle reference (reads the ground truth)" if card.oracle else "implementable"
-    if entry["source"] == SENSORS:
+    entry, scores, made = card.entry, card.scores, card.provenance
+    kind = "oracle reference (reads the ground truth)" if entry.oracle else "implementable"
+    if entry.source == SENSORS:
         kind = "implementable: the raw sensors, no estimate and no ground truth"
     lines = [
-        f"# {card.label} on {card.suite.name}",
+        f"# {text(card.label)} on {card.suite.name}",
         "",
-        f"Controller `{entry['controller']}` on state source `{entry['source']}` ({kind}); "
+        f"Controller {code(entry.controller)} on state source {code(entry.source)} ({kind}); "
         f"suite {card.suite.name} version {card.suite.version} (sha256 "
-        f"`{card.suite.hash[:16]}`), elastic-gym {card.package['version']} "
-        f"(commit {card.package.get('commit') or 'unknown'}), {card.created}, "
-        f"{card.wall_time:.0f} s wall time"
-        + (f" ({card.cpu_time:.0f} s CPU)" if card.cpu_time is not None else "")
+        f"`{card.suite.hash[:16]}`), elastic-gym {text(made.package)} "
+        f"(commit {text(made.commit or 'unknown')}), {text(made.created)}, "
+        f"{made.wall_time:.0f} s wall time"
+        + (f" ({made.cpu_time:.0f} s CPU)" if made.cpu_time is not None else "")
         + f"; {scores.passed} of {scores.episodes} episodes pass.",
+        "",
+        f"Reproduce: {code(card.command) if card.command else 'a Python callable: no command'}",
         "",
         "| score | all | " + " | ".join(card.robots) + " |",
         "|---|---|" + "---|" * len(card.robots),
@@ -230,26 +152,41 @@ def scorecard_markdown(card: Scorecard) -> str:
         "settling [s] | torque rate RMS [Nm/s] | saturated | failures |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for cell in card.cells:
-        done = [e for e in cell.episodes if e.status == "ok"]
-        means = [_mean([e.metrics.get(m) for e in done]) for m in CELL_METRICS]
+    tasks = {c.id: c.task for c in suite.cells}
+    by_cell: dict[str, list[Episode]] = {}
+    for episode in card_episodes(card, suite):
+        by_cell.setdefault(episode.cell, []).append(episode)
+    for cell_id, episodes in by_cell.items():
+        done = [e for e in episodes if e.status == "ok"]
+        means = [_mean([e.metrics[m] for e in done]) for m in METRICS]
         values = [fmt(means[i], -1) for i in (0, 1, 2, 3, 6)] + [fmt(means[7])]
         failures: dict[str, int] = {}
-        for e in cell.episodes:
+        for e in episodes:
             for check in e.failed_checks:
                 label = e.status if check == "status" else check
                 failures[label] = failures.get(label, 0) + 1
-        failed = ", ".join(f"{k} ({n})" for k, n in failures.items()) or "-"
+        failed = ", ".join(f"{text(k)} ({n})" for k, n in failures.items()) or "-"
+        share = sum(e.passed for e in episodes) / len(episodes)
         lines.append(
-            f"| {cell.id} | {cell.task} | {fmt(cell.pass_share)} | "
+            f"| {cell_id} | {tasks[cell_id]} | {fmt(share)} | "
             + " | ".join(values)
             + f" | {failed} |"
         )
     return "\n".join(lines) + "\n"
 
 
-def plot_scorecard(card: Scorecard, path: Path) -> Path:
-    """Bars of the per-category scores (all robots, and each robot)."""
+def _png(fig) -> bytes:
+    """A figure as PNG bytes (closed)."""
+    import matplotlib.pyplot as plt
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def plot_scorecard(card: Scorecard) -> bytes:
+    """Bars of the per-category scores (all robots, and each robot), as PNG bytes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -269,11 +206,9 @@ def plot_scorecard(card: Scorecard, path: Path) -> Path:
     ax.set_xticks(x, names, rotation=20)
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("score")
-    ax.set_title(f"{card.label} on {card.suite.name}", fontsize=10)
+    ax.set_title(f"{plot_text(card.label)} on {card.suite.name}", fontsize=10)
     ax.legend(fontsize=8, ncols=len(series))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _png(fig)
 
 
 def score_value(card: Scorecard, name: str) -> float | None:
@@ -285,12 +220,15 @@ def score_value(card: Scorecard, name: str) -> float | None:
     return card.scores.categories.get(name)
 
 
-def write_scorecard(card: Scorecard, folder: Path, figure: bool = True) -> list[Path]:
-    """``scorecard.json``, ``scorecard.md`` and ``scores.png`` in ``folder``."""
+def write_scorecard(
+    card: Scorecard, folder: Path, suite: SuiteConfig, figure: bool = True
+) -> list[Path]:
+    """``scores.png``, ``scorecard.md`` and last ``scorecard.json`` in ``folder``, each
+    written atomically (`elastic_gym.runtime.atomic`)."""
     folder.mkdir(parents=True, exist_ok=True)
-    files = [folder / JSON_FILE, folder / MARKDOWN_FILE]
-    files[0].write_text(json.dumps(card.model_dump(mode="json"), indent=1) + "\n")
-    files[1].write_text(scorecard_markdown(card))
+    files = []
     if figure:
-        files.append(plot_scorecard(card, folder / FIGURE_FILE))
+        files.append(write_bytes(folder / FIGURE_FILE, plot_scorecard(card)))
+    files.append(write_text(folder / MARKDOWN_FILE, scorecard_markdown(card, suite)))
+    files.append(write_text(folder / JSON_FILE, card_text(card)))
     return files

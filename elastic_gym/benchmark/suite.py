@@ -175,6 +175,14 @@ class SuiteConfig(StrictModel):
             for t in self.precision.tasks
             if t not in self.tasks
         ]
+        if self.precision.weight + sum(c.weight for c in self.categories.values()) <= 0:
+            problems.append(
+                (
+                    ("categories",),
+                    "every weight is 0 (the categories' and precision.weight): the overall "
+                    "score would be 0 / 0; give at least one a positive weight",
+                )
+            )
         if not problems:
             problems = _unknown_kwargs(self)
         if problems:

@@ -3,7 +3,8 @@
 A result file (a scorecard, a table, a figure, a run folder's config) is written to a
 temporary file beside its target and moved over it with `os.replace`, which POSIX makes
 atomic within one file system: a process killed or a disk that fills while writing leaves
-the earlier file (or none) and removes the temporary one.
+the earlier file (or none) and removes the temporary one. The new file gets the mode of
+the file it replaces, or that of a file `open` would create (0o666 less the umask).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ def atomic_file(path: str | os.PathLike, mode: str = "w", **open_kwargs: Any) ->
     target = Path(path)
     handle, scratch = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
     try:
+        os.fchmod(handle, _mode_of(target))  # mkstemp makes it 0o600
         with open(handle, mode, **open_kwargs) as stream:
             yield stream
             stream.flush()
@@ -35,6 +37,16 @@ def atomic_file(path: str | os.PathLike, mode: str = "w", **open_kwargs: Any) ->
         with contextlib.suppress(OSError):
             os.unlink(scratch)
         raise
+
+
+def _mode_of(target: Path) -> int:
+    """The permission bits of ``target``, or those a new file gets (0o666 less the umask)."""
+    try:
+        return target.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0o022)
+        os.umask(umask)
+        return 0o666 & ~umask
 
 
 def write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> Path:

@@ -1,4 +1,4 @@
-"""JSON Schemas of the YAML files the package reads, for editor completion and checks.
+"""JSON Schemas of the files the package reads (YAML, scorecard JSON), for editors and checks.
 
 :data:`SCHEMAS` maps a schema name to the pydantic model that validates those files
 (``"module:Model"``; a model whose module is not installed is left out). The generated
@@ -19,6 +19,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
+from elastic_gym.runtime.atomic import write_text
 from elastic_gym.validation import lookup
 
 SCHEMA_DIR = Path(__file__).resolve().parent
@@ -30,6 +31,7 @@ SCHEMAS = {
     "log": "elastic_gym.logs.sidecar:LogSidecar",  # a sensor log's sidecar <log>.yaml
     "robot": "elastic_gym.robots.description:RobotDescription",  # robot description files
     "model": "elastic_gym.model.identified:IdentifiedModel",  # elastic-gym identify's model file
+    "scorecard": "elastic_gym.benchmark.card:Scorecard",  # a benchmark scorecard (JSON)
 }
 
 
@@ -70,7 +72,5 @@ def write_schemas(directory: Path = SCHEMA_DIR) -> list[Path]:
     """Write every schema as ``<name>.json`` into ``directory``; return the paths."""
     paths = []
     for name in schema_models():
-        path = Path(directory) / f"{name}.json"
-        path.write_text(schema_text(name))
-        paths.append(path)
+        paths.append(write_text(Path(directory) / f"{name}.json", schema_text(name)))
     return paths
