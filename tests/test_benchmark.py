@@ -329,7 +329,7 @@ def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_p
             ["--class", "elastic_gym.envs:ElasticArmEnv"],
             "neither a subclass of Controller nor Observer",
         ),
-        (["--controller", "motor-pd", "--output", str(tmp_path / "a")], "earlier scorecard"),
+        (["--controller", "motor-pd", "--output", str(tmp_path / "a")], "holds an earlier result"),
         (["--controller", "motor-pd", "--robot", "kr15"], "unknown robot(s) ['kr15']"),
         (
             ["--controller", "motor-pd", "--label", "x" * 300],

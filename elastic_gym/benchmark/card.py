@@ -143,6 +143,7 @@ class Provenance(Record):
     created: str
     wall_time: Annotated[float, Field(ge=0, allow_inf_nan=False)]
     cpu_time: Annotated[float, Field(ge=0, allow_inf_nan=False)] | None = None
+    note: str | None = None  # e.g. re-scored from an earlier run's table
 
 
 class Scorecard(Record):

@@ -137,6 +137,12 @@ def plot_leaderboard(cards: Sequence[CheckedCard], suite: SuiteConfig) -> bytes:
             if math.isfinite(value):
                 color = "white" if value < 0.6 else "black"
                 ax.text(j, i, f"{value:.2f}", ha="center", va="center", fontsize=7, color=color)
+    groups = tables(cards)
+    edge = -0.5
+    for name in ("implementable", "oracle"):  # a white line between the kinds of card
+        edge += len(groups[name])
+        if 0 < edge < len(ordered) - 0.5:
+            ax.axhline(edge, color="white", linewidth=3)
     fig.colorbar(image, ax=ax, label="score", shrink=0.8)
     ax.set_title(f"{suite.name}: every score of every entry", fontsize=9)
     buffer = io.BytesIO()

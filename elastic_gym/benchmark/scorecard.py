@@ -67,9 +67,11 @@ def build_scorecard(
     command: str | None,
     wall_time: float,
     cpu_time: float | None = None,
+    note: str | None = None,
 ) -> Scorecard:
     """The card of scored episodes (`elastic_gym.benchmark.scoring`) of ``entry`` (its
-    `describe_entry` record) on ``robots``; ``command`` reproduces it."""
+    `describe_entry` record) on ``robots``; ``command`` reproduces it; ``note`` goes to the
+    provenance."""
     cells: dict[str, CellEpisodes] = {}
     for cell in suite.cells:
         mine = {e.seed: e for e in episodes if e.cell == cell.id}
@@ -103,6 +105,7 @@ def build_scorecard(
             created=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
             wall_time=round(wall_time, 1),
             cpu_time=None if cpu_time is None else round(cpu_time, 1),
+            note=note,
         ),
     )
 

@@ -55,6 +55,13 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
         help="replace an earlier scorecard (or, with --leaderboard, files the rebuild did "
         "not write)",
     )
+    parser.add_argument(
+        "--rescore",
+        action="store_true",
+        help="score the runs of an earlier benchmark of this entry (runs/runs.csv in "
+        "--output, e.g. after the disk filled while the card was written) instead of "
+        "running them",
+    )
     parser.add_argument("--workers", type=int, help="parallel workers (default: one per CPU)")
     parser.add_argument("--backend", choices=BACKENDS, default=DEFAULT_BACKEND)
     parser.add_argument(
@@ -97,7 +104,7 @@ def run_benchmark_command(args: argparse.Namespace) -> int:
         return _verify(args)
     from elastic_gym.benchmark import run_benchmark
 
-    if args.run:
+    if args.run and not args.rescore:
         require_rl_extra("benchmark --run")
     run_benchmark(
         arguments.entry(),
@@ -108,6 +115,7 @@ def run_benchmark_command(args: argparse.Namespace) -> int:
         backend=args.backend,
         progress=not args.no_progress,
         overwrite=args.overwrite,
+        rescore=args.rescore,
     )
     return 0
 
@@ -152,6 +160,7 @@ def _verify(args: argparse.Namespace) -> int:
         workers=args.workers,
         backend=args.backend,
         progress=not args.no_progress,
+        overwrite=args.overwrite,
     )
     print(report.text())
     return 0 if report.reproduced else 1
