@@ -419,3 +419,16 @@ def test_an_entry_command_reads_back_to_the_same_entry():
     ]:
         with pytest.raises(ValueError, match=message):
             parse_command(bad)
+
+
+def test_a_run_entry_is_recorded_by_the_path_it_was_given(monkeypatch):
+    """The card names the run folder as the command does (no machine's absolute path);
+    the controller gets it resolved (workers may start elsewhere)."""
+    from elastic_gym.benchmark.entry import describe_entry, resolve_entry
+
+    monkeypatch.chdir(ROOT)
+    given = "docs/leaderboard/runs/ppo@deluca"
+    record = describe_entry(Entry(run=given))
+    assert record["controller_options"]["run"] == given
+    controller, _ = resolve_entry(Entry(run=given))
+    assert controller.options["run"] == str(ROOT / given)

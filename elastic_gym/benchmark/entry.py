@@ -199,7 +199,7 @@ def _run_entries(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
     except (FileNotFoundError, ValueError) as exc:
         raise ValueError(f"run: {exc}") from None
     source = _source_entry(config.state, dict(config.observer_options))
-    options = {"run": str(run), "best": entry.best}
+    options = {"run": str(run.resolve()), "best": entry.best}
     return ControllerEntry(name=TRAINED_POLICY, label=run.name, options=options), source
 
 
@@ -227,7 +227,7 @@ def describe_entry(entry: Entry) -> dict:
         "label": entry.name,
         "kind": "run" if entry.run is not None else "controller",
         "controller": _described(controller.cls, controller.name),
-        "controller_options": _plain_options(controller.options),
+        "controller_options": _as_given(_plain_options(controller.options), entry),
         "source": _described(source.cls, source.name),
         "source_options": _plain_options(source.options),
         "privileged": list(privileged),
@@ -247,6 +247,16 @@ def describe_entry(entry: Entry) -> dict:
             "env_kwargs": _plain_options(config.env_kwargs),
         }
     return record
+
+
+def _as_given(options: dict, entry: Entry) -> dict:
+    """The options a card records: the run folder as the entry names it (a command from
+    the same folder reproduces it; no absolute path of the machine that scored it), where
+    the controller got it resolved."""
+    if entry.run is None:
+        return options
+    resolved = str(Path(entry.run).resolve())
+    return {key: entry.run if value == resolved else value for key, value in options.items()}
 
 
 def _described(cls: type | str | None, name: str) -> str:
