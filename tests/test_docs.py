@@ -1,6 +1,8 @@
 """The documentation: the site builds strictly, its code runs, its references match the code.
 
 * ``mkdocs build --strict`` (broken links, missing pages or anchors fail) into a temp dir;
+  the built site holds no pickle or zip and no file that no page links, and its API
+  reference documents each object once;
 * every Python block of the README and of the getting-started page runs;
 * every tutorial (``docs/tutorials/*.py``) runs with ``ELASTIC_GYM_TUTORIAL_QUICK=1``;
 * the scenario file reference documents every field the scenario loader knows, and the
@@ -11,11 +13,13 @@
 from __future__ import annotations
 
 import importlib.util
+import posixpath
 import re
 import runpy
 import subprocess
 import sys
 from pathlib import Path
+from urllib.parse import unquote, urlsplit
 
 import pytest
 import yaml
@@ -54,6 +58,60 @@ def test_mkdocs_build_is_strict_and_clean(tmp_path):
         "elastic_gym.observers.deluca.DeLucaObserver"
         in (site / "api/observers/index.html").read_text()
     )
+    # one build, several checks (a second build would cost a minute of both cores)
+    check_site_holds_only_linked_files(site)
+    check_api_documents_each_object_once(site)
+
+
+THEME_FILES = ("assets/", "search/", "sitemap.xml", "sitemap.xml.gz", "404.html", "objects.inv")
+
+
+def linked_files(site: Path) -> set[str]:
+    """The site's files that some page links (``href``/``src``), as site-relative paths."""
+    files = {p.relative_to(site).as_posix() for p in site.rglob("*") if p.is_file()}
+    linked = set()
+    for page in site.rglob("*.html"):
+        folder = page.parent.relative_to(site).as_posix()
+        for url in re.findall(r'(?:href|src)="([^"]+)"', page.read_text()):
+            parts = urlsplit(url)
+            if parts.scheme or parts.netloc or not parts.path:
+                continue
+            target = posixpath.normpath(posixpath.join(folder, unquote(parts.path)))
+            target = "" if target == "." else target
+            for name in (target, posixpath.join(target, "index.html")):
+                if name in files:
+                    linked.add(name)
+    return linked
+
+
+def check_site_holds_only_linked_files(site: Path) -> None:
+    """No pickles or zips in the site, and no file that no page links: what is copied into
+    the site is what a reader can reach (the theme's and the search's own files aside)."""
+    files = {p.relative_to(site).as_posix() for p in site.rglob("*") if p.is_file()}
+    assert not [f for f in files if f.endswith((".pkl", ".zip"))]
+    unlinked = sorted(files - linked_files(site))
+    assert [f for f in unlinked if not f.startswith(THEME_FILES)] == []
+    assert "index.html" in linked_files(site) and "api/observers/index.html" in files
+
+
+def check_api_documents_each_object_once(site: Path) -> None:
+    """Each object of the API reference is documented once, in the module that defines it
+    (a package's re-exports are not rendered again), and module constants are not listed."""
+    griffe = pytest.importorskip("griffe")
+    package = griffe.load("elastic_gym", search_paths=[str(ROOT)], allow_inspection=False)
+    documented = []
+    for page in sorted((site / "api").glob("*/index.html")):
+        documented += re.findall(
+            r'<div class="doc doc-object doc-\w+">\s*<h\d id="([^"]+)"', page.read_text()
+        )
+    assert "elastic_gym.observers.base.Observer" in documented
+    assert len(documented) == len(set(documented))
+    for ident in documented:
+        obj = package
+        for name in ident.split(".")[1:]:
+            obj = obj.members[name]
+        assert not obj.is_alias, f"{ident} re-exports {obj.target_path}, documented there"
+        assert not re.fullmatch(r"[A-Z][A-Z0-9_]+", obj.name), f"constant {ident} listed"
 
 
 @pytest.mark.parametrize("page", ["README.md", "docs/getting-started.md", "docs/batched.md"])

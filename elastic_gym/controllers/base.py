@@ -39,7 +39,7 @@ class Controller(ABC):
         model: nominal model the controller is designed on.
         dt: control period (s).
 
-    Class attributes:
+    Attributes:
         name: registry name.
         applies_to: ``{"elastic"}``, ``{"rigid"}`` or both.
         takes_sensors: whether it runs on raw sensors too (an observation without
@@ -50,10 +50,10 @@ class Controller(ABC):
     applies_to: ClassVar[frozenset[str]] = frozenset({"elastic", "rigid"})
     takes_sensors: ClassVar[bool] = False
     vector_twin: ClassVar[type | None] = None
-    options_model: ClassVar[type | None] = None
-    """The pydantic model (a ``StrictModel``) of the constructor's plain-data options."""
     """The batched law (a ``ControllerTwin`` of :mod:`elastic_gym.controllers.vector`) that
     built-ins run with N = 1 and that ``make_vector_controller`` runs for N arms."""
+    options_model: ClassVar[type | None] = None
+    """The pydantic model (a ``StrictModel``) of the constructor's plain-data options."""
 
     def __init__(self, model: RobotModel, dt: float) -> None:
         check_applies("controller", self.name, self.applies_to, model)

@@ -34,7 +34,7 @@ class Observer(ABC):
         model: nominal model the observer is designed on (possibly with errors).
         dt: sampling period (s), normally the env's control period.
 
-    Class attributes:
+    Attributes:
         name: registry name.
         applies_to: ``{"elastic"}``, ``{"rigid"}`` or both.
         privileged: ground-truth observation items needed (``"link_acceleration"``,
