@@ -38,6 +38,7 @@ def code_blocks(path: Path, language: str) -> list[str]:
     return re.findall(rf"```{language}\n(.*?)```", path.read_text(), flags=re.DOTALL)
 
 
+@pytest.mark.slow  # a whole site build: about a minute
 def test_mkdocs_build_is_strict_and_clean(tmp_path):
     pytest.importorskip("mkdocs")
     site = tmp_path / "site"
