@@ -1,45 +1,16 @@
 """A compiled 4th-order Runge-Kutta integrator of N elastic (or rigid) arms, per-arm plants.
 
 The state of arm k is x = (theta, q, theta', q') (De Luca et al. 2007, eq. (3)); its
-derivative x' = (theta', q', theta'', q'') under the motor torque tau and an external
-link-side torque tau_e, both held over a control period (events, such as a torque pulse
-or a payload picked up, happen on period boundaries):
-
-* model (1): tau_J = K (theta - q) + D (theta' - q'),
-  M(q) q'' + n(q, q') = tau_J - d(q') + tau_e,  theta'' = B^-1 (tau - tau_J);
-* model (2) with constant S, in the Schur-complement form:
-  (M(q) - S B^-1 S^T) q'' = tau_J - d(q') + tau_e - S B^-1 (tau - tau_J) - n(q, q'),
-  theta'' = B^-1 (tau - tau_J - S^T q'');
-* rigid arms: M(q) q'' + n(q, q') = tau - d(q') + tau_e, and theta = q;
-
-d(q') = F_v q' + c tanh(q' / v_s) the link friction (c = c+ or c- by the sign of q'),
-M and n from the chain's Newton-Euler recursion ([`SerialChain`][elastic_gym.model.SerialChain],
-so a payload or scaled links are a per-arm chain).
-
-One step of size h is the classical Runge-Kutta method (Hairer, Norsett & Wanner,
-*Solving ODEs I*, Table II.1.2): k1 = f(x), k2 = f(x + h/2 k1), k3 = f(x + h/2 k2),
-k4 = f(x + h k3), x+ = x + h (k1 + 2 k2 + 2 k3 + k4) / 6, global error O(h^4). The
-derivative at the new state, k5 = f(x+), is needed anyway (it is the next step's k1 and
-gives the period's final q'' and accelerometer readings); with it the weights
-(1/6, 1/3, 1/3, 0, 1/6) make a third-order solution (they satisfy the four order
-conditions of order 3), so e = x+ - x+^(3) = h (k4 - k5) / 6 estimates the local error of
-a third-order step at no extra cost, an upper bound of the RK4 step's own local error
-(as in the 'RK4(3)' pairs of Hairer et al., Sec. II.4).
-
-Step-size control, per arm and per control period T: the period is cut into m equal
-substeps; if the scaled error max_i |e_i| / tol_i of a substep exceeds 1, the period is
-integrated again from its start with 2 m (up to a maximum); after a period whose largest
-scaled error is below 1/32 (the error of a step twice as long, 16 times larger, is then
-below 1/2), the next period starts with m / 2. So each period ends exactly on the
-control boundary, with the held inputs' discontinuities there, and stiff stretches
-(the Coulomb tanh near q' = 0, a light wrist's torsion mode) get the substeps they need
-and no more. Positions are scaled by the position tolerance, rates by the rate
-tolerance.
-
-Exactness: every arm is integrated by itself (its own substep count, its own rows of
-the plant), by the same operations in the same order whatever N: arm i of a batch is
-bit-identical to the same arm alone. The substep counts are part of the state a caller
-must keep, reset and copy with it.
+derivative follows model (1), model (2) with constant S in the Schur-complement form,
+or the rigid equations, with link friction d(q') = F_v q' + c tanh(q' / v_s), under the
+motor torque and an external link torque held over a control period (events happen on
+period boundaries); M and n come from the chain's Newton-Euler recursion
+([`SerialChain`][elastic_gym.model.SerialChain]). One step is the classical RK4 (Hairer,
+Norsett & Wanner, *Solving ODEs I*, Table II.1.2) with an embedded third-order error
+estimate at no extra cost; the step size is controlled per arm and per control period
+(`ArmIntegrator` gives the equations, the estimate and the control). Every arm is
+integrated by itself, by the same operations in the same order whatever N: arm i of a
+batch is bit-identical to the same arm alone.
 """
 
 from __future__ import annotations
@@ -189,7 +160,7 @@ def _arm_period(k, x0, tau, ext, period, m, packed, stages, buf, ws, stacked):
 
 @njit(cache=True)
 def rk4_period_kernel(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, packed):
-    """One control period of every arm (see the module docstring), in place: the state
+    """One control period of every arm (see `ArmIntegrator`), in place: the state
     (theta, theta', q, q' (N, n)) advanced under ``tau`` (N, n) and ``ext`` ((N, n) or
     (N, 0): none), the substep counts ``substeps`` (N,) updated, q'' at the end into
     ``ddq``. ``packed``: (plant, chain constants, the chain's scratch, 1 / tolerances,
@@ -252,7 +223,39 @@ def derivative_kernel(theta, dtheta, q, dq, tau, ext, out, packed):
 
 
 class ArmIntegrator:
-    """RK4 with step-size control of N arms (see the module docstring).
+    """RK4 with step-size control of N arms.
+
+    The derivative x' = (theta', q', theta'', q'') of arm k under the motor torque tau and
+    an external link-side torque tau_e:
+
+    * model (1): tau_J = K (theta - q) + D (theta' - q'),
+      M(q) q'' + n(q, q') = tau_J - d(q') + tau_e,  theta'' = B^-1 (tau - tau_J);
+    * model (2) with constant S, in the Schur-complement form:
+      (M(q) - S B^-1 S^T) q'' = tau_J - d(q') + tau_e - S B^-1 (tau - tau_J) - n(q, q'),
+      theta'' = B^-1 (tau - tau_J - S^T q'');
+    * rigid arms: M(q) q'' + n(q, q') = tau - d(q') + tau_e, and theta = q;
+
+    d(q') = F_v q' + c tanh(q' / v_s) (c = c+ or c- by the sign of q').
+
+    One step of size h: k1 = f(x), k2 = f(x + h/2 k1), k3 = f(x + h/2 k2),
+    k4 = f(x + h k3), x+ = x + h (k1 + 2 k2 + 2 k3 + k4) / 6, global error O(h^4). The
+    derivative at the new state, k5 = f(x+), is needed anyway (it is the next step's k1
+    and gives the period's final q'' and accelerometer readings); with it the weights
+    (1/6, 1/3, 1/3, 0, 1/6) make a third-order solution (they satisfy the four order
+    conditions of order 3), so e = x+ - x+^(3) = h (k4 - k5) / 6 estimates the local
+    error of a third-order step, an upper bound of the RK4 step's own local error (as in
+    the 'RK4(3)' pairs of Hairer et al., Sec. II.4).
+
+    Step-size control, per arm and per control period T: the period is cut into m equal
+    substeps; if the scaled error max_i |e_i| / tol_i of a substep exceeds 1, the period
+    is integrated again from its start with 2 m (up to a maximum); after a period whose
+    largest scaled error is below 1/32 (the error of a step twice as long, 16 times
+    larger, is then below 1/2), the next period starts with m / 2. So each period ends
+    exactly on the control boundary, with the held inputs' discontinuities there, and
+    stiff stretches (the Coulomb tanh near q' = 0, a light wrist's torsion mode) get the
+    substeps they need and no more. Positions are scaled by the position tolerance,
+    rates by the rate tolerance. The substep counts are part of the state a caller must
+    keep, reset and copy with it.
 
     Args:
         chain: the arms' chain (one parameter set, or stacked per arm: a payload, scaled
