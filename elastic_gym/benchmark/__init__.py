@@ -20,6 +20,7 @@ from elastic_gym.benchmark.entry import Entry
 from elastic_gym.benchmark.leaderboard import rebuild_leaderboard
 from elastic_gym.benchmark.run import run_benchmark
 from elastic_gym.benchmark.suite import SuiteConfig, load_suite, suite_schema
+from elastic_gym.benchmark.verify import verify_card
 
 __all__ = [
     "Entry",
@@ -30,4 +31,5 @@ __all__ = [
     "rebuild_leaderboard",
     "run_benchmark",
     "suite_schema",
+    "verify_card",
 ]

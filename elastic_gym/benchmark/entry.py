@@ -1,17 +1,17 @@
 """Benchmark entries: what is scored, and what it reads.
 
 An entry is a closed loop of the comparison runner: a **controller** (registry name, a
-user's :class:`~elastic_gym.controllers.Controller` subclass as ``"module:Class"``, or any
+user's `Controller` subclass as ``"module:Class"``, or any
 callable policy through the ``policy`` controller) with its ``options``, paired with a
 **state source** (``"true"``, an observer registry name, a user's
-:class:`~elastic_gym.observers.Observer` subclass, or raw ``"sensors"`` for a controller
+`Observer` subclass, or raw ``"sensors"`` for a controller
 that reads them); or a **run folder** written by ``elastic-gym train`` (the
 ``trained-policy`` controller on its own state source, raw sensors included).
 
 The controller sees only the estimate, the reference and the time; the observer sees the
 sensors, the applied torque and the ground-truth items its class declares in
 ``privileged``. An entry whose source reads any ground truth is an **oracle reference**,
-scored like any entry and listed apart (:func:`describe_entry` records what it used).
+scored like any entry and listed apart (`describe_entry` records what it used).
 """
 
 from __future__ import annotations
@@ -151,7 +151,7 @@ class EntryArguments(StrictModel):
         return self
 
     def entry(self) -> dict[str, Any]:
-        """The :class:`Entry` fields (defaults: :data:`DEFAULT_CONTROLLER`, the true state)."""
+        """The `Entry` fields (defaults: `DEFAULT_CONTROLLER`, the true state)."""
         fields: dict[str, Any] = {"options": self.options, "source_options": self.source_options}
         fields |= {"label": self.label} if self.label else {}
         if self.run is not None:
@@ -167,7 +167,7 @@ class EntryArguments(StrictModel):
 
 def resolve_entry(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
     """The comparison's controller and state-source entries of ``entry`` (its names are
-    checked by :class:`Entry`; options are bound to the constructors when the runs are
+    checked by `Entry`; options are bound to the constructors when the runs are
     planned)."""
     if entry.run is not None:
         return _run_entries(entry)

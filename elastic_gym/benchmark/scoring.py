@@ -1,13 +1,13 @@
 """Scores of a benchmark run, from the per-episode metrics of the comparison.
 
 * An **episode passes** when it completes (status ``ok``: no divergence, no failure) and
-  each metric its task's :class:`~elastic_gym.benchmark.suite.Tolerance` names is finite
+  each metric its task's `Tolerance` names is finite
   and at most its threshold (smooth and fast tracking: tracking RMS and maximum error;
   steps: overshoot and settling time).
 * A **category score** in [0, 1] is the share of its episodes that pass, over all its
   cells, robots and seeds (each cell has the same number of episodes); per robot as well.
 * The **precision score** in [0, 1] maps the tracking RMS r of every episode of the
-  nominal tracking cells (:class:`~elastic_gym.benchmark.suite.PrecisionConfig`)
+  nominal tracking cells (`PrecisionConfig`)
   log-linearly, p(r) = clip(log(high / r) / log(high / low), 0, 1) with low = 1e-6 and
   high = 1e-1 rad in ``elastic-gym-v1``: monotone decreasing, 1 at 1 µrad, 0.2 per decade,
   0 from 0.1 rad; an episode that does not complete scores 0. The score is the mean of p.

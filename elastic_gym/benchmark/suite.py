@@ -1,16 +1,16 @@
 """The benchmark suite: tasks x categories of plant perturbations x robots x fixed seeds, as data.
 
-A suite is a YAML file of ``elastic_gym/benchmark/suites/`` validated by :class:`SuiteConfig`
-(unknown keys refused, errors naming the field). :func:`suite_hash` is the sha256 of the
+A suite is a YAML file of ``elastic_gym/benchmark/suites/`` validated by `SuiteConfig`
+(unknown keys refused, errors naming the field). `suite_hash` is the sha256 of the
 canonical JSON form of the validated suite, so comments do not change it and any change of a
 task, magnitude, seed, tolerance or weight does; scorecards carry it.
 
-``robots`` (label -> env id + kwargs), ``tasks`` (env kwargs and the :class:`Tolerance` an
+``robots`` (label -> env id + kwargs), ``tasks`` (env kwargs and the `Tolerance` an
 episode must stay within), ``categories`` (weight and cells: one task under one perturbation
 of the simulated plant only, which no model knows), ``precision`` (the map of the nominal
-tracking RMS, :mod:`~elastic_gym.benchmark.scoring`), ``seeds``, ``duration``, ``physics_dt``.
-:func:`expand_cells` lists the cells; :func:`suite_scenario` turns them and one entry into
-the comparison :class:`~elastic_gym.evaluation.Scenario` that is executed.
+tracking RMS, `scoring`), ``seeds``, ``duration``, ``physics_dt``.
+`expand_cells` lists the cells; `suite_scenario` turns them and one entry into
+the comparison `Scenario` that is executed.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 class Tolerance(StrictModel):
     """Thresholds of one task: an episode passes when it completes (no termination, no
     failure) and every metric given here is at most its threshold (metric names of
-    :mod:`~elastic_gym.evaluation.metrics`). A missing or NaN metric fails the episode."""
+    `metrics`). A missing or NaN metric fails the episode."""
 
     track_rms: Positive | None = None
     track_max: Positive | None = None
@@ -199,7 +199,7 @@ class SuiteConfig(StrictModel):
 
     @cached_property
     def hash(self) -> str:
-        """sha256 of the canonical form (:func:`suite_hash`)."""
+        """sha256 of the canonical form (`suite_hash`)."""
         return suite_hash(self)
 
     @cached_property
@@ -281,7 +281,7 @@ def canonical_form(suite: SuiteConfig) -> str:
 
 
 def suite_hash(suite: SuiteConfig) -> str:
-    """sha256 (hex) of :func:`canonical_form`."""
+    """sha256 (hex) of `canonical_form`."""
     return hashlib.sha256(canonical_form(suite).encode()).hexdigest()
 
 
@@ -316,7 +316,7 @@ def suite_scenario(
     name: str = "benchmark",
 ) -> Scenario:
     """The comparison grid of one entry on the suite: one env entry per cell (labelled
-    :attr:`Cell.id`), the suite's seeds, duration and physics step, no model error.
+    `Cell.id`), the suite's seeds, duration and physics step, no model error.
 
     ``robots`` restricts the cells to some robots (``ValueError`` for an unknown one)."""
     with errors_at("robots"):
