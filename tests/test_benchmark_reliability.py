@@ -79,6 +79,7 @@ def scored(tmp_path_factory):
     return root, suite, args
 
 
+@pytest.mark.slow
 def test_two_runs_of_one_command_give_cards_equal_but_for_their_provenance(scored):
     root, suite, _ = scored
     a, b = (root / name / "scorecard.json" for name in ("a", "b"))
@@ -90,6 +91,7 @@ def test_two_runs_of_one_command_give_cards_equal_but_for_their_provenance(score
     assert card.provenance.wall_time > 0 and card.scores.episodes == 10
 
 
+@pytest.mark.slow
 def test_runs_csv_is_rescored_into_the_same_card_without_running(scored, capsys):
     root, _, args = scored
     card = root / "a" / "scorecard.json"
@@ -115,6 +117,7 @@ def test_runs_csv_is_rescored_into_the_same_card_without_running(scored, capsys)
     assert sorted(p.name for p in partial.iterdir()) == ["runs"]
 
 
+@pytest.mark.slow
 def test_verify_reproduces_a_card_bit_for_bit_and_names_a_difference(scored, tmp_path, capsys):
     root, _, _ = scored
     card = root / "b" / "scorecard.json"
@@ -156,6 +159,7 @@ def failing_card_write(monkeypatch) -> None:
     monkeypatch.setattr(atomic.os, "fsync", fsync)
 
 
+@pytest.mark.slow
 def test_a_card_that_cannot_be_written_keeps_the_earlier_result_or_the_runs(
     scored, tmp_path, monkeypatch
 ):
@@ -186,6 +190,7 @@ def test_a_card_that_cannot_be_written_keeps_the_earlier_result_or_the_runs(
     assert card.provenance.note
 
 
+@pytest.mark.slow
 def test_an_overwrite_replaces_the_whole_result_and_drops_what_the_new_one_lacks(scored, tmp_path):
     root, suite, _ = scored
     out = tmp_path / "out"
@@ -202,8 +207,8 @@ def test_an_overwrite_replaces_the_whole_result_and_drops_what_the_new_one_lacks
     )
 
 
-def test_a_second_benchmark_into_a_folder_in_use_names_the_process(scored, tmp_path, capsys):
-    _, _, args = scored
+def test_a_second_benchmark_into_a_folder_in_use_names_the_process(tmp_path, capsys):
+    args = ["benchmark", *ENTRY, "--suite", str(micro_suite(tmp_path)), "--no-progress"]
     folder = tmp_path / "out"
     holder = subprocess.Popen(
         [
@@ -232,8 +237,8 @@ def test_a_second_benchmark_into_a_folder_in_use_names_the_process(scored, tmp_p
         holder.wait()
 
 
-def test_a_classical_controller_on_raw_sensors_is_refused_in_one_line(scored, capsys):
-    _, suite, _ = scored
+def test_a_classical_controller_on_raw_sensors_is_refused_in_one_line(tmp_path, capsys):
+    suite = micro_suite(tmp_path)
     code = cli(["benchmark", "--source", "sensors", "--suite", str(suite), "--no-progress"])
     assert code == 2
     err = capsys.readouterr().err

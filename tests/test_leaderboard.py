@@ -381,6 +381,7 @@ def test_a_file_the_rebuild_did_not_write_is_replaced_only_with_overwrite(board)
     rebuild(board)  # its own files: replaced without --overwrite
 
 
+@pytest.mark.slow
 def test_the_cli_rebuild_refuses_and_names_the_file(board, capsys):
     from elastic_gym.cli import main
 
