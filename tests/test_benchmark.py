@@ -308,6 +308,29 @@ def test_leaderboard_rebuilds_from_scorecards_and_refuses_other_suites(tiny_card
     assert cli(["benchmark", "--leaderboard", "--scorecards", str(folder)]) == 2
 
 
+def test_a_card_of_30_failed_episodes_claiming_099_is_refused(tiny_cards, tmp_path):
+    """The issue's case on a real card: the tiny suite's 3 cells x 10 seeds, every episode
+    edited to a failure, the scores left as stated (and overall raised to 0.99)."""
+    root, suite_file, _ = tiny_cards
+    data = json.loads((root / "eq13@deluca" / "scorecard.json").read_text())
+    statuses = [s for cell in data["cells"].values() for s in cell["status"]]
+    assert len(statuses) == 30
+    for cell in data["cells"].values():
+        cell["status"] = ["failed: RuntimeError: edited"] * len(cell["status"])
+    data["scores"]["overall"] = 0.99
+    folder = tmp_path / "scorecards"
+    folder.mkdir()
+    (folder / "claims.json").write_text(json.dumps(data))
+    page = tmp_path / "leaderboard.md"
+    with pytest.raises(
+        ValueError,
+        match=r"claims.json: stated scores differ .*scores.overall: "
+        r"the card states 0.99, its episodes give 0;",
+    ):
+        rebuild_leaderboard(folder, page, suite_file)
+    assert not page.exists()
+
+
 def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_path, capsys):
     _, suite_file, _ = tiny_cards
     observer = "elastic_gym.observers.finite_difference:FiniteDifferenceObserver"
