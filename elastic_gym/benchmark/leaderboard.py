@@ -203,12 +203,12 @@ def rebuild_leaderboard(
     text = leaderboard_markdown(
         cards, suite, page, figure, notes_file.read_text() if notes_file.exists() else ""
     )
-    outputs = {page: text.encode(), csv_path: csv_text(cards, suite).encode()}
-    outputs[figure] = plot_leaderboard(cards, suite)
+    outputs = {figure: plot_leaderboard(cards, suite), csv_path: csv_text(cards, suite).encode()}
+    outputs[page] = text.encode()  # last: the page shows the others
     for path, data in outputs.items():
         path.parent.mkdir(parents=True, exist_ok=True)
         if path.suffix == ".png":
             write_bytes(path, data)
         else:
             write_text(path, data.decode())
-    return list(outputs), notes
+    return [page, csv_path, figure], notes
