@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import yaml
 
+import elastic_gym
 from elastic_gym.benchmark.suite import SUITE_DIR
+from elastic_gym.controllers import Controller, public_info
 from elastic_gym.model import RobotModel
 
 GRAVITY = 9.81
@@ -183,3 +187,127 @@ def tiny_suite_data() -> dict:
     }
     data["precision"]["tasks"] = ["smooth"]
     return data
+
+
+# ------------------------------------------------------------ shared by several modules
+
+
+class GravityPD(Controller):
+    """Test controller: PD + gravity compensation (elastic: on the motor, rigid: on the link)."""
+
+    name = "gravity-pd"
+
+    def __init__(self, model, dt, kp: float = 400.0, kd: float = 40.0) -> None:
+        super().__init__(model, dt)
+        self.kp, self.kd = kp, kd
+
+    def __call__(self, obs, info):
+        ref = info["reference"]
+        if self.elastic:
+            theta, _, dtheta, _ = self.split_state(obs)
+            g = self.model.gravity(ref["q"])
+            theta_d = ref["q"] + g / self.model.K
+            return g + self.kp * (theta_d - theta) + self.kd * (ref["dq"] - dtheta)
+        q, dq = self.split_state(obs)
+        return self.model.gravity(q) + self.kp * (ref["q"] - q) + self.kd * (ref["dq"] - dq)
+
+
+def leaves(value, out: list) -> list:
+    if isinstance(value, dict):
+        for key in sorted(value):
+            out.append(key)
+            leaves(value[key], out)
+    elif isinstance(value, tuple):
+        for item in value:
+            leaves(item, out)
+    else:
+        array = np.asarray(value)
+        out.append(
+            (
+                array.dtype.str,
+                array.shape,
+                array.tobytes() if array.dtype != object else repr(value),
+            )
+        )
+    return out
+
+
+def flat(value) -> np.ndarray:
+    if isinstance(value, dict):
+        return np.concatenate([flat(value[k]) for k in sorted(value)])
+    if value is None or isinstance(value, str):
+        return np.array([hash(value) % 997], dtype=float)
+    return np.atleast_1d(np.asarray(value, dtype=float)).ravel()
+
+
+def arm_row(batched: dict, i: int) -> dict:
+    """Arm i of a batched observation or info (masks dropped)."""
+    return {
+        k: arm_row(v, i) if isinstance(v, dict) else v[i]
+        for k, v in batched.items()
+        if not k.startswith("_")
+    }
+
+
+def simulate(env: gym.Env, controller, steps: int, seed: int = 0, options=None) -> dict:
+    """Run ``controller`` on ``env`` (wrapped with a state source); return link trajectories."""
+    obs, info = env.reset(seed=seed, options=options)
+    controller.reset(obs, public_info(info))
+    q, q_d = [], []
+    for _ in range(steps):
+        obs, _, terminated, _, info = env.step(controller(obs, public_info(info)))
+        assert not terminated, info["termination_reason"]
+        q.append(info["true_state"]["q"])
+        q_d.append(info["reference"]["q"])
+    env.close()
+    q, q_d = np.array(q), np.array(q_d)
+    return {"q": q, "q_d": q_d, "error": q - q_d}
+
+
+def rigid_scenario(**changes) -> dict:
+    data = {
+        "name": "rigid-test",
+        "duration": 0.3,
+        "envs": [{"id": "TwoLinkRigid-v0", "kwargs": {"task": "regulation"}}],
+        "controllers": [{"name": "gravity-pd", "class": GravityPD}],
+        "state_sources": [True, "finite-difference"],
+    }
+    data.update(changes)
+    return data
+
+
+def children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+NOISE_FREE = {"encoder": {"resolution": 0.0, "noise_std": 0.0}, "accelerometer": "ideal"}
+ELASTIC_IDS = [i for i in elastic_gym.ENV_IDS if "Elastic" in i]
+
+
+def make_noise_free(env_id: str, **kwargs) -> gym.Env:
+    """An env whose sensors are exact (ideal encoders and accelerometers)."""
+    return gym.make(env_id, **{**NOISE_FREE, **kwargs})
+
+
+def same_metric(a, b) -> bool:
+    """Two metric values equal (NaN equal to NaN; floats to 1e-12 relative)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return (math.isnan(a) and math.isnan(b)) or a == b or abs(a - b) <= 1e-12 * abs(b)
+    return a == b

@@ -15,6 +15,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import leaves
 
 import elastic_gym
 from elastic_gym.envs.batch import ArmBatch
@@ -37,26 +38,6 @@ KWARGS = {
 }
 
 
-def _leaves(value, out: list) -> list:
-    if isinstance(value, dict):
-        for key in sorted(value):
-            out.append(key)
-            _leaves(value[key], out)
-    elif isinstance(value, tuple):
-        for item in value:
-            _leaves(item, out)
-    else:
-        array = np.asarray(value)
-        out.append(
-            (
-                array.dtype.str,
-                array.shape,
-                array.tobytes() if array.dtype != object else repr(value),
-            )
-        )
-    return out
-
-
 def _rollout(env_id: str, step_by_step: bool, monkeypatch, steps: int = 200) -> list:
     built = []  # what _fusion_arguments gave: tuples (the fused path) or False
     original = ArmBatch._fusion_arguments
@@ -70,14 +51,14 @@ def _rollout(env_id: str, step_by_step: bool, monkeypatch, steps: int = 200) -> 
         env_id, 3, vectorization_mode="vector_entry_point", max_velocity=1.0, **KWARGS[env_id]
     )
     rng = np.random.default_rng(5)
-    out = _leaves(envs.reset(seed=11), [])
+    out = leaves(envs.reset(seed=11), [])
     high = envs.single_action_space.high
     breaks = 0
     for _ in range(steps):
         action = rng.uniform(-0.8, 0.8, (3, len(high))) * high
         result = envs.step(action)
         breaks += int(result[2].sum())
-        out = _leaves(result, out)
+        out = leaves(result, out)
     envs.close()
     monkeypatch.undo()
     return [out, bool(built) and all(isinstance(b, tuple) for b in built), breaks]
@@ -102,13 +83,13 @@ def test_compiled_period_equals_a_task_stepped_call_by_call(task, monkeypatch):
             monkeypatch.setattr(TASKS[task], "compiled_arguments", lambda self: None)
         env = gym.make("elastic_gym/TwoLinkElastic-v0", task=task, episode_time=0.1)
         rng = np.random.default_rng(2)
-        out = _leaves(env.reset(seed=3), [])
+        out = leaves(env.reset(seed=3), [])
         high = env.action_space.high
         for _ in range(250):
             result = env.step(rng.uniform(-0.3, 0.3, len(high)) * high)
-            out = _leaves(result, out)
+            out = leaves(result, out)
             if result[2] or result[3]:
-                out = _leaves(env.reset(), out)
+                out = leaves(env.reset(), out)
         used = env.unwrapped.batch._fusion[3] is not None
         env.close()
         monkeypatch.undo()
