@@ -323,6 +323,9 @@ def _acceleration_from_readings_kernel(
         diagnostics[k, 2] = np.sqrt(damping2)
 
 
+acceleration_from_readings_kernel = _acceleration_from_readings_kernel  # compiled callers
+
+
 @njit(cache=True, inline="always")
 def _mass_and_bias_arm(
     q, dq, ddq, base_acc, chain, body_params, M, h, links, small, bodies, with_mass
@@ -699,6 +702,12 @@ class SerialChain:
             self._kernel_constants(),
         )
         return ddq, diagnostics
+
+    def readings_arguments(self) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+        """(work, constants): the last arguments of `acceleration_from_readings_kernel`
+        after its outputs, for compiled callers that run eq. (11) in their own loop (the
+        work buffer is this chain's: one caller at a time)."""
+        return self._work, self._kernel_constants()
 
     def mass_and_bias(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(M(q) (N, n, n), n(q, q') = C q' + g (N, n))."""
