@@ -15,9 +15,14 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from pydantic import BaseModel
 
+import elastic_gym
 from elastic_gym.arms import elastic_base
+from elastic_gym.envs.config import EnvConfig
+from elastic_gym.envs.sensors import AccelerometerConfig
 from elastic_gym.logs.sensor_log import SensorLog
+from elastic_gym.robots.spec import RobotSpec
 
 
 class LogRecorder(gym.Wrapper):
@@ -50,12 +55,24 @@ class LogRecorder(gym.Wrapper):
                     "env id or a robot description file)"
                 )
         mounts = [m.to_dict() for m in base.model.accelerometers]
+        kwargs = env_kwargs(env)
         self.sidecar = {
             "robot": robot or (spec.id if spec is not None else ""),
             "sample_time": base.control_dt,
             **({"accelerometers": mounts} if mounts != _default_mounts(base) else {}),
-            **dict(sidecar or {}),
+            **sensor_fields(kwargs, base.control_dt),
+            "provenance": {
+                "writer": "elastic_gym.logs.LogRecorder",
+                "version": elastic_gym.__version__,
+                "env_id": None if spec is None else spec.id,
+                "env_kwargs": kwargs,
+            },
         }
+        for key, value in dict(sidecar or {}).items():
+            if key == "provenance":
+                self.sidecar["provenance"].update(value)
+            else:
+                self.sidecar[key] = value
         if state:
             self.sidecar["state"] = "truth"
         self.record_state = state
@@ -116,3 +133,42 @@ class LogRecorder(gym.Wrapper):
 
 def _default_mounts(base) -> list[dict]:
     return [m.to_dict() for m in base.robot.accelerometers]
+
+
+def plain_data(value: Any) -> Any:
+    """`value` as YAML-safe plain data (mappings, lists, numbers, strings; configs by
+    their fields, a robot spec by its name)."""
+    if isinstance(value, BaseModel):
+        return value.model_dump(mode="json", exclude_none=True)
+    if isinstance(value, RobotSpec):
+        return value.name
+    if isinstance(value, Mapping):
+        return {str(key): plain_data(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain_data(item) for item in value]
+    if isinstance(value, (np.ndarray, np.generic)):
+        return value.tolist()
+    return value
+
+
+def env_kwargs(env: gym.Env) -> dict[str, Any]:
+    """The kwargs the env was made with (its plant, sensors and task), as plain data."""
+    spec = env.spec
+    kwargs = {} if spec is None else dict(spec.kwargs)
+    kwargs.pop("robot", None)
+    kwargs.pop("render_mode", None)
+    return plain_data(kwargs)
+
+
+def sensor_fields(kwargs: Mapping[str, Any], control_dt: float) -> dict[str, float]:
+    """The sidecar's `accelerometer_cutoff_hz` and `sensor_delay` (s) of env kwargs."""
+    config = EnvConfig.model_validate(
+        {key: kwargs[key] for key in ("accelerometer", "sensor_delay") if key in kwargs}
+    )
+    fields: dict[str, float] = {}
+    accelerometer = config.accelerometer or AccelerometerConfig()
+    if accelerometer.cutoff_hz is not None:
+        fields["accelerometer_cutoff_hz"] = accelerometer.cutoff_hz
+    if config.sensor_delay:
+        fields["sensor_delay"] = config.sensor_delay * control_dt
+    return fields
