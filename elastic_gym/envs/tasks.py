@@ -5,6 +5,8 @@
 * ``regulation``: go to a goal configuration and stay there (constant reference).
 * ``excitation``: an open-loop torque (e.g. g(q) + (cos t/2, -cos t) of Cristofaro &
   De Luca, Example 1) to which the action is added; for observer-only studies.
+* ``fourier``: a Fourier-series reference and a torque dither, for identification
+  (``elastic_gym.envs.fourier``).
 
 Every task's options are a pydantic model (``TrackingOptions`` ...): unknown keys and bad
 values raise ``ValueError`` naming the field (``task_options.max_move: ...``).
@@ -342,6 +344,10 @@ TASKS: dict[str, type[Task]] = {
     "regulation": RegulationTask,
     "excitation": ExcitationTask,
 }
+
+from elastic_gym.envs.fourier import FourierTask  # noqa: E402 - it builds on Task above
+
+TASKS["fourier"] = FourierTask
 
 
 def make_task(
