@@ -32,6 +32,9 @@ from elastic_gym.validation import shaped
 # ``_dynamics_kernel``), called with the same argument types from Python and from compiled
 # callers (float64 C-contiguous arrays, complex128 for the complex step; no star-arguments
 # and no literal modes, which numba types as other types when a compiled caller passes them).
+# The two recursion kernels allocate nothing and are compiled without numba's reference
+# counting (``_nrt=False``): counting the workspace views and per-arm constants unpacked
+# for every arm cost about 30 % of a 2-link arm's forward dynamics; results are unchanged.
 
 
 @njit(cache=True, inline="always")
@@ -249,7 +252,7 @@ _FORCES, _MAPS = 0, 1  # _sensors_kernel
 _GRAVITY, _RNEA, _MASS_AND_BIAS, _FORWARD = 0, 1, 2, 3  # _dynamics_kernel
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _sensors_kernel(mode, q, dq, ddq, w, T, W, constants):
     """Per arm: the readings of eq. (9) at (q, q', q'') into W (``_FORCES``; T unused), or
     T_A into T and W_A (the readings at q'' = 0) into W of eq. (10) (``_MAPS``; ddq
@@ -421,7 +424,7 @@ def _cholesky_solve(A, b, out):
         out[i] = s / A[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _dynamics_kernel(mode, q, dq, ddq, tau, added_inertia, w, M_out, h_out, constants):
     """Per arm: g(q) (``_GRAVITY``) or M(q) q'' + n(q, q') (``_RNEA``) into h_out; M(q) and
     n(q, q') into M_out and h_out (``_MASS_AND_BIAS``); q'' of (M + M_a) q'' = tau - n into
