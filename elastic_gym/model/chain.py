@@ -14,6 +14,8 @@ arms or one per arm (:meth:`SerialChain.stack`: arms whose links differ).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pinocchio as pin
 from numba import njit
@@ -21,6 +23,10 @@ from numba import njit
 from elastic_gym.model.lapack import svd_workspace, thin_svd
 from elastic_gym.model.packed import Packed
 from elastic_gym.validation import shaped
+
+NO_REFCOUNT: dict[str, Any] = {"_nrt": False}
+"""numba's option of a kernel compiled without reference counting (it may allocate
+nothing; numba's stubs do not declare the option, hence a mapping)."""
 
 # ---------------------------------------------------------------------------- kernels
 # Every kernel takes batched inputs with a leading arm axis, the scratch buffer, its outputs
@@ -252,7 +258,7 @@ _FORCES, _MAPS = 0, 1  # _sensors_kernel
 _GRAVITY, _RNEA, _MASS_AND_BIAS, _FORWARD = 0, 1, 2, 3  # _dynamics_kernel
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _sensors_kernel(mode, q, dq, ddq, w, T, W, constants):
     """Per arm: the readings of eq. (9) at (q, q', q'') into W (``_FORCES``; T unused), or
     T_A into T and W_A (the readings at q'' = 0) into W of eq. (10) (``_MAPS``; ddq
@@ -424,7 +430,7 @@ def _cholesky_solve(A, b, out):
         out[i] = s / A[i, i]
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _dynamics_kernel(mode, q, dq, ddq, tau, added_inertia, w, M_out, h_out, constants):
     """Per arm: g(q) (``_GRAVITY``) or M(q) q'' + n(q, q') (``_RNEA``) into h_out; M(q) and
     n(q, q') into M_out and h_out (``_MASS_AND_BIAS``); q'' of (M + M_a) q'' = tau - n into

@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from elastic_gym.model.chain import (
+    NO_REFCOUNT,
     SerialChain,
     _arm_params,
     _cholesky_solve,
@@ -120,7 +121,7 @@ def _derivative(k, x, tau, ext, plant, arm, ws, buf, out):
             out[2 * n + j] = B_inv[k, j] * relative[j]
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _arm_period(k, x0, tau, ext, period, m, plant, inv_tol, arm, stages, buf, ws):
     """Integrate arm k over ``period`` in m RK4 substeps from x0 (4 n) into stages[5];
     stages[4] = f at the end. Returns the largest scaled error estimate of the substeps
@@ -167,7 +168,7 @@ def _arm_period(k, x0, tau, ext, period, m, plant, inv_tol, arm, stages, buf, ws
                 xs[i] = x[i] + step * previous[i]
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _rk4_arms(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, arguments):
     """`rk4_period_kernel` on its unpacked arguments, compiled without numba's reference
     counting (the kernel allocates nothing: its scratch arrays are packed with the
@@ -221,7 +222,7 @@ def rk4_period_kernel(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, pac
     return _rk4_arms(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, packed.values)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _derivative_arms(theta, dtheta, q, dq, tau, ext, out, arguments):
     plant, constants, w, _, _, _, stages, buf, x = arguments
     N, n = q.shape
