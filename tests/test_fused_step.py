@@ -1,12 +1,12 @@
 """A control period in compiled calls equals the step by step path.
 
-:func:`~elastic_gym.envs.batch._post_step_kernel` runs the kernels that
+`post_step_kernel` of `elastic_gym.envs.kernels` runs the kernels that
 ``ArmBatch.step`` otherwise calls one by one (transmission + forward dynamics +
 accelerometer readings, termination codes, shared sensor error model, sensor delay line,
 observation, reward). Batches of every id, with sensor noise and delays and with arms
 breaking their physics, must give bit for bit the same observations, rewards,
 terminations and info as the same batch forced onto the step by step path. So must
-:func:`~elastic_gym.envs.batch._control_period_kernel` (the clip to the reference in
+`control_period_kernel` (the clip to the reference in
 one call) against a task without compiled form, stepped call by call.
 """
 
@@ -18,7 +18,7 @@ import pytest
 from helpers import leaves
 
 import elastic_gym
-from elastic_gym.envs.batch import ArmBatch
+from elastic_gym.envs.packing import FusedArguments
 from elastic_gym.envs.tasks import TASKS
 
 KWARGS = {
@@ -39,13 +39,14 @@ KWARGS = {
 
 
 def _rollout(env_id: str, step_by_step: bool, monkeypatch, steps: int = 200) -> list:
-    built = []  # what _fusion_arguments gave: tuples (the fused path) or False
-    original = ArmBatch._fusion_arguments
-    monkeypatch.setattr(
-        ArmBatch,
-        "_fusion_arguments",
-        lambda self: built.append(False if step_by_step else original(self)) or built[-1],
-    )
+    built = []  # what the packing built: the fused arguments, or None (step by step)
+    original = FusedArguments._build
+
+    def build(self):
+        built.append(None if step_by_step else original(self))
+        return built[-1]
+
+    monkeypatch.setattr(FusedArguments, "_build", build)
     # a low velocity limit: arms break their physics at different times (autoresets)
     envs = gym.make_vec(
         env_id, 3, vectorization_mode="vector_entry_point", max_velocity=1.0, **KWARGS[env_id]
@@ -61,7 +62,7 @@ def _rollout(env_id: str, step_by_step: bool, monkeypatch, steps: int = 200) -> 
         out = leaves(result, out)
     envs.close()
     monkeypatch.undo()
-    return [out, bool(built) and all(isinstance(b, tuple) for b in built), breaks]
+    return [out, bool(built) and all(b is not None for b in built), breaks]
 
 
 @pytest.mark.parametrize("env_id", elastic_gym.ENV_IDS)
@@ -90,7 +91,7 @@ def test_compiled_period_equals_a_task_stepped_call_by_call(task, monkeypatch):
             out = leaves(result, out)
             if result[2] or result[3]:
                 out = leaves(env.reset(), out)
-        used = env.unwrapped.batch._fusion[3] is not None
+        used = env.unwrapped.batch.fused.get().period is not None
         env.close()
         monkeypatch.undo()
         return out, used

@@ -122,6 +122,15 @@ class Task(ABC):
         :meth:`external_torque` or :meth:`reference` overrides this too."""
         return None
 
+    def snapshot(self) -> dict:
+        """The task's own state (its options and every arm's episode: paths, targets,
+        holds), without the robot and its model: what `restore` takes."""
+        return {k: v for k, v in vars(self).items() if k not in ("spec", "model")}
+
+    def restore(self, snapshot: dict) -> None:
+        """The state of a `snapshot` of a task of the same class and robot."""
+        vars(self).update(snapshot)
+
     def configured_points(self) -> dict[str, np.ndarray]:
         """The configurations given as options (start, goal, waypoints), by option name."""
         names = ("start", "goal", "waypoints")
