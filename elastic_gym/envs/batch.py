@@ -1,38 +1,17 @@
 """N arms of one robot in one PyBullet world: the simulation core of every env.
 
 `ArmBatch` runs the episodes of N arms at once, every quantity in arrays with a leading arm
-axis. [`ArmEnv`][elastic_gym.envs.arm_env.ArmEnv] is its N = 1 case and
+axis, as the orchestration of a control period over parts that each own their state (see
+`ArmBatch`). [`ArmEnv`][elastic_gym.envs.arm_env.ArmEnv] is its N = 1 case and
 [`ArmVectorEnv`][elastic_gym.envs.vector_env.ArmVectorEnv] exposes all N arms as a
 Gymnasium vector env; there is no second copy of the physics.
 
-The batch is the orchestration of a control period; each of its parts owns its own state
-and is changed only through its own methods:
-
-* the simulator ([`simulator`][elastic_gym.envs.simulator]): the PyBullet world, theta, q,
-  theta', q', the plants' constants, the physics substeps;
-* the plant state ([`plant_state`][elastic_gym.envs.plant_state]): each arm's settings,
-  randomization draws, payloads, torque pulses, sensor and actuator delays;
-* the sensors ([`measurement`][elastic_gym.envs.measurement]): encoders and accelerometers
-  (noise blocks, biases, filters);
-* the episode ([`episode`][elastic_gym.envs.episode]): clock, torques, q'', reference,
-  termination, observation and the sensor delay line;
-* the task ([`tasks`][elastic_gym.envs.tasks]): reference trajectories, open-loop torques;
-* the fused kernels ([`kernels`][elastic_gym.envs.kernels]) and their packed arguments
-  ([`packing`][elastic_gym.envs.packing]): a control period in two compiled calls;
-* the info ([`info`][elastic_gym.envs.info]) and pickling
-  ([`snapshot`][elastic_gym.envs.snapshot]) read the parts (a snapshot is restored by each
-  part itself).
-
-What needs the robot to be checked (timing, torque limits, each arm's plant and its
-stability) is resolved first ([`batch_setup`][elastic_gym.envs.batch_setup]).
-
 Exactness: arm i draws every random number from its own generator (its plant from its own
-plant stream, [`randomization`][elastic_gym.envs.randomization]), and every computation on
-it depends only on its own rows, with the same operations in the same order whatever N. So
-arm i of a batch seeded s + i is bit for bit the single env reset with seed s + i under the
-same actions, and with `per_arm` the single env made with arm i's merged kwargs. The
-observation holds only what a real arm measures; the truth, the applied torque, the
-reference and the plant's own parameters are in `info` (see `ArmBatch`).
+plant stream), and every computation on it depends only on its own rows, with the same
+operations in the same order whatever N. So arm i of a batch seeded s + i is bit for bit
+the single env reset with seed s + i under the same actions, and with `per_arm` the single
+env made with arm i's merged kwargs. The observation holds only what a real arm measures;
+the truth, the applied torque, the reference and the plant's own parameters are in `info`.
 """
 
 from __future__ import annotations
@@ -47,6 +26,7 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from gymnasium import spaces
+from pydantic import BaseModel
 
 from elastic_gym.envs import bullet_capi, snapshot
 from elastic_gym.envs.arm_config import ArmResolver, ArmSettings
@@ -83,7 +63,8 @@ BATCH_OPTIONS = tuple(EnvConfig.model_fields)
 
 def _type_text(annotation: Any) -> str:
     """A short text of a config field's type for a signature: `float | None`,
-    `EncoderConfig | None`, `dict[str, PlantRange] | None` (constraints left out)."""
+    `dict | EncoderConfig | None`, `dict[str, dict | PlantRange] | None` (constraints left
+    out)."""
     origin, args = typing.get_origin(annotation), typing.get_args(annotation)
     if origin is Annotated:
         return _type_text(args[0])
@@ -96,6 +77,8 @@ def _type_text(annotation: Any) -> str:
         return f"{getattr(origin, '__name__', str(origin))}[{inner}]"
     if annotation is type(None):
         return "None"
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return f"dict | {annotation.__name__}"  # a model is given as a mapping of its fields
     return getattr(annotation, "__name__", str(annotation))
 
 
@@ -137,6 +120,27 @@ def with_batch_options(init):
 
 class ArmBatch:
     """N arms of a robot of the catalog: simulation, sensors, task, reward, termination.
+
+    The batch orchestrates a control period; each of its parts owns its state and is changed
+    only through its own methods:
+
+    * the simulator ([`simulator`][elastic_gym.envs.simulator]): the PyBullet world, theta, q,
+      theta', q', the plants' constants, the physics substeps;
+    * the plant state ([`plant_state`][elastic_gym.envs.plant_state]): each arm's settings,
+      randomization draws, payloads, torque pulses, sensor and actuator delays;
+    * the sensors ([`measurement`][elastic_gym.envs.measurement]): encoders and accelerometers
+      (noise blocks, biases, filters);
+    * the episode ([`episode`][elastic_gym.envs.episode]): clock, torques, q'', reference,
+      termination, observation and the sensor delay line;
+    * the task ([`tasks`][elastic_gym.envs.tasks]): reference trajectories, open-loop torques;
+    * the fused kernels ([`kernels`][elastic_gym.envs.kernels]) and their packed arguments
+      ([`packing`][elastic_gym.envs.packing]): a control period in two compiled calls;
+    * the info ([`info`][elastic_gym.envs.info]) and pickling
+      ([`snapshot`][elastic_gym.envs.snapshot]) read the parts (a snapshot is restored by each
+      part itself).
+
+    What needs the robot to be checked (timing, torque limits, each arm's plant and its
+    stability) is resolved first ([`batch_setup`][elastic_gym.envs.batch_setup]).
 
     Args:
         robot: robot name (`elastic_gym.robots.catalog.ROBOTS`) or a `RobotSpec`.

@@ -266,7 +266,7 @@ class EnvConfig(StrictModel):
         payload: a point mass at the end effector, `{"mass", "position", "change":
             {"time", "mass"}}` (see the module docstring).
         torque_pulses: link-side torque pulses, given or random (see the module docstring
-            and [`disturbances`][elastic_gym.envs.disturbances]).
+            and `envs.disturbances`).
         randomize: parameter path -> range drawn by each arm at every reset (see
             [`randomization`][elastic_gym.envs.randomization]).
         per_arm: None or N mappings of the per-arm kwargs (`PER_ARM_KEYS`): arm i's

@@ -1,20 +1,17 @@
 """The episode arrays of N arms, owned by one object: clock, torques, truth, observation.
 
 `EpisodeState` holds every per-arm array that a batch's control periods change besides
-the simulator's own state (q, q', theta, theta' in
-[`ArmSimulator`][elastic_gym.envs.simulator.ArmSimulator]) and the plant's
-([`PlantState`][elastic_gym.envs.plant_state.PlantState]): the step counters and times,
-whether an episode runs, the applied torques (current, previous, the clipped torque of the
-period being computed, the task's open-loop torque), the saturation flags, q'', the
-reference q_d .. q_d^(4), the termination codes and reasons, the observation and the
-sensor delay line.
+the simulator's state (q, q', theta, theta') and the plant's: step counters and times,
+whether an episode runs, the torques (current, previous, the clipped one of the period
+being computed, the task's open-loop one), the saturation flags, q'', the reference
+q_d .. q_d^(4), the termination codes and reasons, the observation and the sensor delay
+line.
 
 Other parts read these arrays; they change them only through the methods here, or in
 place through the compiled kernels of a control period
-([`elastic_gym.envs.kernels`][elastic_gym.envs.kernels]), to which
-[`elastic_gym.envs.packing`][elastic_gym.envs.packing] hands them. No array is ever
-rebound but `reasons` (a fresh or a shared all-None array per period, read through
-`reasons`), so packed kernel arguments stay valid for the batch's lifetime.
+([`kernels`][elastic_gym.envs.kernels]), to which [`packing`][elastic_gym.envs.packing]
+hands them. No array is ever rebound (but the reasons, read through `reasons`), so the
+packed kernel arguments stay valid for the batch's lifetime.
 """
 
 from __future__ import annotations

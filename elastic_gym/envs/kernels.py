@@ -105,7 +105,7 @@ def post_step_kernel(tau, previous, reference, slot, reward, packed):
        into `reward` (N,)) at e = q - q_d, e' = q' - q_d', torsion theta - q, the torques
        `tau` and `previous`.
 
-    `packed`: a [`Packed`][elastic_gym.model.packed.Packed] of what holds for the episode
+    `packed`: a `Packed` (`elastic_gym.model.packed`) of what holds for the episode
     ([`FusedArguments`][elastic_gym.envs.packing.FusedArguments]): (theta, theta', q, q',
     transmission, coupling (None without model (2)), dynamics, limits, sensors, the torque
     limit row and the reward constants after it); `sensors`: (elastic, encoder std, block,
@@ -198,7 +198,7 @@ def control_period_kernel(command, truncated, packed):
        the torques shifted (previous <- current <- the clipped torque);
     4. the reference at the new time (`reference_kernel` of the tasks).
 
-    `packed`: a [`Packed`][elastic_gym.model.packed.Packed] of the batch's arrays changed
+    `packed`: a `Packed` (`elastic_gym.model.packed`) of the batch's arrays changed
     in place ([`FusedArguments.period`][elastic_gym.envs.packing.FusedArguments.period]).
     Returns (the physics' `bullet_capi` code, whether an arm is truncated); after a code
     other than OK nothing past step 2 has run. (The end of the period is a call of its

@@ -1,7 +1,7 @@
 """The packed arguments of a batch's fused kernels, built when needed and kept while valid.
 
-numba unboxes every array of a call's arguments at every dispatch
-([`Packed`][elastic_gym.model.packed.Packed]); the two kernels of a control period
+numba unboxes every array of a call's arguments at every dispatch (a `Packed` of
+`elastic_gym.model.packed` holds them as one); the two kernels of a control period
 ([`elastic_gym.envs.kernels`][elastic_gym.envs.kernels]) take some 80 arrays and scalars,
 so `FusedArguments` packs them once: the simulator's state and plant constants, the
 sensors' error models and noise blocks, the episode's arrays (all changed in place by the
