@@ -15,8 +15,9 @@ import gymnasium as gym
 import numpy as np
 from numba import njit
 
-from elastic_gym.envs.batch import ArmBatch, with_batch_options
+from elastic_gym.envs.batch import ArmBatch
 from elastic_gym.envs.config import RenderMode
+from elastic_gym.envs.signature import with_batch_options
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.validation import option_value
 

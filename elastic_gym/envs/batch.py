@@ -17,19 +17,14 @@ the truth, the applied torque, the reference and the plant's own parameters are 
 from __future__ import annotations
 
 import contextlib
-import functools
-import inspect
-import types
-import typing
 from collections.abc import Iterator, Mapping
-from typing import Annotated, Any, Literal
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from pydantic import BaseModel
 
 from elastic_gym.envs import bullet_capi, snapshot
-from elastic_gym.envs.arm_config import ArmResolver, ArmSettings
+from elastic_gym.envs.arm_config import ArmResolver
 from elastic_gym.envs.batch_setup import (
     check_within_limits,
     observation_shapes,
@@ -48,7 +43,7 @@ from elastic_gym.envs.packing import Fused, FusedArguments
 from elastic_gym.envs.plant import PlantArray
 from elastic_gym.envs.plant_state import PlantState
 from elastic_gym.envs.reward import RewardConfig, batch_reward
-from elastic_gym.envs.sensors import AccelerometerArray, Encoder, every_arm
+from elastic_gym.envs.sensors import every_arm
 from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.envs.tasks import make_task
 from elastic_gym.model import RobotModel
@@ -57,65 +52,11 @@ from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import joint_limits
 from elastic_gym.validation import checked_count, validated
 
-BATCH_OPTIONS = tuple(EnvConfig.model_fields)
-"""The env kwargs every env of the package forwards to `ArmBatch` (`EnvConfig`'s fields)."""
 
-
-def _type_text(annotation: Any) -> str:
-    """A short text of a config field's type for a signature: `float | None`,
-    `dict | EncoderConfig | None`, `dict[str, dict | PlantRange] | None` (constraints left
-    out)."""
-    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
-    if origin is Annotated:
-        return _type_text(args[0])
-    if origin in (typing.Union, types.UnionType):
-        return " | ".join(dict.fromkeys(_type_text(a) for a in args))
-    if origin is Literal:
-        return " | ".join(repr(a) for a in args)
-    if origin is not None:
-        inner = ", ".join("..." if a is Ellipsis else _type_text(a) for a in args)
-        return f"{getattr(origin, '__name__', str(origin))}[{inner}]"
-    if annotation is type(None):
-        return "None"
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return f"dict | {annotation.__name__}"  # a model is given as a mapping of its fields
-    return getattr(annotation, "__name__", str(annotation))
-
-
-def _batch_parameters() -> list[inspect.Parameter]:
-    """The env kwargs as keyword-only parameters with `EnvConfig`'s defaults and types."""
-    return [
-        inspect.Parameter(
-            name,
-            inspect.Parameter.KEYWORD_ONLY,
-            default=field.default,
-            annotation=_type_text(field.annotation),
-        )
-        for name, field in EnvConfig.model_fields.items()
-    ]
-
-
-def with_batch_options(init):
-    """Give an env `__init__(self, ..., **kwargs)` that forwards `kwargs` to `ArmBatch` (as
-    its `EnvConfig`) the signature it really accepts (`inspect.signature`, `help`, keyword
-    validation by the comparison runner): its own parameters and `EnvConfig`'s fields; an
-    unknown keyword is refused with the valid ones."""
-    own = inspect.signature(init)
-    fixed = [p for p in own.parameters.values() if p.kind is not p.VAR_KEYWORD]
-    signature = own.replace(parameters=[*fixed, *_batch_parameters()])
-
-    @functools.wraps(init)
-    def checked(self, *args, **kwargs):
-        unknown = set(kwargs) - set(own.parameters) - set(BATCH_OPTIONS)
-        if unknown:
-            raise TypeError(
-                f"{type(self).__name__}() got an unexpected keyword argument "
-                f"{sorted(unknown)[0]!r}; valid: {sorted(BATCH_OPTIONS)}"
-            )
-        init(self, *args, **kwargs)
-
-    checked.__signature__ = signature
-    return checked
+def _view(part: str, name: str, doc: str) -> Any:
+    """A read-only attribute of `ArmBatch` reading `name` of its part `part` (the arrays are
+    the part's own: read them, change them through the part)."""
+    return property(lambda self: getattr(getattr(self, part), name), doc=doc)
 
 
 class ArmBatch:
@@ -258,75 +199,24 @@ class ArmBatch:
         """The observation key of the encoders (`motor_position` or `link_position`)."""
         return self.sensors.position_key
 
-    @property
-    def encoder(self) -> Encoder:
-        """The position encoders of every arm."""
-        return self.sensors.encoder
-
-    @property
-    def accelerometer_array(self) -> AccelerometerArray:
-        """The accelerometers of every arm."""
-        return self.sensors.accelerometer_array
-
-    @property
-    def settings(self) -> list[ArmSettings]:
-        """Each arm's current plant and sensor settings (owned by the plant state)."""
-        return self.plant_state.settings
-
-    @property
-    def max_steps(self) -> int | None:
-        """Episode length in control periods (None: episodes are not truncated)."""
-        return self.episode.max_steps
+    encoder = _view("sensors", "encoder", "The position encoders of every arm.")
+    accelerometer_array = _view("sensors", "accelerometer_array", "The accelerometers.")
+    settings = _view("plant_state", "settings", "Each arm's current plant and sensor settings.")
+    max_steps = _view("episode", "max_steps", "Episode length in control periods, or None.")
+    running = _view("episode", "running", "Whether each arm's episode is under way (N,).")
+    steps = _view("episode", "steps", "Control periods since each arm's reset (N,).")
+    torque = _view("episode", "torque", "The applied motor torque of the last period (N, n).")
+    previous_torque = _view("episode", "previous_torque", "The one before it (N, n).")
+    saturated = _view("episode", "saturated", "Whether each arm's last action was clipped.")
+    ddq = _view("episode", "ddq", "The true q'' at the end of the last period (N, n).")
+    reference = _view("episode", "reference", "q_d .. q_d^(4) at each arm's time (N, 5, n).")
+    reasons = _view("episode", "reasons", "Why each arm's episode was terminated (N,).")
+    obs = _view("episode", "obs", "The current observation of every arm by key.")
 
     @property
     def time(self) -> np.ndarray:
         """Simulated time of each arm's episode (s), a copy."""
         return self.episode.time.copy()
-
-    @property
-    def running(self) -> np.ndarray:
-        """Whether each arm's episode is under way (reset, not ended) (N,); read only."""
-        return self.episode.running
-
-    @property
-    def steps(self) -> np.ndarray:
-        """Control periods since each arm's reset (N,); read only."""
-        return self.episode.steps
-
-    @property
-    def torque(self) -> np.ndarray:
-        """The applied (clipped) motor torque of the last control period (N, n); read only."""
-        return self.episode.torque
-
-    @property
-    def previous_torque(self) -> np.ndarray:
-        """The applied motor torque of the control period before it (N, n); read only."""
-        return self.episode.previous_torque
-
-    @property
-    def saturated(self) -> np.ndarray:
-        """Whether each arm's last action was clipped (N,); read only."""
-        return self.episode.saturated
-
-    @property
-    def ddq(self) -> np.ndarray:
-        """The true q'' at the end of the last control period (N, n); read only."""
-        return self.episode.ddq
-
-    @property
-    def reference(self) -> np.ndarray:
-        """q_d .. q_d^(4) at each arm's time (N, 5, n); read only."""
-        return self.episode.reference
-
-    @property
-    def reasons(self) -> np.ndarray:
-        """Why each arm's episode was terminated at the last control period (N,)."""
-        return self.episode.reasons
-
-    @property
-    def obs(self) -> dict[str, np.ndarray]:
-        """The current observation of every arm by key; read only (see `observation`)."""
-        return self.episode.obs
 
     def limit_episode(self, steps: int) -> None:
         """Truncate episodes after `steps` control periods (instead of `episode_time`)."""

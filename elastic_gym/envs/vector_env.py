@@ -23,8 +23,9 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from elastic_gym.envs.arm_env import check_kind, validated_actions
-from elastic_gym.envs.batch import ArmBatch, with_batch_options
+from elastic_gym.envs.batch import ArmBatch
 from elastic_gym.envs.config import RenderMode
+from elastic_gym.envs.signature import with_batch_options
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.validation import checked_count, is_count, option_value
 
