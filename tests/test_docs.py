@@ -27,7 +27,7 @@ from rich.console import Console
 
 import elastic_gym
 from elastic_gym.evaluation import Scenario, compare
-from elastic_gym.evaluation.runner import plan_runs
+from elastic_gym.evaluation.grid import plan_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"

@@ -29,8 +29,8 @@ from elastic_gym.evaluation import (
     load_scenario,
     plan_runs,
 )
+from elastic_gym.evaluation.episodes import run_episode
 from elastic_gym.evaluation.metrics import SETTLING_BAND, find_moves
-from elastic_gym.evaluation.runner import run_episode
 from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT
 
 DT = 1e-3

@@ -612,7 +612,7 @@ def test_training_with_episodes_that_never_end_is_refused_not_hung(tmp_path, cap
 
 
 def urdf_of(env_id: str) -> str:
-    from elastic_gym.evaluation.runner import env_robot
+    from elastic_gym.evaluation.grid import env_robot
 
     return env_robot(f"elastic_gym/{env_id}", {}).urdf
 
