@@ -46,7 +46,7 @@ def compare(
     """Run every applicable run of ``scenario`` and write the tables (and plots).
 
     Args:
-        scenario: the grid ([`load_preset`][elastic_gym.evaluation.presets.load_preset],
+        scenario: the grid (`load_preset`,
             ``Scenario.from_dict``).
         output_dir: output folder (default ``./compare_out/<scenario.name>``).
         workers: parallel worker processes (default: one per CPU, at most one per run).
