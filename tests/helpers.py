@@ -67,6 +67,33 @@ def write_csv_columns(path: Path, columns: dict, sidecar: str | None = None) -> 
 # noise). Row k: sensors at t_k, the torque held from t_k to t_k+1.
 
 
+def closed_loop_log(
+    folder: Path, env_id: str, observer: str, seed: int, episode_time=0.3, **kwargs
+):
+    """Run eq. (13) on ``observer``'s online estimate in ``env_id`` (a LogRecorder under
+    the observer wrapper); return (the online estimates, the path of the recorded log)."""
+    from elastic_gym.controllers.registry import make_controller
+    from elastic_gym.logs import LogRecorder, write_log
+    from elastic_gym.observers import ObserverWrapper
+
+    env = gym.make(env_id, episode_time=episode_time, **kwargs)
+    recorder = LogRecorder(env)
+    wrapped = ObserverWrapper(recorder, observer)
+    base = env.unwrapped
+    controller = make_controller("feedforward-state-feedback", base.model, base.control_dt)
+    obs, info = wrapped.reset(seed=seed)
+    controller.reset(obs, public_info(info))
+    online = [info["estimate"]]
+    done = False
+    while not done:
+        obs, _, terminated, truncated, info = wrapped.step(controller(obs, public_info(info)))
+        online.append(info["estimate"])
+        done = terminated or truncated
+    path, _ = write_log(Path(folder) / "sim.csv", recorder.log())
+    wrapped.close()
+    return np.array(online), path
+
+
 def multisine_reference(rng, low, high, base_hz: float = 0.1, harmonics: int = 5):
     """q_d(t), q_d'(t), q_d''(t): a random Fourier series in 60 % of [low, high]."""
     n = len(low)

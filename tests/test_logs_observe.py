@@ -3,34 +3,11 @@ estimation error against the truth columns."""
 
 from __future__ import annotations
 
-import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import closed_loop_log
 
-from elastic_gym.controllers.base import public_info
-from elastic_gym.controllers.registry import make_controller
-from elastic_gym.logs import LogRecorder, error_table, estimate_log, read_log, write_log
-from elastic_gym.observers import ObserverWrapper
-
-
-def closed_loop_log(tmp_path, env_id, observer, seed, episode_time=0.3, **kwargs):
-    """Run eq. (13) on `observer`'s online estimate; return (online estimates, log path)."""
-    env = gym.make(env_id, episode_time=episode_time, **kwargs)
-    recorder = LogRecorder(env)
-    wrapped = ObserverWrapper(recorder, observer)
-    base = env.unwrapped
-    controller = make_controller("feedforward-state-feedback", base.model, base.control_dt)
-    obs, info = wrapped.reset(seed=seed)
-    controller.reset(obs, public_info(info))
-    online = [info["estimate"]]
-    done = False
-    while not done:
-        obs, _, terminated, truncated, info = wrapped.step(controller(obs, public_info(info)))
-        online.append(info["estimate"])
-        done = terminated or truncated
-    path, _ = write_log(tmp_path / "sim.csv", recorder.log())
-    wrapped.close()
-    return np.array(online), path
+from elastic_gym.logs import error_table, estimate_log, read_log
 
 
 @pytest.mark.parametrize(
