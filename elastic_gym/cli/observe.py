@@ -140,7 +140,7 @@ def run_observe(args: argparse.Namespace) -> int:
         written.append(write_text(output / f"{stem}.errors.md", markdown(table, args.settle)))
     print(
         f"{args.observer} on {args.log}: {len(log)} samples, {log.duration:.3f} s of log in "
-        f"{wall:.3f} s ({log.duration / wall:.0f}x real time; {cpu:.3f} s of CPU)"
+        f"{wall:.3f} s ({log.duration / wall:.3g}x real time; {cpu:.3f} s of CPU)"
     )
     if table is not None:
         print(markdown(table, args.settle), end="")

@@ -10,7 +10,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from elastic_gym.logs.record import DEFAULT_CONTROLLER, DEFAULT_SOURCE, Excitation
+from elastic_gym.logs.record import (
+    DEFAULT_CONTROLLER,
+    DEFAULT_SOURCE,
+    RIGID_CONTROLLER,
+    Excitation,
+)
 
 DEFAULT_DURATION = 60.0  # s
 
@@ -57,7 +62,8 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
         "--controller",
         metavar="NAME",
         help=f"the tracking controller (default "
-        f"{DEFAULT_CONTROLLER}; with --scenario: the label of one of its controllers)",
+        f"{DEFAULT_CONTROLLER}, on rigid arms {RIGID_CONTROLLER}; with --scenario: the label "
+        "of one of its controllers)",
     )
     parser.add_argument(
         "--controller-options", metavar="YAML", help="its options (default {omega: 20.0})"
@@ -189,7 +195,7 @@ def run_record(args: argparse.Namespace) -> int:
         0 if args.seed is None else args.seed,
         kwargs,
         excitation,
-        args.controller or DEFAULT_CONTROLLER,
+        args.controller,
         options,
         args.state_source or DEFAULT_SOURCE,
     )

@@ -30,7 +30,8 @@ from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import AccelerometerMount, RobotSpec
 from elastic_gym.validation import per_joint_values
 
-DEFAULT_CONTROLLER = "motor-pd"
+DEFAULT_CONTROLLER = "motor-pd"  # on a rigid arm: RIGID_CONTROLLER
+RIGID_CONTROLLER = "link-pd"
 DEFAULT_CONTROLLER_OPTIONS: dict[str, Any] = {"omega": 20.0}
 DEFAULT_SOURCE = "true"
 
@@ -148,19 +149,22 @@ def record_excitation(
     seed: int = 0,
     env_kwargs: Mapping[str, Any] | None = None,
     excitation: Excitation | None = None,
-    controller: str | type[Controller] = DEFAULT_CONTROLLER,
+    controller: str | type[Controller] | None = None,
     controller_options: Mapping[str, Any] | None = None,
     state_source: str = DEFAULT_SOURCE,
 ) -> tuple[SensorLog, ExcitationDesign]:
     """A log of the identification excitation (module docstring): the `fourier` task with
     coefficients designed for the nominal model and a dither, tracked by `controller`
-    (default a motor PD at 20 rad/s with the INVDYN feedforward, on the true state)."""
+    (default a motor PD at 20 rad/s with the INVDYN feedforward, on the true state; a link
+    PD on a rigid arm)."""
     kwargs = dict(env_kwargs or {})
     if "task" in kwargs or "task_options" in kwargs:
         raise ValueError("the excitation sets the task: leave task and task_options out")
     excitation = excitation or Excitation()
     spec, model, limit = robot_and_limits(env_id, kwargs)
     design = design_for(spec, model, limit, excitation, seed)
+    if controller is None:
+        controller = DEFAULT_CONTROLLER if spec.elastic else RIGID_CONTROLLER
     options = DEFAULT_CONTROLLER_OPTIONS if controller_options is None else controller_options
     log = run_closed_loop(
         env_id,
