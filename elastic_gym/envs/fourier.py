@@ -17,10 +17,11 @@ from math import comb
 from typing import Annotated
 
 import numpy as np
+from numba import njit
 from pydantic import Field, StrictInt
 
 from elastic_gym.envs.tasks import REFERENCE_ORDER, Task, _vector
-from elastic_gym.envs.trajectories import timing_law
+from elastic_gym.envs.trajectories import timing_coefficients
 from elastic_gym.validation import (
     Finite,
     FiniteNumbers,
@@ -91,15 +92,69 @@ def fourier_series(
     return out
 
 
-def fade(t: np.ndarray, ramp: float, order: int) -> np.ndarray:
-    """w(t) and its derivatives (order + 1, len(t)): the timing law over [0, ramp], 1 after."""
-    t = np.asarray(t, dtype=float)
+_LAW = timing_coefficients(REFERENCE_ORDER)  # rows: d^k s / du^k, ascending powers of u
+_BINOMIAL = np.array([[comb(k, i) for i in range(REFERENCE_ORDER + 1)] for k in range(5)], float)
+
+
+@njit(cache=True)
+def _window(t, ramp, law, w):
+    """w(t) and its derivatives into `w`: the timing law over [0, ramp], 1 after."""
+    w[:] = 0.0
     if ramp <= 0.0:
-        out = np.zeros((order + 1, len(t)))
-        out[0] = 1.0
-        return out
-    law = timing_law(np.clip(t / ramp, 0.0, 1.0), order)  # derivatives vanish at 0 and 1
-    return law * (ramp ** -np.arange(order + 1.0))[:, None]
+        w[0] = 1.0
+        return
+    u = min(max(t / ramp, 0.0), 1.0)
+    scale = 1.0
+    for d in range(w.shape[0]):
+        value = 0.0
+        for p in range(law.shape[1] - 1, -1, -1):  # Horner
+            value = value * u + law[d, p]
+        w[d] = value * scale
+        scale /= ramp
+
+
+@njit(cache=True)
+def _reference_kernel(t, sine, cosine, omega, ramp, law, offset, out):
+    """q_d^(d) = Σ_i C(d, i) w^(i) f^(d-i) (Leibniz) at each time, f^(d) = Σ_l (l ω)^d
+    (a_l sin(l ω t + d π/2) + b_l cos(l ω t + d π/2))."""
+    K, n = out.shape[1], out.shape[2]
+    f = np.empty((K, n))
+    w = np.empty(K)
+    for k in range(t.shape[0]):
+        f[:] = 0.0
+        for l in range(sine.shape[0]):
+            x = omega[l] * t[k]
+            s, c = np.sin(x), np.cos(x)
+            power = 1.0
+            for d in range(K):
+                m = d % 4  # sin(x + d π/2), cos(x + d π/2)
+                S = s if m == 0 else (c if m == 1 else (-s if m == 2 else -c))
+                C = c if m == 0 else (-s if m == 1 else (-c if m == 2 else s))
+                for j in range(n):
+                    f[d, j] += power * (sine[l, j] * S + cosine[l, j] * C)
+                power *= omega[l]
+        _window(t[k], ramp, law, w)
+        for d in range(K):
+            for j in range(n):
+                total = 0.0
+                for i in range(d + 1):
+                    total += _BINOMIAL[d, i] * w[i] * f[d - i, j]
+                out[k, d, j] = total
+        for j in range(n):
+            out[k, 0, j] += offset[j]
+
+
+@njit(cache=True)
+def _dither_kernel(t, frequencies, phases, amplitudes, ramp, law, out):
+    """w(t) A_j Σ_m sin(2π ν_m t + φ_mj) at each time."""
+    w = np.empty(1)
+    for k in range(t.shape[0]):
+        _window(t[k], ramp, law[:1], w)
+        for j in range(out.shape[1]):
+            total = 0.0
+            for m in range(frequencies.shape[0]):
+                total += np.sin(2.0 * np.pi * frequencies[m] * t[k] + phases[m, j])
+            out[k, j] = w[0] * amplitudes[j] * total
 
 
 @dataclass
@@ -144,28 +199,23 @@ class FourierTask(Task):
 
     def reference_at(self, t: np.ndarray) -> np.ndarray:
         """q_d .. q_d⁽⁴⁾ at the times `t`: (len(t), 5, n)."""
-        t = np.asarray(t, dtype=float)
-        f = fourier_series(t, self.sine, self.cosine, self.period, REFERENCE_ORDER)
-        w = fade(t, self.ramp, REFERENCE_ORDER)
-        out = np.zeros_like(f)
-        for k in range(REFERENCE_ORDER + 1):  # Leibniz: (w f)^(k) = Σ C(k, i) w^(i) f^(k-i)
-            for i in range(k + 1):
-                out[:, k] += comb(k, i) * w[i][:, None] * f[:, k - i]
-        out[:, 0] += self.offset
+        t = np.ascontiguousarray(np.atleast_1d(t), dtype=float)
+        out = np.empty((len(t), REFERENCE_ORDER + 1, self.spec.n_joints))
+        omega = 2.0 * np.pi / self.period * np.arange(1.0, len(self.sine) + 1.0)
+        _reference_kernel(t, self.sine, self.cosine, omega, self.ramp, _LAW, self.offset, out)
         return out
 
     def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
         times = np.broadcast_to(np.asarray(t, dtype=float), (self.n_arms,))[arms]
-        return self.reference_at(np.atleast_1d(times))
+        return self.reference_at(times)
 
     def dither_at(self, t: np.ndarray) -> np.ndarray:
         """The dither torque at the times `t`: (len(t), n) (zeros without a dither)."""
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        if self.dither is None:
-            return np.zeros((len(t), self.spec.n_joints))
-        frequencies, phases, amplitudes = self.dither
-        angle = 2.0 * np.pi * np.multiply.outer(t, frequencies)[:, :, None] + phases  # (T, M, n)
-        return fade(t, self.ramp, 0)[0][:, None] * amplitudes * np.sin(angle).sum(axis=1)
+        t = np.ascontiguousarray(np.atleast_1d(t), dtype=float)
+        out = np.zeros((len(t), self.spec.n_joints))
+        if self.dither is not None:
+            _dither_kernel(t, *self.dither, self.ramp, _LAW, out)
+        return out
 
     def external_torque(self, t: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         if self.dither is None:
