@@ -15,7 +15,7 @@ from elastic_gym.logs import error_table, estimate_log, read_log
     [
         ("elastic_gym/TwoLinkElastic-v0", "deluca"),
         ("elastic_gym/KR15Elastic-v0", "deluca"),
-        ("elastic_gym/TwoLinkElastic-v0", "ekf"),
+        pytest.param("elastic_gym/TwoLinkElastic-v0", "ekf", marks=pytest.mark.slow),
     ],
 )
 def test_offline_estimate_equals_the_online_one_bit_for_bit(tmp_path, env_id, observer):

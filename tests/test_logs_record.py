@@ -53,11 +53,11 @@ def test_the_dither_has_its_rms_and_band():
     frequencies, phases, amplitudes = dither_parameters(options, limit)
     assert frequencies.min() >= 2.0 and frequencies.max() <= 25.0
     # distinct sines are orthogonal over a long window: RMS² = Σ A²/2
-    t = np.arange(0, 200.0, 1e-3)
+    t = np.arange(0, 60.0, 1e-3)
     signal = amplitudes * np.sin(
         2 * np.pi * np.multiply.outer(t, frequencies)[:, :, None] + phases
     ).sum(1)
-    assert np.sqrt(np.mean(signal**2, axis=0)) == pytest.approx(0.03 * limit, rel=0.02)
+    assert np.sqrt(np.mean(signal**2, axis=0)) == pytest.approx(0.03 * limit, rel=0.05)
 
 
 def test_a_reference_leaving_the_workspace_is_refused():
@@ -88,6 +88,7 @@ def test_the_design_counts_the_base_parameters_and_keeps_the_limits():
     assert again.task_options == result.task_options  # reproducible from its seed
 
 
+@pytest.mark.slow
 def test_record_excitation_of_a_mystery_arm(tmp_path):
     kwargs = {"plant_scaling": {"stiffness": 1.1, "link_mass": 0.8}}
     excitation = Excitation(evaluations=60, ramp=0.1)
@@ -116,6 +117,7 @@ def test_the_reference_file_is_the_task_sampled(tmp_path):
     assert np.abs(dq[5:-5] - values[5:-5, 3]).max() < 1e-4
 
 
+@pytest.mark.slow
 def test_record_cli_writes_the_log_and_the_reference(tmp_path, capsys):
     out = tmp_path / "rec" / "arm.csv"
     reference = tmp_path / "rec" / "arm.reference.csv"
