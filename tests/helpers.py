@@ -136,9 +136,13 @@ def simulate_log(
     noise_density: float = 1.5e-3,
     encoder_resolution: float = 2 * np.pi / 2**20,
     omega: float = 20.0,
+    accelerometer_cutoff_hz: float | None = None,
+    sensor_delay: int = 0,
 ) -> dict:
-    """A closed-loop log of ``plant`` (controller on the ``nominal`` model), see the module
-    docstring. Returns time, motor_position, torque, acceleration, bias and truth."""
+    """A closed-loop log of ``plant`` (controller on the ``nominal`` model), see above.
+    ``accelerometer_cutoff_hz``: the readings through y_k = a y_k-1 + (1 - a) x_k (the
+    envs' filter); ``sensor_delay``: the readings (and the controller) ``sensor_delay``
+    samples late. Returns time, theta (the readings), torque, acceleration, bias, truth."""
     rng = np.random.default_rng(seed)
     n = plant.n
     low, high = np.asarray(plant.spec.workspace_low), np.asarray(plant.spec.workspace_high)
@@ -156,9 +160,25 @@ def simulate_log(
     out["acceleration"] = np.zeros((steps + 1, 3 * plant.n_sensors))
     h = dt / substeps
     f = plant.elastic_dynamics
+    alpha = (
+        0.0
+        if accelerometer_cutoff_hz is None
+        else np.exp(-2 * np.pi * accelerometer_cutoff_hz * dt)
+    )
+    filtered = None
+    line: list = []  # the readings' delay line, newest last
     for k in range(steps + 1):
         t = k * dt
-        theta_measured = np.round(x[:n] / encoder_resolution) * encoder_resolution
+        reading = np.round(x[:n] / encoder_resolution) * encoder_resolution
+        previous = out["torque"][k - 1] if k else np.zeros(n)
+        _, ddq = plant.elastic_accelerations(x, previous)
+        forces = plant.accelerometer_readings(x[n : 2 * n], x[3 * n :], ddq)
+        acceleration = forces + bias + sample_std * rng.standard_normal(len(forces))
+        filtered = (
+            acceleration if filtered is None else alpha * filtered + (1 - alpha) * acceleration
+        )
+        line.append((reading, filtered))
+        theta_measured, out["acceleration"][k] = line[max(len(line) - 1 - sensor_delay, 0)]
         qd, dqd, ddqd = reference(t)
         g = nominal.gravity(qd)
         theta_d = qd + g / nominal.K
@@ -170,9 +190,6 @@ def simulate_log(
             + dither(t)
         )
         tau = np.clip(tau, -limit, limit)
-        _, ddq = plant.elastic_accelerations(x, tau)
-        forces = plant.accelerometer_readings(x[n : 2 * n], x[3 * n :], ddq)
-        out["acceleration"][k] = forces + bias + sample_std * rng.standard_normal(len(forces))
         out["theta"][k] = theta_measured
         out["torque"][k] = tau
         out["q"][k], out["dq"][k], out["dtheta"][k] = x[n : 2 * n], x[3 * n :], x[2 * n : 3 * n]

@@ -42,14 +42,15 @@ from elastic_gym.model import RobotModel
 @dataclass(frozen=True)
 class FitSettings:
     """Options of the fit (``band`` None: chosen from the log, see `choose_band`;
-    ``decimation`` None: the coarsest grid the band allows)."""
+    ``decimation`` None: the coarsest grid the band allows; ``sampling`` None: the log's,
+    `identify` reads it from the sidecar)."""
 
     band: Band | None = None
     decimation: int | None = None
     edge: float = 0.5
     holdout: float = 0.2
     coulomb_velocity: float = 0.01
-    sampling: SamplingModel = field(default_factory=SamplingModel)
+    sampling: SamplingModel | None = None
     bound: float = 4.0
     passes: int = 2
     max_lag: int = 20
@@ -257,7 +258,7 @@ def _fit_log(signals: Signals, model: RobotModel, settings: FitSettings) -> FitR
     band = settings.band or choose_band(signals, model)
     r = settings.decimation or _decimation(band, signals.dt)
     grid = SpectralGrid(T, signals.dt, band, r, settings.edge)
-    measurements = Measurements.of(signals, grid, settings.sampling)
+    measurements = Measurements.of(signals, grid, settings.sampling or SamplingModel())
     problem = ElasticJointProblem(model, measurements, settings.coulomb_velocity)
     split = round(T * (1.0 - settings.holdout))
     rows = np.flatnonzero(grid.interior_mask & (grid.indices < split))
