@@ -206,12 +206,14 @@ class _Fit:
         self.problem, self.rows, self.settings = problem, rows, settings
         self.evaluations = 0
 
-    def run(self, free: np.ndarray, start: np.ndarray) -> tuple[np.ndarray, tuple, set[int]]:
-        """(x, weights, indices of x at the bound) after ``settings.passes`` rounds."""
+    def run(self, free: np.ndarray, start: np.ndarray) -> tuple:
+        """(x, weights, indices of x at the bound, the exact terms at x) after
+        ``settings.passes`` rounds."""
         problem, rows = self.problem, self.rows
         x = start.copy()
         x[~free] = 0.0
-        weights = _weights(problem, x, rows)
+        terms = problem.terms(x)
+        weights = _weights(problem, terms, rows)
         bound = np.log(self.settings.bound)
 
         def residual(z: np.ndarray, weights: tuple, frozen: Frozen) -> np.ndarray:
@@ -222,7 +224,7 @@ class _Fit:
         for _ in range(self.settings.passes):
             if not free.any():
                 break
-            frozen = problem.freeze(x)
+            frozen = problem.freeze(x, terms)
             solution = least_squares(
                 residual,
                 np.clip(x[free], -0.999 * bound, 0.999 * bound),
@@ -236,9 +238,10 @@ class _Fit:
             )
             x[free] = solution.x
             self.evaluations += solution.nfev
-            weights = _weights(problem, x, rows)
+            terms = problem.terms(x)
+            weights = _weights(problem, terms, rows)
         at_bound = {int(i) for i in np.flatnonzero(free & (np.abs(x) > 0.99 * bound))}
-        return x, weights, at_bound
+        return x, weights, at_bound, terms
 
 
 def fit_log(signals: Signals, model: RobotModel, settings: FitSettings | None = None) -> FitResult:
@@ -284,8 +287,8 @@ def _fit_log(signals: Signals, model: RobotModel, settings: FitSettings) -> FitR
     for _attempt in range(3):
         free = np.array([name not in held for name in names[: 3 * n]])
         problem.hold_link(np.array([name in held for name in names[3 * n : 6 * n]]))
-        x, weights, at_bound = fitter.run(free, x)
-        estimate = _estimate(problem, x, rows, weights, settings, free)
+        x, weights, at_bound, terms = fitter.run(free, x)
+        estimate = _estimate(problem, x, rows, weights, settings, free, terms)
         values, se = _values(problem, x, estimate)
         bounded = {names[i] for i in at_bound}
         scale_torque = np.sqrt(np.mean(estimate["terms"].rhs[rows] ** 2, axis=0))
@@ -375,9 +378,9 @@ def _estimate(
     weights: tuple[np.ndarray, np.ndarray],
     settings: FitSettings,
     free_nonlinear: np.ndarray,
+    terms: Terms,
 ) -> dict:
-    """Terms, linear parameters, covariance of the free parameters at x."""
-    terms = problem.terms(x)
+    """Linear parameters, covariance of the free parameters at x (``terms``: at x)."""
     bias, link = problem.solve_linear(terms, rows, weights)
     readings, link_side = problem.residuals(terms, bias, link, rows)
     jacobian = _jacobian(problem, x, (bias, link), rows, weights, terms)
@@ -410,11 +413,10 @@ def _values(problem: ElasticJointProblem, x: np.ndarray, estimate: dict) -> tupl
 
 
 def _weights(
-    problem: ElasticJointProblem, x: np.ndarray, rows: np.ndarray
+    problem: ElasticJointProblem, terms: Terms, rows: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """1 / residual std per accelerometer axis and per joint at x (unweighted solve of the
-    linear parameters first)."""
-    terms = problem.terms(x)
+    """1 / residual std per accelerometer axis and per joint at the terms (unweighted
+    solve of the linear parameters first)."""
     ones = (np.ones(problem.n_readings), np.ones(problem.n))
     bias, link = problem.solve_linear(terms, rows, ones)
     readings, link_side = problem.residuals(terms, bias, link, rows)
@@ -437,7 +439,7 @@ def _jacobian(
     parameters and Coulomb columns held), the linear ones exactly (a bias shifts its axis,
     a link parameter adds its column)."""
     N, s3, n = len(rows), problem.n_readings, problem.n
-    frozen = problem.freeze(x)
+    frozen = problem.freeze(x, terms)
     step = 1e-5
     columns = []
     for i in range(len(x)):

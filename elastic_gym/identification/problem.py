@@ -207,9 +207,9 @@ class ElasticJointProblem:
         dq_full = self.link_velocity(x)
         return grid.decimated(grid.spectrum(coulomb_column(dq_full, self.coulomb_velocity)))
 
-    def freeze(self, x: np.ndarray) -> Frozen:
-        """The `Frozen` link terms at x."""
-        terms = self.terms(x)
+    def freeze(self, x: np.ndarray, terms: Terms | None = None) -> Frozen:
+        """The `Frozen` link terms at x (``terms``: the exact terms at x, if known)."""
+        terms = self.terms(x) if terms is None else terms
         mass, bias = self.columns.mass_and_bias(terms.q, terms.dq)
         n = self.n
         coulomb = terms.columns[:, np.arange(n), 2 * n + np.arange(n)]
