@@ -141,18 +141,21 @@ def choose_band(signals: Signals, model: RobotModel, margin: float = 1.25) -> Ba
     reading at lever L (m: the column norm of T_A) with L times that. It equals the
     accelerometer noise density S_a at w_j^4 = K_j sqrt(S_a) / (L_j B_j sqrt(S_theta_j));
     above the smallest w_j / 2 pi the fit would chase encoder noise (an errors-in-variables
-    bias that grows fast with the band). Clipped to [10 Hz, 0.2 f_s]; the stop band starts
-    1.5 times higher."""
+    bias that grows fast with the band). At least 1.2 times the lowest torsion mode (and
+    10 Hz), at most 0.2 f_s (noiseless sensors); the stop band starts 1.5 times higher."""
     fs = 1.0 / signals.dt
     s_a = float(np.mean(noise_floor(signals.acceleration, fs)))
     s_theta = noise_floor(signals.motor_position, fs)
     q = np.median(signals.motor_position, axis=0)
     T, _ = model.accelerometer_maps(q, np.zeros(model.n))
     lever = np.maximum(np.linalg.norm(T, axis=0), 1e-3)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
         ratio = model.K * np.sqrt(s_a) / (lever * model.B * np.sqrt(s_theta))
+    ratio = np.where(np.isnan(ratio), np.inf, ratio)  # noiseless sensors: no limit
     crossover = np.min(ratio**0.25) / (2.0 * np.pi)
-    pass_hz = float(np.clip(margin * crossover, 10.0, 0.2 * fs))
+    free, _ = model.natural_frequencies(q)
+    lowest = max(10.0, 1.2 * float(np.min(free)) / (2.0 * np.pi))  # the first torsion mode
+    pass_hz = float(np.clip(margin * crossover, min(lowest, 0.2 * fs), 0.2 * fs))
     return Band(pass_hz, 1.5 * pass_hz)
 
 
