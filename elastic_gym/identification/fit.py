@@ -306,12 +306,17 @@ def _fit_log(signals: Signals, model: RobotModel, settings: FitSettings) -> FitR
             bounded,
             settings.thresholds,
         )
-        new = {k: v for k, v in weak.items() if k not in held and not k.startswith("bias[")}
+        transmission = set(names[: 3 * n])
+        new = {
+            k: why
+            for k, (why, hold) in weak.items()
+            if hold and k in transmission and k not in held
+        }
         if not new:
             break
         held.update(new)
-    for name, why in weak.items():
-        if name.startswith("bias["):
+    for name, (why, _) in weak.items():
+        if name not in held:
             warnings.append(f"{name} is poorly identified: {why}")
     for name, why in held.items():
         if not why.startswith("the log does not excite"):
