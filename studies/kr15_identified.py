@@ -142,8 +142,12 @@ def publish(out: Path, identified: Path) -> None:
     shutil.copyfile(out / "summary.csv", RESULTS / "kr15.csv")
     target = RESULTS / "kr15_identification"
     target.mkdir(exist_ok=True)
-    for name in ("model.yaml", "report.md", "identification.png"):
+    for name in ("report.md", "identification.png"):
         shutil.copyfile(identified / name, target / name)
+    # the model file names its schema relative to the repository, not to this machine
+    text = (identified / "model.yaml").read_text().split("\n", 1)[1]
+    schema = "../../../../elastic_gym/schemas/model.json"
+    (target / "model.yaml").write_text(f"# yaml-language-server: $schema={schema}\n{text}")
     metrics = (
         ("track_rms", "tracking RMS (rad)"),
         ("track_max", "max tracking error (rad)"),

@@ -1,19 +1,15 @@
 """Did the log excite what the fit estimates? Checks that name what it did not.
 
-Two checks, both reported as warnings (and the parameters they name are held at their
-nominal values in a second fit, marked ``excited: false`` in the model file):
-
-* the torsion band: K and D show in the accelerometers only through the joints'
-  deflection dynamics, whose modes are the elastic arm's natural frequencies
+* The torsion band: K and D show in the accelerometers only through the joints'
+  deflection dynamics, whose modes are the arm's elastic natural frequencies
   (`RobotModel.natural_frequencies` at the log's median motor configuration). If the
-  accelerometers' power spectral density in [0.7 f_min, 1.3 f_max] (f: the modes below
-  the filter's pass band) is not `MIN_TORSION_SNR` times their noise floor (their density
-  between 0.3 and 0.45 of the sampling rate, where an arm has no motion left), the log
-  does not excite the torsion and no joint's K, D is identifiable from it;
-* the standard errors: a parameter whose relative standard error exceeds its threshold
-  (`Thresholds`) is named as poorly identified; K, D or B that end at the fit's bound, or
-  whose standard error exceeds `HOLD_FACTOR` times the threshold, are held (a linear
-  parameter is never held: its estimate stays unbiased, only less precise).
+  accelerometers' power spectral density in [0.7 f_min, 1.3 f_max] (the modes below the
+  filter's pass band) is not `MIN_TORSION_SNR` times their noise floor (between 0.3 and
+  0.45 of the sampling rate), no joint's K, D is identifiable from the log.
+* The standard errors: a parameter whose relative standard error exceeds its threshold
+  (`Thresholds`) is named as poorly identified; K, D or B at the fit's bound, or with a
+  standard error `HOLD_FACTOR` times the threshold, are held at nominal (a linear
+  parameter never is: its estimate stays unbiased, only less precise).
 """
 
 from __future__ import annotations
