@@ -17,6 +17,7 @@ the truth, the applied torque, the reference and the plant's own parameters are 
 from __future__ import annotations
 
 import contextlib
+import operator
 from collections.abc import Iterator, Mapping
 from typing import Any
 
@@ -56,7 +57,7 @@ from elastic_gym.validation import checked_count, validated
 def _view(part: str, name: str, doc: str) -> Any:
     """A read-only attribute of `ArmBatch` reading `name` of its part `part` (the arrays are
     the part's own: read them, change them through the part)."""
-    return property(lambda self: getattr(getattr(self, part), name), doc=doc)
+    return property(operator.attrgetter(f"{part}.{name}"), doc=doc)
 
 
 class ArmBatch:
@@ -183,6 +184,7 @@ class ArmBatch:
         self._all = np.ones(n_arms, dtype=bool)
         self._arms = every_arm(n_arms)  # (the sensors' whole-array path)
         self._minus_limit = -self.torque_limit
+        self._termination_reward = self.reward_config.termination_reward
 
     # ------------------------------------------------------------------ read-only views
     @property
@@ -301,8 +303,9 @@ class ArmBatch:
             ended = self._period_step_by_step(command, pulse, every, stepping, truncated)
         episode.next_slot()
         reward, reasons = self._end_of_period(pulse, fused, every, stepping)
-        termination = self.reward_config.termination_reward
-        return episode.conclude(reward, reasons, truncated, ended, every, stepping, termination)
+        return episode.conclude(
+            reward, reasons, truncated, ended, every, stepping, self._termination_reward
+        )
 
     def _period_step_by_step(self, command, pulse, every: bool, stepping, truncated) -> bool:
         """What `control_period_kernel` does, call by call: returns whether an arm is
@@ -384,7 +387,9 @@ class ArmBatch:
         """The info of `arms` ([`BatchInfo`][elastic_gym.envs.info.BatchInfo]): arrays with
         a leading arm axis, or plain values of one arm when `arms` is an int. Every array
         is new: no later step changes an info already handed out."""
-        return self._info(arms)
+        if isinstance(arms, (int, np.integer)):
+            return self._info.arm(int(arms))
+        return self._info.arms(arms)
 
     def reference_preview(self, offsets: np.ndarray) -> np.ndarray:
         """q_d .. q_d^(4) of every arm at its time + each offset (s): (N, H, 5, n).

@@ -10,7 +10,7 @@ line.
 Other parts read these arrays; they change them only through the methods here, or in
 place through the compiled kernels of a control period
 ([`kernels`][elastic_gym.envs.kernels]), to which [`packing`][elastic_gym.envs.packing]
-hands them. No array is ever rebound (but the reasons, read through `reasons`), so the
+hands them. No array is ever rebound (but `reasons`, which no kernel holds), so the
 packed kernel arguments stay valid for the batch's lifetime.
 """
 
@@ -56,9 +56,12 @@ class EpisodeState:
         ddq: the true q'' at the end of the last period (N, n).
         reference: q_d .. q_d^(4) at each arm's time (N, 5, n).
         codes: the termination codes of the last check (N,) (`REASONS`).
+        reasons: why each arm's episode was terminated at the last period (None where it
+            was not) (N,), object array (the one array that is rebound: read it here).
         obs: the observation by key, (N, ...) each.
         lines: the sensor delay line of each measured key, (sensor_line, N, ...).
         slot: the slot of the newest reading in the delay line.
+        sensor_line: the slots of the delay line.
     """
 
     def __init__(
@@ -85,7 +88,7 @@ class EpisodeState:
         self.ddq = np.zeros((N, n))
         self.reference = np.zeros((N, len(REFERENCE_KEYS), n))
         self.codes = np.zeros(N, dtype=np.int64)
-        self._reasons = np.full(N, None, dtype=object)
+        self.reasons = np.full(N, None, dtype=object)
         self._no_reasons = np.full(N, None, dtype=object)  # never written to
         self._no_arm = np.zeros(N, dtype=bool)
         self.obs = {key: np.zeros((N, *shape)) for key, shape in observation_shapes.items()}
@@ -97,18 +100,7 @@ class EpisodeState:
             if key != "reference"
         }
         self.slot = 0
-
-    # ------------------------------------------------------------------ reads
-    @property
-    def reasons(self) -> np.ndarray:
-        """Why each arm's episode was terminated at the last period (None entries where
-        it was not) (N,), object array."""
-        return self._reasons
-
-    @property
-    def sensor_line(self) -> int:
-        """Slots of the sensor delay line."""
-        return len(self.lines[self.position_key])
+        self.sensor_line = sensor_line
 
     # ------------------------------------------------------------------ resets
     def begin(self, arms: np.ndarray, torque: np.ndarray) -> None:
@@ -117,7 +109,7 @@ class EpisodeState:
         self.steps[arms] = 0
         self.time[:] = self.steps * self.control_dt
         self.running[arms] = True
-        self._reasons[arms] = None
+        self.reasons[arms] = None
         self.saturated[arms] = False
         self.torque[arms] = torque
         self.previous_torque[arms] = self.torque[arms]
@@ -225,11 +217,11 @@ class EpisodeState:
         the period's reward, termination reasons (None: no arm broke) and truncation; the
         reasons are kept and the ended episodes stop running."""
         if reasons is None:  # the common case: no arm broke its physics
-            self._reasons = self._no_reasons
+            self.reasons = self._no_reasons
             terminated = self._no_arm
         else:
             terminated = (reasons != None) & stepping  # noqa: E711 - elementwise test
-            self._reasons = np.where(stepping, reasons, np.array(None))
+            self.reasons = np.where(stepping, reasons, np.array(None))
             reward = np.where(terminated, termination_reward, reward)
             truncated = truncated & ~terminated
         if not every:
@@ -264,7 +256,7 @@ class EpisodeState:
             "obs": {key: value.copy() for key, value in self.obs.items()},
             "lines": {key: value.copy() for key, value in self.lines.items()},
             "slot": self.slot,
-            "reasons": self._reasons.copy(),
+            "reasons": self.reasons.copy(),
         }
 
     def restore(self, snapshot: Mapping) -> None:
@@ -276,4 +268,4 @@ class EpisodeState:
         for key, value in snapshot["lines"].items():
             self.lines[key][...] = value
         self.slot = snapshot["slot"]
-        self._reasons = snapshot["reasons"].copy()
+        self.reasons = snapshot["reasons"].copy()

@@ -74,11 +74,8 @@ class BatchInfo:
         self.n_joints = episode.ddq.shape[1]
         self._no_readings = np.zeros((episode.n_arms, 0))  # the accelerometers of none
 
-    def __call__(self, arms: int | slice | np.ndarray = slice(None)) -> dict:
-        """The info of ``arms``: arrays with a leading arm axis, or plain values of one arm
-        when ``arms`` is an int."""
-        if isinstance(arms, (int, np.integer)):
-            return self.arm(int(arms))
+    def arms(self, arms: slice | np.ndarray = slice(None)) -> dict:
+        """The info of ``arms``: arrays with a leading arm axis."""
         sim, episode, n = self.sim, self.episode, self.n_joints
         # one fresh copy of the state and the reference (5 n each: the derivatives)
         x = np.concatenate(
