@@ -12,8 +12,8 @@ from __future__ import annotations
 import time
 
 from elastic_gym.evaluation import Scenario, plan_runs
+from elastic_gym.evaluation.episodes import run_group
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE, plan_groups
-from elastic_gym.evaluation.runner import run_group
 from elastic_gym.runtime.parallel import single_threaded
 
 SEEDS = 16

@@ -9,11 +9,13 @@ numba cache, reading the CSV, the fit, the report and figure: what a user waits 
 on a shared machine other processes only ever add time.
 
     python benchmarks/identify_speed.py [--seconds 60] [--repeat 3] [--log PATH]
+        [--markdown docs/results/identification/speed.md]
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
 import os
 import subprocess
 import sys
@@ -68,10 +70,13 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--log", type=Path, help="an existing log instead of recording one")
+    parser.add_argument("--log", type=Path, help="the log (recorded there first if missing)")
+    parser.add_argument("--markdown", type=Path, help="also write the table to this file")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as scratch:
-        path = args.log or record(Path(scratch) / "two_link.csv", args.seconds)
+        path = args.log or Path(scratch) / "two_link.csv"
+        if not path.exists():
+            record(path, args.seconds)
         command = [sys.executable, "-m", "elastic_gym.cli", "identify", str(path), "--overwrite"]
         command += ["--output", str(Path(scratch) / "out")]
         wall, cpu = [], []
@@ -95,22 +100,24 @@ def main(argv=None) -> int:
             fit.append(time.perf_counter() - start)
             fit_cpu.append(time.process_time() - process)
     load = os.getloadavg()
-    print(
-        f"elastic-gym {elastic_gym.__version__}; {os.cpu_count()} CPUs; load average "
-        f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}"
-    )
-    print(f"log: {len(log)} samples, {log.duration:.0f} s at {1 / log.sample_time:.0f} Hz")
-    print("| what | best (s) | all (s) | target (s) |")
-    print("|---|---|---|---|")
-    print(
-        f"| `elastic-gym identify` (fresh process) | {min(wall):.2f} | "
-        f"{' '.join(f'{t:.2f}' for t in wall)} | 10 |"
-    )
-    print(
-        f"| `identify()` in process (warm) | {min(fit):.2f} | "
-        f"{' '.join(f'{t:.2f}' for t in fit)} | |"
-    )
-    print(f"fit: {result.evaluations} residual evaluations, pass band {result.band.pass_hz:.1f} Hz")
+    lines = [
+        f"elastic-gym {elastic_gym.__version__}, {datetime.date.today().isoformat()}; "
+        f"{os.cpu_count()} CPUs; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; "
+        f"log: {len(log)} samples, {log.duration:.0f} s at {1 / log.sample_time:.0f} Hz; fit: "
+        f"{result.evaluations} residual evaluations, pass band {result.band.pass_hz:.1f} Hz.",
+        "",
+        "| what | wall, best (s) | CPU, best (s) | wall, every run (s) | target (s) |",
+        "|---|---:|---:|---|---:|",
+        f"| `elastic-gym identify` (fresh process) | {min(wall):.2f} | {min(cpu):.2f} | "
+        + " ".join(f"{t:.2f}" for t in wall)
+        + " | 10 |",
+        f"| `identify()` in a warm process | {min(fit):.2f} | {min(fit_cpu):.2f} | "
+        + " ".join(f"{t:.2f}" for t in fit)
+        + " | |",
+    ]
+    print("\n".join(lines))
+    if args.markdown:
+        args.markdown.write_text("\n".join(lines) + "\n")
     return 0
 
 

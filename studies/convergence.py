@@ -23,7 +23,7 @@ from rich.table import Table
 
 from elastic_gym.evaluation import load_preset
 from elastic_gym.evaluation.convergence import REFINEMENT, TOLERANCE, check_convergence
-from elastic_gym.evaluation.report import write_csv
+from elastic_gym.evaluation.tables import write_csv
 from elastic_gym.runtime.parallel import single_thread_blas
 
 

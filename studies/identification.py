@@ -302,7 +302,39 @@ def write_tables(rows, args) -> None:
             f"{within}/{len(errs)} | {held} |"
         )
     (RESULTS / "summary.md").write_text("\n".join(table) + "\n")
+    error_figure(summary)
     print("\n".join(table))
+
+
+def error_figure(summary: dict) -> None:
+    """errors.png: every joint's (every axis') error per parameter and robot, against the
+    target (dashed), on a log scale; held parameters as crosses."""
+    from matplotlib.figure import Figure
+
+    keys = (*PARAMETERS, "bias")
+    robots = list(dict.fromkeys(robot for robot, _ in summary))
+    figure = Figure(figsize=(11, 3.4), constrained_layout=True)
+    axes = figure.subplots(1, len(keys))
+    rng = np.random.default_rng(0)
+    for ax, key in zip(axes, keys, strict=True):
+        target = TARGETS["friction" if key in ("viscous", "coulomb") else key]
+        scale = 1.0 if key == "bias" else 100.0
+        for r, robot in enumerate(robots):
+            values = summary.get((robot, key), [])
+            errs = np.array([v for v, _ in values]) * scale
+            held = np.array([h for _, h in values], dtype=bool)
+            x = r + rng.uniform(-0.2, 0.2, len(errs))
+            ax.scatter(x[~held], np.maximum(errs[~held], 1e-6), s=6, alpha=0.6)
+            ax.scatter(x[held], np.maximum(errs[held], 1e-6), s=14, marker="x", color="k")
+        ax.axhline(scale * target, ls="--", color="tab:red", lw=1)
+        ax.set_yscale("log")
+        ax.set_xticks(range(len(robots)), robots, rotation=45, fontsize=7)
+        unit = "m/s²" if key == "bias" else "%"
+        ax.set_title(f"{key} ({unit})", fontsize=8)
+    figure.suptitle(
+        "|identified - plant| per joint (biases per axis); dashed: the target", fontsize=9
+    )
+    figure.savefig(RESULTS / "errors.png", dpi=90)
 
 
 if __name__ == "__main__":

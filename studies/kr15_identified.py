@@ -142,32 +142,48 @@ def publish(out: Path, identified: Path) -> None:
     shutil.copyfile(out / "summary.csv", RESULTS / "kr15.csv")
     target = RESULTS / "kr15_identification"
     target.mkdir(exist_ok=True)
-    for name in ("model.yaml", "report.md", "identification.png"):
+    for name in ("report.md", "identification.png"):
         shutil.copyfile(identified / name, target / name)
+    # the model file names its schema relative to the repository, not to this machine
+    text = (identified / "model.yaml").read_text().split("\n", 1)[1]
+    schema = "../../../../elastic_gym/schemas/model.json"
+    (target / "model.yaml").write_text(f"# yaml-language-server: $schema={schema}\n{text}")
     metrics = (
         ("track_rms", "tracking RMS (rad)"),
-        ("est_rms_dq", "link velocity est. RMS (rad/s)"),
+        ("track_max", "max tracking error (rad)"),
+        ("est_rms_q", "q estimation RMS (rad)"),
+        ("est_rms_dq", "q' estimation RMS (rad/s)"),
     )
     lines = [
-        "| motion | source | model | " + " | ".join(label for _, label in metrics) + " |",
-        "|---|---|---|" + "---|" * len(metrics),
+        "| motion | state | model | " + " | ".join(label for _, label in metrics) + " |",
+        "|---|---|---|" + "---:|" * len(metrics),
     ]
     for row in rows:
-        cells = [
-            f"{float(row[key]):.3g}" if row.get(key) not in (None, "", "nan") else "—"
-            for key, _ in metrics
-        ]
+        cells = []
+        for key, _ in metrics:
+            estimated = key.startswith("est_")
+            value = row.get(key)
+            shown = (
+                "—"
+                if (estimated and row["source"] == "true") or not value
+                else f"{float(value):.3g}"
+            )
+            cells.append(shown)
+        source = "De Luca estimate" if row["source"] == "deluca" else "true state"
         lines.append(
-            f"| {row['env']} | {row['source']} | {row['model_error']} | " + " | ".join(cells) + " |"
+            f"| {row['env']} | {source} | {row['model_error']} | " + " | ".join(cells) + " |"
         )
     (RESULTS / "kr15.md").write_text("\n".join(lines) + "\n")
     figure = Figure(figsize=(9, 3.6), constrained_layout=True)
     axes = figure.subplots(1, 2)
     envs = list(dict.fromkeys(row["env"] for row in rows))
     width = 0.8 / len(MODELS)
-    for ax, (key, label) in zip(axes, metrics, strict=True):
-        groups = [(env, source) for env in envs for source in ("true", "deluca")]
-        groups = [g for g in groups if not (key == "est_rms_dq" and g[1] == "true")]
+    panels = (
+        ("track_rms", "eq. (13): tracking RMS (rad)", ("true", "deluca")),
+        ("est_rms_q", "De Luca observer: q estimation RMS (rad)", ("deluca",)),
+    )
+    for ax, (key, label, sources) in zip(axes, panels, strict=True):
+        groups = [(env, source) for env in envs for source in sources]
         for m, model in enumerate(MODELS):
             values = []
             for env, source in groups:
@@ -178,11 +194,23 @@ def publish(out: Path, identified: Path) -> None:
                 ]
                 values.append(float(match[0][key]) if match and match[0][key] else np.nan)
             ax.bar(np.arange(len(groups)) + (m - 1) * width, values, width, label=model)
-        ax.set_xticks(np.arange(len(groups)), [f"{e}\n{s}" for e, s in groups], fontsize=7)
+        names = {"true": "true state", "deluca": "De Luca"}
+        ax.set_xticks(np.arange(len(groups)), [f"{e}\n{names[s]}" for e, s in groups], fontsize=7)
         ax.set_yscale("log")
         ax.set_title(label, fontsize=9)
-    axes[0].legend(title="model of the controller/observer", fontsize=7)
-    figure.suptitle("eq. (13) on a KR15 the nominal model does not know (K, B, masses off)")
+    handles, labels = axes[0].get_legend_handles_labels()
+    figure.legend(
+        handles,
+        labels,
+        loc="outside lower center",
+        ncol=3,
+        fontsize=8,
+        title="the model eq. (13) and the observer build on",
+        title_fontsize=8,
+    )
+    figure.suptitle(
+        "A KR15 whose K, B and link masses the nominal model does not know", fontsize=10
+    )
     figure.savefig(RESULTS / "kr15.png", dpi=90)
     print("\n".join(lines))
 

@@ -15,8 +15,8 @@ from pathlib import Path
 for _key in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_key, "1")
 
-import gymnasium as gym  # noqa: E402
 import pytest  # noqa: E402
+from helpers import ELASTIC_IDS  # noqa: E402
 
 import elastic_gym  # noqa: E402
 
@@ -84,14 +84,7 @@ def pytest_terminal_summary(terminalreporter):
         terminalreporter.write_line(line)
 
 
-ELASTIC_IDS = [i for i in elastic_gym.ENV_IDS if "Elastic" in i]
 RIGID_IDS = [i for i in elastic_gym.ENV_IDS if "Rigid" in i]
-NOISE_FREE = {"encoder": {"resolution": 0.0, "noise_std": 0.0}, "accelerometer": "ideal"}
-
-
-def make_noise_free(env_id: str, **kwargs) -> gym.Env:
-    """An env whose sensors are exact (ideal encoders and accelerometers)."""
-    return gym.make(env_id, **{**NOISE_FREE, **kwargs})
 
 
 @pytest.fixture

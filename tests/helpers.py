@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import yaml
 
+import elastic_gym
 from elastic_gym.benchmark.suite import SUITE_DIR
+from elastic_gym.controllers import Controller, public_info
 from elastic_gym.model import RobotModel
 
 GRAVITY = 9.81
@@ -63,6 +67,33 @@ def write_csv_columns(path: Path, columns: dict, sidecar: str | None = None) -> 
 # noise). Row k: sensors at t_k, the torque held from t_k to t_k+1.
 
 
+def closed_loop_log(
+    folder: Path, env_id: str, observer: str, seed: int, episode_time=0.3, **kwargs
+):
+    """Run eq. (13) on ``observer``'s online estimate in ``env_id`` (a LogRecorder under
+    the observer wrapper); return (the online estimates, the path of the recorded log)."""
+    from elastic_gym.controllers.registry import make_controller
+    from elastic_gym.logs import LogRecorder, write_log
+    from elastic_gym.observers import ObserverWrapper
+
+    env = gym.make(env_id, episode_time=episode_time, **kwargs)
+    recorder = LogRecorder(env)
+    wrapped = ObserverWrapper(recorder, observer)
+    base = env.unwrapped
+    controller = make_controller("feedforward-state-feedback", base.model, base.control_dt)
+    obs, info = wrapped.reset(seed=seed)
+    controller.reset(obs, public_info(info))
+    online = [info["estimate"]]
+    done = False
+    while not done:
+        obs, _, terminated, truncated, info = wrapped.step(controller(obs, public_info(info)))
+        online.append(info["estimate"])
+        done = terminated or truncated
+    path, _ = write_log(Path(folder) / "sim.csv", recorder.log())
+    wrapped.close()
+    return np.array(online), path
+
+
 def multisine_reference(rng, low, high, base_hz: float = 0.1, harmonics: int = 5):
     """q_d(t), q_d'(t), q_d''(t): a random Fourier series in 60 % of [low, high]."""
     n = len(low)
@@ -105,9 +136,13 @@ def simulate_log(
     noise_density: float = 1.5e-3,
     encoder_resolution: float = 2 * np.pi / 2**20,
     omega: float = 20.0,
+    accelerometer_cutoff_hz: float | None = None,
+    sensor_delay: int = 0,
 ) -> dict:
-    """A closed-loop log of ``plant`` (controller on the ``nominal`` model), see the module
-    docstring. Returns time, motor_position, torque, acceleration, bias and truth."""
+    """A closed-loop log of ``plant`` (controller on the ``nominal`` model), see above.
+    ``accelerometer_cutoff_hz``: the readings through y_k = a y_k-1 + (1 - a) x_k (the
+    envs' filter); ``sensor_delay``: the readings (and the controller) ``sensor_delay``
+    samples late. Returns time, theta (the readings), torque, acceleration, bias, truth."""
     rng = np.random.default_rng(seed)
     n = plant.n
     low, high = np.asarray(plant.spec.workspace_low), np.asarray(plant.spec.workspace_high)
@@ -125,9 +160,25 @@ def simulate_log(
     out["acceleration"] = np.zeros((steps + 1, 3 * plant.n_sensors))
     h = dt / substeps
     f = plant.elastic_dynamics
+    alpha = (
+        0.0
+        if accelerometer_cutoff_hz is None
+        else np.exp(-2 * np.pi * accelerometer_cutoff_hz * dt)
+    )
+    filtered = None
+    line: list = []  # the readings' delay line, newest last
     for k in range(steps + 1):
         t = k * dt
-        theta_measured = np.round(x[:n] / encoder_resolution) * encoder_resolution
+        reading = np.round(x[:n] / encoder_resolution) * encoder_resolution
+        previous = out["torque"][k - 1] if k else np.zeros(n)
+        _, ddq = plant.elastic_accelerations(x, previous)
+        forces = plant.accelerometer_readings(x[n : 2 * n], x[3 * n :], ddq)
+        acceleration = forces + bias + sample_std * rng.standard_normal(len(forces))
+        filtered = (
+            acceleration if filtered is None else alpha * filtered + (1 - alpha) * acceleration
+        )
+        line.append((reading, filtered))
+        theta_measured, out["acceleration"][k] = line[max(len(line) - 1 - sensor_delay, 0)]
         qd, dqd, ddqd = reference(t)
         g = nominal.gravity(qd)
         theta_d = qd + g / nominal.K
@@ -139,9 +190,6 @@ def simulate_log(
             + dither(t)
         )
         tau = np.clip(tau, -limit, limit)
-        _, ddq = plant.elastic_accelerations(x, tau)
-        forces = plant.accelerometer_readings(x[n : 2 * n], x[3 * n :], ddq)
-        out["acceleration"][k] = forces + bias + sample_std * rng.standard_normal(len(forces))
         out["theta"][k] = theta_measured
         out["torque"][k] = tau
         out["q"][k], out["dq"][k], out["dtheta"][k] = x[n : 2 * n], x[3 * n :], x[2 * n : 3 * n]
@@ -183,3 +231,127 @@ def tiny_suite_data() -> dict:
     }
     data["precision"]["tasks"] = ["smooth"]
     return data
+
+
+# ------------------------------------------------------------ shared by several modules
+
+
+class GravityPD(Controller):
+    """Test controller: PD + gravity compensation (elastic: on the motor, rigid: on the link)."""
+
+    name = "gravity-pd"
+
+    def __init__(self, model, dt, kp: float = 400.0, kd: float = 40.0) -> None:
+        super().__init__(model, dt)
+        self.kp, self.kd = kp, kd
+
+    def __call__(self, obs, info):
+        ref = info["reference"]
+        if self.elastic:
+            theta, _, dtheta, _ = self.split_state(obs)
+            g = self.model.gravity(ref["q"])
+            theta_d = ref["q"] + g / self.model.K
+            return g + self.kp * (theta_d - theta) + self.kd * (ref["dq"] - dtheta)
+        q, dq = self.split_state(obs)
+        return self.model.gravity(q) + self.kp * (ref["q"] - q) + self.kd * (ref["dq"] - dq)
+
+
+def leaves(value, out: list) -> list:
+    if isinstance(value, dict):
+        for key in sorted(value):
+            out.append(key)
+            leaves(value[key], out)
+    elif isinstance(value, tuple):
+        for item in value:
+            leaves(item, out)
+    else:
+        array = np.asarray(value)
+        out.append(
+            (
+                array.dtype.str,
+                array.shape,
+                array.tobytes() if array.dtype != object else repr(value),
+            )
+        )
+    return out
+
+
+def flat(value) -> np.ndarray:
+    if isinstance(value, dict):
+        return np.concatenate([flat(value[k]) for k in sorted(value)])
+    if value is None or isinstance(value, str):
+        return np.array([hash(value) % 997], dtype=float)
+    return np.atleast_1d(np.asarray(value, dtype=float)).ravel()
+
+
+def arm_row(batched: dict, i: int) -> dict:
+    """Arm i of a batched observation or info (masks dropped)."""
+    return {
+        k: arm_row(v, i) if isinstance(v, dict) else v[i]
+        for k, v in batched.items()
+        if not k.startswith("_")
+    }
+
+
+def simulate(env: gym.Env, controller, steps: int, seed: int = 0, options=None) -> dict:
+    """Run ``controller`` on ``env`` (wrapped with a state source); return link trajectories."""
+    obs, info = env.reset(seed=seed, options=options)
+    controller.reset(obs, public_info(info))
+    q, q_d = [], []
+    for _ in range(steps):
+        obs, _, terminated, _, info = env.step(controller(obs, public_info(info)))
+        assert not terminated, info["termination_reason"]
+        q.append(info["true_state"]["q"])
+        q_d.append(info["reference"]["q"])
+    env.close()
+    q, q_d = np.array(q), np.array(q_d)
+    return {"q": q, "q_d": q_d, "error": q - q_d}
+
+
+def rigid_scenario(**changes) -> dict:
+    data = {
+        "name": "rigid-test",
+        "duration": 0.3,
+        "envs": [{"id": "TwoLinkRigid-v0", "kwargs": {"task": "regulation"}}],
+        "controllers": [{"name": "gravity-pd", "class": GravityPD}],
+        "state_sources": [True, "finite-difference"],
+    }
+    data.update(changes)
+    return data
+
+
+def children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+NOISE_FREE = {"encoder": {"resolution": 0.0, "noise_std": 0.0}, "accelerometer": "ideal"}
+ELASTIC_IDS = [i for i in elastic_gym.ENV_IDS if "Elastic" in i]
+
+
+def make_noise_free(env_id: str, **kwargs) -> gym.Env:
+    """An env whose sensors are exact (ideal encoders and accelerometers)."""
+    return gym.make(env_id, **{**NOISE_FREE, **kwargs})
+
+
+def same_metric(a, b) -> bool:
+    """Two metric values equal (NaN equal to NaN; floats to 1e-12 relative)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return (math.isnan(a) and math.isnan(b)) or a == b or abs(a - b) <= 1e-12 * abs(b)
+    return a == b

@@ -14,6 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
+from helpers import arm_row, flat
 
 import elastic_gym
 
@@ -33,23 +34,6 @@ KWARGS = {
 }
 
 
-def _flat(value) -> np.ndarray:
-    if isinstance(value, dict):
-        return np.concatenate([_flat(value[k]) for k in sorted(value)])
-    if value is None or isinstance(value, str):
-        return np.array([hash(value) % 997], dtype=float)
-    return np.atleast_1d(np.asarray(value, dtype=float)).ravel()
-
-
-def _arm(batched: dict, i: int) -> dict:
-    """Arm i of a batched observation or info (masks dropped)."""
-    return {
-        k: _arm(v, i) if isinstance(v, dict) else v[i]
-        for k, v in batched.items()
-        if not k.startswith("_")
-    }
-
-
 def _actions(limit: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     actions = 0.05 * limit * rng.uniform(-1, 1, (N_ARMS, len(limit)))
     actions[2] = 1.5 * limit  # saturated: arm 2 hits the velocity limit (a termination)
@@ -65,8 +49,8 @@ def test_each_arm_equals_the_single_env_bit_for_bit(env_id):
     obs, info = envs.reset(seed=11)
     for i, env in enumerate(singles):
         single_obs, single_info = env.reset(seed=11 + i)
-        assert np.array_equal(_flat(_arm(obs, i)), _flat(single_obs))
-        assert np.array_equal(_flat(_arm(info, i)), _flat(single_info))
+        assert np.array_equal(flat(arm_row(obs, i)), flat(single_obs))
+        assert np.array_equal(flat(arm_row(info, i)), flat(single_info))
     rng = np.random.default_rng(0)
     limit = envs.unwrapped.torque_limit
     ended = np.zeros(N_ARMS, dtype=bool)
@@ -81,10 +65,10 @@ def test_each_arm_equals_the_single_env_bit_for_bit(env_id):
             else:
                 expected = env.step(actions[i])
             single_obs, single_reward, single_term, single_trunc, single_info = expected
-            assert np.array_equal(_flat(_arm(obs, i)), _flat(single_obs))
+            assert np.array_equal(flat(arm_row(obs, i)), flat(single_obs))
             assert reward[i] == single_reward
             assert (terminated[i], truncated[i]) == (single_term, single_trunc)
-            assert np.array_equal(_flat(_arm(info, i)), _flat(single_info))
+            assert np.array_equal(flat(arm_row(info, i)), flat(single_info))
             if single_term:
                 reasons.add(single_info["termination_reason"])
         ended = terminated | truncated
@@ -194,7 +178,7 @@ def test_pickled_vector_env_continues_bit_for_bit():
         action = 0.05 * limit * rng.uniform(-1, 1, (2, 3))
         expected = envs.step(action)
         got = clone.step(action)
-        assert np.array_equal(_flat(expected[0]), _flat(got[0]))
+        assert np.array_equal(flat(expected[0]), flat(got[0]))
         assert np.array_equal(expected[1], got[1])
     clone.close()
     envs.close()
@@ -216,9 +200,9 @@ def test_arms_of_a_large_batch_equal_single_envs():
         obs, reward, *_, info = envs.step(actions)
         for i, env in singles.items():
             single_obs, single_reward, *_, single_info = env.step(actions[i])
-            assert np.array_equal(_flat(_arm(obs, i)), _flat(single_obs))
+            assert np.array_equal(flat(arm_row(obs, i)), flat(single_obs))
             assert reward[i] == single_reward
-            assert np.array_equal(_flat(_arm(info, i)), _flat(single_info))
+            assert np.array_equal(flat(arm_row(info, i)), flat(single_info))
     envs.close()
     for env in singles.values():
         env.close()

@@ -3,10 +3,9 @@ runs into worlds, and the rows of a grid run batched equal to one arm per world.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
+from helpers import same_metric
 from rich.console import Console
 
 from elastic_gym.controllers.base import Controller
@@ -174,12 +173,6 @@ def grid(arms: tuple[dict, ...] = ARMS) -> Scenario:
     )
 
 
-def _same(a, b) -> bool:
-    if isinstance(a, float) and isinstance(b, float):
-        return (math.isnan(a) and math.isnan(b)) or a == b or abs(a - b) <= 1e-12 * abs(b)
-    return a == b
-
-
 @pytest.mark.parametrize("arm", ARMS, ids=lambda arm: arm["label"])
 def test_rows_of_a_grid_batched_equal_one_arm_per_world(tmp_path, arm):
     """One arm's half of the grid per test, so the two halves run on both xdist workers."""
@@ -209,7 +202,9 @@ def test_rows_of_a_grid_batched_equal_one_arm_per_world(tmp_path, arm):
     assert any(name in ("residual", "policy") for name, _ in others)
     for a, b in zip(alone, batched, strict=True):
         assert a.keys() == b.keys()
-        differ = {k: (a[k], b[k]) for k in a if k != "sim_wall_ratio" and not _same(a[k], b[k])}
+        differ = {
+            k: (a[k], b[k]) for k in a if k != "sim_wall_ratio" and not same_metric(a[k], b[k])
+        }
         assert not differ, (a["controller"], a["source"], a["sweep"], a["seed"], differ)
 
 

@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 import pybullet as p
 import pytest
-from test_fused_step import _leaves
+from helpers import leaves
 
 import elastic_gym
 from elastic_gym.envs import bullet_capi
@@ -43,10 +43,10 @@ def _rollout(env_id: str, python: bool, monkeypatch, steps: int = 120) -> tuple[
     )
     compiled = envs.unwrapped.batch.sim._slot is not None
     rng = np.random.default_rng(3)
-    out = _leaves(envs.reset(seed=4), [])
+    out = leaves(envs.reset(seed=4), [])
     high = envs.single_action_space.high
     for _ in range(steps):
-        out = _leaves(envs.step(rng.uniform(-0.8, 0.8, (3, len(high))) * high), out)
+        out = leaves(envs.step(rng.uniform(-0.8, 0.8, (3, len(high))) * high), out)
     envs.close()
     monkeypatch.undo()
     return out, compiled

@@ -19,9 +19,9 @@ from rich.console import Console
 from elastic_gym.cli import main
 from elastic_gym.controllers.base import Controller
 from elastic_gym.evaluation import Scenario, ScenarioError, compare, plan_runs
+from elastic_gym.evaluation.episodes import run_group
 from elastic_gym.evaluation.groups import plan_groups
 from elastic_gym.evaluation.preflight import preflight
-from elastic_gym.evaluation.runner import run_group
 from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
 from elastic_gym.runtime.parallel import single_threaded
 

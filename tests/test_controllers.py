@@ -9,9 +9,9 @@ import pickle
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import make_noise_free
+from helpers import make_noise_free, simulate
 
-from elastic_gym.controllers import make_controller, public_info
+from elastic_gym.controllers import make_controller
 from elastic_gym.controllers.gain_design import closed_loop_poles, linearize
 from elastic_gym.controllers.invdyn import InverseDynamics, RigidTorque, TorsionFilter
 from elastic_gym.controllers.policy import PolicyController
@@ -24,21 +24,6 @@ PI = np.pi
 TWO_LINK, KR15 = "elastic_gym/TwoLinkElastic-v0", "elastic_gym/KR15Elastic-v0"
 RIGID = "elastic_gym/TwoLinkRigid-v0"
 TRACK = {"n_moves": 1, "move_time": 0.8, "dwell_time": 0.1}
-
-
-def simulate(env: gym.Env, controller, steps: int, seed: int = 0, options=None) -> dict:
-    """Run ``controller`` on ``env`` (wrapped with a state source); return link trajectories."""
-    obs, info = env.reset(seed=seed, options=options)
-    controller.reset(obs, public_info(info))
-    q, q_d = [], []
-    for _ in range(steps):
-        obs, _, terminated, _, info = env.step(controller(obs, public_info(info)))
-        assert not terminated, info["termination_reason"]
-        q.append(info["true_state"]["q"])
-        q_d.append(info["reference"]["q"])
-    env.close()
-    q, q_d = np.array(q), np.array(q_d)
-    return {"q": q, "q_d": q_d, "error": q - q_d}
 
 
 def rms(error: np.ndarray) -> float:

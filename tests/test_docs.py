@@ -27,7 +27,7 @@ from rich.console import Console
 
 import elastic_gym
 from elastic_gym.evaluation import Scenario, compare
-from elastic_gym.evaluation.runner import plan_runs
+from elastic_gym.evaluation.grid import plan_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -201,14 +201,14 @@ def test_batched_page_lists_every_randomizable_path():
 
 def test_env_kwargs_table_lists_exactly_the_env_kwargs():
     """One table on the environments page, a row per kwarg of the envs, none else."""
-    from elastic_gym.envs.batch import ArmBatch
+    from elastic_gym.envs.config import EnvConfig
 
     page = (DOCS / "environments" / "index.md").read_text()
     table = page.split("| kwarg | what it sets |\n|---|---|\n")[1].split("\n\n")[0]
     listed = [
         name for row in table.splitlines() for name in re.findall(r"`(\w+)`", row.split("|")[1])
     ]
-    assert sorted(listed) == sorted([*ArmBatch.KWARGS, "render_mode"])
+    assert sorted(listed) == sorted([*EnvConfig.model_fields, "render_mode"])
 
 
 def interleave(a, b) -> list[float]:

@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 import yaml
+from helpers import GravityPD, rigid_scenario
 from rich.console import Console
 
 from elastic_gym.cli import main
@@ -28,32 +29,12 @@ from elastic_gym.evaluation import (
     load_scenario,
     plan_runs,
 )
+from elastic_gym.evaluation.episodes import run_episode
 from elastic_gym.evaluation.metrics import SETTLING_BAND, find_moves
-from elastic_gym.evaluation.runner import run_episode
 from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT
 
 DT = 1e-3
 QUIET = Console(quiet=True)
-
-
-class GravityPD(Controller):
-    """Test controller: PD + gravity compensation (elastic: on the motor, rigid: on the link)."""
-
-    name = "gravity-pd"
-
-    def __init__(self, model, dt, kp: float = 400.0, kd: float = 40.0) -> None:
-        super().__init__(model, dt)
-        self.kp, self.kd = kp, kd
-
-    def __call__(self, obs, info):
-        ref = info["reference"]
-        if self.elastic:
-            theta, _, dtheta, _ = self.split_state(obs)
-            g = self.model.gravity(ref["q"])
-            theta_d = ref["q"] + g / self.model.K
-            return g + self.kp * (theta_d - theta) + self.kd * (ref["dq"] - dtheta)
-        q, dq = self.split_state(obs)
-        return self.model.gravity(q) + self.kp * (ref["q"] - q) + self.kd * (ref["dq"] - dq)
 
 
 class Spy(GravityPD):
@@ -75,18 +56,6 @@ class Unstable(Controller):
     def __call__(self, obs, info):
         q, _ = self.split_state(obs)
         return self.model.gravity(q) + 5000.0 * (q - info["reference"]["q"] + 0.1)
-
-
-def rigid_scenario(**changes) -> dict:
-    data = {
-        "name": "rigid-test",
-        "duration": 0.3,
-        "envs": [{"id": "TwoLinkRigid-v0", "kwargs": {"task": "regulation"}}],
-        "controllers": [{"name": "gravity-pd", "class": GravityPD}],
-        "state_sources": [True, "finite-difference"],
-    }
-    data.update(changes)
-    return data
 
 
 # ---------------------------------------------------------------------------- metrics

@@ -33,3 +33,16 @@ def test_the_commit_msg_hook_refuses_a_subject_over_72_characters():
     assert refused.search("x" * 73 + "\n\nbody\n")
     assert not refused.search("x" * 72 + "\n\n" + "a long body line " * 10 + "\n")
     assert not refused.search("short\n")
+
+
+def test_test_modules_share_helpers_through_helpers_py_only():
+    """Shared test code lives in tests/helpers.py; no test module imports another test
+    module or conftest (which fails under a bare ``pytest`` run from another folder)."""
+    offenders = {}
+    for path in sorted((ROOT / "tests").glob("*.py")):
+        found = re.findall(
+            r"^\s*(?:from|import) (test_\w+|conftest|tests\.\w+)", path.read_text(), re.M
+        )
+        if found:
+            offenders[path.name] = found
+    assert not offenders, offenders

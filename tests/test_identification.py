@@ -10,7 +10,7 @@ from helpers import simulate_log
 from elastic_gym.identification.fit import FitSettings, fit_log
 from elastic_gym.identification.link_side import BaseParameters, LinkColumns
 from elastic_gym.identification.model_file import identified_model
-from elastic_gym.identification.problem import Signals
+from elastic_gym.identification.problem import SamplingModel, Signals
 from elastic_gym.identification.signals import Band, SpectralGrid
 from elastic_gym.identification.transmission import deflection_spectrum
 from elastic_gym.model import RobotModel
@@ -110,7 +110,7 @@ def test_base_parameters_reproduce_the_regressor():
 
 
 # ---------------------------------------------------------------------------- the fit
-def _plant_and_log(dither: float, seconds: float = 8.0):
+def _plant_and_log(dither: float, seconds: float = 8.0, **sensors):
     spec = get_robot("two_link_elastic")
     limit = np.asarray(spec.torque_limit)
     scaling = {
@@ -122,7 +122,9 @@ def _plant_and_log(dither: float, seconds: float = 8.0):
     friction = LinkFriction(viscous=tuple(0.005 * limit), coulomb_pos=tuple(0.01 * limit))
     plant = RobotModel(spec, scaling, added_friction=friction)
     nominal = RobotModel(spec)
-    log = simulate_log(plant, nominal, seconds, seed=3, substeps=2, dither_fraction=dither)
+    log = simulate_log(
+        plant, nominal, seconds, seed=3, substeps=2, dither_fraction=dither, **sensors
+    )
     signals = Signals(
         log["time"],
         log["theta"],
@@ -163,6 +165,25 @@ def test_identify_a_log_of_an_independent_simulator():
         friction.torque(np.array([1.0, -1.0])),
         rtol=0.25,
     )
+
+
+@pytest.mark.slow
+def test_delayed_and_filtered_sensors_are_modelled():
+    """Readings 2 samples late and through a first-order low-pass at 80 Hz: with the
+    sampling model given, the targets hold; without it, the damping is far off."""
+    delay, cutoff = 2, 80.0
+    plant, nominal, scaling, _, log, signals = _plant_and_log(
+        dither=0.03, accelerometer_cutoff_hz=cutoff, sensor_delay=delay
+    )
+    sampling = SamplingModel(delay=delay * DT, accelerometer_cutoff_hz=cutoff)
+    result = fit_log(signals, nominal, FitSettings(sampling=sampling, base_parameters=False))
+    np.testing.assert_allclose(result.group("stiffness")[0], plant.K, rtol=0.01)
+    np.testing.assert_allclose(result.group("motor_inertia")[0], plant.B, rtol=0.02)
+    np.testing.assert_allclose(result.group("damping")[0], plant.D, rtol=0.15)
+    np.testing.assert_allclose(result.group("link_mass")[0], scaling["link_mass"], rtol=0.02)
+    np.testing.assert_allclose(result.group("bias")[0], log["bias"], atol=0.005)
+    unmodelled = fit_log(signals, nominal, FitSettings(base_parameters=False))
+    assert np.max(np.abs(unmodelled.group("damping")[0] / plant.D - 1)) > 0.15
 
 
 @pytest.mark.slow

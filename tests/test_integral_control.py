@@ -6,7 +6,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
-from test_controllers import simulate
+from helpers import simulate
 
 from elastic_gym.controllers import make_controller
 from elastic_gym.controllers.gain_design import closed_loop_poles, linearize

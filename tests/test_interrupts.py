@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from helpers import alive, children
 
 ROOT = Path(__file__).resolve().parents[1]
 SLEEPY_CONTROLLER = '''
@@ -40,27 +41,6 @@ class Sleepy(Controller):
 N_RUNS = 8  # 4 seeds x (a fast controller, and one taking 20 s per run)
 STOP_TIME = 4.0  # s until the workers are gone: the runs in flight would take far longer
 EXIT_TIME = 30.0  # s until the command has exited (a loaded machine slows its teardown)
-
-
-def children(pid: int) -> list[int]:
-    """Process ids whose parent is ``pid`` (Linux /proc)."""
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            found.append(int(stat.parent.name))
-    return found
-
-
-def alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
 
 
 def wait_for(condition, process: subprocess.Popen, timeout: float) -> None:

@@ -291,3 +291,27 @@ def test_mcap_file_through_the_topic_map(tmp_path):
     (tmp_path / "rec.yaml").write_text(TOPICS.replace("/imu/link2", "/imu/nowhere"))
     with pytest.raises(LogError, match="no topic '/imu/nowhere'"):
         read_log(path)
+
+
+def test_log_writer_parquet_and_a_forgotten_close(tmp_path):
+    pytest.importorskip("pyarrow")
+    columns = synthetic_log_columns(rows=1100, state=False)
+    path = tmp_path / "robot.parquet"
+    with LogWriter(path, robot="TwoLinkElastic-v0", sample_time=0.001) as log:
+        for k in range(1100):
+            log.append(
+                columns["time"][k],
+                [columns[f"motor_position_{j}"][k] for j in (1, 2)],
+                [columns[f"torque_{j}"][k] for j in (1, 2)],
+                [columns[f"acc_link{s}_{a}"][k] for s in (1, 2) for a in "xyz"],
+            )
+    read = read_log(path)
+    assert np.array_equal(read.torque[:, 1], columns["torque_2"])
+    forgotten = LogWriter(tmp_path / "lost.csv", robot="TwoLinkElastic-v0")
+    forgotten.append(0.0, [0.1, 0.2], [1.0, 2.0], [0.0, 0.0, 9.81] * 2)
+    with pytest.warns(ResourceWarning, match="dropped without close"):
+        del forgotten
+        import gc
+
+        gc.collect()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["robot.parquet", "robot.yaml"]

@@ -14,7 +14,7 @@ import dataclasses
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import make_noise_free
+from helpers import make_noise_free
 from scipy.integrate import solve_ivp
 
 import elastic_gym

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pybullet as p
 import pytest
-from test_batch import _arm, _flat
+from helpers import arm_row, flat
 
 import elastic_gym
 from elastic_gym.envs.arm_config import deep_merge
@@ -61,8 +61,8 @@ def assert_arms_equal_single_envs(env_id, shared, per_arm, steps=70, seed=5, sca
     obs, info = envs.reset(seed=seed)
     for i, env in enumerate(singles):
         single_obs, single_info = env.reset(seed=seed + i)
-        assert np.array_equal(_flat(_arm(obs, i)), _flat(single_obs))
-        assert np.array_equal(_flat(_arm(info, i)), _flat(single_info))
+        assert np.array_equal(flat(arm_row(obs, i)), flat(single_obs))
+        assert np.array_equal(flat(arm_row(info, i)), flat(single_info))
     rng = np.random.default_rng(1)
     limit = envs.unwrapped.torque_limit
     ended = np.zeros(n_arms, dtype=bool)
@@ -77,9 +77,9 @@ def assert_arms_equal_single_envs(env_id, shared, per_arm, steps=70, seed=5, sca
                 resets += 1
             else:
                 expected = env.step(actions[i])
-            got = (_arm(obs, i), reward[i], terminated[i], truncated[i], _arm(info, i))
+            got = (arm_row(obs, i), reward[i], terminated[i], truncated[i], arm_row(info, i))
             for a, b in zip(got, expected, strict=True):
-                assert np.array_equal(_flat(a), _flat(b)), (env_id, i)
+                assert np.array_equal(flat(a), flat(b)), (env_id, i)
         ended = terminated | truncated
     assert resets >= n_arms  # every arm went through a reset
     envs.close()

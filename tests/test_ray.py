@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_evaluation import rigid_scenario
+from helpers import rigid_scenario
 
 from elastic_gym.evaluation import Scenario, execute, plan_runs
 from elastic_gym.runtime.parallel import SINGLE_THREAD_ENV

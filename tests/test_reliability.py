@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import alive, children, same_metric
 from rich.console import Console
-from test_interrupts import alive, children
 
 from elastic_gym.evaluation import Scenario, ScenarioError, compare
 
@@ -612,7 +612,7 @@ def test_training_with_episodes_that_never_end_is_refused_not_hung(tmp_path, cap
 
 
 def urdf_of(env_id: str) -> str:
-    from elastic_gym.evaluation.runner import env_robot
+    from elastic_gym.evaluation.grid import env_robot
 
     return env_robot(f"elastic_gym/{env_id}", {}).urdf
 
@@ -790,7 +790,6 @@ def test_a_diverging_arm_of_a_batched_comparison_is_its_terminated_row_with_the_
     """Seed 0 is the one of the three whose first encoder reading exceeds the threshold;
     its batch mates' rows equal their rows in worlds of their own."""
     import gymnasium as gym
-    from test_batched_compare import _same
 
     seeds, threshold = [2, 0, 3], -0.75
     first = {seed: gym.make(TWO_LINK, physics_dt=6.25e-5).reset(seed=seed)[0] for seed in seeds}
@@ -832,7 +831,7 @@ def test_a_diverging_arm_of_a_batched_comparison_is_its_terminated_row_with_the_
     for alone in rows[1]:
         row = batched[alone["seed"]]
         differ = {k: (alone[k], row[k]) for k in alone if k != "sim_wall_ratio"}
-        assert all(_same(*pair) for pair in differ.values()), alone["seed"]
+        assert all(same_metric(*pair) for pair in differ.values()), alone["seed"]
 
 
 # ------------------------------------------------------------ sensors and numbers

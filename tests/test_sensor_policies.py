@@ -13,9 +13,12 @@ from elastic_gym.benchmark import load_suite, run_benchmark
 from elastic_gym.benchmark.scorecard import scorecard_markdown
 from elastic_gym.cli.compare import with_trained_policy
 from elastic_gym.evaluation import plan_runs
+from elastic_gym.evaluation.closed_loop import ClosedLoop
+from elastic_gym.evaluation.episodes import run_group
+from elastic_gym.evaluation.execute import execute
 from elastic_gym.evaluation.groups import RunGroup
-from elastic_gym.evaluation.runner import ClosedLoop, build_world, execute, run_group
 from elastic_gym.evaluation.scenario import Scenario, ScenarioError, SourceEntry
+from elastic_gym.evaluation.world import build_world
 from elastic_gym.observers.registry import source_class
 from elastic_gym.training import TrainConfig, evaluate_run, load_run, train
 from elastic_gym.training.trained import evaluation_runs

@@ -7,7 +7,7 @@ import gymnasium as gym
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import ELASTIC_IDS, make_noise_free
+from helpers import ELASTIC_IDS, make_noise_free
 
 from elastic_gym.envs.sensors import AccelerometerArray, AccelerometerConfig, Encoder, GaussianNoise
 

@@ -22,7 +22,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from elastic_gym.benchmark.suite import Cell, SuiteConfig
-from elastic_gym.evaluation.runner import STATUS_OK
+from elastic_gym.evaluation.closed_loop import STATUS_OK
 
 PRECISION = "precision"
 OVERALL = "overall"

@@ -46,14 +46,15 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
         "--accelerometer-cutoff",
         type=float,
         metavar="HZ",
-        help="the accelerometers' first-order low-pass, if they have one (it is undone)",
+        help="the accelerometers' first-order low-pass, if they have one (it is undone; "
+        "default: the sidecar's accelerometer_cutoff_hz)",
     )
     parser.add_argument(
         "--delay",
         type=float,
-        default=0.0,
         metavar="SECONDS",
-        help="the torque acts this much later than logged relative to the sensors (default 0)",
+        help="the torque acts this much later than logged relative to the sensors (default: "
+        "the sidecar's sensor_delay, else 0)",
     )
     parser.add_argument(
         "--no-torque-hold",
@@ -73,7 +74,6 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
 
 def _settings(args: argparse.Namespace):
     from elastic_gym.identification.fit import FitSettings
-    from elastic_gym.identification.problem import SamplingModel
     from elastic_gym.identification.signals import Band
 
     checks = (
@@ -85,30 +85,23 @@ def _settings(args: argparse.Namespace):
             args.accelerometer_cutoff is None or args.accelerometer_cutoff > 0,
             "> 0",
         ),
-        ("--delay", args.delay, args.delay >= 0 and args.delay < 1.0, "in [0, 1) s"),
+        ("--delay", args.delay, args.delay is None or 0 <= args.delay < 1.0, "in [0, 1) s"),
         ("--coulomb-velocity", args.coulomb_velocity, args.coulomb_velocity > 0, "> 0"),
     )
     for option, value, ok, what in checks:
         if not ok or (value is not None and value != value):  # NaN
             raise ValueError(f"{option} must be {what}, got {value}")
     band = None if args.pass_hz is None else Band(args.pass_hz, 1.5 * args.pass_hz)
-    sampling = SamplingModel(
-        torque_hold=not args.no_torque_hold,
-        delay=args.delay,
-        accelerometer_cutoff_hz=args.accelerometer_cutoff,
-    )
-    return FitSettings(
-        band=band,
-        holdout=args.holdout,
-        coulomb_velocity=args.coulomb_velocity,
-        sampling=sampling,
-    )
+    return FitSettings(band=band, holdout=args.holdout, coulomb_velocity=args.coulomb_velocity)
 
 
 def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from elastic_gym.identification.identify import (
         MODEL_FILE,
         identify,
+        sampling_of,
         write_identification,
     )
     from elastic_gym.logs import read_log
@@ -122,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
             "to replace it or --output for another folder"
         )
     log = read_log(log_path)
-    identification = identify(log, settings)
+    sampling = sampling_of(log, not args.no_torque_hold, args.delay, args.accelerometer_cutoff)
+    identification = identify(log, replace(settings, sampling=sampling))
     paths = write_identification(identification, output)
     print(summary(identification))
     for warning in identification.model_file.fit.warnings:

@@ -15,8 +15,9 @@ import gymnasium as gym
 import numpy as np
 from numba import njit
 
-from elastic_gym.envs.batch import ArmBatch, with_batch_options
+from elastic_gym.envs.batch import ArmBatch
 from elastic_gym.envs.config import RenderMode
+from elastic_gym.envs.signature import with_batch_options
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.validation import option_value
 
@@ -96,7 +97,7 @@ class ArmEnv(gym.Env):
         option_value("render_mode", render_mode, RenderMode | None, prefix="")
         self._init_kwargs = {"robot": robot, "render_mode": render_mode, **kwargs}
         self.render_mode = render_mode
-        self.batch = ArmBatch(robot, 1, gui=render_mode == "human", **kwargs)
+        self.batch = ArmBatch(robot, 1, kwargs, gui=render_mode == "human")
         check_kind(self.batch, self.kind)
         self._set_spaces()
 
@@ -131,16 +132,22 @@ class ArmEnv(gym.Env):
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode at rest (or at ``options["initial_state"]``, see ArmBatch)."""
-        self.batch._check_open()
-        with self.batch.generators_kept_on_error(ARM, self):  # a refused reset: no change
-            super().reset(seed=seed)
-            self.batch.rngs[0] = self.np_random
-            self.batch.reset_arms(ARM, options)
-        return self.batch.observation(0), self.batch.info(0)
+        batch = self.batch
+        batch.check_open()
+        own = self._np_random, self._np_random_seed
+        try:
+            with batch.generators_kept_on_error(ARM):  # a refused reset: no change
+                super().reset(seed=seed)
+                batch.set_generator(0, self.np_random)
+                batch.reset_arms(ARM, options)
+        except BaseException:  # nor of the env's own generator and seed
+            self._np_random, self._np_random_seed = own
+            raise
+        return batch.observation(0), batch.info(0)
 
     def step(self, action):
         batch = self.batch
-        batch._check_open()
+        batch.check_open()
         tau = validated_actions(action, 0, self.n_joints)
         if not batch.running[0]:
             raise RuntimeError("call reset() before step() (and after an episode has ended)")
@@ -162,7 +169,7 @@ class ArmEnv(gym.Env):
     def render(self):
         if self.render_mode == "rgb_array":
             return self.batch.render(0)
-        self.batch._check_open()
+        self.batch.check_open()
         return None
 
     def close(self) -> None:

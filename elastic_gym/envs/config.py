@@ -1,6 +1,6 @@
-"""Env kwargs of :class:`~elastic_gym.envs.batch.ArmBatch` as pydantic models.
+"""Env kwargs of [`ArmBatch`][elastic_gym.envs.batch.ArmBatch] as pydantic models.
 
-:class:`EnvConfig` holds every kwarg of the batch (and so of every single and vector env);
+`EnvConfig` holds every kwarg of the batch (and so of every single and vector env);
 unknown keys are refused and every error names its field path
 (``per_arm[1].payload.mass: ...``). What pydantic cannot know — a robot's joint count,
 its torque limits, which parts it has — is checked where the robot is known
@@ -229,12 +229,51 @@ class ArmOptions(StrictModel):
 
 
 class EnvConfig(StrictModel):
-    """Every env kwarg of :class:`~elastic_gym.envs.batch.ArmBatch` (see its docstring).
+    """Every env kwarg: the options of an [`ArmBatch`][elastic_gym.envs.batch.ArmBatch],
+    and so of every single and vector env of the package.
 
     Typed here: what needs no robot. The task options are checked by the task, the
     robot-dependent limits (a sensor on a link the robot lacks, joint counts, a
     delay longer than 1 s, friction in fractions of the torque limits, a physics step too
-    coarse for the stiffest joint) by the batch."""
+    coarse for the stiffest joint) by the batch
+    ([`batch_setup`][elastic_gym.envs.batch_setup]).
+
+    Attributes:
+        task: `"tracking"`, `"regulation"` or `"excitation"`.
+        task_options: options of the task (see [`tasks`][elastic_gym.envs.tasks]).
+        physics_dt: physics step (s), default from the robot; must keep
+            `physics_dt * omega_max <= 0.2` for the stiffest joint mode.
+        control_dt: control period (s), an integer multiple of `physics_dt` (default from
+            the robot, 1 ms).
+        encoder: `{"resolution": rad, "noise_std": rad}`.
+        accelerometer: error model, see `AccelerometerConfig` (`"ideal"` for none).
+        accelerometers: list of mounts `{"link", "position", "rpy", "name"}` replacing
+            the robot's default sensor placement.
+        plant_scaling: parameter changes of the *simulated* robot relative to the nominal
+            model (`ParameterScaling` fields, e.g. `{"link_mass": 1.3}`).
+        unmodelled_friction: link-side joint friction of the *simulated* robot that no
+            model knows, `{"coulomb": c, "viscous": v}` (scalars or per joint) in
+            fractions of each joint's motor torque limit:
+            d(q') = tau_max (v q' + c tanh(q' / 0.01 rad/s)), added to the robot's own.
+        torque_limit: override of the motor torque limits (N m).
+        reward: weights and scales of the reward, see
+            [`RewardConfig`][elastic_gym.envs.reward.RewardConfig] (also the termination
+            reward).
+        max_velocity: |q'| or |theta'| above this ends the episode (rad/s).
+        sensor_delay: measurement delay in control periods (encoders and accelerometers;
+            the reference is not delayed).
+        actuator_delay: the motor torque is applied this many control periods late.
+        payload: a point mass at the end effector, `{"mass", "position", "change":
+            {"time", "mass"}}` (see the module docstring).
+        torque_pulses: link-side torque pulses, given or random (see the module docstring
+            and `envs.disturbances`).
+        randomize: parameter path -> range drawn by each arm at every reset (see
+            [`randomization`][elastic_gym.envs.randomization]).
+        per_arm: None or N mappings of the per-arm kwargs (`PER_ARM_KEYS`): arm i's
+            kwargs are the shared ones deep-merged with mapping i (the fields it gives),
+            and arm i is bit for bit the single env made with them.
+        episode_time: simulated seconds after which an episode is truncated (None: never).
+    """
 
     task: str = "tracking"
     task_options: dict | None = None

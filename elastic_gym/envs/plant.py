@@ -114,7 +114,7 @@ class PlantArray:
         self.ST[arm] = model.S.T
         friction, n = model.friction, self.n
         if friction is not None:
-            positive, negative = friction.coulomb_pos, friction._neg_tuple()
+            positive, negative = friction.coulomb_pos, friction.negative_coulomb()
             self.viscous[arm] = np.asarray(friction.viscous, dtype=float) * np.ones(n)
             self.coulomb_pos[arm] = 0.0 if positive is None else np.asarray(positive) * np.ones(n)
             self.coulomb_neg[arm] = 0.0 if negative is None else np.asarray(negative) * np.ones(n)

@@ -86,6 +86,14 @@ class GaussianNoise:
     def restart(self, arms: np.ndarray) -> None:
         self.next[arms] = self.BLOCK
 
+    def snapshot(self) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of the drawn blocks and the next sample's index of every arm."""
+        return self.block.copy(), self.next.copy()
+
+    def restore(self, snapshot: tuple[np.ndarray, np.ndarray]) -> None:
+        """The blocks and indices of a `snapshot`, copied in place."""
+        self.block[...], self.next[...] = snapshot
+
     def refill(self, rngs: list[np.random.Generator]) -> None:
         """A fresh block for every arm whose block is used up (before a sample of each)."""
         if _any_equal(self.next, self.BLOCK):  # rare: once every BLOCK readings
@@ -198,6 +206,12 @@ class Encoder:
         self.resolution[arm], self.noise_std[arm] = resolution, noise_std
         self._shared = common(self.resolution), common(self.noise_std)
 
+    @property
+    def shared(self) -> tuple[float | None, float | None]:
+        """(resolution, noise_std) when every arm has the same one (None where the arms
+        differ): the compiled path of a measurement."""
+        return self._shared
+
     def restart(self, arms: np.ndarray) -> None:
         """Fresh noise blocks for the arms (at a reset: their generators may be new)."""
         self.noise.restart(arms)
@@ -250,8 +264,9 @@ class AccelerometerConfig(StrictModel):
 
     @classmethod
     def ideal(cls) -> AccelerometerConfig:
-        """Noise-free, unbiased, unfiltered, practically unbounded."""
-        return cls(noise_density=0.0, bias_std=0.0, range=1e9)
+        """Noise-free, unbiased, unfiltered, practically unbounded (every field given, so
+        that merged into another error model, e.g. by `per_arm`, it replaces it whole)."""
+        return cls(noise_density=0.0, bias_std=0.0, range=1e9, cutoff_hz=None, resolution=None)
 
 
 class AccelerometerArray:
@@ -297,6 +312,27 @@ class AccelerometerArray:
         self._shared = [
             common(x) for x in (self.sample_std, self.alpha, self.range, self.resolution)
         ]
+
+    @property
+    def shared(self) -> list[float | None]:
+        """(per-sample noise std, filter coefficient, range, resolution) when every arm has
+        the same one (None where the arms differ): the compiled path of a measurement."""
+        return self._shared
+
+    def snapshot(self) -> dict:
+        """Copies of the arms' biases, filter states and noise blocks."""
+        return {
+            "bias": self.bias.copy(),
+            "filtered": self.filtered.copy(),
+            "fresh": self.fresh.copy(),
+            "noise": self.noise.snapshot(),
+        }
+
+    def restore(self, snapshot: dict) -> None:
+        """The biases, filter states and noise blocks of a `snapshot`, copied in place."""
+        self.bias[...], self.filtered[...] = snapshot["bias"], snapshot["filtered"]
+        self.fresh[...] = snapshot["fresh"]
+        self.noise.restore(snapshot["noise"])
 
     def reset(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> None:
         """New bias for the given arms (drawn from their generators), filters restarted."""

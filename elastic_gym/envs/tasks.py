@@ -5,6 +5,8 @@
 * ``regulation``: go to a goal configuration and stay there (constant reference).
 * ``excitation``: an open-loop torque (e.g. g(q) + (cos t/2, -cos t) of Cristofaro &
   De Luca, Example 1) to which the action is added; for observer-only studies.
+* ``fourier``: a Fourier-series reference and a torque dither, for identification
+  (``elastic_gym.envs.fourier``).
 
 Every task's options are a pydantic model (``TrackingOptions`` ...): unknown keys and bad
 values raise ``ValueError`` naming the field (``task_options.max_move: ...``).
@@ -119,6 +121,15 @@ class Task(ABC):
         batch then steps it call by call). A subclass that overrides
         :meth:`external_torque` or :meth:`reference` overrides this too."""
         return None
+
+    def snapshot(self) -> dict:
+        """The task's own state (its options and every arm's episode: paths, targets,
+        holds), without the robot and its model: what `restore` takes."""
+        return {k: v for k, v in vars(self).items() if k not in ("spec", "model")}
+
+    def restore(self, snapshot: dict) -> None:
+        """The state of a `snapshot` of a task of the same class and robot."""
+        vars(self).update(snapshot)
 
     def configured_points(self) -> dict[str, np.ndarray]:
         """The configurations given as options (start, goal, waypoints), by option name."""
@@ -342,6 +353,10 @@ TASKS: dict[str, type[Task]] = {
     "regulation": RegulationTask,
     "excitation": ExcitationTask,
 }
+
+from elastic_gym.envs.fourier import FourierTask  # noqa: E402 - it builds on Task above
+
+TASKS["fourier"] = FourierTask
 
 
 def make_task(

@@ -23,8 +23,9 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from elastic_gym.envs.arm_env import check_kind, validated_actions
-from elastic_gym.envs.batch import ArmBatch, with_batch_options
+from elastic_gym.envs.batch import ArmBatch
 from elastic_gym.envs.config import RenderMode
+from elastic_gym.envs.signature import with_batch_options
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.validation import checked_count, is_count, option_value
 
@@ -79,7 +80,7 @@ class ArmVectorEnv(VectorEnv):
         option_value("render_mode", render_mode, RenderMode | None, prefix="")
         if max_episode_steps is not None:
             checked_count(max_episode_steps, "max_episode_steps", 1)
-        self.batch = batch = ArmBatch(robot, num_envs, **kwargs)
+        self.batch = batch = ArmBatch(robot, num_envs, kwargs)
         if max_episode_steps is not None:
             batch.limit_episode(max_episode_steps)
         check_kind(batch, self.kind, "VectorEnv")
@@ -123,7 +124,7 @@ class ArmVectorEnv(VectorEnv):
     def reset(self, *, seed: int | list | None = None, options: dict | None = None):
         """Reset every arm (or those of ``options["reset_mask"]``); arm i seeded with s + i."""
         batch = self.batch
-        batch._check_open()
+        batch.check_open()
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         if mask is None:
@@ -141,7 +142,7 @@ class ArmVectorEnv(VectorEnv):
         }
         with batch.generators_kept_on_error(arms):
             for i, generator in generators.items():
-                batch.rngs[i] = generator
+                batch.set_generator(int(i), generator)
             batch.reset_arms(arms, options)
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             super().reset(seed=int(seed))
@@ -166,7 +167,7 @@ class ArmVectorEnv(VectorEnv):
 
     def step(self, actions):
         batch = self.batch
-        batch._check_open()
+        batch.check_open()
         tau = validated_actions(actions, self.num_envs, batch.n_joints)
         mode = self.autoreset_mode
         disabled = mode is AutoresetMode.DISABLED
@@ -214,7 +215,7 @@ class ArmVectorEnv(VectorEnv):
     def end_episodes(self, arms: np.ndarray) -> None:
         """End the episodes of ``arms`` now (a wrapper terminated them, e.g. on a diverged
         state estimate): they are reset like any ended episode (autoreset or reset_mask)."""
-        self.batch.running[arms] = False
+        self.batch.end_episodes(arms)
         if self.autoreset_mode is not AutoresetMode.DISABLED:
             self._autoreset[arms] = True  # reset (not stepped) at the next step
 

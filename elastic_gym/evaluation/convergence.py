@@ -19,9 +19,11 @@ import math
 from collections.abc import Sequence
 from dataclasses import replace
 
-from elastic_gym.evaluation.report import METRIC_KEYS
-from elastic_gym.evaluation.runner import RunResult, RunSpec, env_robot, execute, plan_runs
+from elastic_gym.evaluation.episodes import RunResult
+from elastic_gym.evaluation.execute import execute
+from elastic_gym.evaluation.grid import RunSpec, env_robot, plan_runs
 from elastic_gym.evaluation.scenario import Scenario
+from elastic_gym.evaluation.tables import METRIC_KEYS
 from elastic_gym.runtime.parallel import DEFAULT_BACKEND
 from elastic_gym.validation import checked_count
 

@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import NullFormatter
 from matplotlib.transforms import blended_transform_factory
 
-from elastic_gym.evaluation.output import plot_file_name
+from elastic_gym.evaluation.figure_names import plot_file_name
 from elastic_gym.evaluation.plots import LEGEND_WIDTH, legend_outside
 from elastic_gym.evaluation.scenario import TRUE_STATE
 from elastic_gym.evaluation.sweeps import SweepCurve

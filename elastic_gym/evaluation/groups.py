@@ -1,16 +1,16 @@
-"""Groups of runs that share one world: the batches a comparison runs.
+"""Groups of runs that share one world: the batches a comparison runs (part of its plan).
 
 Runs share a world (one vector env of N arms, one vector observer, one vector controller)
 when everything the world is built from is equal: env id and its kwargs other than the
 per-arm ones, reset options, duration, controller class and options, state source and
 model error. Seeds and the per-arm plant kwargs
-(:data:`~elastic_gym.envs.config.PER_ARM_KEYS`) vary per arm through the env's ``per_arm``
+(`elastic_gym.envs.config.PER_ARM_KEYS`) vary per arm through the env's ``per_arm``
 kwarg: arm i is bit for bit the single env made with run i's kwargs and seed, so a grouped
 run gives the row it gives alone.
 
-:func:`plan_groups` keeps the first-seen order, cuts each group into batches of at most
-``batch_size`` arms of nearly equal size, and splits the largest further while there are
-fewer than two batches per worker.
+[`plan_groups`][elastic_gym.evaluation.groups.plan_groups] keeps the first-seen order, cuts
+each group into batches of at most ``batch_size`` arms of nearly equal size, and splits the
+largest further while there are fewer than two batches per worker.
 """
 
 from __future__ import annotations
@@ -19,13 +19,10 @@ import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from elastic_gym.envs.config import PER_ARM_KEYS
+from elastic_gym.evaluation.grid import RunSpec
 from elastic_gym.validation import plain
-
-if TYPE_CHECKING:
-    from elastic_gym.evaluation.runner import RunSpec
 
 DEFAULT_BATCH_SIZE = 64  # arms per world
 BATCHES_PER_WORKER = 2  # fewest batches per worker before batches are cut smaller

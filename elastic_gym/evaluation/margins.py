@@ -15,9 +15,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from elastic_gym.evaluation.report import write_csv
 from elastic_gym.evaluation.scenario import TRUE_STATE
 from elastic_gym.evaluation.sweeps import SweepCurve, SweepPoint
+from elastic_gym.evaluation.tables import write_csv
 
 FACTOR = 2.0
 CRITERIA = {

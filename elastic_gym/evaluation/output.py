@@ -19,8 +19,6 @@ import csv
 import errno
 import io
 import os
-import re
-from collections.abc import Sequence
 from pathlib import Path
 
 from elastic_gym.runtime.folder_lock import check_free
@@ -37,14 +35,6 @@ PLOT_DIR = "plots"
 CURVE_DIR = "curves"
 FIGURE_DIRS = (PLOT_DIR, CURVE_DIR)
 MAX_NAME_BYTES = 255  # longest file name on common file systems (ext4, APFS, NTFS)
-
-
-def plot_file_name(group: Sequence) -> str:
-    """File name of the figure of a group of runs: its labels joined by ``__``, every
-    run of characters other than letters, digits, ``.``, ``+`` and ``-`` replaced by
-    ``_``, and ``.png``."""
-    stem = re.sub(r"[^A-Za-z0-9.+-]+", "_", "__".join(str(g) for g in group)).strip("_")
-    return f"{stem}.png"
 
 
 def folder_name_problem(name: str) -> str | None:

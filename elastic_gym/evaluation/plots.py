@@ -25,9 +25,10 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from elastic_gym.evaluation.episodes import RunResult
+from elastic_gym.evaluation.figure_names import plot_file_name
+from elastic_gym.evaluation.grid import env_robot
 from elastic_gym.evaluation.metrics import TimeSeries
-from elastic_gym.evaluation.output import plot_file_name
-from elastic_gym.evaluation.runner import RunResult, env_robot
 
 MAX_POINTS = 2000  # samples per line after decimation
 LINE_STYLES = ("-", "--", ":", "-.")

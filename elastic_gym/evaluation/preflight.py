@@ -1,15 +1,14 @@
-"""Checks of a comparison before its first run, and an estimate of its duration.
+"""The pre-run check of a comparison's execution, and an estimate of its duration.
 
-:func:`preflight` builds, once each and in a worker process, what the runs will build:
-every env with its kwargs and each axis value, its reset with the reset options, each
-model error's perturbed model, every controller and observer (trained policies loaded).
-A failure, or user code that ends that process while it is built, raises
-:class:`~elastic_gym.evaluation.scenario.ScenarioError` with the field path before any
-compute is spent; errors of the closed loop itself are left to the runs' statuses.
-The estimate times ``SAMPLE_TIME`` of closed loop of each (env, controller, state source)
-in CPU time and divides the total by the share of a core each worker can expect (from
-the load average). :func:`check_plot_names` refuses labels whose figure file names would
-be too long or coincide.
+Part of the execute stage, before the first run:
+[`preflight`][elastic_gym.evaluation.preflight.preflight] builds, once each and in a
+worker process, what the runs will build: every env with its kwargs and each axis value,
+its reset with the reset options, each model error's perturbed model, every controller and
+observer (trained policies loaded). A failure, or user code that ends that process while
+it is built, raises `ScenarioError` with the field path before any compute is spent;
+errors of the closed loop itself are left to the runs' statuses. The estimate times
+``SAMPLE_TIME`` of closed loop of each (env, controller, state source) in CPU time and
+divides the total by the share of a core each worker can expect (from the load average).
 """
 
 from __future__ import annotations
@@ -25,21 +24,20 @@ from typing import NoReturn
 import gymnasium as gym
 import numpy as np
 
+from elastic_gym.evaluation.closed_loop import ClosedLoop
+from elastic_gym.evaluation.episodes import describe_failure
+from elastic_gym.evaluation.grid import RunSpec
 from elastic_gym.evaluation.groups import RunGroup
-from elastic_gym.evaluation.output import MAX_NAME_BYTES, plot_file_name
-from elastic_gym.evaluation.runner import (
-    ClosedLoop,
-    RunSpec,
+from elastic_gym.evaluation.scenario import Scenario, ScenarioError
+from elastic_gym.evaluation.world import (
     World,
     arm_env,
     arm_vector_env,
     build_observer_wrapper,
     build_vector_controller,
-    describe_failure,
     make_group_env,
     run_model,
 )
-from elastic_gym.evaluation.scenario import IDENTITY_COLUMNS, Scenario, ScenarioError
 from elastic_gym.runtime.parallel import for_each_result, user_failure
 from elastic_gym.runtime.process_pool import WorkerDiedError, WorkerPool
 
@@ -329,29 +327,3 @@ def _stages(group: RunGroup, paths: tuple[str, str], env_path: str) -> Generator
         envs.close()
     step = elapsed / steps if steps else 0.0
     yield (setup + step * round(spec.duration / dt)) / n_arms
-
-
-def check_plot_names(scenario: Scenario, runs: Sequence[RunSpec]) -> None:
-    """Refuse labels whose figure file names are too long or coincide (see module doc)."""
-    columns = [IDENTITY_COLUMNS[0], *scenario.axis_names, IDENTITY_COLUMNS[1]]
-    fields = ["envs", *(f"axes.{name}" for name in scenario.axis_names), "model_errors"]
-    seen: dict[str, tuple] = {}
-    for group in dict.fromkeys(spec.group for spec in runs):
-        name = plot_file_name(group)
-        if len(name.encode()) > MAX_NAME_BYTES:
-            longest = max(range(len(group)), key=lambda k: len(str(group[k])))
-            raise ScenarioError(
-                fields[longest],
-                f"the labels {list(group)} give a figure file name of "
-                f"{len(name.encode())} bytes (the limit is {MAX_NAME_BYTES}): shorten the "
-                f"{columns[longest]} label {group[longest]!r}",
-            )
-        other = seen.setdefault(name, group)
-        if other != group:
-            differ = next(k for k in range(len(group)) if group[k] != other[k])
-            raise ScenarioError(
-                fields[differ],
-                f"the {columns[differ]} labels {other[differ]!r} and "
-                f"{group[differ]!r} give the same figure file name {name!r} (only letters, "
-                "digits, '.', '+' and '-' are kept): make them differ in those",
-            )

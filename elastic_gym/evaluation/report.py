@@ -1,171 +1,205 @@
-"""Tables of a comparison: one row per run (CSV) and the seed-averaged summary (CSV + markdown).
+"""The report of a comparison: its output folder, filled as the executed worlds end.
 
-Metric columns are defined in :mod:`elastic_gym.evaluation.metrics`. The summary
-gives, for each metric, the mean over the seeds whose run completed (status ``ok``)
-and its spread ``<metric>_std``, the sample standard deviation over those seeds (NaN
-with fewer than two); its ``status`` column reads ``ok`` or e.g.
-``1/3 ok (terminated: velocity limit exceeded)``. The markdown table shows the means.
-:func:`as_table` gives a pandas ``DataFrame`` when pandas is installed (the ``tables``
-extra), the list of row dicts otherwise.
+The third of the comparison's three stages (plan → execute → report).
+[`Report`][elastic_gym.evaluation.report.Report] checks the output folder and the figure
+names before the first run, writes ``scenario.yaml``, then each run's row to ``runs.csv``
+as its world ends (and the figure of a scenario once all its runs are in, dropping the time
+series), and at the end the tables (``summary.csv``, ``summary.md``: the
+[`elastic_gym.evaluation.tables`][elastic_gym.evaluation.tables]), the sweeps' margins and
+curves, and the summary on the console; it returns the
+[`Comparison`][elastic_gym.evaluation.report.Comparison]. An interrupted comparison keeps
+its finished rows and a summary of them. A full disk raises `ResultsWriteError` saying
+what ``runs.csv`` kept.
 """
 
 from __future__ import annotations
 
-import csv
-import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
-import numpy as np
+import yaml
+from rich.console import Console
 
-from elastic_gym.evaluation.runner import RunResult
-
-
-@dataclass(frozen=True)
-class Column:
-    key: str
-    header: str
-    digits: int  # significant digits in the markdown table
-
-
-METRIC_COLUMNS = (
-    Column("track_rms", "track RMS [rad]", 3),
-    Column("track_max", "track max [rad]", 3),
-    Column("overshoot_pct", "overshoot [%]", 3),
-    Column("settling_time", "settling [s]", 3),
-    Column("torsion_max", "max torsion [rad]", 3),
-    Column("torsion_osc", "torsion osc. [rad]", 3),
-    Column("torque_rms", "torque RMS [Nm]", 3),
-    Column("torque_rate_rms", "torque rate RMS [Nm/s]", 3),
-    Column("saturation_share", "saturated share", 2),
-    Column("est_rms_theta", "est. RMS theta [rad]", 2),
-    Column("est_rms_q", "est. RMS q [rad]", 2),
-    Column("est_rms_dtheta", "est. RMS theta' [rad/s]", 2),
-    Column("est_rms_dq", "est. RMS q' [rad/s]", 2),
-    Column("sim_wall_ratio", "sim/wall", 2),
+from elastic_gym.evaluation.episodes import RunResult
+from elastic_gym.evaluation.figure_names import check_plot_names
+from elastic_gym.evaluation.grid import SkippedRun
+from elastic_gym.evaluation.margins import margin_rows, write_margins
+from elastic_gym.evaluation.output import (
+    CURVE_DIR,
+    PLOT_DIR,
+    ResultsWriteError,
+    RunsCsv,
+    check_output_folder,
+    clear_results,
+    write_atomic,
+    write_problem,
 )
-METRIC_KEYS = tuple(c.key for c in METRIC_COLUMNS)
-SPREAD_SUFFIX = "_std"
+from elastic_gym.evaluation.plan import Plan
+from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
+from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
+from elastic_gym.evaluation.tables import (
+    as_table,
+    markdown_table,
+    run_row,
+    summary_rows,
+    write_csv,
+)
+from elastic_gym.runtime.parallel import with_detail
 
 
-def run_row(result: RunResult) -> dict:
-    """The row of a run: identity labels, status, every metric (NaN where not applicable
-    or when the run failed before its first sample), simulated time and ``max_<key>``
-    of the observer diagnostics."""
-    row = {**result.spec.labels, "status": result.status}
-    row.update({key: result.metrics.get(key, math.nan) for key in METRIC_KEYS})
-    row["sim_time"] = result.metrics.get("sim_time", math.nan)
-    row.update({f"max_{key}": value for key, value in result.diagnostics.items()})
-    return row
+@dataclass
+class Comparison:
+    """Everything a comparison produced.
 
-
-def run_rows(results: Sequence[RunResult]) -> list[dict]:
-    """One row per run (:func:`run_row`)."""
-    return [run_row(result) for result in results]
-
-
-def summary_rows(rows: Sequence[dict], identity: Sequence[str]) -> list[dict]:
-    """Rows averaged over seeds (first-seen order), metrics from completed runs only."""
-    keys = [k for k in identity if k != "seed"]
-    groups: dict[tuple, list[dict]] = {}
-    for row in rows:
-        groups.setdefault(tuple(row[k] for k in keys), []).append(row)
-    out = []
-    for key, members in groups.items():
-        ok = [r for r in members if r["status"] == "ok"]
-        summary = dict(zip(keys, key, strict=True))
-        summary["seeds"] = len(members)
-        failures = sorted({r["status"] for r in members} - {"ok"})
-        summary["status"] = (
-            "ok" if not failures else (f"{len(ok)}/{len(members)} ok ({'; '.join(failures)})")
-        )
-        for column in METRIC_KEYS:
-            values = np.array([r[column] for r in ok], dtype=float)
-            summary[column] = float(np.mean(values)) if len(values) else math.nan
-        for column in METRIC_KEYS:
-            values = np.array([r[column] for r in ok], dtype=float)
-            with np.errstate(invalid="ignore"):  # inf (did not settle) has no spread: NaN
-                spread = float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
-            summary[column + SPREAD_SUFFIX] = spread
-        out.append(summary)
-    return out
-
-
-def as_table(rows: Sequence[dict]):
-    """A pandas ``DataFrame`` of the rows when pandas is installed, else the list of rows."""
-    try:
-        import pandas
-    except ImportError:
-        return list(rows)
-    return pandas.DataFrame(list(rows))
-
-
-def write_csv(rows: Sequence[dict], path: Path) -> Path:
-    """Write rows as CSV (columns: union of the keys, first-seen order; floats in full)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fields = list(dict.fromkeys(key for row in rows for key in row))
-    with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=fields, restval="")
-        writer.writeheader()
-        writer.writerows(rows)
-    return path
-
-
-def format_value(value, digits: int = 3) -> str:
-    """Markdown cell: ``digits`` significant digits, NaN as '-', inf as 'not settled'."""
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "-"
-        if math.isinf(value):
-            return "not settled"
-        return f"{value:.{digits}g}"
-    return str(value)
-
-
-def markdown_table(rows: Sequence[dict], identity: Sequence[str]) -> str:
-    """A markdown table of (summary) rows.
-
-    Identity columns whose value is the same in every row are left out of the table
-    and listed above it; metric columns that are NaN everywhere are left out.
+    ``runs`` (one row per run) and ``summary`` (per scenario, controller and source: the
+    mean of each metric over the seeds and its spread ``<metric>_std``) are pandas
+    ``DataFrame`` objects when pandas is installed, lists of row dicts otherwise.
     """
-    if not rows:
-        return "_no runs_\n"
-    constant = [k for k in (*identity, "seeds") if k in rows[0] and len({r[k] for r in rows}) == 1]
-    labels = [
-        k
-        for k in rows[0]
-        if k not in METRIC_KEYS
-        and k not in constant
-        and not (k.endswith(SPREAD_SUFFIX) and k[: -len(SPREAD_SUFFIX)] in METRIC_KEYS)
-    ]
-    metrics = [
-        c for c in METRIC_COLUMNS if any(not math.isnan(r.get(c.key, math.nan)) for r in rows)
-    ]
-    headers = labels + [c.header for c in metrics]
-    body = [
-        [format_value(row[k]) for k in labels]
-        + [format_value(row[c.key], c.digits) for c in metrics]
-        for row in rows
-    ]
-    widths = [max(len(text) for text in column) for column in zip(headers, *body, strict=True)]
-    numeric = [False] * len(labels) + [True] * len(metrics)
 
-    def line(cells: list[str]) -> str:
-        padded = [
-            c.rjust(w) if n else c.ljust(w) for c, w, n in zip(cells, widths, numeric, strict=True)
-        ]
-        return "| " + " | ".join(padded) + " |"
+    scenario: Scenario
+    runs: Any
+    summary: Any
+    skipped: list[SkippedRun]
+    markdown: str
+    output_dir: Path
+    files: list[Path] = field(default_factory=list)
+    failed: int = 0  # runs with status "failed: ..."
 
-    lines = [", ".join(f"{k}: {rows[0][k]}" for k in constant) + "\n"] if constant else []
-    lines.append(line(headers))
-    lines.append(
-        "|"
-        + "|".join(
-            ("-" * (w + 1) + ":") if n else "-" * (w + 2)
-            for w, n in zip(widths, numeric, strict=True)
+
+class _Figures:
+    """The figure of each scenario (env x axis values x model error), drawn once all of
+    its runs are in (in run order); a sweep's runs are summarized by its curves."""
+
+    def __init__(self, plan: Plan, folder: Path) -> None:
+        self.folder = folder
+        self.remaining = Counter(spec.group for spec in plan.runs)
+        self.waiting: dict[tuple, list[RunResult]] = {}
+        self.files: list[Path] = []
+
+    def add(self, result: RunResult) -> None:
+        if result.spec.labels.get(SWEEP_AXIS, NOMINAL) != NOMINAL:
+            return
+        group = result.spec.group
+        members = self.waiting.setdefault(group, [])
+        if result.series is not None:
+            members.append(result)
+        self.remaining[group] -= 1
+        if self.remaining[group] == 0:
+            members = sorted(self.waiting.pop(group), key=lambda r: r.spec.index)
+            if members:
+                # imported here: matplotlib is not needed by the workers, which import this
+                # package, nor by comparisons without plots
+                from elastic_gym.evaluation.plots import plot_results
+
+                self.files += plot_results(members, self.folder)
+
+
+class Report:
+    """The report stage of a comparison writing into ``out`` (module docstring).
+
+    Made before any run: refuses (changing nothing) a folder that holds an earlier
+    comparison unless ``overwrite`` (`FileExistsError`), and with ``plots`` labels whose
+    figure names do not work (`ScenarioError`).
+
+    Args:
+        plan: the comparison's plan.
+        out: the output folder (locked by the caller).
+        plots: write the PNG figures.
+        overwrite: replace the files of an earlier comparison in ``out``.
+    """
+
+    def __init__(self, plan: Plan, out: Path, plots: bool, overwrite: bool) -> None:
+        self.plan, self.out, self.plots, self.overwrite = plan, out, plots, overwrite
+        check_output_folder(out, overwrite)
+        if plots:
+            check_plot_names(plan.scenario, plan.runs)
+        self.csv = RunsCsv(out / "runs.csv")
+        self.figures = _Figures(plan, out / PLOT_DIR) if plots else None
+
+    def start(self) -> None:
+        """Clear an earlier comparison's files (with ``overwrite``) and write
+        ``scenario.yaml``."""
+        if self.overwrite:
+            clear_results(self.out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        text = yaml.safe_dump(self.plan.scenario.to_dict(), sort_keys=False)
+        try:
+            write_atomic(self.out / "scenario.yaml", text)
+        except OSError as exc:
+            raise ResultsWriteError(
+                f"{write_problem(exc)}: nothing written in {self.out}/"
+            ) from exc
+
+    def add(self, index: int, results: list[RunResult]) -> None:
+        """The results of a world (its ``index`` in the plan): their rows, and figures."""
+        for result in results:
+            self.csv.add(result.spec.index, run_row(result))
+            if self.figures is not None:
+                self.figures.add(result)
+
+    def interrupted(self, exc: BaseException) -> BaseException:
+        """``exc`` (which ended the runs) saying what was kept: the finished rows in
+        ``runs.csv`` and a summary of them."""
+        rows = self.csv.finish()
+        kept = f"kept the {len(rows)} finished of {len(self.plan.runs)} runs in {self.out}/"
+        self._write_tables(rows, self.plan.skipped_note + f"\nInterrupted: {kept}.\n")
+        return with_detail(exc, kept)
+
+    def finish(self, console: Console) -> Comparison:
+        """The tables, margins and curves written, the summary printed."""
+        out, scenario = self.out, self.plan.scenario
+        rows = self.csv.finish()
+        failed = [row["status"] for row in rows if row["status"].startswith("failed")]
+        failed_note = (
+            f"{len(failed)} of {len(rows)} runs failed (status column of runs.csv), "
+            f"e.g. {failed[0]}\n"
+            if failed
+            else ""
         )
-        + "|"
-    )
-    lines += [line(cells) for cells in body]
-    return "\n".join(lines) + "\n"
+        summary, markdown = self._write_tables(rows, self.plan.skipped_note + failed_note)
+        files = [out / "runs.csv", out / "summary.csv", out / "summary.md", out / "scenario.yaml"]
+        files += self.figures.files if self.figures is not None else []
+        if scenario.sweeps:
+            curves = sweep_curves(scenario, rows)
+            files += write_margins(
+                margin_rows(curves), context_columns(scenario), out, scenario.name
+            )
+            if self.plots:
+                from elastic_gym.evaluation.curves import plot_all_curves  # matplotlib: _Figures
+
+                files += plot_all_curves(curves, out / CURVE_DIR)
+        console.print(markdown, soft_wrap=True, markup=False)  # long lines are not cut
+        console.print(failed_note, markup=False, end="")
+        if scenario.sweeps:
+            console.print(f"robustness margins: {out / 'margins.md'}", markup=False)
+        console.print(f"written to {out}/")
+        return Comparison(
+            scenario,
+            as_table(rows),
+            as_table(summary),
+            list(self.plan.skipped),
+            markdown,
+            out,
+            files,
+            len(failed),
+        )
+
+    def _write_tables(self, rows: list[dict], note: str) -> tuple[list[dict], str]:
+        out, scenario = self.out, self.plan.scenario
+        identity = scenario.identity_columns
+        summary = summary_rows(rows, identity)
+        markdown = markdown_table(summary, identity)
+        try:
+            write_csv(summary, out / "summary.csv")
+            write_atomic(
+                out / "summary.md",
+                f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}\n{note}",
+            )
+        except OSError as exc:
+            raise ResultsWriteError(
+                f"{write_problem(exc)}: the summary could not be written; {out / 'runs.csv'} "
+                f"keeps all {len(rows)} finished rows"
+            ) from exc
+        return summary, markdown

@@ -1,18 +1,15 @@
 """Did the log excite what the fit estimates? Checks that name what it did not.
 
-Two checks, both reported as warnings (and the parameters they name are held at their
-nominal values in a second fit, marked ``excited: false`` in the model file):
-
-* the torsion band: K and D show in the accelerometers only through the joints'
-  deflection dynamics, whose modes are the elastic arm's natural frequencies
+* The torsion band: K and D show in the accelerometers only through the joints'
+  deflection dynamics, whose modes are the arm's elastic natural frequencies
   (`RobotModel.natural_frequencies` at the log's median motor configuration). If the
-  accelerometers' power spectral density in [0.7 f_min, 1.3 f_max] (f: the modes below
-  the filter's pass band) is not `MIN_TORSION_SNR` times their noise floor (their density
-  between 0.3 and 0.45 of the sampling rate, where an arm has no motion left), the log
-  does not excite the torsion and no joint's K, D is identifiable from it;
-* the standard errors: a parameter whose relative standard error exceeds its threshold
-  (`Thresholds`), or that ends at the fit's bound, was not excited enough by the log's
-  motion to be identified to that accuracy.
+  accelerometers' power spectral density in [0.7 f_min, 1.3 f_max] (the modes below the
+  filter's pass band) is not `MIN_TORSION_SNR` times their noise floor (between 0.3 and
+  0.45 of the sampling rate), no joint's K, D is identifiable from the log.
+* The standard errors: a parameter whose relative standard error exceeds its threshold
+  (`Thresholds`) is named as poorly identified; K, D or B at the fit's bound, or with a
+  standard error `HOLD_FACTOR` times the threshold, are held at nominal (a linear
+  parameter never is: its estimate stays unbiased, only less precise).
 """
 
 from __future__ import annotations
@@ -25,6 +22,7 @@ from scipy.signal import welch
 from elastic_gym.model import RobotModel
 
 MIN_TORSION_SNR = 30.0
+HOLD_FACTOR = 10.0
 
 
 @dataclass(frozen=True)
@@ -102,16 +100,17 @@ def poorly_excited(
     joint_names: tuple[str, ...],
     at_bound: set[str],
     thresholds: Thresholds,
-) -> dict[str, str]:
-    """name -> why, for the parameters the log did not identify (module docstring).
+) -> dict[str, tuple[str, bool]]:
+    """name -> (why, whether to hold it), for the parameters the log did not identify to
+    their threshold (module docstring).
 
     ``torque_scale``, ``velocity_scale``: per joint, the RMS joint torque and link
     velocity (friction's standard errors are judged against the torque they make)."""
-    out: dict[str, str] = {}
+    out: dict[str, tuple[str, bool]] = {}
     for name, value, se in zip(names, values, standard_errors, strict=True):
         group = name.partition("[")[0]
         if name in at_bound:
-            out[name] = "ended at the fit's bound"
+            out[name] = ("ended at the fit's bound", True)
             continue
         if not np.isfinite(se):
             continue
@@ -121,16 +120,16 @@ def poorly_excited(
             per_unit = velocity_scale[j] if group == "viscous" else 1.0
             relative = se * per_unit / max(torque_scale[j], 1e-12)
             if relative > limit:
-                out[name] = (
+                why = (
                     f"standard error {se:.3g} is {100 * relative:.2g} % of the joint's RMS "
                     f"torque (more than {100 * limit:g} %)"
                 )
+                out[name] = (why, False)
         elif group == "bias":
             if se > limit:
-                out[name] = f"standard error {se:.3g} m/s^2 (more than {limit:g})"
+                out[name] = (f"standard error {se:.3g} m/s^2 (more than {limit:g})", False)
         elif abs(value) > 0 and se / abs(value) > limit:
-            out[name] = (
-                f"relative standard error {100 * se / abs(value):.2g} % (more than "
-                f"{100 * limit:g} %)"
-            )
+            relative = se / abs(value)
+            why = f"relative standard error {100 * relative:.2g} % (more than {100 * limit:g} %)"
+            out[name] = (why, relative > HOLD_FACTOR * limit)
     return out

@@ -42,14 +42,15 @@ from elastic_gym.model import RobotModel
 @dataclass(frozen=True)
 class FitSettings:
     """Options of the fit (``band`` None: chosen from the log, see `choose_band`;
-    ``decimation`` None: the coarsest grid the band allows)."""
+    ``decimation`` None: the coarsest grid the band allows; ``sampling`` None: the log's,
+    `identify` reads it from the sidecar)."""
 
     band: Band | None = None
     decimation: int | None = None
     edge: float = 0.5
     holdout: float = 0.2
     coulomb_velocity: float = 0.01
-    sampling: SamplingModel = field(default_factory=SamplingModel)
+    sampling: SamplingModel | None = None
     bound: float = 4.0
     passes: int = 2
     max_lag: int = 20
@@ -140,18 +141,21 @@ def choose_band(signals: Signals, model: RobotModel, margin: float = 1.25) -> Ba
     reading at lever L (m: the column norm of T_A) with L times that. It equals the
     accelerometer noise density S_a at w_j^4 = K_j sqrt(S_a) / (L_j B_j sqrt(S_theta_j));
     above the smallest w_j / 2 pi the fit would chase encoder noise (an errors-in-variables
-    bias that grows fast with the band). Clipped to [10 Hz, 0.2 f_s]; the stop band starts
-    1.5 times higher."""
+    bias that grows fast with the band). At least 1.2 times the lowest torsion mode (and
+    10 Hz), at most 0.2 f_s (noiseless sensors); the stop band starts 1.5 times higher."""
     fs = 1.0 / signals.dt
     s_a = float(np.mean(noise_floor(signals.acceleration, fs)))
     s_theta = noise_floor(signals.motor_position, fs)
     q = np.median(signals.motor_position, axis=0)
     T, _ = model.accelerometer_maps(q, np.zeros(model.n))
     lever = np.maximum(np.linalg.norm(T, axis=0), 1e-3)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
         ratio = model.K * np.sqrt(s_a) / (lever * model.B * np.sqrt(s_theta))
+    ratio = np.where(np.isnan(ratio), np.inf, ratio)  # noiseless sensors: no limit
     crossover = np.min(ratio**0.25) / (2.0 * np.pi)
-    pass_hz = float(np.clip(margin * crossover, 10.0, 0.2 * fs))
+    free, _ = model.natural_frequencies(q)
+    lowest = max(10.0, 1.2 * float(np.min(free)) / (2.0 * np.pi))  # the first torsion mode
+    pass_hz = float(np.clip(margin * crossover, min(lowest, 0.2 * fs), 0.2 * fs))
     return Band(pass_hz, 1.5 * pass_hz)
 
 
@@ -205,12 +209,14 @@ class _Fit:
         self.problem, self.rows, self.settings = problem, rows, settings
         self.evaluations = 0
 
-    def run(self, free: np.ndarray, start: np.ndarray) -> tuple[np.ndarray, tuple, set[int]]:
-        """(x, weights, indices of x at the bound) after ``settings.passes`` rounds."""
+    def run(self, free: np.ndarray, start: np.ndarray) -> tuple:
+        """(x, weights, indices of x at the bound, the exact terms at x) after
+        ``settings.passes`` rounds."""
         problem, rows = self.problem, self.rows
         x = start.copy()
         x[~free] = 0.0
-        weights = _weights(problem, x, rows)
+        terms = problem.terms(x)
+        weights = _weights(problem, terms, rows)
         bound = np.log(self.settings.bound)
 
         def residual(z: np.ndarray, weights: tuple, frozen: Frozen) -> np.ndarray:
@@ -221,7 +227,7 @@ class _Fit:
         for _ in range(self.settings.passes):
             if not free.any():
                 break
-            frozen = problem.freeze(x)
+            frozen = problem.freeze(x, terms)
             solution = least_squares(
                 residual,
                 np.clip(x[free], -0.999 * bound, 0.999 * bound),
@@ -235,9 +241,10 @@ class _Fit:
             )
             x[free] = solution.x
             self.evaluations += solution.nfev
-            weights = _weights(problem, x, rows)
+            terms = problem.terms(x)
+            weights = _weights(problem, terms, rows)
         at_bound = {int(i) for i in np.flatnonzero(free & (np.abs(x) > 0.99 * bound))}
-        return x, weights, at_bound
+        return x, weights, at_bound, terms
 
 
 def fit_log(signals: Signals, model: RobotModel, settings: FitSettings | None = None) -> FitResult:
@@ -257,7 +264,7 @@ def _fit_log(signals: Signals, model: RobotModel, settings: FitSettings) -> FitR
     band = settings.band or choose_band(signals, model)
     r = settings.decimation or _decimation(band, signals.dt)
     grid = SpectralGrid(T, signals.dt, band, r, settings.edge)
-    measurements = Measurements.of(signals, grid, settings.sampling)
+    measurements = Measurements.of(signals, grid, settings.sampling or SamplingModel())
     problem = ElasticJointProblem(model, measurements, settings.coulomb_velocity)
     split = round(T * (1.0 - settings.holdout))
     rows = np.flatnonzero(grid.interior_mask & (grid.indices < split))
@@ -283,8 +290,8 @@ def _fit_log(signals: Signals, model: RobotModel, settings: FitSettings) -> FitR
     for _attempt in range(3):
         free = np.array([name not in held for name in names[: 3 * n]])
         problem.hold_link(np.array([name in held for name in names[3 * n : 6 * n]]))
-        x, weights, at_bound = fitter.run(free, x)
-        estimate = _estimate(problem, x, rows, weights, settings, free)
+        x, weights, at_bound, terms = fitter.run(free, x)
+        estimate = _estimate(problem, x, rows, weights, settings, free, terms)
         values, se = _values(problem, x, estimate)
         bounded = {names[i] for i in at_bound}
         scale_torque = np.sqrt(np.mean(estimate["terms"].rhs[rows] ** 2, axis=0))
@@ -299,12 +306,17 @@ def _fit_log(signals: Signals, model: RobotModel, settings: FitSettings) -> FitR
             bounded,
             settings.thresholds,
         )
-        new = {k: v for k, v in weak.items() if k not in held and not k.startswith("bias[")}
+        transmission = set(names[: 3 * n])
+        new = {
+            k: why
+            for k, (why, hold) in weak.items()
+            if hold and k in transmission and k not in held
+        }
         if not new:
             break
         held.update(new)
-    for name, why in weak.items():
-        if name.startswith("bias["):
+    for name, (why, _) in weak.items():
+        if name not in held:
             warnings.append(f"{name} is poorly identified: {why}")
     for name, why in held.items():
         if not why.startswith("the log does not excite"):
@@ -374,9 +386,9 @@ def _estimate(
     weights: tuple[np.ndarray, np.ndarray],
     settings: FitSettings,
     free_nonlinear: np.ndarray,
+    terms: Terms,
 ) -> dict:
-    """Terms, linear parameters, covariance of the free parameters at x."""
-    terms = problem.terms(x)
+    """Linear parameters, covariance of the free parameters at x (``terms``: at x)."""
     bias, link = problem.solve_linear(terms, rows, weights)
     readings, link_side = problem.residuals(terms, bias, link, rows)
     jacobian = _jacobian(problem, x, (bias, link), rows, weights, terms)
@@ -409,11 +421,10 @@ def _values(problem: ElasticJointProblem, x: np.ndarray, estimate: dict) -> tupl
 
 
 def _weights(
-    problem: ElasticJointProblem, x: np.ndarray, rows: np.ndarray
+    problem: ElasticJointProblem, terms: Terms, rows: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """1 / residual std per accelerometer axis and per joint at x (unweighted solve of the
-    linear parameters first)."""
-    terms = problem.terms(x)
+    """1 / residual std per accelerometer axis and per joint at the terms (unweighted
+    solve of the linear parameters first)."""
     ones = (np.ones(problem.n_readings), np.ones(problem.n))
     bias, link = problem.solve_linear(terms, rows, ones)
     readings, link_side = problem.residuals(terms, bias, link, rows)
@@ -436,7 +447,7 @@ def _jacobian(
     parameters and Coulomb columns held), the linear ones exactly (a bias shifts its axis,
     a link parameter adds its column)."""
     N, s3, n = len(rows), problem.n_readings, problem.n
-    frozen = problem.freeze(x)
+    frozen = problem.freeze(x, terms)
     step = 1e-5
     columns = []
     for i in range(len(x)):

@@ -10,7 +10,7 @@ writes `model.yaml` (the identified model file), `report.md` and `identification
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Protocol
 
@@ -18,7 +18,7 @@ import numpy as np
 
 from elastic_gym.identification.fit import FitResult, FitSettings, fit_log
 from elastic_gym.identification.model_file import identified_model
-from elastic_gym.identification.problem import Signals
+from elastic_gym.identification.problem import SamplingModel, Signals
 from elastic_gym.identification.report import FIGURE_NAME, figure_png, report_markdown
 from elastic_gym.model import RobotModel
 from elastic_gym.model.identified import IdentifiedModel
@@ -67,11 +67,31 @@ def file_sha256(path: str | Path) -> str:
     return digest.hexdigest()
 
 
+def sampling_of(
+    log: LogLike,
+    torque_hold: bool = True,
+    delay: float | None = None,
+    accelerometer_cutoff_hz: float | None = None,
+) -> SamplingModel:
+    """What the log's sampling did: the given values, else the sidecar's
+    (``sensor_delay``, ``accelerometer_cutoff_hz``), else none."""
+    sidecar = getattr(log, "sidecar", None)
+    if delay is None:
+        delay = getattr(sidecar, "sensor_delay", None) or 0.0
+    if accelerometer_cutoff_hz is None:
+        accelerometer_cutoff_hz = getattr(sidecar, "accelerometer_cutoff_hz", None)
+    return SamplingModel(torque_hold, float(delay), accelerometer_cutoff_hz)
+
+
 def identify(log: LogLike, settings: FitSettings | None = None) -> Identification:
-    """Fit the elastic-joint model to ``log`` (see `elastic_gym.identification.fit`).
+    """Fit the elastic-joint model to ``log`` (see `elastic_gym.identification.fit`); the
+    settings' sampling model, if None, is the log's (`sampling_of`).
 
     Raises ``ValueError`` naming the log when its robot has rigid joints or no
     accelerometers, or when it is too short."""
+    settings = settings or FitSettings()
+    if settings.sampling is None:
+        settings = replace(settings, sampling=sampling_of(log))
     model = log.nominal_model()
     where = log.source
     if not model.spec.elastic:
@@ -97,7 +117,9 @@ def identify(log: LogLike, settings: FitSettings | None = None) -> Identificatio
         raise ValueError(f"{where}: {exc}") from None
     path = Path(where)
     sha = file_sha256(path) if path.exists() else ""
-    model_file = identified_model(result, log_name=path.name, log_sha256=sha)
+    model_file = identified_model(
+        result, log_name=path.name, log_sha256=sha, sampling=settings.sampling
+    )
     return Identification(result, model_file, path.name)
 
 

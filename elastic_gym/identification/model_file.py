@@ -8,6 +8,7 @@ import numpy as np
 
 import elastic_gym
 from elastic_gym.identification.fit import FitResult
+from elastic_gym.identification.problem import SamplingModel
 from elastic_gym.model.identified import (
     AccelerometerBias,
     BaseParameter,
@@ -36,9 +37,11 @@ def identified_model(
     log_name: str = "",
     log_sha256: str = "",
     date: str | None = None,
+    sampling: SamplingModel | None = None,
 ) -> IdentifiedModel:
     """The model file of ``result`` (held parameters keep their nominal value and have no
-    standard error)."""
+    standard error; ``sampling``: what the fit modelled of the log's sampling)."""
+    sampling = sampling or SamplingModel()
     model = result.problem.model
     spec = model.spec
     index = {name: i for i, name in enumerate(result.names)}
@@ -84,6 +87,9 @@ def identified_model(
         log_sha256=log_sha256,
         samples=grid.n_samples,
         duration=float((grid.n_samples - 1) * grid.dt),
+        torque_hold=sampling.torque_hold,
+        delay=sampling.delay,
+        accelerometer_cutoff_hz=sampling.accelerometer_cutoff_hz,
         pass_hz=result.band.pass_hz,
         stop_hz=result.band.stop_hz,
         condition_number=_number(result.condition_number),

@@ -77,6 +77,8 @@ class Measurements:
     theta: tuple[np.ndarray, np.ndarray, np.ndarray]  # theta, theta', theta'' decimated
     acceleration: np.ndarray  # decimated readings (N, 3 s)
     motor_velocity: np.ndarray  # theta' at every sample (T, n)
+    motor_position: np.ndarray  # theta at every sample (T, n)
+    readings: np.ndarray  # the accelerometers at every sample (T, 3 s), the wide band
 
     @classmethod
     def of(cls, signals: Signals, grid: SpectralGrid, sampling: SamplingModel) -> Measurements:
@@ -84,9 +86,11 @@ class Measurements:
         theta = grid.spectrum(signals.motor_position)
         torque = grid.spectrum(signals.torque, hold=sampling.torque_hold, delay=sampling.delay)
         readings = grid.spectrum(signals.acceleration)
+        wide = grid.spectrum(signals.acceleration, gain=grid.wide_gain)
         if sampling.accelerometer_cutoff_hz is not None:
             a = np.exp(-2.0 * np.pi * sampling.accelerometer_cutoff_hz * grid.dt)
-            readings *= ((1.0 - a * np.exp(-grid.jw * grid.dt)) / (1.0 - a))[:, None]
+            inverse = ((1.0 - a * np.exp(-grid.jw * grid.dt)) / (1.0 - a))[:, None]
+            readings, wide = readings * inverse, wide * inverse
         return cls(
             grid=grid,
             torque=torque[:bins],
@@ -94,6 +98,8 @@ class Measurements:
             theta=tuple(grid.decimated(theta, k) for k in range(3)),  # type: ignore[arg-type]
             acceleration=grid.decimated(readings),
             motor_velocity=grid.full(theta, 1),
+            motor_position=grid.full(theta),
+            readings=grid.full(wide),
         )
 
 
@@ -177,17 +183,33 @@ class ElasticJointProblem:
             grid.jw[: grid.bins], meas.torque, meas.motor_acceleration, K, D, B, S
         )
 
+    def link_velocity(self, x: np.ndarray) -> np.ndarray:
+        """q' at every sample (T, n), with the link's motion above the band: in the band
+        theta' - delta'; above it (to `WIDE_BAND` of the Nyquist frequency) the integral
+        of the accelerometers' q'' = T_A^+ (y - W_A) (De Luca et al. 2007, eq. (11); damped
+        least squares near a singular T_A), which the encoders cannot give (delta' is
+        the small difference of large terms there) and friction's sign responds to."""
+        meas, grid = self.measurements, self.measurements.grid
+        delta = self.deflection(x)
+        q = np.ascontiguousarray(meas.motor_position - grid.full(delta))
+        dq = np.ascontiguousarray(meas.motor_velocity - grid.full(delta, 1))
+        ddq, _ = self.model.chain.acceleration_from_readings(
+            q, dq, np.ascontiguousarray(meas.readings), 0.01, 0.01
+        )
+        above = grid.integral(grid.spectrum(np.nan_to_num(ddq), gain=grid.above_band))
+        return dq + grid.full(above)
+
     def coulomb_columns(self, x: np.ndarray) -> np.ndarray:
-        """The Coulomb columns tanh(q' / v_s) at x, computed at the full rate, filtered and
-        decimated (N, n). They change little with (K, D, B): the fit holds them during
-        one pass of the optimizer and refreshes them between passes."""
+        """The Coulomb columns tanh(q' / v_s) at x, computed at the full rate (`link_velocity`),
+        filtered and decimated (N, n). They change little with (K, D, B): the fit holds
+        them during one pass of the optimizer and refreshes them between passes."""
         grid = self.measurements.grid
-        dq_full = self.measurements.motor_velocity - grid.full(self.deflection(x), 1)
+        dq_full = self.link_velocity(x)
         return grid.decimated(grid.spectrum(coulomb_column(dq_full, self.coulomb_velocity)))
 
-    def freeze(self, x: np.ndarray) -> Frozen:
-        """The `Frozen` link terms at x."""
-        terms = self.terms(x)
+    def freeze(self, x: np.ndarray, terms: Terms | None = None) -> Frozen:
+        """The `Frozen` link terms at x (``terms``: the exact terms at x, if known)."""
+        terms = self.terms(x) if terms is None else terms
         mass, bias = self.columns.mass_and_bias(terms.q, terms.dq)
         n = self.n
         coulomb = terms.columns[:, np.arange(n), 2 * n + np.arange(n)]

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft as sfft
 
+WIDE_BAND = 0.3  # of the Nyquist frequency: what the Coulomb column sees of the motion
+
 
 def raised_cosine_lowpass(freqs: np.ndarray, pass_hz: float, stop_hz: float) -> np.ndarray:
     """H(f): 1 for f <= pass_hz, 0.5 (1 + cos(pi (f - pass_hz) / (stop_hz - pass_hz)))
@@ -94,6 +96,8 @@ class SpectralGrid:
         self.freqs = np.fft.rfftfreq(self.length, dt)
         self.omega = 2.0 * np.pi * self.freqs
         self.gain = raised_cosine_lowpass(self.freqs, band.pass_hz, band.stop_hz)
+        wide = max(band.stop_hz, WIDE_BAND * 0.5 / dt)
+        self.wide_gain = raised_cosine_lowpass(self.freqs, wide, 1.5 * wide)
         self.bins = coarse // 2 + 1  # the bins the decimated grid represents
         self._jw = 1j * self.omega
         edge_samples = max(round(edge / dt), 0)
@@ -109,22 +113,37 @@ class SpectralGrid:
         """i omega on the grid's bins (rad/s)."""
         return self._jw
 
-    def spectrum(self, x: np.ndarray, hold: bool = False, delay: float = 0.0) -> np.ndarray:
+    def spectrum(
+        self, x: np.ndarray, hold: bool = False, delay: float = 0.0, gain: np.ndarray | None = None
+    ) -> np.ndarray:
         """Filtered spectrum (bins, channels) of the samples ``x`` (T, channels).
 
         ``hold``: the samples are a zero-order-hold command (each value held for one
-        sample period); ``delay`` (s): the signal acts that much later than logged.
+        sample period); ``delay`` (s): the signal acts that much later than logged;
+        ``gain``: another filter than the band's (e.g. `above_band`).
         """
         x = np.asarray(x, dtype=float)
         flat = x.reshape(len(x), -1)
         extended = _odd_extension(flat, self.pad, self.length - self.n_samples - self.pad)
-        X = sfft.rfft(extended, axis=0, workers=-1) * self.gain[:, None]
+        gain = self.gain if gain is None else gain
+        X = sfft.rfft(extended, axis=0, workers=-1) * gain[:, None]
         shift = delay + (0.5 * self.dt if hold else 0.0)
         if shift:
             X *= np.exp(-self._jw * shift)[:, None]
         if hold:
             X *= np.sinc(self.freqs * self.dt)[:, None]
         return X
+
+    @property
+    def above_band(self) -> np.ndarray:
+        """The band-pass from the band's stop frequency to `WIDE_BAND` of the Nyquist
+        frequency: the complement of the band in the wide band."""
+        return self.wide_gain - self.gain
+
+    def integral(self, X: np.ndarray) -> np.ndarray:
+        """The spectrum of the integral of a signal without content at 0 Hz."""
+        jw = self._jw[: len(X)]
+        return np.where(jw[:, None] != 0, X / np.where(jw == 0, 1.0, jw)[:, None], 0.0)
 
     def derivative(self, X: np.ndarray, order: int) -> np.ndarray:
         """The spectrum of the ``order``-th time derivative (``X``: the first bins of a

@@ -12,18 +12,24 @@ writes one row per sample from a robot's controller; a bad log is a
 
 from elastic_gym.logs.columns import LogError, LogLayout
 from elastic_gym.logs.io import read_log, write_log
+from elastic_gym.logs.recorder import LogRecorder
+from elastic_gym.logs.replay import LogEstimate, error_table, estimate_log
 from elastic_gym.logs.sensor_log import SensorLog
 from elastic_gym.logs.sidecar import LogSidecar, Provenance, TopicMap, sidecar_path
 from elastic_gym.logs.writer import LogWriter
 
 __all__ = [
     "LogError",
+    "LogEstimate",
     "LogLayout",
+    "LogRecorder",
     "LogSidecar",
     "LogWriter",
     "Provenance",
     "SensorLog",
     "TopicMap",
+    "error_table",
+    "estimate_log",
     "read_log",
     "sidecar_path",
     "write_log",

@@ -85,8 +85,9 @@ class LogSidecar(StrictModel):
     from the sample time, default 0.1 % of it); `accelerometers` (mounts replacing the
     robot's); `encoder_resolution` (rad); `torque_limit` (N m, replacing the robot's: a
     torque beyond it is refused); `position_limit` (rad: |motor position| beyond it is
-    refused, default the URDF's joint limits or 2π); `topics` (ROS 2 bags and MCAP
-    files); `provenance`.
+    refused, default the URDF's joint limits or 2π); `accelerometer_cutoff_hz` (the
+    accelerometers' first-order low-pass, if they filter); `sensor_delay` (s, how late the
+    readings are); `topics` (ROS 2 bags and MCAP files); `provenance`.
     """
 
     format: Literal[1] = 1
@@ -98,6 +99,8 @@ class LogSidecar(StrictModel):
     encoder_resolution: NonNegativeFinite | None = None
     torque_limit: PositiveNumbers | None = None
     position_limit: PositiveNumbers | None = None
+    accelerometer_cutoff_hz: PositiveFinite | None = None
+    sensor_delay: NonNegativeFinite | None = None
     topics: TopicMap | None = None
     provenance: Provenance = Field(default_factory=Provenance)
 

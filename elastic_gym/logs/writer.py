@@ -21,6 +21,7 @@ import contextlib
 import math
 import os
 import tempfile
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -219,5 +220,12 @@ class LogWriter:
             self.abort()
 
     def __del__(self) -> None:
+        if not vars(self).get("_closed", True) and vars(self).get("rows", 0):
+            warnings.warn(
+                f"LogWriter({str(self.path)!r}) dropped without close(): its {self.rows} rows "
+                "are not written (use it in a with block, or call close())",
+                ResourceWarning,
+                stacklevel=2,
+            )
         with contextlib.suppress(Exception):
             self._discard()

@@ -93,6 +93,9 @@ class FitSummary(StrictModel):
     log_sha256: StrictStr = ""
     samples: Annotated[int, Field(ge=0)] = 0
     duration: NonNegativeFinite = 0.0
+    torque_hold: bool = True
+    delay: NonNegativeFinite = 0.0
+    accelerometer_cutoff_hz: PositiveFinite | None = None
     pass_hz: PositiveFinite | None = None
     stop_hz: PositiveFinite | None = None
     condition_number: NonNegativeFinite | None = None

@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from elastic_gym.model.chain import (
+    NO_REFCOUNT,
     SerialChain,
     _arm_params,
     _cholesky_solve,
@@ -60,64 +61,73 @@ def _friction(k, j, v, plant):
 
 
 @njit(cache=True, inline="always")
-def _derivative(k, x, tau, ext, plant, constants, stacked, ws, buf, out):
+def _derivative(k, x, tau, ext, plant, arm, ws, buf, out):
     """out = x' of arm k at x (4 n), motor torques ``tau`` (n), link torques ``ext`` (n,
-    or an empty array: none). ``buf``: (4, n) scratch (tau_J, the link torque, theta'',
-    a product)."""
+    or an empty array: none). ``arm``: the arm's chain, bodies and -g_W (the chain's
+    ``_arm_params``); ``buf``: (4, n) scratch.
+
+    The operations and their order are those of the simulator's transmission kernel and
+    the chain's forward dynamics (model (2): S B^-1 (tau - tau_J) summed as the
+    simulator's row-wise products; the added inertia -S B^-1 S^T added to M(q), zero for
+    model (1)), so that q'' at a state equals the simulator's own q'' there bit for bit.
+    """
     n = tau.shape[0]
     K, D, B_inv = plant[0], plant[1], plant[2]
     elastic, coupled, SBinv, schur, ST = plant[9], plant[10], plant[11], plant[12], plant[13]
+    chain, bodies_p, minus_gravity = arm
     small, links, bodies, dyn = ws
     M, h, rhs = dyn
     zero_n = bodies[8]
     q = x[n : 2 * n]
     dq = x[3 * n :]
-    tau_j, link, ddtheta = buf[0], buf[1], buf[2]
+    link, relative, coupled_link = buf[0], buf[1], buf[2]
     for j in range(n):
         out[j] = x[2 * n + j]
         out[n + j] = dq[j]
         friction = _friction(k, j, dq[j], plant)
         if elastic:
             torque = K[k, j] * (x[j] - q[j]) + D[k, j] * (x[2 * n + j] - dq[j])
-            tau_j[j] = torque
             link[j] = torque - friction
-            ddtheta[j] = tau[j] - torque  # B theta'' before the coupling and B^-1
+            relative[j] = tau[j] - torque  # B theta'' (+ S^T q'' for model (2))
         else:
             link[j] = tau[j] - friction
         if ext.shape[0]:
             link[j] += ext[j]
-    chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
+    if coupled:  # tau_J - d + tau_e - S B^-1 (tau - tau_J)
+        for a in range(n):
+            total = relative[0] * SBinv[k, a, 0]
+            for c in range(1, n):
+                total = total + relative[c] * SBinv[k, a, c]
+            coupled_link[a] = link[a] - total
+        link = coupled_link
     _mass_and_bias_arm(
         q, dq, zero_n, minus_gravity, chain, bodies_p, M, h, links, small, bodies, True
     )
     for a in range(n):
-        value = link[a] - h[a]
-        if coupled:
-            for c in range(n):
-                value -= SBinv[k, a, c] * ddtheta[c]
-                M[a, c] += schur[k, a, c]
-        rhs[a] = value
+        rhs[a] = link[a] - h[a]
+        for c in range(n):
+            M[a, c] += schur[k, a, c]
     ddq = out[3 * n :]
     _cholesky_solve(M, rhs, ddq)
     for j in range(n):
         if not elastic:
             out[2 * n + j] = ddq[j]
-            continue
-        value = ddtheta[j]
-        if coupled:
-            for c in range(n):
-                value -= ST[k, j, c] * ddq[c]
-        out[2 * n + j] = B_inv[k, j] * value
+        elif coupled:
+            total = ddq[0] * ST[k, j, 0]
+            for c in range(1, n):
+                total = total + ddq[c] * ST[k, j, c]
+            out[2 * n + j] = B_inv[k, j] * (relative[j] - total)
+        else:
+            out[2 * n + j] = B_inv[k, j] * relative[j]
 
 
-@njit(cache=True)
-def _arm_period(k, x0, tau, ext, period, m, packed, stages, buf, ws, stacked):
+@njit(cache=True, **NO_REFCOUNT)
+def _arm_period(k, x0, tau, ext, period, m, plant, inv_tol, arm, stages, buf, ws):
     """Integrate arm k over ``period`` in m RK4 substeps from x0 (4 n) into stages[5];
     stages[4] = f at the end. Returns the largest scaled error estimate of the substeps
     (stops early once it exceeds 1). One call site of `_derivative` (inlined), in
     a loop over the stages: five inlined copies of the Newton-Euler recursion cost more
     in instruction cache than the loop's branches."""
-    plant, constants, inv_tol = packed.values[0], packed.values[1], packed.values[3]
     size = x0.shape[0]
     n = size // 4
     x, xs = stages[5], stages[6]
@@ -131,7 +141,7 @@ def _arm_period(k, x0, tau, ext, period, m, packed, stages, buf, ws, stacked):
     stage = 0
     done = 0
     while True:
-        _derivative(k, xs, tau, ext, plant, constants, stacked, ws, buf, stages[stage])
+        _derivative(k, xs, tau, ext, plant, arm, ws, buf, stages[stage])
         if stage == 4:  # k5 = f(x+): the error of the substep, the next one's k1
             k1, k4, k5 = stages[0], stages[3], stages[4]
             for i in range(size):
@@ -158,21 +168,16 @@ def _arm_period(k, x0, tau, ext, period, m, packed, stages, buf, ws, stacked):
                 xs[i] = x[i] + step * previous[i]
 
 
-@njit(cache=True)
-def rk4_period_kernel(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, packed):
-    """One control period of every arm (see `ArmIntegrator`), in place: the state
-    (theta, theta', q, q' (N, n)) advanced under ``tau`` (N, n) and ``ext`` ((N, n) or
-    (N, 0): none), the substep counts ``substeps`` (N,) updated, q'' at the end into
-    ``ddq``. ``packed``: (plant, chain constants, the chain's scratch, 1 / tolerances,
-    the fewest and the most substeps). Returns the total number of substeps taken
-    (rejected ones included)."""
-    plant, constants, w, _, least, most = packed.values
+@njit(cache=True, **NO_REFCOUNT)
+def _rk4_arms(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, arguments):
+    """`rk4_period_kernel` on its unpacked arguments, compiled without numba's reference
+    counting (the kernel allocates nothing: its scratch arrays are packed with the
+    plant); the counting of the arrays unpacked at every stage (the workspace, the
+    plant) cost half the time of a 2-link arm's right-hand side."""
+    plant, constants, w, inv_tol, least, most, stages, buf, x0 = arguments
     N, n = q.shape
     stacked = constants[1].shape[0] > 1
     ws = _workspace(n, w)
-    stages = np.empty((7, 4 * n))
-    buf = np.empty((4, n))
-    x0 = np.empty(4 * n)
     work = 0
     no_ext = ext.shape[1] == 0
     for k in range(N):
@@ -183,8 +188,12 @@ def rk4_period_kernel(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, pac
             x0[3 * n + j] = dq[k, j]
         m = min(max(substeps[k], least), most)
         arm_ext = ext[k, :0] if no_ext else ext[k]
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
+        arm = (chain, bodies_p, minus_gravity)
         while True:
-            worst = _arm_period(k, x0, tau[k], arm_ext, period, m, packed, stages, buf, ws, stacked)
+            worst = _arm_period(
+                k, x0, tau[k], arm_ext, period, m, plant, inv_tol, arm, stages, buf, ws
+            )
             work += m
             if worst <= 1.0 or m >= most:
                 break
@@ -203,14 +212,22 @@ def rk4_period_kernel(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, pac
 
 
 @njit(cache=True)
-def derivative_kernel(theta, dtheta, q, dq, tau, ext, out, packed):
-    """x' (N, 4 n) of every arm at its state (the right-hand side the integrator steps)."""
-    plant, constants, w = packed.values[0], packed.values[1], packed.values[2]
+def rk4_period_kernel(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, packed):
+    """One control period of every arm (see `ArmIntegrator`), in place: the state
+    (theta, theta', q, q' (N, n)) advanced under ``tau`` (N, n) and ``ext`` ((N, n) or
+    (N, 0): none), the substep counts ``substeps`` (N,) updated, q'' at the end into
+    ``ddq``. ``packed``: (plant, chain constants, the chain's scratch, 1 / tolerances,
+    the fewest and the most substeps, scratch arrays). Returns the total number of
+    substeps taken (rejected ones included)."""
+    return _rk4_arms(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, packed.values)
+
+
+@njit(cache=True, **NO_REFCOUNT)
+def _derivative_arms(theta, dtheta, q, dq, tau, ext, out, arguments):
+    plant, constants, w, _, _, _, stages, buf, x = arguments
     N, n = q.shape
     stacked = constants[1].shape[0] > 1
     ws = _workspace(n, w)
-    buf = np.empty((4, n))
-    x = np.empty(4 * n)
     no_ext = ext.shape[1] == 0
     for k in range(N):
         for j in range(n):
@@ -219,7 +236,15 @@ def derivative_kernel(theta, dtheta, q, dq, tau, ext, out, packed):
             x[2 * n + j] = dtheta[k, j]
             x[3 * n + j] = dq[k, j]
         arm_ext = ext[k, :0] if no_ext else ext[k]
-        _derivative(k, x, tau[k], arm_ext, plant, constants, stacked, ws, buf, out[k])
+        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
+        arm = (chain, bodies_p, minus_gravity)
+        _derivative(k, x, tau[k], arm_ext, plant, arm, ws, buf, out[k])
+
+
+@njit(cache=True)
+def derivative_kernel(theta, dtheta, q, dq, tau, ext, out, packed):
+    """x' (N, 4 n) of every arm at its state (the right-hand side the integrator steps)."""
+    _derivative_arms(theta, dtheta, q, dq, tau, ext, out, packed.values)
 
 
 class ArmIntegrator:
@@ -311,15 +336,17 @@ class ArmIntegrator:
             coupling = tuple(np.ascontiguousarray(c, dtype=np.float64) for c in self.coupling)
         plant = (*self.transmission, self.elastic, self.coupling is not None, *coupling)
         tol = self.tolerance
-        self._work = np.empty(_work_size(n))
         self._packed = Packed(
             (
                 plant,
                 self.chain._kernel_constants(),
-                self._work,
+                np.empty(_work_size(n)),  # the chain's scratch
                 np.array([1.0 / tol.position, 1.0 / tol.rate]),
                 np.int64(self.substeps[0]),
                 np.int64(self.substeps[1]),
+                np.empty((7, 4 * n)),  # the stages, the state and a stage's point
+                np.empty((4, n)),  # the right-hand side's scratch
+                np.empty(4 * n),  # the state at the period's start
             )
         )
         self._no_ext = np.zeros((arms, 0))

@@ -137,6 +137,19 @@ class BatchedObserver(Observer):
     ) -> np.ndarray:
         """Estimates (N, dim) after one period; only ``arms`` (default all) are advanced."""
 
+    def update_sequence(
+        self, obs: Mapping[str, np.ndarray], torque: np.ndarray, dt: float
+    ) -> np.ndarray:
+        """Estimates (T, N, dim) of every arm after each of T periods: `obs` holds each
+        observation item with a leading time axis (T, N, ...), `torque` (T, N, n) the
+        torque of each period. One `update_arms` per period here; a subclass may run the
+        periods in one compiled call that gives the same numbers bit for bit (an offline
+        log: `elastic-gym observe`)."""
+        out = np.empty((len(torque), np.shape(torque)[1], self.state_dim))
+        for t in range(len(torque)):
+            out[t] = self.update_arms({key: value[t] for key, value in obs.items()}, torque[t], dt)
+        return out
+
     def reset(
         self, obs: Mapping[str, np.ndarray], initial_estimate: np.ndarray | None = None
     ) -> np.ndarray:

@@ -21,10 +21,12 @@ from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 import numpy as np
+from numba import njit
 from pydantic import StrictBool, ValidationInfo, field_validator
 from scipy.linalg import expm
 
 from elastic_gym.model import RobotModel
+from elastic_gym.model.chain import acceleration_from_readings_kernel
 from elastic_gym.model.option_checks import Needs, PerSample
 from elastic_gym.model.rows import rows_matmul
 from elastic_gym.observers.base import BatchedObserver, arm_count
@@ -47,6 +49,7 @@ from elastic_gym.validation import (
 DEFAULT_VELOCITY_SATURATION = 50.0  # rad/s, see "Peaking" above
 DT_TOLERANCE = 1e-9  # relative mismatch of the update period tolerated
 MAX_POLE_STEP = 10.0  # largest |lambda| dt: faster poles overflow the matrix exponential
+PERIOD_KEYS = ("motor_position", "acceleration")  # what eq. (12) reads of an observation
 
 
 def foh_discretization(
@@ -66,6 +69,78 @@ def foh_discretization(
     ex = expm(aug)
     phi, gamma0, gamma1 = ex[:nx, :nx], ex[:nx, nx : nx + nw], ex[:nx, nx + nw :]
     return phi, gamma0 - gamma1, gamma1
+
+
+@njit(cache=True)
+def _accelerometer_periods(
+    xi,
+    theta_prev,
+    ddq_prev,
+    torque,
+    theta,
+    readings,
+    step_rows,
+    ddq_rows,
+    saturation,
+    threshold,
+    damping,
+    work,
+    constants,
+    out,
+    singular,
+):
+    """T periods of eq. (12) for N arms (predictor-corrector, `update_arms`' arithmetic):
+    per period t, the prediction xi_p = [xi, u_t, m_t, (theta_{t+1}, q''_t)] @ step_rows,
+    q''_{t+1} = T_A^+(xi_p,2) (y_{t+1} - W_A(xi_p,2, sat(xi_p,4))) (eq. (11)) and the
+    correction xi = xi_p + (q''_{t+1} - q''_t) @ ddq_rows. `xi`, `theta_prev`, `ddq_prev`
+    (N, .) are advanced in place; `out` (T, N, 4n) gets each period's estimate and
+    `singular` (T, N, 3) eq. (11)'s (sigma_max, sigma_min, damping)."""
+    T, N, n = theta.shape
+    nx, width = 4 * n, step_rows.shape[0]
+    stack = np.empty(width)
+    predicted = np.empty((N, nx))
+    q = np.empty((N, n))
+    dq = np.empty((N, n))
+    ddq = np.empty((N, n))
+    diagnostics = np.empty((N, 3))
+    for t in range(T):
+        for k in range(N):
+            for c in range(nx):
+                stack[c] = xi[k, c]
+            for c in range(n):
+                stack[nx + c] = torque[t, k, c]
+                stack[nx + n + c] = theta_prev[k, c]
+                stack[nx + 2 * n + c] = ddq_prev[k, c]
+                stack[nx + 3 * n + c] = theta[t, k, c]
+                stack[nx + 4 * n + c] = ddq_prev[k, c]
+            for c in range(nx):
+                total = 0.0
+                for j in range(width):
+                    total += stack[j] * step_rows[j, c]
+                predicted[k, c] = total
+            for c in range(n):
+                q[k, c] = predicted[k, n + c]
+                v = predicted[k, 3 * n + c]
+                if v < -saturation:
+                    v = -saturation
+                elif v > saturation:
+                    v = saturation
+                dq[k, c] = v
+        acceleration_from_readings_kernel(
+            q, dq, readings[t], threshold, damping, work, ddq, diagnostics, constants
+        )
+        for k in range(N):
+            for c in range(nx):
+                total = 0.0
+                for j in range(n):
+                    total += (ddq[k, j] - ddq_prev[k, j]) * ddq_rows[j, c]
+                xi[k, c] = predicted[k, c] + total
+                out[t, k, c] = xi[k, c]
+            for c in range(n):
+                theta_prev[k, c] = theta[t, k, c]
+                ddq_prev[k, c] = ddq[k, c]
+            for c in range(3):
+                singular[t, k, c] = diagnostics[k, c]
 
 
 def directions_per_joint(model: RobotModel) -> bool:
@@ -212,6 +287,12 @@ class DeLucaObserver(BatchedObserver):
         ddq, singular = self._sensors.acceleration_from_readings(
             xi[:, n : 2 * n], dq, reading, self.dls_threshold, self.dls_damping
         )
+        self._record_singular(arms, singular)
+        return ddq
+
+    def _record_singular(self, arms, singular: np.ndarray) -> None:
+        """eq. (11)'s conditioning (`singular` (len(arms), 3): sigma_max, sigma_min, damping)
+        as the arms' diagnostics."""
         sigma_max, sigma_min, damping = singular.T
         cond = np.divide(
             sigma_max, sigma_min, out=np.full(len(sigma_max), np.inf), where=sigma_min > 0.0
@@ -223,7 +304,6 @@ class DeLucaObserver(BatchedObserver):
             dls_damping=damping,
             near_singular=sigma_min < self.dls_threshold,
         )
-        return ddq
 
     def _record(self, arms, **values: np.ndarray) -> None:
         """Per-arm diagnostics (eq. (11)'s conditioning) of the arms just updated."""
@@ -253,12 +333,13 @@ class DeLucaObserver(BatchedObserver):
     def update_arms(
         self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | slice | None = None
     ) -> np.ndarray:
-        if abs(dt - self.dt) > DT_TOLERANCE * self.dt:
-            raise ValueError(
-                f"DeLucaObserver was discretized for dt={self.dt}, update called with dt={dt}"
-            )
+        self._check_dt(dt)
         n = self.n
         tau = self.checked_torque(torque, len(self._xi))
+        if self.acceleration == "accelerometer":  # one period of the compiled loop
+            period = {key: np.asarray(obs[key])[None] for key in PERIOD_KEYS if key in obs}
+            self._periods(period, tau[None], arms)
+            return self._xi.copy()
         arms = slice(None) if arms is None else arms
         theta = self.measured_positions(obs, arms)
         stack = self._stack[arms]
@@ -267,14 +348,76 @@ class DeLucaObserver(BatchedObserver):
         stack[:, 5 * n : 6 * n] = self._theta[arms]
         stack[:, 6 * n : 7 * n] = self._ddq[arms]
         stack[:, 7 * n : 8 * n] = theta
-        if self.acceleration == "ideal":
-            ddq = self._link_acceleration(obs, self._xi[arms], arms)
-            stack[:, 8 * n :] = ddq
-            xi = rows_matmul(stack, self._step_rows)
-        else:  # predictor-corrector for eq. (12)
-            stack[:, 8 * n :] = self._ddq[arms]
-            predicted = rows_matmul(stack, self._step_rows)
-            ddq = self._link_acceleration(obs, predicted, arms)
-            xi = predicted + rows_matmul(ddq - self._ddq[arms], self._ddq_rows)
+        ddq = self._link_acceleration(obs, self._xi[arms], arms)
+        stack[:, 8 * n :] = ddq
+        xi = rows_matmul(stack, self._step_rows)
         self._xi[arms], self._theta[arms], self._ddq[arms] = xi, theta, ddq
         return self._xi.copy()
+
+    def update_sequence(self, obs: Mapping, torque: np.ndarray, dt: float) -> np.ndarray:
+        """T periods of every arm in one compiled call (accelerometers; the ideal variant
+        one `update_arms` per period): the numbers of T `update_arms` calls, bit for bit."""
+        if self.acceleration != "accelerometer":
+            return super().update_sequence(obs, torque, dt)
+        self._check_dt(dt)
+        tau = np.asarray(torque, dtype=float)
+        if tau.ndim != 3 or tau.shape[1:] != (len(self._xi), self.n):
+            raise ValueError(
+                f"torque must have shape (T, {len(self._xi)}, {self.n}), got {tau.shape}"
+            )
+        return self._periods(obs, tau, None)
+
+    def _check_dt(self, dt: float) -> None:
+        if abs(dt - self.dt) > DT_TOLERANCE * self.dt:
+            raise ValueError(
+                f"DeLucaObserver was discretized for dt={self.dt}, update called with dt={dt}"
+            )
+
+    def _periods(self, obs: Mapping, tau: np.ndarray, arms) -> np.ndarray:
+        """Eq. (12) over the periods of `obs` (T, N, ...) and `tau` (T, N, n) for `arms`
+        (None: all) by `_accelerometer_periods`; the diagnostics of the last period."""
+        n, N = self.n, len(self._xi)
+        every = arms is None or (isinstance(arms, slice) and arms == slice(None))
+        rows = slice(None) if every else arms
+        key = "motor_position"
+        positions = entry(obs, "obs", key, (None, N, n), f"needs obs[{key!r}]")
+        missing = "acceleration='accelerometer' needs obs['acceleration']"
+        shape = (None, N, 3 * self.model.n_sensors)
+        readings = entry(obs, "obs", "acceleration", shape, missing)
+        theta = np.ascontiguousarray(positions[:, rows], dtype=float)
+        readings = np.ascontiguousarray(readings[:, rows], dtype=float)
+        torque = np.ascontiguousarray(tau[:, rows], dtype=float)
+        xi = np.ascontiguousarray(self._xi[rows])
+        theta_prev = np.ascontiguousarray(self._theta[rows])
+        ddq_prev = np.ascontiguousarray(self._ddq[rows])
+        T, count = theta.shape[:2]
+        out = np.empty((T, count, 4 * n))
+        singular = np.empty((T, count, 3))
+        saturation = np.inf if self.velocity_saturation is None else self.velocity_saturation
+        work, constants = self._sensors.readings_arguments()
+        _accelerometer_periods(
+            xi,
+            theta_prev,
+            ddq_prev,
+            torque,
+            theta,
+            readings,
+            self._step_rows,
+            self._ddq_rows,
+            float(saturation),
+            float(self.dls_threshold),
+            float(self.dls_damping),
+            work,
+            constants,
+            out,
+            singular,
+        )
+        self._xi[rows], self._theta[rows], self._ddq[rows] = xi, theta_prev, ddq_prev
+        if T:
+            self._record_singular(rows if not every else slice(None), singular[-1])
+        if every:
+            return out
+        full = np.empty((T, N, 4 * n))
+        full[:] = self._xi  # the arms not advanced keep their estimates
+        full[:, rows] = out
+        return full

@@ -17,8 +17,8 @@ state source) keeps the sensor observation and adds the same ``info`` with an em
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Mapping
-from typing import TypeGuard, cast
+from collections.abc import Mapping
+from typing import cast
 
 import gymnasium as gym
 import numpy as np
@@ -26,9 +26,10 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from elastic_gym.arms import arm_view, elastic_base
+from elastic_gym.arms import elastic_base
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import BatchedObserver, Observer
+from elastic_gym.observers.estimation import Estimator, ObserverArray, runs_batched
 from elastic_gym.observers.registry import make_observer
 from elastic_gym.observers.sensors import RawSensors
 from elastic_gym.validation import only_when
@@ -78,75 +79,6 @@ def measurement(observer: Observer | ObserverArray, obs: Mapping, info: Mapping)
     return measured
 
 
-NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, OverflowError)
-NON_FINITE_INPUT = "infs or NaNs"  # numpy's asarray_chkfinite and scipy's checks say so
-
-
-def numerical_failure(exc: BaseException) -> bool:
-    """Whether ``exc`` is what a diverged estimate makes numpy / scipy raise: a singular
-    or indefinite matrix (``LinAlgError``), a floating-point error or overflow, or a
-    ``ValueError`` refusing an array with infs or NaNs. Other exceptions (a
-    ``ZeroDivisionError`` in a user's code, a ``TypeError``) are bugs, not divergence."""
-    return isinstance(exc, NUMERICAL_ERRORS) or (
-        isinstance(exc, ValueError) and NON_FINITE_INPUT in str(exc)
-    )
-
-
-def observer_name(observer: Observer) -> str:
-    """``"observer 'ekf' (ExtendedKalmanFilter)"``: how messages name an observer."""
-    return f"observer {observer.name or type(observer).__name__!r} ({type(observer).__name__})"
-
-
-def non_finite_text(observer: Observer, estimate: np.ndarray) -> str:
-    """The ``observer_error`` of an update that returned a non-finite estimate: the
-    observer and the blocks of ``state_names`` that are not finite."""
-    blocks = np.array_split(np.asarray(estimate, dtype=float), len(observer.state_names))
-    names = [
-        n for n, b in zip(observer.state_names, blocks, strict=True) if not np.isfinite(b).all()
-    ]
-    return f"{observer_name(observer)}: non-finite {', '.join(names)} after an update"
-
-
-def checked_estimate(observer: Observer, estimate: object, call: str) -> np.ndarray:
-    """``estimate`` if it is a numpy array of shape ``(observer.state_dim,)``, else a
-    ``TypeError`` / ``ValueError`` naming the observer, the call and what it returned."""
-    who = observer_name(observer)
-    if not isinstance(estimate, np.ndarray):
-        raise TypeError(
-            f"{who}: {call} returned a {type(estimate).__name__}, expected a numpy array "
-            f"of shape ({observer.state_dim},)"
-        )
-    if estimate.shape != (observer.state_dim,):
-        raise ValueError(
-            f"{who}: {call} returned an estimate of shape {estimate.shape}, expected "
-            f"({observer.state_dim},) (state {observer.state_names})"
-        )
-    return estimate
-
-
-def guarded(update: Callable[[], np.ndarray]) -> tuple[np.ndarray | None, str | None]:
-    """``update()`` and None, or None and the text of the numerical failure it raised
-    (:func:`numerical_failure`; the episode ends, see the module docstring); other
-    exceptions propagate."""
-    try:
-        return update(), None
-    except Exception as exc:
-        if not numerical_failure(exc):
-            raise
-        return None, f"{type(exc).__name__}: {exc}"
-
-
-def guarded_update(
-    observer: Observer, obs: Mapping, torque: np.ndarray, dt: float
-) -> tuple[np.ndarray, str | None]:
-    """``observer.update``, checked (:func:`checked_estimate`); a numerical failure in it
-    gives a NaN estimate and the error's text (:func:`guarded`)."""
-    estimate, error = guarded(lambda: observer.update(obs, torque, dt))
-    if estimate is None:
-        return np.full(observer.state_dim, np.nan), error
-    return checked_estimate(observer, estimate, "update"), None
-
-
 def true_state_vector(info: Mapping, elastic: bool) -> np.ndarray:
     """The true state in the observer's layout (works for one arm and for a batch)."""
     truth = info["true_state"]
@@ -164,66 +96,6 @@ def annotate(info: dict, estimate: np.ndarray, elastic: bool, diagnostics: dict)
     info["estimation_error"] = estimate - truth if estimate.shape[-1] else estimate.copy()
     info["observer_diagnostics"] = dict(diagnostics)
     return info
-
-
-def runs_batched(observer: Observer) -> TypeGuard[BatchedObserver]:
-    """Whether ``observer`` estimates all arms at once: a
-    :class:`~elastic_gym.observers.base.BatchedObserver` whose single-arm ``reset`` and
-    ``update`` are its N = 1 case. A subclass that overrides them runs one copy per arm
-    (:class:`ObserverArray`), so that its own code is what runs."""
-    cls = type(observer)
-    return (
-        isinstance(observer, BatchedObserver)
-        and cls.reset is BatchedObserver.reset
-        and cls.update is BatchedObserver.update
-    )
-
-
-class ObserverArray:
-    """One copy of a single-arm observer per arm, behind the batched interface."""
-
-    def __init__(self, observer: Observer, n_arms: int) -> None:
-        self.observers = [copy.deepcopy(observer) for _ in range(n_arms)]
-        first = self.observers[0]
-        self.model, self.elastic, self.privileged = first.model, first.elastic, first.privileged
-        self.state_dim, self.state_names = first.state_dim, first.state_names
-        self._estimates = np.zeros((n_arms, self.state_dim))
-        self.errors: list[str | None] = [None] * n_arms  # of each arm's last update
-        self.arm_diagnostics: dict[str, np.ndarray] = {}
-
-    def _record(self, arms) -> None:
-        for i in arms:
-            for key, value in self.observers[i].diagnostics.items():
-                column = self.arm_diagnostics.setdefault(
-                    key, np.zeros(len(self.observers), dtype=np.asarray(value).dtype)
-                )
-                column[i] = value
-
-    def reset_arms(self, obs: Mapping, arms: np.ndarray, initial_estimate=None) -> np.ndarray:
-        rows = (
-            None
-            if initial_estimate is None
-            else np.broadcast_to(initial_estimate, (len(arms), self.state_dim))
-        )
-        for k, i in enumerate(arms):
-            self._estimates[i] = checked_estimate(
-                self.observers[i],
-                self.observers[i].reset(arm_view(obs, i), None if rows is None else rows[k]),
-                "reset",
-            )
-        self._record(arms)
-        return self._estimates[arms].copy()
-
-    def update_arms(
-        self, obs: Mapping, torque: np.ndarray, dt: float, arms: np.ndarray | None = None
-    ) -> np.ndarray:
-        stepped = range(len(self.observers)) if arms is None else arms
-        for i in stepped:  # a numerical error in one arm's observer is that arm's NaN estimate
-            self._estimates[i], self.errors[i] = guarded_update(
-                self.observers[i], arm_view(obs, i), torque[i], dt
-            )
-        self._record(stepped)
-        return self._estimates.copy()
 
 
 class ObserverWrapper(gym.vector.VectorWrapper):
@@ -253,9 +125,8 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         check_sensor_space(env.single_observation_space, single)
         N = env.num_envs
         self._base = base
-        self.observer: BatchedObserver | ObserverArray = (
-            single if runs_batched(single) else ObserverArray(single, N)
-        )
+        self.estimator = Estimator(single, N)  # the estimation loop, shared with logs
+        self.observer: BatchedObserver | ObserverArray = self.estimator.observer
         self.initial_estimate = initial_estimate
         dim = single.state_dim
         self.single_observation_space = spaces.Dict(
@@ -265,9 +136,8 @@ class ObserverWrapper(gym.vector.VectorWrapper):
             }
         )
         self.observation_space = batch_space(self.single_observation_space, N)
-        self._estimates = np.zeros((N, dim))
+        self._estimates = self.estimator.estimates  # (N, dim), updated in place
         self._autoreset = np.zeros(N, dtype=bool)  # arms the env resets at the next step
-        self._errors = np.full(N, None, dtype=object)  # of the last update (_update)
         self._all = np.ones(N, dtype=bool)
 
     @property
@@ -288,9 +158,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         if initial is not None and np.ndim(initial) == 2:  # one row per arm: those reset
             initial = np.asarray(initial)[arms]
         if len(arms):
-            self._estimates[arms] = self.observer.reset_arms(
-                measurement(self.observer, obs, info), arms, initial
-            )
+            self.estimator.reset(measurement(self.observer, obs, info), arms, initial)
 
     def reset(self, *, seed=None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -301,38 +169,19 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         return self._observation(obs), self._annotate(info)
 
     def _update(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> np.ndarray:
-        """Advance the observer on ``arms``; return the arms whose estimate is not finite
-        (the text of their numerical errors, if any, in ``self._errors``)."""
-        self._errors = np.full(self.num_envs, None, dtype=object)
+        """Advance the observer on ``arms`` (those whose state is still finite); return the
+        arms whose estimate is not finite (the reasons in ``self._errors``)."""
         arms = arms[info["termination_reason"][arms] != NON_FINITE_STATE]
-        if not len(arms):
-            return arms
-        measured, dt = measurement(self.observer, obs, info), self._base.control_dt
-        if isinstance(self.observer, ObserverArray):  # guarded arm by arm
-            estimates = self.observer.update_arms(measured, info["torque"], dt, arms)
-            self._errors[arms] = [self.observer.errors[i] for i in arms]
-        else:
-            which = None if len(arms) == self.num_envs else arms  # all: the observer's fast path
-            batched, error = guarded(
-                lambda: self.observer.update_arms(measured, info["torque"], dt, which)
-            )
-            if batched is None:  # a batched observer's error: every arm it was updating
-                self._errors[arms] = error
-                return arms
-            estimates = batched
-        finite = np.isfinite(estimates[arms]).all(axis=1)
-        if finite.all():  # the common case
-            self._estimates[arms] = estimates[arms]
-            return arms[:0]
-        self._estimates[arms[finite]] = estimates[arms[finite]]
-        for i in arms[~finite]:
-            if self._errors[i] is None:
-                self._errors[i] = non_finite_text(self._arm_observer(i), estimates[i])
-        return arms[~finite]
+        measured = measurement(self.observer, obs, info) if len(arms) else obs
+        return self.estimator.update(measured, info["torque"], self._base.control_dt, arms)
+
+    @property
+    def _errors(self) -> np.ndarray:
+        """Why each arm diverged in the last update (None: it did not)."""
+        return self.estimator.errors
 
     def _arm_observer(self, arm: int) -> Observer:
-        observer = self.observer
-        return observer.observers[arm] if isinstance(observer, ObserverArray) else observer
+        return self.estimator.arm_observer(arm)
 
     def _mark(self, info: dict, diverged: np.ndarray) -> None:
         """``info["termination_reason"]`` of the ``diverged`` arms: ``NON_FINITE_ESTIMATE``,
@@ -430,9 +279,11 @@ class SensorWrapper(ObserverWrapper):
 __all__ = [
     "NON_FINITE_ESTIMATE",
     "NON_FINITE_STATE",
+    "Estimator",
     "ObserverArray",
     "ObserverWrapper",
     "SensorWrapper",
     "TrueStateWrapper",
+    "runs_batched",
     "true_state_vector",
 ]

@@ -107,11 +107,12 @@ class LinkFriction:
         return LinkFriction(
             viscous=_add(self.viscous, other.viscous),
             coulomb_pos=_add(self.coulomb_pos, other.coulomb_pos),
-            coulomb_neg=_add(self._neg_tuple(), other._neg_tuple()),
+            coulomb_neg=_add(self.negative_coulomb(), other.negative_coulomb()),
             smoothing_velocity=self.smoothing_velocity,
         )
 
-    def _neg_tuple(self) -> tuple[float, ...] | None:
+    def negative_coulomb(self) -> tuple[float, ...] | None:
+        """The Coulomb level for q' < 0 (`coulomb_neg`, or `coulomb_pos` when not given)."""
         return self.coulomb_neg if self.coulomb_neg is not None else self.coulomb_pos
 
     def scaled(self, factor: float) -> LinkFriction:

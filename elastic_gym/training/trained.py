@@ -3,7 +3,7 @@ fresh episodes (:func:`evaluate_run`), run on the comparison's batched closed lo
 
 :func:`evaluate_run` is the comparison itself: the ``trained-policy`` controller of the run
 on its state source, one run per episode seed, all of them the arms of one world of
-:func:`~elastic_gym.evaluation.runner.run_group`. An episode's tracking RMS is therefore
+:func:`~elastic_gym.evaluation.episodes.run_group`. An episode's tracking RMS is therefore
 the ``track_rms`` of the comparison row of the same run, seed and plant (every control
 period, from the reset on); its return the sum of the env's rewards over the episode.
 """
@@ -18,8 +18,9 @@ import gymnasium as gym
 import numpy as np
 
 from elastic_gym.envs.config import EPISODE_TIME
+from elastic_gym.evaluation.episodes import RunResult, run_group
+from elastic_gym.evaluation.grid import RunSpec
 from elastic_gym.evaluation.groups import RunGroup
-from elastic_gym.evaluation.runner import RunResult, RunSpec, run_group
 from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry
 from elastic_gym.observers.registry import source_class
 from elastic_gym.runtime.parallel import single_threaded

@@ -1,0 +1,216 @@
+"""The packed arguments of a batch's fused kernels, built when needed and kept while valid.
+
+numba unboxes every array of a call's arguments at every dispatch (a `Packed` of
+`elastic_gym.model.packed` holds them as one); the two kernels of a control period
+([`elastic_gym.envs.kernels`][elastic_gym.envs.kernels]) take some 80 arrays and scalars,
+so `FusedArguments` packs them once: the simulator's state and plant constants, the
+sensors' error models and noise blocks, the episode's arrays (all changed in place by the
+kernels and by resets), the limits and the reward constants. A pack shares the arrays, it
+does not copy them; it is built again after a reset (an arm's sensors or plant may have
+changed) and, for the control period's pack, when the simulator packed its own arguments
+again (new plants) or the episode length changed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from elastic_gym.envs.episode import EpisodeState
+from elastic_gym.envs.measurement import Sensors
+from elastic_gym.envs.sensors import GaussianNoise
+from elastic_gym.envs.simulator import ArmSimulator
+from elastic_gym.envs.tasks import Task
+from elastic_gym.model.packed import Packed
+
+
+@dataclass(frozen=True)
+class Fused:
+    """The arguments of one episode's fused kernels.
+
+    Attributes:
+        end: `post_step_kernel`'s `packed`.
+        forces: the accelerometers' noise-free readings it writes (N, 3 n_sensors) (the
+            step by step measurement reads them when an arm broke).
+        period: `control_period_kernel`'s `packed`, or None where the simulator cannot step
+            through PyBullet's C API or the task has no compiled form.
+        noises: the noise streams the end of a period draws from, with their standard
+            deviation (a stream of std 0 draws nothing).
+    """
+
+    end: Packed
+    forces: np.ndarray
+    period: Packed | None
+    noises: tuple[tuple[GaussianNoise, float | None], ...]
+
+    def refill(self, rngs: list[np.random.Generator]) -> None:
+        """Fresh noise blocks for the arms whose block is used up (from their generators,
+        in sensor order), before the end of a period draws from them."""
+        for noise, std in self.noises:
+            if std is not None and std > 0.0:
+                noise.refill(rngs)
+
+
+class FusedArguments:
+    """The fused kernels' arguments of a batch's parts.
+
+    Args:
+        sim: the simulator (state, plants, its own packed substep arguments).
+        task: the task (its compiled arguments, if any).
+        sensors: the encoders and accelerometers.
+        episode: the episode arrays.
+        torque_limit: the motor torque limits (n,).
+        joint_limits: the joints' (lower, upper) limits (n,) each.
+        max_velocity: |q'| or |theta'| above this ends an episode (rad/s).
+        reward_constants: the reward kernel's arguments after the torque limit and the
+            torsion (`RewardConfig.kernel_constants`).
+        n_substeps: physics steps per control period.
+    """
+
+    def __init__(
+        self,
+        sim: ArmSimulator,
+        task: Task,
+        sensors: Sensors,
+        episode: EpisodeState,
+        torque_limit: np.ndarray,
+        joint_limits: tuple[np.ndarray, np.ndarray],
+        max_velocity: float,
+        reward_constants: tuple,
+        n_substeps: int,
+    ) -> None:
+        self.sim, self.task, self.sensors, self.episode = sim, task, sensors, episode
+        self.torque_limit, self._minus_limit = torque_limit, -torque_limit
+        self._limit_row = torque_limit[None]
+        self.joint_limits, self.max_velocity = joint_limits, max_velocity
+        self.reward_constants, self.n_substeps = reward_constants, n_substeps
+        self._no_readings = np.zeros((episode.n_arms, 0))  # the accelerometers of none
+        self._built: Fused | bool | None = False  # False: not built since the last reset
+        self._period: tuple | None = None  # (the simulator's pack it holds, the pack)
+
+    def invalidate(self) -> None:
+        """Build the arguments again when next needed (after a reset: an arm's sensors or
+        plant may have changed)."""
+        self._built = False
+
+    def forget_period(self) -> None:
+        """Pack the control period's arguments again (a new episode length)."""
+        self._built, self._period = False, None
+
+    def get(self) -> Fused | None:
+        """The episode's arguments (built if needed), or None when the batch needs the step
+        by step path: an arm with its own sensor error model, an accelerometer filter."""
+        built = self._built
+        if built is False:
+            built = self._built = self._build()
+        return built  # type: ignore[return-value]
+
+    def _build(self) -> Fused | None:
+        sim, sensors, episode = self.sim, self.sensors, self.episode
+        encoder, acc = sensors.encoder, sensors.accelerometer_array
+        plants, n_sensors = sim.plants, sensors.n_sensors
+        resolution, noise_std = encoder.shared
+        sample_std, alpha, limit, acc_resolution = acc.shared
+        if (
+            resolution is None
+            or noise_std is None
+            or (
+                n_sensors
+                and (alpha != 0.0 or sample_std is None or limit is None or acc_resolution is None)
+            )
+        ):
+            return None
+        N, n = episode.ddq.shape
+        shape = (N, n)
+        forces = np.empty((N, 3 * n_sensors))
+        transmission = (  # the transmission kernel's arguments after tau
+            *plants.transmission,
+            sensors.elastic,
+            np.empty(shape),
+            np.empty(shape),
+            np.empty(shape),
+            0.0,
+        )
+        dynamics = plants.chain.dynamics_and_forces_arguments(episode.ddq, forces)
+        limits = (*self.joint_limits, self.max_velocity, episode.codes)
+        size = 3 * n_sensors
+        no_readings = self._no_readings
+        obs, lines = episode.obs, episode.lines
+        position = sensors.position_key
+        sensor_arguments = (
+            sensors.elastic,
+            noise_std,
+            encoder.noise.block,
+            encoder.noise.next,
+            resolution,
+            bool(n_sensors),
+            acc.bias,
+            sample_std if n_sensors else 0.0,
+            acc.noise.block,
+            acc.noise.next,
+            limit if n_sensors else np.inf,
+            acc_resolution if n_sensors else 0.0,
+            np.empty(shape),
+            np.empty((N, size)),
+            lines[position],
+            lines["acceleration"] if n_sensors else no_readings[None],
+            episode.sensor_delay,
+            obs[position],
+            obs["acceleration"] if n_sensors else no_readings,
+            obs["reference"],
+        )
+        rewards = (self._limit_row, *self.reward_constants)
+        noises: list[tuple[GaussianNoise, float | None]] = [(encoder.noise, noise_std)]
+        if n_sensors:
+            noises.append((acc.noise, sample_std))
+        state = (sim.theta, sim.dtheta, sim.q, sim.dq)
+        coupling = sim.coupling_arguments()
+        end = Packed((*state, transmission, coupling, dynamics, limits, sensor_arguments, rewards))
+        return Fused(end, forces, self.period(), tuple(noises))
+
+    def period(self) -> Packed | None:
+        """`control_period_kernel`'s `packed`, or None where the simulator cannot step
+        through PyBullet's C API or the task has no compiled form: the torque limits
+        (low, high), the clipped torque, the saturation flags and the open-loop torque
+        (outputs), the task's open-loop torque arguments, q, the simulator's
+        [`period_arguments`][elastic_gym.envs.simulator.ArmSimulator.period_arguments],
+        the substeps per period, the clock (steps, control period, episode length in
+        periods or None, time), the torques (current, previous), the reference and the
+        task's reference arguments
+        ([`Task.compiled_arguments`][elastic_gym.envs.tasks.Task.compiled_arguments]).
+
+        Packing costs about 0.35 ms (numba types the nested tuple in Python), so the pack
+        is kept across resets, which change its arrays in place, and made again only when
+        the simulator packed its own arguments again (new plants) or `forget_period` was
+        called (a new episode length)."""
+        sim, episode = self.sim, self.episode
+        physics, task = sim.period_arguments(), self.task.compiled_arguments()
+        if physics is None or task is None:
+            return None
+        if self._period is not None and self._period[0] == physics[2:4]:
+            return self._period[1]
+        task_torque, task_reference = task
+        packed = Packed(
+            (
+                self._minus_limit,
+                self.torque_limit,
+                episode.clipped,
+                episode.saturated,
+                episode.external,
+                task_torque,
+                sim.q,
+                physics,
+                self.n_substeps,
+                episode.steps,
+                episode.control_dt,
+                episode.max_steps,
+                episode.time,
+                episode.torque,
+                episode.previous_torque,
+                episode.reference,
+                task_reference,
+            )
+        )
+        self._period = (physics[2:4], packed)
+        return packed
