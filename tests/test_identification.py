@@ -3,8 +3,11 @@ independent simulator of model (1), the excitation checks and the model file."""
 
 from __future__ import annotations
 
+import csv
+
 import numpy as np
 import pytest
+import yaml
 from helpers import simulate_log
 
 from elastic_gym.identification.fit import FitSettings, fit_log
@@ -322,3 +325,119 @@ def test_identify_refuses_what_it_cannot_fit_and_writes_nothing(tmp_path, capsys
         assert exit_info.value.code == 2
         assert message in capsys.readouterr().err
         assert not out.exists()
+
+
+# ---------------------------------------------------------------------------- compare --model
+def _elastic_scenario(**changes) -> dict:
+    data = {
+        "name": "identified",
+        "duration": 1.0,
+        "envs": [
+            {
+                "id": "TwoLinkElastic-v0",
+                "kwargs": {
+                    "task": "tracking",
+                    "task_options": {"n_moves": 1, "move_time": 0.6, "dwell_time": 0.2},
+                    "plant_scaling": {"stiffness": 1.1, "motor_inertia": 1.2, "link_mass": 0.8},
+                },
+            }
+        ],
+        "controllers": [{"name": "feedforward-state-feedback", "label": "eq13"}],
+        "state_sources": [True],
+    }
+    data.update(changes)
+    return data
+
+
+def test_a_scenario_plans_its_identified_models_per_robot(tmp_path):
+    from elastic_gym.evaluation import Scenario, plan_runs
+    from elastic_gym.evaluation.scenario import ScenarioError
+    from elastic_gym.evaluation.world import run_model
+
+    path = tmp_path / "model.yaml"
+    path.write_text(_file().to_yaml())
+    scenario = Scenario.model_validate(_elastic_scenario(models=[str(path)]))
+    runs, _ = plan_runs(scenario)
+    assert runs and all(run.model_file == str(path.resolve()) for run in runs)
+
+    class Env:  # what run_model reads of an env
+        unwrapped = type("U", (), {"model": RobotModel(get_robot("two_link_elastic"))})
+
+    model = run_model(Env, runs[0])
+    np.testing.assert_allclose(model.K, 1.1 * np.asarray(get_robot("two_link_elastic").stiffness))
+    # a model error applies on top of the identified model
+    perturbed = run_model(
+        Env, runs[0].__class__(**{**vars(runs[0]), "model_error": {"stiffness": 2.0}})
+    )
+    np.testing.assert_allclose(perturbed.K, 2.0 * model.K)
+    kr15 = tmp_path / "kr15.yaml"
+    kr15.write_text(_file("kr15_elastic").to_yaml())
+    with pytest.raises(ScenarioError, match=r"models\[1\].*second model file"):
+        plan_runs(Scenario.model_validate(_elastic_scenario(models=[str(path), str(path)])))
+    with pytest.raises(ScenarioError, match=r"models\[0\].*no env has"):
+        plan_runs(Scenario.model_validate(_elastic_scenario(models=[str(kr15)])))
+    with pytest.raises(ValueError, match=r"models\.0|models\[0\]"):
+        Scenario.model_validate(_elastic_scenario(models=[str(tmp_path / "missing.yaml")]))
+
+
+def _plant_file(robot: str, stiffness: float, motor_inertia: float, mass: float):
+    """The model file of a plant scaled by these factors (its damping nominal, no friction):
+    what a perfect identification of that plant writes."""
+    spec = get_robot(robot)
+    joints = [
+        {
+            "name": name,
+            "stiffness": {"value": stiffness * spec.stiffness[j]},
+            "damping": {"value": spec.damping[j]},
+            "motor_inertia": {"value": motor_inertia * spec.motor_inertia[j]},
+            "link_mass_scale": {"value": mass},
+            "viscous_friction": {"value": 0.0},
+            "coulomb_friction": {"value": 0.0},
+        }
+        for j, name in enumerate(spec.joint_names)
+    ]
+    return IdentifiedModel.model_validate({"robot": robot, "joints": joints})
+
+
+@pytest.mark.slow
+def test_compare_with_the_identified_model_estimates_and_tracks_better(tmp_path):
+    """A plant off the nominal model (K +10 %, B +20 %, link masses -20 %): De Luca's
+    observer and eq. (13) built on the plant's identified model estimate the link position
+    and track far better than built on the nominal model."""
+    from elastic_gym.cli import main
+
+    path = tmp_path / "model.yaml"
+    path.write_text(_plant_file("two_link_elastic", 1.1, 1.2, 0.8).to_yaml())
+    config = tmp_path / "scenario.yaml"
+    config.write_text(yaml.safe_dump(_elastic_scenario(state_sources=["deluca"])))
+    rows = {}
+    for label, extra in (("nominal", []), ("identified", ["--model", str(path)])):
+        out = tmp_path / label
+        arguments = ["compare", "--config", str(config), "--output", str(out), "--no-plots"]
+        assert main([*arguments, "--no-progress", "--workers", "1", *extra]) == 0
+        with (out / "summary.csv").open() as handle:
+            rows[label] = next(csv.DictReader(handle))
+    for metric in ("est_rms_q", "track_rms"):
+        assert float(rows["identified"][metric]) < 0.2 * float(rows["nominal"][metric]), metric
+
+
+def test_a_benchmark_entry_names_its_identified_model(tmp_path):
+    from elastic_gym.benchmark.command import entry_command, parse_command
+    from elastic_gym.benchmark.entry import Entry, describe_entry, resolve_entry
+    from elastic_gym.benchmark.suite import DEFAULT_SUITE, load_suite, suite_scenario
+    from elastic_gym.evaluation import plan_runs
+
+    path = tmp_path / "model.yaml"
+    path.write_text(_file().to_yaml())
+    entry = Entry(controller="feedforward-state-feedback", source="deluca", models=(str(path),))
+    command = entry_command(entry, DEFAULT_SUITE, ["two-link"])
+    assert command is not None and f"--model {path}" in command
+    assert parse_command(command).entry["models"] == (str(path),)
+    assert describe_entry(entry)["models"] == [str(path)]
+    scenario = suite_scenario(load_suite(DEFAULT_SUITE), *resolve_entry(entry), models=entry.models)
+    runs, _ = plan_runs(scenario)
+    two_link = [run for run in runs if "TwoLinkElastic" in run.env_id]
+    assert two_link and all(run.model_file == str(path.resolve()) for run in two_link)
+    assert all(run.model_file is None for run in runs if run not in two_link)
+    with pytest.raises(ValueError, match="does not exist"):
+        Entry(controller="motor-pd", models=(str(tmp_path / "missing.yaml"),))

@@ -83,8 +83,9 @@ class SuiteRef(Record):
 class EntryRecord(Record):
     """What was scored (`elastic_gym.benchmark.entry.describe_entry`): controller and state
     source (registry names or ``module:Class``) with their options, the ground-truth items
-    the source reads (``privileged``), whether that makes it an oracle reference, and for a
-    trained policy its training record (``run``)."""
+    the source reads (``privileged``), whether that makes it an oracle reference, for a
+    trained policy its training record (``run``), and the identified model files its
+    controller and observer built on (``models``, as given; none: the nominal model)."""
 
     label: Annotated[str, AfterValidator(checked_label)]
     kind: Literal["controller", "run"]
@@ -95,6 +96,7 @@ class EntryRecord(Record):
     privileged: list[str]
     oracle: bool
     run: dict[str, Any] | None = None
+    models: list[str] = Field(default_factory=list, exclude_if=lambda models: not models)
 
 
 class ScoreRecord(Record):

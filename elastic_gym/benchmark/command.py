@@ -61,6 +61,14 @@ def add_entry_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--robot", nargs="+", metavar="ROBOT", help="only these robots of the suite"
     )
+    parser.add_argument(
+        "--model",
+        nargs="+",
+        metavar="FILE",
+        help="identified model file(s) (elastic-gym identify), one per robot: the model the "
+        "entry's controller and observer build on for that robot's cells instead of the "
+        "nominal one (the simulated plants stay what they are)",
+    )
 
 
 class _Mapping(RootModel[dict[str, Any]]):
@@ -75,7 +83,7 @@ def yaml_option(text: str, option: str) -> dict:
 def entry_arguments(args: argparse.Namespace, **modes: Any) -> EntryArguments:
     """The entry options of parsed ``args`` (and the console script's other modes, e.g.
     ``leaderboard=True``), validated together."""
-    fields = {key: getattr(args, key) for key in ("controller", "source", "run", "label")}
+    fields = {key: getattr(args, key) for key in ("controller", "source", "run", "label", "model")}
     fields |= {"class": args.cls, **modes}
     fields |= {
         key: yaml_option(getattr(args, key), f"--{key.replace('_', '-')}")
@@ -121,6 +129,7 @@ def entry_command(entry: Entry, suite: str, robots: list[str] | None = None) -> 
         words += ["--source-options", source_options] if entry.source_options else []
     words += ["--label", entry.name, "--suite", suite]
     words += ["--robot", *robots] if robots else []
+    words += ["--model", *entry.models] if entry.models else []
     return shlex.join(words)
 
 

@@ -23,7 +23,12 @@ from typing import Annotated, Any
 from pydantic import AfterValidator, Field, PrivateAttr, StrictStr, model_validator
 
 from elastic_gym.benchmark.card import checked_label
-from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry, resolve_class
+from elastic_gym.evaluation.scenario import (
+    ControllerEntry,
+    SourceEntry,
+    checked_model_file,
+    resolve_class,
+)
 from elastic_gym.evaluation.scenario_models import ClassPath
 from elastic_gym.observers.registry import OBSERVERS, source_class
 from elastic_gym.validation import StrictModel, at_most_one, only_when
@@ -67,6 +72,7 @@ class Entry(StrictModel):
     source_options: dict[str, Any] = Field(default_factory=dict)
     run: str | None = None
     best: bool = False
+    models: tuple[Annotated[StrictStr, AfterValidator(checked_model_file)], ...] = ()
 
     @model_validator(mode="after")
     def _one_kind(self) -> Entry:
@@ -131,6 +137,7 @@ class EntryArguments(StrictModel):
     options: dict[str, Any] = Field(default_factory=dict)
     source_options: dict[str, Any] = Field(default_factory=dict)
     label: Annotated[str, AfterValidator(checked_label)] | None = None
+    model: list[str] | None = None
     _class_kind: str = PrivateAttr("")
 
     @model_validator(mode="after")
@@ -154,6 +161,7 @@ class EntryArguments(StrictModel):
         """The `Entry` fields (defaults: `DEFAULT_CONTROLLER`, the true state)."""
         fields: dict[str, Any] = {"options": self.options, "source_options": self.source_options}
         fields |= {"label": self.label} if self.label else {}
+        fields |= {"models": tuple(self.model)} if self.model else {}
         if self.run is not None:
             return {"run": self.run, **fields}
         given = {self._class_kind: self.cls} if self.cls is not None else {}
@@ -220,7 +228,8 @@ def privileged_items(source: SourceEntry) -> tuple[str, ...]:
 def describe_entry(entry: Entry) -> dict:
     """What the scorecard records about an entry: controller and source (name or class
     path, options), the run folder and what it was trained on, the ground truth it read
-    (``privileged``) and whether it is an ``oracle`` reference."""
+    (``privileged``), whether it is an ``oracle`` reference and the identified model files
+    its controller and observer build on (``models``)."""
     controller, source = resolve_entry(entry)
     privileged = privileged_items(source)
     record: dict[str, Any] = {
@@ -232,6 +241,7 @@ def describe_entry(entry: Entry) -> dict:
         "source_options": _plain_options(source.options),
         "privileged": list(privileged),
         "oracle": bool(privileged),
+        "models": list(entry.models),
     }
     if entry.run is not None:
         from elastic_gym.training.run_folder import RunFolder

@@ -112,7 +112,9 @@ def run_benchmark(
                 f"run: trained on {record['run']['env_id']}, which is not a robot of "
                 f"{suite.name} ({sorted(e.env for e in suite.robots.values())})"
             )
-    scenario = suite_scenario(suite, controller, source, robots, name=_slug(entry.name))
+    scenario = suite_scenario(
+        suite, controller, source, robots, name=_slug(entry.name), models=entry.models
+    )
     _check_applicable(scenario, suite)
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / _slug(entry.name)
     check_writable(out)

@@ -314,9 +314,11 @@ def suite_scenario(
     source: SourceEntry,
     robots: list[str] | None = None,
     name: str = "benchmark",
+    models: tuple[str, ...] = (),
 ) -> Scenario:
     """The comparison grid of one entry on the suite: one env entry per cell (labelled
-    `Cell.id`), the suite's seeds, duration and physics step, no model error.
+    `Cell.id`), the suite's seeds, duration and physics step, no model error (``models``:
+    identified model files the controller and observer build on).
 
     ``robots`` restricts the cells to some robots (``ValueError`` for an unknown one)."""
     with errors_at("robots"):
@@ -331,4 +333,5 @@ def suite_scenario(
         seeds=tuple(suite.seeds),
         physics_dt=suite.physics_dt,
         description=f"{suite.name} (version {suite.version}, sha256 {suite.hash[:12]})",
+        models=models,
     )

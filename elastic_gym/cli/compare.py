@@ -79,6 +79,15 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
         default=[],
         help="training run folder(s) (elastic-gym train) to compare as controllers",
     )
+    parser.add_argument(
+        "--model",
+        nargs="+",
+        metavar="FILE",
+        default=[],
+        help="identified model file(s) (elastic-gym identify), one per robot: the model the "
+        "controllers and observers build on instead of the nominal one (model errors apply "
+        "on top; the simulated plant stays what it is)",
+    )
     parser.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run_compare)
@@ -96,6 +105,8 @@ def run_compare(args: argparse.Namespace) -> int:
     scenario = scenario.with_overrides(
         seeds=args.seeds, duration=args.duration, physics_dt=args.physics_dt
     )
+    if args.model:
+        scenario = scenario.with_overrides(models=tuple(args.model))
     if args.policy:
         require_rl_extra("compare --policy")
     for run in args.policy:

@@ -29,6 +29,7 @@ from elastic_gym.evaluation.scenario import (
     SourceEntry,
     resolve_class,
 )
+from elastic_gym.model.identified import load_identified_model
 from elastic_gym.observers.base import Observer
 from elastic_gym.observers.registry import OBSERVERS, source_class
 from elastic_gym.observers.sensors import RawSensors
@@ -52,6 +53,7 @@ class RunSpec:
     source: SourceEntry
     observer_cls: type[Observer]
     model_error: dict
+    model_file: str | None = None  # an identified model file replacing the nominal model
 
     @property
     def group(self) -> tuple:
@@ -157,12 +159,14 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
     ([`check_options`][elastic_gym.evaluation.grid.check_options]).
     """
     controllers, sources = _controllers(scenario), _sources(scenario)
+    files = identified_files(scenario)
     axis_values = itertools.product(*(values for _, values in scenario.axes))
     runs: list[RunSpec] = []
     skipped: list[SkippedRun] = []
     for env, variations in itertools.product(scenario.envs, axis_values):
         kwargs = scenario.env_kwargs(env, variations)
-        kind = env_robot(env.id, kwargs).kind
+        robot = env_robot(env.id, kwargs)
+        kind = robot.kind
         base_labels = {"env": env.label}
         base_labels.update(
             {name: v.label for (name, _), v in zip(scenario.axes, variations, strict=True)}
@@ -196,9 +200,29 @@ def plan_runs(scenario: Scenario) -> tuple[list[RunSpec], list[SkippedRun]]:
                         source=source,
                         observer_cls=o_cls,
                         model_error=error.values,
+                        model_file=files.get(robot.name),
                     )
                 )
     return runs, skipped
+
+
+def identified_files(scenario: Scenario) -> dict[str, str]:
+    """Robot name -> the scenario's identified model file of that robot (``models``):
+    `ScenarioError` for a second file of one robot or a file of no env's robot."""
+    if not scenario.models:
+        return {}
+    robots = {env_robot(e.id, scenario.env_kwargs(e)).name for e in scenario.envs}
+    files: dict[str, str] = {}
+    for i, path in enumerate(scenario.models):
+        robot = load_identified_model(path).robot
+        if robot in files:
+            raise ScenarioError(f"models[{i}]", f"a second model file of robot {robot!r}")
+        if robot not in robots:
+            raise ScenarioError(
+                f"models[{i}]", f"a model of robot {robot!r}, which no env has ({sorted(robots)})"
+            )
+        files[robot] = path
+    return files
 
 
 def _inapplicable(

@@ -86,6 +86,7 @@ def group_key(spec: RunSpec) -> str:
                 source.options,
                 source.initial_estimate,
                 spec.model_error,
+                spec.model_file,
             ]
         ),
         sort_keys=True,

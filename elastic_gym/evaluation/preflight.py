@@ -38,6 +38,7 @@ from elastic_gym.evaluation.world import (
     make_group_env,
     run_model,
 )
+from elastic_gym.model.identified import identified_robot_model, load_identified_model
 from elastic_gym.runtime.parallel import for_each_result, user_failure
 from elastic_gym.runtime.process_pool import WorkerDiedError, WorkerPool
 
@@ -282,6 +283,10 @@ def _check_axes(scenario: Scenario, entry, path: str) -> None:
 
 def _check_model_errors(env: gym.Env, scenario: Scenario) -> None:
     model = arm_env(env).model
+    for i, path in enumerate(scenario.models):
+        if load_identified_model(path).robot == model.spec.name:
+            with _named(f"models[{i}]"):
+                model = identified_robot_model(path, model)
     for i, variation in enumerate(scenario.model_errors):
         if variation.values:
             with _named(f"model_errors[{i}]"):

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 from pydantic import (
@@ -53,6 +54,7 @@ from elastic_gym.evaluation.scenario_models import (
     check_env_kwargs,
     unique_labels,
 )
+from elastic_gym.model.identified import load_identified_model
 from elastic_gym.validation import (
     ConfigError,
     FieldError,
@@ -79,6 +81,20 @@ __all__ = [
 QUICK_DURATION = 0.5  # s, Scenario.quick()
 COMPARISON_PHYSICS_DT = 1.0 / 16000.0  # s; see the module docstring
 MAX_PHYSICS_DT = 1e-3  # s, the envs' own bound
+
+
+def checked_model_file(path: str) -> str:
+    """An identified model file (`elastic-gym identify`), checked (``ValueError`` for a
+    missing or invalid one); returned as given."""
+    try:
+        load_identified_model(path)
+    except FileNotFoundError as exc:
+        raise ValueError(str(exc)) from None
+    return path
+
+
+def _model_file(path: str) -> str:
+    return str(Path(checked_model_file(path)).resolve())
 
 
 class ScenarioError(ValueError):
@@ -140,6 +156,7 @@ class Scenario(StrictModel):
     axis_table: dict[AxisName, Axis] = Field({}, alias="axes")
     sweep_table: dict[AxisName, Sweep] = Field({}, alias="sweeps")
     model_errors: Entries[ModelError] = (Variation(label="exact"),)
+    models: tuple[Annotated[StrictStr, AfterValidator(_model_file)], ...] = ()
     controllers: Entries[ControllerEntry]
     state_sources: Entries[SourceEntry]
 

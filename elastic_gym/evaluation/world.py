@@ -2,9 +2,10 @@
 controller.
 
 Part of the execute stage. The controller and the observer are built on the env's nominal
-model (``.perturbed(**model_error)`` with the run's model error), never on the simulated
-plant; the controller sees only ``{"state", "reference"}`` (on the source ``sensors``: the
-sensor observation) and the public info, never the truth.
+model (or the scenario's identified model of the robot; ``.perturbed(**model_error)`` with
+the run's model error), never on the simulated plant; the controller sees only
+``{"state", "reference"}`` (on the source ``sensors``: the sensor observation) and the
+public info, never the truth.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from elastic_gym.envs.arm_env import ArmEnv
 from elastic_gym.envs.vector_env import ArmVectorEnv
 from elastic_gym.evaluation.grid import RunSpec
 from elastic_gym.evaluation.groups import RunGroup
+from elastic_gym.model.identified import identified_robot_model
 from elastic_gym.observers.base import Observer
 from elastic_gym.observers.registry import make_observer
 from elastic_gym.observers.sensors import RawSensors
@@ -40,9 +42,12 @@ def arm_vector_env(envs: gym.vector.VectorEnv) -> ArmVectorEnv:
 
 
 def run_model(env, spec: RunSpec):
-    """The nominal model of the run's controller and observer (with its model error);
-    ``env``: a single or vector env."""
+    """The model of the run's controller and observer: the env's nominal model, or the
+    run's identified model file on it, with its model error; ``env``: a single or vector
+    env."""
     model = env.unwrapped.model
+    if spec.model_file is not None:
+        model = identified_robot_model(spec.model_file, model)
     return model.perturbed(**spec.model_error) if spec.model_error else model
 
 
