@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 from pydantic import Field, StrictInt
 
-from elastic_gym.envs.tasks import REFERENCE_ORDER, Task, _vector
+from elastic_gym.envs.task_base import REFERENCE_ORDER, Task, per_joint_option
 from elastic_gym.envs.trajectories import timing_coefficients
 from elastic_gym.validation import (
     Finite,
@@ -169,7 +169,7 @@ class FourierTask(Task):
         n, o = self.spec.n_joints, self.options
         half = 0.5 * (self.high - self.low)
         centre = 0.5 * (self.low + self.high)
-        self.offset = centre if o.offset is None else _vector(o.offset, n, "offset")
+        self.offset = centre if o.offset is None else per_joint_option(o.offset, n, "offset")
         if (o.sine is None) != (o.cosine is None):
             raise ValueError("task_options: give both sine and cosine, or neither")
         if o.sine is None:

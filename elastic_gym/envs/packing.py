@@ -21,7 +21,7 @@ from elastic_gym.envs.episode import EpisodeState
 from elastic_gym.envs.measurement import Sensors
 from elastic_gym.envs.sensors import GaussianNoise
 from elastic_gym.envs.simulator import ArmSimulator
-from elastic_gym.envs.tasks import Task
+from elastic_gym.envs.task_base import Task
 from elastic_gym.model.packed import Packed
 
 
@@ -178,7 +178,7 @@ class FusedArguments:
         the substeps per period, the clock (steps, control period, episode length in
         periods or None, time), the torques (current, previous), the reference and the
         task's reference arguments
-        ([`Task.compiled_arguments`][elastic_gym.envs.tasks.Task.compiled_arguments]).
+        ([`Task.compiled_arguments`][elastic_gym.envs.task_base.Task.compiled_arguments]).
 
         Packing costs about 0.35 ms (numba types the nested tuple in Python), so the pack
         is kept across resets, which change its arrays in place, and made again only when

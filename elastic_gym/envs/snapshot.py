@@ -20,7 +20,7 @@ from elastic_gym.envs.episode import EpisodeState
 from elastic_gym.envs.measurement import Sensors
 from elastic_gym.envs.plant_state import PlantState
 from elastic_gym.envs.simulator import ArmSimulator
-from elastic_gym.envs.tasks import Task
+from elastic_gym.envs.task_base import Task
 
 
 @dataclass(frozen=True)
