@@ -1,9 +1,9 @@
 """Controllers by name: ``make_controller("motor-pd", model, dt, **options)``.
 
-The built-ins are listed below; a package above the controllers (e.g.
-:mod:`elastic_gym.training`, whose ``trained-policy`` loads a run folder) adds its own
-with :func:`register_controller` when it is imported, so that nothing here imports
-upward.
+The built-ins are listed below, each as ``(module, class)`` imported at its first use, so
+that a controller of a package above this one (``policy`` and ``trained-policy``, the
+policy controller of `elastic_gym.policy`) is named without importing upward; a user's
+package adds its own with `register_controller`.
 """
 
 from __future__ import annotations
@@ -25,7 +25,9 @@ CONTROLLERS: dict[str, tuple[str, str]] = {
     "link-pd": ("elastic_gym.controllers.pd", "LinkPD"),
     "cristofaro-tracking": ("elastic_gym.controllers.rigid", "CristofaroTrackingController"),
     "feedback-linearization": ("elastic_gym.controllers.rigid", "FeedbackLinearizingController"),
-    "policy": ("elastic_gym.controllers.policy", "PolicyController"),
+    # the policy package sits above the controllers: named here, imported at first use
+    "policy": ("elastic_gym.policy.controller", "PolicyController"),
+    "trained-policy": ("elastic_gym.policy.controller", "PolicyController"),
 }
 
 

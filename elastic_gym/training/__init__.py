@@ -1,25 +1,27 @@
-"""RL training on the estimated state: stable-baselines3 pipeline (``elastic-gym train``).
+"""RL training on the estimated state: the stable-baselines3 pipeline (``elastic-gym train``).
 
-Importing the package registers the ``trained-policy`` controller: a run folder as a
-controller of the comparison
-(:class:`~elastic_gym.training.policy_controller.TrainedPolicyController`).
+What a trained policy is (its spec, the env stack it acts on, its action and observation,
+the controller that runs it in a comparison, loading it) lives in `elastic_gym.policy`;
+this package learns: hyper-parameters, the vector envs SB3 trains on, training, the
+privileged critic, the plant teacher and distillation, learning curves and run folders.
+The policy names it used to hold are re-exported here unchanged.
 """
 
-from elastic_gym.controllers.registry import register_controller
 from elastic_gym.observers.registry import state_sources
-from elastic_gym.training.actions import ActionConfig, ActionMap
+from elastic_gym.policy import (
+    ActionConfig,
+    ActionMap,
+    ActionRepeat,
+    ObservationBuilder,
+    ObservationConfig,
+    PolicyAction,
+    PolicyObservation,
+    PolicySpec,
+)
 from elastic_gym.training.config import ALGORITHMS, TrainConfig, parse_overrides
-from elastic_gym.training.observation import ObservationBuilder, ObservationConfig
-from elastic_gym.training.policy_env import make_policy_env
-from elastic_gym.training.run_envs import PolicyStack
 from elastic_gym.training.run_folder import RunFolder
 from elastic_gym.training.train import TrainResult, train, train_many
 from elastic_gym.training.trained import TrainedRun, evaluate_run, load_run
-from elastic_gym.training.wrappers import ActionRepeat, PolicyAction, PolicyObservation
-
-register_controller(
-    "trained-policy", "elastic_gym.training.policy_controller:TrainedPolicyController"
-)
 
 __all__ = [
     "ALGORITHMS",
@@ -30,14 +32,13 @@ __all__ = [
     "ObservationConfig",
     "PolicyAction",
     "PolicyObservation",
-    "PolicyStack",
+    "PolicySpec",
     "RunFolder",
     "TrainConfig",
     "TrainResult",
     "TrainedRun",
     "evaluate_run",
     "load_run",
-    "make_policy_env",
     "parse_overrides",
     "state_sources",
     "train",

@@ -36,10 +36,11 @@ from pydantic import (
 
 from elastic_gym.envs.config import MakeKwargsMapping
 from elastic_gym.envs.ids import registered_env_id
-from elastic_gym.training.actions import ActionConfig
+from elastic_gym.observers.sensors import SENSORS
+from elastic_gym.policy.actions import ActionConfig
+from elastic_gym.policy.observation import ObservationConfig
+from elastic_gym.policy.spec import PolicySpec, check_state_source
 from elastic_gym.training.distill import DistillConfig
-from elastic_gym.training.observation import ObservationConfig
-from elastic_gym.training.policy_env import SENSORS, check_state_source
 from elastic_gym.validation import (
     ConfigModel,
     Finite,
@@ -325,6 +326,26 @@ class TrainConfig(ConfigModel):
         frames = {"observation.frames": observation.frames > 1}
         only_when(self.state != SENSORS, frames, "the state is an observer or the truth")
         return ActionConfig.from_config(action), observation
+
+    def policy_spec(self, settings: Settings) -> PolicySpec:
+        """The spec of the policy this run trains: its config with its resolved
+        hyper-parameters ``settings`` (`settings`): env and kwargs
+        (`training_env_kwargs`), state source, action and observation configs
+        (`policy_configs`), decimation, the frames of raw sensors, the critic's
+        privileged inputs."""
+        action, observation = self.policy_configs(settings)
+        return PolicySpec(
+            env_id=self.env_id,
+            env_kwargs=self.training_env_kwargs(settings),
+            state=self.state,
+            observer_options=dict(self.observer_options),
+            action=action,
+            observation=observation,
+            decimation=settings.decimation,
+            frame_stack=self.frame_stack if self.state == SENSORS else None,
+            critic_state=settings.critic_state,
+            critic_plant=settings.critic_plant,
+        )
 
     def training_env_kwargs(self, settings: Settings) -> dict:
         """The env kwargs of the run: the hyper-parameter file's ``env_kwargs`` (in

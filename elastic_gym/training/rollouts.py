@@ -10,7 +10,7 @@ Here the tracking RMS of an episode is sqrt(mean_k |e_k|^2) with |e_k| the Eucli
 over the joints of the link error e = q - q_d of the true state, whatever state the policy
 sees, sampled at the policy steps (the end of each hold window); the comparison's
 ``track_rms`` samples every control period from the reset on.
-:class:`PolicyActor` is the act of a trained SB3 model (duck-typed: no SB3 import here).
+`PolicyActor` (of `elastic_gym.policy.actors`) is the act of a trained SB3 model.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from elastic_gym.policy.deployed_law import at_bound
 from elastic_gym.runtime.parallel import single_threaded
 
 Act = Callable[[np.ndarray], np.ndarray]
@@ -44,11 +45,6 @@ class Evaluation:
     def rms(self) -> float:
         """Tracking RMS over all episodes' samples (equal lengths: the RMS of the RMS)."""
         return float(np.sqrt(np.mean(np.square(self.tracking_rms))))
-
-
-def at_bound(action: np.ndarray) -> np.ndarray:
-    """Per action row: whether some joint's action is at its bound (|a| >= 1 - 1e-6)."""
-    return np.any(np.abs(action) >= 1.0 - 1e-6, axis=-1)
 
 
 def evaluate_policy(
@@ -83,7 +79,7 @@ def evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None = 
     """One deterministic episode per arm of a policy vector env, all at once.
 
     ``envs``: a policy stack on N arms with autoreset ``NEXT_STEP``
-    (:func:`~elastic_gym.training.policy_env.make_policy_vec_env`); arm i is reset with
+    ([`build_policy_env`][elastic_gym.policy.builder.build_policy_env]); arm i is reset with
     seed ``seed + i``. ``act`` maps the (N, size) observations to (N, n) actions;
     ``start()`` is called after the reset. An arm's results stop at the end of its first
     episode (the autoreset that follows is ignored); stepping stops when every arm's
@@ -123,39 +119,3 @@ def _evaluate_arms(envs, act: Act, seed: int, start: Callable[[], None] | None) 
         tuple(np.sqrt(squared / samples).tolist()),
         tuple((bounded / samples).tolist()),
     )
-
-
-class PolicyActor:
-    """The deterministic policy of a model on a batch of observations, normalized with
-    a ``VecNormalize``'s statistics; a recurrent policy's memory restarts at
-    :meth:`start`. A model whose critic saw privileged entries the actor ignores (a
-    policy with ``privileged_size`` k, :mod:`elastic_gym.training.critic`) gets the
-    actor's observation with k NaN entries appended: no true state needed."""
-
-    def __init__(self, model, normalizer=None) -> None:
-        self.model, self.normalizer = model, normalizer
-        self._memory = None
-        self._starting = True
-
-    def start(self) -> None:
-        self._memory, self._starting = None, True
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        obs = np.asarray(obs, dtype=np.float32)
-        batch = self._padded(obs if obs.ndim == 2 else obs[None])
-        if self.normalizer is not None and self.normalizer.norm_obs:
-            batch = self.normalizer.normalize_obs(batch)
-        starts = np.full(len(batch), self._starting)
-        action, self._memory = self.model.predict(
-            batch, state=self._memory, episode_start=starts, deterministic=True
-        )
-        self._starting = False
-        action = np.asarray(action, dtype=float)
-        return action if obs.ndim == 2 else action[0]
-
-    def _padded(self, batch: np.ndarray) -> np.ndarray:
-        privileged = getattr(self.model.policy, "privileged_size", 0)
-        if privileged and batch.shape[1] == self.model.observation_space.shape[0] - privileged:
-            filler = np.full((len(batch), privileged), np.nan, dtype=np.float32)
-            return np.concatenate([batch, filler], axis=1)
-        return batch

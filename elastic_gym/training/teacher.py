@@ -6,7 +6,8 @@ step starting at control period k is the mean over the step's ``hold`` periods o
     a_j = motor_offset_action(tau_d(t_j), theta_d(t_j - delta), theta_d'(t_j - delta), ref(t_j)),
 
 the ``motor-offset`` action whose 1 kHz motor PD applies INVDYN's torque tau_d at the
-desired motor state (:meth:`~elastic_gym.training.actions.ActionMap.motor_offset_action`;
+desired motor state
+([`motor_offset_action`][elastic_gym.policy.actions.ActionMap.motor_offset_action];
 De Luca, Schroeder & Thuemmel 2007, Sec. V-B: x_d, tau_d from q_d .. q_d^(4)), with
 INVDYN of the arm's exact plant model (its drawn link masses and inertias, K, B, D,
 unmodelled friction and payload) and delta its sensor delay (the PD sees delayed
@@ -22,7 +23,7 @@ import gymnasium as gym
 import numpy as np
 
 from elastic_gym.controllers.invdyn import InverseDynamics
-from elastic_gym.training.vector import _ArmResets, elastic_batch, wrapper_attribute
+from elastic_gym.policy.vector import _ArmResets, elastic_batch, wrapper_attribute
 from elastic_gym.validation import checked_count
 
 BLOCK = 256  # control periods planned at a time
@@ -69,8 +70,9 @@ class PlantTeacher(_ArmResets):
     the policy step that starts now, ``hold`` control periods long.
 
     Args:
-        env: a vector policy stack up to :class:`~elastic_gym.training.vector.PolicyAction`
-            with the ``motor-offset`` action, below the action repeat.
+        env: a vector policy stack with the ``motor-offset`` action
+            ([`build_policy_env`][elastic_gym.policy.builder.build_policy_env]); the labels
+            are those of the policy step that starts after each reset or step.
         hold: control periods per policy step (the run's decimation).
     """
 

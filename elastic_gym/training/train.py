@@ -4,8 +4,9 @@ Vectorized envs: with ``n_envs > 1`` the arms share one PyBullet world (the batc
 env through :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`), or ``batches`` such
 worlds in worker processes (:class:`~elastic_gym.training.sb3_vec_env.ProcessBatches`,
 one per core; or batches with different env kwargs, e.g. plants), all made by
-:mod:`elastic_gym.training.run_envs`; ``VecNormalize`` whose statistics are saved beside
-the model, a learning curve (:class:`~elastic_gym.training.learning_curve.LearningCurve`:
+`elastic_gym.training.run_envs` from the run's policy spec; ``VecNormalize`` whose
+statistics are saved beside the model, a learning curve
+([`LearningCurve`][elastic_gym.training.learning_curve.LearningCurve]:
 deterministic episodes on the comparison's loop at the start, every ``eval_freq`` policy
 steps, default a twentieth of the run, and at the end) that keeps the best model,
 TensorBoard logs and a progress bar. The run folder
@@ -26,6 +27,7 @@ from pathlib import Path
 
 from gymnasium.spaces import flatdim
 
+from elastic_gym.policy.builder import build_policy_env
 from elastic_gym.runtime.parallel import DEFAULT_BACKEND
 from elastic_gym.training.config import (
     Settings,
@@ -35,7 +37,7 @@ from elastic_gym.training.config import (
     merged_hyperparams,
 )
 from elastic_gym.training.distill import check_distill
-from elastic_gym.training.run_envs import PolicyStack, training_vec_env
+from elastic_gym.training.run_envs import training_vec_env
 from elastic_gym.training.run_folder import RunFolder, missing_folders, remove_empty
 from elastic_gym.training.trained import episode_duration
 
@@ -115,8 +117,8 @@ def _train(
     out = folder.path
     total = config.total_steps or settings.n_timesteps
     n_envs = settings.n_envs
-    stack = PolicyStack.of(config, settings)
-    venv = training_vec_env(stack, settings, n_envs, config.seed)
+    spec = config.policy_spec(settings)
+    venv = training_vec_env(spec, settings, n_envs, config.seed)
     try:
         normalize = settings.normalize
         gamma = float(algo_kwargs.get("gamma", 0.99))
@@ -126,7 +128,7 @@ def _train(
         if settings.critic_state or settings.critic_plant:
             from elastic_gym.training.critic import PrivilegedCriticPolicy
 
-            deployed = stack.make()  # the deployment stack: the actor's observation only
+            deployed = build_policy_env(spec, spec.make_env())  # the actor's observation only
             try:
                 privileged = flatdim(venv.observation_space) - flatdim(deployed.observation_space)
             finally:
@@ -145,7 +147,7 @@ def _train(
             device="cpu",
             **algo_kwargs,
         )
-        if stack.action.kind == "residual":
+        if spec.action.kind == "residual":
             zero_action_head(model)
         every = config.eval_freq or max(total // 20, 1)
         curve = LearningCurve(config, settings, venv, out, every, config.seed + 10_000)
@@ -173,8 +175,8 @@ def _train(
         config.model_copy(
             update={
                 "hyperparams_file": None,
-                "action": stack.action.to_dict(),
-                "observation": stack.observation.to_dict(),
+                "action": spec.action.to_dict(),
+                "observation": spec.observation.to_dict(),
                 "hyperparams": merged_hyperparams(
                     config.algo, config.env_id, config.hyperparams, config.hyperparams_file
                 ),
@@ -185,7 +187,7 @@ def _train(
     result = TrainResult(
         str(out),
         model.num_timesteps,
-        model.num_timesteps * stack.decimation,
+        model.num_timesteps * spec.decimation,
         wall,
         final.mean_return,
         final.rms,
@@ -235,7 +237,8 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
         setting = config.model_copy(update={"seed": 0, "out_dir": ""}).to_dict()
         if repr(setting) not in built:
             built.add(repr(setting))
-            PolicyStack.of(config, settings).make().close()
+            spec = config.policy_spec(settings)
+            build_policy_env(spec, spec.make_env()).close()
 
 
 def train_many(

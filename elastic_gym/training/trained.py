@@ -23,32 +23,50 @@ from elastic_gym.evaluation.grid import RunSpec
 from elastic_gym.evaluation.groups import RunGroup
 from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry
 from elastic_gym.observers.registry import source_class
+from elastic_gym.policy.actors import PolicyActor, SB3Actor
+from elastic_gym.policy.controller import PolicyController
+from elastic_gym.policy.loading import Policy, untrusted
+from elastic_gym.policy.spec import PolicySpec
 from elastic_gym.runtime.parallel import single_threaded
 from elastic_gym.training.config import Settings, TrainConfig
-from elastic_gym.training.rollouts import Evaluation, PolicyActor
-from elastic_gym.training.run_envs import PolicyStack
+from elastic_gym.training.rollouts import Evaluation
 from elastic_gym.training.run_folder import RunFolder
 from elastic_gym.validation import checked_count
+
+TRAINED_POLICY = "trained-policy"  # the controller name of a run's policy
 
 
 @dataclass
 class TrainedRun:
-    """A run folder loaded back: the SB3 model, its normalization statistics and config;
-    ``stack`` is the policy env it was trained on (:class:`PolicyStack`)."""
+    """A run folder loaded back (or the run being trained): the SB3 model, its
+    normalization statistics and config; ``spec`` is the policy it trains
+    ([`PolicySpec`][elastic_gym.policy.spec.PolicySpec]) and `policy` the deployed
+    policy the comparison runs."""
 
     model: Any  # an SB3 algorithm (duck-typed: no SB3 import here)
     normalizer: Any  # its VecNormalize, or None
     config: TrainConfig
     settings: Settings
-    stack: PolicyStack = field(init=False)
+    spec: PolicySpec = field(init=False)
 
     def __post_init__(self) -> None:
-        self.stack = PolicyStack.of(self.config, self.settings)
+        self.spec = self.config.policy_spec(self.settings)
         self._actor = PolicyActor(self.model, self.normalizer)
 
     @property
     def decimation(self) -> int:
-        return self.stack.decimation
+        return self.spec.decimation
+
+    @property
+    def policy(self) -> Policy:
+        """The run's deployed policy: its spec and the SB3 model's deterministic act."""
+        return Policy(
+            spec=self.spec,
+            actor=SB3Actor(self.model, self.normalizer),
+            source=str(self.config.out_dir),
+            spec_file="config.yaml",
+            actor_file="model.zip",
+        )
 
     def start(self) -> None:
         """A new episode: a recurrent policy forgets its memory."""
@@ -60,18 +78,60 @@ class TrainedRun:
         return self._actor(flat_obs)
 
 
-def load_run(run_dir: str | Path, best: bool = False) -> TrainedRun:
-    """Load a run folder written by :func:`~elastic_gym.training.train.train` (``best=True``:
-    the best model of the learning curve).
+def load_run(run_dir: str | Path, best: bool = False, trust_pickle: bool = False) -> TrainedRun:
+    """Load a run folder written by [`train`][elastic_gym.training.train.train]
+    (``best=True``: the best model of the learning curve).
 
-    Unpickles ``model.zip`` and ``vecnormalize.pkl``: load only trusted run folders. A
-    missing or corrupted file raises ``ValueError`` naming it.
+    Unpickles ``model.zip`` and ``vecnormalize.pkl``, which runs code stored in the files:
+    only with ``trust_pickle=True``, for run folders you made or trust (else
+    [`UntrustedPickleError`][elastic_gym.policy.loading.UntrustedPickleError] before any
+    pickle is opened; `elastic-gym export` makes a policy without pickles). A missing or
+    corrupted file raises ``ValueError`` naming it.
     """
     folder = RunFolder(run_dir)
     config = folder.read_config()
+    if not trust_pickle:
+        raise untrusted(run_dir)
     settings, _ = config.settings()
     model = folder.load_model(config.algo, best)
-    return TrainedRun(model, folder.load_normalizer(), config, settings)
+    normalizer = folder.load_normalizer()
+    _check_normalizer(model, normalizer, folder.path)
+    return TrainedRun(model, normalizer, config, settings)
+
+
+def _check_normalizer(model: Any, normalizer: Any, path: Path) -> None:
+    """Refuse ``vecnormalize.pkl`` statistics of another size than the model's input."""
+    # vars(): an unpickled VecNormalize without observation statistics (normalize: false)
+    # recurses in SB3's __getattr__ instead of raising AttributeError
+    obs_rms = None if normalizer is None else vars(normalizer).get("obs_rms")
+    statistics = getattr(obs_rms, "mean", None)
+    if statistics is not None and np.shape(statistics) != model.observation_space.shape:
+        raise ValueError(
+            f"{path}: vecnormalize.pkl takes observations of shape {np.shape(statistics)}, "
+            f"but model.zip of shape {model.observation_space.shape}: the files are of "
+            "different runs"
+        )
+
+
+def run_policy(run_dir: str | Path, best: bool = False) -> Policy:
+    """The deployed policy of a run folder the user trusts (its pickles are loaded): what
+    [`load_policy`][elastic_gym.policy.loading.load_policy] calls with
+    ``trust_pickle``."""
+    run = load_run(run_dir, best, trust_pickle=True)
+    return Policy(
+        spec=run.spec,
+        actor=SB3Actor(run.model, run.normalizer),
+        source=str(run_dir),
+        spec_file="config.yaml",
+        actor_file="model.zip",
+    )
+
+
+def run_spec(run_dir: str | Path) -> PolicySpec:
+    """The policy spec of a run folder from its ``config.yaml`` alone (no pickle)."""
+    config = RunFolder(run_dir).read_config()
+    settings, _ = config.settings()
+    return config.policy_spec(settings)
 
 
 def episode_duration(env_id: str, env_kwargs: dict) -> float:
@@ -94,31 +154,29 @@ def evaluation_runs(
     ``run`` (the loaded object, not its folder) on its state source, one run per seed
     ``seed``, ``seed + 1``, ..., in the run's env with ``env_kwargs`` merged into its own."""
     checked_count(n_episodes, "n_episodes", 1)
-    from elastic_gym.training.policy_controller import TrainedPolicyController
-
-    stack = run.stack
-    kwargs = {**stack.env_kwargs, **(env_kwargs or {})}
-    duration = episode_duration(stack.env_id, kwargs)
+    spec = run.spec
+    kwargs = {**spec.env_kwargs, **(env_kwargs or {})}
+    duration = episode_duration(spec.env_id, kwargs)
     controller = ControllerEntry.model_validate(
-        {"name": TrainedPolicyController.name, "options": {"run": run}}
+        {"name": TRAINED_POLICY, "options": {"policy": run.policy}}
     )
     source = SourceEntry.model_validate(
-        {"name": stack.state, "options": dict(stack.observer_options)}
+        {"name": spec.state, "options": dict(spec.observer_options)}
     )
     return RunGroup(
         tuple(
             RunSpec(
                 index=i,
                 labels={"seed": int(seed) + i},
-                env_id=stack.env_id,
+                env_id=spec.env_id,
                 env_kwargs=kwargs,
                 reset_options={},
                 duration=duration,
                 seed=int(seed) + i,
                 controller=controller,
-                controller_cls=TrainedPolicyController,
+                controller_cls=PolicyController,
                 source=source,
-                observer_cls=source_class(stack.state),
+                observer_cls=source_class(spec.state),
                 model_error={},
             )
             for i in range(n_episodes)

@@ -27,7 +27,6 @@ from elastic_gym.controllers.gain_design import (
     nominal_configuration,
 )
 from elastic_gym.controllers.invdyn import fit_link_masses
-from elastic_gym.controllers.policy import RESIDUAL_DEADZONE, deadzone, residual_torque
 from elastic_gym.model import RobotModel
 from elastic_gym.validation import (
     ConfigModel,
@@ -39,8 +38,27 @@ from elastic_gym.validation import (
 )
 
 KINDS = ("torque", "motor-offset", "residual")
+RESIDUAL_DEADZONE = 0.2  # default |a| below which a residual adds exactly nothing
 RESIDUAL_SPACES = ("torque", "link-mass")
 Gains = Finite | list[Finite] | None  # one or n numbers; checked against n by ActionMap
+
+
+def deadzone(action: np.ndarray, width: float = 0.0) -> np.ndarray:
+    """rho(a) = sign(a) max(|a| - d, 0) / (1 - d) of the action clipped to [-1, 1], d the
+    ``width`` in [0, 1): exactly zero while |a| <= d, continuous at d, 1 at |a| = 1 (d = 0:
+    the clipped action). Works on one arm (n,) or on N arms (N, n)."""
+    a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+    if width:
+        a = np.sign(a) * np.maximum(np.abs(a) - width, 0.0) / (1.0 - width)
+    return a
+
+
+def residual_torque(
+    action: np.ndarray, torque_limit: np.ndarray, scale: float, deadzone_width: float = 0.0
+) -> np.ndarray:
+    """The residual correction added to a base controller's torque:
+    ``scale * torque_limit * rho(a)``, rho the `deadzone` of width ``deadzone_width``."""
+    return scale * torque_limit * deadzone(action, deadzone_width)
 
 
 class ActionConfig(ConfigModel):

@@ -5,11 +5,11 @@ Stack, bottom to top (``make_policy_env``)::
     env -> ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation
 
 * :class:`PolicyAction`: the action in [-1, 1]^n becomes a torque at every control period
-  (:class:`~elastic_gym.training.actions.ActionMap`);
+  (:class:`~elastic_gym.policy.actions.ActionMap`);
 * :class:`ActionRepeat`: the action is held for ``k`` periods and the rewards summed,
   above the observer, which still sees every sample;
 * :class:`PolicyObservation`: the features of
-  :class:`~elastic_gym.training.observation.ObservationBuilder`;
+  :class:`~elastic_gym.policy.observation.ObservationBuilder`;
 * :class:`CriticState` (training only): the true state's features and/or the drawn plant
   parameters appended for a privileged critic.
 """
@@ -25,10 +25,10 @@ from gymnasium.spaces import flatdim
 from gymnasium.vector import VectorWrapper
 
 from elastic_gym.envs.arm_env import validated_actions
+from elastic_gym.policy import vector
+from elastic_gym.policy.actions import ActionConfig
+from elastic_gym.policy.observation import ObservationConfig
 from elastic_gym.single_env import SingleArmWrapper
-from elastic_gym.training import vector
-from elastic_gym.training.actions import ActionConfig
-from elastic_gym.training.observation import ObservationConfig
 
 W = TypeVar("W", bound=VectorWrapper)
 
@@ -107,7 +107,7 @@ class PolicyObservation(_CheckedActions[vector.PolicyObservation], gym.utils.Rec
 class CriticState(SingleArmWrapper[vector.CriticState], gym.utils.RecordConstructorArgs):
     """The flat policy observation with privileged entries appended (training only): the
     true state's features (``state``) and/or the drawn plant parameters (``plant``), as
-    :class:`~elastic_gym.training.vector.CriticState`.
+    :class:`~elastic_gym.policy.vector.CriticState`.
 
     Args:
         env: a flat policy stack (``PolicyObservation``).

@@ -306,6 +306,38 @@ class ObservationBuilder:
         self.size = sum(self.sizes.values())
         self._reference_scale = 10.0 ** np.maximum(np.arange(config.reference_order + 1) - 1, 0)
 
+    def meaning(self, name: str) -> str:
+        """What the entries of feature ``name`` are, with this builder's scales (the
+        observation layout of an exported policy's manifest)."""
+        c = self.config
+        return {
+            "error": f"(q - q_d) / {c.error_scale:g} per joint: the link tracking error of "
+            "the state source (rad)",
+            "error_rate": f"(q' - q_d') / {c.error_rate_scale:g} per joint (rad/s)",
+            "error_integral": "the integral of (q - q_d) dt over the episode, at the policy "
+            f"steps, / {c.error_integral_scale:g} per joint (rad s)",
+            "reference": f"q_d, q_d', ..., q_d^({c.reference_order}), each order k divided by "
+            "10^max(k - 1, 0), all joints of one order after another",
+            "preview": f"(q_d(t + h) - q_d(t)) / {c.preview_scale:g} for h in "
+            f"{list(c.preview)} s, all joints of one horizon after another",
+            "torsion": f"(theta - q) / {c.torsion_scale:g} per joint (rad)",
+            "torsion_rate": f"(theta' - q') / {c.torsion_rate_scale:g} per joint (rad/s)",
+            "motor_error": f"(theta - q_d) / {c.torsion_scale:g} per joint: the encoder "
+            "reading minus the reference (rad)",
+            "reset_rest": f"held from the episode's reset: (theta - q_d) / {c.torsion_scale:g} "
+            "per joint, then q_d per joint (rad)",
+            "acceleration": f"accelerometer specific force / {GRAVITY:g}, x y z of each "
+            "sensor in its own frame (m/s^2)",
+            "last_action": "the policy's previous action clipped to [-1, 1] (0 after a reset)",
+            "base_torque": "the residual base controller's torque of the last control period "
+            "/ torque_limit, per joint",
+            "base_motor_error": f"the residual base's (theta - theta_d) / {c.error_scale:g} per "
+            f"joint, then (theta' - theta_d') / {c.error_rate_scale:g} per joint",
+            "link_mass_estimate": "(s - 1) / residual_scale of the residual's link-mass scales s",
+            "link_mass_fit": "(s_fit - 1) / residual_scale: the link-mass scales that fit the "
+            "residual base's motor error at the episode's reset, held",
+        }[name]
+
     def build(self, inputs: ObservationInputs) -> np.ndarray:
         """Observations (N, size), float32."""
         return np.concatenate(

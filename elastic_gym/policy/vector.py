@@ -1,7 +1,7 @@
-"""Vector-env twins of the policy wrappers of :mod:`elastic_gym.training.wrappers`.
+"""Vector-env twins of the policy wrappers of :mod:`elastic_gym.policy.wrappers`.
 
-The same logic (:class:`~elastic_gym.training.actions.ActionMap`,
-:class:`~elastic_gym.training.observation.ObservationBuilder`) on all the arms of a vector
+The same logic (:class:`~elastic_gym.policy.actions.ActionMap`,
+:class:`~elastic_gym.policy.observation.ObservationBuilder`) on all the arms of a vector
 env (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``) at once. Resets of
 some arms — autoresets, or ``reset(options={"reset_mask": ...})`` as
 :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv` does — restart their controllers,
@@ -25,13 +25,13 @@ from elastic_gym.controllers import public_info
 from elastic_gym.controllers.vector import make_vector_controller
 from elastic_gym.envs.arm_env import validated_actions
 from elastic_gym.observers.vector import true_state_vector
-from elastic_gym.training.actions import (
+from elastic_gym.policy.actions import (
     ActionConfig,
     ActionMap,
     check_link_mass_features,
     link_mass_residual,
 )
-from elastic_gym.training.observation import (
+from elastic_gym.policy.observation import (
     ErrorIntegral,
     ObservationBuilder,
     ObservationConfig,
@@ -100,7 +100,7 @@ class PolicyAction(_ArmResets):
     observation as it arrives (its torque is applied at the next step); for a base with a
     desired state ``info["base_error"]`` (N, dim) is its state error x - x_d there.
     A residual on link masses keeps its arms' scales in ``link_mass``
-    (:class:`~elastic_gym.training.actions.LinkMassResidual`) and gives its features as
+    (:class:`~elastic_gym.policy.actions.LinkMassResidual`) and gives its features as
     ``info["link_mass_fit"]`` (N, a), the scales its base's motor error showed at each
     arm's reset, and with ``residual_rate`` ``info["link_mass_estimate"]`` (N, a).
     """
@@ -308,7 +308,7 @@ class PolicyObservation(_ArmResets):
 class CriticState(gym.vector.VectorWrapper):
     """Every arm's flat policy observation with privileged entries appended for a critic
     in training: its true state's features
-    (:class:`~elastic_gym.training.observation.TrueStateFeatures` of
+    (:class:`~elastic_gym.policy.observation.TrueStateFeatures` of
     ``info["true_state"]``, the current step only, not frame-stacked) if ``state``, then,
     if ``plant``, the plant parameters the arm drew at its last reset
     (``info["plant"]`` of every randomized path, in the order of
