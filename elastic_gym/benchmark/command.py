@@ -43,7 +43,15 @@ def add_entry_options(parser: argparse.ArgumentParser) -> None:
         help="state source: 'true' (oracle), an observer name, 'sensors' (raw sensors, for "
         "a policy) or an Observer 'module:Class'",
     )
-    parser.add_argument("--run", metavar="RUN", help="a run folder written by elastic-gym train")
+    from elastic_gym.policy.loading import TRUST_HELP
+
+    parser.add_argument(
+        "--run",
+        metavar="POLICY",
+        help="an exported policy folder (elastic-gym export), or a run folder written by "
+        "elastic-gym train with --trust-pickle",
+    )
+    parser.add_argument("--trust-pickle", action="store_true", help=TRUST_HELP)
     parser.add_argument(
         "--options", default="{}", metavar="YAML", help="controller options (YAML mapping)"
     )
@@ -83,7 +91,8 @@ def yaml_option(text: str, option: str) -> dict:
 def entry_arguments(args: argparse.Namespace, **modes: Any) -> EntryArguments:
     """The entry options of parsed ``args`` (and the console script's other modes, e.g.
     ``leaderboard=True``), validated together."""
-    fields = {key: getattr(args, key) for key in ("controller", "source", "run", "label", "model")}
+    keys = ("controller", "source", "run", "trust_pickle", "label", "model")
+    fields = {key: getattr(args, key) for key in keys}
     fields |= {"class": args.cls, **modes}
     fields |= {
         key: yaml_option(getattr(args, key), f"--{key.replace('_', '-')}")
@@ -118,7 +127,7 @@ def entry_command(entry: Entry, suite: str, robots: list[str] | None = None) -> 
     if entry.run is not None:
         if entry.best:
             return None  # the console script scores a run's final model
-        words += ["--run", entry.run]
+        words += ["--run", entry.run, *(["--trust-pickle"] if entry.trust_pickle else [])]
     else:
         controller, source = described(entry.controller), described(entry.source)
         options, source_options = _flow(entry.options), _flow(entry.source_options)

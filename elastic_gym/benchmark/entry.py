@@ -5,8 +5,10 @@ user's `Controller` subclass as ``"module:Class"``, or any
 callable policy through the ``policy`` controller) with its ``options``, paired with a
 **state source** (``"true"``, an observer registry name, a user's
 `Observer` subclass, or raw ``"sensors"`` for a controller
-that reads them); or a **run folder** written by ``elastic-gym train`` (the
-``trained-policy`` controller on its own state source, raw sensors included).
+that reads them); or a **policy folder** (``run``): an exported policy
+(``elastic-gym export``; no pickle) or, with ``trust_pickle``, a run folder written by
+``elastic-gym train`` — the ``trained-policy`` controller on the policy's own state source,
+raw sensors included.
 
 The controller sees only the estimate, the reference and the time; the observer sees the
 sensors, the applied torque and the ground-truth items its class declares in
@@ -73,6 +75,7 @@ class Entry(StrictModel):
     run: str | None = None
     best: bool = False
     models: tuple[Annotated[StrictStr, AfterValidator(checked_model_file)], ...] = ()
+    trust_pickle: bool = False
 
     @model_validator(mode="after")
     def _one_kind(self) -> Entry:
@@ -80,8 +83,9 @@ class Entry(StrictModel):
         only_when(
             self.run is None,
             {"options": self.options, "source_options": self.source_options},
-            "a controller is named (a run folder's config.yaml has them)",
+            "a controller is named (a policy folder has them)",
         )
+        only_when(self.run is not None, {"trust_pickle": self.trust_pickle}, "run is given")
         return self
 
     @property
@@ -131,6 +135,7 @@ class EntryArguments(StrictModel):
     cls: ClassPath = Field(default=None, alias="class")
     source: str | None = None
     run: str | None = None
+    trust_pickle: bool = False
     leaderboard: bool = False
     verify: str | None = None
     upgrade: list[str] | None = None
@@ -155,6 +160,7 @@ class EntryArguments(StrictModel):
             taken = "source" if self._class_kind == "observer" else "controller"
             kind = {"observer": "--class (an Observer)", "controller": "--class (a Controller)"}
             at_most_one({kind[self._class_kind]: self.cls, f"--{taken}": getattr(self, taken)})
+        only_when(self.run is not None, {"--trust-pickle": self.trust_pickle}, "--run is given")
         return self
 
     def entry(self) -> dict[str, Any]:
@@ -163,7 +169,7 @@ class EntryArguments(StrictModel):
         fields |= {"label": self.label} if self.label else {}
         fields |= {"models": tuple(self.model)} if self.model else {}
         if self.run is not None:
-            return {"run": self.run, **fields}
+            return {"run": self.run, "trust_pickle": self.trust_pickle, **fields}
         given = {self._class_kind: self.cls} if self.cls is not None else {}
         controller = given.get("controller", self.controller) or DEFAULT_CONTROLLER
         return {
@@ -199,15 +205,19 @@ def _source_entry(source: str | type, options: dict) -> SourceEntry:
 
 
 def _run_entries(entry: Entry) -> tuple[ControllerEntry, SourceEntry]:
-    from elastic_gym.training.run_folder import RunFolder
+    from elastic_gym.policy.loading import is_exported, read_spec, untrusted
 
     run = Path(str(entry.run))
+    if not is_exported(run) and (run / "config.yaml").is_file() and not entry.trust_pickle:
+        raise ValueError(f"run: {untrusted(run)}")
     try:
-        config = RunFolder(run).read_config()
+        spec = read_spec(run)
     except (FileNotFoundError, ValueError) as exc:
         raise ValueError(f"run: {exc}") from None
-    source = _source_entry(config.state, dict(config.observer_options))
-    options = {"run": str(run.resolve()), "best": entry.best}
+    source = _source_entry(spec.state, dict(spec.observer_options))
+    options: dict[str, Any] = {"policy": str(run.resolve())}
+    options |= {"best": True} if entry.best else {}
+    options |= {"trust_pickle": True} if entry.trust_pickle else {}
     return ControllerEntry(name=TRAINED_POLICY, label=run.name, options=options), source
 
 
@@ -244,18 +254,7 @@ def describe_entry(entry: Entry) -> dict:
         "models": list(entry.models),
     }
     if entry.run is not None:
-        from elastic_gym.training.run_folder import RunFolder
-
-        config = RunFolder(entry.run).read_config()
-        record["run"] = {
-            "folder": Path(entry.run).name,
-            "env_id": config.env_id,
-            "algo": config.algo,
-            "state": config.state,
-            "seed": config.seed,
-            "total_steps": config.total_steps,
-            "env_kwargs": _plain_options(config.env_kwargs),
-        }
+        record["run"] = _run_record(Path(entry.run))
     return record
 
 
@@ -267,6 +266,38 @@ def _as_given(options: dict, entry: Entry) -> dict:
         return options
     resolved = str(Path(entry.run).resolve())
     return {key: entry.run if value == resolved else value for key, value in options.items()}
+def _run_record(run: Path) -> dict[str, Any]:
+    """What the scorecard says about a policy folder: its name, env, algorithm, state
+    source, seed and steps (an exported policy's manifest, or a run's config.yaml)."""
+    from elastic_gym.policy.loading import is_exported
+    from elastic_gym.policy.manifest import read_manifest
+
+    if is_exported(run):
+        manifest = read_manifest(run)
+        made = manifest.provenance
+        return {
+            "folder": run.name,
+            "exported": True,
+            "env_id": manifest.env_id,
+            "algo": made.algo,
+            "state": manifest.state,
+            "seed": made.seed,
+            "policy_steps": made.policy_steps,
+            "env_kwargs": _plain_options(manifest.spec.env_kwargs),
+            "graph_sha256": manifest.graph.sha256,
+        }
+    from elastic_gym.training.run_folder import RunFolder
+
+    config = RunFolder(run).read_config()
+    return {
+        "folder": run.name,
+        "env_id": config.env_id,
+        "algo": config.algo,
+        "state": config.state,
+        "seed": config.seed,
+        "total_steps": config.total_steps,
+        "env_kwargs": _plain_options(config.env_kwargs),
+    }
 
 
 def _described(cls: type | str | None, name: str) -> str:

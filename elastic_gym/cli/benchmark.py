@@ -104,8 +104,8 @@ def run_benchmark_command(args: argparse.Namespace) -> int:
         return _verify(args)
     from elastic_gym.benchmark import run_benchmark
 
-    if args.run and not args.rescore:
-        require_rl_extra("benchmark --run")
+    if args.run and args.trust_pickle and not args.rescore:
+        require_rl_extra("benchmark --run RUN --trust-pickle")
     run_benchmark(
         arguments.entry(),
         suite=args.suite or DEFAULT_SUITE,

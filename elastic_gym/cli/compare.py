@@ -11,6 +11,7 @@ from elastic_gym.cli.common import require_rl_extra
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
 from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
 from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
+from elastic_gym.policy.loading import TRUST_HELP
 from elastic_gym.runtime.parallel import BACKENDS, DEFAULT_BACKEND
 
 
@@ -75,9 +76,10 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--policy",
         nargs="+",
-        metavar="RUN",
+        metavar="POLICY",
         default=[],
-        help="training run folder(s) (elastic-gym train) to compare as controllers",
+        help="exported policy folder(s) (elastic-gym export) to compare as controllers, or "
+        "training run folder(s) with --trust-pickle",
     )
     parser.add_argument(
         "--model",
@@ -88,6 +90,7 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
         "controllers and observers build on instead of the nominal one (model errors apply "
         "on top; the simulated plant stays what it is)",
     )
+    parser.add_argument("--trust-pickle", action="store_true", help=TRUST_HELP)
     parser.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run_compare)
@@ -107,10 +110,8 @@ def run_compare(args: argparse.Namespace) -> int:
     )
     if args.model:
         scenario = scenario.with_overrides(models=tuple(args.model))
-    if args.policy:
-        require_rl_extra("compare --policy")
-    for run in args.policy:
-        scenario = with_trained_policy(scenario, run)
+    for folder in args.policy:
+        scenario = with_trained_policy(scenario, folder, args.trust_pickle)
     result = compare(
         scenario,
         output_dir=args.output,
@@ -130,41 +131,47 @@ def run_compare(args: argparse.Namespace) -> int:
     return 0
 
 
-def with_trained_policy(scenario, run_dir: str):
-    """The scenario with a ``trained-policy`` controller for a run folder, paired with the
-    state source it was trained on (an observer, ``true`` or raw ``sensors``; added to the
-    scenario if missing)."""
+def with_trained_policy(scenario, folder: str, trust_pickle: bool = False):
+    """The scenario with a ``trained-policy`` controller for a policy folder (exported, or
+    a training run folder with ``trust_pickle``), paired with the state source it was
+    trained on (an observer, ``true`` or raw ``sensors``; added to the scenario if
+    missing)."""
     from pathlib import Path
 
     from elastic_gym.evaluation.scenario import ControllerEntry, SourceEntry
-    from elastic_gym.training.run_folder import RunFolder
+    from elastic_gym.policy.loading import is_exported, is_run_folder, read_spec, untrusted
 
-    config = RunFolder(run_dir).read_config()
-    other_envs = sorted({e.id for e in scenario.envs} - {config.env_id})
+    if not is_exported(folder) and is_run_folder(folder):
+        if not trust_pickle:
+            raise untrusted(folder)
+        require_rl_extra("compare --policy RUN")
+    spec = read_spec(folder)
+    other_envs = sorted({e.id for e in scenario.envs} - {spec.env_id})
     if other_envs:
         raise ValueError(
-            f"--policy {run_dir}: trained on {config.env_id}, but the scenario "
-            f"also has {other_envs}"
+            f"--policy {folder}: trained on {spec.env_id}, but the scenario also has {other_envs}"
         )
     sources = list(scenario.state_sources)
     source = next(
-        (s for s in sources if s.name == config.state and s.options == config.observer_options),
+        (s for s in sources if s.name == spec.state and s.options == spec.observer_options),
         None,
     )
     if source is None:
         source = SourceEntry.model_validate(
             {
-                "name": config.state,
-                "label": f"{config.state}-policy",
-                "options": config.observer_options,
+                "name": spec.state,
+                "label": f"{spec.state}-policy",
+                "options": spec.observer_options,
             }
         )
         sources.append(source)
+    options: dict[str, object] = {"policy": str(Path(folder).resolve())}
+    options |= {"trust_pickle": True} if trust_pickle else {}
     controller = ControllerEntry.model_validate(
         {
             "name": "trained-policy",
-            "label": f"policy:{Path(run_dir).name}",
-            "options": {"run": str(Path(run_dir).resolve())},
+            "label": f"policy:{Path(folder).name}",
+            "options": options,
             "sources": [source.label],
         }
     )

@@ -17,7 +17,7 @@ if TYPE_CHECKING:
 
 def add_parser(subcommands: argparse._SubParsersAction) -> None:
     from elastic_gym.observers.registry import state_sources
-    from elastic_gym.training.actions import KINDS
+    from elastic_gym.policy.actions import KINDS
     from elastic_gym.training.config import ALGORITHMS, TrainConfig
 
     parser = subcommands.add_parser(

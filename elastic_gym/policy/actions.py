@@ -231,7 +231,7 @@ class ActionMap:
 class LinkMassEstimate:
     """The link-mass scales s of a residual with ``residual_rate``, per arm: s - 1 = 0 at
     a (re)start, then at every control period s - 1 += dt * residual_rate * rho(a), kept
-    within +- residual_scale (rho the :func:`~elastic_gym.controllers.policy.deadzone`).
+    within +- residual_scale (rho the `deadzone`).
 
     Args:
         config: the action parameterization (``residual_rate`` set).

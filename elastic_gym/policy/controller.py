@@ -94,14 +94,14 @@ class PolicyOptions(StrictModel):
         zip_file = is_folder(given) and self.algorithm is not None  # an SB3 model file
         deployed = isinstance(given, Policy) or (is_folder(given) and not zip_file)
         if deployed:
-            callable_options = {
-                key: getattr(self, key)
+            callable_options = {  # True: given (only_when reads False as not given)
+                key: True
                 for key, default in CALLABLE_OPTIONS.items()
                 if getattr(self, key) != default
             }
             only_when(False, callable_options, "the policy is a callable or an SB3 model")
         only_when(is_folder(given) and not zip_file, {"best": self.best}, "the policy is a folder")
-        path = given if zip_file or self.algorithm is not None else None
+        path = given if zip_file else None
         all_or_none({"policy (a model file)": path, "algorithm": self.algorithm})
         only_when(
             isinstance(self.residual, str),
