@@ -8,11 +8,13 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import yaml
+from gymnasium.vector import AutoresetMode
 
 import elastic_gym
 from elastic_gym.benchmark.suite import SUITE_DIR
 from elastic_gym.controllers import Controller, public_info
 from elastic_gym.model import RobotModel
+from elastic_gym.policy import PolicySpec, build_policy_env
 
 GRAVITY = 9.81
 
@@ -355,3 +357,50 @@ def same_metric(a, b) -> bool:
     if isinstance(a, float) and isinstance(b, float):
         return (math.isnan(a) and math.isnan(b)) or a == b or abs(a - b) <= 1e-12 * abs(b)
     return a == b
+
+
+# ------------------------------------------------------------ policy stacks
+def policy_spec(
+    env_id: str, state: str = "true", env_kwargs: dict | None = None, **fields
+) -> PolicySpec:
+    """A policy spec from its fields; ``frame_stack`` of a state source becomes its
+    observation's ``frames`` (the spec keeps ``frame_stack`` for raw sensors)."""
+    frames = fields.pop("frame_stack", None)
+    if frames is not None and state != "sensors":
+        observation = fields.pop("observation", None) or {}
+        observation = observation if isinstance(observation, dict) else observation.to_dict()
+        fields["observation"] = {**observation, "frames": frames}
+    elif frames is not None:
+        fields["frame_stack"] = frames
+    return PolicySpec(env_id=env_id, state=state, env_kwargs=env_kwargs or {}, **fields)
+
+
+def policy_env(env_id: str, state: str = "true", env_kwargs: dict | None = None, **fields):
+    """The policy stack of a spec on one env (with the critic's inputs if it has some)."""
+    spec = policy_spec(env_id, state, env_kwargs, **fields)
+    return build_policy_env(spec, spec.make_env(), critic=spec.critic)
+
+
+def policy_vec_env(
+    env_id: str,
+    n_arms: int,
+    state: str = "true",
+    env_kwargs: dict | None = None,
+    autoreset_mode: AutoresetMode = AutoresetMode.DISABLED,
+    teacher: bool = False,
+    **fields,
+):
+    """The policy stack of a spec on ``n_arms`` arms of one world (with the critic's inputs
+    if it has some, the plant teacher's labels with ``teacher``)."""
+    spec = policy_spec(env_id, state, env_kwargs, **fields)
+    envs = build_policy_env(spec, spec.make_env(n_arms, autoreset_mode=autoreset_mode), spec.critic)
+    if teacher:
+        from elastic_gym.training.teacher import PlantTeacher
+
+        envs = PlantTeacher(envs, spec.decimation)
+    return envs
+
+
+def spec_env(spec: PolicySpec, env_kwargs: dict | None = None, critic: bool = False):
+    """A spec's stack on one env, ``env_kwargs`` updating the spec's."""
+    return build_policy_env(spec, spec.make_env(env_kwargs=env_kwargs), critic=critic)

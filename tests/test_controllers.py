@@ -14,10 +14,11 @@ from helpers import make_noise_free, simulate
 from elastic_gym.controllers import make_controller
 from elastic_gym.controllers.gain_design import closed_loop_poles, linearize
 from elastic_gym.controllers.invdyn import InverseDynamics, RigidTorque, TorsionFilter
-from elastic_gym.controllers.policy import PolicyController
 from elastic_gym.envs.trajectories import RestToRestPath
 from elastic_gym.model import RobotModel
 from elastic_gym.observers import ObserverWrapper, TrueStateWrapper
+from elastic_gym.policy.controller import PolicyController
+from elastic_gym.policy.loading import UntrustedPickleError
 from elastic_gym.robots.catalog import get_robot
 
 PI = np.pi
@@ -390,7 +391,7 @@ def test_policy_controller_scaling_residual_and_recurrent_state():
     np.testing.assert_allclose(controller(obs, info), [60.0, -60.0])  # clipped, scaled
     controller(obs, info)
     assert policy.starts == [True, False]
-    assert controller._law._states[0] == 1  # the recurrent state of its one arm
+    assert controller._law.law._states[0] == 1  # the recurrent state of its one arm
     raw = PolicyController(model, 1e-3, lambda o: np.array([3.0, 4.0]), scale_actions=False)
     np.testing.assert_allclose(raw(obs, info), [3.0, 4.0])
     base = make_controller("motor-pd", model, 1e-3)
@@ -424,13 +425,26 @@ def test_policy_controller_with_saved_sb3_model_and_vecnormalize(tmp_path):
     model = model_of("two_link_elastic")
     obs, info = elastic_obs()
     seen = []
+    with pytest.raises(UntrustedPickleError, match=r"normalization .*: a pickle"):
+        PolicyController(model, 1e-3, abs, normalization=str(stats_path))
+    with pytest.raises(UntrustedPickleError, match=r"ppo\.zip: a saved stable-baselines3 model"):
+        PolicyController(model, 1e-3, str(model_path), algorithm="PPO")
     recorder = PolicyController(
-        model, 1e-3, lambda o: seen.append(o) or np.zeros(2), normalization=str(stats_path)
+        model,
+        1e-3,
+        lambda o: seen.append(o) or np.zeros(2),
+        normalization=str(stats_path),
+        trust_pickle=True,
     )
     recorder(obs, info)
     np.testing.assert_allclose(seen[0]["state"], (obs["state"] - 1.0) / 2.0, rtol=1e-6)
     learned = PolicyController(
-        model, 1e-3, str(model_path), algorithm="PPO", normalization=str(stats_path)
+        model,
+        1e-3,
+        str(model_path),
+        algorithm="PPO",
+        normalization=str(stats_path),
+        trust_pickle=True,
     )
     learned.reset(obs, info)
     torque = learned(obs, info)
@@ -498,8 +512,13 @@ def test_bad_calls_and_robot_kinds():
 @pytest.mark.parametrize(
     ("options", "error", "message"),
     [
-        ({"policy": "x.zip"}, ValueError, r"options: give policy \(a path\) and algorithm"),
-        ({"algorithm": "PPO"}, ValueError, "algorithm together .*: policy \\(a path\\) missing"),
+        ({"policy": "x.zip"}, ValueError, "x.zip is neither an exported policy .* nor a training"),
+        ({"policy": "x", "decimation": 2}, ValueError, "decimation: applies only when the policy"),
+        (
+            {"algorithm": "PPO"},
+            ValueError,
+            "algorithm together .*: policy \\(a model file\\) missing",
+        ),
         ({"preprocess": 3}, TypeError, "options.preprocess: Input should be callable"),
         ({"residual": 5}, TypeError, "options.residual: "),
         ({"residual_options": {"omega": 3.0}}, ValueError, "options.residual_options: applies"),

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 from gymnasium import spaces
+from helpers import policy_env, policy_vec_env, spec_env
 
-from elastic_gym.training import TrainConfig, evaluate_run, load_run, make_policy_env, train
+from elastic_gym.training import TrainConfig, evaluate_run, load_run, train
 from elastic_gym.training.config import resolve_hyperparams
 from elastic_gym.training.critic import PrivilegedCriticPolicy
-from elastic_gym.training.policy_env import make_policy_vec_env
 
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 SHORT_EPISODES = {"max_episode_steps": 200}
@@ -103,11 +103,11 @@ def test_critic_state_appends_the_true_sources_features_to_the_unchanged_observa
     torsion and torsion rate (the run's scales), step after step."""
     scales = {"error_scale": 0.02, "torsion_rate_scale": 2.0}
     kwargs = {"env_kwargs": SHORT_EPISODES, "decimation": 10, "action": TORQUE}
-    critic = make_policy_env(
+    critic = policy_env(
         TWO_LINK, "sensors", observation=scales, frame_stack=4, critic_state=True, **kwargs
     )
-    plain = make_policy_env(TWO_LINK, "sensors", observation=scales, frame_stack=4, **kwargs)
-    truth = make_policy_env(TWO_LINK, "true", observation={**TRUE_FEATURES, **scales}, **kwargs)
+    plain = policy_env(TWO_LINK, "sensors", observation=scales, frame_stack=4, **kwargs)
+    truth = policy_env(TWO_LINK, "true", observation={**TRUE_FEATURES, **scales}, **kwargs)
     m = plain.observation_space.shape[0]
     assert critic.observation_space.shape == (m + 8,)
     rng = np.random.default_rng(0)
@@ -126,12 +126,10 @@ def test_vector_critic_state_matches_the_single_env_truth_arm_by_arm():
     """Batched arms (De Luca source): arm i's privileged entries are the ``"true"``
     source's features of the single env seeded s + i."""
     kwargs = {"env_kwargs": SHORT_EPISODES, "decimation": 10, "action": TORQUE}
-    envs = make_policy_vec_env(TWO_LINK, 3, "deluca", critic_state=True, **kwargs)
+    envs = policy_vec_env(TWO_LINK, 3, "deluca", critic_state=True, **kwargs)
     m = envs.single_observation_space.shape[0] - 8
     obs, _ = envs.reset(seed=7)
-    singles = [
-        make_policy_env(TWO_LINK, "true", observation=TRUE_FEATURES, **kwargs) for _ in range(3)
-    ]
+    singles = [policy_env(TWO_LINK, "true", observation=TRUE_FEATURES, **kwargs) for _ in range(3)]
     single_obs = [env.reset(seed=7 + i)[0] for i, env in enumerate(singles)]
     rng = np.random.default_rng(1)
     for _ in range(4):
@@ -165,12 +163,12 @@ def test_critic_state_run_deploys_without_the_true_state(tmp_path):
         },
     )
     train(config, progress_bar=False)
-    run = load_run(config.out_dir)
+    run = load_run(config.out_dir, trust_pickle=True)
     policy = run.model.policy
     assert isinstance(policy, PrivilegedCriticPolicy) and policy.privileged_size == 8
 
-    deployed = run.stack.make()  # what compare / evaluate_run build
-    training = run.stack.make(critic_state=True)
+    deployed = spec_env(run.spec)  # what compare / evaluate_run build
+    training = spec_env(run.spec, critic=True)
     assert deployed.observation_space.shape[0] == policy.actor_size
     obs, _ = deployed.reset(seed=11)
     full, _ = training.reset(seed=11)
@@ -214,11 +212,9 @@ def test_critic_plant_appends_each_arms_drawn_plant_after_the_true_state():
         "decimation": 10,
         "action": TORQUE,
     }
-    both = make_policy_vec_env(
-        TWO_LINK, 3, "deluca", critic_state=True, critic_plant=True, **kwargs
-    )
-    state_only = make_policy_vec_env(TWO_LINK, 3, "deluca", critic_state=True, **kwargs)
-    plant_only = make_policy_vec_env(TWO_LINK, 3, "deluca", critic_plant=True, **kwargs)
+    both = policy_vec_env(TWO_LINK, 3, "deluca", critic_state=True, critic_plant=True, **kwargs)
+    state_only = policy_vec_env(TWO_LINK, 3, "deluca", critic_state=True, **kwargs)
+    plant_only = policy_vec_env(TWO_LINK, 3, "deluca", critic_plant=True, **kwargs)
     paths = ["plant_scaling.link_mass", "unmodelled_friction.coulomb", "sensor_delay"]
     m = state_only.single_observation_space.shape[0]
     assert both.single_observation_space.shape == (m + 3,)
@@ -242,7 +238,7 @@ def test_critic_plant_appends_each_arms_drawn_plant_after_the_true_state():
 
 def test_critic_plant_without_randomization_or_on_other_algorithms_is_refused():
     with pytest.raises(ValueError, match="critic_plant: the env randomizes no plant"):
-        make_policy_vec_env(TWO_LINK, 2, "true", critic_plant=True, action=TORQUE)
+        policy_vec_env(TWO_LINK, 2, "true", critic_plant=True, action=TORQUE)
     with pytest.raises(ValueError, match="ppo only"):
         resolve_hyperparams("recurrentppo", TWO_LINK, {"critic_plant": True})
     with pytest.raises(ValueError, match="critic_plant: applies only when policy is the MlpPolicy"):
@@ -271,12 +267,12 @@ def test_critic_plant_run_acts_as_its_actor_alone_and_deploys_without_the_plant(
         },
     )
     train(config, progress_bar=False)
-    run = load_run(config.out_dir)
+    run = load_run(config.out_dir, trust_pickle=True)
     policy = run.model.policy
     assert isinstance(policy, PrivilegedCriticPolicy) and policy.privileged_size == 8 + 3
 
-    deployed = run.stack.make()
-    training = run.stack.make(critic_state=True, critic_plant=True)
+    deployed = spec_env(run.spec)
+    training = spec_env(run.spec, critic=True)
     k = policy.actor_size
     assert deployed.observation_space.shape[0] == k
     obs, _ = deployed.reset(seed=13)

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import torch
 from gymnasium.vector import AutoresetMode
+from helpers import policy_vec_env
 
 from elastic_gym.training import ActionConfig, ActionMap, TrainConfig, load_run, train
 from elastic_gym.training.distill import DistillConfig, check_distill, distill
-from elastic_gym.training.policy_env import make_policy_vec_env
 from elastic_gym.training.rollouts import evaluate_arms
 
 ENV_ID = "elastic_gym/TwoLinkElastic-v0"
@@ -26,7 +26,7 @@ pytestmark = pytest.mark.usefixtures("single_thread_torch")
 
 
 def _teacher_env(n_arms: int, env_kwargs: dict, autoreset=AutoresetMode.NEXT_STEP):
-    return make_policy_vec_env(
+    return policy_vec_env(
         ENV_ID,
         n_arms,
         state="sensors",
@@ -69,7 +69,7 @@ def _follow(env, seed: int, actions: list | None = None):
 def test_motor_offset_action_inverts_the_motor_pd():
     """ActionMap.torque(motor_offset_action(tau, ...), ...) is tau, with and without the
     gravity compensation (the action unclipped, inside [-1, 1])."""
-    env = make_policy_vec_env(ENV_ID, 1, state="sensors", action={"kind": "motor-offset"})
+    env = policy_vec_env(ENV_ID, 1, state="sensors", action={"kind": "motor-offset"})
     model = env.unwrapped.batch.model
     env.close()
     rng = np.random.default_rng(0)
@@ -209,12 +209,12 @@ def test_a_distilled_run_loads_and_retrains_bit_for_bit(tmp_path):
         rows = list(csv.DictReader(handle))
     assert [int(r["policy_steps"]) for r in rows] == [0, 200, 400]  # 4 arms x 50 steps
     assert result.policy_steps == 400
-    run = load_run(config.out_dir)
+    run = load_run(config.out_dir, trust_pickle=True)
     assert run.settings.distill == DistillConfig(**config.hyperparams["distill"])
     assert np.isfinite(float(rows[-1]["tracking_rms"]))
     again = config.model_copy(update={"out_dir": str(tmp_path / "again")})
     train(again, progress_bar=False)
-    rerun = load_run(again.out_dir)
+    rerun = load_run(again.out_dir, trust_pickle=True)
     for name, value in run.model.policy.state_dict().items():
         assert torch.equal(value, rerun.model.policy.state_dict()[name]), name
     assert np.array_equal(run.normalizer.obs_rms.mean, rerun.normalizer.obs_rms.mean)
@@ -226,7 +226,7 @@ def test_distill_lowers_the_loss_of_the_student(tmp_path):
     from sb3_contrib import RecurrentPPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from elastic_gym.training.run_envs import PolicyStack, training_vec_env
+    from elastic_gym.training.run_envs import training_vec_env
 
     config = TrainConfig(
         algo="recurrentppo",
@@ -242,7 +242,7 @@ def test_distill_lowers_the_loss_of_the_student(tmp_path):
         },
     )
     settings, _ = config.settings()
-    venv = VecNormalize(training_vec_env(PolicyStack.of(config, settings), settings, 4, 0))
+    venv = VecNormalize(training_vec_env(config.policy_spec(settings), settings, 4, 0))
     model = RecurrentPPO(
         "MlpLstmPolicy",
         venv,

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
+from helpers import policy_env, policy_vec_env
 
-from elastic_gym.training import TrainConfig, evaluate_run, load_run, make_policy_env, train
+from elastic_gym.training import TrainConfig, evaluate_run, load_run, train
 from elastic_gym.training.config import resolve_hyperparams
 from elastic_gym.training.learning_curve import COLUMNS, CURVE_FILE
-from elastic_gym.training.policy_env import make_policy_vec_env
 from elastic_gym.training.rollouts import evaluate_arms, evaluate_policy
 
 ENV_ID = "elastic_gym/TwoLinkElastic-v0"
@@ -33,7 +33,7 @@ def test_batch_evaluation_equals_episodes_one_by_one():
     saturation, including an arm whose action sits at its bound."""
     kwargs = {**SHORT, "accelerometer": "ideal"}
     action = {"kind": "motor-offset"}
-    envs = make_policy_vec_env(
+    envs = policy_vec_env(
         ENV_ID,
         3,
         "deluca",
@@ -44,7 +44,7 @@ def test_batch_evaluation_equals_episodes_one_by_one():
     )
     batch = evaluate_arms(envs, _sway, seed=5)
     envs.close()
-    env = make_policy_env(ENV_ID, "deluca", kwargs, decimation=10, action=action)
+    env = policy_env(ENV_ID, "deluca", kwargs, decimation=10, action=action)
     single = evaluate_policy(env, _sway, range(5, 8))
     env.close()
     assert batch.seeds == single.seeds == (5, 6, 7)
@@ -57,7 +57,7 @@ def test_batch_evaluation_equals_episodes_one_by_one():
 def test_tracking_rms_is_the_norm_over_joints():
     """An error of (a, b) rad held on every sample has RMS sqrt(a^2 + b^2), the
     comparison's definition: checked on the zero-offset PD against the recorded errors."""
-    env = make_policy_env(ENV_ID, "true", SHORT, decimation=10, action={"kind": "motor-offset"})
+    env = policy_env(ENV_ID, "true", SHORT, decimation=10, action={"kind": "motor-offset"})
     env.reset(seed=1)
     errors, done = [], False
     while not done:
@@ -95,7 +95,7 @@ def test_learning_curve_is_written_and_its_last_row_is_the_final_policy(tmp_path
     wall = [float(row["wall_time"]) for row in rows]
     assert wall[0] == pytest.approx(0.0, abs=0.05) and wall == sorted(wall)
     assert rows[0]["train_return"] == "" and float(rows[-1]["train_return"]) > 0
-    final = evaluate_run(load_run(config.out_dir), n_episodes=2, seed=3 + 10_000)
+    final = evaluate_run(load_run(config.out_dir, trust_pickle=True), n_episodes=2, seed=3 + 10_000)
     assert float(rows[-1]["eval_return"]) == pytest.approx(final.mean_return, rel=1e-6)
     assert float(rows[-1]["tracking_rms"]) == pytest.approx(final.rms, rel=1e-6)
     assert result.eval_tracking_rms == pytest.approx(final.rms, rel=1e-6)
@@ -106,7 +106,7 @@ def test_learning_curve_is_written_and_its_last_row_is_the_final_policy(tmp_path
     # the last-bit differences)
     import torch
 
-    run = load_run(config.out_dir)
+    run = load_run(config.out_dir, trust_pickle=True)
     one = evaluate_run(run, n_episodes=10, seed=7)
     torch.set_num_threads(2)
     assert evaluate_run(run, n_episodes=10, seed=7) == one
@@ -146,8 +146,11 @@ def test_recurrent_ppo_on_raw_sensors_trains_reloads_and_remembers(tmp_path):
         },
     )
     train(config, progress_bar=False)
-    first, second = load_run(config.out_dir), load_run(config.out_dir)
-    env = make_policy_env(
+    first, second = (
+        load_run(config.out_dir, trust_pickle=True),
+        load_run(config.out_dir, trust_pickle=True),
+    )
+    env = policy_env(
         ENV_ID,
         "sensors",
         SHORT,

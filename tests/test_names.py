@@ -14,29 +14,32 @@ from elastic_gym.controllers import CONTROLLERS, register_controller
 from elastic_gym.robots.catalog import ROBOTS, get_robot
 
 
-def test_comparison_imports_training_only_when_a_trained_policy_is_named():
-    """... and matplotlib only to plot: a comparison's workers import the package."""
+def test_comparison_imports_the_policy_package_only_when_a_policy_is_named():
+    """... never the training stack (an exported policy needs none), and matplotlib only
+    to plot: a comparison's workers import the package."""
     code = (
         "import sys\n"
         "import elastic_gym.cli, elastic_gym.controllers, elastic_gym.evaluation\n"
         "assert not [m for m in sys.modules if m.startswith('elastic_gym.training')]\n"
+        "assert not [m for m in sys.modules if m.startswith('elastic_gym.policy')]\n"
         "assert 'matplotlib' not in sys.modules\n"
         "from elastic_gym.evaluation.controllers import comparison_controller, controller_names\n"
-        "assert 'trained-policy' in controller_names()\n"
+        "assert {'policy', 'trained-policy'} <= set(controller_names())\n"
         "assert comparison_controller('motor-pd').__name__ == 'MotorPD'\n"
-        "assert 'elastic_gym.training' not in sys.modules\n"
+        "assert 'elastic_gym.policy.controller' not in sys.modules\n"
         "cls = comparison_controller('trained-policy')\n"
-        "assert cls.__name__ == 'TrainedPolicyController', cls\n"
-        "assert 'elastic_gym.training' in sys.modules\n"
+        "assert cls is comparison_controller('policy'), cls\n"
+        "assert cls.__name__ == 'PolicyController', cls\n"
+        "assert 'elastic_gym.policy.controller' in sys.modules\n"
+        "assert not [m for m in sys.modules if m.startswith('elastic_gym.training')]\n"
+        "assert 'torch' not in sys.modules and 'stable_baselines3' not in sys.modules\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
 def test_register_controller_refuses_a_taken_name_and_a_bad_target():
-    import elastic_gym.training  # noqa: F401 - registers trained-policy
-
     before = dict(CONTROLLERS)
-    target = "elastic_gym.training.policy_controller:TrainedPolicyController"
+    target = "elastic_gym.policy.controller:PolicyController"
     register_controller("trained-policy", target)  # the same target again: nothing changes
     assert before == CONTROLLERS
     with pytest.raises(ValueError, match=r"'motor-pd' is taken by elastic_gym\.controllers\.pd"):
@@ -73,9 +76,10 @@ def test_residual_means_one_thing_for_the_policy_controller_and_the_action_map()
     import gymnasium as gym
 
     from elastic_gym.controllers import make_controller, public_info
-    from elastic_gym.controllers.policy import RESIDUAL_DEADZONE, PolicyController
     from elastic_gym.observers import TrueStateWrapper
-    from elastic_gym.training import ActionConfig, ActionMap
+    from elastic_gym.policy import ActionConfig, ActionMap
+    from elastic_gym.policy.actions import RESIDUAL_DEADZONE
+    from elastic_gym.policy.controller import PolicyController
 
     env = TrueStateWrapper(gym.make("elastic_gym/TwoLinkElastic-v0"))
     obs, info = env.reset(seed=4)

@@ -7,19 +7,19 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import policy_env
 
 from elastic_gym.arms import reference_rows
 from elastic_gym.controllers import make_controller, public_info
 from elastic_gym.observers import TrueStateWrapper
+from elastic_gym.policy.observation import ObservationInputs
+from elastic_gym.policy.wrappers import PolicyAction
 from elastic_gym.training import (
     ActionConfig,
     ActionMap,
     ObservationBuilder,
     ObservationConfig,
-    make_policy_env,
 )
-from elastic_gym.training.observation import ObservationInputs
-from elastic_gym.training.wrappers import PolicyAction
 
 ENV_ID = "elastic_gym/TwoLinkElastic-v0"
 EXACT = {"encoder": {"resolution": 0.0, "noise_std": 0.0}, "accelerometer": "ideal"}
@@ -36,7 +36,7 @@ def test_motor_offset_pd_with_the_invdyn_offset_tracks():
     feedforward torque over kp, from INVDYN) tracks a 1 rad move to < 3e-4 rad RMS: the
     action map is the PD of its docstring, and the parameterization can reach 1e-4 rad."""
     config = ActionConfig(kind="motor-offset", offset_scale=0.05)
-    env = make_policy_env(
+    env = policy_env(
         ENV_ID, "true", {"max_episode_steps": 1500, **EXACT}, decimation=10, action=config
     )
     base = env.unwrapped
@@ -78,7 +78,7 @@ def test_features_equal_their_definitions():
         reference_order=3,
         preview=(0.05, 0.2),
     )
-    env = make_policy_env(
+    env = policy_env(
         ENV_ID,
         "true",
         {"max_episode_steps": 500},
@@ -126,7 +126,7 @@ def test_full_state_adds_the_torsion_rate_to_the_default_selection_only():
     from elastic_gym.training import TrainConfig
 
     def selected(env_id, state, **observation):
-        env = make_policy_env(env_id, state, observation=observation)
+        env = policy_env(env_id, state, observation=observation)
         features = env.get_wrapper_attr("builder").features
         env.close()
         return features
@@ -215,7 +215,7 @@ def test_residual_policy_starts_as_its_base_controller():
     from elastic_gym.training.train import zero_action_head
 
     action = {"kind": "residual", "residual": "feedforward-state-feedback"}
-    env = make_policy_env(
+    env = policy_env(
         ENV_ID, "true", {"max_episode_steps": 200, **EXACT}, decimation=10, action=action
     )
     model = PPO(
@@ -275,8 +275,8 @@ def test_raw_sensor_motor_offset_uses_the_encoder_difference():
     with exact encoders, the same torques as the PD on the true state within O(dt)."""
     action = {"kind": "motor-offset"}
     kwargs = {"max_episode_steps": 300, **EXACT}
-    env_s = make_policy_env(ENV_ID, "sensors", kwargs, decimation=10, action=action)
-    env_t = make_policy_env(ENV_ID, "true", kwargs, decimation=10, action=action)
+    env_s = policy_env(ENV_ID, "sensors", kwargs, decimation=10, action=action)
+    env_t = policy_env(ENV_ID, "true", kwargs, decimation=10, action=action)
     env_s.reset(seed=0)
     env_t.reset(seed=0)
     for _ in range(30):
@@ -326,14 +326,14 @@ def test_bad_observation_config(fields, match):
 
 def test_features_that_the_stack_cannot_provide_are_refused():
     with pytest.raises(ValueError, match="raw sensors"):
-        make_policy_env(ENV_ID, "sensors", observation={"features": ["error", "reference"]})
+        policy_env(ENV_ID, "sensors", observation={"features": ["error", "reference"]})
     with pytest.raises(ValueError, match="residual"):
-        make_policy_env(ENV_ID, "true", observation={"features": ["base_torque"]})
+        policy_env(ENV_ID, "true", observation={"features": ["base_torque"]})
     with pytest.raises(ValueError, match="preview horizons"):
-        make_policy_env(ENV_ID, "true", observation={"features": ["preview"]})
+        policy_env(ENV_ID, "true", observation={"features": ["preview"]})
     with pytest.raises(ValueError, match="elastic"):
-        make_policy_env("elastic_gym/TwoLinkRigid-v0", "true", action={"kind": "motor-offset"})
-    env = make_policy_env(ENV_ID, "true")
+        policy_env("elastic_gym/TwoLinkRigid-v0", "true", action={"kind": "motor-offset"})
+    env = policy_env(ENV_ID, "true")
     with pytest.raises(ValueError, match="finite"):
         env.reset(seed=0)
         env.step(np.array([np.nan, 0.0]))
@@ -349,14 +349,14 @@ def test_base_motor_error_is_the_extra_deflection_of_a_heavier_load():
     shows the extra static torsion K^-1 (g_1.3 - g)(q0) in its position part, before the
     links move, and a zero rate part."""
     from elastic_gym.controllers.vector import ControllerArray
-    from elastic_gym.training.observation import check_base_error
+    from elastic_gym.policy.observation import check_base_error
 
     observation = ObservationConfig(features=("error", "base_motor_error"))
     action = {"kind": "residual", "residual": "integral-state-feedback"}
     torsion, features = {}, {}
     for mass in (1.0, 1.3):
         plant = {"plant_scaling": {"link_mass": mass}}
-        env = make_policy_env(ENV_ID, "true", plant, action=action, observation=observation)
+        env = policy_env(ENV_ID, "true", plant, action=action, observation=observation)
         obs, info = env.reset(seed=3)
         torsion[mass] = info["true_state"]["theta"] - info["true_state"]["q"]
         features[mass] = obs[2:]

@@ -16,7 +16,7 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from elastic_gym.training.run_envs import PolicyStack
+from elastic_gym.policy import build_policy_env
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "studies"))
 import robust_study as rs
@@ -85,10 +85,10 @@ def test_the_evaluation_plants_switch_a_randomized_run_s_randomization_off():
     (row,) = [row for row in rs.ROWS if row.key == "ppo-true-robust"]
     config = row.config(0, Path("runs"))
     settings, _ = config.settings()
-    stack = PolicyStack.of(config, settings)
-    assert "plant_scaling.link_mass" in stack.env_kwargs["randomize"]
-    training = stack.make_vec(1)
-    heavy = stack.make_vec(1, rs.PLANTS["mass1.3"])
+    spec = config.policy_spec(settings)
+    assert "plant_scaling.link_mass" in spec.env_kwargs["randomize"]
+    training = build_policy_env(spec, spec.make_env(1))
+    heavy = build_policy_env(spec, spec.make_env(1, rs.PLANTS["mass1.3"]))
     nominal = _env({})
     try:
         _, info = training.reset(seed=3)

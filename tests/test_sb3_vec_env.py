@@ -11,8 +11,8 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecNormalize
 
 from elastic_gym.observers import TrueStateWrapper, vector
+from elastic_gym.policy.vector import ActionRepeat
 from elastic_gym.training.sb3_vec_env import SB3VecEnv
-from elastic_gym.training.vector import ActionRepeat
 
 ID = "elastic_gym/TwoLinkRigid-v0"
 KWARGS = {"task": "excitation", "episode_time": 0.02}

@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 import yaml
+from helpers import spec_env
 
 from elastic_gym.benchmark import load_suite, run_benchmark
 from elastic_gym.benchmark.scorecard import scorecard_markdown
@@ -120,7 +121,7 @@ class _Logged:
 def _own_predictions(run, seed: int, steps: int) -> np.ndarray:
     """The policy's own predict() on its training stack (one env, seed ``seed``), its LSTM
     state carried from step to step: the reference each comparison arm must reproduce."""
-    env = run.stack.make({"episode_time": None})
+    env = spec_env(run.spec, {"episode_time": None})
     obs, _ = env.reset(seed=seed)
     state, start, actions = None, True, []
     for _ in range(steps):
@@ -141,9 +142,9 @@ def test_each_arm_gets_the_policys_own_prediction_with_its_memory(memory_runs, k
     the action of arm i at every policy step is the policy's predict() on the training
     stack seeded i, with its own LSTM state (or frame stack) carried per arm; an LSTM that
     forgot its state acts otherwise."""
-    run = load_run(memory_runs[kind])
+    run = load_run(memory_runs[kind], trust_pickle=True)
     if kind == "observer-stacked":
-        assert run.stack.frame_stack == 3
+        assert run.spec.frames == 3
     group = evaluation_runs(run, 3, 40)
     world = build_world(group)
     logs: list[list] = [[] for _ in group.runs]
@@ -159,7 +160,7 @@ def test_each_arm_gets_the_policys_own_prediction_with_its_memory(memory_runs, k
         reference = _own_predictions(run, spec.seed, policy_steps)
         np.testing.assert_allclose(np.array(logs[i]), reference, rtol=0, atol=1e-6)
     if kind == "lstm":  # the memory matters: restarting it every step changes the actions
-        env = run.stack.make({"episode_time": None})
+        env = spec_env(run.spec, {"episode_time": None})
         obs, _ = env.reset(seed=40)
         forgetful = []
         for _ in range(policy_steps):
@@ -221,10 +222,10 @@ def test_evaluate_run_is_the_comparison_row_of_the_same_run_seed_and_plant(senso
     the track_rms of the comparison row of the same run, seed and plant, to 1e-12, and its
     return the sum of the env's rewards of that row's episode; one episode alone is the
     same arm of a batch."""
-    run = load_run(sensor_runs[kind])
+    run = load_run(sensor_runs[kind], trust_pickle=True)
     heavy = {"plant_scaling": {"link_mass": 1.2}}
     evaluation = evaluate_run(run, 3, 5, heavy)
-    kwargs = {**run.stack.env_kwargs, **heavy}
+    kwargs = {**run.spec.env_kwargs, **heavy}
     scenario = _scenario({kind: sensor_runs[kind]}, kwargs, EPISODE["episode_time"], [5, 6, 7])
     runs, _ = plan_runs(scenario)
     rows = {
@@ -244,7 +245,7 @@ def test_evaluate_run_is_the_comparison_row_of_the_same_run_seed_and_plant(senso
 def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
     """A raw-sensor policy fed an estimate fails its row naming the source to use; raw
     sensors take no initial estimate (refused when the runs are planned)."""
-    run = load_run(sensor_runs["lstm"])
+    run = load_run(sensor_runs["lstm"], trust_pickle=True)
     spec = evaluation_runs(run, 1, 0).first
     deluca = {"source": SourceEntry(name="deluca"), "observer_cls": source_class("deluca")}
     (result,) = run_group(RunGroup((dataclasses.replace(spec, **deluca),)))
@@ -261,7 +262,7 @@ def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
         evaluate_run(run, 0)
     from elastic_gym.training.policy_controller import TrainedPolicyController
 
-    env = run.stack.make()
+    env = spec_env(run.spec)
     model = env.unwrapped.model
     env.close()
     loaded = r"^best: applies only when run is a run folder, not a loaded run$"

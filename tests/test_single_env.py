@@ -7,12 +7,12 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import policy_env
 
 from elastic_gym.arms import as_batch, single_arm
 from elastic_gym.observers import ObserverWrapper, TrueStateWrapper, vector
 from elastic_gym.observers.finite_difference import FiniteDifferenceObserver
 from elastic_gym.single_env import SingleArmWrapper
-from elastic_gym.training import make_policy_env
 
 ID = "elastic_gym/TwoLinkRigid-v0"
 
@@ -60,7 +60,7 @@ def test_the_wrapped_envs_info_items_come_back_unchanged():
 
 
 def test_an_ended_episode_needs_a_reset_at_every_level_of_a_stack():
-    env = make_policy_env(ID, "true", {"episode_time": 0.005}, decimation=2)
+    env = policy_env(ID, "true", {"episode_time": 0.005}, decimation=2)
     with pytest.raises(RuntimeError, match="reset"):
         env.step(np.zeros(2))
     env.reset(seed=0)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from helpers import policy_env, spec_env
 
 from elastic_gym.training import (
     ActionConfig,
@@ -15,13 +16,11 @@ from elastic_gym.training import (
     TrainConfig,
     evaluate_run,
     load_run,
-    make_policy_env,
     parse_overrides,
     train,
 )
 from elastic_gym.training.config import Settings, load_hyperparams_file, resolve_hyperparams
 from elastic_gym.training.rollouts import evaluate_policy
-from elastic_gym.training.run_envs import PolicyStack
 
 SHORT_EPISODES = {"max_episode_steps": 200}
 
@@ -67,8 +66,11 @@ def test_short_run_saves_reloads_and_acts_the_same(tmp_path, algo, hyperparams):
     assert (tmp_path / algo / "tb").is_dir()
     assert result.policy_steps >= 128 and result.env_steps == 10 * result.policy_steps
 
-    first, second = load_run(result.out_dir), load_run(result.out_dir)
-    env = first.stack.make()  # the run's own observation and actions
+    first, second = (
+        load_run(result.out_dir, trust_pickle=True),
+        load_run(result.out_dir, trust_pickle=True),
+    )
+    env = spec_env(first.spec)  # the run's own observation and actions
     obs, _ = env.reset(seed=0)
     observations = [obs]
     for _ in range(5):
@@ -119,9 +121,9 @@ def test_ppo_learns_to_hold_the_arm_against_gravity(tmp_path):
     # the learning curve shows the learning: return up, tracking error down
     assert curve["eval_return"][-1] > curve["eval_return"][0]
     assert curve["tracking_rms"][-1] < 0.3 * curve["tracking_rms"][0]
-    trained = evaluate_run(load_run(config.out_dir), n_episodes=2)
+    trained = evaluate_run(load_run(config.out_dir, trust_pickle=True), n_episodes=2)
     settings, _ = config.settings()
-    env = PolicyStack.of(config, settings).make()
+    env = spec_env(config.policy_spec(settings))
     zero = evaluate_policy(env, lambda obs: np.zeros(2), trained.seeds)
     env.close()
     assert zero.rms > 5e-3
@@ -130,7 +132,7 @@ def test_ppo_learns_to_hold_the_arm_against_gravity(tmp_path):
 
 
 def test_residual_policy_env_starts_from_the_classical_controller():
-    env = make_policy_env(
+    env = policy_env(
         "elastic_gym/TwoLinkElastic-v0",
         "true",
         {"max_episode_steps": 300, "accelerometer": "ideal"},
@@ -173,7 +175,7 @@ def test_a_residual_on_link_masses_is_the_base_on_the_corrected_model():
     }
 
     def run(a: float, space: str = "link-mass", shared: bool = False) -> np.ndarray:
-        env = make_policy_env(
+        env = policy_env(
             "elastic_gym/TwoLinkElastic-v0",
             "true",
             {**kwargs, "plant_scaling": {"link_mass": 1.3}},
@@ -212,14 +214,14 @@ def test_a_residual_on_link_masses_is_the_base_on_the_corrected_model():
     with pytest.raises(ValueError, match="residual_shared needs"):
         ActionConfig(kind="residual", residual="motor-pd", residual_shared=True)
     with pytest.raises(ValueError, match="'link_mass_estimate' needs"):
-        make_policy_env(
+        policy_env(
             "elastic_gym/TwoLinkElastic-v0",
             "true",
             action={**action, "residual_rate": None},
             observation={"features": ["error", "link_mass_estimate"]},
         )
     with pytest.raises(ValueError, match="needs a base with INVDYN"):
-        make_policy_env(
+        policy_env(
             "elastic_gym/TwoLinkRigid-v0",
             "true",
             action={**action, "residual": "feedback-linearization"},
@@ -240,7 +242,7 @@ def test_link_mass_fit_is_the_load_at_a_reset_at_rest(state, rtol):
     }
     for shared in (False, True):
         for scale, fitted in ((1.3, 0.3), (1.0, 0.0)):
-            env = make_policy_env(
+            env = policy_env(
                 "elastic_gym/TwoLinkElastic-v0",
                 state,
                 {"plant_scaling": {"link_mass": scale}, "task": "tracking"},
@@ -255,7 +257,7 @@ def test_link_mass_fit_is_the_load_at_a_reset_at_rest(state, rtol):
                 np.testing.assert_array_equal(held, obs)
             env.close()
     with pytest.raises(ValueError, match="'link_mass_fit' needs"):
-        make_policy_env(
+        policy_env(
             "elastic_gym/TwoLinkElastic-v0",
             "true",
             action={**action, "residual_space": "torque"},
@@ -351,7 +353,9 @@ def test_a_run_trained_without_normalization_loads_and_evaluates(tmp_path):
     folder still loads, acts on the raw features and evaluates on the comparison's loop
     (SB3's unpickled wrapper recursed when asked for the missing statistics)."""
     hyperparams = {"n_envs": 2, "n_steps": 64, "batch_size": 64, "normalize": False}
-    run = load_run(short_deluca_run(tmp_path / "raw", "ppo", hyperparams).out_dir)
+    run = load_run(
+        short_deluca_run(tmp_path / "raw", "ppo", hyperparams).out_dir, trust_pickle=True
+    )
     assert not run.normalizer.norm_obs
     features = np.linspace(-1.0, 1.0, run.model.observation_space.shape[0], dtype=np.float32)
     assert np.array_equal(run.normalizer.normalize_obs(features[None])[0], features)
@@ -397,7 +401,7 @@ def test_shipped_robust_recipes_randomize_every_plant_parameter(recipe, delays_d
 
 
 def test_raw_sensor_policy_env_stacks_frames():
-    env = make_policy_env("elastic_gym/TwoLinkElastic-v0", "sensors", decimation=5, frame_stack=4)
+    env = policy_env("elastic_gym/TwoLinkElastic-v0", "sensors", decimation=5, frame_stack=4)
     obs, _ = env.reset(seed=0)
     # motor error, 2 accelerometers, reference q_d, q_d', q_d'', last action
     assert obs.shape == (4 * (2 + 6 + 6 + 2),)
@@ -409,8 +413,8 @@ def test_a_state_source_is_seen_in_frames_oldest_first_and_raw_sensors_refuse_th
     memoryless stack, oldest first (the reset frame repeated until k steps were taken);
     raw sensors are stacked by ``frame_stack`` and refuse ``frames``."""
     kwargs = {"decimation": 5, "action": {"kind": "motor-offset"}}
-    plain = make_policy_env("elastic_gym/TwoLinkElastic-v0", "deluca", **kwargs)
-    framed = make_policy_env("elastic_gym/TwoLinkElastic-v0", "deluca", frame_stack=3, **kwargs)
+    plain = policy_env("elastic_gym/TwoLinkElastic-v0", "deluca", **kwargs)
+    framed = policy_env("elastic_gym/TwoLinkElastic-v0", "deluca", frame_stack=3, **kwargs)
     seen = [plain.reset(seed=3)[0]]
     stacked = [framed.reset(seed=3)[0]]
     for k in range(4):
@@ -425,7 +429,7 @@ def test_a_state_source_is_seen_in_frames_oldest_first_and_raw_sensors_refuse_th
     plain.close()
     framed.close()
     config = TrainConfig(algo="ppo", state="deluca", observation={"frames": 4})
-    assert PolicyStack.of(config, config.settings()[0]).frame_stack == 4
+    assert config.policy_spec(config.settings()[0]).frames == 4
     with pytest.raises(ValueError, match=r"observation\.frames: applies only when the state"):
         TrainConfig(algo="ppo", state="sensors", observation={"frames": 4})
 
@@ -544,7 +548,7 @@ def test_trained_run_as_comparison_controller_matches_the_policy_env(
         hyperparams=hyperparams,
     )
     train(config, progress_bar=False)
-    run = load_run(config.out_dir)
+    run = load_run(config.out_dir, trust_pickle=True)
 
     env = ObserverWrapper(gym.make(config.env_id, **SHORT_EPISODES), "deluca")
     controller = make_controller("trained-policy", env.unwrapped.model, 1e-3, run=config.out_dir)
@@ -559,7 +563,7 @@ def test_trained_run_as_comparison_controller_matches_the_policy_env(
     env.close()
     comparison_state = info["true_state"]["x"]
 
-    policy_env = make_policy_env(
+    policy_env = policy_env(
         config.env_id,
         "deluca",
         SHORT_EPISODES,
@@ -612,7 +616,7 @@ def test_run_folder_freezes_its_hyperparameters(tmp_path):
     assert saved["hyperparams_file"] is None
     assert saved["hyperparams"]["decimation"] == 5
     assert saved["hyperparams"]["gamma"] == resolve_hyperparams("sac", config.env_id)["gamma"]
-    assert load_run(tmp_path / "f").decimation == 5
+    assert load_run(tmp_path / "f", trust_pickle=True).decimation == 5
     assert saved["action"] == ActionConfig(kind="motor-offset").to_dict()
     assert saved["observation"] == ObservationConfig().to_dict()
 
@@ -732,14 +736,14 @@ def test_corrupted_run_folder_is_named(tmp_path):
     train(tiny_config(tmp_path / "run"), progress_bar=False)
     (tmp_path / "run" / "vecnormalize.pkl").write_bytes(b"garbage")
     with pytest.raises(ValueError, match=r"vecnormalize\.pkl cannot be loaded: UnpicklingError"):
-        load_run(tmp_path / "run")
+        load_run(tmp_path / "run", trust_pickle=True)
     (tmp_path / "run" / "config.yaml").write_text("algo: ppo\nlearning_rate: 3\n")
     with pytest.raises(
         ValueError,
         match=r"config\.yaml is not a valid run configuration: "
         r"learning_rate: unexpected field",
     ):
-        load_run(tmp_path / "run")
+        load_run(tmp_path / "run", trust_pickle=True)
 
 
 def test_training_on_batches_in_worker_processes(tmp_path):
@@ -757,7 +761,7 @@ def test_training_on_batches_in_worker_processes(tmp_path):
     )
     result = train(config, progress_bar=False)
     assert result.policy_steps == 128
-    run = load_run(config.out_dir)
+    run = load_run(config.out_dir, trust_pickle=True)
     assert run.settings.batches == 2
     assert np.load(Path(config.out_dir) / "evaluations.npz")["results"].shape[1] == 2
     with pytest.raises(ValueError, match="batches"):
@@ -785,7 +789,7 @@ def test_batches_with_their_own_env_kwargs_train_on_two_plants():
         hyperparams={"n_envs": 2, "batches": [{}, heavy]},
     )
     settings, _ = config.settings()
-    venv = training_vec_env(PolicyStack.of(config, settings), settings, 2, seed=4)
+    venv = training_vec_env(config.policy_spec(settings), settings, 2, seed=4)
     venv.reset()
     actions = np.array([[0.2, -0.1], [0.2, -0.1]])
     for _ in range(3):
@@ -794,7 +798,7 @@ def test_batches_with_their_own_env_kwargs_train_on_two_plants():
     for arm, kwargs in enumerate(({}, heavy)):
         expected = []
         for plant in ({}, heavy):
-            env = make_policy_env(
+            env = policy_env(
                 config.env_id,
                 "true",
                 {**config.training_env_kwargs(settings), **plant},

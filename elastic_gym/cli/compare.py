@@ -11,11 +11,12 @@ from elastic_gym.cli.common import require_rl_extra
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
 from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
 from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
-from elastic_gym.policy.loading import TRUST_HELP
 from elastic_gym.runtime.parallel import BACKENDS, DEFAULT_BACKEND
 
 
 def add_parser(subcommands: argparse._SubParsersAction) -> None:
+    from elastic_gym.policy.loading import TRUST_HELP
+
     parser = subcommands.add_parser(
         "compare",
         help="compare controllers x state sources (true state, observers) on envs",
