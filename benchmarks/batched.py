@@ -39,10 +39,11 @@ from elastic_gym.controllers import public_info
 from elastic_gym.controllers.vector import make_vector_controller
 from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.observers import ObserverWrapper, TrueStateWrapper, vector
-from elastic_gym.training import vector as training_vector
+from elastic_gym.policy import PolicySpec, build_policy_env
+from elastic_gym.policy import vector as training_vector
+from elastic_gym.policy.wrappers import ActionRepeat
 from elastic_gym.training.config import resolve_settings
-from elastic_gym.training.policy_env import make_policy_vec_env
-from elastic_gym.training.wrappers import ActionRepeat
+from elastic_gym.training.teacher import PlantTeacher
 
 AT_REST = {"task": "excitation", "task_options": {"amplitude": 0.0}, "episode_time": None}
 TARGET_BATCH_RATIO = 2.0
@@ -275,18 +276,18 @@ def teacher_costs(env_id: str, n_arms: int, policy_steps: int, repeats: int) -> 
     decimation), ``"teacher"`` with the plant teacher's labels and ``"without"`` them."""
     settings, _ = resolve_settings("recurrentppo", env_id, file=DISTILLED_RECIPE)
 
+    spec = PolicySpec(
+        env_id=env_id,
+        state="sensors",
+        env_kwargs=settings.env_kwargs,
+        decimation=settings.decimation,
+        action=settings.action,
+        observation=settings.observation,
+    )
+
     def stack(teacher: bool) -> gym.vector.VectorEnv:
-        return make_policy_vec_env(
-            env_id,
-            n_arms,
-            state="sensors",
-            env_kwargs=settings.env_kwargs,
-            decimation=settings.decimation,
-            action=settings.action,
-            observation=settings.observation,
-            autoreset_mode=AutoresetMode.NEXT_STEP,
-            teacher=teacher,
-        )
+        envs = build_policy_env(spec, spec.make_env(n_arms, autoreset_mode=AutoresetMode.NEXT_STEP))
+        return PlantTeacher(envs, spec.decimation) if teacher else envs
 
     envs = {"without": stack(False), "teacher": stack(True)}
     actions = np.zeros((n_arms, *envs["without"].single_action_space.shape))

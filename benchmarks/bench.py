@@ -66,7 +66,7 @@ from elastic_gym.controllers.registry import make_controller
 from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.observers import ObserverWrapper
 from elastic_gym.observers.registry import applicable_observers, make_observer
-from elastic_gym.training.wrappers import ActionRepeat
+from elastic_gym.policy.wrappers import ActionRepeat
 
 CONTROLLER = "feedforward-state-feedback"  # eq. (13)
 LOOP_OBSERVER = {"elastic": "deluca", "rigid": "reduced-order"}

@@ -85,7 +85,7 @@ def main() -> None:
         ("motor-offset PD, zero action", "true", lambda: ZeroOffsetPD(model, 1e-3)),
     ]
     for run in args.policy:
-        law = make_controller("trained-policy", model, 1e-3, run=run)
+        law = make_controller("trained-policy", model, 1e-3, policy=run, trust_pickle=True)
         rows.append((f"policy {run}", law.state_source, lambda law=law: law))
     print(f"| controller | state | {' | '.join(TERM_NAMES)} | sum | track RMS [rad] |")
     print("|---|---|" + "---:|" * (len(TERM_NAMES) + 2))

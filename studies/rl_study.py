@@ -55,8 +55,8 @@ from pathlib import Path
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
+from elastic_gym.policy import PolicySpec, build_policy_env
 from elastic_gym.training import TrainConfig, load_run, train
-from elastic_gym.training.policy_env import make_policy_vec_env
 from elastic_gym.training.rollouts import Evaluation, evaluate_arms
 from elastic_gym.training.run_folder import CURVE_FILE, FINISHED
 from elastic_gym.training.trained import evaluate_run
@@ -227,15 +227,11 @@ def classical_evaluation(
 ) -> Evaluation:
     """A classical controller (with ``options``) on the evaluation episodes, through the
     policy stack: a residual on it whose action is zero applies exactly its torque."""
-    envs = make_policy_vec_env(
-        env_id,
-        episodes,
-        source,
-        env_kwargs,
-        decimation=10,
-        action={"kind": "residual", "residual": controller, "residual_options": options or {}},
-        autoreset_mode=AutoresetMode.NEXT_STEP,
+    action = {"kind": "residual", "residual": controller, "residual_options": options or {}}
+    spec = PolicySpec(
+        env_id=env_id, state=source, env_kwargs=env_kwargs, decimation=10, action=action
     )
+    envs = build_policy_env(spec, spec.make_env(episodes, autoreset_mode=AutoresetMode.NEXT_STEP))
     try:
         return evaluate_arms(envs, lambda obs: np.zeros((len(obs), envs.n)), seed)
     finally:
@@ -246,15 +242,14 @@ def zero_action_evaluation(
     env_id: str, env_kwargs: dict, episodes: int = EVAL_EPISODES, seed: int = EVAL_SEED
 ) -> Evaluation:
     """The motor-offset PD with a zero action: where a pure-RL policy starts."""
-    envs = make_policy_vec_env(
-        env_id,
-        episodes,
-        "true",
-        env_kwargs,
+    spec = PolicySpec(
+        env_id=env_id,
+        state="true",
+        env_kwargs=env_kwargs,
         decimation=10,
         action={"kind": "motor-offset"},
-        autoreset_mode=AutoresetMode.NEXT_STEP,
     )
+    envs = build_policy_env(spec, spec.make_env(episodes, autoreset_mode=AutoresetMode.NEXT_STEP))
     try:
         return evaluate_arms(envs, lambda obs: np.zeros((len(obs), envs.n)), seed)
     finally:
@@ -394,7 +389,7 @@ def evaluate_all(study: Study, rows, runs: Path, out: Path, start: float) -> lis
             run = None
             for plant in row.plants:
                 if missing(row.key, seed, plant):
-                    run = run or load_run(row.config(seed, runs).out_dir)
+                    run = run or load_run(row.config(seed, runs).out_dir, trust_pickle=True)
                     kwargs = {**row.eval_task, **study.plants[plant]}
                     evaluation = evaluate_run(run, episodes, first, kwargs)
                     add(

@@ -11,12 +11,17 @@ import yaml
 from gymnasium.vector import AutoresetMode
 
 import elastic_gym
+from elastic_gym.arms import arm_view
 from elastic_gym.benchmark.suite import SUITE_DIR
 from elastic_gym.controllers import Controller, public_info
+from elastic_gym.controllers.vector import VectorController
 from elastic_gym.model import RobotModel
+from elastic_gym.observers import vector
 from elastic_gym.policy import PolicySpec, build_policy_env
 
 GRAVITY = 9.81
+N_ARMS = 3
+STEPS = 130  # one autoreset (episodes of 0.1 s at 1 kHz)
 
 
 def synthetic_log_columns(rows: int = 1200, dt: float = 1e-3, state: bool = True) -> dict:
@@ -404,3 +409,44 @@ def policy_vec_env(
 def spec_env(spec: PolicySpec, env_kwargs: dict | None = None, critic: bool = False):
     """A spec's stack on one env, ``env_kwargs`` updating the spec's."""
     return build_policy_env(spec, spec.make_env(env_kwargs=env_kwargs), critic=critic)
+
+
+def relative_gap(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.abs(a - b).max() / max(1.0, np.abs(b).max()))
+
+
+def closed_loop_gap(env_id: str, batched: VectorController, singles: list[Controller]) -> float:
+    """Drive a vector env with ``batched``; the largest relative gap between an arm's torque
+    and its own single controller's, over a closed loop through one autoreset (the arms'
+    torques differ: their own seeds give them their own references)."""
+    envs = vector.TrueStateWrapper(
+        gym.make_vec(
+            env_id, num_envs=N_ARMS, vectorization_mode="vector_entry_point", episode_time=0.1
+        )
+    )
+    obs, info = envs.reset(seed=11)
+    arms = np.arange(N_ARMS)
+    restart, ended = arms, np.zeros(N_ARMS, dtype=bool)
+    worst = spread = 0.0
+    resets = 0
+    for _ in range(STEPS):
+        public = public_info(info)
+        if len(restart):
+            batched.reset_arms(obs, public, restart)
+            for i in restart:
+                singles[i].reset(arm_view(obs, i), arm_view(public, i))
+        resets += len(restart)
+        torque = batched(obs, public)
+        spread = max(spread, relative_gap(torque[0], torque[1]))
+        assert torque.shape == (N_ARMS, envs.unwrapped.batch.n_joints)
+        for i, single in enumerate(singles):
+            worst = max(
+                worst, relative_gap(torque[i], single(arm_view(obs, i), arm_view(public, i)))
+            )
+        obs, _, terminated, truncated, info = envs.step(torque)
+        assert not terminated.any(), info["termination_reason"]
+        restart = np.flatnonzero(ended)  # arms the env has just reset (NEXT_STEP autoreset)
+        ended = terminated | truncated
+    envs.close()
+    assert resets == 2 * N_ARMS and spread > 1e-3
+    return worst

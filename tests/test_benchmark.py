@@ -207,7 +207,7 @@ def test_entries_record_what_they_read_and_oracles_are_marked():
             "give one of controller or run, not controller and run",
         ),
         ({"controller": "motor-pd", "sorce": "x"}, "entry.sorce: unexpected field"),
-        ({"run": "/nonexistent"}, "run: /nonexistent is not a training run folder"),
+        ({"run": "/nonexistent"}, "run: /nonexistent is neither an exported policy"),
     ]:
         with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
             resolve_entry(validated(Entry, fields, prefix="entry"))

@@ -265,7 +265,8 @@ def test_missing_or_corrupted_policy_folder_is_found_before_the_first_run(tmp_pa
     missing = scenario(
         controllers=[{"name": "trained-policy", "options": {"run": str(tmp_path / "nope")}}]
     )
-    with pytest.raises(ScenarioError, match=r"^controllers\[0\]\.options: .*not a training run"):
+    nor = r"^controllers\[0\]\.options: .*nor a training run folder"
+    with pytest.raises(ScenarioError, match=nor):
         run(missing, tmp_path / "out")
     broken = tmp_path / "broken"
     broken.mkdir()
@@ -275,7 +276,8 @@ def test_missing_or_corrupted_policy_folder_is_found_before_the_first_run(tmp_pa
     (broken / "config.yaml").write_text(yaml.safe_dump(config.to_dict()))
     (broken / "model.zip").write_bytes(b"not a zip archive")
     (broken / "vecnormalize.pkl").write_bytes(b"not a pickle")
-    corrupted = scenario(controllers=[{"name": "trained-policy", "options": {"run": str(broken)}}])
+    trusted = {"run": str(broken), "trust_pickle": True}
+    corrupted = scenario(controllers=[{"name": "trained-policy", "options": trusted}])
     with pytest.raises(
         ScenarioError,
         match=r"^controllers\[0\]\.options: .*model\.zip cannot be "
@@ -286,6 +288,11 @@ def test_missing_or_corrupted_policy_folder_is_found_before_the_first_run(tmp_pa
     (broken / "config.yaml").write_text("algo: [sac\n")
     with pytest.raises(SystemExit) as info:
         main(["compare", "--policy", str(broken), "--output", str(tmp_path / "out")])
+    assert info.value.code == 2  # a run folder: refused before its pickles are opened
+    assert "elastic-gym export" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:
+        argv = ["compare", "--policy", str(broken), "--trust-pickle"]
+        main([*argv, "--output", str(tmp_path / "out")])
     assert info.value.code == 2
     assert "config.yaml is not a valid run configuration" in capsys.readouterr().err
 

@@ -291,7 +291,7 @@ def test_diverging_run_is_reported_not_raised():
         ),
         (
             {"controllers": ["trained-policy"]},
-            r"^controllers\[0\]\.options: .*missing a required argument: 'run'",
+            r"^controllers\[0\]\.options: .*give one of policy or run",
         ),
         (
             {"state_sources": [{"name": "deluca", "options": {"acceleration": "ideal"}}]},

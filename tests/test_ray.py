@@ -83,6 +83,7 @@ def test_ray_backend_gives_the_same_table_and_trains_two_seeds(tmp_path, capsys)
             "compare",
             "--policy",
             str(out / "seed0"),
+            "--trust-pickle",
             "--seeds",
             "0",
             "--duration",

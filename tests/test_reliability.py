@@ -1003,7 +1003,9 @@ def test_a_run_folder_whose_config_no_longer_matches_its_model_is_refused_before
             "name": "policy",
             "duration": 0.02,
             "envs": [{"id": "TwoLinkElastic-v0"}],
-            "controllers": [{"name": "trained-policy", "options": {"run": str(run)}}],
+            "controllers": [
+                {"name": "trained-policy", "options": {"run": str(run), "trust_pickle": True}}
+            ],
             "state_sources": ["true"],
         }
     )

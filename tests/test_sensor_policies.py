@@ -21,6 +21,7 @@ from elastic_gym.evaluation.groups import RunGroup
 from elastic_gym.evaluation.scenario import Scenario, ScenarioError, SourceEntry
 from elastic_gym.evaluation.world import build_world
 from elastic_gym.observers.registry import source_class
+from elastic_gym.policy.controller import PolicyController
 from elastic_gym.training import TrainConfig, evaluate_run, load_run, train
 from elastic_gym.training.trained import evaluation_runs
 
@@ -253,21 +254,24 @@ def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
     assert "pair it with the state source 'sensors'" in result.status
     data = {
         "envs": [ENV_ID],
-        "controllers": [{"name": "trained-policy", "options": {"run": sensor_runs["lstm"]}}],
+        "controllers": [
+            {
+                "name": "trained-policy",
+                "options": {"run": sensor_runs["lstm"], "trust_pickle": True},
+            }
+        ],
         "state_sources": [{"name": "sensors", "initial_estimate": [0.0] * 8}],
     }
     with pytest.raises(ScenarioError, match=r"state_sources\[0\]\.initial_estimate"):
         plan_runs(Scenario.model_validate(data))
     with pytest.raises(ValueError, match=r"^n_episodes must be an integer >= 1, got 0$"):
         evaluate_run(run, 0)
-    from elastic_gym.training.policy_controller import TrainedPolicyController
-
     env = spec_env(run.spec)
     model = env.unwrapped.model
     env.close()
-    loaded = r"^best: applies only when run is a run folder, not a loaded run$"
+    loaded = r"^options: best: applies only when the policy is a folder$"
     with pytest.raises(ValueError, match=loaded):
-        TrainedPolicyController(model, 1e-3, run, best=True)
+        PolicyController(model, 1e-3, run.policy, best=True)
 
 
 def test_benchmark_scores_a_raw_sensor_run_as_implementable(sensor_runs, tmp_path):
@@ -280,7 +284,7 @@ def test_benchmark_scores_a_raw_sensor_run_as_implementable(sensor_runs, tmp_pat
     suite_file = tmp_path / "tiny.yaml"
     suite_file.write_text(yaml.safe_dump(data))
     card = run_benchmark(
-        {"run": sensor_runs["lstm"]},
+        {"run": sensor_runs["lstm"], "trust_pickle": True},
         suite=suite_file,
         output_dir=tmp_path / "card",
         workers=1,

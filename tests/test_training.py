@@ -551,7 +551,10 @@ def test_trained_run_as_comparison_controller_matches_the_policy_env(
     run = load_run(config.out_dir, trust_pickle=True)
 
     env = ObserverWrapper(gym.make(config.env_id, **SHORT_EPISODES), "deluca")
-    controller = make_controller("trained-policy", env.unwrapped.model, 1e-3, run=config.out_dir)
+    model = env.unwrapped.model
+    controller = make_controller(
+        "trained-policy", model, 1e-3, run=config.out_dir, trust_pickle=True
+    )
     assert controller.decimation == 10 and controller.state_source == "deluca"
     obs, info = env.reset(seed=4)
     controller.reset(obs, public_info(info))
@@ -563,7 +566,7 @@ def test_trained_run_as_comparison_controller_matches_the_policy_env(
     env.close()
     comparison_state = info["true_state"]["x"]
 
-    policy_env = policy_env(
+    stack = policy_env(
         config.env_id,
         "deluca",
         SHORT_EPISODES,
@@ -571,13 +574,13 @@ def test_trained_run_as_comparison_controller_matches_the_policy_env(
         action=action,
         observation=config.policy_configs(run.settings)[1],
     )
-    obs, _ = policy_env.reset(seed=4)
+    obs, _ = stack.reset(seed=4)
     training_return, done = 0.0, False
     while not done:
-        obs, reward, terminated, truncated, info = policy_env.step(run.act(obs))
+        obs, reward, terminated, truncated, info = stack.step(run.act(obs))
         training_return += reward
         done = terminated or truncated
-    policy_env.close()
+    stack.close()
     assert comparison_return == pytest.approx(training_return, rel=1e-9)
     np.testing.assert_allclose(comparison_state, info["true_state"]["x"], rtol=0, atol=1e-12)
 
@@ -593,7 +596,7 @@ def test_cli_rejects_bad_training_input(tmp_path, capsys):
         main(["train", "--algo", "a2c"])  # argparse lists the valid choices
     with pytest.raises(SystemExit) as exit_info:
         main(["compare", "--policy", str(tmp_path)])
-    assert "not a training run folder" in capsys.readouterr().err
+    assert "is neither an exported policy" in capsys.readouterr().err
 
 
 def test_run_folder_freezes_its_hyperparameters(tmp_path):

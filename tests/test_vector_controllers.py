@@ -7,22 +7,18 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import N_ARMS, closed_loop_gap, relative_gap
 
-from elastic_gym.arms import arm_view
-from elastic_gym.controllers import Controller, make_controller, public_info
+from elastic_gym.controllers import Controller, make_controller
 from elastic_gym.controllers.invdyn import RigidTorque
 from elastic_gym.controllers.vector import (
     ControllerArray,
     ControllerTwin,
-    VectorController,
     make_vector_controller,
 )
 from elastic_gym.model import RobotModel
-from elastic_gym.observers import vector
 from elastic_gym.robots.catalog import ROBOTS, get_robot
 
-N_ARMS = 3
-STEPS = 130  # one autoreset (episodes of 0.1 s at 1 kHz)
 TWO_LINK, KR15, IIWA = (
     f"elastic_gym/{n}-v0" for n in ("TwoLinkElastic", "KR15Elastic", "IiwaElastic")
 )
@@ -58,45 +54,6 @@ CASES = [
     ),
     (RIGID, "policy", {"policy": _tanh_policy, "decimation": 2}),
 ]
-
-
-def _relative(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.abs(a - b).max() / max(1.0, np.abs(b).max()))
-
-
-def closed_loop_gap(env_id: str, batched: VectorController, singles: list[Controller]) -> float:
-    """Drive a vector env with ``batched``; the largest relative gap between an arm's torque
-    and its own single controller's, over a closed loop through one autoreset (the arms'
-    torques differ: their own seeds give them their own references)."""
-    envs = vector.TrueStateWrapper(
-        gym.make_vec(
-            env_id, num_envs=N_ARMS, vectorization_mode="vector_entry_point", episode_time=0.1
-        )
-    )
-    obs, info = envs.reset(seed=11)
-    arms = np.arange(N_ARMS)
-    restart, ended = arms, np.zeros(N_ARMS, dtype=bool)
-    worst = spread = 0.0
-    resets = 0
-    for _ in range(STEPS):
-        public = public_info(info)
-        if len(restart):
-            batched.reset_arms(obs, public, restart)
-            for i in restart:
-                singles[i].reset(arm_view(obs, i), arm_view(public, i))
-        resets += len(restart)
-        torque = batched(obs, public)
-        spread = max(spread, _relative(torque[0], torque[1]))
-        assert torque.shape == (N_ARMS, envs.unwrapped.batch.n_joints)
-        for i, single in enumerate(singles):
-            worst = max(worst, _relative(torque[i], single(arm_view(obs, i), arm_view(public, i))))
-        obs, _, terminated, truncated, info = envs.step(torque)
-        assert not terminated.any(), info["termination_reason"]
-        restart = np.flatnonzero(ended)  # arms the env has just reset (NEXT_STEP autoreset)
-        ended = terminated | truncated
-    envs.close()
-    assert resets == 2 * N_ARMS and spread > 1e-3
-    return worst
 
 
 @pytest.mark.parametrize(("env_id", "name", "options"), CASES)
@@ -186,9 +143,9 @@ def test_batched_rigid_torque_and_its_derivatives_equal_pinocchio(robot):
             return out + (0.0 if model.friction is None else model.friction.derivative(s[1]) * s[2])
 
         central = (pin_slope(rt._ahead @ r) - pin_slope(rt._behind @ r)) / (2.0 * rt.fd_step)
-        assert _relative(tau[k], expected) < 1e-13
-        assert _relative(dtau[k], slope) < 1e-13
-        assert _relative(ddtau[k], central) < 1e-9  # a difference quotient: rounding / 2h
+        assert relative_gap(tau[k], expected) < 1e-13
+        assert relative_gap(dtau[k], slope) < 1e-13
+        assert relative_gap(ddtau[k], central) < 1e-9  # a difference quotient: rounding / 2h
 
 
 @pytest.mark.usefixtures("single_thread_torch")
@@ -210,7 +167,7 @@ def test_trained_policy_arms_equal_the_single_controller(tmp_path):
     )
     train(config, progress_bar=False)
     model = gym.make(TWO_LINK).unwrapped.model
-    options = {"run": config.out_dir}
+    options = {"run": config.out_dir, "trust_pickle": True}
     batched = make_vector_controller("trained-policy", model, 1e-3, N_ARMS, **options)
     assert isinstance(batched, ControllerTwin)
     singles = [make_controller("trained-policy", model, 1e-3, **options) for _ in range(N_ARMS)]

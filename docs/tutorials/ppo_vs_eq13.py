@@ -22,6 +22,7 @@ from rich.console import Console
 import elastic_gym  # noqa: F401 - registers the environments
 from elastic_gym.evaluation import Scenario, compare
 from elastic_gym.training import TrainConfig, train
+from elastic_gym.training.export_run import export_run
 
 QUICK = os.environ.get("ELASTIC_GYM_TUTORIAL_QUICK") == "1"
 STEPS = 2048 if QUICK else 100_000
@@ -57,9 +58,17 @@ print(result.out_dir, result.policy_steps, "policy steps")
 
 # %% [markdown]
 # The run folder holds `model.zip`, `vecnormalize.pkl`, `config.yaml`, `summary.json` and
-# `learning_curve.csv`; `elastic-gym compare --policy RUN` and the `trained-policy`
-# controller rebuild the policy's whole stack (features, normalization, decimation, motor
-# PD) from it.
+# `learning_curve.csv`. Its model and statistics are pickles (code, when loaded): the
+# export (`elastic-gym export RUN`) writes the policy as data instead, an ONNX graph and a
+# manifest, from which `elastic-gym compare --policy` and the `trained-policy` controller
+# rebuild the policy's whole stack (features, normalization, decimation, motor PD).
+
+# %%
+exported = work / "ppo-export"
+manifest = export_run(result.out_dir, exported)
+print(manifest.observation.size, "observation entries at", manifest.policy_rate, "Hz")
+
+# %% [markdown]
 #
 # ## The comparison
 #
@@ -75,7 +84,7 @@ scenario = Scenario.from_dict(
         "envs": ["TwoLinkElastic-v0"],
         "controllers": [
             {"name": "feedforward-state-feedback", "label": "eq. (13)"},
-            {"name": "trained-policy", "label": "ppo", "options": {"run": result.out_dir}},
+            {"name": "trained-policy", "label": "ppo", "options": {"policy": str(exported)}},
         ],
         "state_sources": ["true", "deluca"],
     }

@@ -266,6 +266,8 @@ def _as_given(options: dict, entry: Entry) -> dict:
         return options
     resolved = str(Path(entry.run).resolve())
     return {key: entry.run if value == resolved else value for key, value in options.items()}
+
+
 def _run_record(run: Path) -> dict[str, Any]:
     """What the scorecard says about a policy folder: its name, env, algorithm, state
     source, seed and steps (an exported policy's manifest, or a run's config.yaml)."""

@@ -36,20 +36,11 @@ def run_export(args: argparse.Namespace) -> int:
     from elastic_gym.cli.common import require_rl_extra
 
     require_rl_extra("export")
-    from elastic_gym.policy.export import export_policy
-    from elastic_gym.training.export_run import read_run
+    from elastic_gym.training.export_run import export_run
 
     run = Path(args.run)
     output = Path(args.output) if args.output else run.with_name(f"{run.name}-export")
-    exported = read_run(run, best=args.best)
-    manifest = export_policy(
-        exported.spec,
-        exported.policy,
-        exported.normalization,
-        exported.provenance,
-        output,
-        overwrite=args.overwrite,
-    )
+    manifest = export_run(run, output, best=args.best, overwrite=args.overwrite)
     print(
         f"exported {run} -> {output}/ ({manifest.env_id}, state {manifest.state!r}, "
         f"{manifest.observation.size} observation entries, {manifest.action.size} actions, "

@@ -10,8 +10,8 @@ a in [-1, 1]^n, held for ``decimation`` control periods, becomes a torque at eve
   (d = ``residual_deadzone``); with ``residual_space: link-mass`` the residual scales the
   link masses of the base's model instead, s_i = 1 + residual_scale * rho(a_i), and
   tau = tau_base + sum_i (s_i - 1) d tau_base / d s_i, the base's law on that model
-  (:class:`~elastic_gym.controllers.invdyn.LinkMassSensitivity`), one shared s with
-  ``residual_shared``, the rate of s with ``residual_rate`` (:class:`LinkMassResidual`).
+  ([`LinkMassSensitivity`][elastic_gym.controllers.invdyn.LinkMassSensitivity]), one shared s with
+  ``residual_shared``, the rate of s with ``residual_rate`` (`LinkMassResidual`).
 """
 
 from __future__ import annotations
@@ -186,7 +186,7 @@ class ActionMap:
         q_d, q_d', ... are needed by ``motor-offset``; ``base_torque`` (N, n) by
         ``residual``, and on link masses also ``base_sensitivity`` (N, n, n), row i of an
         arm d tau_base / d s_i (the base's ``link_mass_sensitivity``), and with
-        ``residual_rate`` ``mass_change`` (N, size), s - 1 of the :class:`LinkMassEstimate`
+        ``residual_rate`` ``mass_change`` (N, size), s - 1 of the `LinkMassEstimate`
         (size 1: one scale for all links).
         """
         a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
@@ -219,7 +219,7 @@ class ActionMap:
     ) -> np.ndarray:
         """The ``motor-offset`` action (rows, n), unclipped, whose motor PD applies
         ``torque`` at this motor state and reference (rows q_d, q_d', ...): the inverse of
-        :meth:`torque`, a = ((tau [- g(q_d)] - kd (q_d' - theta')) / kp + theta - q_d) /
+        `torque`, a = ((tau [- g(q_d)] - kd (q_d' - theta')) / kp + theta - q_d) /
         offset_scale."""
         q_d, dq_d = reference[:, 0], reference[:, 1]
         if self.config.gravity_compensation:
@@ -266,11 +266,11 @@ FIT_BOUND = 10.0  # |feature| bound of link_mass_fit (in units of residual_scale
 class LinkMassFit:
     """The feature ``link_mass_fit`` of each arm: (s_fit - 1) / residual_scale (N, size),
     within +-FIT_BOUND, the link-mass scales that explained its base's motor-position
-    error at its last reset, held. Call :meth:`latch` with the arms just reset, after the
+    error at its last reset, held. Call `latch` with the arms just reset, after the
     base's call on their first observation.
 
-    s_fit - 1 is :func:`~elastic_gym.controllers.invdyn.fit_link_masses` of that call: the
-    load exactly at a reset at rest, before the base has acted (a static load
+    s_fit - 1 is [`fit_link_masses`][elastic_gym.controllers.invdyn.fit_link_masses] of
+    that call: the load exactly at a reset at rest, before the base has acted (a static load
     identification). Once the base moves the motor, theta carries its action, so the
     value of each arm's reset is held.
     """
@@ -294,10 +294,10 @@ class LinkMassFit:
 class LinkMassResidual:
     """What a residual on link masses keeps of each arm beside its vector base: the
     base's d tau / d s at its last call, the scales integrated from the action with
-    ``residual_rate`` (:class:`LinkMassEstimate`) and the load fitted at each reset
-    (:class:`LinkMassFit`). The training stack and the trained-policy controller each
-    hold one and, per control period: :meth:`restart` the arms reset, call the base,
-    :meth:`after_base`, read :meth:`features`, then :meth:`advance` under the action.
+    ``residual_rate`` (`LinkMassEstimate`) and the load fitted at each reset
+    (`LinkMassFit`). The training stack and the trained-policy controller each
+    hold one and, per control period: `restart` the arms reset, call the base,
+    `after_base`, read `features`, then `advance` under the action.
 
     Args:
         config: the action parameterization (on link masses).
@@ -341,12 +341,12 @@ class LinkMassResidual:
 
     def advance(self, action: np.ndarray) -> np.ndarray | None:
         """s - 1 (N, size) under the actions (N, size) when they set its rate (one control
-        period of :class:`LinkMassEstimate`); None when they set s itself."""
+        period of `LinkMassEstimate`); None when they set s itself."""
         return None if self.estimate is None else self.estimate.advance(action)
 
 
 def link_mass_residual(config: ActionConfig, base, n_arms: int, dt: float):
-    """The :class:`LinkMassResidual` of a residual on link masses over its vector base,
+    """The `LinkMassResidual` of a residual on link masses over its vector base,
     else None."""
     return LinkMassResidual(config, base, n_arms, dt) if config.on_link_masses else None
 

@@ -128,7 +128,13 @@ class OnnxActor(Actor):
     """
 
     def __init__(self, path: str | Path) -> None:
-        import onnxruntime
+        try:
+            import onnxruntime
+        except ImportError as exc:  # pragma: no cover - the optional dependency is missing
+            raise ImportError(
+                f"running an exported policy needs onnxruntime ({exc}): pip install "
+                "'elastic-gym[export]'"
+            ) from None
 
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = options.inter_op_num_threads = 1  # same numbers anywhere

@@ -1,18 +1,18 @@
 """What a policy sees: a flat vector of scaled features, built on arrays with a leading
 arm axis (N arms).
 
-Features (:class:`ObservationConfig`, in this order when selected; n joints, m
-accelerometers): ``error``, ``error_rate`` and ``error_integral`` (:class:`ErrorIntegral`,
+Features (`ObservationConfig`, in this order when selected; n joints, m
+accelerometers): ``error``, ``error_rate`` and ``error_integral`` (`ErrorIntegral`,
 the integral action's information) of the state source, ``reference``
 (q_d .. q_d^(k-1), scaled per order), ``preview`` (q_d(t + h) - q_d(t) for horizons h),
 ``torsion`` and ``torsion_rate`` (elastic state), ``motor_error``, ``reset_rest``
-(:class:`RestAtReset`) and ``acceleration`` (raw sensors), ``last_action``,
+(`RestAtReset`) and ``acceleration`` (raw sensors), ``last_action``,
 ``base_torque``, ``base_motor_error`` (residual: the motor half of the base's x - x_d of
 eq. (13), zero on the nominal plant while it tracks), ``link_mass_estimate`` and
 ``link_mass_fit`` (a residual's link-mass scales, and those its base's motor error showed
 at the reset). The reference and its preview are no measurement: the task defines them.
-:class:`TrueStateFeatures` computes the state features of the true state, what a
-privileged critic sees (:mod:`elastic_gym.training.critic`).
+`TrueStateFeatures` computes the state features of the true state, what a
+privileged critic sees (`elastic_gym.training.critic`).
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ GRAVITY = 9.81
 
 
 def _in_order(features: tuple[str, ...] | None) -> tuple[str, ...] | None:
-    """Features repeat nowhere and are kept in the order of :data:`FEATURES`."""
+    """Features repeat nowhere and are kept in the order of `FEATURES`."""
     distinct(features or (), "observation feature(s)")
     return features and tuple(f for f in FEATURES if f in features)
 
@@ -70,7 +70,7 @@ def _in_order(features: tuple[str, ...] | None) -> tuple[str, ...] | None:
 class ObservationConfig(ConfigModel):
     """Which features the policy sees and their scales (module docstring).
 
-    ``features=None`` selects the defaults of :func:`default_features` for the state
+    ``features=None`` selects the defaults of `default_features` for the state
     source and action kind; ``full_state`` adds ``torsion_rate`` to that selection on
     elastic arms, so that the state features hold the whole state (q, theta, q',
     theta') relative to the reference (without it theta' is unseen; explicit
@@ -150,10 +150,10 @@ class ObservationInputs:
     ``preview`` (N, H, n) q_d at the preview horizons; ``last_action`` (N, a), a the
     action's entries; ``base_torque`` (N, n) of the residual's base in the last control
     period and ``base_error`` (N, 4n) its x - x_d on the current state; ``error_integral``
-    (N, n) of :class:`ErrorIntegral`; ``link_mass_estimate`` (N, a) the residual's
+    (N, n) of `ErrorIntegral`; ``link_mass_estimate`` (N, a) the residual's
     link-mass scales (s - 1) / residual_scale; ``link_mass_fit`` (N, a) the scales that fit
     the base's motor error at the arm's reset, (s_fit - 1) / residual_scale;
-    ``reset_rest`` (N, 2n) of :class:`RestAtReset`.
+    ``reset_rest`` (N, 2n) of `RestAtReset`.
     """
 
     reference: np.ndarray
@@ -221,7 +221,7 @@ class ErrorIntegral:
 
 
 class ObservationBuilder:
-    """Flat policy observations (N, size) from :class:`ObservationInputs`.
+    """Flat policy observations (N, size) from `ObservationInputs`.
 
     Args:
         config: the features and scales.

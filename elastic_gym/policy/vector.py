@@ -1,11 +1,10 @@
-"""Vector-env twins of the policy wrappers of :mod:`elastic_gym.policy.wrappers`.
+"""Vector-env twins of the policy wrappers of `elastic_gym.policy.wrappers`.
 
-The same logic (:class:`~elastic_gym.policy.actions.ActionMap`,
-:class:`~elastic_gym.policy.observation.ObservationBuilder`) on all the arms of a vector
-env (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``) at once. Resets of
-some arms — autoresets, or ``reset(options={"reset_mask": ...})`` as
-:class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv` does — restart their controllers,
-last actions and frame stacks only.
+The same logic ([`ActionMap`][elastic_gym.policy.actions.ActionMap],
+[`ObservationBuilder`][elastic_gym.policy.observation.ObservationBuilder]) on all the arms
+of a vector env (``gym.make_vec(id, N, vectorization_mode="vector_entry_point")``) at once.
+Resets of some arms — autoresets, or ``reset(options={"reset_mask": ...})`` as training's
+SB3 vec env does — restart their controllers, last actions and frame stacks only.
 """
 
 from __future__ import annotations
@@ -45,7 +44,7 @@ from elastic_gym.validation import checked_count
 
 
 def elastic_batch(env: gym.vector.VectorEnv) -> Any:
-    """The :class:`~elastic_gym.envs.batch.ArmBatch` of an elastic_gym vector env (or of
+    """The [`ArmBatch`][elastic_gym.envs.batch.ArmBatch] of an elastic_gym vector env (or of
     a single env seen as one arm)."""
     return cast(Any, env.unwrapped).batch
 
@@ -91,16 +90,16 @@ class PolicyAction(_ArmResets):
     Args:
         env: a vector env below an observer wrapper (or raw sensors for the ``torque``
             and ``motor-offset`` kinds).
-        action: an :class:`ActionConfig` or its fields.
+        action: an `ActionConfig` or its fields.
 
     A residual's base controller is a vector controller of all arms
-    (:func:`~elastic_gym.controllers.vector.make_vector_controller`).
+    ([`make_vector_controller`][elastic_gym.controllers.vector.make_vector_controller]).
     ``info["base_torque"]`` (N, n) holds the residual's base torque of the step just
     taken (zeros for other kinds and after a reset). The base is called on each
     observation as it arrives (its torque is applied at the next step); for a base with a
     desired state ``info["base_error"]`` (N, dim) is its state error x - x_d there.
     A residual on link masses keeps its arms' scales in ``link_mass``
-    (:class:`~elastic_gym.policy.actions.LinkMassResidual`) and gives its features as
+    ([`LinkMassResidual`][elastic_gym.policy.actions.LinkMassResidual]) and gives its features as
     ``info["link_mass_fit"]`` (N, a), the scales its base's motor error showed at each
     arm's reset, and with ``residual_rate`` ``info["link_mass_estimate"]`` (N, a).
     """
@@ -308,16 +307,16 @@ class PolicyObservation(_ArmResets):
 class CriticState(gym.vector.VectorWrapper):
     """Every arm's flat policy observation with privileged entries appended for a critic
     in training: its true state's features
-    (:class:`~elastic_gym.policy.observation.TrueStateFeatures` of
+    ([`TrueStateFeatures`][elastic_gym.policy.observation.TrueStateFeatures] of
     ``info["true_state"]``, the current step only, not frame-stacked) if ``state``, then,
     if ``plant``, the plant parameters the arm drew at its last reset
     (``info["plant"]`` of every randomized path, in the order of
-    :data:`~elastic_gym.envs.randomization.PATHS`; 0 for an arm that does not randomize
+    [`PATHS`][elastic_gym.envs.randomization.PATHS]; 0 for an arm that does not randomize
     a path). The first entries are the policy's observation, unchanged.
 
     Args:
         env: a flat policy stack (``PolicyObservation``, possibly frame-stacked).
-        observation: the stack's :class:`ObservationConfig` (its scales are used).
+        observation: the stack's `ObservationConfig` (its scales are used).
         state: append the true state's features.
         plant: append the drawn plant parameters (the env must randomize some).
     """

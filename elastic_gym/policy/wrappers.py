@@ -1,16 +1,16 @@
 """Single-env wrapper shells around the policy-side logic (``actions``, ``observation``).
 
-Stack, bottom to top (``make_policy_env``)::
+Stack, bottom to top ([`build_policy_env`][elastic_gym.policy.builder.build_policy_env])::
 
     env -> ObserverWrapper -> PolicyAction -> ActionRepeat -> PolicyObservation
 
-* :class:`PolicyAction`: the action in [-1, 1]^n becomes a torque at every control period
-  (:class:`~elastic_gym.policy.actions.ActionMap`);
-* :class:`ActionRepeat`: the action is held for ``k`` periods and the rewards summed,
+* `PolicyAction`: the action in [-1, 1]^n becomes a torque at every control period
+  ([`ActionMap`][elastic_gym.policy.actions.ActionMap]);
+* `ActionRepeat`: the action is held for ``k`` periods and the rewards summed,
   above the observer, which still sees every sample;
-* :class:`PolicyObservation`: the features of
-  :class:`~elastic_gym.policy.observation.ObservationBuilder`;
-* :class:`CriticState` (training only): the true state's features and/or the drawn plant
+* `PolicyObservation`: the features of
+  [`ObservationBuilder`][elastic_gym.policy.observation.ObservationBuilder];
+* `CriticState` (training only): the true state's features and/or the drawn plant
   parameters appended for a privileged critic.
 """
 
@@ -46,7 +46,7 @@ class PolicyAction(_CheckedActions[vector.PolicyAction], gym.utils.RecordConstru
     Args:
         env: an elastic_gym env below an ``ObserverWrapper`` (or raw sensors for the
             ``torque`` and ``motor-offset`` kinds).
-        action: an :class:`ActionConfig` or its fields.
+        action: an `ActionConfig` or its fields.
 
     ``info["base_torque"]`` holds the residual's base torque (zeros for other kinds),
     ``info["base_error"]`` its base's state error x - x_d (a base with a desired state).
@@ -78,9 +78,9 @@ class PolicyObservation(_CheckedActions[vector.PolicyObservation], gym.utils.Rec
     """The policy's flat observation (module docstring of ``observation``).
 
     Args:
-        env: a stack with a :class:`PolicyAction` below (its action kind decides whether
+        env: a stack with a `PolicyAction` below (its action kind decides whether
             the base torque is available).
-        observation: an :class:`ObservationConfig` or its fields.
+        observation: an `ObservationConfig` or its fields.
         frame_stack: the last ``frame_stack`` feature vectors, oldest first (the first
             repeated after a reset).
     """
@@ -107,11 +107,11 @@ class PolicyObservation(_CheckedActions[vector.PolicyObservation], gym.utils.Rec
 class CriticState(SingleArmWrapper[vector.CriticState], gym.utils.RecordConstructorArgs):
     """The flat policy observation with privileged entries appended (training only): the
     true state's features (``state``) and/or the drawn plant parameters (``plant``), as
-    :class:`~elastic_gym.policy.vector.CriticState`.
+    [`CriticState`][elastic_gym.policy.vector.CriticState].
 
     Args:
         env: a flat policy stack (``PolicyObservation``).
-        observation: the stack's :class:`ObservationConfig` (its scales are used).
+        observation: the stack's `ObservationConfig` (its scales are used).
         state: append the true state's features.
         plant: append the drawn plant parameters (the env must randomize some).
     """

@@ -32,6 +32,7 @@ SCHEMAS = {
     "robot": "elastic_gym.robots.description:RobotDescription",  # robot description files
     "model": "elastic_gym.model.identified:IdentifiedModel",  # elastic-gym identify's model file
     "scorecard": "elastic_gym.benchmark.card:Scorecard",  # a benchmark scorecard (JSON)
+    "policy": "elastic_gym.policy.manifest:Manifest",  # an exported policy's policy.json
 }
 
 

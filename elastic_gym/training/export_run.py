@@ -29,7 +29,8 @@ from typing import Any
 import numpy as np
 
 from elastic_gym.policy.builder import build_policy_env
-from elastic_gym.policy.export import Normalization
+from elastic_gym.policy.export import Normalization, export_policy
+from elastic_gym.policy.manifest import Manifest
 from elastic_gym.policy.spec import PolicySpec
 from elastic_gym.training.config import algorithm_class, default_policy
 from elastic_gym.training.run_folder import FINISHED, RunFolder
@@ -220,3 +221,25 @@ def _provenance(run: RunFolder, config: Any, model_file: Path) -> dict[str, Any]
         "hyperparams": dict(config.hyperparams),
         "run_files": {path.name: _digest(path) for path in files},
     }
+
+
+def export_run(
+    folder: str | Path,
+    output: str | Path | None = None,
+    best: bool = False,
+    overwrite: bool = False,
+) -> Manifest:
+    """`elastic-gym export` in Python: the run in ``folder`` (read as data, `read_run`)
+    written as an exported policy to ``output`` (default: ``<folder>-export`` beside it);
+    returns its manifest."""
+    run = Path(folder)
+    target = Path(output) if output is not None else run.with_name(f"{run.name}-export")
+    exported = read_run(run, best=best)
+    return export_policy(
+        exported.spec,
+        exported.policy,
+        exported.normalization,
+        exported.provenance,
+        target,
+        overwrite=overwrite,
+    )
