@@ -290,10 +290,6 @@ def test_diverging_run_is_reported_not_raised():
             r"^controllers\[1\]\.options\.omegaa: unexpected option; valid: \[.*'omega'",
         ),
         (
-            {"controllers": ["trained-policy"]},
-            r"^controllers\[0\]\.options: .*give one of policy or run",
-        ),
-        (
             {"state_sources": [{"name": "deluca", "options": {"acceleration": "ideal"}}]},
             r"^state_sources\[0\]\.options\.acceleration: fixed to 'accelerometer' by the name",
         ),

@@ -166,7 +166,8 @@ def test_the_manifest_says_what_each_input_is_and_satisfies_its_schema(tmp_path)
     assert manifest.provenance.algo == "recurrentppo"
     assert set(manifest.provenance.run_files) == {"model.zip", "vecnormalize.pkl", "config.yaml"}
     # the files of the folder: small, and no pickle
-    assert sorted(p.name for p in (tmp_path / "exported").iterdir()) == [GRAPH_FILE, MANIFEST_FILE]
+    files = sorted(p.name for p in (tmp_path / "exported").iterdir())
+    assert files == sorted([GRAPH_FILE, MANIFEST_FILE])
 
 
 def test_a_changed_graph_or_manifest_is_refused(tmp_path):
@@ -184,7 +185,7 @@ def test_a_changed_graph_or_manifest_is_refused(tmp_path):
     data = json.loads((changed / MANIFEST_FILE).read_text())
     data["spec"]["action"]["kind"] = "teleport"
     (changed / MANIFEST_FILE).write_text(json.dumps(data))
-    with pytest.raises(ValueError, match=r"policy\.json: spec\.action\.kind"):
+    with pytest.raises(ValueError, match=r"policy\.json: spec\.action\.kind: Input should be"):
         load_policy(changed)
     # the export refuses a folder holding files, and replaces it with --overwrite
     with pytest.raises(SystemExit) as exit_info:
@@ -293,3 +294,20 @@ def test_the_export_reads_weights_only_from_the_model_zip(tmp_path, capsys):
     assert exit_info.value.code == 2
     assert "holds no SB3 policy weights" in capsys.readouterr().err
     assert not marker.exists()
+
+
+def test_a_policy_controller_without_its_policy_is_refused_before_any_run(tmp_path):
+    from elastic_gym.evaluation import Scenario, ScenarioError, compare
+
+    scenario = Scenario.from_dict(
+        {
+            "envs": ["TwoLinkRigid-v0"],
+            "controllers": ["trained-policy"],
+            "state_sources": ["true"],
+            "duration": 0.01,
+        }
+    )
+    out = tmp_path / "out"
+    with pytest.raises(ScenarioError, match=r"^controllers\[0\]\.options: .*give one of policy"):
+        compare(scenario, output_dir=out, workers=1, progress=False)
+    assert not out.exists()

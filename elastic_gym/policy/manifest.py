@@ -158,4 +158,7 @@ def read_manifest(folder: str | Path) -> Manifest:
         data = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
         raise ValueError(f"{path}: not a readable manifest: {exc}") from None
-    return validated(Manifest, data, prefix=str(path))
+    try:
+        return validated(Manifest, data)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
