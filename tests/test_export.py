@@ -218,6 +218,11 @@ def test_the_exported_policy_runs_in_the_comparison_as_the_run_does(tmp_path):
             break
     env.close()
     assert max(gaps) < 1e-4
+    from elastic_gym.training import evaluate_run, load_run
+
+    exported_rms = evaluate_run(load_policy(tmp_path / "exported"), 2, 7).tracking_rms
+    trusted_rms = evaluate_run(load_run(run, trust_pickle=True), 2, 7).tracking_rms
+    np.testing.assert_allclose(exported_rms, trusted_rms, rtol=1e-3)
     options = {"policy": str(tmp_path / "exported")}
     batched = make_vector_controller("trained-policy", model, 1e-3, N_ARMS, **options)
     singles = [make_controller("trained-policy", model, 1e-3, **options) for _ in range(N_ARMS)]

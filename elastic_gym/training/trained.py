@@ -148,17 +148,19 @@ def episode_duration(env_id: str, env_kwargs: dict) -> float:
 
 
 def evaluation_runs(
-    run: TrainedRun, n_episodes: int, seed: int, env_kwargs: dict | None = None
+    run: TrainedRun | Policy, n_episodes: int, seed: int, env_kwargs: dict | None = None
 ) -> RunGroup:
-    """The comparison's runs of :func:`evaluate_run`: the ``trained-policy`` controller of
-    ``run`` (the loaded object, not its folder) on its state source, one run per seed
-    ``seed``, ``seed + 1``, ..., in the run's env with ``env_kwargs`` merged into its own."""
+    """The comparison's runs of `evaluate_run`: the ``trained-policy`` controller of
+    ``run`` (a loaded run, or a deployed policy such as an exported one) on its state
+    source, one run per seed ``seed``, ``seed + 1``, ..., in the policy's env with
+    ``env_kwargs`` merged into its own."""
     checked_count(n_episodes, "n_episodes", 1)
-    spec = run.spec
+    policy = run if isinstance(run, Policy) else run.policy
+    spec = policy.spec
     kwargs = {**spec.env_kwargs, **(env_kwargs or {})}
     duration = episode_duration(spec.env_id, kwargs)
     controller = ControllerEntry.model_validate(
-        {"name": TRAINED_POLICY, "options": {"policy": run.policy}}
+        {"name": TRAINED_POLICY, "options": {"policy": policy}}
     )
     source = SourceEntry.model_validate(
         {"name": spec.state, "options": dict(spec.observer_options)}
@@ -199,9 +201,13 @@ def evaluation_of(results: list[RunResult]) -> Evaluation:
 
 
 def evaluate_run(
-    run: TrainedRun, n_episodes: int = 3, seed: int = 123, env_kwargs: dict | None = None
+    run: TrainedRun | Policy,
+    n_episodes: int = 3,
+    seed: int = 123,
+    env_kwargs: dict | None = None,
 ) -> Evaluation:
-    """The deterministic policy of a run on ``n_episodes`` fresh episodes (seeds
+    """The deterministic policy of a run (or a deployed policy, e.g.
+    ``load_policy("policies/ppo")`` of an exported one) on ``n_episodes`` fresh episodes (seeds
     ``seed``, ``seed + 1``, ...), run as the arms of one world of the comparison's loop
     (module docstring); ``env_kwargs`` are merged into the run's (e.g.
     ``{"plant_scaling": {"link_mass": 1.3}}``).
