@@ -1,14 +1,12 @@
 """Benchmark entries: what is scored, and what it reads.
 
 An entry is a closed loop of the comparison runner: a **controller** (registry name, a
-user's `Controller` subclass as ``"module:Class"``, or any
-callable policy through the ``policy`` controller) with its ``options``, paired with a
-**state source** (``"true"``, an observer registry name, a user's
-`Observer` subclass, or raw ``"sensors"`` for a controller
-that reads them); or a **policy folder** (``run``): an exported policy
-(``elastic-gym export``; no pickle) or, with ``trust_pickle``, a run folder written by
-``elastic-gym train`` — the ``trained-policy`` controller on the policy's own state source,
-raw sensors included.
+user's `Controller` subclass as ``"module:Class"``, or any callable policy through the
+``policy`` controller) with its ``options``, paired with a **state source** (``"true"``,
+an observer registry name, a user's `Observer` subclass, or raw ``"sensors"`` for a
+controller that reads them); or a **policy folder** (``run``: an exported policy, or with
+``trust_pickle`` a run folder of ``elastic-gym train``), the ``trained-policy`` controller
+on the policy's own state source, raw sensors included.
 
 The controller sees only the estimate, the reference and the time; the observer sees the
 sensors, the applied torque and the ground-truth items its class declares in

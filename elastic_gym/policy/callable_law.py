@@ -15,16 +15,13 @@ policy is called once per acting arm; the residual base runs as one vector contr
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
 from elastic_gym.arms import arm_view
-from elastic_gym.controllers.vector import make_vector_controller
+from elastic_gym.controllers.vector import ControllerTwin, make_vector_controller
 from elastic_gym.policy.actions import residual_torque
-
-if TYPE_CHECKING:
-    from elastic_gym.policy.controller import VectorPolicy
 
 
 class CallableLaw:
@@ -32,7 +29,7 @@ class CallableLaw:
     [`VectorPolicy`][elastic_gym.policy.controller.VectorPolicy] whose controller runs a
     callable or an SB3-like model)."""
 
-    def __init__(self, twin: VectorPolicy) -> None:
+    def __init__(self, twin: ControllerTwin[Any]) -> None:
         c = twin.controller
         self.twin, self.c = twin, c
         N = twin.n_arms

@@ -1,20 +1,16 @@
 """The one controller that runs a policy in ``compare`` and ``benchmark``:
 `PolicyController`, registered as ``"policy"`` and ``"trained-policy"``.
 
-What it runs:
-
-* a **deployed policy** — an exported policy folder (`elastic-gym export`: an ONNX graph
-  and its manifest, run by onnxruntime, nothing unpickled), a training run folder (SB3
-  pickles: only with ``trust_pickle``), or a loaded
-  [`Policy`][elastic_gym.policy.loading.Policy]: the policy sees the features of its spec
-  on the state source it was trained on and its actions mean what its spec says
-  (`elastic_gym.policy.deployed_law`);
-* a **callable** ``obs -> action`` or an object with stable-baselines3's ``predict`` on the
-  env's own observation, its actions scaled to the torque limits or added as a bounded
-  residual to a base controller (`elastic_gym.policy.callable_law`).
-
-Both run batched, with each arm's memory (recurrent state, frame stack, held action) of
-its own: the single controller is the N = 1 case of its vector twin `VectorPolicy`.
+It runs a **deployed policy** — an exported policy folder (`elastic-gym export`: an ONNX
+graph and its manifest, run by onnxruntime, nothing unpickled), a training run folder (SB3
+pickles: only with ``trust_pickle``) or a loaded
+[`Policy`][elastic_gym.policy.loading.Policy] — on the features of its spec and the state
+source it was trained on (`elastic_gym.policy.deployed_law`); or a **callable**
+``obs -> action`` (or an object with SB3's ``predict``) on the env's own observation, its
+actions scaled to the torque limits or added as a bounded residual to a base controller
+(`elastic_gym.policy.callable_law`). Both run batched, each arm with its own memory
+(recurrent state, frame stack, held action): the single controller is the N = 1 case of
+its vector twin `VectorPolicy`.
 """
 
 from __future__ import annotations

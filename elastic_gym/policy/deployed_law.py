@@ -17,11 +17,11 @@ row, so an arm's numbers do not depend on the other arms of the batch.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from elastic_gym.controllers.vector import make_vector_controller
+from elastic_gym.controllers.vector import ControllerTwin, make_vector_controller
 from elastic_gym.policy.actions import check_link_mass_features, link_mass_residual
 from elastic_gym.policy.observation import (
     ErrorIntegral,
@@ -30,9 +30,6 @@ from elastic_gym.policy.observation import (
     base_state_error,
     check_base_error,
 )
-
-if TYPE_CHECKING:
-    from elastic_gym.policy.controller import VectorPolicy
 
 
 def at_bound(action: np.ndarray) -> np.ndarray:
@@ -45,7 +42,7 @@ class DeployedLaw:
     [`VectorPolicy`][elastic_gym.policy.controller.VectorPolicy] whose controller runs a
     deployed policy)."""
 
-    def __init__(self, twin: VectorPolicy) -> None:
+    def __init__(self, twin: ControllerTwin[Any]) -> None:
         c = twin.controller
         self.twin, self.c = twin, c
         N, n = twin.n_arms, twin.n

@@ -2,19 +2,15 @@
 manifest (`elastic_gym.policy.manifest`), the folder `load_policy` reads without
 unpickling anything.
 
-The graph computes, for a batch of observations x (B, size) float32,
-
-    z = clip((x - mean) / sqrt(var + eps), -clip_obs, clip_obs)    in float64, then float32
-    a = clip(action_net(mlp_actor(features(z))), -1, 1)             float32
-
-with the ``VecNormalize`` statistics of training (mean, var, eps, clip_obs; the identity
-when the run did not normalize) and stable-baselines3's actor (``policy.mlp_extractor``'s
-policy net and ``policy.action_net``: the mean of the Gaussian, the deterministic action,
-clipped to the action space as SB3's ``predict`` does). A recurrent policy (sb3-contrib's
-RecurrentPPO) runs its actor LSTM on z first, its hidden and cell state explicit inputs
-and outputs (zeros at an episode's start, as SB3 resets them). A privileged critic's
-entries (`elastic_gym.training.critic`) are not inputs: the actor never reads them.
-Exported with PyTorch's ONNX exporter (TorchScript-based, opset `OPSET`).
+For observations x (B, size) float32 the graph computes
+z = clip((x - mean) / sqrt(var + eps), -clip_obs, clip_obs) in float64, then float32, with
+training's ``VecNormalize`` statistics (the identity when the run did not normalize), and
+a = clip(action_net(mlp_actor(features(z))), -1, 1): stable-baselines3's deterministic
+action (the Gaussian's mean) clipped as SB3's ``predict`` clips it. A recurrent policy
+(sb3-contrib's RecurrentPPO) runs its actor LSTM on z first, its hidden and cell state
+explicit inputs and outputs (zeros at an episode's start). A privileged critic's entries
+(`elastic_gym.training.critic`) are no input: the actor never reads them. Exported with
+PyTorch's TorchScript-based ONNX exporter, opset `OPSET`.
 """
 
 from __future__ import annotations

@@ -1,20 +1,15 @@
 """The manifest of an exported policy (``policy.json`` beside ``policy.onnx``): what each
 input and output of the graph is, for a user who runs the graph outside elastic-gym.
 
-A folder written by `elastic-gym export` holds:
-
-* ``policy.onnx``: the deterministic actor as an ONNX graph, the observation normalization
-  of training (``VecNormalize``: clip((x - mean) / sqrt(var + eps), -clip, clip)) and the
-  clipping of the action to [-1, 1] inside it; a recurrent policy's LSTM hidden and cell
-  states are explicit inputs and outputs (zeros at the start of an episode);
-* ``policy.json``: this manifest — the policy's [`PolicySpec`][elastic_gym.policy.spec.PolicySpec]
-  (env id and kwargs, state source, action and observation configs, decimation, frames),
-  the observation layout (each feature block: where it starts, its size and meaning), the
-  action's meaning (kind, torque limits, motor PD gains), the policy rate, the graph's
-  inputs and outputs with its SHA-256, and where the policy comes from (the training run,
-  its algorithm, seed, steps, hyper-parameters and the SHA-256 of its files).
-
-Its JSON Schema ships as ``elastic_gym/schemas/policy.json`` (``elastic-gym schema policy``).
+``policy.onnx`` holds the deterministic actor with training's observation normalization
+and the clipping of the action to [-1, 1] inside it (a recurrent policy's LSTM state as
+explicit inputs and outputs, `elastic_gym.policy.export`). ``policy.json`` holds the
+policy's [`PolicySpec`][elastic_gym.policy.spec.PolicySpec], the observation layout (each
+feature block: where it starts, its size and meaning), the action's meaning (kind, torque
+limits, motor PD gains), the policy rate, the graph's inputs and outputs with its
+SHA-256, and where the policy comes from (the training run, its algorithm, seed, steps,
+hyper-parameters and the SHA-256 of its files). Its JSON Schema ships as
+``elastic_gym/schemas/policy.json`` (``elastic-gym schema policy``).
 """
 
 from __future__ import annotations

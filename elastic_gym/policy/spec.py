@@ -1,22 +1,16 @@
 """What a deployed policy is, as one object: `PolicySpec`.
 
-A policy acts on an env through a stack of wrappers (built by
-[`build_policy_env`][elastic_gym.policy.builder.build_policy_env]); everything that decides
-what it sees and what its actions mean is a field of the spec:
-
-* the env (``env_id``, ``env_kwargs``) and the state source the policy sees (``state``:
-  ``"true"``, an observer name, or raw ``"sensors"``) with the observer's options;
-* the action's meaning ([`ActionConfig`][elastic_gym.policy.actions.ActionConfig]) and the
-  observation's features ([`ObservationConfig`][elastic_gym.policy.observation.ObservationConfig]);
-* ``decimation``: control periods per policy step (the policy rate is 1 / (decimation
-  control_dt)); ``frame_stack``: the raw-sensor frames the policy sees, oldest first (a
-  state source stacks ``observation.frames`` instead);
-* the privileged inputs a critic saw in training (``critic_state``: the true state's
-  features, ``critic_plant``: the drawn plant parameters), appended to the observation
-  only when the builder is asked for the training stack; a deployed actor never reads them.
-
-The spec travels whole (training, evaluation, the comparison's controller, an exported
-policy's manifest), never its fields one by one.
+Everything that decides what a policy sees and what its actions mean is a field: the env
+(``env_id``, ``env_kwargs``), the state source (``"true"``, an observer name, or raw
+``"sensors"``) with the observer's options, the action's meaning
+([`ActionConfig`][elastic_gym.policy.actions.ActionConfig]), the observation's features
+([`ObservationConfig`][elastic_gym.policy.observation.ObservationConfig]), ``decimation``
+(control periods per policy step), ``frame_stack`` (the raw-sensor frames seen; a state
+source stacks ``observation.frames``) and the privileged inputs a critic saw in training
+(``critic_state``, ``critic_plant``: appended only to the training stack). The builder
+([`build_policy_env`][elastic_gym.policy.builder.build_policy_env]) makes the env stack
+from it. The spec travels whole (training, evaluation, the comparison's controller, an
+exported policy's manifest), never its fields one by one.
 """
 
 from __future__ import annotations

@@ -4,9 +4,8 @@ Vectorized envs: with ``n_envs > 1`` the arms share one PyBullet world (the batc
 env through :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`), or ``batches`` such
 worlds in worker processes (:class:`~elastic_gym.training.sb3_vec_env.ProcessBatches`,
 one per core; or batches with different env kwargs, e.g. plants), all made by
-`elastic_gym.training.run_envs` from the run's policy spec; ``VecNormalize`` whose
-statistics are saved beside the model, a learning curve
-([`LearningCurve`][elastic_gym.training.learning_curve.LearningCurve]:
+`elastic_gym.training.run_envs`; ``VecNormalize`` whose statistics are saved beside
+the model, a learning curve (:class:`~elastic_gym.training.learning_curve.LearningCurve`:
 deterministic episodes on the comparison's loop at the start, every ``eval_freq`` policy
 steps, default a twentieth of the run, and at the end) that keeps the best model,
 TensorBoard logs and a progress bar. The run folder
