@@ -433,7 +433,7 @@ def test_a_run_entry_is_recorded_by_the_path_it_was_given(monkeypatch):
 
     monkeypatch.chdir(ROOT)
     given = "docs/leaderboard/runs/ppo@deluca"
-    record = describe_entry(Entry(run=given))
-    assert record["controller_options"]["run"] == given
-    controller, _ = resolve_entry(Entry(run=given))
-    assert controller.options["run"] == str(ROOT / given)
+    record = describe_entry(Entry(run=given, trust_pickle=True))
+    assert record["controller_options"]["policy"] == given
+    controller, _ = resolve_entry(Entry(run=given, trust_pickle=True))
+    assert controller.options["policy"] == str(ROOT / given)
