@@ -9,9 +9,10 @@ that scores its entry (run from the repository's root). This script runs that co
 ``--output benchmark_out/<label> --overwrite``, copies the new card over the old one, and
 rebuilds the page, CSV and figure (``elastic-gym benchmark --leaderboard``). A new entry is
 scored once by hand (docs/benchmark.md) and its card copied in; from then on it is
-re-scored here. The RL entries' policies are in ``docs/leaderboard/runs/``, trained by the
-commands of ``docs/leaderboard/runs/COMMANDS.txt`` (training seeds 0 .., never the suite's
-evaluation seeds 90 000 ..).
+re-scored here. The RL entries' policies are exported policies in
+``docs/leaderboard/runs/`` (``policy.onnx`` and its manifest ``policy.json``: no pickle),
+trained by the commands of ``docs/leaderboard/runs/COMMANDS.txt`` (training seeds 0 ..,
+never the suite's evaluation seeds 90 000 ..) and exported with ``elastic-gym export``.
 """
 
 from __future__ import annotations

@@ -432,8 +432,9 @@ def test_a_run_entry_is_recorded_by_the_path_it_was_given(monkeypatch):
     from elastic_gym.benchmark.entry import describe_entry, resolve_entry
 
     monkeypatch.chdir(ROOT)
-    given = "docs/leaderboard/runs/ppo@deluca"
-    record = describe_entry(Entry(run=given, trust_pickle=True))
+    given = "docs/leaderboard/runs/ppo@deluca"  # an exported policy: no pickle, no trust
+    record = describe_entry(Entry(run=given))
     assert record["controller_options"]["policy"] == given
-    controller, _ = resolve_entry(Entry(run=given, trust_pickle=True))
+    assert record["run"]["exported"] and record["run"]["algo"] == "ppo"
+    controller, _ = resolve_entry(Entry(run=given))
     assert controller.options["policy"] == str(ROOT / given)
