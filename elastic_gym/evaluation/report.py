@@ -24,7 +24,7 @@ from rich.console import Console
 
 from elastic_gym.evaluation.episodes import RunResult
 from elastic_gym.evaluation.figure_names import check_plot_names
-from elastic_gym.evaluation.grid import SkippedRun
+from elastic_gym.evaluation.grid import SkippedRun, identified_files
 from elastic_gym.evaluation.margins import margin_rows, write_margins
 from elastic_gym.evaluation.output import (
     CURVE_DIR,
@@ -191,11 +191,16 @@ class Report:
         identity = scenario.identity_columns
         summary = summary_rows(rows, identity)
         markdown = markdown_table(summary, identity)
+        models = "".join(
+            f"Controllers and observers of robot {robot!r} built on the identified model "
+            f"{path} (the simulated plant is the env's).\n\n"
+            for robot, path in identified_files(scenario).items()
+        )
         try:
             write_csv(summary, out / "summary.csv")
             write_atomic(
                 out / "summary.md",
-                f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}\n{note}",
+                f"# {scenario.name}\n\n{scenario.description}\n\n{models}{markdown}\n{note}",
             )
         except OSError as exc:
             raise ResultsWriteError(
