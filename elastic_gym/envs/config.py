@@ -65,6 +65,8 @@ MAX_PHYSICS_DT = 1e-3 + 1e-15  # s
 MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
 EPISODE_TIME = 3.0  # s
 RenderMode = Literal["human", "rgb_array"]
+Integrator = Literal["pybullet", "rk4"]  # see EnvConfig.integrator
+INTEGRATORS: tuple[str, ...] = ("pybullet", "rk4")
 
 
 def _ideal_accelerometer(value: Any) -> Any:
@@ -283,7 +285,7 @@ class EnvConfig(StrictModel):
 
     task: str = "tracking"
     task_options: dict | None = None
-    integrator: Literal["pybullet", "rk4"] = "pybullet"
+    integrator: Integrator = "pybullet"
     physics_dt: Annotated[PositiveFinite, Field(le=MAX_PHYSICS_DT)] | None = None
     control_dt: Annotated[PositiveFinite, Field(le=MAX_CONTROL_DT)] | None = None
     encoder: EncoderConfig | None = None

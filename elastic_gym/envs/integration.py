@@ -12,15 +12,10 @@ something reads them (the simulator's `physics_period` is the compiled call of e
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 
 from elastic_gym.envs.plant import PlantArray
 from elastic_gym.model.integrator import MAX_SUBSTEPS, ArmIntegrator
-
-Integrator = Literal["pybullet", "rk4"]
-INTEGRATORS: tuple[str, ...] = ("pybullet", "rk4")
 
 
 class RungeKutta:

@@ -28,7 +28,8 @@ import numpy as np
 from numba import njit
 
 from elastic_gym.envs import bullet_capi
-from elastic_gym.envs.integration import Integrator, RungeKutta
+from elastic_gym.envs.config import Integrator
+from elastic_gym.envs.integration import RungeKutta
 from elastic_gym.envs.plant import PAYLOAD_LINK, PlantArray, last_link, payload_urdf
 from elastic_gym.envs.pybullet_quiet import pybullet as p
 from elastic_gym.model import RobotModel, SerialChain
