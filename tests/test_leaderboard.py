@@ -385,6 +385,27 @@ def test_a_file_the_rebuild_did_not_write_is_replaced_only_with_overwrite(board)
     rebuild(board)  # its own files: replaced without --overwrite
 
 
+def test_targets_that_are_one_file_or_a_card_are_refused_even_with_overwrite(board):
+    page = board.parent / "lb.md"
+    card = board / "eq13@deluca.json"
+    kept = card.read_bytes()
+    notes = board.parent / "notes.md"
+    notes.write_text("What the leaderboard shows.\n")
+    for kwargs, message in [
+        ({"csv_path": page}, r"--page and --csv name one file: .*lb\.md"),
+        ({"csv_path": board.parent / "x.png"}, r"--csv and --figure name one file"),
+        ({"csv_path": card}, r"--csv .*eq13@deluca\.json is in the scorecard folder"),
+        ({"figure": board / "f.png"}, r"--figure .*f\.png is in the scorecard folder"),
+        ({"csv_path": board.parent / "notes.md"}, r"--csv .*notes\.md is the notes the page"),
+    ]:
+        figure = kwargs.pop("figure", board.parent / "x.png")
+        with pytest.raises(ValueError, match=message):
+            rebuild_leaderboard(board, page, figure=figure, overwrite=True, **kwargs)
+        assert not page.exists() and card.read_bytes() == kept
+        assert notes.read_text() == "What the leaderboard shows.\n"
+    notes.unlink()
+
+
 @pytest.mark.slow
 def test_the_cli_rebuild_refuses_and_names_the_file(board, capsys):
     from elastic_gym.cli import main
