@@ -169,7 +169,8 @@ def written_here(path: Path) -> bool:
 
 def check_targets(targets: Mapping[str, Path], scorecards: Path, overwrite: bool) -> None:
     """The rebuild's targets (option -> path) may be written: ``ValueError`` when two name
-    one file or one is in the scorecard folder or is its notes (even with ``overwrite``),
+    one file or one is a scorecard file (``.json`` in the scorecard folder) or the notes
+    (even with ``overwrite``),
     ``IsADirectoryError`` for a folder, ``FileExistsError`` naming the first target that is
     not a file an earlier rebuild wrote (unless ``overwrite``)."""
     seen: dict[Path, str] = {}
@@ -178,10 +179,10 @@ def check_targets(targets: Mapping[str, Path], scorecards: Path, overwrite: bool
         if resolved in seen:
             raise ValueError(f"{seen[resolved]} and {option} name one file: {path}")
         seen[resolved] = option
-        if resolved.parent == scorecards.resolve():
+        if resolved.parent == scorecards.resolve() and resolved.suffix == ".json":
             raise ValueError(
-                f"{option} {path} is in the scorecard folder {scorecards}: write the page, "
-                "CSV and figure elsewhere"
+                f"{option} {path} is a scorecard file of {scorecards} (a .json there is a "
+                "card): choose another path"
             )
         if resolved == (scorecards.parent / NOTES).resolve():
             raise ValueError(f"{option} {path} is the notes the page includes, not a target")
