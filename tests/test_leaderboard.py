@@ -267,6 +267,11 @@ def test_an_oracle_relabelled_as_an_observer_contradicts_its_own_command(board):
     data["entry"]["label"] = "hostile"
     refused(board, data, r"entry.source: 'deluca', but the card's command names --source 'ekf'")
     data = card_data("eq13@deluca")
+    data["entry"].update(label="hostile", models=["kr15.yaml"])
+    refused(
+        board, data, r"entry.models: \['kr15.yaml'\], but the card's command names --model \[\]"
+    )
+    data = card_data("eq13@deluca")
     data.update(command=data["command"] + " --suite elastic-gym-v9")
     data["entry"]["label"] = "hostile"
     refused(board, data, r"suite: elastic-gym-v1, but the card's command names --suite 'elastic")

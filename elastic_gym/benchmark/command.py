@@ -174,10 +174,11 @@ def parse_command(command: str, where: str = "command") -> Command:
 
 def command_mismatches(card: Scorecard) -> list[str]:
     """Where the card's own command scores another entry than the card's ``entry`` says
-    (controller, source and their options; for a trained policy its run as given) or names
-    another shipped suite (a suite file is not compared): ``field: value, but the card's
-    command names --option value`` per difference. The label is not compared (a card may
-    be shown under another name). ``ValueError`` for a command that is not an entry's line."""
+    (controller, source, their options and model files; a trained policy's run as given) or
+    names another shipped suite (a suite file is not compared): ``field: value, but the
+    card's command names --option value`` per difference. The label is not compared (a card
+    may be shown under another name). ``ValueError`` for a command that is not an entry's
+    line."""
     if card.command is None:
         return []
     command = parse_command(card.command)
@@ -201,6 +202,7 @@ def command_mismatches(card: Scorecard) -> list[str]:
                 entry.source_options,
             ),
         ]
+    pairs.append(("--model", list(said.get("models", ())), "models", entry.models))
     problems = [
         f"entry.{field}: {value!r}, but the card's command names {option} {wanted!r}"
         for option, wanted, field, value in pairs
