@@ -253,6 +253,7 @@ def tiny_cards(tmp_path_factory):
     return root, suite_file, cards
 
 
+@pytest.mark.slow
 def test_scorecard_holds_the_comparisons_episodes_bit_for_bit(tiny_cards):
     root, suite_file, cards = tiny_cards
     suite = load_suite(suite_file)
