@@ -1,6 +1,6 @@
 """Training's round of fault injection: an overwrite that keeps the earlier run until the new
-one is complete, a folder in use named as such, hyper-parameters outside their meaning
-refused, and run files written whole."""
+one is complete, a folder in use named as such, options refused before any worker starts,
+hyper-parameters outside their meaning refused, and run files written whole."""
 
 from __future__ import annotations
 
@@ -181,6 +181,36 @@ def test_a_second_train_into_a_folder_in_use_names_the_process(tmp_path, capsys,
     finally:
         holder.kill()
         holder.wait()
+
+
+# ------------------------------------------------------------------ options before workers
+@pytest.mark.parametrize(
+    ("options", "named"),
+    [
+        (["--observer-options", "{omegaa: 100}"], "observer_options.omegaa: unexpected option"),
+        (["--residual", "feedforward-state-feedbak"], "action.residual: unknown controller"),
+        (
+            ["--residual", "motor-pd", "--action-options", "{residual_options: {kpp: 1}}"],
+            "action.residual_options.kpp: unexpected option",
+        ),
+        (["--env-kwargs", "{task_options: {move_tim: 1}}"], "move_tim"),
+    ],
+    ids=["observer-options", "residual", "residual-options", "env-kwargs"],
+)
+def test_options_only_a_worker_would_check_are_refused_before_any_starts(
+    tmp_path, capsys, options, named
+):
+    pytest.importorskip("stable_baselines3")
+    from elastic_gym.cli import main
+
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as stopped:
+        main(["train", "--steps", "64", "--out", str(out), "--no-progress", *options])
+    assert stopped.value.code == 2
+    err = capsys.readouterr().err
+    assert named in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
 
 
 # ------------------------------------------------------------------ hyper-parameters

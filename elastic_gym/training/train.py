@@ -5,7 +5,8 @@ Vectorized envs: with ``n_envs > 1`` the arms share one PyBullet world (`SB3VecE
 with different env kwargs), all made by `elastic_gym.training.run_envs`; ``VecNormalize``
 saved beside the model, a learning curve (`LearningCurve`: deterministic episodes on the
 comparison's loop, every ``eval_freq`` policy steps) that keeps the best model, TensorBoard
-logs and a progress bar. The run folder (`RunFolder`) is refused if it holds an
+logs and a progress bar. What only the envs would check is checked before any worker
+starts (`check_policy_env`). The run folder (`RunFolder`) is refused if it holds an
 earlier run unless ``overwrite`` (the new run is written beside it and takes its place
 when finished); what a failed or interrupted run wrote is removed. The model, its
 normalization, ``config.yaml`` and ``summary.json`` are in place before the envs' slow
@@ -24,6 +25,10 @@ from pathlib import Path
 
 from gymnasium.spaces import flatdim
 
+from elastic_gym.controllers.registry import controller_class
+from elastic_gym.evaluation.grid import check_options
+from elastic_gym.observers.registry import OBSERVERS, observer_class
+from elastic_gym.observers.sensors import SENSORS
 from elastic_gym.runtime.parallel import DEFAULT_BACKEND
 from elastic_gym.training.config import (
     Settings,
@@ -93,6 +98,7 @@ def train(
     settings, algo_kwargs = config.settings()  # a bad config changes nothing
     check_distill(config, settings)
     episode_duration(config.env_id, config.training_env_kwargs(settings))  # bounded evaluations
+    check_policy_env(config, settings)
     folder = RunFolder(config.out_dir)
     with folder.create(overwrite, lock) as run, single_threaded():
         return _train(config, settings, algo_kwargs, run, progress_bar, verbose)
@@ -234,7 +240,36 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
         setting = config.model_copy(update={"seed": 0, "out_dir": ""}).to_dict()
         if repr(setting) not in built:
             built.add(repr(setting))
-            PolicyStack.of(config, settings).make().close()
+            check_policy_env(config, settings)
+
+
+def check_policy_env(config: TrainConfig, settings: Settings) -> None:
+    """What only building a run's envs would check, checked in this process before any
+    worker starts, as a ``ValueError`` naming the option: the observer's options and the
+    residual's controller and options bound to their constructors, then the training
+    stack built once per batch of env kwargs (their values, e.g. a task's options)."""
+    action, _ = config.policy_configs(settings)
+    if config.state != SENSORS:
+        fixed = OBSERVERS[config.state][2]
+        cls = observer_class(config.state)
+        check_options(cls, config.observer_options, "observer_options", fixed)
+    if action.residual is not None:
+        try:
+            base = controller_class(action.residual)
+        except ValueError as exc:
+            raise ValueError(f"action.residual: {exc}") from None
+        check_options(base, action.residual_options, "action.residual_options")
+    stack = PolicyStack.of(config, settings)
+    privileged = {"critic_state": settings.critic_state, "critic_plant": settings.critic_plant}
+    for kwargs in {repr(k): k for k in settings.batch_kwargs}.values():
+        try:
+            stack.make(kwargs, **privileged).close()
+        except Exception as exc:
+            batch = f" with the batch's env kwargs {kwargs}" if kwargs else ""
+            what = " ".join(str(exc).split())
+            raise ValueError(
+                f"the run's policy env cannot be built{batch}: {type(exc).__name__}: {what}"
+            ) from None
 
 
 def train_many(
