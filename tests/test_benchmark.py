@@ -119,6 +119,23 @@ def test_bad_suites_are_refused_naming_the_field(change, message):
     assert message in str(info.value)
 
 
+def test_a_suite_file_with_every_weight_zero_is_refused_at_load_naming_the_file(tmp_path):
+    data = shipped_data()
+    for category in [*data["categories"].values(), data["precision"]]:
+        category["weight"] = 0
+    path = tmp_path / "zero.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ValueError) as info:
+        load_suite(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: categories: every weight is 0")
+    assert "got None" not in message and "\n" not in message
+    # one positive weight is enough (the overall score is then that score)
+    data["precision"]["weight"] = 0.5
+    path.write_text(yaml.safe_dump(data))
+    assert load_suite(path).precision.weight == 0.5
+
+
 # ---------------------------------------------------------------- scoring
 def test_precision_map_is_log_linear_and_monotone():
     assert precision_value(1e-6, 1e-6, 1e-1) == 1.0
@@ -236,6 +253,7 @@ def tiny_cards(tmp_path_factory):
     return root, suite_file, cards
 
 
+@pytest.mark.slow
 def test_scorecard_holds_the_comparisons_episodes_bit_for_bit(tiny_cards):
     root, suite_file, cards = tiny_cards
     suite = load_suite(suite_file)

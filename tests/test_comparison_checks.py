@@ -142,6 +142,7 @@ def test_output_folder_that_cannot_hold_results_is_refused_before_any_run(tmp_pa
     assert a_file.read_text() == "mine"
 
 
+@pytest.mark.slow
 def test_earlier_results_are_refused_unless_overwrite_which_removes_only_ours(tmp_path):
     run(scenario(), tmp_path)
     stale = tmp_path / "plots" / "old-scenario.png"
@@ -258,6 +259,7 @@ def test_plant_scaling_inside_axes_is_checked_when_loading():
         scenario(envs=[{"id": "TwoLinkRigid-v0", "kwargs": {"plant_scaling": {"link_mass": 0}}}])
 
 
+@pytest.mark.slow
 def test_missing_or_corrupted_policy_folder_is_found_before_the_first_run(tmp_path, capsys):
     pytest.importorskip("stable_baselines3")
     from elastic_gym.training import TrainConfig
@@ -346,6 +348,7 @@ def test_rows_and_figures_are_on_disk_as_soon_as_their_runs_finish(tmp_path, bat
     assert CountingController.seen(tmp_path)[-4:] == expected
 
 
+@pytest.mark.slow
 def test_compare_returns_mean_and_spread_over_seeds(tmp_path, monkeypatch):
     scn = scenario(
         seeds=[0, 1, 2],
@@ -371,6 +374,7 @@ def test_compare_returns_mean_and_spread_over_seeds(tmp_path, monkeypatch):
     assert [r["track_rms"] for r in plain.runs] == list(track)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("batch_size", "worlds"), [(1, 4), (64, 2)])
 def test_run_count_and_time_estimate_are_printed_first_and_hold(tmp_path, batch_size, worlds):
     scn = scenario(duration=0.2, seeds=[0, 1], state_sources=["finite-difference", "nicosia-tomei"])

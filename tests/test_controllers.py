@@ -339,6 +339,7 @@ def test_cristofaro_example3_true_state():
     assert np.abs(cristofaro_example3(None)).max() < 0.01  # measured 2.3e-3
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     importlib.util.find_spec("elastic_gym.observers.reduced_order") is None,
     reason="reduced-order observer not available",

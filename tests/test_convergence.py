@@ -67,6 +67,7 @@ def track_rms(rows: list[dict]) -> dict:
     return next(r for r in rows if r["metric"] == "track_rms")
 
 
+@pytest.mark.slow
 def test_comparison_default_step_is_converged_and_the_robots_default_is_not():
     scenario = nominal_eq13()
     assert scenario.physics_dt == COMPARISON_PHYSICS_DT == 1 / 16000

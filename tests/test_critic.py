@@ -142,6 +142,7 @@ def test_vector_critic_state_matches_the_single_env_truth_arm_by_arm():
         env.close()
 
 
+@pytest.mark.slow
 def test_critic_state_run_deploys_without_the_true_state(tmp_path):
     """Training on batched arms with ``critic_state``: the saved run reloads as a
     PrivilegedCriticPolicy; on the deployment stack (no true state) its action equals the
@@ -245,6 +246,7 @@ def test_critic_plant_without_randomization_or_on_other_algorithms_is_refused():
         resolve_hyperparams("ppo", TWO_LINK, {"critic_plant": True, "policy": "CnnPolicy"})
 
 
+@pytest.mark.slow
 def test_critic_plant_run_acts_as_its_actor_alone_and_deploys_without_the_plant(tmp_path):
     """Training randomized with ``critic_state`` and ``critic_plant``: the actor's action
     is bit for bit the same whatever the privileged entries (true state and drawn plant),

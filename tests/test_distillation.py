@@ -178,6 +178,7 @@ def test_distill_refuses_what_it_cannot_use():
             bad.settings()
 
 
+@pytest.mark.slow
 def test_a_distilled_run_loads_and_retrains_bit_for_bit(tmp_path):
     """A tiny distilled run: the learning curve has the start and one row per iteration
     at the policy steps collected, the run folder loads and evaluates, and the same

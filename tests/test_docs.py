@@ -115,7 +115,14 @@ def check_api_documents_each_object_once(site: Path) -> None:
         assert not re.fullmatch(r"[A-Z][A-Z0-9_]+", obj.name), f"constant {ident} listed"
 
 
-@pytest.mark.parametrize("page", ["README.md", "docs/getting-started.md", "docs/batched.md"])
+@pytest.mark.parametrize(
+    "page",
+    [
+        "README.md",
+        pytest.param("docs/getting-started.md", marks=pytest.mark.slow),  # a comparison
+        "docs/batched.md",
+    ],
+)
 def test_python_blocks_run(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the comparison writes compare_out/ here
     blocks = code_blocks(ROOT / page, "python")
@@ -125,6 +132,7 @@ def test_python_blocks_run(page, tmp_path, monkeypatch):
         exec(compile(block, page, "exec"), namespace)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tutorial", TUTORIALS, ids=[t.stem for t in TUTORIALS])
 def test_tutorials_run_with_short_settings(tutorial, tmp_path, monkeypatch):
     if tutorial.stem == "ppo_vs_eq13":

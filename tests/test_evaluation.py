@@ -305,6 +305,7 @@ def test_options_are_bound_to_the_constructor_before_any_run(entry, message):
         plan_runs(scenario)
 
 
+@pytest.mark.slow
 def test_compare_in_worker_processes_writes_tables_and_plots(tmp_path):
     scenario = Scenario.from_dict(
         rigid_scenario(
@@ -336,6 +337,7 @@ def test_compare_in_worker_processes_writes_tables_and_plots(tmp_path):
     assert again.controllers[0].cls.endswith(":GravityPD")
 
 
+@pytest.mark.slow
 def test_cli_default_preset_short_run(tmp_path, capsys):
     try:
         runs, _ = plan_runs(load_preset("default").with_overrides(seeds=[0]))
@@ -364,6 +366,7 @@ def test_cli_default_preset_short_run(tmp_path, capsys):
     assert len(rows) == len(runs) and {row["status"] for row in rows} == {"ok"}
 
 
+@pytest.mark.slow
 def test_compare_works_without_the_rl_extra(tmp_path):
     """`pip install .` (the README's main command) has no stable-baselines3 or torch (the
     `rl` extra): the CLI and a comparison must not need them."""

@@ -417,6 +417,8 @@ def test_compare_with_the_identified_model_estimates_and_tracks_better(tmp_path)
         assert main([*arguments, "--no-progress", "--workers", "1", *extra]) == 0
         with (out / "summary.csv").open() as handle:
             rows[label] = next(csv.DictReader(handle))
+    assert "built on the identified model" in (tmp_path / "identified" / "summary.md").read_text()
+    assert "identified model" not in (tmp_path / "nominal" / "summary.md").read_text()
     for metric in ("est_rms_q", "track_rms"):
         assert float(rows["identified"][metric]) < 0.2 * float(rows["nominal"][metric]), metric
 
@@ -434,6 +436,7 @@ def test_a_benchmark_entry_names_its_identified_model(tmp_path):
     assert command is not None and f"--model {path}" in command
     assert parse_command(command).entry["models"] == (str(path),)
     assert describe_entry(entry)["models"] == [str(path)]
+    assert entry.name == "feedforward-state-feedback@deluca+identified"
     scenario = suite_scenario(load_suite(DEFAULT_SUITE), *resolve_entry(entry), models=entry.models)
     runs, _ = plan_runs(scenario)
     two_link = [run for run in runs if "TwoLinkElastic" in run.env_id]

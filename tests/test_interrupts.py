@@ -100,6 +100,7 @@ def stop(process: subprocess.Popen, signum: int) -> tuple[float, str]:
     return workers_gone, err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_interrupted_compare_keeps_finished_runs_and_ends_its_workers(tmp_path, signum):
     (tmp_path / "sleepy_controller.py").write_text(SLEEPY_CONTROLLER)
@@ -156,6 +157,7 @@ def test_interrupted_compare_keeps_finished_runs_and_ends_its_workers(tmp_path, 
     assert len(data_rows(out / "summary.csv")) == 1
 
 
+@pytest.mark.slow
 def test_interrupted_multi_seed_training_keeps_finished_runs_and_ends_its_workers(tmp_path):
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "runs"

@@ -249,6 +249,34 @@ def test_malformed_cards_are_refused_naming_the_card_and_field(board, change, me
     refused(board, data, message)
 
 
+def test_an_oracle_relabelled_as_an_observer_contradicts_its_own_command(board):
+    """The true state's episodes under ``source: deluca``: its command still says
+    ``--source true``; a card whose entry is not the one its command scores is refused."""
+    data = card_data("eq13@true")
+    data["entry"].update(label="hostile", source="deluca", privileged=[], oracle=False)
+    refused(board, data, r"entry.source: 'deluca', but the card's command names --source 'true'")
+    data = card_data("eq13@deluca")
+    data["entry"].update(label="hostile", controller="link-pd")
+    message = r"entry.controller: 'link-pd', but the card's command names --controller 'feedf"
+    refused(board, data, message)
+    data = card_data("eq13@deluca")
+    data["entry"].update(label="hostile", controller_options={"gain": 2})
+    refused(board, data, r"entry.controller_options: \{'gain': 2\}, but the card's command")
+    data = card_data("eq13@deluca")
+    data.update(command=data["command"].replace("--source deluca", "--source ekf"))
+    data["entry"]["label"] = "hostile"
+    refused(board, data, r"entry.source: 'deluca', but the card's command names --source 'ekf'")
+    data = card_data("eq13@deluca")
+    data["entry"].update(label="hostile", models=["kr15.yaml"])
+    refused(
+        board, data, r"entry.models: \['kr15.yaml'\], but the card's command names --model \[\]"
+    )
+    data = card_data("eq13@deluca")
+    data.update(command=data["command"] + " --suite elastic-gym-v9")
+    data["entry"]["label"] = "hostile"
+    refused(board, data, r"suite: elastic-gym-v1, but the card's command names --suite 'elastic")
+
+
 def test_two_cards_with_one_label_and_non_json_files_are_refused(board):
     data = card_data("eq13@deluca")
     refused(board, data, r"entry.label 'eq13@deluca' is also the label of .*eq13@deluca.json")
@@ -383,6 +411,27 @@ def test_a_file_the_rebuild_did_not_write_is_replaced_only_with_overwrite(board)
     rebuild(board, overwrite=True)
     assert all(written_here(t) for t in targets)
     rebuild(board)  # its own files: replaced without --overwrite
+
+
+def test_targets_that_are_one_file_or_a_card_are_refused_even_with_overwrite(board):
+    page = board.parent / "lb.md"
+    card = board / "eq13@deluca.json"
+    kept = card.read_bytes()
+    notes = board.parent / "notes.md"
+    notes.write_text("What the leaderboard shows.\n")
+    for kwargs, message in [
+        ({"csv_path": page}, r"--page and --csv name one file: .*lb\.md"),
+        ({"csv_path": board.parent / "x.png"}, r"--csv and --figure name one file"),
+        ({"csv_path": card}, r"--csv .*eq13@deluca\.json is a scorecard file of"),
+        ({"figure": board / "f.json"}, r"--figure .*f\.json is a scorecard file of"),
+        ({"csv_path": board.parent / "notes.md"}, r"--csv .*notes\.md is the notes the page"),
+    ]:
+        figure = kwargs.pop("figure", board.parent / "x.png")
+        with pytest.raises(ValueError, match=message):
+            rebuild_leaderboard(board, page, figure=figure, overwrite=True, **kwargs)
+        assert not page.exists() and card.read_bytes() == kept
+        assert notes.read_text() == "What the leaderboard shows.\n"
+    notes.unlink()
 
 
 @pytest.mark.slow

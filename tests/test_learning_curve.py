@@ -70,6 +70,7 @@ def test_tracking_rms_is_the_norm_over_joints():
     assert evaluation.tracking_rms[0] == pytest.approx(np.sqrt(np.mean(norms**2)), rel=1e-12)
 
 
+@pytest.mark.slow
 def test_learning_curve_is_written_and_its_last_row_is_the_final_policy(tmp_path):
     """learning_curve.csv: a row at the start, one per eval_freq policy steps and one at the
     end, with growing steps and wall time; its last row is the saved model evaluated on

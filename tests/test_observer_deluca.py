@@ -162,7 +162,10 @@ def test_theorem1_error_follows_the_assigned_linear_dynamics(env_id, link_mass):
     assert np.all(deviation < 1e-2 * peak), deviation / peak
 
 
-@pytest.mark.parametrize(("env_id", "link_mass"), [(TWO_LINK, 1.3), (TWO_LINK, 0.7), (KR15, 1.3)])
+@pytest.mark.parametrize(
+    ("env_id", "link_mass"),
+    [(TWO_LINK, 1.3), (TWO_LINK, 0.7), pytest.param(KR15, 1.3, marks=pytest.mark.slow)],
+)
 def test_superposition_gives_the_discrete_error_map(env_id, link_mass):
     """Two runs on the same data differ by Phi^k e(0), Phi = expm(A_obs T) (Thms 1 and 2)."""
     rec = record(env_id, 120, plant_scaling={"link_mass": link_mass})

@@ -230,6 +230,7 @@ def test_observer_wrapper_runs_the_reduced_order_observer():
 
 
 # ------------------------------------------------------------------ Cristofaro & De Luca
+@pytest.mark.slow
 def test_lyapunov_function_decays_at_rate_2k0_without_quantization():
     """Theorem 1: V = 1/2 e^T M(y) e decreases monotonically, at ~2 k0 (error eq. -k0 e + ...)."""
     run = rollout(

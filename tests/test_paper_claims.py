@@ -35,6 +35,7 @@ def kr15_step_rows(tmp_path_factory):
     return {(r["plant"], r["controller"], r["source"]): r for r in result.runs.to_dict("records")}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("plant", ["nominal", "link-mass+30%"])
 def test_eq13_on_the_deluca_observer_beats_motor_only_control(kr15_step_rows, plant):
     full_state = kr15_step_rows[(plant, "eq13-state-feedback", "deluca")]

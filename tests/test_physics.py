@@ -82,7 +82,14 @@ def _open_loop(env_id: str, physics_dt: float | None, duration: float = 0.5):
     return u.plant_model, u.control_dt, np.array(states), np.array(torques)
 
 
-@pytest.mark.parametrize("env_id", [i for i in elastic_gym.ENV_IDS if "Elastic" in i])
+@pytest.mark.parametrize(
+    "env_id",
+    [
+        pytest.param(i, marks=[pytest.mark.slow] if "KR15" in i else [])
+        for i in elastic_gym.ENV_IDS
+        if "Elastic" in i
+    ],
+)
 def test_open_loop_matches_scipy_integration_of_the_model(env_id):
     model, dt, states, torques = _open_loop(env_id, None)
     steps, n = len(torques), model.n

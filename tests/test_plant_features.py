@@ -229,6 +229,7 @@ def test_bad_plant_features_are_refused(kwargs, match):
         gym.make(TWO_LINK, **kwargs)
 
 
+@pytest.mark.slow
 def test_a_pickled_env_with_plant_features_continues_bit_for_bit():
     import pickle
 

@@ -11,6 +11,7 @@ from elastic_gym.evaluation import Scenario, execute, plan_runs
 from elastic_gym.runtime.parallel import SINGLE_THREAD_ENV
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("single_thread_torch")
 def test_ray_backend_gives_the_same_table_and_trains_two_seeds(tmp_path, capsys):
     """A comparison run on Ray gives the local table, bit for bit; `elastic-gym train --seeds

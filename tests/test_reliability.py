@@ -172,6 +172,7 @@ def test_sys_exit_while_a_controller_is_built_is_refused_before_any_run(tmp_path
 
 
 # ------------------------------------------------------------ workers that die
+@pytest.mark.slow
 def test_a_worker_that_dies_fails_its_own_run_and_the_grid_goes_on(tmp_path, user_module):
     scenario = faulty_scenario(
         {
@@ -215,6 +216,7 @@ def compare_cli(tmp_path: Path, scenario: Scenario, out: Path, *args: str):
     )
 
 
+@pytest.mark.slow
 def test_with_one_worker_user_code_that_ends_its_process_is_that_runs_failed_row(tmp_path):
     """Each fault strikes at the 3rd control period: in the pre-run check's sample of the
     closed loop (left to the runs) and in the run itself; one worker, the CLI default on
@@ -237,6 +239,7 @@ def test_with_one_worker_user_code_that_ends_its_process_is_that_runs_failed_row
     assert "Traceback" not in done.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("entry", "message"),
     [
@@ -360,6 +363,7 @@ def test_workers_end_when_compare_is_killed(tmp_path):
     assert not still_alive(left, ENDING_BOUND)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_the_ray_runtime_ends_when_compare_is_killed(tmp_path):
     pytest.importorskip("ray")
@@ -487,6 +491,7 @@ def compare_with_file_size_limit(tmp_path: Path, limit: int, out: Path, runs: in
     )
 
 
+@pytest.mark.slow
 def test_compare_on_a_filling_disk_keeps_its_rows_and_says_so(tmp_path):
     out = tmp_path / "out"
     done = compare_with_file_size_limit(tmp_path, 1200, out, runs=12)
@@ -500,6 +505,7 @@ def test_compare_on_a_filling_disk_keeps_its_rows_and_says_so(tmp_path):
     assert "Traceback" not in done.stderr
 
 
+@pytest.mark.slow
 def test_a_disk_full_before_the_run_leaves_nothing_that_blocks_a_rerun(tmp_path, user_module):
     from elastic_gym.cli import main
 
@@ -768,6 +774,7 @@ def test_an_observer_returning_the_wrong_thing_is_named(returned, error, message
         env.step(np.zeros(2))
 
 
+@pytest.mark.slow
 def test_a_diverging_ekf_in_compare_is_a_terminated_row_not_a_failure(tmp_path):
     scenario = Scenario.from_dict(
         {
@@ -784,6 +791,7 @@ def test_a_diverging_ekf_in_compare_is_a_terminated_row_not_a_failure(tmp_path):
     ]
 
 
+@pytest.mark.slow
 def test_a_diverging_arm_of_a_batched_comparison_is_its_terminated_row_with_the_reason(
     tmp_path, user_module
 ):
@@ -973,6 +981,7 @@ def test_a_class_entry_that_cannot_be_imported_names_the_field_and_module(
 
 
 # ------------------------------------------------------------ run folders
+@pytest.mark.slow
 def test_a_run_folder_whose_config_no_longer_matches_its_model_is_refused_before_any_run(
     tmp_path, single_thread_torch
 ):

@@ -219,6 +219,7 @@ def test_the_targets_compute_their_verdicts_from_the_numbers():
     assert mass.line()["bound"].startswith("< 2.00e-03 rad")
 
 
+@pytest.mark.slow
 def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     runs, out = tmp_path / "runs", tmp_path / "out"
     classical = (

@@ -128,6 +128,7 @@ def test_different_seeds_give_different_references_and_noise(env_id):
 
 
 # ---------------------------------------------------------------------------- isolation
+@pytest.mark.slow
 def test_32_envs_stepped_interleaved_match_each_env_alone():
     configs = CASES[:32]  # every id, raw env and wrappers with their observers
     steps = 50
@@ -173,6 +174,7 @@ def test_env_factories_survive_a_cloudpickle_round_trip():
         )
 
 
+@pytest.mark.slow
 def test_subproc_vec_env_with_env_factories_matches_envs_in_this_process():
     from stable_baselines3.common.vec_env import SubprocVecEnv
 

@@ -18,7 +18,7 @@ def test_a_failed_run_removes_what_it_wrote_and_the_folders_it_made(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_an_earlier_run_is_refused_unless_overwrite_which_removes_only_its_files(tmp_path):
+def test_an_earlier_run_is_refused_unless_overwrite_which_replaces_only_its_files(tmp_path):
     (tmp_path / "best_model.zip").write_bytes(b"stale")
     (tmp_path / "notes.txt").write_text("mine")
     (tmp_path / "seed1").mkdir()
@@ -29,16 +29,16 @@ def test_an_earlier_run_is_refused_unless_overwrite_which_removes_only_its_files
         pass
     assert (tmp_path / "best_model.zip").exists()  # a refusal changes nothing
     with (
-        pytest.raises(Interrupted, match="removed the unfinished run"),
-        folder.create(overwrite=True),
+        pytest.raises(Interrupted, match="removed the unfinished run; kept the earlier run"),
+        folder.create(overwrite=True) as run,
     ):
-        assert folder.earlier_run() == []
-        (tmp_path / "model.zip").write_bytes(b"partial")
+        assert folder.earlier_run() == ["best_model.zip", "seed1/summary.json"]  # still whole
+        (run.target.path / "model.zip").write_bytes(b"partial")
         raise KeyboardInterrupt
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
-    assert not folder.finished
-    with folder.create():
-        folder.write_summary({"policy_steps": 1})
+    assert folder.earlier_run() == ["best_model.zip", "seed1/summary.json"]
+    with folder.create(overwrite=True) as run:
+        run.target.write_summary({"policy_steps": 1})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "summary.json"]
     assert folder.finished
 
 

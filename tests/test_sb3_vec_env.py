@@ -79,6 +79,7 @@ def _batch_factory(n: int):
     return SB3VecEnv(_vector(n))
 
 
+@pytest.mark.slow
 def test_batches_in_worker_processes_equal_the_batches_in_this_process():
     import functools
 

@@ -139,6 +139,7 @@ def _own_predictions(run, seed: int, steps: int) -> np.ndarray:
     return np.array(actions)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["lstm", "stacked", "observer-stacked", "distilled"])
 def test_each_arm_gets_the_policys_own_prediction_with_its_memory(memory_runs, kind):
     """In one world of three arms (raw sensors, or the De Luca estimate seen in frames),
@@ -192,6 +193,7 @@ def _scenario(runs: dict, env_kwargs: dict, duration: float, seeds: list[int]) -
     return scenario
 
 
+@pytest.mark.slow
 def test_sensor_policy_rows_batched_equal_one_arm_per_world(sensor_runs):
     """`compare --policy RUN` of raw-sensor runs: a source 'sensors' is added for them,
     eq. (13) is not paired with it (skipped with the reason), and every metric of every
@@ -220,6 +222,7 @@ def test_sensor_policy_rows_batched_equal_one_arm_per_world(sensor_runs):
     assert not any(k.startswith("est_rms") for r in policy_rows for k in r.metrics)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["lstm", "stacked", "distilled"])
 def test_evaluate_run_is_the_comparison_row_of_the_same_run_seed_and_plant(sensor_runs, kind):
     """evaluate_run runs on the comparison's loop: its tracking RMS of episode seed s is
@@ -277,6 +280,7 @@ def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
         PolicyController(model, 1e-3, run.policy, best=True)
 
 
+@pytest.mark.slow
 def test_benchmark_scores_a_raw_sensor_run_as_implementable(sensor_runs, tmp_path):
     """`elastic-gym benchmark --run RUN` of a RecurrentPPO run on raw sensors: scored,
     source 'sensors', nothing privileged, not an oracle, and the scorecard says so."""

@@ -268,6 +268,7 @@ def real_sweep(tmp_path_factory):
     return out, rows, {(m["criterion"], m["source"], m["sweep"]): m for m in margins}
 
 
+@pytest.mark.slow
 def test_sensor_sweeps_do_not_reach_the_true_state_loop(real_sweep):
     _, rows, margins = real_sweep
     assert rows[("delay=2", "true")]["track_rms"] == rows[("nominal", "true")]["track_rms"]
@@ -275,6 +276,7 @@ def test_sensor_sweeps_do_not_reach_the_true_state_loop(real_sweep):
     assert margins[("tracking", "true", "delay")]["upper_failure"] == ""
 
 
+@pytest.mark.slow
 def test_de_luca_estimate_ignores_link_masses_the_ekf_does_not(real_sweep):
     _, rows, margins = real_sweep
     # Theorem 1: the observer error dynamics do not depend on the link parameters (the
@@ -293,6 +295,7 @@ def test_de_luca_estimate_ignores_link_masses_the_ekf_does_not(real_sweep):
         assert float(margins[("tracking", source, "link_mass")]["upper_failed_at"]) == 1.3
 
 
+@pytest.mark.slow
 def test_measurement_delay_breaks_the_observer_based_loops(real_sweep):
     out, rows, margins = real_sweep
     # 2 ms of delay inside a 250 rad/s observer + stiff state feedback: tracking RMS x100+

@@ -44,6 +44,7 @@ def short_deluca_run(out_dir: Path, algo: str, hyperparams: dict):
     return train(config, progress_bar=False)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("algo", "hyperparams"),
     [
@@ -83,6 +84,7 @@ def test_short_run_saves_reloads_and_acts_the_same(tmp_path, algo, hyperparams):
     assert first.normalizer.obs_rms.count > 1  # statistics were saved, not defaults
 
 
+@pytest.mark.slow
 def test_ppo_learns_to_hold_the_arm_against_gravity(tmp_path):
     """PPO with motor-offset actions (no model term) learns the offset that cancels the
     gravity sag of the elastic arm held at a configuration: after 2000 policy steps on 4
@@ -155,6 +157,7 @@ def test_residual_policy_env_starts_from_the_classical_controller():
     assert max(errors) < 1e-3  # zero residual = eq. (13), which tracks
 
 
+@pytest.mark.slow
 def test_a_residual_on_link_masses_is_the_base_on_the_corrected_model():
     """``residual_space: link-mass``: an action in the deadzone is the base exactly; a
     constant action s = 1.3 on links 30 % heavier removes most of the base's error, the
@@ -348,6 +351,7 @@ def test_shipped_hyperparameters_are_valid():
         env.close()
 
 
+@pytest.mark.slow
 def test_a_run_trained_without_normalization_loads_and_evaluates(tmp_path):
     """``normalize: false``: the saved VecNormalize has no observation statistics; the run
     folder still loads, acts on the raw features and evaluates on the comparison's loop
@@ -448,6 +452,7 @@ EVERY_STATE_RESIDUAL_FEATURE = [
 SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arch": [32, 32]}}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("action", "algo", "hyperparams"),
     [
@@ -749,6 +754,7 @@ def test_corrupted_run_folder_is_named(tmp_path):
         load_run(tmp_path / "run", trust_pickle=True)
 
 
+@pytest.mark.slow
 def test_training_on_batches_in_worker_processes(tmp_path):
     """n_envs arms split over ``batches`` worker processes (one PyBullet world each); the
     evaluation episodes run as arms of one batch; the run folder loads and acts."""
@@ -779,6 +785,7 @@ def test_training_on_batches_in_worker_processes(tmp_path):
         )
 
 
+@pytest.mark.slow
 def test_batches_with_their_own_env_kwargs_train_on_two_plants():
     """``batches: [{}, {plant_scaling: ...}]``: the arms of the second worker batch are the
     single policy env on links 30 % heavier, those of the first the nominal one (arm i

@@ -1,11 +1,11 @@
 """A card checked against its suite: nothing it states about itself is taken on trust.
 
 `check_card` refuses (``ValueError`` naming the card, the field and both values) a card
-of another suite, with other seeds, a robot the suite lacks, a missing or unknown cell,
-a missing or unknown category, or stated scores that its own per-episode records do not
-give: every episode is scored again with the suite's tolerances and every score recomputed
-(`elastic_gym.benchmark.scoring.compute_scores`); stated and recomputed values may differ
-by `SCORE_TOLERANCE` (rounding), not more.
+of another suite, with other seeds, a robot the suite lacks, a missing or unknown cell or
+category, an entry its own command does not score (`command_mismatches`), or stated scores
+that its own per-episode records do not give: every episode is scored again with the
+suite's tolerances and every score recomputed (`compute_scores`); stated and recomputed
+values may differ by `SCORE_TOLERANCE` (rounding), not more.
 
 What the card is, is derived too: an **oracle reference** when its state source reads any
 ground truth (the registry's privileged items of a named source, or those the card lists
@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from elastic_gym.benchmark.card import EntryRecord, Scorecard
+from elastic_gym.benchmark.command import command_mismatches
 from elastic_gym.benchmark.scoring import (
     OVERALL,
     PRECISION,
@@ -103,6 +104,12 @@ def check_card(card: Scorecard, suite: SuiteConfig, where: str = "scorecard") ->
             + more
         )
     privileged = derived_privileged(card.entry, where)
+    try:
+        contradictions = command_mismatches(card)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+    if contradictions:
+        raise ValueError(f"{where}: " + "; ".join(contradictions))
     oracle = card.entry.oracle or bool(privileged)
     notes: tuple[str, ...] = ()
     if oracle and not card.entry.oracle:

@@ -13,7 +13,8 @@ import argparse
 import math
 import shlex
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import yaml
 from pydantic import RootModel
@@ -22,6 +23,9 @@ from elastic_gym.benchmark.entry import Entry, EntryArguments, described
 from elastic_gym.benchmark.suite import DEFAULT_SUITE
 from elastic_gym.validation import validated
 from elastic_gym.yaml_io import load_yaml
+
+if TYPE_CHECKING:
+    from elastic_gym.benchmark.card import Scorecard
 
 PROGRAM = ("elastic-gym", "benchmark")
 
@@ -175,3 +179,49 @@ def parse_command(command: str, where: str = "command") -> Command:
     if args.suite is None:
         raise ValueError(f"{where}: names no --suite")
     return Command(arguments.entry(), args.suite, args.robot)
+
+
+def command_mismatches(card: Scorecard) -> list[str]:
+    """Where the card's own command scores another entry than the card's ``entry`` says
+    (controller, source, their options and model files; a trained policy's run as given) or
+    names another shipped suite (a suite file is not compared): ``field: value, but the
+    card's command names --option value`` per difference. The label is not compared (a card
+    may be shown under another name). ``ValueError`` for a command that is not an entry's
+    line."""
+    if card.command is None:
+        return []
+    command = parse_command(card.command)
+    said, entry = command.entry, card.entry
+    pairs: list[tuple[str, Any, str, Any]] = []
+    policy = [key for key in ("run", "policy") if key in said]
+    if policy:  # a trained policy: its folder as given (the entry's source is the policy's)
+        key = policy[0]
+        if key in entry.controller_options:
+            given = entry.controller_options[key]
+            pairs.append((f"--{key}", said[key], f"controller_options.{key}", given))
+    else:
+        pairs += [
+            ("--controller", said.get("controller"), "controller", entry.controller),
+            ("--options", said.get("options", {}), "controller_options", entry.controller_options),
+            ("--source", said.get("source"), "source", entry.source),
+            (
+                "--source-options",
+                said.get("source_options", {}),
+                "source_options",
+                entry.source_options,
+            ),
+        ]
+    pairs.append(("--model", list(said.get("models", ())), "models", entry.models))
+    problems = [
+        f"entry.{field}: {value!r}, but the card's command names {option} {wanted!r}"
+        for option, wanted, field, value in pairs
+        if value != wanted
+    ]
+    named = command.suite
+    if (
+        "/" not in named
+        and Path(named).suffix not in (".yaml", ".yml")
+        and named != card.suite.name
+    ):
+        problems.append(f"suite: {card.suite.name}, but the card's command names --suite {named!r}")
+    return problems

@@ -60,7 +60,9 @@ class Entry(StrictModel):
     """One entry (module docstring): ``controller`` + ``source``, or ``run``.
 
     ``label`` names the entry on the leaderboard (default: ``<controller>@<source>`` or the
-    run folder's name).
+    run folder's name, ``+identified`` appended when ``models`` are given). ``models``:
+    identified model files (`elastic-gym identify`) the controller and observer build on,
+    one per robot, instead of the nominal model.
     """
 
     label: Annotated[str, AfterValidator(checked_label)] | None = None
@@ -90,9 +92,10 @@ class Entry(StrictModel):
     def name(self) -> str:
         if self.label is not None:
             return self.label
+        suffix = "+identified" if self.models else ""  # apart from the nominal model's
         if self.run is not None:
-            return Path(self.run).name
-        return f"{_short(self.controller)}@{_short(self.source)}"
+            return Path(self.run).name + suffix
+        return f"{_short(self.controller)}@{_short(self.source)}{suffix}"
 
 
 def described(value: str | type | None) -> str | None:

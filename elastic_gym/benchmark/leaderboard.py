@@ -17,7 +17,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from elastic_gym.benchmark.audit import CheckedCard, check_card
@@ -167,10 +167,26 @@ def written_here(path: Path) -> bool:
     return first == MARKER or first.startswith(",".join(CSV_HEAD) + ",")
 
 
-def check_targets(paths: Sequence[Path], overwrite: bool) -> None:
-    """``FileExistsError`` naming the first target that is not a file an earlier rebuild
-    wrote (unless ``overwrite``), ``IsADirectoryError`` for a folder."""
-    for path in paths:
+def check_targets(targets: Mapping[str, Path], scorecards: Path, overwrite: bool) -> None:
+    """The rebuild's targets (option -> path) may be written: ``ValueError`` when two name
+    one file or one is a scorecard file (``.json`` in the scorecard folder) or the notes
+    (even with ``overwrite``),
+    ``IsADirectoryError`` for a folder, ``FileExistsError`` naming the first target that is
+    not a file an earlier rebuild wrote (unless ``overwrite``)."""
+    seen: dict[Path, str] = {}
+    for option, path in targets.items():
+        resolved = path.resolve()
+        if resolved in seen:
+            raise ValueError(f"{seen[resolved]} and {option} name one file: {path}")
+        seen[resolved] = option
+        if resolved.parent == scorecards.resolve() and resolved.suffix == ".json":
+            raise ValueError(
+                f"{option} {path} is a scorecard file of {scorecards} (a .json there is a "
+                "card): choose another path"
+            )
+        if resolved == (scorecards.parent / NOTES).resolve():
+            raise ValueError(f"{option} {path} is the notes the page includes, not a target")
+    for path in targets.values():
         if path.is_dir():
             raise IsADirectoryError(f"{path}: a folder, not a file the leaderboard can write")
         if path.exists() and not overwrite and not written_here(path):
@@ -198,7 +214,9 @@ def rebuild_leaderboard(
     csv_path = Path(csv_path) if csv_path is not None else default_csv
     figure = Path(figure) if figure is not None else default_figure
     cards, notes = load_cards(scorecards, suite)
-    check_targets([page, csv_path, figure], overwrite)
+    check_targets(
+        {"--page": page, "--csv": csv_path, "--figure": figure}, Path(scorecards), overwrite
+    )
     notes_file = Path(scorecards).parent / NOTES
     text = leaderboard_markdown(
         cards, suite, page, figure, notes_file.read_text() if notes_file.exists() else ""

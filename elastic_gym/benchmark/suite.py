@@ -34,7 +34,15 @@ from elastic_gym.evaluation.scenario import (
     merge,
 )
 from elastic_gym.evaluation.scenario_models import env_parameters
-from elastic_gym.validation import StrictModel, distinct, errors_at, known, ordered, validated
+from elastic_gym.validation import (
+    ConfigError,
+    StrictModel,
+    distinct,
+    errors_at,
+    known,
+    ordered,
+    validated,
+)
 from elastic_gym.yaml_io import load_yaml
 
 SUITE_DIR = Path(__file__).resolve().parent / "suites"
@@ -190,7 +198,7 @@ class SuiteConfig(StrictModel):
                 type(self).__name__,
                 [
                     InitErrorDetails(
-                        type=PydanticCustomError("suite", message), loc=loc, input=None
+                        type=PydanticCustomError("suite", message), loc=loc, input=self
                     )
                     for loc, message in problems
                 ],
@@ -291,8 +299,9 @@ def list_suites() -> list[str]:
 
 
 def load_suite(name_or_path: str | Path = DEFAULT_SUITE) -> SuiteConfig:
-    """A shipped suite by name, or a suite YAML file by path (``ValueError`` with the field
-    path when it does not validate, ``FileNotFoundError`` when it does not exist)."""
+    """A shipped suite by name, or a suite YAML file by path (``ValueError`` naming the file
+    and the field path when it does not validate, ``FileNotFoundError`` when it does not
+    exist)."""
     path = Path(name_or_path)
     if str(name_or_path) in list_suites():
         path = SUITE_DIR / f"{name_or_path}.yaml"
@@ -300,7 +309,11 @@ def load_suite(name_or_path: str | Path = DEFAULT_SUITE) -> SuiteConfig:
         raise FileNotFoundError(
             f"suite {str(name_or_path)!r} is neither a shipped suite {list_suites()} nor a file"
         )
-    return validated(SuiteConfig, load_yaml(path))  # YAMLInputError: a ValueError naming it
+    data = load_yaml(path)  # YAMLInputError: a ValueError naming the file
+    try:
+        return validated(SuiteConfig, data)
+    except ConfigError as error:
+        raise ConfigError(f"{name_or_path}: {error}") from None
 
 
 def suite_schema() -> dict:

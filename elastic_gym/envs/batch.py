@@ -148,6 +148,8 @@ class ArmBatch:
             n_arms,
             gui=gui,
             payload_positions=[self.resolver.payload_position(s) for s in plans.settings],
+            integrator=config.integrator,
+            substeps=self.n_substeps,
         )
         self.rngs = [np.random.default_rng() for _ in range(n_arms)]
         self.plant_state = PlantState(

@@ -3,8 +3,9 @@
 [`EnvConfig`][elastic_gym.envs.config.EnvConfig] validates what needs no robot; here the
 rest is resolved before any PyBullet client exists: the physics step and control period,
 the torque limits, each arm's settings (`per_arm` merged in), `randomize` ranges and plant
-model, and the stability of every plant a range can reach (physics_dt * omega_max <=
-`STABILITY_LIMIT` for the stiffest joint mode of semi-implicit Euler).
+model, and the stability of every plant a range can reach under PyBullet's integrator
+(physics_dt * omega_max <= `STABILITY_LIMIT` for the stiffest joint mode of semi-implicit
+Euler; the RK4 controls its own step).
 """
 
 from __future__ import annotations
@@ -26,9 +27,10 @@ STABILITY_LIMIT = 0.2  # largest admissible physics_dt * omega_max
 
 def timing(robot: RobotSpec, config: EnvConfig) -> tuple[float, float, int]:
     """(physics step, control period, physics steps per control period): the config's or
-    the robot's defaults."""
-    physics = robot.physics_dt if config.physics_dt is None else config.physics_dt
+    the robot's defaults (the RK4's physics step: the control period)."""
     control = robot.control_dt if config.control_dt is None else config.control_dt
+    default = control if config.integrator == "rk4" else robot.physics_dt
+    physics = default if config.physics_dt is None else config.physics_dt
     return float(physics), float(control), substeps(control, physics)
 
 
@@ -118,7 +120,8 @@ def plan_arms(resolver: ArmResolver, config: EnvConfig, n_arms: int, physics_dt:
                 key = (option.scaling, repr(option.payload), mass)
                 if key not in checked:
                     checked.add(key)
-                    check_stability(robot, physics_dt, resolver.plant_model(option, mass))
+                    if config.integrator == "pybullet":  # the RK4 controls its own step
+                        check_stability(robot, physics_dt, resolver.plant_model(option, mass))
     return ArmPlans(settings, ranges, kwargs, models)
 
 

@@ -65,6 +65,8 @@ MAX_PHYSICS_DT = 1e-3 + 1e-15  # s
 MAX_CONTROL_DT = 0.1  # s: slower "control" is not torque control of an arm
 EPISODE_TIME = 3.0  # s
 RenderMode = Literal["human", "rgb_array"]
+Integrator = Literal["pybullet", "rk4"]  # see EnvConfig.integrator
+INTEGRATORS: tuple[str, ...] = ("pybullet", "rk4")
 
 
 def _ideal_accelerometer(value: Any) -> Any:
@@ -241,8 +243,14 @@ class EnvConfig(StrictModel):
     Attributes:
         task: `"tracking"`, `"regulation"` or `"excitation"`.
         task_options: options of the task (see [`tasks`][elastic_gym.envs.tasks]).
-        physics_dt: physics step (s), default from the robot; must keep
-            `physics_dt * omega_max <= 0.2` for the stiffest joint mode.
+        integrator: `"pybullet"` (PyBullet's first-order semi-implicit Euler at
+            `physics_dt`, the elastic transmission beside each step) or `"rk4"` (the
+            compiled 4th-order Runge-Kutta of the whole state over each control period,
+            with step-size control per arm; PyBullet stays the world: rendering, GUI,
+            link poses), see [`integration`][elastic_gym.envs.integration].
+        physics_dt: physics step (s), default from the robot; with `"pybullet"` it must
+            keep `physics_dt * omega_max <= 0.2` for the stiffest joint mode; with
+            `"rk4"` the largest substep (default: the control period).
         control_dt: control period (s), an integer multiple of `physics_dt` (default from
             the robot, 1 ms).
         encoder: `{"resolution": rad, "noise_std": rad}`.
@@ -277,6 +285,7 @@ class EnvConfig(StrictModel):
 
     task: str = "tracking"
     task_options: dict | None = None
+    integrator: Integrator = "pybullet"
     physics_dt: Annotated[PositiveFinite, Field(le=MAX_PHYSICS_DT)] | None = None
     control_dt: Annotated[PositiveFinite, Field(le=MAX_CONTROL_DT)] | None = None
     encoder: EncoderConfig | None = None

@@ -19,7 +19,7 @@ from numba import njit
 from elastic_gym.envs import bullet_capi
 from elastic_gym.envs.reward import _reward_kernel
 from elastic_gym.envs.sensors import _shared_readings
-from elastic_gym.envs.simulator import _end_of_period_dynamics, _period_kernel
+from elastic_gym.envs.simulator import _end_of_period_dynamics, physics_period
 from elastic_gym.envs.tasks import open_loop_torque_kernel, reference_kernel
 
 
@@ -193,7 +193,8 @@ def control_period_kernel(command, truncated, packed):
     1. the task's open-loop torque at the period's start (`open_loop_torque_kernel` of
        [`elastic_gym.envs.tasks`][elastic_gym.envs.tasks]) added to `command` and clipped
        to the torque limits (`clip_torque`);
-    2. the physics substeps (the simulator's `_period_kernel`);
+    2. the physics of the period (the simulator's `physics_period`: PyBullet's substeps
+       or the RK4);
     3. the clock (`advance_clock`, `truncated` written when episodes have a length) and
        the torques shifted (previous <- current <- the clipped torque);
     4. the reference at the new time (`reference_kernel` of the tasks).
@@ -210,8 +211,7 @@ def control_period_kernel(command, truncated, packed):
         clip_torque(command, external, low, high, tau, saturated)
     else:
         clip_torque(command, None, low, high, tau, saturated)
-    world_slot, world, state, coupling, states = physics
-    code = _period_kernel(world_slot, world, n_substeps, tau, None, state, coupling, states)
+    code = physics_period(physics, n_substeps, tau)
     if code != bullet_capi.OK:
         return code, False
     ended = advance_clock(steps, None, dt, max_steps, time, truncated)

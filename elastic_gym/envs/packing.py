@@ -188,7 +188,9 @@ class FusedArguments:
         physics, task = sim.period_arguments(), self.task.compiled_arguments()
         if physics is None or task is None:
             return None
-        if self._period is not None and self._period[0] == physics[2:4]:
+        bullet, rk4 = physics  # the simulator's packs identify its arguments
+        key = bullet[2:4] if bullet is not None else rk4[-1:]
+        if self._period is not None and self._period[0] == key:
             return self._period[1]
         task_torque, task_reference = task
         packed = Packed(
@@ -212,5 +214,5 @@ class FusedArguments:
                 task_reference,
             )
         )
-        self._period = (physics[2:4], packed)
+        self._period = (key, packed)
         return packed

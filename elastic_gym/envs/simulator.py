@@ -28,6 +28,8 @@ import numpy as np
 from numba import njit
 
 from elastic_gym.envs import bullet_capi
+from elastic_gym.envs.config import Integrator
+from elastic_gym.envs.integration import RungeKutta
 from elastic_gym.envs.plant import PAYLOAD_LINK, PlantArray, last_link, payload_urdf
 from elastic_gym.envs.pybullet_quiet import pybullet as p
 from elastic_gym.model import RobotModel, SerialChain
@@ -36,6 +38,7 @@ from elastic_gym.model.chain import (
     forward_dynamics_kernel,
     specific_forces_kernel,
 )
+from elastic_gym.model.integrator import rk4_period_kernel
 from elastic_gym.model.packed import Packed
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_without_limits
@@ -155,6 +158,28 @@ def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, 
             return code
     _unpack_joint_states(states, q, dq)
     return bullet_capi.OK
+
+
+@njit(cache=True)
+def _physics(bullet, rk4, n_substeps, tau):
+    """`physics_period` of one form (the other None: numba compiles the one given only)."""
+    if bullet is not None:
+        slot, world, packed, coupling, states = bullet
+        return _period_kernel(slot, world, n_substeps, tau, None, packed, coupling, states)
+    if rk4 is not None:
+        theta, dtheta, q, dq, no_ext, period, substeps, ddq, packed = rk4
+        rk4_period_kernel(theta, dtheta, q, dq, tau, no_ext, period, substeps, ddq, packed)
+    return bullet_capi.OK
+
+
+@njit(cache=True)
+def physics_period(physics, n_substeps, tau):
+    """A control period's physics of every arm under the motor torques `tau` held, no
+    link torque, in one compiled call: `physics` = (`_period_kernel`'s arguments, None)
+    (PyBullet) or (None, the RK4's arguments), as `ArmSimulator.period_arguments` gives
+    them. Returns a `bullet_capi` code."""
+    bullet, rk4 = physics
+    return _physics(bullet, rk4, n_substeps, tau)
 
 
 @njit(cache=True)
@@ -306,6 +331,12 @@ class ArmSimulator:
         payload_positions: per arm, None or the point (last link's frame) of the arm's
             payload link (:func:`~elastic_gym.envs.plant.payload_urdf`); its mass is set
             with :meth:`set_payload_mass`.
+        integrator: `"pybullet"` (PyBullet's step at `physics_dt`, the transmission
+            beside it) or `"rk4"` (the compiled RK4 of the whole state over a control
+            period, `physics_dt` its largest substep; PyBullet's joints are set to the
+            state when a pose is read or a frame rendered, see
+            [`integration`][elastic_gym.envs.integration]).
+        substeps: physics steps per control period (RK4: its fewest substeps).
 
     State arrays have a leading arm axis: ``q``, ``dq``, ``theta``, ``dtheta`` (N, n).
 
@@ -322,6 +353,8 @@ class ArmSimulator:
         n_arms: int = 1,
         gui: bool = False,
         payload_positions: list | None = None,
+        integrator: Integrator = "pybullet",
+        substeps: int = 1,
     ):
         self.spec = spec
         self.plants = plant if isinstance(plant, PlantArray) else PlantArray([plant] * n_arms)
@@ -389,6 +422,16 @@ class ArmSimulator:
             if self._slot is None
             else bullet_capi.world_arrays(c, self.bodies, self.joint_indices)
         )
+        self.integrator = integrator
+        self.gui = gui
+        self.rk4 = (
+            RungeKutta(
+                self.plants, (self.theta, self.dtheta, self.q, self.dq), spec.elastic, substeps
+            )
+            if integrator == "rk4"
+            else None
+        )
+        self.control_period = substeps * self.physics_dt  # the RK4's period
 
     @property
     def chain(self) -> SerialChain:
@@ -504,6 +547,20 @@ class ArmSimulator:
             self.theta[arms], self.dtheta[arms] = theta, dtheta
         else:
             self.theta[arms], self.dtheta[arms] = q, dq
+        if self.rk4 is not None:
+            self.rk4.reset(arms)
+
+    def sync_world(self) -> None:
+        """With the RK4, set PyBullet's joints to the state (q, q'): before a link pose is
+        read or a frame rendered (after every period in a GUI world); PyBullet's own step
+        keeps them current."""
+        if self.rk4 is None:
+            return
+        c = self.client
+        for arm, body in enumerate(self.bodies):
+            for k, j in enumerate(self.joint_indices):
+                q, dq = float(self.q[arm, k]), float(self.dq[arm, k])
+                p.resetJointState(body, j, q, dq, physicsClientId=c)
 
     def _joint_states(self) -> np.ndarray:
         """PyBullet's q and q' of every joint, flat (q, q' per joint, arm by arm)."""
@@ -549,13 +606,18 @@ class ArmSimulator:
         return self._packed[1], self._packed[2]
 
     def period_arguments(self) -> tuple | None:
-        """:func:`_period_kernel`'s arguments but the substep count, the torques and the
-        link torque, (slot, world, packed, coupling, states), for compiled callers (the
-        batch's control period), or None where PyBullet's C API cannot be reached."""
+        """`physics_period`'s `physics` for compiled callers (the batch's control
+        period): (`_period_kernel`'s arguments but the substep count, the torques and the
+        link torque, None) or (None, the RK4's arguments), or None where the period
+        cannot run in one call (PyBullet's C API out of reach; a GUI world)."""
+        if self.rk4 is not None:
+            if self.gui:
+                return None
+            return None, self.rk4.period_arguments(self.control_period)
         if self._slot is None:
             return None
         packed, coupling = self._substep_arguments()
-        return self._slot, self._world, packed, coupling, self._states
+        return (self._slot, self._world, packed, coupling, self._states), None
 
     def coupling_arguments(self) -> Packed | None:
         """:func:`_coupled_link_torque`'s ``coupling`` (None without model (2)), for
@@ -591,8 +653,14 @@ class ArmSimulator:
 
     def step(self, tau: np.ndarray, n_substeps: int, link_torque: np.ndarray | None = None) -> None:
         """Advance ``n_substeps`` physics steps holding the motor torques ``tau`` (N, n) and
-        the external link-side torques ``link_torque`` (N, n, default none)."""
+        the external link-side torques ``link_torque`` (N, n, default none); with the RK4,
+        one control period of ``n_substeps * physics_dt`` (its substeps its own)."""
         tau = np.ascontiguousarray(tau, dtype=np.float64)
+        if self.rk4 is not None:
+            self.rk4.step(tau, n_substeps * self.physics_dt, link_torque)
+            if self.gui:
+                self.sync_world()
+            return
         packed, coupling = self._substep_arguments()
         if self._slot is not None:
             code = _period_kernel(
@@ -674,6 +742,7 @@ class ArmSimulator:
 
     def link_pose(self, link_name: str, arm: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Position (from the arm's base) and rotation of a URDF link frame, from PyBullet."""
+        self.sync_world()
         c, body = self.client, self.bodies[arm]
         j = self._link_index(body, link_name)
         state = p.getLinkState(body, j, computeForwardKinematics=1, physicsClientId=c)
@@ -683,6 +752,7 @@ class ArmSimulator:
     # ------------------------------------------------------------------ rendering
     def render(self, arm: int = 0, width: int = 480, height: int = 360) -> np.ndarray:
         """RGB image (H, W, 3) of one arm from the offscreen tiny renderer."""
+        self.sync_world()
         target, distance, yaw, pitch = self.spec.camera
         c = self.client
         view = p.computeViewMatrixFromYawPitchRoll(

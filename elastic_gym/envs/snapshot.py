@@ -40,6 +40,7 @@ def capture(parts: Parts) -> dict:
     sim = parts.sim
     return {
         "sim": (sim.q.copy(), sim.dq.copy(), sim.theta.copy(), sim.dtheta.copy()),
+        "substeps": None if sim.rk4 is None else sim.rk4.substeps.copy(),
         "episode": parts.episode.snapshot(),
         "rngs": [rng.bit_generator.state for rng in parts.rngs],
         "plants": parts.plant_state.snapshot(),
@@ -53,6 +54,8 @@ def restore(parts: Parts, snapshot: dict) -> None:
     the simulator's state, the episode, the generators' states, then the plants (their
     streams follow the restored generators), the sensors and the task."""
     parts.sim.reset_state(np.arange(len(parts.rngs)), *snapshot["sim"])
+    if parts.sim.rk4 is not None:  # each arm's substeps of its next period
+        parts.sim.rk4.substeps[:] = snapshot["substeps"]
     parts.episode.restore(snapshot["episode"])
     for rng, state in zip(parts.rngs, snapshot["rngs"], strict=True):
         rng.bit_generator.state = state

@@ -3,7 +3,7 @@
 ``compare(load_preset("default"))`` returns the runs and the summary over seeds (pandas
 DataFrames, lists of dicts without pandas), through three stages, data flowing one way:
 plan ([`make_plan`][elastic_gym.evaluation.plan.make_plan]: the runs and the worlds they
-share), execute ([`Execution`][elastic_gym.evaluation.execute.Execution]: the pre-run check,
+share), execute ([`run_plan`][elastic_gym.evaluation.execute.run_plan]: the pre-run check,
 then every world's closed loop, with recovery of failed runs and dead workers) and report
 ([`Report`][elastic_gym.evaluation.report.Report]: ``runs.csv`` row by row, ``summary.csv``
 / ``summary.md``, ``scenario.yaml``, ``plots/``; with sweeps ``margins.*`` and ``curves/``).
@@ -20,7 +20,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from elastic_gym.evaluation.execute import Execution
+from elastic_gym.evaluation.execute import run_plan
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
 from elastic_gym.evaluation.plan import make_plan
 from elastic_gym.evaluation.report import Comparison, Report
@@ -66,18 +66,9 @@ def compare(
     """
     checked_count(batch_size, "batch_size", 1)
     out = Path(output_dir) if output_dir is not None else DEFAULT_OUTPUT_ROOT / scenario.name
-    console = console or Console()
     check_writable(out)
     with folder_lock(out):
         plan = make_plan(scenario, workers, backend, batch_size)
-        report = Report(plan, out, plots, overwrite)
-        with Execution(plan) as execution:  # workers started: the check runs in one
-            estimate = execution.check()
-            console.print(f"[bold]{scenario.name}[/bold]: {plan}, {estimate}")
-            console.print(plan.skipped_note, markup=False, end="")
-            report.start()
-            try:
-                execution.run(report.add, progress)
-            except BaseException as exc:
-                raise report.interrupted(exc)  # noqa: B904 - with_detail sets the cause
-        return report.finish(console)
+        report = Report(plan, out, plots, overwrite, console or Console())
+        run_plan(plan, report, progress)
+        return report.finish()

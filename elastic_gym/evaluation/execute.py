@@ -9,16 +9,17 @@ fault in user code) is recovered by
 [`crashed_results`][elastic_gym.evaluation.execute.crashed_results]: its runs run again one
 per worker, so that only the run that kills its worker fails.
 
-[`Execution`][elastic_gym.evaluation.execute.Execution] is the stage for a ``with`` block
-(workers started on entry, the pre-run check, the runs handed on as each world ends);
-[`execute`][elastic_gym.evaluation.execute.execute] runs a list of runs and returns their
-results in memory.
+[`run_plan`][elastic_gym.evaluation.execute.run_plan] is the whole stage (workers, pre-run
+check, runs handed to a [`ResultSink`][elastic_gym.evaluation.execute.ResultSink] as each
+world ends); [`execute`][elastic_gym.evaluation.execute.execute] runs a list of runs and
+returns their results in memory.
 """
 
 from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Sequence
+from typing import Protocol
 
 from elastic_gym.evaluation.episodes import RunResult, failed_status, run_group
 from elastic_gym.evaluation.grid import RunSpec
@@ -99,6 +100,18 @@ def _workers(plan: Plan) -> contextlib.AbstractContextManager[WorkerPool | None]
     return pool
 
 
+class ResultSink(Protocol):
+    """Where an execution delivers: ``start`` once the pre-run check passed (with the
+    estimated duration), ``add`` as each world ends, ``interrupted`` with what ended the
+    runs (returns the exception to raise, saying what was kept)."""
+
+    def start(self, estimate: Estimate) -> None: ...
+
+    def add(self, index: int, results: list[RunResult]) -> None: ...
+
+    def interrupted(self, exc: BaseException) -> BaseException: ...
+
+
 class Execution:
     """The execute stage of a [`Plan`][elastic_gym.evaluation.plan.Plan], for a ``with``
     block: the worker processes start on entry (so that the pre-run check runs in one of
@@ -133,6 +146,18 @@ class Execution:
         """Run every world, calling ``on_results(index, results)`` as each ends."""
         plan = self.plan
         run_groups(plan.groups, on_results, plan.workers, plan.backend, progress, self._pool)
+
+
+def run_plan(plan: Plan, sink: ResultSink, progress: bool = True) -> None:
+    """The whole execute stage: workers started, the pre-run check, then every world, its
+    results handed to ``sink`` as it ends; what ends the runs (an interrupt, a full disk)
+    is raised as ``sink.interrupted`` makes it."""
+    with Execution(plan) as execution:
+        sink.start(execution.check())
+        try:
+            execution.run(sink.add, progress)
+        except BaseException as exc:
+            raise sink.interrupted(exc)  # noqa: B904 - the sink sets the cause
 
 
 def execute(

@@ -92,9 +92,10 @@ def _entry_class(
 
 
 def check_options(cls: type, options: dict, path: str, fixed: dict | None = None) -> None:
-    """Bind ``options`` to the constructor ``cls(model, dt, **fixed, **options)`` without
-    calling it: unknown, duplicate or missing options raise `ScenarioError` with the field
-    path, e.g. ``controllers[1].options.omegaa: unexpected option``."""
+    """Bind ``options`` (at field ``path``) to the constructor
+    ``cls(model, dt, **fixed, **options)`` without calling it: unknown, duplicate or missing
+    options raise `ScenarioError` (a ``ValueError``) with the field path, e.g.
+    ``controllers[1].options.omegaa: unexpected option; valid: [...]``."""
     fixed = fixed or {}
     try:
         signature: inspect.Signature | None = inspect.signature(cls)
@@ -113,15 +114,13 @@ def check_options(cls: type, options: dict, path: str, fixed: dict | None = None
         problems |= dict.fromkeys(unknown, f"unexpected option; valid: {valid}")
     if problems:
         key, problem = next(iter(problems.items()))
-        raise ScenarioError(f"{path}.options.{key}", problem)
+        raise ScenarioError(f"{path}.{key}", problem)
     if signature is None:
         return
     try:
         signature.bind(None, None, **fixed, **options)
     except TypeError as exc:
-        raise ScenarioError(
-            f"{path}.options", f"{cls.__name__}(model, dt, **options): {exc}"
-        ) from None
+        raise ScenarioError(path, f"{cls.__name__}(model, dt, **options): {exc}") from None
 
 
 def _controllers(scenario: Scenario) -> list[tuple[ControllerEntry, type[Controller]]]:
@@ -129,7 +128,7 @@ def _controllers(scenario: Scenario) -> list[tuple[ControllerEntry, type[Control
     out = []
     for i, entry in enumerate(scenario.controllers):
         cls = _entry_class(entry, f"controllers[{i}]", Controller, comparison_controller)
-        check_options(cls, entry.options, f"controllers[{i}]")
+        check_options(cls, entry.options, f"controllers[{i}].options")
         out.append((entry, cls))
     return out
 
@@ -141,7 +140,7 @@ def _sources(scenario: Scenario) -> list[tuple[SourceEntry, type[Observer]]]:
         cls = _entry_class(entry, f"state_sources[{i}]", Observer, source_class)
         named = entry.cls is None and entry.name in OBSERVERS
         fixed = OBSERVERS[entry.name][2] if named else {}
-        check_options(cls, entry.options, f"state_sources[{i}]", fixed)
+        check_options(cls, entry.options, f"state_sources[{i}].options", fixed)
         if issubclass(cls, RawSensors) and entry.initial_estimate is not None:
             raise ScenarioError(
                 f"state_sources[{i}].initial_estimate", "raw sensors have no estimate to start"

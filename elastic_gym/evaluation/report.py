@@ -24,7 +24,7 @@ from rich.console import Console
 
 from elastic_gym.evaluation.episodes import RunResult
 from elastic_gym.evaluation.figure_names import check_plot_names
-from elastic_gym.evaluation.grid import SkippedRun
+from elastic_gym.evaluation.grid import SkippedRun, identified_files
 from elastic_gym.evaluation.margins import margin_rows, write_margins
 from elastic_gym.evaluation.output import (
     CURVE_DIR,
@@ -37,6 +37,7 @@ from elastic_gym.evaluation.output import (
     write_problem,
 )
 from elastic_gym.evaluation.plan import Plan
+from elastic_gym.evaluation.preflight import Estimate
 from elastic_gym.evaluation.scenario import NOMINAL, SWEEP_AXIS, Scenario
 from elastic_gym.evaluation.sweeps import context_columns, sweep_curves
 from elastic_gym.evaluation.tables import (
@@ -97,7 +98,9 @@ class _Figures:
 
 
 class Report:
-    """The report stage of a comparison writing into ``out`` (module docstring).
+    """The report stage of a comparison writing into ``out`` (module docstring); the
+    execute stage delivers to it
+    ([`ResultSink`][elastic_gym.evaluation.execute.ResultSink]).
 
     Made before any run: refuses (changing nothing) a folder that holds an earlier
     comparison unless ``overwrite`` (`FileExistsError`), and with ``plots`` labels whose
@@ -108,19 +111,26 @@ class Report:
         out: the output folder (locked by the caller).
         plots: write the PNG figures.
         overwrite: replace the files of an earlier comparison in ``out``.
+        console: where the plan, the summary and where it was written are printed.
     """
 
-    def __init__(self, plan: Plan, out: Path, plots: bool, overwrite: bool) -> None:
+    def __init__(
+        self, plan: Plan, out: Path, plots: bool, overwrite: bool, console: Console
+    ) -> None:
         self.plan, self.out, self.plots, self.overwrite = plan, out, plots, overwrite
+        self.console = console
         check_output_folder(out, overwrite)
         if plots:
             check_plot_names(plan.scenario, plan.runs)
         self.csv = RunsCsv(out / "runs.csv")
         self.figures = _Figures(plan, out / PLOT_DIR) if plots else None
 
-    def start(self) -> None:
-        """Clear an earlier comparison's files (with ``overwrite``) and write
-        ``scenario.yaml``."""
+    def start(self, estimate: Estimate) -> None:
+        """The runs are about to start: say what runs and how long it should take, clear
+        an earlier comparison's files (with ``overwrite``) and write ``scenario.yaml``."""
+        plan = self.plan
+        self.console.print(f"[bold]{plan.scenario.name}[/bold]: {plan}, {estimate}")
+        self.console.print(plan.skipped_note, markup=False, end="")
         if self.overwrite:
             clear_results(self.out)
         self.out.mkdir(parents=True, exist_ok=True)
@@ -147,9 +157,9 @@ class Report:
         self._write_tables(rows, self.plan.skipped_note + f"\nInterrupted: {kept}.\n")
         return with_detail(exc, kept)
 
-    def finish(self, console: Console) -> Comparison:
+    def finish(self) -> Comparison:
         """The tables, margins and curves written, the summary printed."""
-        out, scenario = self.out, self.plan.scenario
+        out, scenario, console = self.out, self.plan.scenario, self.console
         rows = self.csv.finish()
         failed = [row["status"] for row in rows if row["status"].startswith("failed")]
         failed_note = (
@@ -191,11 +201,16 @@ class Report:
         identity = scenario.identity_columns
         summary = summary_rows(rows, identity)
         markdown = markdown_table(summary, identity)
+        models = "".join(
+            f"Controllers and observers of robot {robot!r} built on the identified model "
+            f"{path} (the simulated plant is the env's).\n\n"
+            for robot, path in identified_files(scenario).items()
+        )
         try:
             write_csv(summary, out / "summary.csv")
             write_atomic(
                 out / "summary.md",
-                f"# {scenario.name}\n\n{scenario.description}\n\n{markdown}\n{note}",
+                f"# {scenario.name}\n\n{scenario.description}\n\n{models}{markdown}\n{note}",
             )
         except OSError as exc:
             raise ResultsWriteError(

@@ -515,14 +515,9 @@ sin, cos)."""
 
 
 def _batch(x: np.ndarray, n: int, name: str) -> np.ndarray:
-    if (
-        type(x) is np.ndarray
-        and x.dtype == np.float64
-        and x.ndim == 2
-        and x.shape[1] == n
-        and x.flags.c_contiguous
-    ):
-        return x  # the hot path: the simulator's own arrays
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.ndim == 2 and x.shape[1] == n:
+        # the hot path: the simulator's own arrays, or views of rows (a reference's)
+        return x if x.flags.c_contiguous else np.ascontiguousarray(x)
     return np.ascontiguousarray(shaped(x, (None, n), name))
 
 

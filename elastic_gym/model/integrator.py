@@ -351,6 +351,11 @@ class ArmIntegrator:
         )
         self._no_ext = np.zeros((arms, 0))
 
+    @property
+    def packed(self) -> Packed:
+        """`rk4_period_kernel`'s `packed` (for compiled callers)."""
+        return self._packed
+
     def reset(self, arms: np.ndarray | slice = slice(None)) -> None:
         """New episodes of ``arms``: their next period starts with the fewest substeps."""
         self.substeps_now[arms] = self.substeps[0]

@@ -80,12 +80,17 @@ def check_free(
     holds: str,
     choose: str,
     overwrite: bool = False,
+    held: bool = False,
 ) -> None:
     """Raise before any work if ``folder`` cannot receive new outputs; changes nothing:
-    :func:`check_writable`, then ``FileExistsError`` if it holds the outputs of an earlier
-    job (``earlier()``: their names; ``holds`` says what they are, ``choose`` the option
-    that picks another folder) and not ``overwrite``."""
+    `check_writable`, `check_unlocked` (another process writes there: its outputs so far
+    are not an earlier job's), then ``FileExistsError`` if it holds the outputs of an
+    earlier job (``earlier()``: their names; ``holds`` says what they are, ``choose`` the
+    option that picks another folder) and not ``overwrite``. ``held``: the caller (or the
+    process that started it) holds the folder's lock."""
     check_writable(folder)
+    if not held:
+        check_unlocked(folder)
     found = [] if overwrite else earlier()
     if found:
         shown = ", ".join(found[:5]) + (", ..." if len(found) > 5 else "")
@@ -93,6 +98,29 @@ def check_free(
             f"output folder {str(folder)!r} holds {holds} ({shown}); choose another "
             f"{choose}, or replace it with --overwrite (overwrite=True)"
         )
+
+
+_HELD: set[Path] = set()  # folders whose lock this process holds (resolved)
+
+
+def check_unlocked(folder: str | Path) -> None:
+    """Raise `FolderLockedError` (naming the holder's pid) if another process holds the
+    folder's writer lock; takes no lock and creates nothing. A folder whose lock this
+    process holds (`folder_lock`) passes."""
+    folder = Path(folder)
+    path = folder / LOCK_FILE
+    if folder.resolve() in _HELD or not path.is_file():
+        return
+    try:
+        handle = path.open("r")
+    except OSError:  # gone meanwhile, or unreadable: the lock itself decides
+        return
+    with handle:
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise FolderLockedError(folder, _holder(handle)) from None
+        fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
 
 
 def _acquire(path: Path) -> TextIO:
@@ -132,13 +160,16 @@ def folder_lock(folder: str | Path) -> Iterator[Path]:
     except BaseException:
         _remove_empty(created)
         raise
+    held = folder.resolve()
     try:
         handle.seek(0)
         handle.truncate()
         handle.write(f"{os.getpid()}\n")
         handle.flush()
+        _HELD.add(held)
         yield folder
     finally:
+        _HELD.discard(held)
         with contextlib.suppress(OSError):
             path.unlink()  # while still holding the lock: see _acquire
         handle.close()  # releases the lock

@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import inspect
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -173,6 +174,7 @@ def resolve_settings(
         if isinstance(merged.get(key), str):
             merged[key] = _schedule(key, merged[key])
     _check_values(algo, merged)
+    _check_ranges(merged)
     if settings.critic_state or settings.critic_plant:
         _check_critic_state(
             algo, merged, "critic_state" if settings.critic_state else "critic_plant"
@@ -192,6 +194,80 @@ def resolve_hyperparams(
 
 
 ARGUMENT_KINDS = ((bool, StrictBool), (int, Integral), (float, Finite))  # by default's type
+
+
+@dataclass(frozen=True)
+class Interval:
+    """The values an algorithm's argument means something for: ``low`` to ``high``
+    (None: unbounded), each end included or not; ``also``: single values with a meaning
+    of their own outside it (SB3's ``-1``)."""
+
+    low: float | None
+    high: float | None = None
+    low_closed: bool = True
+    high_closed: bool = True
+    also: tuple[float, ...] = ()
+
+    def __contains__(self, value: float) -> bool:
+        if value in self.also:
+            return True
+        above = self.low is None or (value >= self.low if self.low_closed else value > self.low)
+        below = self.high is None or (value <= self.high if self.high_closed else value < self.high)
+        return above and below
+
+    def __str__(self) -> str:
+        low = "-inf" if self.low is None else f"{self.low:g}"
+        high = "inf" if self.high is None else f"{self.high:g}"
+        left = "[" if self.low_closed and self.low is not None else "("
+        right = "]" if self.high_closed and self.high is not None else ")"
+        extra = "".join(f" or {value:g}" for value in self.also)
+        return f"in {left}{low}, {high}{right}{extra}"
+
+
+POSITIVE = Interval(0.0, low_closed=False)
+NON_NEGATIVE = Interval(0.0)
+COUNT = Interval(1)
+# SB3's arguments whose values outside these make no sense (Schulman et al. 2017 for PPO's,
+# Haarnoja et al. 2018 for SAC's, Fujimoto et al. 2018 for TD3's): refused before any env
+RANGES: dict[str, Interval] = {
+    "learning_rate": POSITIVE,
+    "gamma": Interval(0.0, 1.0, low_closed=False),  # a discount: 1 is undiscounted
+    "gae_lambda": Interval(0.0, 1.0),
+    "clip_range": POSITIVE,
+    "clip_range_vf": POSITIVE,
+    "ent_coef": NON_NEGATIVE,
+    "vf_coef": NON_NEGATIVE,
+    "max_grad_norm": POSITIVE,
+    "target_kl": POSITIVE,
+    "tau": Interval(0.0, 1.0, low_closed=False),  # the target networks' Polyak step
+    "n_steps": COUNT,
+    "batch_size": COUNT,
+    "n_epochs": COUNT,
+    "buffer_size": COUNT,
+    "learning_starts": NON_NEGATIVE,
+    "train_freq": COUNT,
+    "gradient_steps": Interval(1, also=(-1,)),  # -1: as many as the env steps collected
+    "target_update_interval": COUNT,
+    "policy_delay": COUNT,
+    "target_policy_noise": NON_NEGATIVE,
+    "target_noise_clip": NON_NEGATIVE,
+    "stats_window_size": COUNT,
+}
+
+
+def _check_ranges(merged: dict) -> None:
+    """Refuse a number outside the range of its argument (`RANGES`): ``ValueError``
+    naming the hyper-parameter, the range and the value. Schedules (``lin_<value>``,
+    checked > 0 when parsed), strings (SAC's ``ent_coef: auto``), tuples and None are left
+    to the algorithm."""
+    for key, interval in RANGES.items():
+        value = merged.get(key)
+        if (
+            isinstance(value, (int, float))
+            and not isinstance(value, bool)
+            and value not in interval
+        ):
+            raise ValueError(f"hyper-parameter {key}: must be {interval}, got {value!r}")
 
 
 def _check_values(algo: str, merged: dict) -> None:

@@ -1,18 +1,17 @@
 """Train stable-baselines3 policies on the estimated (or true, or raw-sensor) state.
 
-Vectorized envs: with ``n_envs > 1`` the arms share one PyBullet world (the batched
-env through :class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`), or ``batches`` such
-worlds in worker processes (:class:`~elastic_gym.training.sb3_vec_env.ProcessBatches`,
-one per core; or batches with different env kwargs, e.g. plants), all made by
-`elastic_gym.training.run_envs`; ``VecNormalize`` whose statistics are saved beside
-the model, a learning curve (:class:`~elastic_gym.training.learning_curve.LearningCurve`:
-deterministic episodes on the comparison's loop at the start, every ``eval_freq`` policy
-steps, default a twentieth of the run, and at the end) that keeps the best model,
-TensorBoard logs and a progress bar. The run folder
-(:class:`~elastic_gym.training.run_folder.RunFolder`) is refused if it holds an earlier
-run (unless ``overwrite``) and removed if the run fails or is interrupted. Training runs
-with single-threaded torch and BLAS (:func:`elastic_gym.runtime.parallel.single_threaded`).
-A finished folder loads back with :func:`~elastic_gym.training.trained.load_run`.
+Vectorized envs: with ``n_envs > 1`` the arms share one PyBullet world (`SB3VecEnv`), or
+``batches`` such worlds in worker processes (`ProcessBatches`, one per core, or batches
+with different env kwargs), all made by `elastic_gym.training.run_envs`; ``VecNormalize``
+saved beside the model, a learning curve (`LearningCurve`: deterministic episodes on the
+comparison's loop, every ``eval_freq`` policy steps) that keeps the best model, TensorBoard
+logs and a progress bar. What only the envs would check is checked before any worker
+starts (`check_policy_env`). The run folder (`RunFolder`) is refused if it holds an
+earlier run unless ``overwrite`` (the new run is written beside it and takes its place
+when finished); what a failed or interrupted run wrote is removed. The model, its
+normalization, ``config.yaml`` and ``summary.json`` are in place before the envs' slow
+shutdown, so a run whose model was saved always loads (`load_run`). Training runs with
+single-threaded torch and BLAS.
 """
 
 from __future__ import annotations
@@ -26,6 +25,10 @@ from pathlib import Path
 
 from gymnasium.spaces import flatdim
 
+from elastic_gym.controllers.registry import controller_class
+from elastic_gym.evaluation.grid import check_options
+from elastic_gym.observers.registry import OBSERVERS, observer_class
+from elastic_gym.observers.sensors import SENSORS
 from elastic_gym.policy.builder import build_policy_env
 from elastic_gym.runtime.parallel import DEFAULT_BACKEND
 from elastic_gym.training.config import (
@@ -37,7 +40,7 @@ from elastic_gym.training.config import (
 )
 from elastic_gym.training.distill import check_distill
 from elastic_gym.training.run_envs import training_vec_env
-from elastic_gym.training.run_folder import RunFolder, missing_folders, remove_empty
+from elastic_gym.training.run_folder import NewRun, RunFolder, missing_folders, remove_empty
 from elastic_gym.training.trained import episode_duration
 
 
@@ -86,26 +89,27 @@ def train(
     """Train one policy; write the run folder; return what happened.
 
     Raises before training if the folder holds an earlier run (unless ``overwrite``),
-    is written by another process (:class:`~elastic_gym.runtime.folder_lock.FolderLockedError`;
-    ``lock=False``: the caller holds the folder's lock) or the config is invalid;
-    removes what it wrote if training fails or is interrupted (then
-    :class:`~elastic_gym.runtime.parallel.Interrupted` says so).
+    is written by another process (`FolderLockedError`; ``lock=False``: the caller holds
+    the folder's lock) or the config is invalid; removes what it wrote if training fails
+    or is interrupted, keeping an earlier run it was to replace (then `Interrupted` says
+    so).
     """
     from elastic_gym.runtime.parallel import single_threaded
 
     settings, algo_kwargs = config.settings()  # a bad config changes nothing
     check_distill(config, settings)
     episode_duration(config.env_id, config.training_env_kwargs(settings))  # bounded evaluations
+    check_policy_env(config, settings)
     folder = RunFolder(config.out_dir)
-    with folder.create(overwrite, lock), single_threaded():
-        return _train(config, settings, algo_kwargs, folder, progress_bar, verbose)
+    with folder.create(overwrite, lock) as run, single_threaded():
+        return _train(config, settings, algo_kwargs, run, progress_bar, verbose)
 
 
 def _train(
     config: TrainConfig,
     settings: Settings,
     algo_kwargs: dict,
-    folder: RunFolder,
+    run: NewRun,
     progress_bar: bool,
     verbose: int,
 ) -> TrainResult:
@@ -113,7 +117,7 @@ def _train(
 
     from elastic_gym.training.learning_curve import LearningCurve
 
-    out = folder.path
+    out = run.target.path
     total = config.total_steps or settings.n_timesteps
     n_envs = settings.n_envs
     spec = config.policy_spec(settings)
@@ -164,34 +168,35 @@ def _train(
 
         model.save(out / "model.zip")
         venv.save(str(out / "vecnormalize.pkl"))
+        # the run folder is self-contained: the hyper-parameters used, not a pointer to a
+        # file, and every field of the action and observation configs (a later release's
+        # defaults must not change what a saved policy's actions mean)
+        run.target.write_config(
+            config.model_copy(
+                update={
+                    "hyperparams_file": None,
+                    "action": spec.action.to_dict(),
+                    "observation": spec.observation.to_dict(),
+                    "hyperparams": merged_hyperparams(
+                        config.algo, config.env_id, config.hyperparams, config.hyperparams_file
+                    ),
+                }
+            )
+        )
+        final = curve.evaluations[-1]
+        result = TrainResult(
+            str(run.folder.path),
+            model.num_timesteps,
+            model.num_timesteps * spec.decimation,
+            wall,
+            final.mean_return,
+            final.rms,
+        )
+        run.target.write_summary(dataclasses.asdict(result))
+        run.finish()  # in place before the envs' shutdown, which can take long
     finally:
         with contextlib.suppress(Exception):  # a failure to close must not hide what happened
             venv.close()
-    # the run folder is self-contained: the hyper-parameters used, not a pointer to a file,
-    # and every field of the action and observation configs (a later release's defaults
-    # must not change what a saved policy's actions mean)
-    folder.write_config(
-        config.model_copy(
-            update={
-                "hyperparams_file": None,
-                "action": spec.action.to_dict(),
-                "observation": spec.observation.to_dict(),
-                "hyperparams": merged_hyperparams(
-                    config.algo, config.env_id, config.hyperparams, config.hyperparams_file
-                ),
-            }
-        )
-    )
-    final = curve.evaluations[-1]
-    result = TrainResult(
-        str(out),
-        model.num_timesteps,
-        model.num_timesteps * spec.decimation,
-        wall,
-        final.mean_return,
-        final.rms,
-    )
-    folder.write_summary(dataclasses.asdict(result))
     return result
 
 
@@ -236,8 +241,35 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
         setting = config.model_copy(update={"seed": 0, "out_dir": ""}).to_dict()
         if repr(setting) not in built:
             built.add(repr(setting))
-            spec = config.policy_spec(settings)
-            build_policy_env(spec, spec.make_env()).close()
+            check_policy_env(config, settings)
+
+
+def check_policy_env(config: TrainConfig, settings: Settings) -> None:
+    """What only building a run's envs would check, checked in this process before any
+    worker starts, as a ``ValueError`` naming the option: the observer's options and the
+    residual's controller and options bound to their constructors, then the training
+    stack built once per batch of env kwargs (their values, e.g. a task's options)."""
+    action, _ = config.policy_configs(settings)
+    if config.state != SENSORS:
+        fixed = OBSERVERS[config.state][2]
+        cls = observer_class(config.state)
+        check_options(cls, config.observer_options, "observer_options", fixed)
+    if action.residual is not None:
+        try:
+            base = controller_class(action.residual)
+        except ValueError as exc:
+            raise ValueError(f"action.residual: {exc}") from None
+        check_options(base, action.residual_options, "action.residual_options")
+    spec = config.policy_spec(settings)
+    for kwargs in {repr(k): k for k in settings.batch_kwargs}.values():
+        try:
+            build_policy_env(spec, spec.make_env(env_kwargs=kwargs), critic=True).close()
+        except Exception as exc:
+            batch = f" with the batch's env kwargs {kwargs}" if kwargs else ""
+            what = " ".join(str(exc).split())
+            raise ValueError(
+                f"the run's policy env cannot be built{batch}: {type(exc).__name__}: {what}"
+            ) from None
 
 
 def train_many(
@@ -249,9 +281,10 @@ def train_many(
 ) -> list[TrainResult]:
     """Several runs (e.g. seeds) in parallel on local processes or Ray; results in order.
 
-    Checks every run before the first (:func:`check_configs`). If a run fails or the
-    process is interrupted (SIGINT/SIGTERM), the other runs are stopped, the finished
-    runs are kept, the unfinished ones removed, and the exception says which is which.
+    Checks every run before the first ([`check_configs`][elastic_gym.training.train.check_configs]).
+    If a run fails or the process is interrupted (SIGINT/SIGTERM), the other runs are
+    stopped, the finished runs are kept, what the unfinished ones wrote is removed (an
+    earlier run one of them was to replace is kept), and the exception says which is which.
     """
     with contextlib.ExitStack() as locks:
         for out in dict.fromkeys(Path(c.out_dir) for c in configs):  # repeats: check_configs
@@ -266,6 +299,7 @@ def _train_many_locked(
 
     check_configs(configs, overwrite)
     created = {folder for c in configs for folder in missing_folders(c.out_dir)}
+    earlier = {c.out_dir: RunFolder(c.out_dir).summary_stamp() for c in configs}
     results: dict[int, TrainResult] = {}
     try:
         for_each_result(
@@ -279,14 +313,32 @@ def _train_many_locked(
             describe=lambda c: f"training run {c.out_dir} (seed {c.seed})",
         )
     except BaseException as exc:
-        finished = [c.out_dir for c in configs if RunFolder(c.out_dir).finished]
-        unfinished = [c.out_dir for c in configs if c.out_dir not in finished]
-        for out in unfinished:
-            RunFolder(out).clear(keep_folder=True)
+        detail = _settle_runs(configs, results, earlier)
         remove_empty(created)  # the folders this call made, if left empty
-        detail = (
-            f"kept the finished run(s) {finished or 'none'}; removed the unfinished "
-            f"run(s) {unfinished}"
-        )
         raise with_detail(exc, detail)  # noqa: B904 - with_detail sets the cause
     return [results[i] for i in range(len(configs))]
+
+
+def _settle_runs(configs: list[TrainConfig], results: dict[int, TrainResult], earlier: dict) -> str:
+    """After a failed or interrupted [`train_many`][elastic_gym.training.train.train_many]:
+    keep the runs that finished (a result, or a new ``summary.json`` in place), remove what
+    the others wrote (a worker that was killed could not), put back an earlier run one was
+    replacing; returns what was done, for the message."""
+    finished, removed, kept = [], [], []
+    for i, config in enumerate(configs):
+        folder = RunFolder(config.out_dir)
+        stamp = folder.summary_stamp()
+        if i in results or stamp not in (None, earlier[config.out_dir]):
+            finished.append(config.out_dir)
+            continue
+        folder.recover()  # an unfinished replacement: removed, the earlier run put back
+        if earlier[config.out_dir] is None:
+            folder.clear(keep_folder=True)
+            removed.append(config.out_dir)
+        else:
+            kept.append(config.out_dir)
+    detail = f"kept the finished run(s) {finished or 'none'}; removed the unfinished run(s) "
+    detail += f"{removed or 'none'}"
+    if kept:
+        detail += f"; kept the earlier run(s) {kept} that unfinished runs were to replace"
+    return detail

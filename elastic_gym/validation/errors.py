@@ -11,6 +11,7 @@ from typing import Any, TypeVar, get_args
 import numpy as np
 from pydantic import (
     BaseModel,
+    RootModel,
     TypeAdapter,
     ValidationError,
 )
@@ -76,17 +77,30 @@ def _models_in(annotation: Any) -> list[type[BaseModel]]:
     return [model for arg in get_args(annotation) for model in _models_in(arg)]
 
 
+def _contents(models: list[type[BaseModel]]) -> list[type[BaseModel]]:
+    """``models`` with each root model (a mapping or list of models, like a file of
+    entries) replaced by the models it holds: its data has no field of its own."""
+    out: list[type[BaseModel]] = []
+    for model in models:
+        if issubclass(model, RootModel):
+            out += _contents(_models_in(model.model_fields["root"].annotation))
+        else:
+            out.append(model)
+    return out
+
+
 def field_names(model: type[BaseModel], loc: Sequence[int | str]) -> list[str]:
     """The field names (aliases) of the model reached from ``model`` along ``loc`` (a
-    union member named in ``loc`` is followed; none: ``[]``)."""
-    models = [model]
+    union member named in ``loc`` is followed, the keys of a mapping of models and the
+    content of a root model are passed through; none: ``[]``)."""
+    models = _contents([model])
     for part in loc:
         named = [m for m in models if m.__name__ == part]
         fields = [f for m in models for n, f in m.model_fields.items() if part in (n, f.alias)]
         if named:
             models = named
         elif fields:
-            models = _models_in(fields[0].annotation)
+            models = _contents(_models_in(fields[0].annotation))
     return [f.alias or name for name, f in models[0].model_fields.items()] if models else []
 
 
