@@ -247,6 +247,7 @@ def test_controller_sees_only_public_information_and_the_perturbed_model():
     assert {mass for _, _, mass in Spy.seen} == {1.25}
 
 
+@pytest.mark.slow
 def test_diverging_run_is_reported_not_raised():
     scenario = Scenario.from_dict(
         rigid_scenario(

@@ -311,6 +311,7 @@ def test_measurement_delay_breaks_the_observer_based_loops(real_sweep):
     ]
 
 
+@pytest.mark.slow
 def test_cli_quick_runs_a_thinned_sweep(tmp_path, capsys):
     path = tmp_path / "s.yaml"
     path.write_text(
