@@ -8,12 +8,10 @@ task, magnitude, seed, tolerance or weight does; scorecards carry it.
 ``robots`` (label -> env id + kwargs), ``tasks`` (env kwargs and the `Tolerance` an
 episode must stay within), ``categories`` (weight and cells: one task under one perturbation
 of the simulated plant only, which no model knows), ``precision`` (the map of the nominal
-tracking RMS, `scoring`), ``seeds``, ``duration``, ``integrator`` and ``physics_dt`` (the
-env kwargs of the physics: PyBullet's Euler at a fine step in version 1, the RK4 at the
-control period from version 2 on; the hash leaves out PyBullet's, the field's default, so
-a suite written before the field keeps its hash).
-`expand_cells` lists the cells; `suite_scenario` turns them and one entry into
-the comparison `Scenario` that is executed.
+tracking RMS, `scoring`), ``seeds``, ``duration``, ``integrator`` and ``physics_dt`` (v1:
+PyBullet's Euler at 1/16 ms; v2: the RK4 at the control period; the hash leaves out the
+default ``pybullet``, so v1 keeps its hash). `expand_cells` lists the cells;
+`suite_scenario` turns them and one entry into the comparison `Scenario` that is executed.
 """
 
 from __future__ import annotations

@@ -7,11 +7,10 @@ A scenario is the product
 
 Axes combine as a product; ``sweeps`` become one more axis ``sweep`` whose values are
 ``nominal`` (the runs as given) and ``<name>=<magnitude>``, so N sweeps of k magnitudes
-cost 1 + N k runs per loop. Comparisons integrate with the RK4 at the control period
-(``integrator: rk4``; PyBullet's step: ``COMPARISON_PHYSICS_DT`` = 1/16 ms; an env entry's
-or axis value's kwarg wins). Loading validates the fields (the
-models of :mod:`~elastic_gym.evaluation.scenario_models`; ``elastic-gym schema scenario``
-prints their JSON Schema, the docs' scenario file reference lists every field) and raises
+cost 1 + N k runs per loop. Comparisons run the RK4 at the control period (``integrator``;
+PyBullet's Euler at ``COMPARISON_PHYSICS_DT``). Loading validates the fields (the models of
+:mod:`~elastic_gym.evaluation.scenario_models`; their JSON Schema: ``elastic-gym schema
+scenario``, the docs' scenario file reference lists every field) and raises
 :class:`ScenarioError` (a ``ValueError``) naming the offending field, e.g.
 ``controllers[1].name``; inapplicable observer/controller pairs are skipped at planning.
 """
