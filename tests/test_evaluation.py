@@ -31,7 +31,7 @@ from elastic_gym.evaluation import (
 )
 from elastic_gym.evaluation.episodes import run_episode
 from elastic_gym.evaluation.metrics import SETTLING_BAND, find_moves
-from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT
+from elastic_gym.evaluation.scenario import COMPARISON_INTEGRATOR
 
 DT = 1e-3
 QUIET = Console(quiet=True)
@@ -214,7 +214,7 @@ def test_plan_skips_inapplicable_and_merges_axes():
     assert all("deluca" in s.reason and "elastic" in s.reason for s in skipped)
     heavy = [r for r in runs if r.labels["plant"] == "heavy"]
     assert heavy[0].env_kwargs == {
-        "physics_dt": COMPARISON_PHYSICS_DT,
+        "integrator": COMPARISON_INTEGRATOR,
         "task": "regulation",
         "plant_scaling": {"link_mass": 1.1},
     }
