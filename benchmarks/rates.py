@@ -159,8 +159,8 @@ def ppo_table(policy_steps: int) -> None:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
+    from elastic_gym.policy import PolicySpec, build_policy_env
     from elastic_gym.training.config import resolve_settings
-    from elastic_gym.training.policy_env import make_policy_vec_env
     from elastic_gym.training.sb3_vec_env import SB3VecEnv
 
     torch.set_num_threads(1)
@@ -171,15 +171,15 @@ def ppo_table(policy_steps: int) -> None:
     }
     rates = {}
     for label, kwargs in physics.items():
-        envs = make_policy_vec_env(
-            TWO_LINK,
-            settings.n_envs // settings.batches,
-            state="true",
+        spec = PolicySpec(
+            env_id=TWO_LINK,
             env_kwargs={**settings.env_kwargs, **kwargs},
+            state="true",
             decimation=settings.decimation,
             action=settings.action,
             observation=settings.observation,
         )
+        envs = build_policy_env(spec, spec.make_env(settings.n_envs // settings.batches))
         venv = VecNormalize(SB3VecEnv(envs))
         model = PPO("MlpPolicy", venv, seed=0, device="cpu", **algorithm)
         model.learn(algorithm["n_steps"] * venv.num_envs)  # warm-up: the first rollout
