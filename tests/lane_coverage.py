@@ -1,18 +1,23 @@
 """Does the fast lane exercise every module of the package?
 
-``python tests/lane_coverage.py [PYTEST ARGS]`` runs ``pytest -m "not slow"`` in this one
-process under coverage and lists each ``elastic_gym/**/*.py`` module with the share of its
-statements that ran. A module counts as exercised when a line inside one of its functions
-ran, or when one of its compiled (numba) functions was compiled or loaded for a call (their
-lines run as machine code, which coverage cannot see), or, for a module without functions,
-when it was imported. Exit status 1 names the modules the lane leaves alone. Subprocesses
-are not measured: a module only a subprocess runs counts as not exercised.
+``python tests/lane_coverage.py [PYTEST ARGS]`` runs ``pytest -m "not slow"`` under
+coverage (in this process, or in each xdist worker with ``-n 2``) and lists each
+``elastic_gym/**/*.py`` module with the share of its statements that a test ran (its
+setup, call or teardown; imports and collection do not count). A module counts as
+exercised when a line inside one of its functions ran so, or when one of its compiled
+(numba) functions was compiled or loaded for a call (their lines run as machine code,
+which coverage cannot see), or, for a module without functions, when it was imported.
+Exit status 1 names the modules the lane leaves alone. Subprocesses are not measured: a
+module only a subprocess runs counts as not exercised.
 """
 
 from __future__ import annotations
 
 import ast
+import json
+import os
 import sys
+import tempfile
 from pathlib import Path
 
 import coverage
@@ -20,6 +25,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "elastic_gym"
+OUT = "LANE_COVERAGE_DIR"  # where each worker leaves its data (set by `main`)
 
 
 def function_lines(path: Path) -> set[int]:
@@ -35,24 +41,62 @@ def function_lines(path: Path) -> set[int]:
     return lines
 
 
-class CompiledCalls:
-    """A pytest plugin: at the end of the session, the modules with a numba dispatcher
-    that holds at least one compiled signature (compiled or loaded from the cache)."""
+def compiled_and_imported() -> tuple[list[str], list[str]]:
+    """The package's modules with a numba dispatcher holding a compiled signature (compiled
+    or loaded from the cache), and all the package's modules imported."""
+    from numba.core.registry import CPUDispatcher
 
-    def __init__(self) -> None:
-        self.modules: set[str] = set()
+    compiled, imported = [], []
+    for name, module in list(sys.modules.items()):
+        if not name.startswith("elastic_gym") or module is None:
+            continue
+        imported.append(name)
+        for value in list(vars(module).values()):
+            ran = isinstance(value, CPUDispatcher) and value.overloads
+            if ran and value.py_func.__module__ == name:
+                compiled.append(name)
+                break
+    return compiled, imported
 
-    def pytest_sessionfinish(self) -> None:
-        from numba.core.registry import CPUDispatcher
 
-        for name, module in list(sys.modules.items()):
-            if not name.startswith("elastic_gym") or module is None:
-                continue
-            for value in list(vars(module).values()):
-                compiled = isinstance(value, CPUDispatcher) and value.overloads
-                if compiled and value.py_func.__module__ == name:
-                    self.modules.add(name)
-                    break
+_measure: list[coverage.Coverage] = []  # this xdist worker's
+
+
+def pytest_configure(config) -> None:
+    """In an xdist worker (this module is a plugin, ``-p lane_coverage``): coverage from
+    here to its end."""
+    if hasattr(config, "workerinput"):
+        measure = coverage.Coverage(
+            data_file=str(Path(os.environ[OUT]) / ".coverage"),
+            data_suffix=True,
+            source_pkgs=["elastic_gym"],
+            config_file=False,
+        )
+        measure.start()
+        _measure.append(measure)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """The lines a test's setup, call and teardown run are recorded under its id; those
+    run by imports and collection under no id (and do not count)."""
+    measure = coverage.Coverage.current()
+    if measure is not None:
+        measure.switch_context(item.nodeid)
+    yield
+    if measure is not None:
+        measure.switch_context("")
+
+
+def pytest_unconfigure(config) -> None:
+    """Coverage saved; what `compiled_and_imported` finds written to ``$OUT``."""
+    for measure in _measure:
+        measure.stop()
+        measure.save()
+    compiled, imported = compiled_and_imported()
+    name = getattr(config, "workerinput", {}).get("workerid", "main")
+    path = Path(os.environ[OUT]) / f"modules-{name}.json"
+    path.write_text(json.dumps({"compiled": compiled, "imported": imported}))
 
 
 def module_name(path: Path) -> str:
@@ -63,35 +107,54 @@ def module_name(path: Path) -> str:
 
 
 def main(arguments: list[str]) -> int:
-    measure = coverage.Coverage(data_file=None, source_pkgs=["elastic_gym"], config_file=False)
-    probe = CompiledCalls()
-    measure.start()
-    try:
-        code = pytest.main(
-            ["-p", "no:xdist", "-o", "addopts=", "-q", "-m", "not slow", *arguments],
-            plugins=[probe],
+    with tempfile.TemporaryDirectory() as out:
+        os.environ[OUT] = out
+        tests = str(Path(__file__).parent)  # this module, importable by the xdist workers
+        os.environ["PYTHONPATH"] = os.pathsep.join([tests, os.environ.get("PYTHONPATH", "")])
+        sys.path.insert(0, tests)
+        measure = coverage.Coverage(
+            data_file=str(Path(out) / ".coverage"),
+            data_suffix=True,
+            source_pkgs=["elastic_gym"],
+            config_file=False,
         )
-    finally:
-        measure.stop()
-    data = measure.get_data()
-    missing = []
-    print(f"\n{'module':<48} {'ran':>6}  exercised by")
-    for path in sorted(PACKAGE.rglob("*.py")):
-        name = module_name(path)
-        ran = set(data.lines(str(path)) or ())
-        statements = set(measure.analysis2(str(path))[1]) if ran else set()
-        inside = function_lines(path)
-        if ran & inside:
-            how = "a function ran"
-        elif name in probe.modules:
-            how = "a compiled function ran"
-        elif ran and not inside:
-            how = "import (no functions)"
-        else:
-            how = "NOTHING"
-            missing.append(name)
-        share = len(ran & statements) / max(1, len(statements))
-        print(f"{name:<48} {share:>6.0%}  {how}")
+        measure.start()
+        try:
+            code = pytest.main(
+                ["-p", "lane_coverage", "-o", "addopts=", "-q", "-m", "not slow", *arguments]
+            )
+        finally:
+            measure.stop()
+            measure.save()
+        measure.combine([out])
+        data = measure.get_data()
+        compiled, imported = set(), set()
+        for path in Path(out).glob("modules-*.json"):
+            found = json.loads(path.read_text())
+            compiled.update(found["compiled"])
+            imported.update(found["imported"])
+        missing = []
+        print(f"\n{'module':<48} {'ran':>6}  exercised by")
+        for path in sorted(PACKAGE.rglob("*.py")):
+            name = module_name(path)
+            by_line = data.contexts_by_lineno(str(path))
+            ran = {line for line, contexts in by_line.items() if any(contexts)}
+            try:
+                statements = set(measure.analysis2(str(path))[1])
+            except coverage.CoverageException:
+                statements = set()
+            inside = function_lines(path)
+            if ran & inside:
+                how = "a function ran"
+            elif name in compiled:
+                how = "a compiled function ran"
+            elif not inside and (by_line or name in imported):
+                how = "import (no functions)"
+            else:
+                how = "NOTHING"
+                missing.append(name)
+            share = len(ran & statements) / max(1, len(statements))
+            print(f"{name:<48} {share:>6.0%}  {how}")
     print(f"\npytest exit status {code}; {len(missing)} module(s) not exercised")
     for name in missing:
         print(f"  {name}")

@@ -349,6 +349,7 @@ def test_a_card_of_30_failed_episodes_claiming_099_is_refused(tiny_cards, tmp_pa
     assert not page.exists()
 
 
+@pytest.mark.slow
 def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_path, capsys):
     _, suite_file, _ = tiny_cards
     observer = "elastic_gym.observers.finite_difference:FiniteDifferenceObserver"

@@ -185,6 +185,7 @@ def test_scenario_name_stays_one_folder_inside_the_output_root(name):
         scenario(name=name)
 
 
+@pytest.mark.slow
 def test_labels_giving_the_same_or_too_long_figure_names_are_refused(tmp_path):
     same = scenario(
         envs=[
@@ -207,6 +208,7 @@ def test_labels_giving_the_same_or_too_long_figure_names_are_refused(tmp_path):
 
 
 # ------------------------------------------------------------------ the grid
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
@@ -300,6 +302,7 @@ def test_missing_or_corrupted_policy_folder_is_found_before_the_first_run(tmp_pa
 
 
 # ------------------------------------------------------------------ runs and results
+@pytest.mark.slow
 def test_any_exception_in_a_users_controller_or_observer_is_a_failed_row(tmp_path):
     scn = scenario(
         duration=0.05,
@@ -326,6 +329,7 @@ def test_any_exception_in_a_users_controller_or_observer_is_a_failed_row(tmp_pat
     assert len(list((tmp_path / "plots").glob("*.png"))) == 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("batch_size", "expected"),
     [

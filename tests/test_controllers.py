@@ -335,6 +335,7 @@ def cristofaro_example3(observer: str | None) -> np.ndarray:
     return run["q"][-500:] - target
 
 
+@pytest.mark.slow
 def test_cristofaro_example3_true_state():
     assert np.abs(cristofaro_example3(None)).max() < 0.01  # measured 2.3e-3
 
@@ -406,6 +407,7 @@ def test_policy_controller_scaling_residual_and_recurrent_state():
     )
 
 
+@pytest.mark.slow
 def test_policy_controller_with_saved_sb3_model_and_vecnormalize(tmp_path):
     """A saved SB3 model (path + algorithm) and a pickled VecNormalize: the policy sees the
     normalized observation and its [-1, 1] action becomes a torque within the limits."""

@@ -31,7 +31,7 @@ from elastic_gym.evaluation import (
 )
 from elastic_gym.evaluation.episodes import run_episode
 from elastic_gym.evaluation.metrics import SETTLING_BAND, find_moves
-from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT
+from elastic_gym.evaluation.scenario import COMPARISON_INTEGRATOR
 
 DT = 1e-3
 QUIET = Console(quiet=True)
@@ -214,7 +214,7 @@ def test_plan_skips_inapplicable_and_merges_axes():
     assert all("deluca" in s.reason and "elastic" in s.reason for s in skipped)
     heavy = [r for r in runs if r.labels["plant"] == "heavy"]
     assert heavy[0].env_kwargs == {
-        "physics_dt": COMPARISON_PHYSICS_DT,
+        "integrator": COMPARISON_INTEGRATOR,
         "task": "regulation",
         "plant_scaling": {"link_mass": 1.1},
     }
@@ -247,6 +247,7 @@ def test_controller_sees_only_public_information_and_the_perturbed_model():
     assert {mass for _, _, mass in Spy.seen} == {1.25}
 
 
+@pytest.mark.slow
 def test_diverging_run_is_reported_not_raised():
     scenario = Scenario.from_dict(
         rigid_scenario(

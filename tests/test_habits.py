@@ -7,11 +7,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_importing_the_simulator_and_listing_presets_print_no_banner():
     code = (
         "import elastic_gym.envs; from elastic_gym.cli import main; "

@@ -60,6 +60,7 @@ def test_integral_action_does_no_harm_on_the_nominal_arm(runs):
     assert integral["late"] < 1e-5 and plain["late"] < 1e-5  # vs 7.9e-3 with heavier links
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("identification", ["per-link", "shared"])
 @pytest.mark.parametrize("controller", ["integral-state-feedback", "feedforward-state-feedback"])
 def test_load_identification_finds_the_link_masses_and_tracks_as_on_the_nominal_arm(
@@ -101,6 +102,7 @@ def test_augmented_design_is_stable_and_keeps_the_fast_poles():
         make_controller("integral-state-feedback", model, 1e-3, integral_limit=0.0)
 
 
+@pytest.mark.slow
 def test_anti_windup_freezes_on_saturation_and_bounds_the_integral_torque():
     env = gym.make(TWO_LINK)
     model = env.unwrapped.model

@@ -14,6 +14,7 @@ from elastic_gym.controllers import CONTROLLERS, register_controller
 from elastic_gym.robots.catalog import ROBOTS, get_robot
 
 
+@pytest.mark.slow
 def test_comparison_imports_the_policy_package_only_when_a_policy_is_named():
     """... never the training stack (an exported policy needs none), and matplotlib only
     to plot: a comparison's workers import the package."""

@@ -297,6 +297,7 @@ def test_example_1_with_heavier_links_still_converges():
     assert np.linalg.norm(error[1000:], axis=1).max() < 0.15
 
 
+@pytest.mark.slow
 def test_example_2_hybrid_gain_schedules_without_chattering():
     """Example 2 (eq. 19): r rises with the speed, a handful of jumps; literal sets chatter."""
     steps = 7000

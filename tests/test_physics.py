@@ -85,7 +85,7 @@ def _open_loop(env_id: str, physics_dt: float | None, duration: float = 0.5):
 @pytest.mark.parametrize(
     "env_id",
     [
-        pytest.param(i, marks=[pytest.mark.slow] if "KR15" in i else [])
+        pytest.param(i, marks=[pytest.mark.slow] if "KR15" in i or "Iiwa" in i else [])
         for i in elastic_gym.ENV_IDS
         if "Elastic" in i
     ],

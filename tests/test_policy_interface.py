@@ -207,6 +207,7 @@ def test_arms_of_a_batch_are_independent():
     )
 
 
+@pytest.mark.slow
 def test_residual_policy_starts_as_its_base_controller():
     """A fresh PPO residual policy (zeroed mean head) outputs exactly zero, so its first
     episode is eq. (13)'s."""

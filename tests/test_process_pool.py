@@ -36,6 +36,7 @@ def test_one_pool_runs_two_functions_in_the_same_processes():
     assert len(second) == 1 and second <= first  # workers=1: one of the same processes
 
 
+@pytest.mark.slow
 def test_a_call_left_early_does_not_leak_its_results_into_the_next():
     with worker_processes(2) as pool:
         results = pool.results(slow_square, [4, 4, 4, 4])
@@ -46,6 +47,7 @@ def test_a_call_left_early_does_not_leak_its_results_into_the_next():
         assert sorted(value for _, _, value in pool.results(slow_square, [1, 2, 3])) == [1, 4, 9]
 
 
+@pytest.mark.slow
 def test_a_worker_that_died_between_two_calls_is_replaced():
     with worker_processes(1) as pool:
         [(_, _, (_, pid))] = pool.results(pid_of, [0])
@@ -72,6 +74,7 @@ class PidLog(Controller):
         return np.zeros(self.n)
 
 
+@pytest.mark.slow
 def test_the_pre_run_check_runs_in_a_worker_of_the_runs(tmp_path: Path):
     """One worker: the check and every run are built in the same process, not this one
     (a spawned process costs seconds of imports)."""

@@ -134,6 +134,7 @@ def statuses(out: Path) -> dict[tuple[str, str], str]:
 
 
 # ------------------------------------------------------------ user code that exits
+@pytest.mark.slow
 def test_sys_exit_and_a_users_keyboard_interrupt_are_that_runs_failed_row(tmp_path, user_module):
     scenario = faulty_scenario(
         {
@@ -155,6 +156,7 @@ def test_sys_exit_and_a_users_keyboard_interrupt_are_that_runs_failed_row(tmp_pa
         assert found["fine", seed] == "ok"
 
 
+@pytest.mark.slow
 def test_sys_exit_while_a_controller_is_built_is_refused_before_any_run(tmp_path, user_module):
     scenario = Scenario.from_dict(
         {
@@ -280,6 +282,7 @@ def test_user_code_that_ends_the_pre_run_checks_process_is_refused_naming_it(
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_one_worker_runs_in_a_child_unless_the_jobs_need_this_main():
     from elastic_gym.runtime.parallel import run_jobs
     from elastic_gym.runtime.process_pool import refers_to_main
@@ -291,6 +294,7 @@ def test_one_worker_runs_in_a_child_unless_the_jobs_need_this_main():
     assert refers_to_main(lambda job: job)  # does not pickle: runs here
 
 
+@pytest.mark.slow
 def test_run_jobs_without_a_crash_handler_names_the_job_whose_worker_died():
     from elastic_gym.runtime.parallel import run_jobs
 
@@ -346,6 +350,7 @@ def still_alive(pids: list[int], bound: float) -> list[str]:
     return left
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_workers_end_when_compare_is_killed(tmp_path):
     out = tmp_path / "out"
@@ -900,6 +905,7 @@ def test_a_refused_reset_changes_no_random_stream():
     assert streams(env) == before and env.unwrapped.np_random is env.unwrapped.batch.rngs[0]
 
 
+@pytest.mark.slow
 def test_a_duration_below_the_control_period_is_refused(tmp_path, user_module):
     scenario = faulty_scenario({"fine": {}}, duration=0.0004)
     with pytest.raises(ScenarioError, match=r"^duration: 0\.0004 s is shorter than the control"):

@@ -51,6 +51,7 @@ def _episode(controller: str | None, options: dict, source: str, seed: int, step
     return total, float(np.sqrt(np.mean(np.square(errors))))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_returns_rank_controllers_like_their_tracking_rms(seed):
     """eq. (13) on the true state, motor PD on the motor encoders (the comparison's

@@ -81,6 +81,7 @@ def test_the_plants_change_the_simulated_plant_and_only_it():
             env.close()
 
 
+@pytest.mark.slow
 def test_the_evaluation_plants_switch_a_randomized_run_s_randomization_off():
     (row,) = [row for row in rs.ROWS if row.key == "ppo-true-robust"]
     config = row.config(0, Path("runs"))

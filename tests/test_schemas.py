@@ -44,6 +44,7 @@ def test_the_shipped_schemas_are_those_of_the_models():
         assert (SCHEMA_DIR / f"{name}.json").read_text() == schema_text(name), name
 
 
+@pytest.mark.slow
 def test_every_shipped_yaml_file_exists_names_its_schema_and_satisfies_it():
     assert len(FILES) >= 14
     for path, name in FILES:

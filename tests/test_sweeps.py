@@ -13,7 +13,7 @@ from elastic_gym.cli import main
 from elastic_gym.evaluation import Scenario, ScenarioError, compare, load_preset, plan_runs
 from elastic_gym.evaluation.curves import plot_all_curves
 from elastic_gym.evaluation.margins import cell, margin_rows
-from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
+from elastic_gym.evaluation.scenario import COMPARISON_INTEGRATOR, QUICK_DURATION
 from elastic_gym.evaluation.sweeps import sweep_curves
 
 QUIET = Console(quiet=True)
@@ -73,7 +73,7 @@ def test_sweeps_are_one_at_a_time_around_a_shared_nominal():
     assert by_label["delay=5"]["sensor_delay"] == 5 and isinstance(
         by_label["delay=5"]["sensor_delay"], int
     )  # integer parameters stay integers
-    assert by_label["nominal"] == {"physics_dt": COMPARISON_PHYSICS_DT, **TRACK}
+    assert by_label["nominal"] == {"integrator": COMPARISON_INTEGRATOR, **TRACK}
     assert Scenario.from_dict(s.to_dict()) == s  # the resolved scenario.yaml reloads
     quick = s.quick()
     assert quick.seeds == (0,) and quick.duration == min(0.6, QUICK_DURATION)
@@ -159,7 +159,7 @@ def test_robustness_preset_covers_the_issue_axes():
         "motor-pd",
     }
     assert {src.name for src in s.state_sources} == {"true", "deluca", "ekf", "finite-difference"}
-    assert s.physics_dt == COMPARISON_PHYSICS_DT and len(s.seeds) >= 2
+    assert s.physics_kwargs() == {"integrator": COMPARISON_INTEGRATOR} and len(s.seeds) >= 2
 
 
 # ---------------------------------------------------------------------------- margins
@@ -311,6 +311,7 @@ def test_measurement_delay_breaks_the_observer_based_loops(real_sweep):
     ]
 
 
+@pytest.mark.slow
 def test_cli_quick_runs_a_thinned_sweep(tmp_path, capsys):
     path = tmp_path / "s.yaml"
     path.write_text(

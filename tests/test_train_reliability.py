@@ -130,6 +130,23 @@ def test_what_a_killed_overwrite_left_is_undone_by_the_next_run(tmp_path, phase)
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
 
 
+@pytest.mark.parametrize("phase", ["aside", "in"])
+def test_a_refused_train_still_undoes_what_a_killed_overwrite_left(tmp_path, capsys, phase):
+    pytest.importorskip("stable_baselines3")
+    from elastic_gym.cli import main
+
+    out = tmp_path / "run"
+    out.mkdir()
+    before = {**earlier_run(out), "notes.txt": b"mine"}
+    killed_while_replacing(out, phase)
+    with pytest.raises(SystemExit) as stopped:
+        main(["train", "--state", "true", "--steps", "8", "--out", str(out)])
+    assert stopped.value.code == 2
+    assert "holds an earlier run" in capsys.readouterr().err
+    assert contents(out) == before  # the earlier run whole again, nothing of the killed one
+    assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []
+
+
 # ------------------------------------------------------------------ whole files
 @pytest.mark.parametrize("write", ["write_config", "write_summary"])
 def test_config_and_summary_are_written_whole_or_not_at_all(tmp_path, monkeypatch, write):

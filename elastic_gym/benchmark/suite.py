@@ -8,9 +8,10 @@ task, magnitude, seed, tolerance or weight does; scorecards carry it.
 ``robots`` (label -> env id + kwargs), ``tasks`` (env kwargs and the `Tolerance` an
 episode must stay within), ``categories`` (weight and cells: one task under one perturbation
 of the simulated plant only, which no model knows), ``precision`` (the map of the nominal
-tracking RMS, `scoring`), ``seeds``, ``duration``, ``physics_dt``.
-`expand_cells` lists the cells; `suite_scenario` turns them and one entry into
-the comparison `Scenario` that is executed.
+tracking RMS, `scoring`), ``seeds``, ``duration``, ``integrator`` and ``physics_dt`` (v1:
+PyBullet's Euler at 1/16 ms; v2: the RK4 at the control period; the hash leaves out the
+default ``pybullet``, so v1 keeps its hash). `expand_cells` lists the cells;
+`suite_scenario` turns them and one entry into the comparison `Scenario` that is executed.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from typing import Annotated, Any
 from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
+from elastic_gym.envs.config import Integrator
 from elastic_gym.envs.ids import registered_env_id
 from elastic_gym.evaluation.scenario import (
     ControllerEntry,
@@ -138,6 +140,7 @@ class SuiteConfig(StrictModel):
     version: Annotated[int, Field(ge=1)]
     description: str
     duration: Positive
+    integrator: Integrator = "pybullet"
     physics_dt: Annotated[float, Field(gt=0, le=1e-3)]
     seeds: list[Annotated[int, Field(ge=0)]] = Field(min_length=MIN_SEEDS)
     robots: dict[Label, RobotEntry] = Field(min_length=1)
@@ -284,8 +287,13 @@ def _unknown_kwargs(suite: SuiteConfig) -> list[tuple[tuple, str]]:
 
 
 def canonical_form(suite: SuiteConfig) -> str:
-    """The JSON text the hash is taken of: the validated suite, keys sorted, no spaces."""
-    return json.dumps(suite.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+    """The JSON text the hash is taken of: the validated suite, keys sorted, no spaces
+    (without ``integrator`` when it is PyBullet's, the default: a suite written before
+    the field keeps its hash)."""
+    data = suite.model_dump(mode="json")
+    if data["integrator"] == "pybullet":
+        del data["integrator"]
+    return json.dumps(data, sort_keys=True, separators=(",", ":"))
 
 
 def suite_hash(suite: SuiteConfig) -> str:
@@ -330,8 +338,8 @@ def suite_scenario(
     models: tuple[str, ...] = (),
 ) -> Scenario:
     """The comparison grid of one entry on the suite: one env entry per cell (labelled
-    `Cell.id`), the suite's seeds, duration and physics step, no model error (``models``:
-    identified model files the controller and observer build on).
+    `Cell.id`), the suite's seeds, duration, integrator and physics step, no model error
+    (``models``: identified model files the controller and observer build on).
 
     ``robots`` restricts the cells to some robots (``ValueError`` for an unknown one)."""
     with errors_at("robots"):
@@ -344,6 +352,7 @@ def suite_scenario(
         state_sources=(source,),
         duration=suite.duration,
         seeds=tuple(suite.seeds),
+        integrator=suite.integrator,
         physics_dt=suite.physics_dt,
         description=f"{suite.name} (version {suite.version}, sha256 {suite.hash[:12]})",
         models=models,

@@ -8,9 +8,14 @@ import argparse
 import sys
 
 from elastic_gym.cli.common import require_rl_extra
+from elastic_gym.envs.config import INTEGRATORS
 from elastic_gym.evaluation.groups import DEFAULT_BATCH_SIZE
 from elastic_gym.evaluation.presets import DEFAULT_PRESET, list_presets
-from elastic_gym.evaluation.scenario import COMPARISON_PHYSICS_DT, QUICK_DURATION
+from elastic_gym.evaluation.scenario import (
+    COMPARISON_INTEGRATOR,
+    COMPARISON_PHYSICS_DT,
+    QUICK_DURATION,
+)
 from elastic_gym.runtime.parallel import BACKENDS, DEFAULT_BACKEND
 
 
@@ -72,7 +77,15 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
         "--physics-dt",
         type=float,
         metavar="SECONDS",
-        help=f"override the scenario's physics step (default {COMPARISON_PHYSICS_DT:g} s)",
+        help=(
+            "override the scenario's physics step (default: the control period for the RK4, "
+            f"{COMPARISON_PHYSICS_DT:g} s for PyBullet's integrator)"
+        ),
+    )
+    parser.add_argument(
+        "--integrator",
+        choices=INTEGRATORS,
+        help=f"override the scenario's integrator (default {COMPARISON_INTEGRATOR})",
     )
     parser.add_argument(
         "--policy",
@@ -107,7 +120,10 @@ def run_compare(args: argparse.Namespace) -> int:
     if args.quick:
         scenario = scenario.quick()
     scenario = scenario.with_overrides(
-        seeds=args.seeds, duration=args.duration, physics_dt=args.physics_dt
+        seeds=args.seeds,
+        duration=args.duration,
+        physics_dt=args.physics_dt,
+        integrator=args.integrator,
     )
     if args.model:
         scenario = scenario.with_overrides(models=tuple(args.model))

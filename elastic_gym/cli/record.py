@@ -289,9 +289,7 @@ def record_scenario(args: argparse.Namespace, env_id: str, path: Path) -> int:
     sources = {s.label: s for s in scenario.state_sources}
     controller = lookup(controllers, args.controller or next(iter(controllers)), "controller")
     source = lookup(sources, args.state_source or next(iter(sources)), "state source")
-    kwargs = {**entry.kwargs, **env_kwargs_of(args)}
-    if scenario.physics_dt is not None:
-        kwargs.setdefault("physics_dt", scenario.physics_dt)
+    kwargs = {**scenario.physics_kwargs(), **entry.kwargs, **env_kwargs_of(args)}
     duration = scenario.duration if args.duration is None else args.duration
     seed = scenario.seeds[0] if args.seed is None else args.seed
     start = time.perf_counter()

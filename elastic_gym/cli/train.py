@@ -196,7 +196,9 @@ def run_train(args: argparse.Namespace) -> int:
     require_rl_extra("elastic-gym train")
     from elastic_gym.training import RunFolder, train, train_many
 
-    RunFolder(train_run_base(args)).check(args.overwrite)
+    base = RunFolder(train_run_base(args))
+    base.undo_killed_writer()  # a killed overwrite's leftovers: the earlier run put back
+    base.check(args.overwrite)
     configs = train_configs(args)
     if len(configs) == 1:
         results = [train(configs[0], progress_bar=not args.no_progress, overwrite=args.overwrite)]

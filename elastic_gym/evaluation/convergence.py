@@ -1,7 +1,8 @@
 """Convergence of a comparison's metrics in the physics step.
 
-Links and elastic transmissions are integrated with first-order semi-implicit Euler, so
-every metric carries an O(physics_dt) error. A metric m at the physics step h is
+With PyBullet's integrator (first-order semi-implicit Euler) every metric carries an
+O(physics_dt) error; with the RK4 the physics step is its largest substep (the step-size
+control refines it further where the error needs). A metric m at the physics step h is
 *converged* when
 
     |m(h) - m(h / r)| <= tolerance * |m(h / r)| + floor(metric)
@@ -35,10 +36,15 @@ CONVERGENCE_METRICS = tuple(k for k in METRIC_KEYS if k != "sim_wall_ratio")  # 
 
 
 def run_physics_dt(spec: RunSpec) -> float:
-    """The physics step a run uses: its ``physics_dt`` kwarg or the env's default."""
-    if "physics_dt" in spec.env_kwargs:
-        return float(spec.env_kwargs["physics_dt"])
-    return float(env_robot(spec.env_id, spec.env_kwargs).physics_dt)
+    """The physics step a run uses: its ``physics_dt`` kwarg or the env's default (the
+    RK4's: the control period)."""
+    kwargs = spec.env_kwargs
+    if "physics_dt" in kwargs:
+        return float(kwargs["physics_dt"])
+    robot = env_robot(spec.env_id, kwargs)
+    if kwargs.get("integrator") == "rk4":
+        return float(kwargs.get("control_dt", robot.control_dt))
+    return float(robot.physics_dt)
 
 
 def refined(spec: RunSpec, refinement: int = REFINEMENT) -> RunSpec:

@@ -7,10 +7,10 @@ A scenario is the product
 
 Axes combine as a product; ``sweeps`` become one more axis ``sweep`` whose values are
 ``nominal`` (the runs as given) and ``<name>=<magnitude>``, so N sweeps of k magnitudes
-cost 1 + N k runs per loop. Comparisons default to ``COMPARISON_PHYSICS_DT`` = 1/16 ms (an
-env entry's or axis value's ``physics_dt`` kwarg wins). Loading validates the fields (the
-models of :mod:`~elastic_gym.evaluation.scenario_models`; ``elastic-gym schema scenario``
-prints their JSON Schema, the docs' scenario file reference lists every field) and raises
+cost 1 + N k runs per loop. Comparisons run the RK4 at the control period (``integrator``;
+PyBullet's Euler at ``COMPARISON_PHYSICS_DT``). Loading validates the fields (the models of
+:mod:`~elastic_gym.evaluation.scenario_models`; their JSON Schema: ``elastic-gym schema
+scenario``, the docs' scenario file reference lists every field) and raises
 :class:`ScenarioError` (a ``ValueError``) naming the offending field, e.g.
 ``controllers[1].name``; inapplicable observer/controller pairs are skipped at planning.
 """
@@ -20,7 +20,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, Literal, TypeVar
 
 from pydantic import (
     AfterValidator,
@@ -36,6 +36,7 @@ from pydantic import (
     model_validator,
 )
 
+from elastic_gym.envs.config import Integrator
 from elastic_gym.evaluation.magnitudes import Magnitudes, Sweep
 from elastic_gym.evaluation.output import folder_name_problem
 from elastic_gym.evaluation.scenario_models import (
@@ -79,7 +80,8 @@ __all__ = [
 ]
 
 QUICK_DURATION = 0.5  # s, Scenario.quick()
-COMPARISON_PHYSICS_DT = 1.0 / 16000.0  # s; see the module docstring
+COMPARISON_INTEGRATOR: Literal["rk4"] = "rk4"  # see the module docstring
+COMPARISON_PHYSICS_DT = 1.0 / 16000.0  # s: PyBullet's step in a comparison
 MAX_PHYSICS_DT = 1e-3  # s, the envs' own bound
 
 
@@ -150,7 +152,8 @@ class Scenario(StrictModel):
     name: Annotated[StrictStr, AfterValidator(_folder_name)] = "scenario"
     description: StrictStr = ""
     duration: Positive = 3.0
-    physics_dt: Annotated[Positive, Field(le=MAX_PHYSICS_DT)] | None = COMPARISON_PHYSICS_DT
+    integrator: Integrator | None = COMPARISON_INTEGRATOR
+    physics_dt: Annotated[Positive, Field(le=MAX_PHYSICS_DT)] | None = None
     seeds: Seeds = (0,)
     envs: Entries[EnvEntry]
     axis_table: dict[AxisName, Axis] = Field({}, alias="axes")
@@ -225,11 +228,17 @@ class Scenario(StrictModel):
         seeds: Sequence[int] | None = None,
         duration: float | None = None,
         physics_dt: float | None = None,
+        integrator: str | None = None,
         **fields: Any,
     ) -> Scenario:
-        """A copy with other seeds, duration, physics step or other fields, validated like
-        the YAML fields."""
-        changes = {"seeds": seeds, "duration": duration, "physics_dt": physics_dt}
+        """A copy with other seeds, duration, physics step, integrator or other fields,
+        validated like the YAML fields."""
+        changes = {
+            "seeds": seeds,
+            "duration": duration,
+            "physics_dt": physics_dt,
+            "integrator": integrator,
+        }
         changes = {**{k: v for k, v in changes.items() if v is not None}, **fields}
         return _validated(type(self), {**self.__dict__, **changes}, by_name=True)
 
@@ -247,11 +256,26 @@ class Scenario(StrictModel):
             }
         )
 
+    def physics_kwargs(self) -> dict:
+        """The env kwargs of the scenario's physics: ``integrator`` (None: each env's own)
+        and ``physics_dt`` (None: the integrator's in a comparison, the control period for
+        the RK4 and ``COMPARISON_PHYSICS_DT`` for PyBullet's, or each robot's own step
+        when the integrator is each env's own)."""
+        kwargs: dict[str, Any] = {}
+        if self.integrator is not None:
+            kwargs["integrator"] = self.integrator
+        physics_dt = self.physics_dt
+        if physics_dt is None and self.integrator == "pybullet":
+            physics_dt = COMPARISON_PHYSICS_DT
+        if physics_dt is not None:
+            kwargs["physics_dt"] = physics_dt
+        return kwargs
+
     def env_kwargs(self, env: EnvEntry, variations: Sequence[Variation] = ()) -> dict:
-        """Kwargs of ``env`` under axis values ``variations``: the scenario's physics step,
-        then the entry's kwargs, then each variation, deep-merged in that order."""
-        kwargs = {} if self.physics_dt is None else {"physics_dt": self.physics_dt}
-        kwargs = merge(kwargs, env.kwargs)
+        """Kwargs of ``env`` under axis values ``variations``: the scenario's physics
+        (`physics_kwargs`), then the entry's kwargs, then each variation, deep-merged in
+        that order."""
+        kwargs = merge(self.physics_kwargs(), env.kwargs)
         for variation in variations:
             kwargs = merge(kwargs, variation.values)
         return kwargs
@@ -268,7 +292,8 @@ class Scenario(StrictModel):
     def to_dict(self) -> dict:
         """Plain-data form (YAML-serialisable; classes as ``"module:Class"``)."""
         data = self.model_dump(mode="json", by_alias=True, exclude_none=True, fallback=str)
-        return {**data, "physics_dt": self.physics_dt}  # None: each robot's own step
+        # None: the integrator's comparison step / each env's own integrator
+        return {**data, "physics_dt": self.physics_dt, "integrator": self.integrator}
 
 
 def _validated(model: type[Scenario], data: Any, by_name: bool = False) -> Scenario:

@@ -183,6 +183,17 @@ class RunFolder:
                 _move_all(replaced, self.path)
             shutil.rmtree(replaced, ignore_errors=True)
 
+    def undo_killed_writer(self) -> None:
+        """Undo what a writer killed mid-run left in the folder or its ``seed*``
+        sub-folders ([`recover`][elastic_gym.training.run_folder.RunFolder.recover], under
+        each folder's lock: `FolderLockedError` if the writer is alive); with nothing to
+        undo, takes no lock and changes nothing."""
+        seeds = [RunFolder(p) for p in sorted(self.path.glob("seed*")) if p.is_dir()]
+        for folder in (self, *seeds):
+            if any((folder.path / name).exists() for name in (INCOMING, REPLACING, REPLACED)):
+                with folder.lock():
+                    folder.recover()
+
     def replace_with(self, incoming: Path) -> None:
         """Replace the folder's run by the complete run in ``incoming`` (a sub-folder): the
         earlier run's files are moved aside, then the new ones in (``summary.json`` last),
