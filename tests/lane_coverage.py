@@ -6,7 +6,8 @@ coverage (in this process, or in each xdist worker with ``-n 2``) and lists each
 setup, call or teardown; imports and collection do not count). A module counts as
 exercised when a line inside one of its functions ran so, or when one of its compiled
 (numba) functions was compiled or loaded for a call (their lines run as machine code,
-which coverage cannot see), or, for a module without functions, when it was imported.
+which coverage cannot see), or, for a module without functions or whose functions run
+at its import (registration), when it was imported.
 Exit status 1 names the modules the lane leaves alone. Subprocesses are not measured: a
 module only a subprocess runs counts as not exercised.
 """
@@ -150,6 +151,8 @@ def main(arguments: list[str]) -> int:
                 how = "a compiled function ran"
             elif not inside and (by_line or name in imported):
                 how = "import (no functions)"
+            elif set(by_line) & inside:
+                how = "a function ran at its import"  # registration, the banner silenced
             else:
                 how = "NOTHING"
                 missing.append(name)

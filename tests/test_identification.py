@@ -276,7 +276,6 @@ def simulated_csv(tmp_path_factory):
     return path, plant
 
 
-@pytest.mark.slow
 def test_identify_command_writes_the_model_report_and_figure(simulated_csv, tmp_path, capsys):
     from elastic_gym.cli import main
 
