@@ -293,6 +293,7 @@ def test_scorecard_holds_the_comparisons_episodes_bit_for_bit(tiny_cards):
     assert (root / "eq13@true" / "scores.png").stat().st_size > 1000
 
 
+@pytest.mark.slow
 def test_two_control_periods_of_sensor_delay_break_the_observer_loop_not_the_oracle(tiny_cards):
     _, _, cards = tiny_cards
     observed, oracle = cards["eq13@deluca"], cards["eq13@true"]

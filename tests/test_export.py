@@ -121,6 +121,7 @@ def test_the_exported_graph_acts_as_sb3_predicts(tmp_path, algo, env_id, state):
     assert manifest.observation.size == frames * manifest.observation.frame_size
 
 
+@pytest.mark.slow
 def test_a_residual_with_a_privileged_critic_exports_its_actor_only(tmp_path):
     """The critic's privileged entries are no input of the graph: the actor's m entries
     are, normalized with the first m statistics (the actor slices the rest off)."""
@@ -170,6 +171,7 @@ def test_the_manifest_says_what_each_input_is_and_satisfies_its_schema(tmp_path)
     assert files == sorted([GRAPH_FILE, MANIFEST_FILE])
 
 
+@pytest.mark.slow
 def test_a_changed_graph_or_manifest_is_refused(tmp_path):
     run = tiny_run(tmp_path / "run", TWO_LINK, "ppo", "true")
     exported = tmp_path / "exported"
@@ -248,6 +250,7 @@ def plant(run: Path, marker: Path) -> None:
     path.write_bytes(pickle.dumps(Payload(marker, path.read_bytes())))
 
 
+@pytest.mark.slow
 def test_a_planted_pickle_never_runs_without_trust_and_loads_with_it(tmp_path, capsys):
     run = tiny_run(tmp_path / "run", TWO_LINK, "ppo", "deluca")
     marker = tmp_path / "marker"
@@ -278,6 +281,7 @@ def test_a_planted_pickle_never_runs_without_trust_and_loads_with_it(tmp_path, c
     assert policy.actor.normalizer.obs_rms.mean.shape == (policy.actor.observation_size,)
 
 
+@pytest.mark.slow
 def test_the_export_reads_weights_only_from_the_model_zip(tmp_path, capsys):
     """A model.zip whose policy.pth holds a pickled object, not tensors, is refused by
     torch's weights-only loader: nothing runs."""

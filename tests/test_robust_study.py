@@ -105,6 +105,7 @@ def test_the_evaluation_plants_switch_a_randomized_run_s_randomization_off():
             env.close()
 
 
+@pytest.mark.slow
 def test_the_rows_are_the_train_commands_they_print(tmp_path):
     keys = [row.key for row in rs.ROWS]
     assert len(keys) == len(set(keys)) == len(rs.TRAINING)

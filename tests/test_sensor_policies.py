@@ -249,6 +249,7 @@ def test_evaluate_run_is_the_comparison_row_of_the_same_run_seed_and_plant(senso
     assert all(0.0 <= s <= 1.0 for s in evaluation.saturated_actions)
 
 
+@pytest.mark.slow
 def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
     """A raw-sensor policy fed an estimate fails its row naming the source to use; raw
     sensors take no initial estimate (refused when the runs are planned)."""
