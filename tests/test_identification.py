@@ -443,3 +443,95 @@ def test_a_benchmark_entry_names_its_identified_model(tmp_path):
     assert all(run.model_file is None for run in runs if run not in two_link)
     with pytest.raises(ValueError, match="does not exist"):
         Entry(controller="motor-pd", models=(str(tmp_path / "missing.yaml"),))
+
+
+# ------------------------------------------------------------------ train --model
+_PERTURBED = {
+    "task": "tracking",
+    "task_options": {"n_moves": 1, "move_time": 0.6, "dwell_time": 0.2},
+    "plant_scaling": {"stiffness": 1.1, "motor_inertia": 1.2, "link_mass": 0.8},
+}
+
+
+def _residual_spec(model_file: str | None):
+    from elastic_gym.policy.spec import PolicySpec
+
+    return PolicySpec(
+        env_id="elastic_gym/TwoLinkElastic-v0",
+        env_kwargs=_PERTURBED,
+        state="deluca",
+        action={"kind": "residual", "residual": "feedforward-state-feedback"},
+        model_file=model_file,
+    )
+
+
+def test_a_training_config_builds_its_policy_on_the_identified_model(tmp_path):
+    from elastic_gym.observers.wrappers import ObserverWrapper
+    from elastic_gym.policy.builder import build_policy_env
+    from elastic_gym.policy.loading import Policy
+    from elastic_gym.policy.wrappers import PolicyAction
+    from elastic_gym.training import TrainConfig
+    from elastic_gym.training.trained import evaluation_runs
+
+    path = tmp_path / "model.yaml"
+    path.write_text(_plant_file("two_link_elastic", 1.1, 1.2, 0.8).to_yaml())
+    config = TrainConfig(
+        env_id="TwoLinkElastic-v0",
+        state="deluca",
+        env_kwargs=_PERTURBED,
+        action={"kind": "residual", "residual": "feedforward-state-feedback"},
+        model_file=str(path),
+    )
+    settings, _ = config.settings()
+    spec = config.policy_spec(settings)
+    assert spec.model_file == str(path)
+    env = build_policy_env(spec, spec.make_env())
+    spec_k = np.asarray(get_robot("two_link_elastic").stiffness)
+    layers = {}
+    wrapper = env
+    while wrapper is not wrapper.unwrapped:
+        layers[type(wrapper)] = wrapper
+        wrapper = wrapper.env
+    np.testing.assert_allclose(layers[ObserverWrapper].observer.model.K, 1.1 * spec_k)
+    action = layers[PolicyAction]
+    np.testing.assert_allclose(action.controller.model.K, 1.1 * spec_k)
+    q = np.array([0.4, -0.3])
+    nominal = RobotModel(get_robot("two_link_elastic"))
+    np.testing.assert_allclose(action.map.model.gravity(q), 0.8 * nominal.gravity(q))
+    np.testing.assert_allclose(env.unwrapped.model.K, spec_k)  # the env's own: nominal
+    env.close()
+
+    runs = evaluation_runs(Policy(spec=spec, actor=None), 2, seed=0)  # type: ignore[arg-type]
+    assert all(run.model_file == str(path.resolve()) for run in runs.runs)
+    with pytest.raises(ValueError, match="does not exist"):
+        TrainConfig(model_file=str(tmp_path / "missing.yaml"))
+    kr15 = tmp_path / "kr15.yaml"
+    kr15.write_text(_file("kr15_elastic").to_yaml())
+    with pytest.raises(ValueError, match="model of robot 'kr15_elastic', not of the env's"):
+        TrainConfig(env_id="TwoLinkElastic-v0", model_file=str(kr15))
+
+
+@pytest.mark.slow
+def test_a_residual_policy_on_the_identified_model_tracks_the_plant_better(tmp_path):
+    """The policy stack of a residual on eq. (13) with De Luca's observer (zero residual
+    action: the base controller alone) on a plant off the nominal model: built on the
+    plant's identified model it estimates q and tracks far better than on the nominal."""
+    from elastic_gym.policy.builder import build_policy_env
+
+    path = tmp_path / "model.yaml"
+    path.write_text(_plant_file("two_link_elastic", 1.1, 1.2, 0.8).to_yaml())
+    errors = {}
+    for label, model_file in (("nominal", None), ("identified", str(path))):
+        spec = _residual_spec(model_file)
+        env = build_policy_env(spec, spec.make_env())
+        env.reset(seed=0)
+        tracking, estimation = [], []
+        for _ in range(800):
+            _, _, terminated, truncated, info = env.step(np.zeros(env.action_space.shape))
+            tracking.append(np.asarray(info["true_state"]["q"]) - info["reference"]["q"])
+            estimation.append(np.asarray(info["estimation_error"])[2:4])  # (θ, q, θ', q')
+            assert not (terminated or truncated)
+        env.close()
+        errors[label] = [float(np.sqrt(np.mean(np.square(e)))) for e in (tracking, estimation)]
+    assert errors["identified"][0] < 0.05 * errors["nominal"][0]
+    assert errors["identified"][1] < 0.2 * errors["nominal"][1]

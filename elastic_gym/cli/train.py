@@ -97,6 +97,13 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--observer-options", default="{}", metavar="YAML")
     parser.add_argument(
+        "--model",
+        metavar="FILE",
+        help="identified model file (elastic-gym identify): the policy's observer, gravity "
+        "compensation and residual base build on it instead of the nominal model (the "
+        "simulated plant stays what --env-kwargs make it)",
+    )
+    parser.add_argument(
         "--hyperparams",
         nargs="+",
         default=[],
@@ -174,6 +181,7 @@ def train_configs(args: argparse.Namespace) -> list[TrainConfig]:
             frame_stack=args.frame_stack,
             env_kwargs=yaml_mapping(args.env_kwargs, "--env-kwargs"),
             observer_options=yaml_mapping(args.observer_options, "--observer-options"),
+            model_file=args.model,
             hyperparams=parse_overrides(args.hyperparams),
             hyperparams_file=args.hyperparams_file,
             eval_freq=args.eval_freq,

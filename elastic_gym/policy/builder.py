@@ -21,6 +21,8 @@ from typing import Any
 
 import gymnasium as gym
 
+from elastic_gym.model import RobotModel
+from elastic_gym.model.identified import identified_robot_model
 from elastic_gym.observers import vector as vector_observers
 from elastic_gym.observers import wrappers as single_observers
 from elastic_gym.policy import vector as vector_policy
@@ -35,15 +37,24 @@ def build_policy_env(spec: PolicySpec, env: Any, critic: bool = False) -> Any:
     vector = isinstance(env, gym.vector.VectorEnv)
     observers = vector_observers if vector else single_observers
     policy: Any = vector_policy if vector else single_policy
+    model = spec_model(spec, env)
     if not spec.sensors:
-        env = observers.ObserverWrapper(env, spec.state, **spec.observer_options)
-    env = policy.PolicyAction(env, spec.action)
+        env = observers.ObserverWrapper(env, spec.state, model=model, **spec.observer_options)
+    env = policy.PolicyAction(env, spec.action, model=model)
     if spec.decimation > 1:
         env = policy.ActionRepeat(env, spec.decimation)
     env = policy.PolicyObservation(env, spec.observation, spec.frames)
     if critic and spec.critic:
         env = policy.CriticState(env, spec.observation, spec.critic_state, spec.critic_plant)
     return env
+
+
+def spec_model(spec: PolicySpec, env: Any) -> RobotModel | None:
+    """The model the spec's observer and action build on: the identified model of its
+    ``model_file`` on ``env``'s nominal model, or None (the env's nominal model)."""
+    if spec.model_file is None:
+        return None
+    return identified_robot_model(spec.model_file, env.unwrapped.model)
 
 
 def wrap_policy_env(env: gym.Env, **fields: Any) -> gym.Env:

@@ -15,6 +15,7 @@ exported policy's manifest), never its fields one by one.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Annotated, Any
 
 import gymnasium as gym
@@ -31,10 +32,13 @@ from pydantic import (
 
 from elastic_gym.envs.config import MakeKwargsMapping
 from elastic_gym.envs.ids import registered_env_id
+from elastic_gym.model.identified import load_identified_model
 from elastic_gym.observers.registry import source_class
 from elastic_gym.observers.sensors import SENSORS
 from elastic_gym.policy.actions import ActionConfig
 from elastic_gym.policy.observation import ObservationConfig
+from elastic_gym.robots.catalog import get_robot
+from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.validation import ConfigModel, only_when
 
 PositiveInt = Annotated[StrictInt, Field(ge=1)]
@@ -47,9 +51,35 @@ def check_state_source(state: str) -> str:
     return state
 
 
+def check_model_file(path: str) -> str:
+    """An identified model file (`elastic-gym identify`), validated (``ValueError`` for a
+    missing or invalid one); returned as given."""
+    try:
+        load_identified_model(path)
+    except FileNotFoundError as exc:
+        raise ValueError(str(exc)) from None
+    return path
+
+
+def check_model_robot(path: str, env_id: str, env_kwargs: Mapping[str, Any]) -> None:
+    """Refuse an identified model file of another robot than the env's."""
+    robot = env_kwargs.get("robot", gym.spec(env_id).kwargs.get("robot"))
+    name = robot.name if isinstance(robot, RobotSpec) else get_robot(robot).name
+    identified = load_identified_model(path).robot
+    if identified != name:
+        raise ValueError(
+            f"model_file: {path!r} is a model of robot {identified!r}, not of the env's "
+            f"robot {name!r}"
+        )
+
+
 class PolicySpec(ConfigModel):
     """A deployed policy's env, state source, action, observation, rate and privileged
-    critic inputs (module docstring). Frozen; ``to_dict`` gives plain data."""
+    critic inputs (module docstring). Frozen; ``to_dict`` gives plain data.
+
+    ``model_file``: an identified model file (`elastic-gym identify`) the observer, the
+    action's gravity compensation and a residual's base controller build on instead of
+    the env's nominal model; the simulated plant stays the env's."""
 
     model_config = ConfigDict(frozen=True)
     section = "policy"
@@ -63,6 +93,7 @@ class PolicySpec(ConfigModel):
     frame_stack: PositiveInt | None = None  # raw sensors: frames seen (None: 1)
     critic_state: StrictBool = False
     critic_plant: StrictBool = False
+    model_file: Annotated[StrictStr, AfterValidator(check_model_file)] | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> PolicySpec:
@@ -72,6 +103,8 @@ class PolicySpec(ConfigModel):
         only_when(not sensors, frames, "the state is an observer or the truth")
         stacked = {"frame_stack": self.frame_stack}
         only_when(sensors, stacked, "the state is raw sensors (a state source stacks frames)")
+        if self.model_file is not None:
+            check_model_robot(self.model_file, self.env_id, self.env_kwargs)
         return self
 
     @property

@@ -23,6 +23,7 @@ from elastic_gym.arms import reference_rows
 from elastic_gym.controllers import public_info
 from elastic_gym.controllers.vector import make_vector_controller
 from elastic_gym.envs.arm_env import validated_actions
+from elastic_gym.model import RobotModel
 from elastic_gym.observers.vector import true_state_vector
 from elastic_gym.policy.actions import (
     ActionConfig,
@@ -91,6 +92,8 @@ class PolicyAction(_ArmResets):
         env: a vector env below an observer wrapper (or raw sensors for the ``torque``
             and ``motor-offset`` kinds).
         action: an `ActionConfig` or its fields.
+        model: the model the gravity compensation and a residual's base controller
+            build on (default: the env's nominal model; e.g. an identified model).
 
     A residual's base controller is a vector controller of all arms
     ([`make_vector_controller`][elastic_gym.controllers.vector.make_vector_controller]).
@@ -105,12 +108,16 @@ class PolicyAction(_ArmResets):
     """
 
     def __init__(
-        self, env: gym.vector.VectorEnv, action: ActionConfig | dict | None = None
+        self,
+        env: gym.vector.VectorEnv,
+        action: ActionConfig | dict | None = None,
+        model: RobotModel | None = None,
     ) -> None:
         super().__init__(env)
         batch = elastic_batch(env)
+        model = model or batch.model
         self.action_config = ActionConfig.from_config(action)
-        self.map = ActionMap(self.action_config, batch.model)
+        self.map = ActionMap(self.action_config, model)
         self.n, self.dt = batch.n_joints, batch.control_dt
         self.sensors = "state" not in cast(spaces.Dict, env.single_observation_space).spaces
         self.controller = None
@@ -120,7 +127,7 @@ class PolicyAction(_ArmResets):
                 raise ValueError("a residual policy needs a state source for its base controller")
             self.controller = make_vector_controller(
                 self.action_config.residual,
-                batch.model,
+                model,
                 self.dt,
                 self.num_envs,
                 **self.action_config.residual_options,

@@ -25,6 +25,7 @@ from gymnasium.spaces import flatdim
 from gymnasium.vector import VectorWrapper
 
 from elastic_gym.envs.arm_env import validated_actions
+from elastic_gym.model import RobotModel
 from elastic_gym.policy import vector
 from elastic_gym.policy.actions import ActionConfig
 from elastic_gym.policy.observation import ObservationConfig
@@ -47,14 +48,23 @@ class PolicyAction(_CheckedActions[vector.PolicyAction], gym.utils.RecordConstru
         env: an elastic_gym env below an ``ObserverWrapper`` (or raw sensors for the
             ``torque`` and ``motor-offset`` kinds).
         action: an `ActionConfig` or its fields.
+        model: the model the gravity compensation and a residual's base controller
+            build on (default: the env's nominal model; e.g. an identified model).
 
     ``info["base_torque"]`` holds the residual's base torque (zeros for other kinds),
     ``info["base_error"]`` its base's state error x - x_d (a base with a desired state).
     """
 
-    def __init__(self, env: gym.Env, action: ActionConfig | dict | None = None) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, action=action)
-        _CheckedActions.__init__(self, env, functools.partial(vector.PolicyAction, action=action))
+    def __init__(
+        self,
+        env: gym.Env,
+        action: ActionConfig | dict | None = None,
+        model: RobotModel | None = None,
+    ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, action=action, model=model)
+        _CheckedActions.__init__(
+            self, env, functools.partial(vector.PolicyAction, action=action, model=model)
+        )
         self.action_config = self.vector.action_config
         self.map = self.vector.map
         self.controller = self.vector.controller  # the residual's base (vector, N = 1)

@@ -40,7 +40,12 @@ from elastic_gym.envs.ids import registered_env_id
 from elastic_gym.observers.sensors import SENSORS
 from elastic_gym.policy.actions import ActionConfig
 from elastic_gym.policy.observation import ObservationConfig
-from elastic_gym.policy.spec import PolicySpec, check_state_source
+from elastic_gym.policy.spec import (
+    PolicySpec,
+    check_model_file,
+    check_model_robot,
+    check_state_source,
+)
 from elastic_gym.training.distill import DistillConfig
 from elastic_gym.validation import (
     ConfigModel,
@@ -358,7 +363,9 @@ class TrainConfig(ConfigModel):
     :class:`ObservationConfig` that override the hyper-parameter file's (e.g.
     ``{"kind": "residual", "residual": "feedforward-state-feedback"}`` for a residual
     policy). ``total_steps``: env interactions counted by SB3 (policy steps); None takes
-    ``n_timesteps`` from the hyper-parameter file.
+    ``n_timesteps`` from the hyper-parameter file. ``model_file``: an identified model
+    file (`elastic-gym identify`) the policy's observer, gravity compensation and residual
+    base build on instead of the env's nominal model (the trained plant stays the env's).
     """
 
     env_id: Annotated[StrictStr, AfterValidator(registered_env_id)] = (
@@ -374,6 +381,7 @@ class TrainConfig(ConfigModel):
     frame_stack: PositiveInt = 4
     env_kwargs: MakeKwargsMapping = Field(default_factory=dict)
     observer_options: dict[str, Any] = Field(default_factory=dict)
+    model_file: Annotated[StrictStr, AfterValidator(check_model_file)] | None = None
     hyperparams: dict[str, Any] = Field(default_factory=dict)
     hyperparams_file: StrictStr | None = None
     eval_freq: PositiveInt | None = None  # None: a twentieth of the run's policy steps
@@ -382,6 +390,8 @@ class TrainConfig(ConfigModel):
     @model_validator(mode="after")
     def _policy_fields(self) -> TrainConfig:
         self.policy_configs(Settings())
+        if self.model_file is not None:
+            check_model_robot(self.model_file, self.env_id, self.env_kwargs)
         return self
 
     @classmethod
@@ -421,6 +431,7 @@ class TrainConfig(ConfigModel):
             frame_stack=self.frame_stack if self.state == SENSORS else None,
             critic_state=settings.critic_state,
             critic_plant=settings.critic_plant,
+            model_file=self.model_file,
         )
 
     def training_env_kwargs(self, settings: Settings) -> dict:

@@ -153,7 +153,8 @@ def evaluation_runs(
     """The comparison's runs of `evaluate_run`: the ``trained-policy`` controller of
     ``run`` (a loaded run, or a deployed policy such as an exported one) on its state
     source, one run per seed ``seed``, ``seed + 1``, ..., in the policy's env with
-    ``env_kwargs`` merged into its own."""
+    ``env_kwargs`` merged into its own, the policy and its observer on the spec's
+    identified model, if any."""
     checked_count(n_episodes, "n_episodes", 1)
     policy = run if isinstance(run, Policy) else run.policy
     spec = policy.spec
@@ -180,10 +181,15 @@ def evaluation_runs(
                 source=source,
                 observer_cls=source_class(spec.state),
                 model_error={},
+                model_file=_resolved(spec.model_file),
             )
             for i in range(n_episodes)
         )
     )
+
+
+def _resolved(path: str | None) -> str | None:
+    return None if path is None else str(Path(path).resolve())
 
 
 def evaluation_of(results: list[RunResult]) -> Evaluation:
