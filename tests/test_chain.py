@@ -99,3 +99,20 @@ def test_dynamics_and_forces_in_one_call_equal_the_two_calls(robot):
         expected = chain.forward_dynamics(q, dq, tau)
         assert np.array_equal(ddq, expected)
         assert np.array_equal(forces, chain.specific_forces(q, dq, expected))
+
+
+def test_thin_svd_of_the_accelerometer_maps_is_lapacks():
+    """`thin_svd` (LAPACK's dgesdd with a reused workspace) gives the thin SVD of a 6 x 2
+    map, as numpy's SVD does, and a second call overwrites the first's views."""
+    from elastic_gym.model.lapack import svd_workspace, thin_svd
+
+    rng = np.random.default_rng(0)
+    space = svd_workspace(6, 2)
+    for _ in range(2):
+        T = rng.normal(size=(6, 2))
+        u, s, vt = thin_svd(T, space)
+        U, V_T = u.T, vt.T  # (6, 2) and (2, 2)
+        np.testing.assert_allclose(U @ np.diag(s) @ V_T, T, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(U.T @ U, np.eye(2), rtol=0, atol=1e-14)
+        np.testing.assert_allclose(V_T @ V_T.T, np.eye(2), rtol=0, atol=1e-14)
+        np.testing.assert_allclose(s, np.linalg.svd(T, compute_uv=False), rtol=1e-14)
