@@ -487,3 +487,25 @@ def test_a_run_entry_is_recorded_by_the_path_it_was_given(monkeypatch):
     assert record["run"]["exported"] and record["run"]["algo"] == "ppo"
     controller, _ = resolve_entry(Entry(run=given))
     assert controller.options["policy"] == str(ROOT / given)
+
+
+def test_a_rerun_one_ulp_off_in_one_episode_is_named_and_only_it():
+    """`--verify` compares a card with its re-run bit for bit: a card equals itself, and
+    one episode's value moved by one unit in the last place is the one difference."""
+    from elastic_gym.benchmark.verify import card_differences, same_bits
+
+    card = read_scorecard(sorted(SHIPPED.glob("*.json"))[0])
+    compared, differences = card_differences(card, card)
+    assert compared > len(card.seeds) and differences == []
+    data = card.model_dump(mode="json")
+    cell_id, columns = next(iter(data["cells"].items()))
+    value = columns["track_rms"][0]
+    columns["track_rms"][0] = math.nextafter(value, math.inf)
+    again, differences = card_differences(card, type(card).model_validate(data))
+    assert again == compared
+    assert differences == [
+        f"cells.{cell_id}.track_rms[seed {card.seeds[0]}]: card {value!r}, "
+        f"re-run {math.nextafter(value, math.inf)!r}"
+    ]
+    assert same_bits(math.nan, math.nan) and not same_bits(0.0, -0.0)
+    assert not same_bits(None, 0.0) and same_bits(None, None)
