@@ -271,6 +271,11 @@ def test_an_oracle_relabelled_as_an_observer_contradicts_its_own_command(board):
     refused(
         board, data, r"entry.models: \['kr15.yaml'\], but the card's command names --model \[\]"
     )
+    data = card_data("ppo@deluca")
+    data["entry"]["label"] = "hostile"
+    data["entry"]["controller_options"]["policy"] = "docs/leaderboard/runs/rppo@sensors"
+    message = r"entry.controller_options.policy: 'docs/leaderboard/runs/rppo@sensors', but the"
+    refused(board, data, message + r" card's command names --run 'docs/leaderboard/runs/ppo@")
     data = card_data("eq13@deluca")
     data.update(command=data["command"] + " --suite elastic-gym-v9")
     data["entry"]["label"] = "hostile"

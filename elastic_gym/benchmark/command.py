@@ -193,12 +193,12 @@ def command_mismatches(card: Scorecard) -> list[str]:
     command = parse_command(card.command)
     said, entry = command.entry, card.entry
     pairs: list[tuple[str, Any, str, Any]] = []
-    policy = [key for key in ("run", "policy") if key in said]
-    if policy:  # a trained policy: its folder as given (the entry's source is the policy's)
-        key = policy[0]
-        if key in entry.controller_options:
-            given = entry.controller_options[key]
-            pairs.append((f"--{key}", said[key], f"controller_options.{key}", given))
+    if "run" in said:  # a policy folder, as given (the entry's source is the policy's)
+        for key in ("policy", "run"):  # the controller's option (`run` in older cards)
+            if key in entry.controller_options:
+                given = entry.controller_options[key]
+                pairs.append(("--run", said["run"], f"controller_options.{key}", given))
+                break
     else:
         pairs += [
             ("--controller", said.get("controller"), "controller", entry.controller),
