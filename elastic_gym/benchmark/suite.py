@@ -48,7 +48,7 @@ from elastic_gym.validation import (
 from elastic_gym.yaml_io import load_yaml
 
 SUITE_DIR = Path(__file__).resolve().parent / "suites"
-DEFAULT_SUITE = "elastic-gym-v1"
+DEFAULT_SUITE = "elastic-gym-v2"
 MIN_SEEDS = 10
 CELL_SEPARATOR = "/"
 

@@ -16,7 +16,7 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
         "benchmark",
         help="score a controller + state source, a user's class or a trained policy on the "
         "elastic-gym benchmark suite; verify a scorecard; rebuild the leaderboard",
-        description="Run the versioned benchmark suite (elastic-gym-v1: tasks x perturbation "
+        description="Run the versioned benchmark suite (elastic-gym-v2: tasks x perturbation "
         "categories x robots x 10 published seeds) with one entry and write its scorecard "
         "(JSON, markdown, PNG); re-run a scorecard's entry and compare (--verify); or "
         "rebuild the leaderboard page, CSV and figure from scorecard files (--leaderboard).",
