@@ -45,8 +45,9 @@ def cli(args: list[str]) -> int:
 
 # ---------------------------------------------------------------- suite
 def test_shipped_suite_validates_and_its_hash_is_the_sha256_of_the_canonical_form():
-    suite = load_suite()
+    suite = load_suite(SHIPPED)
     assert suite.name == "elastic-gym-v1" and suite.version == 1
+    assert load_suite().name == "elastic-gym-v2"  # the default: v1 on the converged RK4
     assert len(suite.seeds) >= 10 and suite.physics_dt == 6.25e-5
     assert suite.hash == hashlib.sha256(canonical_form(suite).encode()).hexdigest()
     per_robot = sum(len(c.cells) for c in suite.categories.values())

@@ -235,7 +235,7 @@ def test_an_edited_metric_changes_what_its_episodes_give_and_is_refused(board):
         ),
         (lambda d: d["scores"].update(passed=600), r"passed \(600\) exceeds episodes \(560\)"),
         (lambda d: d.update(seeds=list(range(10))), r"seeds: \[0, 1, 2, 3, 4, \.\.\.\] are not"),
-        (lambda d: d["suite"].update(version=2), r"not of elastic-gym-v1 version 1"),
+        (lambda d: d["suite"].update(version=1), r"not of elastic-gym-v2 version 2"),
         (lambda d: d["suite"].update(hash="0" * 64), r"\(the suite changed\)"),
         (lambda d: d["entry"].update(label="x" * 101), r"entry.label: the label is 101 char"),
         (lambda d: d.update(extra=1), r"extra: unexpected field"),
@@ -279,7 +279,7 @@ def test_an_oracle_relabelled_as_an_observer_contradicts_its_own_command(board):
     data = card_data("eq13@deluca")
     data.update(command=data["command"] + " --suite elastic-gym-v9")
     data["entry"]["label"] = "hostile"
-    refused(board, data, r"suite: elastic-gym-v1, but the card's command names --suite 'elastic")
+    refused(board, data, r"suite: elastic-gym-v2, but the card's command names --suite 'elastic")
 
 
 def test_two_cards_with_one_label_and_non_json_files_are_refused(board):
