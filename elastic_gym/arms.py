@@ -1,10 +1,10 @@
 """The arm axis: what every layer shares about one arm versus a batch of arms.
 
-Observations and infos of a vector env (and of :class:`~elastic_gym.envs.batch.ArmBatch`)
+Observations and infos of a vector env (and of [`ArmBatch`][elastic_gym.envs.batch.ArmBatch])
 carry a leading arm axis on every array and Gymnasium's boolean ``_key`` masks; those of a
-single env have neither. These helpers move between the two layouts (:func:`arm_view`,
-:func:`as_batch`, :func:`single_arm`) and read the desired trajectory q_d .. q_d^(4)
-(``info["reference"]``, keys :data:`REFERENCE_KEYS`) the same way for one arm and for N.
+single env have neither. These helpers move between the two layouts (`arm_view`,
+`as_batch`, `single_arm`) and read the desired trajectory q_d .. q_d^(4)
+(``info["reference"]``, keys `REFERENCE_KEYS`) the same way for one arm and for N.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def as_batch(value: Any) -> Any:
 
 
 def single_arm(value: Any) -> Any:
-    """The one arm of a batch of one arm (:func:`as_batch` reversed: ``_key`` masks
+    """The one arm of a batch of one arm (`as_batch` reversed: ``_key`` masks
     dropped, numpy scalars as Python scalars, as a single env gives them)."""
     if type(value) is not np.ndarray and (type(value) is dict or isinstance(value, Mapping)):
         return {

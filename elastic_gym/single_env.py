@@ -1,10 +1,10 @@
 """Single-env wrappers as the N = 1 case of their vector twins.
 
 A wrapper's logic is written once, for N arms with a leading arm axis (a
-``gym.vector.VectorWrapper`` over an elastic_gym vector env); :class:`SingleArmWrapper` runs
+``gym.vector.VectorWrapper`` over an elastic_gym vector env); `SingleArmWrapper` runs
 that same code on one env (the reverse of Gymnasium, which derives its vector wrappers
 from the single-env ones). The wrapped env is seen as a vector env of one arm
-(:class:`OneArm`, autoreset disabled): observations and info get a leading axis of length
+(`OneArm`, autoreset disabled): observations and info get a leading axis of length
 1 on the way in and lose it on the way out (Gymnasium's ``_key`` masks dropped; numpy
 scalars of one arm become Python scalars, as a single env gives them). Info items the
 vector logic leaves alone are handed back as the wrapped env made them.
@@ -31,7 +31,7 @@ class OneArm(VectorEnv):
 
     Autoreset is ``DISABLED``: stepping an arm whose episode has ended raises
     ``RuntimeError`` until ``reset``. ``batch`` is the env's
-    :class:`~elastic_gym.envs.batch.ArmBatch` (what vector wrappers read: model, control
+    [`ArmBatch`][elastic_gym.envs.batch.ArmBatch] (what vector wrappers read: model, control
     period, reference preview).
     """
 
@@ -103,7 +103,7 @@ class SingleArmWrapper(gym.Wrapper, Generic[W]):
 
     Args:
         env: an elastic_gym env, possibly wrapped.
-        vector: builds the vector wrapper on the env seen as one arm (:class:`OneArm`).
+        vector: builds the vector wrapper on the env seen as one arm (`OneArm`).
 
     ``vector`` is the vector wrapper doing the work; ``observation_space`` and
     ``action_space`` are its single-arm spaces.

@@ -1,17 +1,17 @@
 """Loading YAML written by users (scenario files, run folders, hyper-parameter files) safely.
 
-:func:`load_yaml` is ``yaml.safe_load`` with the limits a hostile or broken file needs,
-every refusal a :class:`YAMLInputError` (a ``ValueError``) that starts with where it is:
+`load_yaml` is ``yaml.safe_load`` with the limits a hostile or broken file needs,
+every refusal a `YAMLInputError` (a ``ValueError``) that starts with where it is:
 ``"<file>: <field path>: <problem>"`` (e.g. ``scenario.yaml: controllers[1]: duplicate
 key 'name' (lines 4 and 6)``).
 
 * duplicate keys in one mapping are refused (YAML says keys are unique; PyYAML keeps
   the last one silently);
-* nesting deeper than :data:`MAX_DEPTH` is refused before Python's recursion limit;
-* the document expanded through its aliases may hold at most :data:`MAX_NODES` nodes
+* nesting deeper than `MAX_DEPTH` is refused before Python's recursion limit;
+* the document expanded through its aliases may hold at most `MAX_NODES` nodes
   (an "alias bomb" of a few lines expands to billions), counted without expanding it;
   a self-referencing alias is refused;
-* the text may hold at most :data:`MAX_BYTES` bytes.
+* the text may hold at most `MAX_BYTES` bytes.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def _at(mark: yaml.Mark | None) -> str:
 
 
 class _BoundedLoader(yaml.SafeLoader):
-    """``SafeLoader`` whose composer stops at :data:`MAX_DEPTH` levels."""
+    """``SafeLoader`` whose composer stops at `MAX_DEPTH` levels."""
 
     def __init__(self, stream: str) -> None:
         super().__init__(stream)
@@ -128,7 +128,7 @@ def load_yaml(source: str | Path, what: str | None = None) -> Any:
 
     ``what`` names the input in errors (default: the file's path; for text give e.g.
     ``"--env-kwargs"``). An empty document gives ``None``. Raises
-    :class:`YAMLInputError` for unreadable files, invalid YAML and the limits of the
+    `YAMLInputError` for unreadable files, invalid YAML and the limits of the
     module docstring.
     """
     where = what or str(source)

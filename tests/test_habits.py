@@ -48,3 +48,15 @@ def test_test_modules_share_helpers_through_helpers_py_only():
         if found:
             offenders[path.name] = found
     assert not offenders, offenders
+
+
+def test_docstrings_are_markdown_without_sphinx_roles():
+    """mkdocstrings renders Markdown: a `:func:` role would show as raw text in the API pages."""
+    role = re.compile(r":(?:py:)?(?:func|class|meth|mod|attr|data|obj|exc|const):`")
+    found = [
+        f"{path.relative_to(ROOT)}:{n}"
+        for path in sorted((ROOT / "elastic_gym").rglob("*.py"))
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if role.search(line)
+    ]
+    assert not found, f"Sphinx roles (write [`name`][elastic_gym.module.name]): {found[:10]}"

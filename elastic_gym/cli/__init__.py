@@ -2,7 +2,7 @@
 
 Each subcommand is a module of this package with a function ``add_parser(subcommands)``
 that adds its parser and sets ``handler`` (a function ``args -> exit code``);
-:data:`SUBCOMMANDS` lists them in the order ``--help`` shows. Defaults come from the
+`SUBCOMMANDS` lists them in the order ``--help`` shows. Defaults come from the
 config models (``TrainConfig``, ``Scenario``), not from here.
 """
 

@@ -162,7 +162,7 @@ def train_run_base(args: argparse.Namespace) -> str:
 
 
 def train_configs(args: argparse.Namespace) -> list[TrainConfig]:
-    """The :class:`~elastic_gym.training.TrainConfig` of each seed of parsed
+    """The [`TrainConfig`][elastic_gym.training.TrainConfig] of each seed of parsed
     ``elastic-gym train`` arguments: what the command trains."""
     from elastic_gym.training import TrainConfig, parse_overrides
 

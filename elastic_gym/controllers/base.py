@@ -3,14 +3,14 @@
 A controller reads only
 
 * ``obs["state"]``: the state estimate (or the truth) from an
-  :class:`~elastic_gym.observers.ObserverWrapper`, layout (theta, q, theta', q') for
+  [`ObserverWrapper`][elastic_gym.observers.ObserverWrapper], layout (theta, q, theta', q') for
   elastic arms and (q, q') for rigid ones;
-* ``obs["reference"]`` and :func:`public_info` of ``info``: the time and the desired
+* ``obs["reference"]`` and `public_info` of ``info``: the time and the desired
   trajectory with derivatives up to order 4 (``info["reference"]``);
-* its nominal :class:`~elastic_gym.model.RobotModel`.
+* its nominal [`RobotModel`][elastic_gym.model.RobotModel].
 
 It never sees the simulator's ground truth; the comparison runner strips ``info``
-with :func:`public_info` before calling it.
+with `public_info` before calling it.
 """
 
 from __future__ import annotations
@@ -50,7 +50,9 @@ class Controller(ABC):
     applies_to: ClassVar[frozenset[str]] = frozenset({"elastic", "rigid"})
     takes_sensors: ClassVar[bool] = False
     vector_twin: ClassVar[type | None] = None
-    """The batched law (a ``ControllerTwin`` of :mod:`elastic_gym.controllers.vector`) that
+    """The batched law
+    (a ``ControllerTwin`` of [`elastic_gym.controllers.vector`][elastic_gym.controllers.vector])
+    that
     built-ins run with N = 1 and that ``make_vector_controller`` runs for N arms."""
     options_model: ClassVar[type | None] = None
     """The pydantic model (a ``StrictModel``) of the constructor's plain-data options."""

@@ -8,10 +8,10 @@ not per joint on M_ii, which is unstable on strongly coupled arms:
     [B  S^T] [theta'']   [ D  -D] [theta']   [ K   -K     ] [theta]   [I]
     [S  M  ] [q''    ] + [-D   D] [q'    ] + [-K   K + G  ] [q    ] = [0] tau,
 
-G = dg/dq(q0); rigid arms: M q'' + G q = tau. Designs: :func:`lqr_bandwidth_gain`
-(slowest closed-loop pole at ``omega``), :func:`lqr_integral_gain` (augmented with the
-integral of the link error), :func:`lqr_gain`, :func:`pole_placement_gain` and
-:func:`pd_gain` (decentralized PD as a structured N x 4N matrix).
+G = dg/dq(q0); rigid arms: M q'' + G q = tau. Designs: `lqr_bandwidth_gain`
+(slowest closed-loop pole at ``omega``), `lqr_integral_gain` (augmented with the
+integral of the link error), `lqr_gain`, `pole_placement_gain` and
+`pd_gain` (decentralized PD as a structured N x 4N matrix).
 """
 
 from __future__ import annotations
@@ -29,12 +29,12 @@ from elastic_gym.model.option_checks import Needs, stable_poles
 from elastic_gym.validation import PositiveFinite, option_value
 
 Block = Literal["motor", "link"]
-"""The state block of a decentralized PD (:func:`pd_gain`)."""
+"""The state block of a decentralized PD (`pd_gain`)."""
 ON_ELASTIC = Needs(
     ("motor", "motor-offset"), "elastic joints (motor positions)", lambda model: model.elastic
 )
 """A motor-side law needs an elastic arm (checked against the robot of the validation
-context): a :class:`~elastic_gym.validation.Needs` shared by the PD blocks and the
+context): a `Needs` shared by the PD blocks and the
 motor-offset action of the training package."""
 
 BANDWIDTH_SEARCH = (0.1, 20.0)  # bracket of w / omega for the bisection
@@ -155,7 +155,7 @@ def lqr_integral_gain(
     """(K_x, K_z): LQR on the linearization augmented with the integral z of the link
     position error, u = -K_z z - K_x (x - x_d).
 
-    Weights: the bandwidth weights of :func:`lqr_bandwidth_gain` (same w, so the
+    Weights: the bandwidth weights of `lqr_bandwidth_gain` (same w, so the
     same ``omega`` design) on x, and ``integral_weight`` J^2 w^6 on z. For a rigid
     joint J q'' = u these weights (c w^6, w^4, w^2) give closed-loop poles w times the
     roots of a fixed polynomial: ``integral_weight`` = 0.1 puts the integral pole at
@@ -198,7 +198,7 @@ def bandwidth_pd_gains(
     """Per-joint PD gains kp = J w^2, kd = 2 zeta J w, J the diagonal of the rigid inertia.
 
     This is the gain of each joint moving rigidly with bandwidth w; the actual poles of
-    the elastic closed loop differ (see :func:`closed_loop_poles`).
+    the elastic closed loop differ (see `closed_loop_poles`).
     """
     _positive(omega)
     _positive(damping_ratio, "damping_ratio")

@@ -9,7 +9,7 @@ link position error,
 the offset goes whenever the estimate q_hat is unbiased at rest (the true state, or the
 De Luca observer, Theorem 1); with a biased estimate the integrator drives q_hat, not q,
 to q_d. Gains: LQR on the linearization augmented with z
-(:func:`~elastic_gym.controllers.gain_design.lqr_integral_gain`, integral pole near
+([`lqr_integral_gain`][elastic_gym.controllers.gain_design.lqr_integral_gain], integral pole near
 omega / 3). Anti-windup: z frozen while the last torque exceeded the limit, and the
 integral torque K_I z kept within ``integral_limit`` times the torque limit.
 """
@@ -41,7 +41,8 @@ DEFAULT_INTEGRAL_LIMIT = 0.5  # fraction of the torque limit
 
 
 class IntegralOptions(FeedforwardOptions):
-    """The options of :class:`IntegralStateFeedback`."""
+    """The options of
+    [`IntegralStateFeedback`][elastic_gym.controllers.integral.IntegralStateFeedback]."""
 
     omega: PositiveFinite = 30.0
     integral_weight: PositiveFinite = DEFAULT_INTEGRAL_WEIGHT
@@ -61,7 +62,9 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
 
     ``design`` holds the configuration, the method and the poles of the augmented
     nominal closed loop (dimension N + dim(x)); ``integral`` is the state z. The law
-    runs as :class:`VectorIntegralStateFeedback` with one arm.
+    runs as
+    [`VectorIntegralStateFeedback`][elastic_gym.controllers.integral.VectorIntegralStateFeedback]
+    with one arm.
     """
 
     name = "integral-state-feedback"

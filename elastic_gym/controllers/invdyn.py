@@ -1,17 +1,17 @@
 """INVDYN: the inverse dynamics of the elastic arm along a desired link trajectory.
 
-De Luca, Schroeder & Thuemmel (ICRA 2007), Sec. V-B: the controller (13) needs
-``(x_d, tau_d) = INVDYN(q_d, q_d', q_d'', q_d''', q_d'''')``, the state x_d =
-(theta_d, q_d, theta_d', q_d') and the motor torque tau_d under which the nominal model
-(1) or (2) moves its links exactly along q_d(t). With the torsion delta = theta - q the
-link equation reads K delta + D delta' = tau_J, tau_J = tau_r + S theta_d'',
-tau_r = M(q_d) q_d'' + C(q_d, q_d') q_d' + g(q_d) + d(q_d'), and the motor equation gives
-tau_d = B theta_d'' + S^T q_d'' + tau_J. For D = 0, delta = K^-1 tau_J is algebraic (q_d^(4)
-needed); for D > 0 :class:`TorsionFilter` integrates the internal dynamics exactly for a
-cubic Hermite tau_J over each period. tau_r' is exact, by the complex step of the compiled
-RNEA (:meth:`~elastic_gym.model.SerialChain.rnea_tangent`), tau_r'' a central difference
-of it (O(h^2)). The S terms are exact when S^2 = 0 (the KR15). For rigid arms INVDYN is
-the computed torque. Every class runs N arms at once (the single arm: N = 1).
+De Luca, Schroeder & Thuemmel (ICRA 2007), Sec. V-B: the controller (13) needs ``(x_d, tau_d) =
+INVDYN(q_d, q_d', q_d'', q_d''', q_d'''')``, the state x_d = (theta_d, q_d, theta_d', q_d') and the
+motor torque tau_d under which the nominal model (1) or (2) moves its links exactly along q_d(t).
+With the torsion delta = theta - q the link equation reads K delta + D delta' = tau_J, tau_J = tau_r
++ S theta_d'', tau_r = M(q_d) q_d'' + C(q_d, q_d') q_d' + g(q_d) + d(q_d'), and the motor equation
+gives tau_d = B theta_d'' + S^T q_d'' + tau_J. For D = 0, delta = K^-1 tau_J is algebraic (q_d^(4)
+needed); for D > 0 [`TorsionFilter`][elastic_gym.controllers.invdyn.TorsionFilter] integrates the
+internal dynamics exactly for a cubic Hermite tau_J over each period. tau_r' is exact, by the
+complex step of the compiled RNEA
+([`rnea_tangent`][elastic_gym.model.chain.SerialChain.rnea_tangent]), tau_r'' a central difference
+of it (O(h^2)). The S terms are exact when S^2 = 0 (the KR15). For rigid arms INVDYN is the computed
+torque. Every class runs N arms at once (the single arm: N = 1).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def reference_derivatives(info: Mapping, n: int) -> np.ndarray:
 
 def checked_reference_rows(info: Mapping, n: int, n_arms: int | None) -> np.ndarray:
     """``info["reference"]`` as (n_arms, 5, n) (batched info) or (5, n) (``n_arms`` None)
-    (:func:`elastic_gym.arms.reference_rows`), checked: a clear error for a missing key,
+    (`elastic_gym.arms.reference_rows`), checked: a clear error for a missing key,
     a wrong shape or a non-finite entry."""
     reference = info.get("reference") if isinstance(info, Mapping) else None
     if not isinstance(reference, Mapping) or any(k not in reference for k in REFERENCE_KEYS):
@@ -87,7 +87,7 @@ class RigidTorque:
 
     Every method takes the reference q_d .. q_d^(4) of one arm (5, n) or of N arms
     (N, 5, n) and evaluates all arms in one call of the model's
-    :class:`~elastic_gym.model.SerialChain` kernels.
+    [`SerialChain`][elastic_gym.model.SerialChain] kernels.
     """
 
     def __init__(self, model: RobotModel, fd_step: float = DEFAULT_FD_STEP) -> None:
@@ -140,7 +140,7 @@ class RigidTorque:
 
 @njit(cache=True)
 def _torsion_kernel(t, u, du, ddu, K, D, viscous, rate, c, clock, v0, dv0, delta, out):
-    """One :meth:`TorsionFilter.update` of N arms (rows), joint by joint (see there)."""
+    """One `TorsionFilter.update` of N arms (rows), joint by joint (see there)."""
     N, n = u.shape
     for i in range(N):
         first = np.isnan(clock[i])
@@ -177,7 +177,7 @@ def _torsion_kernel(t, u, du, ddu, K, D, viscous, rate, c, clock, v0, dv0, delta
 
 @njit(cache=True)
 def _torsion_trajectory_kernel(t, u, du, ddu, K, D, viscous, rate, c, clock, v0, dv0, delta, out):
-    """T successive :meth:`TorsionFilter.update` of one arm, row k at time t[k]."""
+    """T successive `TorsionFilter.update` of one arm, row k at time t[k]."""
     for k in range(len(t)):
         _torsion_kernel(
             t[k : k + 1],
@@ -255,7 +255,7 @@ class TorsionFilter:
     def trajectory(
         self, times, u: np.ndarray, du: np.ndarray, ddu: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """T successive :meth:`update` of a one-arm filter at increasing ``times`` (T,),
+        """T successive `update` of a one-arm filter at increasing ``times`` (T,),
         u and its derivatives (T, n), in one compiled loop: the (T, n) torsions and
         derivatives, exactly those of the T updates."""
         if len(self._delta) != 1:
@@ -386,7 +386,7 @@ class InverseDynamics:
 class LinkMassSensitivity:
     """How INVDYN's (x_d, tau_d) change with the link masses of the model, for N arms.
 
-    ``link_mass`` scaling (:class:`~elastic_gym.model.ParameterScaling`) multiplies all
+    ``link_mass`` scaling ([`ParameterScaling`][elastic_gym.model.ParameterScaling]) multiplies all
     inertial parameters of a link (mass, first moment, rotational inertia) by s_i. The
     RNEA torque tau_r is linear in them, and INVDYN (Sec. V-B) is linear in tau_r: the
     torsion equation K delta + D delta' = tau_J is linear, theta_d = q_d + delta and
@@ -396,8 +396,8 @@ class LinkMassSensitivity:
 
     the derivative of link i being INVDYN of the model with link i twice as heavy minus
     the nominal one. Call ``sensitivity(t, ref, x_d, tau_d)`` with the nominal INVDYN's
-    (x_d, tau_d) of the same call (same times, increasing, as for :class:`InverseDynamics`).
-    Without ``feedforward`` the reference is the static one (:func:`static_reference`),
+    (x_d, tau_d) of the same call (same times, increasing, as for `InverseDynamics`).
+    Without ``feedforward`` the reference is the static one (`static_reference`),
     also linear in the masses.
     """
 
@@ -431,7 +431,7 @@ def fit_link_masses(state_sensitivity: np.ndarray, motor_error: np.ndarray, shar
     """The link-mass scales s - 1 (N, n, or N, 1 if ``shared``) that explain a motor
     position error at standstill: a static load identification from the encoders.
 
-    theta_d of INVDYN is linear in the scales (:class:`LinkMassSensitivity`): at rest in
+    theta_d of INVDYN is linear in the scales (`LinkMassSensitivity`): at rest in
     the static equilibrium of links s times the model's, q = q_d and theta - theta_d(1) =
     J (s - 1), J (n, n) the columns d theta_d / d s_i (the motor rows of
     ``state_sensitivity`` (N, n, dim)), summed into one for a shared scale. The answer is

@@ -1,17 +1,18 @@
 """Decentralized PD laws with the INVDYN feedforward: the comparisons of eq. (13).
 
 Both are eq. (13) with a structured (diagonal-block) gain, so they share INVDYN with
-:class:`FeedforwardStateFeedback`:
+[`FeedforwardStateFeedback`][elastic_gym.controllers.state_feedback.FeedforwardStateFeedback]:
 
-* :class:`MotorPD`, the "motion control law using only motor states" of De Luca et al.,
+* [`MotorPD`][elastic_gym.controllers.pd.MotorPD], the "motion control law using only motor states"
+  of De Luca et al.,
   Sec. V-B: tau = Kp (theta_d - theta) + Kd (theta_d' - theta') + tau_d (with
   ``feedforward=False``: PD + gravity compensation);
-* :class:`LinkPD`: the same on the (estimated) link state (q, q').
+* [`LinkPD`][elastic_gym.controllers.pd.LinkPD]: the same on the (estimated) link state (q, q').
 
 Gains: per joint as if the arm moved rigidly, kp = J w^2, kd = 2 zeta J w, J = B + M_ii(q0),
 w = ``omega``, zeta = 0.7. Link PD on elastic arms is non-collocated: by default it uses
 the bandwidth <= omega with the largest stability margin
-(:func:`~elastic_gym.controllers.gain_design.most_stable_bandwidth`).
+([`most_stable_bandwidth`][elastic_gym.controllers.gain_design.most_stable_bandwidth]).
 """
 
 from __future__ import annotations
@@ -51,7 +52,8 @@ PerJointGain = NonNegativeFinite | list[NonNegativeFinite] | None
 
 
 class PDOptions(FeedforwardOptions):
-    """The options of :class:`MotorPD` and :class:`LinkPD` (per-joint sizes checked by the
+    """The options of [`MotorPD`][elastic_gym.controllers.pd.MotorPD] and
+    [`LinkPD`][elastic_gym.controllers.pd.LinkPD] (per-joint sizes checked by the
     design)."""
 
     omega: PositiveFinite | None = DEFAULT_BANDWIDTH
@@ -121,7 +123,8 @@ class MotorPD(_BlockPD):
 
     Args: ``omega`` (rad/s) and ``damping_ratio`` of the per-joint bandwidth rule, or
     explicit ``kp``, ``kd`` (one or N numbers); ``feedforward``, ``design_configuration``,
-    ``fd_step``, ``load_identification`` as in :class:`FeedforwardStateFeedback`.
+    ``fd_step``, ``load_identification`` as in
+    [`FeedforwardStateFeedback`][elastic_gym.controllers.state_feedback.FeedforwardStateFeedback].
     """
 
     name = "motor-pd"
@@ -152,9 +155,11 @@ class LinkPD(_BlockPD):
 
 @twin_of(MotorPD)
 class VectorMotorPD(VectorStateFeedback):
-    """:class:`MotorPD` on N arms (the eq. (13) law with its block gain)."""
+    """[`MotorPD`][elastic_gym.controllers.pd.MotorPD] on N arms
+    (the eq. (13) law with its block gain)."""
 
 
 @twin_of(LinkPD)
 class VectorLinkPD(VectorStateFeedback):
-    """:class:`LinkPD` on N arms (the eq. (13) law with its block gain)."""
+    """[`LinkPD`][elastic_gym.controllers.pd.LinkPD] on N arms
+    (the eq. (13) law with its block gain)."""

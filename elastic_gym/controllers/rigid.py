@@ -3,11 +3,13 @@
 Both read q and the velocity estimate x_hat_2 from ``obs["state"]`` and q_d, q_d', q_d''
 from ``info["reference"]``:
 
-* :class:`CristofaroTrackingController`: Cristofaro & De Luca (IEEE L-CSS 2022), Example 3,
+* [`CristofaroTrackingController`][elastic_gym.controllers.rigid.CristofaroTrackingController]:
+  Cristofaro & De Luca (IEEE L-CSS 2022), Example 3,
   exactly as printed (Lambda = 0.5 I, K_P = diag(40, 60), K_D = diag(60, 90)):
   tau = M(q) (q_d'' + Lambda (q_d' - x_hat_2)) + C(q, x_hat_2) (q_d' + Lambda (q_d - q))
   + g(q) + K_P (q_d - q) + K_D (q_d' - x_hat_2);
-* :class:`FeedbackLinearizingController`: computed torque with friction compensation, the
+* [`FeedbackLinearizingController`][elastic_gym.controllers.rigid.FeedbackLinearizingController]:
+  computed torque with friction compensation, the
   controller of Solsona & Puleston's simulation (Sec. 4): tau = M(q) a + C(q, x_hat_2) x_hat_2
   + g(q) + f_r(v_f), a = q_d'' + K_D (q_d' - x_hat_2) + K_P (q_d - q), with the model's
   friction f_r at v_f = x_hat_2 or q_d'.
@@ -29,12 +31,12 @@ CRISTOFARO_LAMBDA = 0.5
 CRISTOFARO_KP = (40.0, 60.0)
 CRISTOFARO_KD = (60.0, 90.0)
 Gain = Annotated[Any, Matrix()]
-"""A gain option as given (finite entries); its form is checked by :func:`_gain_matrix`."""
+"""A gain option as given (finite entries); its form is checked by `_gain_matrix`."""
 
 
 def _gain_matrix(value, n: int, name: str) -> np.ndarray:
     """A gain whose symmetric part is positive semi-definite, from a scalar, N numbers or
-    an N x N matrix (:func:`square_matrix`)."""
+    an N x N matrix (`square_matrix`)."""
     return square_matrix(value, n, name, psd_tolerance=0.0)
 
 
@@ -50,7 +52,9 @@ def _signals(x: np.ndarray, ref: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
 
 
 class CristofaroOptions(StrictModel):
-    """The options of :class:`CristofaroTrackingController` (gain sizes checked by it)."""
+    """The options of
+    [`CristofaroTrackingController`][elastic_gym.controllers.rigid.CristofaroTrackingController]
+    (gain sizes checked by it)."""
 
     Lambda: Gain = CRISTOFARO_LAMBDA
     K_P: Gain | None = None
@@ -91,7 +95,9 @@ class CristofaroTrackingController(_RigidTracking):
 
 
 class FeedbackLinearizationOptions(StrictModel):
-    """The options of :class:`FeedbackLinearizingController` (gain sizes checked by it)."""
+    """The options of
+    [`FeedbackLinearizingController`][elastic_gym.controllers.rigid.FeedbackLinearizingController]
+    (gain sizes checked by it)."""
 
     omega: PositiveFinite = 10.0
     damping_ratio: PositiveFinite = 1.0

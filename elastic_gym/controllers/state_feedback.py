@@ -3,9 +3,9 @@
     tau = K_P (x_d - xi) + tau_d,    (x_d, tau_d) = INVDYN(q_d, ..., q_d^(4))
 
 xi is the state estimate (``obs["state"]``, or the truth behind a ``TrueStateWrapper``),
-x_d and tau_d come from :class:`~elastic_gym.controllers.invdyn.InverseDynamics`, and
+x_d and tau_d come from [`InverseDynamics`][elastic_gym.controllers.invdyn.InverseDynamics], and
 K_P is a full N x 4N gain designed on the coupled linearization of the arm
-(:mod:`~elastic_gym.controllers.gain_design`). By default an LQR design places the
+([`gain_design`][elastic_gym.controllers.gain_design]). By default an LQR design places the
 slowest closed-loop poles at ``omega`` = 30 rad/s, the value of the paper's KR15
 experiment ("close to the robot natural frequency"). The same law runs on rigid arms
 (x = (q, q'), INVDYN = computed torque).
@@ -74,7 +74,9 @@ class FeedforwardOptions(StrictModel):
 
 
 class StateFeedbackOptions(FeedforwardOptions):
-    """The options of :class:`FeedforwardStateFeedback` (gain shapes checked by its design)."""
+    """The options of
+    [`FeedforwardStateFeedback`][elastic_gym.controllers.state_feedback.FeedforwardStateFeedback]
+    (gain shapes checked by its design)."""
 
     omega: PositiveFinite = 30.0
     gain: Annotated[Any, Matrix()] | None = None
@@ -117,11 +119,15 @@ class FeedforwardStateFeedback(OneArmLaw, Controller):
         fd_step: step (s) of the central difference giving tau_r'' inside INVDYN.
         load_identification: ``"per-link"`` or ``"shared"`` (one scale for all links)
             identifies the link masses at each reset from the encoders and runs the law
-            on that model from then on (:class:`VectorStateFeedback`; elastic arms).
+            on that model from then on
+            ([`VectorStateFeedback`][elastic_gym.controllers.state_feedback.VectorStateFeedback];
+            elastic arms).
 
     At most one of ``gain``, ``weights``, ``poles`` may be given.
     ``design`` holds the configuration, method and closed-loop poles of the nominal
-    linearization. The law runs as :class:`VectorStateFeedback` with one arm.
+    linearization. The law runs as
+    [`VectorStateFeedback`][elastic_gym.controllers.state_feedback.VectorStateFeedback] with one
+    arm.
     """
 
     name = "feedforward-state-feedback"
@@ -203,14 +209,17 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
     """Eq. (13) on N arms: tau_i = K_P (x_d,i - xi_i) + tau_d,i, INVDYN batched.
 
     Also the law of the decentralized PD controllers (eq. (13) with a block gain).
-    ``state_error`` (N, dim): x - x_d of every arm at the last call (:meth:`tracked`).
-    After :meth:`track_link_mass`, ``link_mass_sensitivity`` (N, n, n) holds at every call
+    ``state_error`` (N, dim): x - x_d of every arm at the last call
+    ([`tracked`][elastic_gym.controllers.state_feedback.VectorStateFeedback.tracked]).
+    After
+    [`track_link_mass`][elastic_gym.controllers.state_feedback.VectorStateFeedback.track_link_mass],
+    ``link_mass_sensitivity`` (N, n, n) holds at every call
     the change of the torque per unit change of each link's mass scale in the model, and
     ``link_mass_state_sensitivity`` (N, n, dim) that of the desired state x_d.
 
     With ``load_identification``, the first call after an arm's reset identifies the
     link masses from its motor error, s - 1 =
-    :func:`~elastic_gym.controllers.invdyn.fit_link_masses` (exact for an arm at rest in
+    [`fit_link_masses`][elastic_gym.controllers.invdyn.fit_link_masses] (exact for an arm at rest in
     its static equilibrium, as the envs reset), kept in ``link_mass_change`` (N, n), and
     every call runs the law on that model: (x_d, tau_d)(s) = (x_d, tau_d)(1) +
     sum_i (s_i - 1) d (x_d, tau_d) / d s_i, INVDYN being linear in the masses.
@@ -235,7 +244,8 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
         """From the next call on, keep ``link_mass_sensitivity`` (N, n, n): row i of an
         arm is d tau / d s_i = K_P d x_d / d s_i + d tau_d / d s_i, the torque of this law
         with the model's link i mass scaled by 1 + c minus its torque, divided by c (exact
-        for every c: :class:`~elastic_gym.controllers.invdyn.LinkMassSensitivity`). The
+        for every c: [`LinkMassSensitivity`][elastic_gym.controllers.invdyn.LinkMassSensitivity]).
+        The
         feedback on x - x_d and any integral of the link error do not depend on the
         masses. Costs n more INVDYN evaluations per call."""
         c = self.controller
@@ -262,8 +272,8 @@ class VectorStateFeedback(StateLaw[FeedforwardStateFeedback]):
     def tracked(
         self, t: np.ndarray, x: np.ndarray, ref: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(x_d, tau_d) of :meth:`desired` (on the identified model with
-        ``load_identification``); keeps x - x_d as :attr:`state_error`, the error the
+        """(x_d, tau_d) of `desired` (on the identified model with
+        ``load_identification``); keeps x - x_d as `state_error`, the error the
         feedback of eq. (13) acts on at this call."""
         x_d, tau_d = self.desired(t, ref)
         if self._mass_sensitivity is not None:

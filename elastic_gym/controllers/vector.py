@@ -1,17 +1,17 @@
 """Vector controllers: the torques of N arms from arrays with a leading arm axis.
 
-A :class:`VectorController` is the batched twin of the single-arm interface of
-:mod:`elastic_gym.controllers.base`: ``obs["state"]`` (N, dim) and ``obs["reference"]``
-(N, 2n), as a vector :class:`~elastic_gym.observers.vector.ObserverWrapper` gives them;
-``info["time"]`` (N,) and ``info["reference"]`` with (N, n) arrays ``q`` .. ``d4q``;
-``reset_arms(obs, info, arms)`` restarts the arms ``arms`` (an env reset or autoreset),
-``controller(obs, info)`` returns the (N, n) motor torques.
+A [`VectorController`][elastic_gym.controllers.vector.VectorController] is the batched twin of the
+single-arm interface (`controllers.base`): ``obs["state"]`` (N, dim) and ``obs["reference"]``
+(N, 2n), as a vector `ObserverWrapper` gives them; ``info["time"]`` (N,) and ``info["reference"]``
+with (N, n) arrays ``q`` .. ``d4q``; ``reset_arms(obs, info, arms)`` restarts the arms ``arms``
+(an env reset or autoreset), ``controller(obs, info)`` returns the (N, n) motor torques.
 
-Every built-in controller has a batched twin computing all arms in one pass (INVDYN
-through the :class:`~elastic_gym.model.SerialChain` kernels); the single-arm controller
-runs its twin with N = 1, so arm i of a batch gets the single controller's torque.
-:func:`make_vector_controller` builds the twin of a built-in, and
-:class:`ControllerArray` (one copy per arm) for any other :class:`Controller`.
+Every built-in controller has a batched twin computing all arms in one pass (INVDYN through the
+[`SerialChain`][elastic_gym.model.SerialChain] kernels); the single-arm controller runs its twin
+with N = 1, so arm i of a batch gets the single controller's torque.
+[`make_vector_controller`][elastic_gym.controllers.vector.make_vector_controller] builds the twin of
+a built-in, and [`ControllerArray`][elastic_gym.controllers.vector.ControllerArray] (one copy per
+arm) for any other `Controller`.
 """
 
 from __future__ import annotations
@@ -154,7 +154,7 @@ class StateLaw(ControllerTwin[C]):
 
 class OneArmLaw:
     """Mixin of the built-in single-arm controllers: their law is their
-    :attr:`~elastic_gym.controllers.base.Controller.vector_twin` run with N = 1."""
+    [`vector_twin`][elastic_gym.controllers.base.Controller.vector_twin] run with N = 1."""
 
     _law: Any  # the twin: a StateLaw of this class
     vector_twin: ClassVar[Any]
@@ -174,7 +174,8 @@ class OneArmLaw:
 
 
 def twin_of(single_class: type[Controller]) -> Callable[[type[ControllerTwin]], type]:
-    """Class decorator: the decorated :class:`ControllerTwin` is ``single_class``'s twin."""
+    """Class decorator: the decorated
+    [`ControllerTwin`][elastic_gym.controllers.vector.ControllerTwin] is ``single_class``'s twin."""
 
     def register(twin: type[ControllerTwin]) -> type[ControllerTwin]:
         twin.single_class = single_class
@@ -192,7 +193,8 @@ def make_vector_controller(
     **options,
 ) -> VectorController:
     """The controller of N arms: the batched twin of a built-in (a registry name, or its
-    class), a :class:`ControllerArray` for any other :class:`Controller` class. A built
+    class), a [`ControllerArray`][elastic_gym.controllers.vector.ControllerArray] for any other
+    `Controller` class. A built
     controller instance (then without options) is run by its twin or copied per arm."""
     built = isinstance(name_or_class, Controller)
     only_when(not built, {"options": options}, "a controller is named or given as a class")

@@ -1,7 +1,7 @@
 """One arm's plant and sensors from its kwargs: what needs the robot to be validated.
 
-:func:`arm_kwargs` deep-merges the shared per-arm kwargs with each arm's ``per_arm``
-mapping; :class:`ArmResolver` turns one arm's kwargs into :class:`ArmSettings` (refusing
+`arm_kwargs` deep-merges the shared per-arm kwargs with each arm's ``per_arm``
+mapping; `ArmResolver` turns one arm's kwargs into `ArmSettings` (refusing
 what this robot cannot have) and builds the arm's exact plant model.
 """
 
@@ -60,8 +60,8 @@ def deep_merge(base, override):
 def arm_kwargs(shared: dict, per_arm, n_arms: int) -> list[dict] | None:
     """Each arm's per-arm kwargs: ``shared`` deep-merged with ``per_arm[i]`` (None: no
     per-arm mappings). ``per_arm``: exactly ``n_arms`` mappings of
-    :data:`~elastic_gym.envs.config.PER_ARM_KEYS` (each validated by
-    :class:`~elastic_gym.envs.config.ArmOptions` with the env's kwargs)."""
+    `PER_ARM_KEYS` (each validated by
+    [`ArmOptions`][elastic_gym.envs.config.ArmOptions] with the env's kwargs)."""
     if per_arm is None:
         return None
     if len(per_arm) != n_arms:
@@ -107,7 +107,8 @@ class ArmResolver:
         self._nominal_plant = RobotModel(spec, accelerometers=mounts)
 
     def settings(self, kwargs: Mapping) -> ArmSettings:
-        """One arm's settings from its per-arm kwargs (:class:`ArmOptions` and the robot's
+        """One arm's settings from its per-arm kwargs
+        ([`ArmOptions`][elastic_gym.envs.config.ArmOptions] and the robot's
         limits)."""
         spec, options = self.spec, validated(ArmOptions, kwargs)
         encoder = options.encoder or EncoderConfig()
@@ -168,7 +169,7 @@ class ArmResolver:
         return scaling
 
     def _unmodelled_friction(self, config: UnmodelledFriction | None) -> LinkFriction | None:
-        """The ``unmodelled_friction`` kwarg as a :class:`LinkFriction` in N m."""
+        """The ``unmodelled_friction`` kwarg as a `LinkFriction` in N m."""
         if config is None:
             return None
         n, limit = self.n, self.torque_limit

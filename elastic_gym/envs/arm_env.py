@@ -1,6 +1,6 @@
 """Gymnasium environments of one arm with elastic (or rigid) joints and realistic sensing.
 
-:class:`ArmEnv` is the N = 1 case of :class:`~elastic_gym.envs.batch.ArmBatch`, whose
+`ArmEnv` is the N = 1 case of [`ArmBatch`][elastic_gym.envs.batch.ArmBatch], whose
 module docstring documents the observation, the info, the reward and the termination.
 No link position and no velocity of an elastic arm is ever observed; the ground truth
 is in ``info["true_state"]``. Action: motor torque (N m), clipped to the torque limits
@@ -74,13 +74,13 @@ class ArmEnv(gym.Env):
     Args:
         robot: robot name (``elastic_gym.robots.catalog.ROBOTS``) or a ``RobotSpec``.
         render_mode: ``"rgb_array"`` or ``"human"``.
-        **kwargs: the options of :class:`~elastic_gym.envs.batch.ArmBatch` (task,
+        **kwargs: the options of [`ArmBatch`][elastic_gym.envs.batch.ArmBatch] (task,
             task_options, physics_dt, control_dt, encoder, accelerometer, accelerometers,
             plant_scaling, unmodelled_friction, torque_limit, reward, max_velocity,
             sensor_delay, actuator_delay, payload, torque_pulses, randomize, per_arm,
             episode_time).
 
-    Attributes: ``model`` (the nominal :class:`~elastic_gym.model.RobotModel` for
+    Attributes: ``model`` (the nominal [`RobotModel`][elastic_gym.model.RobotModel] for
     observers and controllers), ``plant_model`` (the simulated plant's), ``robot``,
     ``torque_limit``, ``control_dt``, ``physics_dt``, ``task``.
     """

@@ -5,11 +5,11 @@ module exports; the numba functions below issue the same commands with the same
 arguments (see each one's docstring), so a world stepped through them advances bit for
 bit as through the Python functions (tested), with no return to Python between the
 substeps of a control period. Numba calls them by symbol name, as
-:mod:`elastic_gym.model.lapack` calls LAPACK.
+`elastic_gym.model.lapack` calls LAPACK.
 
 A Python connection's C handle sits in the extension's static table
 ``sPhysicsClients1[physicsClientId]``, which is not exported; the module's ELF symbol
-table (kept in PyPI's Linux wheels) gives its address. :func:`client_slot` returns a live
+table (kept in PyPI's Linux wheels) gives its address. `client_slot` returns a live
 view of a client's entry (0 once disconnected), read by the kernels at every call, or
 None where the table cannot be found (another platform, a stripped build): the simulator
 then steps through the Python functions.
@@ -66,7 +66,7 @@ def _address(name: str) -> int | None:
 def _external(name: str, signature) -> types.ExternalFunction:
     """The exported C function ``name``, callable from numba under a symbol of its own
     (by name, so that numba's cache holds no address). A function the build does not
-    export stays unbound: no handle is then read (:func:`client_slot`), so no kernel
+    export stays unbound: no handle is then read (`client_slot`), so no kernel
     calling it is compiled."""
     symbol, address = f"elastic_gym_{name}", _address(name)
     if address is None:
@@ -159,7 +159,7 @@ def client_slot(client: int) -> np.ndarray | None:
 
 
 def world_arrays(client: int, bodies: list[int], joints: list[int]) -> tuple:
-    """The ``world`` of :func:`substep`: (bodies, the joints' velocity indices per body
+    """The ``world`` of `substep`: (bodies, the joints' velocity indices per body
     (N, n), the joint indices, a sensor buffer), for the bodies ``bodies`` of the
     connection ``client`` and their actuated joints ``joints``."""
     velocity_index = [
@@ -196,7 +196,7 @@ def step_world(handle):
 def read_joint_states(handle, bodies, joints, states, sensor):
     """``getJointStates`` of every arm (``b3RequestActualStateCommandInit``, then
     ``b3GetJointState`` per joint): q, q' per joint, arm by arm, into the flat ``states``;
-    ``sensor``: a buffer of :data:`SENSOR_STATE_DOUBLES`. Returns a code."""
+    ``sensor``: a buffer of `SENSOR_STATE_DOUBLES`. Returns a code."""
     n = joints.shape[0]
     for k in range(bodies.shape[0]):
         status = _submit(handle, _state_command(handle, bodies[k]))
@@ -213,8 +213,8 @@ def read_joint_states(handle, bodies, joints, states, sensor):
 @njit(cache=True)
 def substep(handle, world, torques, extra, states):
     """One physics step of a world under the joint torques ``torques`` (+ ``extra``, or
-    None), its joint states read into ``states``: :func:`apply_torques`,
-    :func:`step_world`, :func:`read_joint_states`. ``world``: (bodies, velocity indices
+    None), its joint states read into ``states``: `apply_torques`,
+    `step_world`, `read_joint_states`. ``world``: (bodies, velocity indices
     (N, n), joint indices, sensor buffer). Returns a code."""
     bodies, dofs, joints, sensor = world
     apply_torques(handle, bodies, dofs, torques, extra)
@@ -223,6 +223,6 @@ def substep(handle, world, torques, extra, states):
 
 
 def raise_for(code: int) -> None:
-    """PyBullet's error for a kernel's return code (none for :data:`OK`)."""
+    """PyBullet's error for a kernel's return code (none for `OK`)."""
     if code != OK:
         raise p.error(ERRORS[code])

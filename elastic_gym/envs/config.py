@@ -4,13 +4,14 @@
 unknown keys are refused and every error names its field path
 (``per_arm[1].payload.mass: ...``). What pydantic cannot know — a robot's joint count,
 its torque limits, which parts it has — is checked where the robot is known
-(:mod:`~elastic_gym.envs.arm_config`). Plant features no model knows:
+(`arm_config`). Plant features no model knows:
 ``actuator_delay`` (the torque acts k control periods late), ``torque_pulses`` (link-side
 pulses, given or drawn at every reset from the arm's plant stream; a pulse acts on the
 control periods that start in [time, time + duration)) and ``payload`` (a point mass at
 the last actuated link, optionally changing at a given time). ``per_arm``: N mappings of
-the per-arm kwargs (:data:`PER_ARM_KEYS`), each deep-merged into the shared kwargs for its
-arm. ``randomize``: parameter path -> :class:`PlantRange`, drawn at every reset.
+the per-arm kwargs (`PER_ARM_KEYS`), each deep-merged into the shared kwargs for its
+arm. ``randomize``: parameter path -> [`PlantRange`][elastic_gym.envs.config.PlantRange], drawn at
+every reset.
 """
 
 from __future__ import annotations
@@ -70,7 +71,9 @@ INTEGRATORS: tuple[str, ...] = ("pybullet", "rk4")
 
 
 def _ideal_accelerometer(value: Any) -> Any:
-    """``"ideal"`` is :meth:`AccelerometerConfig.ideal`; no other string is an error model."""
+    """``"ideal"`` is
+    [`AccelerometerConfig.ideal`][elastic_gym.envs.sensors.AccelerometerConfig.ideal]; no other
+    string is an error model."""
     if isinstance(value, str):
         if value != "ideal":
             raise ValueError(
@@ -217,7 +220,7 @@ class UnmodelledFriction(StrictModel):
 class ArmOptions(StrictModel):
     """The per-arm kwargs of one arm (one entry of ``per_arm``); None keeps the shared one.
     What needs the robot (joint counts, delays in seconds) is checked by
-    :class:`~elastic_gym.envs.arm_config.ArmResolver`."""
+    `ArmResolver`."""
 
     plant_scaling: ParameterScaling | None = None
     unmodelled_friction: UnmodelledFriction | None = None
@@ -307,7 +310,7 @@ class EnvConfig(StrictModel):
 
 class EnvKwargs(EnvConfig):
     """The keyword arguments of an env of the package (``gym.make(id, **kwargs)``): the
-    batch's (:class:`EnvConfig`) and the env's own ``robot`` (a name of the catalog,
+    batch's (`EnvConfig`) and the env's own ``robot`` (a name of the catalog,
     default the id's) and ``render_mode``. Scenarios and training configs validate their
     env kwargs with it."""
 
@@ -317,7 +320,8 @@ class EnvKwargs(EnvConfig):
 
 class MakeKwargs(EnvKwargs):
     """The keyword arguments of ``gym.make`` / ``gym.make_vec`` for an env of the package
-    (what a training run passes): :class:`EnvKwargs` and ``max_episode_steps`` (a
+    (what a training run passes): [`EnvKwargs`][elastic_gym.envs.config.EnvKwargs] and
+    ``max_episode_steps`` (a
     ``TimeLimit`` in control periods)."""
 
     max_episode_steps: Annotated[StrictInt, Field(ge=1)] | None = None
@@ -325,7 +329,7 @@ class MakeKwargs(EnvKwargs):
 
 def checked_kwargs(kwargs: dict, loc: tuple = (), model: type[EnvKwargs] = EnvKwargs) -> dict:
     """``kwargs`` (all or some of an env's) validated by ``model`` and returned as given;
-    :class:`~elastic_gym.validation.ConfigError` with the field path
+    `ConfigError` with the field path
     (``plant_scaling.link_mass: ...``) after ``loc`` otherwise."""
     checked(lambda: model.model_validate(plain(kwargs)), "", model, loc=loc)
     return kwargs

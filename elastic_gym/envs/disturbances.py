@@ -2,7 +2,8 @@
 
 Each arm has its own schedule: pulses k with start time t_k, duration d_k and amplitude
 a_k (N m per joint), given or drawn at every reset from the arm's plant stream (see
-:mod:`elastic_gym.envs.config`). During the control period that starts at time t the
+[`elastic_gym.envs.config`][elastic_gym.envs.config]). During the control period that starts at time
+t the
 links receive the external torque sum_k a_k [t_k <= t < t_k + d_k], summed in pulse order;
 it enters the link equation beside tau_J (PyBullet and the true q'').
 """
@@ -31,7 +32,7 @@ def given_pulses(
 def random_pulses(
     spec: RandomPulses, rng: np.random.Generator, torque_limit: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A random schedule as :func:`given_pulses` gives one: times, then durations, then
+    """A random schedule as `given_pulses` gives one: times, then durations, then
     amplitudes, then signs drawn from ``rng`` (an arm's plant stream)."""
     n = len(torque_limit)
     times = rng.uniform(*spec.window, size=spec.count)

@@ -2,14 +2,14 @@
 
 PyBullet gives no exception when an allocation fails while it loads bodies: a batch
 too large for the machine ends the process with a segmentation fault inside
-``loadURDF``. :func:`check_batch_memory` refuses such a batch first, with the numbers.
+``loadURDF``. `check_batch_memory` refuses such a batch first, with the numbers.
 
-The estimate (:func:`batch_bytes`) is linear in the number of arms: per arm
-:data:`ARM_BYTES` (a body of a few primitive-shape links with its joint and solver
-data) plus :data:`MESH_FACTOR` times the size of the mesh files its URDF references
+The estimate (`batch_bytes`) is linear in the number of arms: per arm
+`ARM_BYTES` (a body of a few primitive-shape links with its joint and solver
+data) plus `MESH_FACTOR` times the size of the mesh files its URDF references
 (PyBullet keeps its own copy of each mesh's collision and visual data per body); both
 constants are rounded up from the resident memory of batches of 1000 arms of the
-shipped robots. What is available (:func:`available_bytes`) is the kernel's
+shipped robots. What is available (`available_bytes`) is the kernel's
 ``MemAvailable``, lowered to the room left under a cgroup memory limit if one is set.
 """
 

@@ -1,17 +1,17 @@
 """The simulated plants of N arms: one exact model per arm, stacked for the simulator.
 
 Arm k of a batch may have its own plant (``per_arm``, ``randomize``): parameter scaling,
-unmodelled link friction and a payload. :class:`PlantArray` keeps one
-:class:`~elastic_gym.model.RobotModel` per arm (exactly the plant model a single env with
+unmodelled link friction and a payload. `PlantArray` keeps one
+[`RobotModel`][elastic_gym.model.RobotModel] per arm (exactly the plant model a single env with
 that arm's kwargs builds) and the arrays with a leading arm axis that the simulator's
 kernels read: K, D, B^-1, the model (2) constants S, S B^-1, -S B^-1 S^T, S^T, the link
-friction coefficients and a :class:`~elastic_gym.model.SerialChain` stacked from the arms'
+friction coefficients and a [`SerialChain`][elastic_gym.model.SerialChain] stacked from the arms'
 chains (per-arm link inertias for the Schur solve of model (2) and the true q'').
 
 A payload is a point mass m at a point p of the last actuated link's frame (default: twice
 that link's centre of mass, the tip of a uniform link); the plant's last link inertia
 becomes I + (m, p, 0) (a point mass has no rotational inertia about itself), and the
-PyBullet body carries a fixed child link of mass m at p (:func:`payload_urdf`).
+PyBullet body carries a fixed child link of mass m at p (`payload_urdf`).
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ def payload_urdf(urdf: str, link: str, position: tuple[float, ...]) -> str:
 
 
 class PlantArray:
-    """Per-arm plant models and the stacked arrays of :class:`ArmSimulator`'s kernels.
+    """Per-arm plant models and the stacked arrays of `ArmSimulator`'s kernels.
 
     Args:
         models: one plant model per arm (same robot and accelerometer mounts).

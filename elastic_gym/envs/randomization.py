@@ -1,9 +1,9 @@
 """Domain randomization: each arm draws its plant at every reset (the ``randomize`` kwarg).
 
-``randomize`` maps a parameter path to a :class:`~elastic_gym.envs.config.PlantRange`,
+``randomize`` maps a parameter path to a [`PlantRange`][elastic_gym.envs.config.PlantRange],
 e.g. ``{"plant_scaling.link_mass": {"low": 0.7, "high": 1.3}, "sensor_delay": {"low": 0,
 "high": 2}}``. At every reset each arm draws, from its own plant stream, one value per path
-in the order of :data:`PATHS`: uniform in [low, high], log-uniform (``log: true``:
+in the order of `PATHS`: uniform in [low, high], log-uniform (``log: true``:
 exp(U(log low, log high))) or, for the integer paths, an integer uniform in
 {low, ..., high}. A range with ``probability`` p < 1 first draws u ~ U[0, 1): the value
 is drawn as above when u < p, else it is the range's ``otherwise`` (default ``low``).
@@ -77,7 +77,7 @@ def with_values(kwargs: Mapping, values: Mapping[str, float | int]) -> dict:
 
 
 def draw(ranges: Mapping[str, PlantRange], rng: np.random.Generator) -> dict[str, float | int]:
-    """One value per path of ``ranges``, in the order of :data:`PATHS`."""
+    """One value per path of ``ranges``, in the order of `PATHS`."""
     values: dict[str, float | int] = {}
     for path, integer in PATHS.items():
         spec = ranges.get(path)

@@ -76,7 +76,7 @@ class RewardConfig(ConfigModel):
         return np.array([c.track, c.velocity, c.torque, c.rate, c.torsion, c.penalty_bound])
 
     def kernel_constants(self, dt: float) -> tuple:
-        """The arguments of :func:`_reward_kernel` after the torque limit and the torsion
+        """The arguments of `_reward_kernel` after the torque limit and the torsion
         (the configuration at the control period ``dt``), in the kernel's order."""
         return (
             self._inverse_sigmas,
@@ -162,7 +162,7 @@ def reward_terms(
         torque_limit: tau_max, shape (n,) or (N, n), > 0.
         torsion: theta - q, shape (N, n) (zeros for rigid arms).
 
-    The keys are :data:`TERM_NAMES`; their sum is :func:`total_reward`.
+    The keys are `TERM_NAMES`; their sum is [`total_reward`][elastic_gym.envs.reward.total_reward].
     """
     e, de, tau, previous, limit, torsion = _checked(
         error, error_rate, torque, previous_torque, torque_limit, torsion
@@ -190,8 +190,9 @@ def total_reward(
 ) -> np.ndarray:
     """The reward of one control period per arm, shape (N,), each value in [0, dt * max_rate].
 
-    Equal to the sum of :func:`reward_terms` (to rounding); terms of weight zero are not
-    computed. Inputs as in :func:`reward_terms`.
+    Equal to the sum of [`reward_terms`][elastic_gym.envs.reward.reward_terms] (to rounding); terms
+    of weight zero are not
+    computed. Inputs as in [`reward_terms`][elastic_gym.envs.reward.reward_terms].
     """
     arrays = _checked(error, error_rate, torque, previous_torque, torque_limit, torsion)
     return batch_reward(config, dt, *arrays)
@@ -207,7 +208,8 @@ def batch_reward(
     torque_limit: np.ndarray,
     torsion: np.ndarray,
 ) -> np.ndarray:
-    """:func:`total_reward` without the input checks (float64 arrays of the right shapes):
+    """[`total_reward`][elastic_gym.envs.reward.total_reward] without the input checks
+    (float64 arrays of the right shapes):
     one compiled loop over the arms, the hot path of the envs."""
     limit = torque_limit if torque_limit.ndim == 2 else torque_limit[None]
     out = np.empty(len(error))

@@ -178,7 +178,7 @@ def _add_noise(
 
 
 def _compiled(y, offset, std: float, noise: GaussianNoise, rngs, bound: float, resolution: float):
-    """Every arm's readings by :func:`_shared_readings` (one error model, no filter)."""
+    """Every arm's readings by `_shared_readings` (one error model, no filter)."""
     if std > 0.0:
         noise.refill(rngs)
     y = np.ascontiguousarray(y, dtype=np.float64)
@@ -270,7 +270,7 @@ class AccelerometerConfig(StrictModel):
 
 
 class AccelerometerArray:
-    """Applies the error model of :class:`AccelerometerConfig` to true specific forces.
+    """Applies the error model of `AccelerometerConfig` to true specific forces.
 
     Readings have a leading arm axis (N, 3 n_sensors); each arm has its own bias and
     filter state and draws from its own generator. ``config``: one error model for every

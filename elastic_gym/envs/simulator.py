@@ -76,7 +76,7 @@ def _transmission_kernel(
     tau_J - d(q') (rigid: tau - d(q')) and theta'' = B^-1 (tau - tau_J) of model (1);
     d(q') = F_v q' + c tanh(q' / smoothing), c = coulomb_pos or coulomb_neg by the sign.
     Every coefficient has a leading arm axis (arm k's own plant). ``dt`` > 0 (elastic
-    arms): the motor side is then advanced in place as :func:`_integrate_motors` does
+    arms): the motor side is then advanced in place as `_integrate_motors` does
     (each joint's theta'' depends only on its own state, read before it is advanced)."""
     N, n = q.shape
     for k in range(N):
@@ -101,11 +101,12 @@ def _transmission_kernel(
 
 @njit(cache=True)
 def _link_dynamics_kernel(theta, dtheta, q, dq, transmission, link_torque, *dynamics):
-    """:func:`_transmission_kernel` (its arguments after the state: ``transmission``; link
+    """`_transmission_kernel` (its arguments after the state: ``transmission``; link
     torque into ``transmission[11]``), plus ``link_torque`` if not None, then
-    :func:`~elastic_gym.model.chain._dynamics_and_forces_kernel` at that link torque
+    `_dynamics_and_forces_kernel` at that link torque
     (``dynamics``: its arguments after q, q', tau): the calls of
-    :meth:`ArmSimulator.accelerations` and the chain in one dispatch."""
+    [`ArmSimulator.accelerations`][elastic_gym.envs.simulator.ArmSimulator.accelerations] and the
+    chain in one dispatch."""
     _transmission_kernel(theta, dtheta, q, dq, *transmission)
     link = transmission[11]
     if link_torque is not None:
@@ -118,9 +119,9 @@ def _link_dynamics_kernel(theta, dtheta, q, dq, transmission, link_torque, *dyna
 @njit(cache=True)
 def _substep_kernel(joint_states, tau, packed):
     """q and q' of every arm from PyBullet's flat joint states (q, q' per joint, arm by arm;
-    empty: the state is current), in place, then :func:`_transmission_kernel` at the motor
+    empty: the state is current), in place, then `_transmission_kernel` at the motor
     torques ``tau``: one dispatch per substep. ``packed``: a
-    :class:`~elastic_gym.model.packed.Packed` of (theta, theta', q, q', the kernel's
+    `Packed` of (theta, theta', q, q', the kernel's
     arguments after tau)."""
     theta, dtheta, q, dq, transmission = packed.values
     _unpack_joint_states(joint_states, q, dq)
@@ -130,14 +131,15 @@ def _substep_kernel(joint_states, tau, packed):
 @njit(cache=True)
 def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, states):
     """``n_substeps`` physics steps through PyBullet's C API (``slot``: the client's
-    handle, see :func:`~elastic_gym.envs.bullet_capi.client_slot`), each under the link
+    handle, see `client_slot`), each under the link
     torques of the motor torques ``tau`` at the state the last one read, plus
-    ``link_torque`` (or None): the loop of :meth:`ArmSimulator.step` in one dispatch.
-    Model (1) and rigid arms (``coupling`` None): :func:`_transmission_kernel`, the motors
-    advanced before the physics step; model (2): :func:`_coupled_link_torque`, the motors
+    ``link_torque`` (or None): the loop of
+    [`ArmSimulator.step`][elastic_gym.envs.simulator.ArmSimulator.step] in one dispatch.
+    Model (1) and rigid arms (``coupling`` None): `_transmission_kernel`, the motors
+    advanced before the physics step; model (2): `_coupled_link_torque`, the motors
     advanced after it. ``world``: (bodies, velocity indices (N, n), joint indices, sensor
-    buffer); ``packed``: as :func:`_substep_kernel`'s; ``states``: the flat joint states
-    buffer. Returns a :mod:`~elastic_gym.envs.bullet_capi` code."""
+    buffer); ``packed``: as `_substep_kernel`'s; ``states``: the flat joint states
+    buffer. Returns a `bullet_capi` code."""
     handle = slot[0]
     if handle == 0:
         return bullet_capi.DISCONNECTED
@@ -184,7 +186,8 @@ def physics_period(physics, n_substeps, tau):
 
 @njit(cache=True)
 def _rowwise_matvec_into(A, X, out):
-    """:func:`rowwise_matvec` (A (N, n, n), X (N, n)) into ``out``, summed in its order."""
+    """[`rowwise_matvec`][elastic_gym.envs.simulator.rowwise_matvec] (A (N, n, n), X (N, n)) into
+    ``out``, summed in its order."""
     N, n = X.shape
     for k in range(N):
         for i in range(n):
@@ -196,11 +199,13 @@ def _rowwise_matvec_into(A, X, out):
 
 @njit(cache=True)
 def _coupled_link_torque(theta, dtheta, q, dq, tau, link_torque, transmission, coupling):
-    """Model (2) at the current state, as :meth:`ArmSimulator.accelerations` computes it
+    """Model (2) at the current state, as
+    [`ArmSimulator.accelerations`][elastic_gym.envs.simulator.ArmSimulator.accelerations] computes
+    it
     (bit for bit): tau_J, theta'' into the transmission buffers (``transmission``: the
     transmission kernel's arguments after tau, its time step not used), q'' into
     ``coupling``'s, the link torque tau_J - d(q') (+ ``link_torque``) - S theta''
-    returned. ``coupling``: a :class:`~elastic_gym.model.packed.Packed` of (S, S B^-1,
+    returned. ``coupling``: a `Packed` of (S, S B^-1,
     S^T, -S B^-1 S^T, the chain's forward dynamics arguments, four (N, n) buffers, the
     last q'')."""
     K, D, B_inv, viscous, c_pos, c_neg, smoothing, friction, coulomb = transmission[:9]
@@ -234,9 +239,11 @@ def _coupled_link_torque(theta, dtheta, q, dq, tau, link_torque, transmission, c
 
 @njit(cache=True)
 def _coupled_dynamics_kernel(theta, dtheta, q, dq, tau, transmission, coupling, dynamics):
-    """Model (2)'s q'' (:func:`_coupled_link_torque`) and the readings of eq. (9) at it
+    """Model (2)'s q'' (`_coupled_link_torque`) and the readings of eq. (9) at it
     into ``dynamics``' q'' and forces (its layout: ``SerialChain.
-    dynamics_and_forces_arguments``): :meth:`ArmSimulator.link_acceleration` and
+    dynamics_and_forces_arguments``):
+    [`ArmSimulator.link_acceleration`][elastic_gym.envs.simulator.ArmSimulator.link_acceleration]
+    and
     ``SerialChain.specific_forces`` in one dispatch."""
     _coupled_link_torque(theta, dtheta, q, dq, tau, None, transmission, coupling)
     found = coupling.values[8]
@@ -248,8 +255,8 @@ def _coupled_dynamics_kernel(theta, dtheta, q, dq, tau, transmission, coupling, 
 @njit(cache=True)
 def _end_of_period_dynamics(theta, dtheta, q, dq, tau, transmission, coupling, dynamics):
     """q'' and the noise-free readings of eq. (9) at the end of a control period:
-    :func:`_link_dynamics_kernel` (no link-side torque), or for model (2) (``coupling``
-    not None) :func:`_coupled_dynamics_kernel`."""
+    `_link_dynamics_kernel` (no link-side torque), or for model (2) (``coupling``
+    not None) `_coupled_dynamics_kernel`."""
     if coupling is None:
         _link_dynamics_kernel(theta, dtheta, q, dq, (tau, *transmission), None, *dynamics)
     else:
@@ -322,15 +329,15 @@ class ArmSimulator:
     Args:
         spec: the robot.
         plant: the exact model of the simulated plant (same URDF and the same parameter
-            scaling), or a :class:`~elastic_gym.envs.plant.PlantArray` of one plant per
-            arm; its :class:`~elastic_gym.model.SerialChain` gives model (2)'s q'' and
+            scaling), or a `PlantArray` of one plant per
+            arm; its [`SerialChain`][elastic_gym.model.SerialChain] gives model (2)'s q'' and
             the true q''.
         physics_dt: physics step (s).
         n_arms: number of arms.
         gui: connect with ``p.GUI`` instead of ``p.DIRECT`` (render_mode="human").
         payload_positions: per arm, None or the point (last link's frame) of the arm's
-            payload link (:func:`~elastic_gym.envs.plant.payload_urdf`); its mass is set
-            with :meth:`set_payload_mass`.
+            payload link (`payload_urdf`); its mass is set
+            with [`set_payload_mass`][elastic_gym.envs.simulator.ArmSimulator.set_payload_mass].
         integrator: `"pybullet"` (PyBullet's step at `physics_dt`, the transmission
             beside it) or `"rk4"` (the compiled RK4 of the whole state over a control
             period, `physics_dt` its largest substep; PyBullet's joints are set to the
@@ -340,9 +347,9 @@ class ArmSimulator:
 
     State arrays have a leading arm axis: ``q``, ``dq``, ``theta``, ``dtheta`` (N, n).
 
-    Where PyBullet's C API can be reached (:mod:`~elastic_gym.envs.bullet_capi`), a control
-    period's substeps run in one compiled call (:func:`_period_kernel`); otherwise
-    :meth:`step` does the same work bit for bit through PyBullet's Python functions.
+    Where PyBullet's C API can be reached (`bullet_capi`), a control
+    period's substeps run in one compiled call (`_period_kernel`); otherwise
+    `step` does the same work bit for bit through PyBullet's Python functions.
     """
 
     def __init__(
@@ -483,7 +490,7 @@ class ArmSimulator:
 
     def set_link_scaling(self, arm: int, scaling) -> None:
         """Masses and inertias of arm ``arm``'s links: the URDF's scaled by ``scaling``
-        (a :class:`~elastic_gym.model.ParameterScaling`); only links whose value changes
+        (a [`ParameterScaling`][elastic_gym.model.ParameterScaling]); only links whose value changes
         are touched, so a body's dynamics depend on the scaling alone."""
         c, body = self.client, self.bodies[arm]
         mass_scale = scaling.per_joint("link_mass", self.n)
@@ -588,8 +595,8 @@ class ArmSimulator:
         return self._transmission(tau, link_torque, link, tau_j, ddtheta, 0.0)
 
     def _substep_arguments(self) -> tuple[Packed, Packed | None]:
-        """:func:`_substep_kernel`'s packed arguments (the state, the plants' transmission
-        constants, the buffers, the physics step) and :func:`_coupled_link_torque`'s (None
+        """`_substep_kernel`'s packed arguments (the state, the plants' transmission
+        constants, the buffers, the physics step) and `_coupled_link_torque`'s (None
         without model (2)), packed again when the plants change."""
         plants = self.plants
         transmission = plants.transmission
@@ -620,7 +627,7 @@ class ArmSimulator:
         return (self._slot, self._world, packed, coupling, self._states), None
 
     def coupling_arguments(self) -> Packed | None:
-        """:func:`_coupled_link_torque`'s ``coupling`` (None without model (2)), for
+        """`_coupled_link_torque`'s ``coupling`` (None without model (2)), for
         compiled callers (the batch's end of a control period)."""
         return self._substep_arguments()[1]
 
@@ -630,7 +637,7 @@ class ArmSimulator:
         return (*self.plants.transmission, elastic, link, tau_j, ddtheta, dt)
 
     def _transmission(self, tau, link_torque, link, tau_j, ddtheta, dt: float):
-        """:meth:`accelerations` into the given arrays (``dt``: see the kernel)."""
+        """`accelerations` into the given arrays (``dt``: see the kernel)."""
         plants = self.plants
         _transmission_kernel(
             self.theta,
@@ -688,7 +695,7 @@ class ArmSimulator:
 
     def _python_substep(self, link_tau: np.ndarray) -> np.ndarray:
         """One physics step under the link torques ``link_tau`` (N, n) through PyBullet's
-        Python functions: the joint states read after it (as :meth:`_joint_states`)."""
+        Python functions: the joint states read after it (as `_joint_states`)."""
         c, joints, bodies = self.client, self.joint_indices, self.bodies
         control, set_torques = p.TORQUE_CONTROL, p.setJointMotorControlArray
         if len(bodies) == 1:
@@ -712,8 +719,9 @@ class ArmSimulator:
     def link_acceleration_and_forces(
         self, tau: np.ndarray, link_torque: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """(:meth:`link_acceleration`, the noise-free accelerometer readings of eq. (9) at
-        it, (N, 3 n_sensors), or None for model (2), whose q'' comes with its torques):
+        """(q'' as [`link_acceleration`][elastic_gym.envs.simulator.ArmSimulator.link_acceleration],
+        the noise-free accelerometer readings of eq. (9) at it, (N, 3 n_sensors), or None for
+        model (2), whose q'' comes with its torques):
         q'' and the readings in one compiled call where they can be."""
         plants = self.plants
         if plants.has_coupling or not (self._elastic or plants.has_friction):

@@ -59,11 +59,12 @@ class Task(ABC):
 
     def compiled_arguments(self) -> tuple[tuple | None, tuple | None] | None:
         """For compiled callers (the batch's control period): the ``arguments`` of
-        :func:`open_loop_torque_kernel` (None: no open-loop torque) and of
-        :func:`reference_kernel` (None: the reference holds still during an episode), the
+        `open_loop_torque_kernel` (None: no open-loop torque) and of
+        `reference_kernel` (None: the reference holds still during an episode), the
         arrays a reset changes in place; or None for a task computed in Python only (the
         batch then steps it call by call). A subclass that overrides
-        :meth:`external_torque` or :meth:`reference` overrides this too."""
+        [`external_torque`][elastic_gym.envs.task_base.Task.external_torque] or
+        [`reference`][elastic_gym.envs.task_base.Task.reference] overrides this too."""
         return None
 
     def snapshot(self) -> dict:

@@ -45,7 +45,8 @@ from elastic_gym.validation import (
 
 
 class RegulationOptions(StrictModel):
-    """Options of :class:`RegulationTask` (see it); the lengths are checked by the task."""
+    """Options of [`RegulationTask`][elastic_gym.envs.tasks.RegulationTask] (see it); the lengths
+    are checked by the task."""
 
     goal: FiniteNumbers | None = None
     start: FiniteNumbers | None = None
@@ -53,7 +54,7 @@ class RegulationOptions(StrictModel):
 
 
 class TrackingOptions(StrictModel):
-    """Options of :class:`TrackingTask` (see it)."""
+    """Options of [`TrackingTask`][elastic_gym.envs.tasks.TrackingTask] (see it)."""
 
     waypoints: Annotated[tuple[tuple[Finite, ...], ...], Field(min_length=1)] | None = None
     n_moves: Annotated[int, Field(strict=True, ge=1)] = 2
@@ -64,7 +65,7 @@ class TrackingOptions(StrictModel):
 
 
 class ExcitationOptions(StrictModel):
-    """Options of :class:`ExcitationTask` (see it)."""
+    """Options of [`ExcitationTask`][elastic_gym.envs.tasks.ExcitationTask] (see it)."""
 
     gravity_compensation: StrictBool = True
     amplitude: FiniteNumbers | None = None
@@ -168,7 +169,7 @@ class RegulationTask(Task):
 def _excitation_kernel(t, q, tau, frequency, phase, offset, amplitude, gravity):
     """tau = (offset + amplitude cos(frequency t + phase)) [+ g(q)] per arm and joint
     (``gravity`` None: no g(q); else the chain's
-    :meth:`~elastic_gym.model.SerialChain.gravity_arguments`)."""
+    [`gravity_arguments`][elastic_gym.model.chain.SerialChain.gravity_arguments])."""
     if gravity is None:
         tau[:] = 0.0
     else:
@@ -181,9 +182,11 @@ def _excitation_kernel(t, q, tau, frequency, phase, offset, amplitude, gravity):
 
 @njit(cache=True)
 def open_loop_torque_kernel(t, q, out, arguments):
-    """:meth:`Task.external_torque` at times ``t`` (N,) and configurations ``q`` into
+    """[`Task.external_torque`][elastic_gym.envs.task_base.Task.external_torque] at times ``t`` (N,)
+    and configurations ``q`` into
     ``out`` for compiled callers (``arguments``: the task's
-    :meth:`~Task.compiled_arguments`); returns False (``out`` untouched) for a
+    [`compiled_arguments`][elastic_gym.envs.task_base.Task.compiled_arguments]); returns False
+    (``out`` untouched) for a
     task without one."""
     if arguments is None:
         return False
@@ -193,9 +196,10 @@ def open_loop_torque_kernel(t, q, out, arguments):
 
 @njit(cache=True)
 def reference_kernel(t, arguments, out):
-    """:meth:`Task.reference` of every arm at times ``t`` (N,) into ``out`` (N, 5, n) for
-    compiled callers (``arguments``: the task's :meth:`~Task.compiled_arguments`; None:
-    a reference that holds still, ``out`` untouched)."""
+    """[`Task.reference`][elastic_gym.envs.task_base.Task.reference] of every arm at times ``t``
+    (N,) into ``out`` (N, 5, n) for compiled callers (``arguments``: the task's
+    [`compiled_arguments`][elastic_gym.envs.task_base.Task.compiled_arguments]; None: a
+    reference that holds still, ``out`` untouched)."""
     if arguments is not None:
         _rest_to_rest_kernel(t, *arguments, out)
 
@@ -247,7 +251,7 @@ class ExcitationTask(Task):
         return tau
 
     def _torque_arguments(self) -> tuple:
-        """:func:`_excitation_kernel`'s arguments after t, q and the output."""
+        """`_excitation_kernel`'s arguments after t, q and the output."""
         gravity = self.model.chain.gravity_arguments() if self.gravity_compensation else None
         return self._frequency, self._phase, self._offset, self._amplitude, gravity
 

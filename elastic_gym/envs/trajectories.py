@@ -33,7 +33,7 @@ _POWERS = np.arange(len(TIMING_LAW))
 
 def timing_coefficients(order: int) -> np.ndarray:
     """Rows 0..order of the timing law's derivative coefficients (ascending powers of u),
-    the ``coefficients`` of :func:`_rest_to_rest_kernel` (a view: not to be written)."""
+    the ``coefficients`` of `_rest_to_rest_kernel` (a view: not to be written)."""
     if order > MAX_ORDER:
         raise ValueError(f"order must be <= {MAX_ORDER}")
     return _COEFFICIENTS[: order + 1]
@@ -49,7 +49,7 @@ def timing_law(u: np.ndarray | float, order: int = 4) -> np.ndarray:
 
 @njit(cache=True)
 def _rest_to_rest_kernel(t, waypoints, move_time, dwell_time, coefficients, out):
-    """Per arm: the reference and its derivatives (see :func:`rest_to_rest`)."""
+    """Per arm: the reference and its derivatives (see `rest_to_rest`)."""
     N, n_points, n = waypoints.shape
     n_rows = out.shape[1]
     segment = move_time + dwell_time
@@ -108,7 +108,7 @@ def rest_to_rest(
 
 @dataclass(frozen=True)
 class RestToRestPath:
-    """One piecewise rest-to-rest motion through ``waypoints`` (see :func:`rest_to_rest`)."""
+    """One piecewise rest-to-rest motion through ``waypoints`` (see `rest_to_rest`)."""
 
     waypoints: np.ndarray  # (n_points, N)
     move_time: float

@@ -1,8 +1,8 @@
 """Many arms in one PyBullet world as a native Gymnasium vector env.
 
 ``gym.make_vec("elastic_gym/<Id>", num_envs=N, vectorization_mode="vector_entry_point")``
-returns an :class:`ArmVectorEnv`: N arms driven by the same
-:class:`~elastic_gym.envs.batch.ArmBatch` as the single env, every quantity on a leading
+returns an `ArmVectorEnv`: N arms driven by the same
+[`ArmBatch`][elastic_gym.envs.batch.ArmBatch] as the single env, every quantity on a leading
 arm axis.
 
 * Seeds: ``reset(seed=s)`` seeds arm i with s + i (a list: one seed per arm); arm i is bit
@@ -56,7 +56,7 @@ class ArmVectorEnv(VectorEnv):
         max_episode_steps: optional limit in control periods (``gym.make_vec`` passes the
             id's limit); ``episode_time`` (s) is the env's own limit.
         render_mode: ``"rgb_array"`` (one image per arm) or None.
-        **kwargs: the options of :class:`~elastic_gym.envs.batch.ArmBatch`.
+        **kwargs: the options of [`ArmBatch`][elastic_gym.envs.batch.ArmBatch].
     """
 
     # replaced per instance in __init__ (gymnasium declares metadata per instance)

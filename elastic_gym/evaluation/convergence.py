@@ -10,7 +10,7 @@ control refines it further where the error needs). A metric m at the physics ste
 (refinement r = 8, tolerance 0.2 by default). ``floor`` is the resolution below which
 differences carry no information: overshoot below ``OVERSHOOT_FLOOR`` %, settling times
 within one control period, residual torsion oscillation within one count of the default
-motor encoders. :func:`check_convergence` runs each planned run at its own step and at
+motor encoders. `check_convergence` runs each planned run at its own step and at
 1/r of it (same seed) and returns one row per run and metric.
 """
 
@@ -120,7 +120,7 @@ def check_convergence(
 ) -> list[dict]:
     """Run every run of ``scenario`` at its physics step and at 1/``refinement`` of it.
 
-    Returns :func:`compare_results` rows; ``all(row["converged"] for row in rows)`` is
+    Returns `compare_results` rows; ``all(row["converged"] for row in rows)`` is
     the verdict for the whole grid.
     """
     checked_count(refinement, "refinement", 2)

@@ -6,7 +6,7 @@ over seeds at each magnitude, a shaded band from the smallest to the largest see
 nominal runs at the sweep's nominal magnitude (on a log axis a nominal of 0 is drawn
 as a dotted horizontal line instead), and an ``x`` at the top of the panel where a
 loop is unstable (a seed's run ended early, see
-:mod:`~elastic_gym.evaluation.sweeps`); its line is broken there. Metrics:
+[`sweeps`][elastic_gym.evaluation.sweeps]); its line is broken there. Metrics:
 ``track_rms`` for every loop, ``est_rms_q`` and ``est_rms_dq`` (after the
 observer's initial transient) for the loops whose state comes from an observer. The
 legend sits outside the panels.

@@ -2,8 +2,8 @@
 
 A parameter is a dotted path into the env kwargs; its magnitudes are listed (``values``)
 or spaced over a ``range`` (``num`` points, ``log: true`` for geometric spacing). A
-:class:`Sweep` also states the ``nominal`` magnitude, the one the scenario's runs as
-given have (:mod:`~elastic_gym.evaluation.scenario`).
+`Sweep` also states the ``nominal`` magnitude, the one the scenario's runs as
+given have ([`scenario`][elastic_gym.evaluation.scenario]).
 """
 
 from __future__ import annotations

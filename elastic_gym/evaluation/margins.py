@@ -1,12 +1,13 @@
 """Robustness margins of every loop along every sweep.
 
-For a :class:`~elastic_gym.evaluation.sweeps.SweepCurve` and a criterion, walk away from
+For a [`SweepCurve`][elastic_gym.evaluation.sweeps.SweepCurve] and a criterion, walk away from
 the nominal magnitude on each side, in order; a magnitude *passes* when the point is
 stable (every seed completed) and the metric's mean over seeds is at most ``FACTOR`` (2)
 times its nominal value. The margin on a side is the largest magnitude reached before the
 first failure. Criteria: ``tracking`` (``track_rms``, every loop) and ``estimation``
-(``est_rms_q`` and ``est_rms_dq``, the loops on an observer). :func:`margin_rows` gives
-one row per context, loop, sweep and criterion (the CSV); :func:`margins_markdown` one
+(``est_rms_q`` and ``est_rms_dq``, the loops on an observer). `margin_rows` gives
+one row per context, loop, sweep and criterion (the CSV);
+[`margins_markdown`][elastic_gym.evaluation.margins.margins_markdown] one
 table per context and criterion.
 """
 
@@ -103,7 +104,8 @@ def applies(curve: SweepCurve, criterion: str) -> bool:
 
 
 def margin_rows(curves: Sequence[SweepCurve]) -> list[dict]:
-    """Margin rows of every curve and criterion that applies (:func:`applies`)."""
+    """Margin rows of every curve and criterion that applies
+    ([`applies`][elastic_gym.evaluation.margins.applies])."""
     return [
         curve_margin(curve, criterion)
         for criterion in CRITERIA

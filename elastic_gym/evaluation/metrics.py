@@ -9,7 +9,7 @@ moving less than ``MIN_AMPLITUDE`` not scored; the largest over the moves);
 ``torque_rms`` (N m); ``est_rms_<block>`` per block of the state from
 ``ESTIMATION_TRANSIENT`` on (the observer's steady error); ``sim_wall_ratio``. A run that
 ends early keeps the metrics of the samples recorded until then.
-:func:`compute_metrics` states each definition.
+`compute_metrics` states each definition.
 """
 
 from __future__ import annotations
@@ -197,7 +197,7 @@ def residual_torsion(series: TimeSeries) -> float:
 
 def compute_metrics(series: TimeSeries, tracking: bool = True) -> dict[str, float]:
     """All metrics of one run (see module docstring); NaN where not applicable: the
-    one-arm case of :func:`compute_arm_metrics`."""
+    one-arm case of `compute_arm_metrics`."""
     return compute_arm_metrics(ArmSeries.of(series), tracking)[0]
 
 
@@ -205,7 +205,8 @@ def _window_rms(x: np.ndarray, starts: np.ndarray, stops: np.ndarray) -> np.ndar
     """Per arm i: sqrt(mean over k in [starts[i], stops[i]) of |x_k,i|^2) (NaN for no
     samples); x (K, N, d). The arms with the same window are summed together, each row
     alone and contiguous, so an arm's value is the same bit for bit whatever arms share
-    its series (and equal to :func:`rms_norm` of its own samples)."""
+    its series
+    (and equal to [`rms_norm`][elastic_gym.evaluation.metrics.rms_norm] of its own samples)."""
     squares = np.sum(x**2, axis=2).T  # (N, K)
     out = np.full(len(starts), np.nan)
     for start, stop in {(int(a), int(b)) for a, b in zip(starts, stops, strict=True)}:

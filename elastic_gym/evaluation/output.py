@@ -3,13 +3,13 @@
 A comparison writes ``runs.csv``, ``summary.csv``, ``summary.md``, ``scenario.yaml``
 and ``plots/*.png`` (a sweep: also ``margins.csv``, ``margins.md`` and ``curves/*.png``)
 in its folder, and nothing elsewhere. Before any run,
-:func:`check_output_folder` refuses a folder that is a file, that cannot be written,
+`check_output_folder` refuses a folder that is a file, that cannot be written,
 or that holds the results of an earlier comparison (old figures would stay beside the
-new ones) unless ``overwrite`` is given; :func:`clear_results` then removes those
-files (only those). :class:`RunsCsv` writes ``runs.csv`` row by row as runs finish,
+new ones) unless ``overwrite`` is given; `clear_results` then removes those
+files (only those). `RunsCsv` writes ``runs.csv`` row by row as runs finish,
 so that an interrupted or crashed comparison keeps every finished run on disk, and
 never leaves a partial file: what is rewritten is written beside and renamed over
-(:func:`write_atomic`), so a full disk costs at most the rows it could not take.
+(`write_atomic`), so a full disk costs at most the rows it could not take.
 """
 
 from __future__ import annotations
@@ -124,9 +124,10 @@ class RunsCsv:
 
     A row with a column not seen before (the diagnostics of another observer) writes
     the file anew with the wider header, beside the old one, and renames it over it
-    (:func:`write_atomic`); :meth:`finish` does the same in run order. So the file on
+    (`write_atomic`); [`finish`][elastic_gym.evaluation.report.Report.finish] does the same in run
+    order. So the file on
     disk always holds complete rows. When a write fails (e.g. the disk is full), the
-    partial row is cut off again and :class:`ResultsWriteError` says how many rows the
+    partial row is cut off again and `ResultsWriteError` says how many rows the
     file keeps; later calls raise it again.
     """
 

@@ -70,9 +70,9 @@ class Estimate:
 
 @contextlib.contextmanager
 def _named(path: str | None) -> Iterator[None]:
-    """What the code inside raises for itself (:func:`~elastic_gym.runtime.parallel.user_failure`:
+    """What the code inside raises for itself (`user_failure`:
     any exception, ``sys.exit``, its own ``KeyboardInterrupt``) becomes a
-    :class:`ScenarioError` naming ``path``; with ``path`` None it only ends the code
+    `ScenarioError` naming ``path``; with ``path`` None it only ends the code
     inside (a sample's closed loop: the runs report it)."""
     try:
         yield
@@ -84,7 +84,7 @@ def _named(path: str | None) -> Iterator[None]:
 
 
 def _refuse(path: str, exc: BaseException, when: str = "") -> NoReturn:
-    """The refusal of a pre-run check: :class:`ScenarioError` naming ``path`` and what
+    """The refusal of a pre-run check: `ScenarioError` naming ``path`` and what
     failed (``when``: at which step, for a worker process that died)."""
     raise ScenarioError(path, f"{describe_failure(exc)}{' ' if when else ''}{when}") from None
 
@@ -100,7 +100,7 @@ def _combo(spec: RunSpec) -> tuple:
 
 @dataclass(frozen=True)
 class _EnvCheck:
-    """Job: the checks of env entry ``index`` that need no controller (:func:`preflight`)."""
+    """Job: the checks of env entry ``index`` that need no controller (`preflight`)."""
 
     scenario: Scenario
     index: int
@@ -137,7 +137,7 @@ _WHILE = {
 
 @dataclass(frozen=True)
 class _Sample:
-    """Job: build the world of ``group`` and time its closed loop (:func:`_stages`), up to
+    """Job: build the world of ``group`` and time its closed loop (`_stages`), up to
     the end of ``stage``."""
 
     group: RunGroup
@@ -207,9 +207,9 @@ def preflight(
     scenario: Scenario, groups: Sequence[RunGroup], workers: int, pool: WorkerPool | None = None
 ) -> Estimate:
     """Build everything the runs of ``groups`` need once (see the module docstring);
-    raise :class:`ScenarioError` on the first failure; return the estimated wall time.
+    raise `ScenarioError` on the first failure; return the estimated wall time.
 
-    The checks run in a worker process (:func:`~elastic_gym.runtime.parallel.for_each_result`
+    The checks run in a worker process (`for_each_result`
     with one worker; one of ``pool``, the runs' own workers, when given): user code that
     ends that process (``os._exit``, a signal, a segmentation fault) while its
     controller, observer or world is built is refused naming the field; in the closed
@@ -295,7 +295,7 @@ def _check_model_errors(env: gym.Env, scenario: Scenario) -> None:
 
 def _stages(group: RunGroup, paths: tuple[str, str], env_path: str) -> Generator[float, None, None]:
     """Build the world of ``group`` (errors name their field) and time ``SAMPLE_TIME`` of
-    its closed loop, yielding after each of :data:`STAGES` the CPU time of one of its runs
+    its closed loop, yielding after each of `STAGES` the CPU time of one of its runs
     so far (s): the setup's, then the whole run's."""
     controller_path, source_path = paths
     spec, n_arms = group.first, len(group)

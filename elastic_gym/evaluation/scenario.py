@@ -1,5 +1,5 @@
 """Comparison scenarios: the grid of runs, from a dict (YAML files and the shipped presets:
-:mod:`~elastic_gym.evaluation.presets`).
+`presets`).
 
 A scenario is the product
 
@@ -9,9 +9,9 @@ Axes combine as a product; ``sweeps`` become one more axis ``sweep`` whose value
 ``nominal`` (the runs as given) and ``<name>=<magnitude>``, so N sweeps of k magnitudes
 cost 1 + N k runs per loop. Comparisons run the RK4 at the control period (``integrator``;
 PyBullet's Euler at ``COMPARISON_PHYSICS_DT``). Loading validates the fields (the models of
-:mod:`~elastic_gym.evaluation.scenario_models`; their JSON Schema: ``elastic-gym schema
+[`scenario_models`][elastic_gym.evaluation.scenario_models]; their JSON Schema: ``elastic-gym schema
 scenario``, the docs' scenario file reference lists every field) and raises
-:class:`ScenarioError` (a ``ValueError``) naming the offending field, e.g.
+`ScenarioError` (a ``ValueError``) naming the offending field, e.g.
 ``controllers[1].name``; inapplicable observer/controller pairs are skipped at planning.
 """
 
@@ -141,10 +141,10 @@ Entries = Annotated[tuple[E, ...], Field(min_length=1), AfterValidator(unique_la
 
 
 class Scenario(StrictModel):
-    """A validated comparison grid; build it with :meth:`from_dict` or the loaders below.
+    """A validated comparison grid; build it with `from_dict` or the loaders below.
 
-    The fields are the YAML file's (module docstring); :attr:`axes` are the grid's axes
-    as (name, values), the ``sweep`` axis of :attr:`sweeps` last.
+    The fields are the YAML file's (module docstring); `axes` are the grid's axes
+    as (name, values), the ``sweep`` axis of [`sweeps`][elastic_gym.evaluation.sweeps] last.
     """
 
     model_config = ConfigDict(frozen=True)
@@ -307,7 +307,7 @@ def _validated(model: type[Scenario], data: Any, by_name: bool = False) -> Scena
 def resolve_class(cls: type | str, path: str, bases: tuple[type, ...] = (object,)) -> type:
     """A class given directly or as ``"module:Class"``, which imports the module (running
     its top-level code: a scenario file is code, load only trusted ones), a subclass of
-    one of ``bases``; :class:`ScenarioError` at ``path`` otherwise."""
+    one of ``bases``; `ScenarioError` at ``path`` otherwise."""
     module, _, attr = ("", "", "") if isinstance(cls, type) else cls.partition(":")
     problem = None
     try:

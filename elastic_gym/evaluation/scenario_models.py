@@ -2,9 +2,10 @@
 
 Each model states its fields, types, bounds and defaults; the custom validators check only
 what a schema cannot know: registry names, env kwargs against an env's constructor (the
-package's envs: :class:`~elastic_gym.envs.config.EnvKwargs`, the model the env validates
-them with), model errors against :class:`~elastic_gym.model.ParameterScaling`, and labels
-that must be unique. :class:`~elastic_gym.evaluation.scenario.Scenario` combines
+package's envs: [`EnvKwargs`][elastic_gym.envs.config.EnvKwargs], the model the env validates
+them with), model errors against [`ParameterScaling`][elastic_gym.model.ParameterScaling], and
+labels
+that must be unique. [`Scenario`][elastic_gym.evaluation.scenario.Scenario] combines
 them into the grid.
 """
 
@@ -131,14 +132,14 @@ def env_parameters(env_id: str) -> set[str]:
 
 def is_package_env(env_id: str) -> bool:
     """Whether ``env_id``'s constructor takes exactly the package envs' kwargs
-    (:class:`~elastic_gym.envs.config.EnvKwargs`)."""
+    ([`EnvKwargs`][elastic_gym.envs.config.EnvKwargs])."""
     return env_parameters(env_id) == set(EnvKwargs.model_fields)
 
 
 def check_env_kwargs(env_id: str, kwargs: Mapping, loc: tuple = ()) -> None:
     """Refuse kwargs that ``env_id``'s constructor does not take: validated by
-    :class:`~elastic_gym.envs.config.EnvKwargs` for an env of the package
-    (:func:`~elastic_gym.envs.config.checked_kwargs`), by the constructor's names
+    [`EnvKwargs`][elastic_gym.envs.config.EnvKwargs] for an env of the package
+    ([`checked_kwargs`][elastic_gym.envs.config.checked_kwargs]), by the constructor's names
     otherwise (``FieldError`` at ``loc``)."""
     if is_package_env(env_id):
         checked_kwargs(dict(kwargs), loc)
@@ -216,7 +217,7 @@ class _Named(BareEntry):
 
 class ControllerEntry(_Named):
     """A controller by registry name (or explicit ``class``, a
-    :class:`~elastic_gym.controllers.Controller` subclass or ``"module:Class"``) with its
+    [`Controller`][elastic_gym.controllers.Controller] subclass or ``"module:Class"``) with its
     constructor options; ``sources`` restricts the state sources (by label) it is paired
     with (``None``: all)."""
 
@@ -253,7 +254,8 @@ class Variation(StrictModel):
     """One value of an axis: env kwargs (robustness axes) or scaling factors (model errors).
 
     Written flat in YAML (``{label: heavy, plant_scaling: {link_mass: 1.3}}``); without a
-    label it is named by its values (:func:`format_values`)."""
+    label it is named by its values
+    ([`format_values`][elastic_gym.evaluation.scenario_models.format_values])."""
 
     model_config = ConfigDict(frozen=True)
     label: Label = ""  # made of the values

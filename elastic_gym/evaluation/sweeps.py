@@ -1,8 +1,9 @@
 """The runs of a scenario's one-at-a-time sweeps, arranged as curves.
 
-A scenario with ``sweeps`` (:class:`~elastic_gym.evaluation.magnitudes.Sweep`) has an axis
-``sweep`` whose values are ``nominal`` and ``<sweep>=<magnitude>``. :func:`sweep_curves`
-groups the result rows (one per run, as in ``runs.csv``) into one :class:`SweepCurve`
+A scenario with ``sweeps`` (`Sweep`) has an axis
+``sweep`` whose values are ``nominal`` and ``<sweep>=<magnitude>``. `sweep_curves`
+groups the result rows (one per run, as in ``runs.csv``) into one
+[`SweepCurve`][elastic_gym.evaluation.sweeps.SweepCurve]
 per context (env, the other axes, model error), loop (controller x state source) and
 sweep: its points are the sweep's magnitudes in increasing order, the nominal runs
 included at the sweep's ``nominal`` magnitude, each with the rows of its seeds.

@@ -1,4 +1,4 @@
-"""Nominal robot models: pinocchio (:class:`RobotModel`) and batched serial chains.
+"""Nominal robot models: pinocchio (`RobotModel`) and batched serial chains.
 
 ``RobotModel`` (``robot_model``) is the designer's model of one arm: pinocchio rigid-body
 dynamics of the URDF plus the elastic transmission. ``SerialChain`` (``chain``)

@@ -1,7 +1,7 @@
 """Batched kinematics and dynamics of a chain of revolute joints: N arms in one call.
 
-:class:`SerialChain` evaluates for N configurations at once what
-:class:`~elastic_gym.model.RobotModel` evaluates with pinocchio for one, from the same
+`SerialChain` evaluates for N configurations at once what
+[`RobotModel`][elastic_gym.model.RobotModel] evaluates with pinocchio for one, from the same
 pinocchio model: accelerometer readings f = R_WS^T (a_W - g_W) (De Luca et al., eq. (9)),
 the maps of eq. (10) (readings = T_A(q) q'' + W_A(q, q')), the link inertia M(q), the bias
 n(q, q') = C q' + g by recursive Newton-Euler, and the forward dynamics
@@ -9,7 +9,8 @@ n(q, q') = C q' + g by recursive Newton-Euler, and the forward dynamics
 complement). The loops over arms are compiled with numba; each arm's result depends only
 on its own inputs, computed by the same operations in the same order whatever N, so arm i
 of a batch is bit-identical to the same arm alone. A chain holds one parameter set for all
-arms or one per arm (:meth:`SerialChain.stack`: arms whose links differ).
+arms or one per arm
+([`SerialChain.stack`][elastic_gym.model.chain.SerialChain.stack]: arms whose links differ).
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ def _point_acceleration(acc, alpha, omega, r, out, tmp, tmp2):
 
 
 def _work_size(n: int) -> int:
-    """Size of the scratch buffer of a chain of n joints (see :func:`_workspace`)."""
+    """Size of the scratch buffer of a chain of n joints (see `_workspace`)."""
     return 9 + 9 + 3 * 5 + 9 + n * (9 + 3 * 5) + n * (3 + 9 + 3 * 3) + 9 + n + n * n + 2 * n
 
 
@@ -470,8 +471,9 @@ def _dynamics_kernel(mode, q, dq, ddq, tau, added_inertia, w, M_out, h_out, cons
 
 @njit(cache=True)
 def _gravity_kernel(q, h, packed):
-    """g(q) into h: :func:`_dynamics_kernel` in the ``_GRAVITY`` mode, its other arguments
-    in ``packed`` (:meth:`SerialChain.gravity_arguments`)."""
+    """g(q) into h: `_dynamics_kernel` in the ``_GRAVITY`` mode, its other arguments
+    in ``packed``
+    ([`SerialChain.gravity_arguments`][elastic_gym.model.chain.SerialChain.gravity_arguments])."""
     unused, w, constants = packed.values
     gravity = np.int64(_GRAVITY)  # int64 as from Python
     _dynamics_kernel(gravity, q, q, q, q, unused, w, unused, h, constants)
@@ -479,9 +481,9 @@ def _gravity_kernel(q, h, packed):
 
 @njit(cache=True)
 def forward_dynamics_kernel(q, dq, tau, added_inertia, ddq, packed):
-    """q'' of (M(q) + M_a) q'' + n(q, q') = tau into ``ddq``: :func:`_dynamics_kernel` in
+    """q'' of (M(q) + M_a) q'' + n(q, q') = tau into ``ddq``: `_dynamics_kernel` in
     the ``_FORWARD`` mode, its other arguments in ``packed``
-    (:meth:`SerialChain.forward_dynamics_arguments`)."""
+    ([`SerialChain.forward_dynamics_arguments`][elastic_gym.model.chain.SerialChain.forward_dynamics_arguments])."""
     unused, w, constants = packed.values
     forward = np.int64(_FORWARD)  # int64 as from Python
     _dynamics_kernel(forward, q, dq, q, tau, added_inertia, w, unused, ddq, constants)
@@ -489,8 +491,9 @@ def forward_dynamics_kernel(q, dq, tau, added_inertia, ddq, packed):
 
 @njit(cache=True)
 def specific_forces_kernel(q, dq, ddq, w, unused, forces, constants):
-    """The readings of eq. (9) at q'' into ``forces`` (:meth:`SerialChain.specific_forces`;
-    the other arguments as :meth:`SerialChain.dynamics_and_forces_arguments` gives them)."""
+    """The readings of eq. (9) at q'' into ``forces``
+    ([`SerialChain.specific_forces`][elastic_gym.model.chain.SerialChain.specific_forces];
+    the other arguments as `SerialChain.dynamics_and_forces_arguments` gives them)."""
     readings = np.int64(_FORCES)  # int64 as from Python
     _sensors_kernel(readings, q, dq, ddq, w, unused, forces, constants)
 
@@ -498,7 +501,7 @@ def specific_forces_kernel(q, dq, ddq, w, unused, forces, constants):
 @njit(cache=True)
 def _dynamics_and_forces_kernel(q, dq, tau, added_inertia, w, ddq, forces, constants):
     """Forward dynamics into ``ddq``, then the readings of eq. (9) at that q'' into
-    ``forces``: the two :class:`SerialChain` calls in one dispatch from Python."""
+    ``forces``: the two `SerialChain` calls in one dispatch from Python."""
     forward, readings = np.int64(_FORWARD), np.int64(_FORCES)  # int64 as from Python
     _dynamics_kernel(forward, q, dq, q, tau, added_inertia, w, added_inertia, ddq, constants)
     _sensors_kernel(readings, q, dq, ddq, w, added_inertia, forces, constants)
@@ -579,7 +582,7 @@ class SerialChain:
         return len(self._constants["mass"])
 
     def _kernel_constants(self) -> tuple[np.ndarray, ...]:
-        """The kernels' constants in their argument order (see :func:`_arm_params`)."""
+        """The kernels' constants in their argument order (see `_arm_params`)."""
         c = self._constants
         return (
             self._parent,
@@ -733,11 +736,11 @@ class SerialChain:
         return out
 
     def rnea_tangent(self, point: Triple, direction: Triple) -> tuple[np.ndarray, np.ndarray]:
-        """(tau, d tau): :meth:`rnea` at ``point`` = (q, q', q'') and its derivative along
+        """(tau, d tau): `rnea` at ``point`` = (q, q', q'') and its derivative along
         ``direction`` = (t_q, t_dq, t_ddq), (N, n) arrays each.
 
         Complex step: d tau = Im rnea(q + i h t_q, q' + i h t_dq, q'' + i h t_ddq) / h,
-        exact to rounding (no subtraction; truncation O(h^2), h = :data:`COMPLEX_STEP`).
+        exact to rounding (no subtraction; truncation O(h^2), h = `COMPLEX_STEP`).
         Along a trajectory the direction (q', q'', q^(3)) gives the time derivative.
         """
         return self._complex_step(_RNEA, self.n, point, direction)
@@ -745,12 +748,17 @@ class SerialChain:
     def specific_forces_tangent(
         self, point: Triple, direction: Triple
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(readings, d readings): :meth:`specific_forces` at ``point`` and its derivative
-        along ``direction``, by the complex step of :meth:`rnea_tangent`."""
+        """(readings, d readings):
+        [`specific_forces`][elastic_gym.model.chain.SerialChain.specific_forces] at ``point`` and
+        its derivative
+        along ``direction``, by the complex step of
+        [`rnea_tangent`][elastic_gym.model.chain.SerialChain.rnea_tangent]."""
         return self._complex_step(_FORCES, 3 * self.n_sensors, point, direction)
 
     def _complex_step(self, mode: int, width: int, point: Triple, direction: Triple):
-        """:meth:`rnea` (``mode`` ``_RNEA``) or :meth:`specific_forces` (``_FORCES``) at the
+        """`rnea` (``mode`` ``_RNEA``) or
+        [`specific_forces`][elastic_gym.model.chain.SerialChain.specific_forces] (``_FORCES``) at
+        the
         complex point + i h direction."""
         n = self.n
         q, dq, ddq = (
@@ -791,15 +799,16 @@ class SerialChain:
         return h
 
     def gravity_arguments(self) -> Packed:
-        """The arguments of :func:`_gravity_kernel` after q and h (packed once per chain),
+        """The arguments of `_gravity_kernel` after q and h (packed once per chain),
         for compiled callers composing g(q) with their own loops."""
         if self._packed is None:
             self._packed = Packed((self._no_inertia, self._work, self._kernel_constants()))
         return self._packed
 
     def forward_dynamics_arguments(self) -> Packed:
-        """The arguments of :func:`forward_dynamics_kernel` after q'' (the same pack as
-        :meth:`gravity_arguments`), for compiled callers (the simulator's model (2))."""
+        """The arguments of `forward_dynamics_kernel` after q'' (the same pack as
+        [`gravity_arguments`][elastic_gym.model.chain.SerialChain.gravity_arguments]), for compiled
+        callers (the simulator's model (2))."""
         return self.gravity_arguments()
 
     def forward_dynamics(
@@ -826,8 +835,9 @@ class SerialChain:
     def forward_dynamics_and_forces(
         self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(:meth:`forward_dynamics` (no added inertia), :meth:`specific_forces` at that
-        q''), equal to the two calls bit for bit, in one compiled call."""
+        """([`forward_dynamics`][elastic_gym.model.chain.SerialChain.forward_dynamics] (no
+        added inertia), [`specific_forces`][elastic_gym.model.chain.SerialChain.specific_forces]
+        at that q''), equal to the two calls bit for bit, in one compiled call."""
         n = self.n
         q, dq, tau = _batch(q, n, "q"), _batch(dq, n, "dq"), _batch(tau, n, "tau")
         self._rows(q)
@@ -837,7 +847,7 @@ class SerialChain:
         return ddq, forces
 
     def dynamics_and_forces_arguments(self, ddq: np.ndarray, forces: np.ndarray) -> tuple:
-        """The arguments of :func:`_dynamics_and_forces_kernel` after (q, q', tau), writing
+        """The arguments of `_dynamics_and_forces_kernel` after (q, q', tau), writing
         into ``ddq`` and ``forces``: for compiled callers composing it with their own
         kernels (the simulator's transmission)."""
         return (self._no_inertia, self._work, ddq, forces, self._kernel_constants())

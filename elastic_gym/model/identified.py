@@ -1,6 +1,6 @@
 """An identified model file: the parameters `elastic-gym identify` fitted to a sensor log.
 
-The file is YAML validated by :class:`IdentifiedModel` (JSON Schema ``model``
+The file is YAML validated by `IdentifiedModel` (JSON Schema ``model``
 shipped with the package's other schemas). Per joint it holds the stiffness K, spring
 damping D, motor inertia B of De Luca et al. (2007), eq. (1), a mass scale of the link the
 joint moves (mass and rotational inertia scaled together, the centre of mass kept: the
@@ -8,7 +8,8 @@ joint moves (mass and rotational inertia scaled together, the centre of mass kep
 d(q') = F_v q' + F_c tanh(q' / v_s); per accelerometer its bias; each estimate with its
 standard error and nominal value; the fit's summary; the base inertial parameters.
 
-:meth:`IdentifiedModel.robot_model` turns it into the `RobotModel` that observers and
+[`IdentifiedModel.robot_model`][elastic_gym.model.identified.IdentifiedModel.robot_model] turns it
+into the `RobotModel` that observers and
 controllers build on, from the nominal model of the same robot (its kinematics and
 accelerometer mounts are kept): ``compare``, ``benchmark`` and ``train`` use it where they
 use the nominal model (the simulated plant stays what it is).

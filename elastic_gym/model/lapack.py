@@ -2,8 +2,8 @@
 
 ``np.linalg.svd`` in numba asks LAPACK's ``dgesdd`` for its optimal workspace, allocates
 it and frees it at every call: for the 6 x 2 maps of eq. (10) that is about 60 % of the
-call. :func:`thin_svd` calls the same routine (SciPy's ``cython_lapack.dgesdd``, which
-numba calls too) with the same arguments and the workspace of :func:`svd_workspace`,
+call. `thin_svd` calls the same routine (SciPy's ``cython_lapack.dgesdd``, which
+numba calls too) with the same arguments and the workspace of `svd_workspace`,
 queried once per shape: its results are bit for bit those of ``np.linalg.svd(T,
 full_matrices=False)``.
 """

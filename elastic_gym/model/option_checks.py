@@ -84,7 +84,7 @@ def square_matrix(
     psd_tolerance: float | None = None,
     definite: bool = False,
 ) -> np.ndarray:
-    """The (size, size) matrix of a :class:`Matrix` option (``options.<name>``) from its
+    """The (size, size) matrix of a `Matrix` option (``options.<name>``) from its
     compact forms: a scalar (times the identity), one value per block of ``blocks`` (each
     repeated over its block), the diagonal, or the matrix itself.
 

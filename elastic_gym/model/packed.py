@@ -2,8 +2,8 @@
 
 numba unboxes every array of a call's arguments (tuples recursively) at every dispatch,
 about 60 ns each: the batch core's end of a control period passed some 65, its
-substep's transmission call twenty, g(q) of a :class:`~elastic_gym.model.SerialChain`
-twenty. A :class:`Packed` holds such a tuple on numba's heap: a kernel taking it unboxes
+substep's transmission call twenty, g(q) of a [`SerialChain`][elastic_gym.model.SerialChain]
+twenty. A `Packed` holds such a tuple on numba's heap: a kernel taking it unboxes
 one pointer and reads ``packed.values``. The arrays are shared, not copied: changes made
 in place on either side are seen by the other; an array rebound in Python is not (pack
 again).
@@ -17,7 +17,7 @@ from numba.experimental import structref
 
 @structref.register
 class PackedType(types.StructRef):
-    """The numba type of a :class:`Packed` (one per type of the packed tuple)."""
+    """The numba type of a `Packed` (one per type of the packed tuple)."""
 
     def preprocess_fields(self, fields):
         return tuple((name, types.unliteral(typ)) for name, typ in fields)

@@ -8,8 +8,9 @@ tau_J = K (theta - q) + D (theta' - q') and the state x = (theta, q, theta', q')
 
 Accelerometer maps, eqs. (8)-(10): a sensor's specific force in its own frame is
 T_A(q) q'' + W_A(q, q'), T_A = R_WS^T J_lin(q), W_A = R_WS^T (Jdot q' - g_W). Observers and
-controllers get a :class:`RobotModel` from ``env.unwrapped.model`` and never touch the
-simulator; :meth:`RobotModel.perturbed` gives a copy with parameter errors.
+controllers get a `RobotModel` from ``env.unwrapped.model`` and never touch the
+simulator; [`RobotModel.perturbed`][elastic_gym.model.robot_model.RobotModel.perturbed] gives a copy
+with parameter errors.
 """
 
 from __future__ import annotations
@@ -36,7 +37,9 @@ class ParameterScaling(ConfigModel):
     """Multiplicative parameter changes (1.0 = nominal).
 
     Used for the simulated plant (``env`` kwarg ``plant_scaling``) and for model
-    copies with errors (:meth:`RobotModel.perturbed`). ``link_mass`` scales the mass
+    copies with errors
+    ([`RobotModel.perturbed`][elastic_gym.model.robot_model.RobotModel.perturbed]). ``link_mass``
+    scales the mass
     and rotational inertia of every link together (a uniformly denser link, centre of
     mass unchanged); ``link_inertia`` scales only the rotational inertia. Scalars or
     one value per joint (the links moved by that joint), each > 0 (``damping`` and
@@ -60,10 +63,11 @@ class ParameterScaling(ConfigModel):
 
 
 class RobotModel:
-    """Pinocchio model of a :class:`RobotSpec` with its elastic transmission.
+    """Pinocchio model of a `RobotSpec` with its elastic transmission.
 
     All arrays are float64. Methods are not thread-safe (one pinocchio ``Data``
-    per instance); use :meth:`copy` to give each user its own. ``added_friction``: link
+    per instance); use [`copy`][elastic_gym.model.robot_model.RobotModel.copy] to give each user its
+    own. ``added_friction``: link
     friction beyond the spec's (a simulated plant's unmodelled friction), added to the
     spec's friction after ``scaling``.
     """
@@ -171,7 +175,7 @@ class RobotModel:
 
     @property
     def chain(self) -> SerialChain:
-        """The same model for N arms at once (:class:`SerialChain`), built on first use."""
+        """The same model for N arms at once (`SerialChain`), built on first use."""
         if self._chain is None:
             self._chain = SerialChain(self.pin_model, self.sensor_frame_ids)
         return self._chain
@@ -225,7 +229,7 @@ class RobotModel:
     def rnea_derivatives(
         self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(d tau/d q, d tau/d q', M) of :meth:`rnea`."""
+        """(d tau/d q, d tau/d q', M) of `rnea`."""
         dtau_dq, dtau_dv, M = pin.computeRNEADerivatives(self.pin_model, self.data, q, dq, ddq)
         return dtau_dq.copy(), dtau_dv.copy(), self._symmetric(M)
 
@@ -236,7 +240,8 @@ class RobotModel:
     def aba_derivatives(
         self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(d q''/d q, d q''/d q', M^-1) of :meth:`aba`."""
+        """(d q''/d q, d q''/d q', M^-1) of
+        [`aba`][elastic_gym.model.robot_model.RobotModel.aba]."""
         ddq_dq, ddq_dv, Minv = pin.computeABADerivatives(self.pin_model, self.data, q, dq, tau)
         return ddq_dq.copy(), ddq_dv.copy(), self._symmetric(Minv)
 
@@ -291,8 +296,9 @@ class RobotModel:
     ) -> np.ndarray:
         """Link position of the arm at rest for motor position theta.
 
-        Solves theta = q + K^-1 g(q) (the inverse of :meth:`static_motor_position`) by the
-        fixed-point iteration q <- theta - K^-1 g(q), a contraction since |K^-1 dg/dq| << 1.
+        Solves theta = q + K^-1 g(q) (the inverse of
+        [`static_motor_position`][elastic_gym.model.robot_model.RobotModel.static_motor_position])
+        by the fixed-point iteration q <- theta - K^-1 g(q), a contraction since |K^-1 dg/dq| << 1.
         This is how an observer initialises q from the motor encoders with only the gravity
         vector known (De Luca et al., end of Sec. IV). ``theta`` (and ``initial``) may also
         be (N, n) arrays of several arms; each row iterates until its own convergence, so a

@@ -1,6 +1,6 @@
 """State observers and the wrappers that put them in the loop.
 
-Observers by name (:func:`make_observer`): ``deluca`` (accelerometer-based, eq. (12)),
+Observers by name (`make_observer`): ``deluca`` (accelerometer-based, eq. (12)),
 ``deluca-ideal`` (Theorem 1/2 with the ideal link acceleration), ``ekf``,
 ``reduced-order`` (Cristofaro & De Luca), ``solsona-puleston``, ``nicosia-tomei``,
 ``finite-difference`` and ``true`` (oracle).

@@ -1,11 +1,11 @@
 """The observer interface shared by every state estimator of the suite.
 
 An observer sees what a real controller would: the sensor observation, the torque
-actually applied and its nominal :class:`~elastic_gym.model.RobotModel`; it never imports
+actually applied and its nominal [`RobotModel`][elastic_gym.model.RobotModel]; it never imports
 the simulator. State layout (De Luca et al., eq. (3)): elastic arms x = (theta, q,
 theta', q'), rigid arms x = (q, q'). Non-implementable observers (the oracle, Theorem 1
 with the ideal link acceleration) declare the ground-truth items they need in
-``privileged``; the wrappers add exactly those. :class:`BatchedObserver` subclasses
+``privileged``; the wrappers add exactly those. `BatchedObserver` subclasses
 estimate N arms at once (``reset_arms`` / ``update_arms``); their ``reset`` / ``update``
 are the case N = 1 of the same code.
 """

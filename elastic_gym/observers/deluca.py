@@ -7,7 +7,7 @@ from accelerometers (eqs. (10)-(12)). Eqs. (6), (7) and (12) as one linear syste
     G = [0; 0; B^-1; 0],   H = [0; 0; -B^-1 S^T; I]
 
 (-B^-1 S^T: Theorem 2, model (2); ``use_coupling=False`` drops it), with the closed-form
-gains of Remark 3 (:mod:`~elastic_gym.observers.deluca_gains`). Discretized exactly with
+gains of Remark 3 (`deluca_gains`). Discretized exactly with
 the torque held and theta, q'' linear between samples (first-order hold); eq. (11),
 q'' = T_A^+(xi_2) (y2' - W_A(xi_2, xi_4)), by a predictor-corrector with a damped
 least-squares T_A^+ (``diagnostics``: cond(T_A), sigma_min, ``near_singular``).
@@ -149,11 +149,12 @@ def directions_per_joint(model: RobotModel) -> bool:
 
 
 PoleRate = PerSample(MAX_POLE_STEP, " (faster poles overflow the matrix exponential)")
-"""The bound |lambda| dt <= :data:`MAX_POLE_STEP` of the poles (or of the bandwidth)."""
+"""The bound |lambda| dt <= `MAX_POLE_STEP` of the poles (or of the bandwidth)."""
 
 
 class DeLucaOptions(StrictModel):
-    """The plain-data options of :class:`DeLucaObserver` (see its arguments); the poles
+    """The plain-data options of [`DeLucaObserver`][elastic_gym.observers.deluca.DeLucaObserver]
+    (see its arguments); the poles
     and the per-joint bandwidth are checked against the robot by the observer, their
     magnitude against ``dt`` and the accelerometers against the robot by the validation
     context."""

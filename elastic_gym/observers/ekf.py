@@ -5,7 +5,7 @@ models (1)/(2) of De Luca et al. State x = (theta, q, theta', q'), input tau hel
 the period T.
 
 * Dynamics x' = f(x, u) + G(x) w, eq. (4), by the compiled forward dynamics of the model's
-  :class:`~elastic_gym.model.SerialChain`; w a torque noise (density Q) on the motor and
+  [`SerialChain`][elastic_gym.model.SerialChain]; w a torque noise (density Q) on the motor and
   link equations, through the inverse of the complete inertia [[B, S^T], [S, M(q)]].
 * Jacobian F = df/dx, eq. (8), from complex-step tangents of the compiled RNEA.
 * Prediction: the mean by RK4 (``substeps``), the covariance by the discrete eq. (15),
@@ -42,7 +42,8 @@ DEFAULT_ALPHA = 1.0
 """Exponential data weighting alpha of eq. (15), 1/s."""
 DEFAULT_ACCELERATION_NOISE = (0.5, 2.0)
 """Per-sample acceleration uncertainty (rad/s^2) of the (motor, link) equations that the
-default torque-noise density Q stands for, see :func:`default_process_noise`."""
+default torque-noise density Q stands for, see
+[`default_process_noise`][elastic_gym.observers.ekf.default_process_noise]."""
 DEFAULT_INITIAL_STD = (1e-3, 0.05, 0.5, 1.0)
 """Standard deviations (rad, rad, rad/s, rad/s) of (theta, q, theta', q') in the default P0."""
 DEFAULT_ACCELEROMETER_STD = 0.05
@@ -54,14 +55,14 @@ or m/s^2; torque noise sqrt(Q / T) of 3e4 N m at 1 ms), far above anything physi
 these arms, and well below the magnitudes at which the covariance update loses positive
 definiteness or overflows."""
 MAX_STD = float(np.sqrt(MAX_VARIANCE))
-"""Largest standard deviation (or encoder quantum) option, from :data:`MAX_VARIANCE`."""
+"""Largest standard deviation (or encoder quantum) option, from `MAX_VARIANCE`."""
 MAX_SUBSTEPS = 100
 """Most RK4 steps per period: at T = 1 ms one step already keeps h * omega <= 0.6 for the
 stiffest elastic mode of the package (596 rad/s); more only multiply the cost."""
 PSD_TOLERANCE = 1e-12
 """Relative rounding a given full covariance may have below zero in its eigenvalues."""
 DISCOUNT = " (alpha above 1/dt discounts the past by more than e^2 per sample, eq. (15))"
-"""Why alpha is bounded by 1/dt (:class:`~elastic_gym.validation.PerSample`)."""
+"""Why alpha is bounded by 1/dt (`PerSample`)."""
 
 
 def has_sensors(model: RobotModel) -> bool:
@@ -71,18 +72,18 @@ def has_sensors(model: RobotModel) -> bool:
 
 # ----------------------------------------------------------------------------- options
 CovarianceValue = Annotated[Any, Matrix(MAX_VARIANCE)]
-"""A covariance option as given: finite entries of magnitude <= :data:`MAX_VARIANCE`
+"""A covariance option as given: finite entries of magnitude <= `MAX_VARIANCE`
 (larger ones overflow the filter's arithmetic); its form is checked by
-:func:`covariance_option`."""
+[`covariance_option`][elastic_gym.observers.ekf.covariance_option]."""
 
 
 def covariance_option(
     value: CovarianceValue, name: str, block_sizes: tuple[int, ...], definite: bool = False
 ) -> np.ndarray:
     """A symmetric positive semi-definite covariance from a compact option value (its
-    entries validated by :data:`CovarianceValue`): a scalar (the same variance everywhere),
+    entries validated by `CovarianceValue`): a scalar (the same variance everywhere),
     one variance per block (``len(block_sizes)`` values, each repeated over its block),
-    the full diagonal, or the full symmetric matrix (:func:`square_matrix`); positive
+    the full diagonal, or the full symmetric matrix (`square_matrix`); positive
     definite if ``definite``."""
     size = sum(block_sizes)
     return square_matrix(value, size, name, block_sizes, True, PSD_TOLERANCE, definite)
@@ -93,7 +94,7 @@ def default_process_noise(model: RobotModel, dt: float) -> np.ndarray:
 
     A white torque of density Q held over one period T has standard deviation
     sqrt(Q / T). The default makes it the torque that produces the accelerations
-    :data:`DEFAULT_ACCELERATION_NOISE` through B on the motors and through the diagonal
+    `DEFAULT_ACCELERATION_NOISE` through B on the motors and through the diagonal
     of M(q) at the middle of the robot's workspace on the links, so that light distal
     links are not swamped by a noise sized for the heavy proximal ones.
     """
@@ -130,7 +131,7 @@ def _unit_directions(m: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def _per_direction(values: np.ndarray, m: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(d/dq, d/dq') as (m, rows, n) Jacobians from tangents along :func:`_unit_directions`."""
+    """(d/dq, d/dq') as (m, rows, n) Jacobians from tangents along `_unit_directions`."""
     d = values.reshape(m, 2 * n, -1).transpose(0, 2, 1)
     return d[:, :, :n], d[:, :, n:]
 
@@ -145,7 +146,8 @@ class ElasticLinearization:
     dq''/dw_l = Ms^-1; then theta'' = B^-1 (tau + w_m - tau_J - S^T q''). q'' itself is the
     chain's Cholesky forward dynamics of Ms; d rnea/dq and d rnea/dq' are complex-step
     tangents of the compiled RNEA along the unit directions
-    (:meth:`~elastic_gym.model.SerialChain.rnea_tangent`). Constant blocks are computed once.
+    ([`rnea_tangent`][elastic_gym.model.chain.SerialChain.rnea_tangent]). Constant blocks are
+    computed once.
     """
 
     def __init__(self, model: RobotModel) -> None:
@@ -248,9 +250,12 @@ Deviation = Annotated[float, Field(strict=True, ge=0, le=MAX_STD, allow_inf_nan=
 
 
 class EKFOptions(StrictModel):
-    """The plain-data options of :class:`ExtendedKalmanFilter` (see its arguments); the
+    """The plain-data options of
+    [`ExtendedKalmanFilter`][elastic_gym.observers.ekf.ExtendedKalmanFilter] (see its arguments);
+    the
     forms of the covariances Q, R, P0 are checked against the robot's dimensions by
-    :func:`covariance_option`; alpha (<= 1/dt) and ``use_accelerometers`` against the
+    [`covariance_option`][elastic_gym.observers.ekf.covariance_option]; alpha (<= 1/dt) and
+    ``use_accelerometers`` against the
     validation context (the robot ``model`` and ``dt``)."""
 
     alpha: Annotated[NonNegativeFinite, PerSample(1.0, DISCOUNT)] = DEFAULT_ALPHA
@@ -281,25 +286,25 @@ class ExtendedKalmanFilter(BatchedObserver):
         dt: sampling period T (s).
         alpha: exponential data weighting of eq. (15), 1/s (0 <= alpha <= 1/dt; 0 is the
             plain EKF).
-            Default :data:`DEFAULT_ALPHA`.
+            Default `DEFAULT_ALPHA`.
         Q: torque-noise spectral density (N^2 m^2 s) of the (motor, link) equations, 2N x 2N
             (scalar, 2 block values, 2N diagonal entries or the matrix). Default
-            :func:`default_process_noise`.
+            [`default_process_noise`][elastic_gym.observers.ekf.default_process_noise].
         R: measurement covariance (encoders rad^2, then accelerometers (m/s^2)^2); same
             compact forms with blocks (encoders, accelerometers). Default from
             ``encoder_resolution``, ``encoder_noise_std`` and ``accelerometer_std``.
         P0: initial covariance, 4N x 4N (scalar, 4 block variances, diagonal or matrix).
-            Default: standard deviations :data:`DEFAULT_INITIAL_STD` per block.
+            Default: standard deviations `DEFAULT_INITIAL_STD` per block.
         use_accelerometers: also fuse the accelerometer readings (eq. (10)).
         encoder_resolution: motor encoder quantum (rad); default the robot's.
         encoder_noise_std: motor encoder noise (rad); default the robot's.
         accelerometer_std: accelerometer noise per axis (m/s^2);
-            default :data:`DEFAULT_ACCELEROMETER_STD`.
-        substeps: RK4 steps per period for the predicted mean (1 to :data:`MAX_SUBSTEPS`).
+            default `DEFAULT_ACCELEROMETER_STD`.
+        substeps: RK4 steps per period for the predicted mean (1 to `MAX_SUBSTEPS`).
 
     Every option is checked when the filter is built (finite, in range, shapes, Q and P0
     symmetric positive semi-definite, R positive definite, entries at most
-    :data:`MAX_VARIANCE`): ``TypeError`` / ``ValueError`` naming it.
+    `MAX_VARIANCE`): ``TypeError`` / ``ValueError`` naming it.
 
     The filter holds N arms (``reset_arms`` / ``update_arms``): every step is stacked
     linear algebra over the arms (batched Jacobians, one batched matrix exponential, one

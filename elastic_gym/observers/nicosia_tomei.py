@@ -6,7 +6,7 @@ With q_tilde = q - q_hat:
     z'     = M(q)^-1 [tau - C(q, z) z - F z - g(q) + kP q_tilde],
 
 with the measured q in M, C and g and F z the model's link friction, integrated by RK4
-over each control period (:mod:`~elastic_gym.observers.rigid_common`). The velocity
+over each control period (`rigid_common`). The velocity
 estimate is z (filtered twice), not q_hat' (which feeds the measurement noise through).
 Gains: kD = k0 of Cristofaro & De Luca eq. (12), so both observers are compared at equal
 output-injection gain; kP = kD^2 lambda_max(M) / 4 makes the heaviest mode of the

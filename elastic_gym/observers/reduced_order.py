@@ -6,7 +6,7 @@ Eq. (6) with the linear gain k(y) = k y of eq. (9):
     x_hat_2 = z + k y,
 
 integrated by RK4 over each control period. Constant gain: k0 of eq. (12) from the
-model's bounds (:class:`~elastic_gym.observers.rigid_common.RigidArmBounds`), or given.
+model's bounds (`RigidArmBounds`), or given.
 Hybrid gain (Sec. IV, ``hybrid=True``): k_r of eq. (16) with the logic state r of eq.
 (17). The paper's jump sets (15) leave no flow set for v_bar <= 2 eta and jump every
 sample (``jump_sets="literal"``); the default ``"hysteresis"`` lowers the gain only when

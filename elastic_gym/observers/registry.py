@@ -42,7 +42,7 @@ def state_sources() -> list[str]:
 
 
 def source_class(name: str) -> type[Observer]:
-    """The class of a state source name: :class:`RawSensors` for raw sensors, else the
+    """The class of a state source name: `RawSensors` for raw sensors, else the
     observer's (``ValueError`` naming the valid ones for an unknown name)."""
     lookup(dict.fromkeys(state_sources()), name, "state source")
     return RawSensors if name == SENSORS else observer_class(name)

@@ -1,12 +1,12 @@
 """What the rigid-arm velocity observers have in common.
 
-* :func:`rk4_period`: one control period of an observer ODE by RK4, the measured position
+* `rk4_period`: one control period of an observer ODE by RK4, the measured position
   interpolated linearly and the torque held.
-* :class:`RigidArmBounds`: the bounds of Cristofaro & De Luca (2022), c0(q) =
+* `RigidArmBounds`: the bounds of Cristofaro & De Luca (2022), c0(q) =
   max_{|u|=1} ||C(q, u)|| of eq. (4), lambda_min(M(q)) of eqs. (2)/(8) and the injection
   gain of eqs. (12)/(16), maximised over sampled configurations of joints 2..N (M and C do
   not depend on the first joint): a full grid or a deterministic Sobol sequence.
-* :class:`ScalarGainReducedObserver`: x_hat_2 = z + k y,
+* `ScalarGainReducedObserver`: x_hat_2 = z + k y,
   z' = M(y)^-1 [tau - C(y, x_hat_2) x_hat_2 - d(x_hat_2) - g(y)] - k x_hat_2, shared by
   Cristofaro & De Luca eq. (6) and Solsona & Puleston eqs. (6)-(7) (d the model's link
   friction).
@@ -33,17 +33,17 @@ SAMPLING_SEED = 0
 
 # ---------------------------------------------------------------- validation
 def positive_number(name: str, value: object) -> float:
-    """``value`` as a float > 0 (:func:`~elastic_gym.validation.option_value`)."""
+    """``value`` as a float > 0 (`option_value`)."""
     return option_value(name, value, PositiveFinite)
 
 
 def boolean_option(name: str, value: object) -> bool:
-    """``value`` if it is a bool (:func:`~elastic_gym.validation.option_value`)."""
+    """``value`` if it is a bool (`option_value`)."""
     return option_value(name, value, StrictBool)
 
 
 def positive_integer(name: str, value: object, minimum: int = 1) -> int:
-    """``value`` as an int >= ``minimum`` (:func:`~elastic_gym.validation.option_value`)."""
+    """``value`` as an int >= ``minimum`` (`option_value`)."""
     return option_value(name, value, Annotated[StrictInt, Field(ge=minimum)])
 
 
@@ -175,10 +175,10 @@ def viscous_lower_bound(model: RobotModel) -> float:
 class RigidArmBounds:
     """Model quantities on sampled configurations q_k (rows of ``configurations``).
 
-    ``tensors`` (K, N, N, N): C(q_k, u) = tensors[k] @ u (:func:`christoffel_tensor`);
+    ``tensors`` (K, N, N, N): C(q_k, u) = tensors[k] @ u (`christoffel_tensor`);
     ``inertia`` (K, N, N): M(q_k); ``c0``, ``lambda_min``, ``lambda_max`` (K,): c0(q_k) of
     eq. (4) and the extreme eigenvalues of M(q_k); ``friction_min``: lambda_min(F).
-    Build with :meth:`from_model`; :meth:`injection_gain` evaluates eqs. (12)/(16).
+    Build with `from_model`; `injection_gain` evaluates eqs. (12)/(16).
     """
 
     configurations: np.ndarray
@@ -222,7 +222,7 @@ class ScalarGainReducedObserver(Observer):
     """Reduced-order velocity observer with a scalar injection gain k (module docstring).
 
     The estimate is x = (y, x_hat_2): the measured position and the velocity estimate.
-    Subclasses choose the gain; :meth:`set_gain` changes it with the reset of z that
+    Subclasses choose the gain; `set_gain` changes it with the reset of z that
     keeps x_hat_2 = z + k y continuous.
 
     Args:

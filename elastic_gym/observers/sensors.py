@@ -1,9 +1,9 @@
 """Raw sensors as a state source: no estimate at all.
 
 A loop on raw sensors (a policy trained with ``state: sensors``) reads the encoder and
-accelerometer observation itself; :class:`RawSensors` is the state source of such a loop
+accelerometer observation itself; `RawSensors` is the state source of such a loop
 in the observers' interface, an estimate of dimension 0 that reads no ground truth, and
-:class:`~elastic_gym.observers.vector.SensorWrapper` keeps the sensor observation for it.
+[`SensorWrapper`][elastic_gym.observers.vector.SensorWrapper] keeps the sensor observation for it.
 """
 
 from __future__ import annotations

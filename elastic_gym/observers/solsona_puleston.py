@@ -8,8 +8,9 @@ Eqs. (6)-(7) with G = g0 I (Sec. 3):
 beta = H^-1 [-C(x_1, x_hat_2) x_hat_2 - f_r(x_hat_2)], u = H^-1 [tau - tau_g(x_1)], with
 the friction f_r of their arm (viscous + asymmetric Coulomb, smoothed as in
 ``model.link_friction``) in the model. The same ODE as Cristofaro & De Luca eq. (6) with
-k = g0 (:class:`~elastic_gym.observers.rigid_common.ScalarGainReducedObserver`). Their
-sufficient design criterion, eqs. (15)-(17), g0 > M: :func:`sufficient_gain_bound`.
+k = g0 (`ScalarGainReducedObserver`). Their
+sufficient design criterion, eqs. (15)-(17), g0 > M:
+[`sufficient_gain_bound`][elastic_gym.observers.solsona_puleston.sufficient_gain_bound].
 """
 
 from __future__ import annotations
@@ -70,7 +71,7 @@ def sufficient_gain_bound(
     convex in xi, so the sup over the ball is on the sphere |xi| = ``radius``:
     ``directions`` unit vectors, evenly spaced on the circle for N = 2, deterministic
     pseudo-random (plus the basis vectors) for N > 2; configurations as in
-    :class:`RigidArmBounds`. ``radius`` is r2 of eq. (14) or (21).
+    `RigidArmBounds`. ``radius`` is r2 of eq. (14) or (21).
     """
     radius = positive_number("radius", radius)
     include_viscous = boolean_option("include_viscous", include_viscous)

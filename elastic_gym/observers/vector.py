@@ -1,17 +1,17 @@
-"""Observer wrappers for vector envs: the twins of :mod:`elastic_gym.observers.wrappers`.
+"""Observer wrappers for vector envs: the twins of
+[`elastic_gym.observers.wrappers`][elastic_gym.observers.wrappers].
 
-``ObserverWrapper(envs, "deluca", **options)`` and ``TrueStateWrapper(envs)`` wrap a
-vector env of N arms as their single-env twins wrap one env: the observation becomes
-``{"state": (N, dim), "reference": (N, 2n)}`` and ``info`` gets ``estimate``,
-``true_state_vector``, ``estimation_error`` and ``observer_diagnostics`` with a leading
-arm axis. Observers with a batched form (:class:`~elastic_gym.observers.base.BatchedObserver`)
-estimate all arms at once; the others run one copy per arm (:class:`ObserverArray`).
-Each arm's estimate is the single-env observer's; an arm whose estimate is no longer
-finite (or, in an :class:`ObserverArray`, whose update failed numerically) ends its
-episode alone: ``info["termination_reason"]`` "non-finite state estimate" and
-``info["observer_error"]`` why (the numerical error, or the blocks of the estimate that
-are not finite). Autoresets are followed. ``SensorWrapper(envs)`` (raw sensors as the
-state source) keeps the sensor observation and adds the same ``info`` with an empty estimate.
+``ObserverWrapper(envs, "deluca", **options)`` and ``TrueStateWrapper(envs)`` wrap a vector env of N
+arms as their single-env twins wrap one env: the observation becomes ``{"state": (N, dim),
+"reference": (N, 2n)}`` and ``info`` gets ``estimate``, ``true_state_vector``, ``estimation_error``
+and ``observer_diagnostics`` with a leading arm axis. Observers with a batched form
+([`BatchedObserver`][elastic_gym.observers.base.BatchedObserver]) estimate all arms at once; the
+others run one copy per arm (`ObserverArray`). Each arm's estimate is the single-env observer's; an
+arm whose estimate is no longer finite (or, in an `ObserverArray`, whose update failed numerically)
+ends its episode alone: ``info["termination_reason"]`` "non-finite state estimate" and
+``info["observer_error"]`` why (the numerical error, or the blocks of the estimate that are not
+finite). Autoresets are followed. ``SensorWrapper(envs)`` (raw sensors as the state source) keeps
+the sensor observation and adds the same ``info`` with an empty estimate.
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
 
     Args:
         env: a vector env of elastic_gym arms (``vector_entry_point`` mode).
-        observer: an :class:`Observer` (copied: the wrapper owns its observers) or a
+        observer: an `Observer` (copied: the wrapper owns its observers) or a
             registry name (``"deluca"``, ``"ekf"``, ...).
         initial_estimate: optional initial state estimate of every arm (one vector, or
             one row per arm).
@@ -185,7 +185,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
 
     def _mark(self, info: dict, diverged: np.ndarray) -> None:
         """``info["termination_reason"]`` of the ``diverged`` arms: ``NON_FINITE_ESTIMATE``,
-        and ``info["observer_error"]``: why (:meth:`_update`), None for the other arms."""
+        and ``info["observer_error"]``: why (`_update`), None for the other arms."""
         reasons = info["termination_reason"].copy()
         reasons[diverged] = NON_FINITE_ESTIMATE
         errors = np.full(self.num_envs, None, dtype=object)
@@ -220,7 +220,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
     def _terminate(self, diverged: np.ndarray, terminated: np.ndarray, info: dict) -> np.ndarray:
         """End the episodes of the ``diverged`` arms (non-finite estimate): ``terminated``
         and ``info["termination_reason"]`` say so (``info["observer_error"]``: why, see
-        :meth:`_mark`), and the env resets them like any ended episode."""
+        `_mark`), and the env resets them like any ended episode."""
         if not len(diverged):
             return terminated
         terminated = terminated.copy()
@@ -249,7 +249,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
 
 
 class TrueStateWrapper(ObserverWrapper):
-    """The observation layout of :class:`ObserverWrapper`, filled with the ground truth."""
+    """The observation layout of `ObserverWrapper`, filled with the ground truth."""
 
     def __init__(self, env: VectorEnv) -> None:
         super().__init__(env, "true")
@@ -258,7 +258,7 @@ class TrueStateWrapper(ObserverWrapper):
 class SensorWrapper(ObserverWrapper):
     """Raw sensors as the state source: the sensor observation of every arm is kept as it
     is (no ``state``), and ``info`` gets the wrapper's entries with an empty estimate
-    (:class:`~elastic_gym.observers.sensors.RawSensors`), so that a loop on raw sensors
+    (`RawSensors`), so that a loop on raw sensors
     runs where a loop on an observer does; nothing of the ground truth is read."""
 
     def __init__(self, env: VectorEnv) -> None:

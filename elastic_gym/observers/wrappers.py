@@ -1,6 +1,7 @@
 """Wrappers that put a state estimate (or the truth) in place of the sensor observation
-of one env: the N = 1 case of the vector wrappers of :mod:`elastic_gym.observers.vector`
-(:mod:`elastic_gym.single_env`), whose module docstring documents the observation, the
+of one env: the N = 1 case of the vector wrappers of
+[`elastic_gym.observers.vector`][elastic_gym.observers.vector]
+(`elastic_gym.single_env`), whose module docstring documents the observation, the
 info and the termination on a non-finite estimate.
 
 ``ObserverWrapper(env, observer)`` turns the sensor observation into
@@ -29,7 +30,7 @@ class ObserverWrapper(SingleArmWrapper[vector.ObserverWrapper], gym.utils.Record
 
     Args:
         env: an elastic_gym env (possibly wrapped, sensor observation intact).
-        observer: an :class:`Observer` (the wrapper works on its own copy, ``.observer``)
+        observer: an `Observer` (the wrapper works on its own copy, ``.observer``)
             or a registry name (``"deluca"``, ``"ekf"``, ...).
         initial_estimate: optional initial state estimate passed to ``observer.reset``.
         model: model the observer is designed on when ``observer`` is a name
@@ -83,7 +84,7 @@ class ObserverWrapper(SingleArmWrapper[vector.ObserverWrapper], gym.utils.Record
 
 
 class TrueStateWrapper(ObserverWrapper):
-    """The observation layout of :class:`ObserverWrapper`, filled with the ground truth."""
+    """The observation layout of `ObserverWrapper`, filled with the ground truth."""
 
     def __init__(self, env: gym.Env) -> None:
         gym.utils.RecordConstructorArgs.__init__(self)

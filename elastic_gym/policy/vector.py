@@ -318,7 +318,7 @@ class CriticState(gym.vector.VectorWrapper):
     ``info["true_state"]``, the current step only, not frame-stacked) if ``state``, then,
     if ``plant``, the plant parameters the arm drew at its last reset
     (``info["plant"]`` of every randomized path, in the order of
-    [`PATHS`][elastic_gym.envs.randomization.PATHS]; 0 for an arm that does not randomize
+    `PATHS`; 0 for an arm that does not randomize
     a path). The first entries are the policy's observation, unchanged.
 
     Args:

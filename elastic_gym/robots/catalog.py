@@ -189,5 +189,5 @@ ROBOTS = {
 
 @cache
 def get_robot(name: str) -> RobotSpec:
-    """The spec of a robot by name (see :data:`ROBOTS`)."""
+    """The spec of a robot by name (see `ROBOTS`)."""
     return lookup(ROBOTS, name, "robot")()

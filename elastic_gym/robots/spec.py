@@ -1,6 +1,6 @@
 """Robot descriptions: URDF, elastic transmission parameters, sensors, limits.
 
-A :class:`RobotSpec` is pure data. The simulator (``envs``), the nominal model
+A `RobotSpec` is pure data. The simulator (``envs``), the nominal model
 (``model``), observers and controllers all read the same spec, so the plant and
 the designer's model are built from one source of truth.
 

@@ -1,13 +1,13 @@
 """One writer per output folder: an exclusive lock, and a check that the folder can be written.
 
-:func:`folder_lock` holds an exclusive ``fcntl.flock`` on the file :data:`LOCK_FILE` in
+`folder_lock` holds an exclusive ``fcntl.flock`` on the file `LOCK_FILE` in
 the folder for as long as a comparison or a training writes there; a second writer is
-refused at once (:class:`FolderLockedError`, naming the folder and the holder's pid).
+refused at once (`FolderLockedError`, naming the folder and the holder's pid).
 The kernel releases the lock when its holder ends, however it ends (``kill -9``
 included), so a lock file left behind never blocks a later run; a holder that ends
 normally removes it.
 
-:func:`check_writable` tells before any work whether files can be created where the
+`check_writable` tells before any work whether files can be created where the
 folder is (or would be created).
 """
 
@@ -148,7 +148,7 @@ def folder_lock(folder: str | Path) -> Iterator[Path]:
 
     The folder is created if needed, and removed again at the end if this call created
     it and it is left empty (a refused run leaves nothing behind); the lock file is
-    removed at the end. Raises :class:`FolderLockedError` at once if another process
+    removed at the end. Raises `FolderLockedError` at once if another process
     (or another ``folder_lock`` in this one) holds the lock.
     """
     folder = Path(folder)

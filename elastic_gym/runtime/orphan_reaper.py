@@ -1,15 +1,15 @@
 """End the Ray processes a parent started when the parent dies without shutting Ray down.
 
 A local Ray runtime started by ``ray.init`` (GCS, raylet, its agents and workers)
-outlives a parent killed with ``kill -9``. :func:`start_reaper` starts a small
+outlives a parent killed with ``kill -9``. `start_reaper` starts a small
 watcher process (this file run as a script with the parent's pid, in its own
-session) that every :data:`SNAPSHOT_PERIOD` seconds notes the parent's descendants
+session) that every `SNAPSHOT_PERIOD` seconds notes the parent's descendants
 whose command line is Ray's (``/ray/`` in it, or a ``ray::`` worker). When its stdin
 (a pipe only the parent holds) closes, the parent has ended; if the parent is really
 gone, the noted processes still alive (same pid and start time) are stopped with
 SIGSTOP together with every Ray process they started meanwhile, then killed with
 SIGKILL (an orphaned runtime has no one to shut down for). Linux only (it reads
-``/proc``); elsewhere :func:`start_reaper` does nothing.
+``/proc``); elsewhere `start_reaper` does nothing.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
 """Run independent jobs in parallel: local worker processes or a Ray cluster, one code path.
 
 Used by the comparison (one job = one episode) and multi-seed training (one job = one
-run). :func:`for_each_result` hands every result to the caller as soon as it arrives;
-:func:`run_jobs` collects them in order. Workers run single-threaded BLAS and torch
-(:func:`single_threaded`: competing threads slow small matrices by orders of magnitude).
-While jobs run, SIGINT and SIGTERM raise :class:`Interrupted` (a ``KeyboardInterrupt``)
+run). `for_each_result` hands every result to the caller as soon as it arrives;
+`run_jobs` collects them in order. Workers run single-threaded BLAS and torch
+(`single_threaded`: competing threads slow small matrices by orders of magnitude).
+While jobs run, SIGINT and SIGTERM raise `Interrupted` (a ``KeyboardInterrupt``)
 in the main thread: queued jobs are cancelled, the workers terminated (Ray shut down if
 this call started it), and the results delivered before stay with the caller. Workers
 ignore SIGINT: the parent alone decides what to stop.
@@ -50,7 +50,7 @@ class Interrupted(KeyboardInterrupt):
     @classmethod
     def of(cls, exc: KeyboardInterrupt, detail: str) -> Interrupted:
         """``exc`` with the detail of what was kept. A plain ``KeyboardInterrupt`` is the
-        last signal received inside :func:`interrupts_raised` (Ray turns the exception
+        last signal received inside `interrupts_raised` (Ray turns the exception
         our handler raises inside its waits into one), else SIGINT."""
         return cls(getattr(exc, "signum", _received or signal.SIGINT), detail)
 
@@ -63,7 +63,7 @@ def user_failure(exc: BaseException) -> bool:
     """Whether ``exc``, raised by a job's own code, is that job's failure rather than a
     reason to stop everything: any ``Exception``, ``SystemExit`` (``sys.exit()`` in a
     user's code) and a ``KeyboardInterrupt`` raised by the code itself; not the
-    :class:`Interrupted` of a real SIGINT/SIGTERM."""
+    `Interrupted` of a real SIGINT/SIGTERM."""
     return isinstance(exc, (Exception, SystemExit)) or (
         isinstance(exc, KeyboardInterrupt) and not isinstance(exc, Interrupted)
     )
@@ -71,7 +71,7 @@ def user_failure(exc: BaseException) -> bool:
 
 def with_detail(exc: BaseException, detail: str) -> BaseException:
     """What to raise once a caller has cleaned up after ``exc`` and can say what it kept:
-    an :class:`Interrupted` (from any ``KeyboardInterrupt``) or a ``RuntimeError``
+    an `Interrupted` (from any ``KeyboardInterrupt``) or a ``RuntimeError``
     ``"<exc>; <detail>"`` (from an ``Exception``, chained), else ``exc`` itself."""
     if isinstance(exc, KeyboardInterrupt):
         replacement: BaseException = Interrupted.of(exc, detail)
@@ -98,7 +98,7 @@ def _raise_interrupted(signum: int, frame: object) -> None:
 
 @contextmanager
 def interrupts_raised() -> Iterator[None]:
-    """Inside this block SIGINT and SIGTERM raise :class:`Interrupted` in the main thread.
+    """Inside this block SIGINT and SIGTERM raise `Interrupted` in the main thread.
 
     Only the first signal raises (later ones are ignored until the outermost block ends,
     so cleanup runs to its end). Outside the main thread this does nothing. The previous
@@ -156,18 +156,18 @@ def for_each_result(
 
     ``size(job)``: how many items of the progress bar a job counts for (default 1: a
     batch of runs counts as its runs). ``pool``: the worker processes of
-    :func:`worker_processes` to run on (``backend="process"``; at most ``workers`` of
+    `worker_processes` to run on (``backend="process"``; at most ``workers`` of
     them), kept for the caller's next call; default: new ones, ended on return.
 
     A worker process that dies while running a job (``os._exit``, a segmentation
     fault): with ``crashed``, ``crashed(job, WorkerDiedError)`` is that job's result and the
     other jobs go on (a fresh worker replaces the dead one); without it, a
     ``RuntimeError`` naming that job. Workers end when this process ends, however it
-    ends (:mod:`~elastic_gym.runtime.process_pool`; Ray: :mod:`~elastic_gym.runtime.orphan_reaper`).
+    ends (`process_pool`; Ray: `orphan_reaper`).
 
     ``backend="process"``: spawned worker processes, one with ``workers=1``; only jobs
     that refer to ``__main__`` (a class defined in a notebook or in the script; see
-    :func:`~elastic_gym.runtime.process_pool.refers_to_main`) run in this process with one worker,
+    `refers_to_main`) run in this process with one worker,
     where code that ends its process ends this one.
     ``backend="ray"``: a local Ray runtime with ``workers`` CPUs is started unless
     ``ray.init`` was already called, or the environment variable ``RAY_ADDRESS`` names a
@@ -175,7 +175,7 @@ def for_each_result(
     on the others, then ``RAY_ADDRESS=HEAD:6379``): then that cluster is used, with as
     many jobs in flight as it has CPUs. A job that
     raises cancels the others and raises ``RuntimeError`` naming it (``describe``);
-    SIGINT/SIGTERM raise :class:`Interrupted` after stopping every worker (see the
+    SIGINT/SIGTERM raise `Interrupted` after stopping every worker (see the
     module docstring). ``function`` and the jobs must be picklable (module-level
     function, plain data).
     """
@@ -221,7 +221,7 @@ def run_jobs(
     describe: Callable[[Any], str] = repr,
     crashed: Callable[[Any, WorkerDiedError], Any] | None = None,
 ) -> list[Any]:
-    """``[function(job) for job in jobs]`` computed in parallel (:func:`for_each_result`)."""
+    """``[function(job) for job in jobs]`` computed in parallel (`for_each_result`)."""
     results: dict[int, Any] = {}
     for_each_result(
         function,
@@ -265,7 +265,7 @@ def _call(function: Callable[[Any], Any], job: Any) -> Any:
 
 
 def worker_processes(workers: int) -> WorkerPool:
-    """``workers`` processes that several :func:`for_each_result` calls can share
+    """``workers`` processes that several `for_each_result` calls can share
     (``pool=``), so each worker starts (imports) once; a context manager that ends them."""
     return WorkerPool(workers, spawn_env=single_threaded)
 

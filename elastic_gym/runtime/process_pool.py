@@ -1,17 +1,17 @@
 """A pool of spawned worker processes that die with their parent and survive a dead worker.
 
-:class:`WorkerPool` runs one job at a time per worker, so it always knows which job a
+`WorkerPool` runs one job at a time per worker, so it always knows which job a
 worker was running: a worker that dies (``os._exit``, a segmentation fault, the OOM
-killer) fails exactly that job (:class:`WorkerDiedError`), and a fresh worker takes its
+killer) fails exactly that job (`WorkerDiedError`), and a fresh worker takes its
 place; the other jobs go on.
 
 Workers end when their parent does, however it ends (``kill -9`` included): on Linux
 the kernel sends them ``SIGKILL`` (``prctl(PR_SET_PDEATHSIG)``), and every worker also
-checks its parent's pid each :data:`PARENT_CHECK` seconds while it waits for a job.
+checks its parent's pid each `PARENT_CHECK` seconds while it waits for a job.
 Workers ignore SIGINT (a Ctrl-C in a terminal reaches the whole process group; the
 parent alone decides what to stop). A spawned worker imports the parent's ``__main__``
 module (a script runs again up to its ``__main__`` guard) only when the function or the
-jobs refer to it (:func:`refers_to_main`).
+jobs refer to it (`refers_to_main`).
 """
 
 from __future__ import annotations
@@ -167,7 +167,7 @@ class _Queue:
 
 class WorkerPool:
     """Up to ``workers`` spawned processes computing ``function(job)`` for the jobs of
-    each :meth:`results` call; the workers of one call stay for the next (one pool can
+    each `results` call; the workers of one call stay for the next (one pool can
     serve several functions: their imports are paid once).
 
     ``spawn_env``: a context manager entered while a worker starts (e.g. the
@@ -203,7 +203,7 @@ class WorkerPool:
     ) -> Iterator[tuple[int, bool, Any]]:
         """Yield ``(index, True, function(job))``, ``(index, False, exception)`` for every
         job in completion order, on at most ``workers`` of the pool's workers (default:
-        all); a job whose worker died gives :class:`WorkerDiedError`. One call at a time;
+        all); a job whose worker died gives `WorkerDiedError`. One call at a time;
         a call left early (an exception, a generator closed) ends the workers still
         running its jobs, so the next call never receives their results."""
         if self._running:

@@ -1,11 +1,11 @@
 """JSON Schemas of the files the package reads (YAML, scorecard JSON), for editors and checks.
 
-:data:`SCHEMAS` maps a schema name to the pydantic model that validates those files
+`SCHEMAS` maps a schema name to the pydantic model that validates those files
 (``"module:Model"``; a model whose module is not installed is left out). The generated
 schemas ship beside this module as ``<name>.json``, and every shipped YAML file names
 its schema in its first line, ``# yaml-language-server: $schema=<relative path>``; a run
 folder's ``config.yaml`` (written anywhere) names the installed ``run.json`` by its
-``file://`` URI (:func:`schema_comment`).
+``file://`` URI ([`schema_comment`][elastic_gym.schemas.schema_comment]).
 Regenerate them after changing a model with::
 
     elastic-gym schema --write
@@ -37,7 +37,7 @@ SCHEMAS = {
 
 
 def schema_models() -> dict[str, type[BaseModel]]:
-    """The models of :data:`SCHEMAS` that can be imported here."""
+    """The models of `SCHEMAS` that can be imported here."""
     models = {}
     for name, target in SCHEMAS.items():
         module, _, attr = target.partition(":")
@@ -58,7 +58,7 @@ def json_schema(name: str) -> dict:
 
 
 def schema_text(name: str) -> str:
-    """:func:`json_schema` as the text of the shipped file."""
+    """[`json_schema`][elastic_gym.schemas.json_schema] as the text of the shipped file."""
     return json.dumps(json_schema(name), indent=2, sort_keys=True) + "\n"
 
 

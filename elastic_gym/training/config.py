@@ -118,7 +118,8 @@ class Settings(StrictModel):
 
 class HyperparameterEntry(Settings):
     """One entry of a hyper-parameter file: our keys (typed) and the algorithm's
-    constructor arguments (checked against its signature by :func:`resolve_settings`)."""
+    constructor arguments (checked against its signature by
+    [`resolve_settings`][elastic_gym.training.config.resolve_settings])."""
 
     model_config = ConfigDict(extra="allow")
 
@@ -140,7 +141,8 @@ def hyperparams_path(path: str | Path) -> Path:
 
 
 def load_hyperparams_file(path: str | Path) -> dict:
-    """Parse a hyper-parameter YAML file (:func:`hyperparams_path`); errors name the file
+    """Parse a hyper-parameter YAML file
+    ([`hyperparams_path`][elastic_gym.training.config.hyperparams_path]); errors name the file
     and the problem."""
     data = load_yaml(hyperparams_path(path))  # an empty file (None) is refused too
     checked(lambda: HyperparameterFile.model_validate(data), str(path), HyperparameterFile)
@@ -168,7 +170,7 @@ def resolve_settings(
     algo: str, env_id: str, overrides: dict | None = None, file: str | Path | None = None
 ) -> tuple[Settings, dict]:
     """(our settings, the algorithm's keyword arguments, ready for SB3) of one run, from
-    :func:`merged_hyperparams`."""
+    `merged_hyperparams`."""
     merged = merged_hyperparams(algo, env_id, overrides, file)
     ours = {key: merged.pop(key) for key in Settings.model_fields if key in merged}
     settings = validated(Settings, ours)
@@ -192,7 +194,8 @@ def resolve_settings(
 def resolve_hyperparams(
     algo: str, env_id: str, overrides: dict | None = None, file: str | Path | None = None
 ) -> dict:
-    """Merged settings for one run (:func:`resolve_settings`) as one mapping: the keys
+    """Merged settings for one run
+    ([`resolve_settings`][elastic_gym.training.config.resolve_settings]) as one mapping: the keys
     given (ours validated) and the algorithm's arguments."""
     settings, algo_kwargs = resolve_settings(algo, env_id, overrides, file)
     return {**settings.model_dump(exclude_unset=True), **algo_kwargs}
@@ -294,7 +297,8 @@ def _check_values(algo: str, merged: dict) -> None:
 
 def _check_critic_state(algo: str, merged: dict, key: str) -> None:
     """``critic_state`` / ``critic_plant`` need PPO with its MLP policy, whose features
-    extractor they split (:class:`~elastic_gym.training.critic.PrivilegedCriticPolicy`)."""
+    extractor they split
+    ([`PrivilegedCriticPolicy`][elastic_gym.training.critic.PrivilegedCriticPolicy])."""
     privileged = {key: True}
     ppo = "algo is ppo (a critic with privileged inputs is implemented for ppo only)"
     only_when(algo == "ppo", privileged, f"{ppo}, not {algo}")
@@ -313,7 +317,8 @@ def linear_schedule(initial: float, progress_remaining: float) -> float:
 
 
 def _schedule(key: str, text: str):
-    """``lin_<value>`` as :func:`linear_schedule` of the value (a finite number > 0)."""
+    """``lin_<value>`` as [`linear_schedule`][elastic_gym.training.config.linear_schedule] of the
+    value (a finite number > 0)."""
     prefix, _, value = text.partition("_")
     what = "must be a number or 'lin_<number > 0>' (linear decay)"
     given = value if prefix == "lin" else None  # None: refused
@@ -359,8 +364,8 @@ class TrainConfig(ConfigModel):
     ``env_id``: a registered id; a bare name (``TwoLinkElastic-v0``) means
     ``elastic_gym/TwoLinkElastic-v0``. ``state``: ``"true"``, an observer name (the
     policy sees its estimate), or ``"sensors"`` (raw observation, ``frame_stack`` frames).
-    ``action`` / ``observation``: fields of :class:`ActionConfig` /
-    :class:`ObservationConfig` that override the hyper-parameter file's (e.g.
+    ``action`` / ``observation``: fields of `ActionConfig` /
+    `ObservationConfig` that override the hyper-parameter file's (e.g.
     ``{"kind": "residual", "residual": "feedforward-state-feedback"}`` for a residual
     policy). ``total_steps``: env interactions counted by SB3 (policy steps); None takes
     ``n_timesteps`` from the hyper-parameter file. ``model_file``: an identified model
@@ -401,7 +406,8 @@ class TrainConfig(ConfigModel):
         return checked(functools.partial(cls.model_validate, plain(data)), model=cls)
 
     def settings(self) -> tuple[Settings, dict]:
-        """(our settings, the algorithm's arguments) of this run (:func:`resolve_settings`)."""
+        """(our settings, the algorithm's arguments) of this run
+        ([`resolve_settings`][elastic_gym.training.config.resolve_settings])."""
         return resolve_settings(self.algo, self.env_id, self.hyperparams, self.hyperparams_file)
 
     def policy_configs(self, settings: Settings) -> tuple[ActionConfig, ObservationConfig]:

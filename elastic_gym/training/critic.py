@@ -4,8 +4,10 @@ actor-critic, Pinto et al., RSS 2018, Sec. IV).
 PPO needs its value function only in training, so the critic may see what the deployed
 actor cannot. With ``critic_state: true`` (PPO only) the training observation is
 ``[policy observation (m), true-state features (k)]``
-([`CriticState`][elastic_gym.policy.vector.CriticState]) and :class:`PrivilegedCriticPolicy`
-gives the actor's features extractor (:class:`ActorSlice`) the first m entries only (no
+([`CriticState`][elastic_gym.policy.vector.CriticState]) and
+[`PrivilegedCriticPolicy`][elastic_gym.training.critic.PrivilegedCriticPolicy]
+gives the actor's features extractor ([`ActorSlice`][elastic_gym.training.critic.ActorSlice]) the
+first m entries only (no
 actor weight multiplies a privileged entry), the critic all m + k. Deployment builds the
 stack without ``CriticState`` and pads the k entries with NaN: the actor never reads them.
 """

@@ -3,7 +3,7 @@
 
 Iteration i runs one episode on every training arm (``episodes`` rounds of them). A share
 beta_i = ``teacher_mix`` ** i of the arms acts with the teacher's action
-(:class:`~elastic_gym.training.teacher.PlantTeacher`), the others with the student's
+([`PlantTeacher`][elastic_gym.training.teacher.PlantTeacher]), the others with the student's
 deterministic one; every step is labelled with the teacher's action. The student, the
 RecurrentPPO actor (its LSTM, MLP and Gaussian mean), is then fitted to all the labels
 collected so far: mean squared error over whole episodes (backpropagation through time
@@ -143,7 +143,7 @@ def fit(model, normalizer, episodes: Episodes, config: DistillConfig, rng) -> fl
 
 def check_distill(config, settings) -> None:
     """Refuse a ``distill`` hyper-parameter the run ``config`` (a
-    :class:`~elastic_gym.training.config.TrainConfig` with its resolved ``settings``)
+    [`TrainConfig`][elastic_gym.training.config.TrainConfig] with its resolved ``settings``)
     cannot use, before anything is built: it needs RecurrentPPO, the ``motor-offset``
     action (the teacher's) and a batch of arms, and it replaces RL training (a run's total
     steps are refused; the hyper-parameter ``n_timesteps`` is not used)."""

@@ -1,9 +1,9 @@
 """Learning curves of a training run: return and tracking RMS versus policy steps and
 wall time, written to the run folder.
 
-:class:`LearningCurve` (an SB3 callback) evaluates the deterministic policy at the start,
+`LearningCurve` (an SB3 callback) evaluates the deterministic policy at the start,
 every ``every`` policy steps and at the end, on the same episodes each time, with the
-normalization of that moment: :func:`~elastic_gym.training.trained.evaluate_run` of the
+normalization of that moment: [`evaluate_run`][elastic_gym.training.trained.evaluate_run] of the
 model being trained, the arms of one world of the comparison's loop (seeds ``seed``,
 ``seed + 1``, ...). Each
 evaluation is a row of ``learning_curve.csv``: ``policy_steps``, ``env_steps``,
@@ -42,7 +42,8 @@ COLUMNS = (
 
 class LearningCurve(BaseCallback):
     """Evaluations during training -> ``learning_curve.csv``, ``evaluations.npz`` and
-    ``best_model.zip`` in ``out_dir`` (module docstring); :func:`~elastic_gym.training.train.train`
+    ``best_model.zip`` in ``out_dir`` (module docstring);
+    [`train`][elastic_gym.training.train.train]
     refuses a run whose evaluation episodes never end (``episode_time=None``) before it.
 
     Args:

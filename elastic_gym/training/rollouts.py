@@ -1,10 +1,10 @@
 """Deterministic rollouts of any callable policy on a policy stack: per-episode return,
 link tracking RMS and the share of actions at their bounds, episode after episode on one
-env (:func:`evaluate_policy`) or all episodes at once on the arms of one batch
-(:func:`evaluate_arms`, the same numbers: arm i of a batch reset with seed s is the single
+env (`evaluate_policy`) or all episodes at once on the arms of one batch
+(`evaluate_arms`, the same numbers: arm i of a batch reset with seed s is the single
 env reset with seed s + i). A trained run's evaluation
-(:func:`~elastic_gym.training.trained.evaluate_run`, the learning curve) runs on the
-comparison's loop instead and gives the same :class:`Evaluation`.
+([`evaluate_run`][elastic_gym.training.trained.evaluate_run], the learning curve) runs on the
+comparison's loop instead and gives the same `Evaluation`.
 
 Here the tracking RMS of an episode is sqrt(mean_k |e_k|^2) with |e_k| the Euclidean norm
 over the joints of the link error e = q - q_d of the true state, whatever state the policy

@@ -236,7 +236,8 @@ class RunFolder:
     def write_config(self, config: TrainConfig) -> None:
         """``config.yaml``: the config as the run used it (self-contained: no pointer to
         a hyper-parameter file, every field of the action and observation configs), its
-        first line naming the ``run`` schema (:func:`~elastic_gym.schemas.schema_comment`)."""
+        first line naming the ``run`` schema
+        ([`schema_comment`][elastic_gym.schemas.schema_comment])."""
         text = schema_comment("run") + yaml.safe_dump(config.to_dict(), sort_keys=False)
         write_text(self.path / "config.yaml", text)
 

@@ -3,11 +3,11 @@
 SB3 expects, in the step that ends an episode, the first observation of the next one,
 with the last observation in ``infos[i]["terminal_observation"]`` and
 ``infos[i]["TimeLimit.truncated"]`` telling a time-out (bootstrapped by the algorithms)
-from a termination. :class:`SB3VecEnv` gets there from a vector env with autoreset
+from a termination. `SB3VecEnv` gets there from a vector env with autoreset
 ``DISABLED``: after each step it resets the arms whose episode ended
 (``reset(options={"reset_mask": ended})``), the other arms go on untouched. Put
 ``VecNormalize`` / ``VecMonitor`` on top as with any SB3 ``VecEnv``.
-:class:`ProcessBatches` runs several such batches in worker processes (one per core) as
+`ProcessBatches` runs several such batches in worker processes (one per core) as
 one ``VecEnv``.
 """
 
@@ -121,7 +121,7 @@ class SB3VecEnv(VecEnv):
 
 
 def _batch_worker(remote, parent_remote, factory) -> None:
-    """Serve one :class:`SB3VecEnv` (a batch of arms) in a worker process."""
+    """Serve one `SB3VecEnv` (a batch of arms) in a worker process."""
     parent_remote.close()
     venv = factory.var()
     try:
@@ -155,7 +155,7 @@ class ProcessBatches(VecEnv):
     """Several batches of arms, one per worker process, as one SB3 ``VecEnv``.
 
     For machines with more cores than one batch can use: each factory builds an
-    :class:`SB3VecEnv` (a PyBullet world of arms) inside its own process; the arms of all
+    `SB3VecEnv` (a PyBullet world of arms) inside its own process; the arms of all
     batches are concatenated in order. Factories must be picklable (cloudpickle).
     """
 

@@ -1,18 +1,17 @@
-"""A privileged teacher for distilling a raw-sensor policy (:mod:`elastic_gym.training.distill`).
+"""A privileged teacher for distilling a raw-sensor policy
+([`elastic_gym.training.distill`][elastic_gym.training.distill]).
 
-The teacher knows what no policy may: each arm's simulated plant. Its action for the policy
-step starting at control period k is the mean over the step's ``hold`` periods of
+The teacher knows what no policy may: each arm's simulated plant. Its action for the policy step
+starting at control period k is the mean over the step's ``hold`` periods of
 
     a_j = motor_offset_action(tau_d(t_j), theta_d(t_j - delta), theta_d'(t_j - delta), ref(t_j)),
 
-the ``motor-offset`` action whose 1 kHz motor PD applies INVDYN's torque tau_d at the
-desired motor state
-([`motor_offset_action`][elastic_gym.policy.actions.ActionMap.motor_offset_action];
-De Luca, Schroeder & Thuemmel 2007, Sec. V-B: x_d, tau_d from q_d .. q_d^(4)), with
-INVDYN of the arm's exact plant model (its drawn link masses and inertias, K, B, D,
-unmodelled friction and payload) and delta its sensor delay (the PD sees delayed
-encoders). The labels are open loop: they depend on the task and the plant, not on the
-state the student reaches.
+the ``motor-offset`` action whose 1 kHz motor PD applies INVDYN's torque tau_d at the desired motor
+state ([`motor_offset_action`][elastic_gym.policy.actions.ActionMap.motor_offset_action]; De Luca,
+Schroeder & Thuemmel 2007, Sec. V-B: x_d, tau_d from q_d .. q_d^(4)), with INVDYN of the arm's exact
+plant model (its drawn link masses and inertias, K, B, D, unmodelled friction and payload) and delta
+its sensor delay (the PD sees delayed encoders). The labels are open loop: they depend on the task
+and the plant, not on the state the student reaches.
 """
 
 from __future__ import annotations
@@ -32,7 +31,7 @@ LABEL = "teacher_action"  # the info key
 
 class _ArmPlan:
     """One arm's teacher actions a_j (module docstring) from its reset on, planned ahead
-    in blocks of :data:`BLOCK` control periods."""
+    in blocks of `BLOCK` control periods."""
 
     def __init__(self, batch: Any, arm: int, action_map) -> None:
         settings = batch.settings[arm]

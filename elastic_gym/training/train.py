@@ -201,7 +201,8 @@ def _train(
 
 
 def _distill(model, venv, settings: Settings, curve, seed: int, progress: bool, verbose: int):
-    """Train ``model`` by distillation (:mod:`elastic_gym.training.distill`), the learning
+    """Train ``model`` by distillation
+    ([`elastic_gym.training.distill`][elastic_gym.training.distill]), the learning
     curve evaluated at the start and after every iteration."""
     from stable_baselines3.common.utils import configure_logger
 

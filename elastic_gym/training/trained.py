@@ -1,9 +1,9 @@
-"""A finished run folder loaded back (:func:`load_run`), and its deterministic policy on
-fresh episodes (:func:`evaluate_run`), run on the comparison's batched closed loop.
+"""A finished run folder loaded back (`load_run`), and its deterministic policy on
+fresh episodes (`evaluate_run`), run on the comparison's batched closed loop.
 
-:func:`evaluate_run` is the comparison itself: the ``trained-policy`` controller of the run
+`evaluate_run` is the comparison itself: the ``trained-policy`` controller of the run
 on its state source, one run per episode seed, all of them the arms of one world of
-:func:`~elastic_gym.evaluation.episodes.run_group`. An episode's tracking RMS is therefore
+[`run_group`][elastic_gym.evaluation.episodes.run_group]. An episode's tracking RMS is therefore
 the ``track_rms`` of the comparison row of the same run, seed and plant (every control
 period, from the reset on); its return the sum of the env's rewards over the episode.
 """
@@ -193,7 +193,8 @@ def _resolved(path: str | None) -> str | None:
 
 
 def evaluation_of(results: list[RunResult]) -> Evaluation:
-    """The :class:`Evaluation` of the comparison results of :func:`evaluation_runs`
+    """The `Evaluation` of the comparison results of
+    [`evaluation_runs`][elastic_gym.training.trained.evaluation_runs]
     (``RuntimeError`` naming the episode for a run that failed)."""
     for result in results:
         if "track_rms" not in result.metrics:

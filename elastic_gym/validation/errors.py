@@ -32,7 +32,7 @@ def field_path(loc: Sequence[int | str], prefix: str = "") -> str:
 
 class ConfigError(ValueError):
     """A configuration refused with its message already in the package's form (the field
-    path first): what a :class:`ConfigModel` raises. Raised inside a validator, its path
+    path first): what a `ConfigModel` raises. Raised inside a validator, its path
     continues the validator's own, after ``loc`` (field names and list indices)."""
 
     def __init__(self, message: str, loc: Sequence[int | str] = ()) -> None:
@@ -50,7 +50,7 @@ class FieldError(ValueError):
 
 
 def refusal(loc: Sequence[int | str], message: str) -> ValueError:
-    """The ``ValueError`` of a refused value: a :class:`FieldError` continuing a
+    """The ``ValueError`` of a refused value: a `FieldError` continuing a
     validator's path when ``loc`` is given (a plain ``ValueError`` otherwise, as users
     see it named in a pre-run check's message)."""
     return FieldError(loc, message) if loc else ValueError(message)
@@ -150,7 +150,7 @@ M = TypeVar("M", bound=BaseModel)
 
 def validated(model: type[M], data: Any, prefix: str = "") -> M:
     """``model`` built from ``data`` (an instance is returned as is, ``None`` gives the
-    defaults). :class:`ConfigError` (a ``ValueError``) with one ``field.path: message`` per
+    defaults). `ConfigError` (a ``ValueError``) with one ``field.path: message`` per
     problem otherwise."""
     if isinstance(data, model):
         return data
@@ -165,7 +165,7 @@ def checked(
     loc: Sequence[int | str] = (),
 ) -> T:
     """``validate()``; its ``ValidationError`` as one line per problem, the field path
-    (after ``prefix``) first: a :class:`ConfigError` (continuing a validator's path after
+    (after ``prefix``) first: a `ConfigError` (continuing a validator's path after
     ``loc``), or with ``by_kind`` a ``TypeError`` when every problem is a value of the
     wrong type (a string for a number, 1 for a bool) and a ``ValueError`` otherwise."""
     try:
@@ -191,8 +191,8 @@ def validated_options(
 ) -> M:
     """The options of a constructor validated by their model: ``arguments`` is the
     constructor's ``locals()`` (only the model's fields are read); ``context`` (the robot
-    ``model`` and the sampling period ``dt``) is what :class:`PerSample` and
-    :class:`Needs` fields read. Errors read ``options.<name>: ...``, a ``TypeError`` when
+    ``model`` and the sampling period ``dt``) is what `PerSample` and
+    `Needs` fields read. Errors read ``options.<name>: ...``, a ``TypeError`` when
     every problem is a value of the wrong type (a string for a number, 1 for a bool), a
     ``ValueError`` otherwise."""
     given = plain({key: value for key, value in arguments.items() if key in model.model_fields})
@@ -210,7 +210,7 @@ def option_value(
     """One constructor option (or function argument, ``prefix=""``) validated by the
     (annotated) type ``kind`` (with the validation ``context``): errors read
     ``options.<name>: ...``, a ``TypeError`` for a value of the wrong type, a
-    ``ValueError`` otherwise (as :func:`validated_options`)."""
+    ``ValueError`` otherwise (as `validated_options`)."""
     adapter = TypeAdapter(kind)
     validate = partial(adapter.validate_python, plain(value), context=context)
     return checked(validate, prefix + name, by_kind=True)

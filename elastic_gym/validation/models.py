@@ -114,7 +114,7 @@ NonNegativeNumbers = Annotated[float | tuple[float, ...], Numbers(0.0, strict=Fa
 
 
 class ConfigModel(StrictModel):
-    """A frozen plain-data configuration, built by :meth:`from_config` from ``None`` (the
+    """A frozen plain-data configuration, built by `from_config` from ``None`` (the
     defaults), an instance (itself) or a mapping of its fields; errors are prefixed with
     its ``section`` (``reward.sigmas: ...``)."""
 

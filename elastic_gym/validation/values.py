@@ -31,7 +31,7 @@ def is_count(value: Any, minimum: int | None = 0) -> TypeGuard[int | np.integer]
 
 
 def checked_count(value: Any, name: str, minimum: int = 0) -> int:
-    """``value`` as an ``int`` if :func:`is_count`; ``ValueError`` naming ``name`` otherwise."""
+    """``value`` as an ``int`` if `is_count`; ``ValueError`` naming ``name`` otherwise."""
     if not is_count(value, minimum):
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
@@ -127,7 +127,7 @@ def numbers(
     real parts (``stable``: poles of a stable design), and Python or numpy numbers only
     (``exact``: no bool, no string). ``ValueError: <name> <what>, got <value or shape>``
     otherwise (``show_shape``: the shape given; ``shown``: what the user gave, when
-    ``value`` was derived from it): a :class:`FieldError` whose ``loc`` continues a
+    ``value`` was derived from it): a `FieldError` whose ``loc`` continues a
     validator's path."""
     try:
         arr: np.ndarray | None = np.asarray(value, dtype=dtype)
@@ -161,7 +161,7 @@ def _fits_shape(actual: tuple[int, ...], wanted: tuple[int | None, ...]) -> bool
 
 
 def bound_text(minimum: float | None, strict: bool) -> str:
-    """`` > 0`` / `` >= 0`` (or nothing) for the messages of :func:`numbers`."""
+    """`` > 0`` / `` >= 0`` (or nothing) for the messages of `numbers`."""
     return "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
 
 
@@ -169,7 +169,7 @@ def shaped(
     value: Any, shape: tuple[int | None, ...], name: str, finite: bool = False
 ) -> np.ndarray:
     """``value`` as a float64 array of ``shape`` (a leading ``None``: any length N, e.g.
-    one row per arm), with finite entries if ``finite`` (:func:`numbers`)."""
+    one row per arm), with finite entries if ``finite`` (`numbers`)."""
 
     def what() -> str:
         shown = str(shape).replace("None", "N")
@@ -186,7 +186,7 @@ def entry(
     missing: str,
     finite: bool = False,
 ) -> Any:
-    """``data[key]`` of a step's ``obs`` or ``info`` (``where``) as :func:`shaped` makes it
+    """``data[key]`` of a step's ``obs`` or ``info`` (``where``) as `shaped` makes it
     (``shape`` ``None``: the value as given). ``ValueError`` reading ``missing`` (who needs
     the entry and where it comes from) when ``data`` lacks it."""
     if not isinstance(data, Mapping) or key not in data:
@@ -220,7 +220,7 @@ def per_joint_values(
     """A scalar or N finite numbers as an (N,) float array, optionally bounded below.
 
     ``minimum`` with ``strict`` means every value > minimum, else >= minimum. The error
-    names the option (``name``) and shows what was given (:func:`numbers`).
+    names the option (``name``) and shows what was given (`numbers`).
     """
     what = f"must be one or {n} finite numbers{bound_text(minimum, strict)}"
     arr = numbers(value, name, what, [(n,)], broadcast=n, minimum=minimum, strict=strict)
