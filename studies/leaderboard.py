@@ -3,6 +3,7 @@
     python studies/leaderboard.py                   # re-score every shipped card, rebuild
     python studies/leaderboard.py --entries eq13@deluca motor-pd@finite-difference
     python studies/leaderboard.py --rebuild         # only rebuild docs/leaderboard.md
+    python studies/leaderboard.py --suite elastic-gym-v2   # move every card to another suite
 
 Every card in ``docs/leaderboard/scorecards/`` records the ``elastic-gym benchmark`` command
 that scores its entry (run from the repository's root). This script runs that command with
@@ -38,7 +39,15 @@ def elastic_gym(args: list[str]) -> None:
         sys.exit(done.returncode)
 
 
-def rescore(names: list[str], workers: int | None) -> None:
+def on_suite(words: list[str], suite: str | None) -> list[str]:
+    """A card's command words with ``--suite`` replaced by ``suite`` (None: as recorded)."""
+    if suite is None:
+        return words
+    at = words.index("--suite")
+    return [*words[:at], "--suite", suite, *words[at + 2 :]]
+
+
+def rescore(names: list[str], workers: int | None, suite: str | None) -> None:
     for name in names:
         path = SCORECARD_DIR / f"{name}.json"
         card = read_scorecard(path)
@@ -48,7 +57,7 @@ def rescore(names: list[str], workers: int | None) -> None:
         out = OUTPUT / name
         extra = ["--output", str(out), "--overwrite", "--no-progress"]
         extra += ["--workers", str(workers)] if workers else []
-        elastic_gym([*shlex.split(card.command)[1:], *extra])
+        elastic_gym([*on_suite(shlex.split(card.command)[1:], suite), *extra])
         shutil.copy(out / "scorecard.json", path)
 
 
@@ -57,14 +66,15 @@ def main() -> None:
     parser.add_argument("--entries", nargs="+", metavar="LABEL", help="re-score only these")
     parser.add_argument("--rebuild", action="store_true", help="only rebuild the leaderboard")
     parser.add_argument("--workers", type=int)
+    parser.add_argument("--suite", help="re-score on this suite instead of the cards' own")
     args = parser.parse_args()
     names = args.entries or sorted(p.stem for p in SCORECARD_DIR.glob("*.json"))
     missing = [n for n in names if not (SCORECARD_DIR / f"{n}.json").exists()]
     if missing:
         parser.error(f"--entries: no card {missing} in {SCORECARD_DIR}")
     if not args.rebuild:
-        rescore(names, args.workers)
-    elastic_gym(["benchmark", "--leaderboard"])
+        rescore(names, args.workers, args.suite)
+    elastic_gym(["benchmark", "--leaderboard", *(["--suite", args.suite] if args.suite else [])])
 
 
 if __name__ == "__main__":
