@@ -27,7 +27,7 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
         help="compare controllers x state sources (true state, observers) on envs",
         description="Run a comparison grid in parallel and write a metrics table (CSV, "
         "markdown) and plots. Without arguments: the built-in default grid on "
-        "TwoLinkElastic (about 300 s of CPU: 2.5 to 3 minutes on 2 free cores).",
+        "TwoLinkElastic (about 35 s of CPU on the RK4: some 20 s on 2 free cores).",
     )
     source = parser.add_mutually_exclusive_group()
     source.add_argument(
