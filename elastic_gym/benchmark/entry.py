@@ -26,10 +26,10 @@ from elastic_gym.benchmark.card import checked_label
 from elastic_gym.evaluation.scenario import (
     ControllerEntry,
     SourceEntry,
-    checked_model_file,
     resolve_class,
 )
 from elastic_gym.evaluation.scenario_models import ClassPath
+from elastic_gym.model.identified import checked_model_file
 from elastic_gym.observers.registry import OBSERVERS, source_class
 from elastic_gym.validation import StrictModel, at_most_one, only_when
 

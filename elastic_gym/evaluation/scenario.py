@@ -55,7 +55,7 @@ from elastic_gym.evaluation.scenario_models import (
     check_env_kwargs,
     unique_labels,
 )
-from elastic_gym.model.identified import load_identified_model
+from elastic_gym.model.identified import checked_model_file
 from elastic_gym.validation import (
     ConfigError,
     FieldError,
@@ -83,16 +83,6 @@ QUICK_DURATION = 0.5  # s, Scenario.quick()
 COMPARISON_INTEGRATOR: Literal["rk4"] = "rk4"  # see the module docstring
 COMPARISON_PHYSICS_DT = 1.0 / 16000.0  # s: PyBullet's step in a comparison
 MAX_PHYSICS_DT = 1e-3  # s, the envs' own bound
-
-
-def checked_model_file(path: str) -> str:
-    """An identified model file (`elastic-gym identify`), checked (``ValueError`` for a
-    missing or invalid one); returned as given."""
-    try:
-        load_identified_model(path)
-    except FileNotFoundError as exc:
-        raise ValueError(str(exc)) from None
-    return path
 
 
 def _model_file(path: str) -> str:

@@ -193,3 +193,13 @@ def identified_robot_model(path: str | Path, nominal: RobotModel) -> RobotModel:
         return model.robot_model(nominal)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
+
+
+def checked_model_file(path: str) -> str:
+    """An identified model file (`elastic-gym identify`), checked (``ValueError`` for a
+    missing or invalid one); returned as given."""
+    try:
+        load_identified_model(path)
+    except FileNotFoundError as exc:
+        raise ValueError(str(exc)) from None
+    return path

@@ -32,7 +32,7 @@ from pydantic import (
 
 from elastic_gym.envs.config import MakeKwargsMapping
 from elastic_gym.envs.ids import registered_env_id
-from elastic_gym.model.identified import load_identified_model
+from elastic_gym.model.identified import checked_model_file, load_identified_model
 from elastic_gym.observers.registry import source_class
 from elastic_gym.observers.sensors import SENSORS
 from elastic_gym.policy.actions import ActionConfig
@@ -49,16 +49,6 @@ def check_state_source(state: str) -> str:
     listing the valid ones."""
     source_class(state)
     return state
-
-
-def check_model_file(path: str) -> str:
-    """An identified model file (`elastic-gym identify`), validated (``ValueError`` for a
-    missing or invalid one); returned as given."""
-    try:
-        load_identified_model(path)
-    except FileNotFoundError as exc:
-        raise ValueError(str(exc)) from None
-    return path
 
 
 def check_model_robot(path: str, env_id: str, env_kwargs: Mapping[str, Any]) -> None:
@@ -93,7 +83,7 @@ class PolicySpec(ConfigModel):
     frame_stack: PositiveInt | None = None  # raw sensors: frames seen (None: 1)
     critic_state: StrictBool = False
     critic_plant: StrictBool = False
-    model_file: Annotated[StrictStr, AfterValidator(check_model_file)] | None = None
+    model_file: Annotated[StrictStr, AfterValidator(checked_model_file)] | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> PolicySpec:

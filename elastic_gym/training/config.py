@@ -37,12 +37,12 @@ from pydantic import (
 
 from elastic_gym.envs.config import MakeKwargsMapping
 from elastic_gym.envs.ids import registered_env_id
+from elastic_gym.model.identified import checked_model_file
 from elastic_gym.observers.sensors import SENSORS
 from elastic_gym.policy.actions import ActionConfig
 from elastic_gym.policy.observation import ObservationConfig
 from elastic_gym.policy.spec import (
     PolicySpec,
-    check_model_file,
     check_model_robot,
     check_state_source,
 )
@@ -386,7 +386,7 @@ class TrainConfig(ConfigModel):
     frame_stack: PositiveInt = 4
     env_kwargs: MakeKwargsMapping = Field(default_factory=dict)
     observer_options: dict[str, Any] = Field(default_factory=dict)
-    model_file: Annotated[StrictStr, AfterValidator(check_model_file)] | None = None
+    model_file: Annotated[StrictStr, AfterValidator(checked_model_file)] | None = None
     hyperparams: dict[str, Any] = Field(default_factory=dict)
     hyperparams_file: StrictStr | None = None
     eval_freq: PositiveInt | None = None  # None: a twentieth of the run's policy steps
