@@ -450,3 +450,30 @@ def closed_loop_gap(env_id: str, batched: VectorController, singles: list[Contro
     envs.close()
     assert resets == 2 * N_ARMS and spread > 1e-3
     return worst
+
+
+def step_in_lockstep(envs, singles: list, next_actions, steps: int) -> set[str]:
+    """Step a vector env and its single-env twins together for ``steps`` steps (actions from
+    ``next_actions()``): arm i's observation, reward, flags and info equal single env i's at
+    every step, NEXT_STEP autoresets followed (the single env reset without a seed). The
+    termination reasons seen."""
+    ended = np.zeros(len(singles), dtype=bool)
+    reasons: set[str] = set()
+    for _ in range(steps):
+        actions = next_actions()
+        obs, reward, terminated, truncated, info = envs.step(actions)
+        for i, env in enumerate(singles):
+            if ended[i]:  # NEXT_STEP autoreset: the single env is reset without a seed
+                expected = (*env.reset(), 0.0, False, False)
+                expected = (expected[0], expected[2], expected[3], expected[4], expected[1])
+            else:
+                expected = env.step(actions[i])
+            single_obs, single_reward, single_term, single_trunc, single_info = expected
+            assert np.array_equal(flat(arm_row(obs, i)), flat(single_obs))
+            assert reward[i] == single_reward
+            assert (terminated[i], truncated[i]) == (single_term, single_trunc)
+            assert np.array_equal(flat(arm_row(info, i)), flat(single_info))
+            if single_term:
+                reasons.add(single_info["termination_reason"])
+        ended = terminated | truncated
+    return reasons

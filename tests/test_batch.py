@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
-from helpers import arm_row, flat
+from helpers import arm_row, flat, step_in_lockstep
 
 import elastic_gym
 
@@ -53,25 +53,7 @@ def test_each_arm_equals_the_single_env_bit_for_bit(env_id):
         assert np.array_equal(flat(arm_row(info, i)), flat(single_info))
     rng = np.random.default_rng(0)
     limit = envs.unwrapped.torque_limit
-    ended = np.zeros(N_ARMS, dtype=bool)
-    reasons: set[str] = set()
-    for _ in range(150):
-        actions = _actions(limit, rng)
-        obs, reward, terminated, truncated, info = envs.step(actions)
-        for i, env in enumerate(singles):
-            if ended[i]:  # NEXT_STEP autoreset: the single env is reset without a seed
-                expected = (*env.reset(), 0.0, False, False)
-                expected = (expected[0], expected[2], expected[3], expected[4], expected[1])
-            else:
-                expected = env.step(actions[i])
-            single_obs, single_reward, single_term, single_trunc, single_info = expected
-            assert np.array_equal(flat(arm_row(obs, i)), flat(single_obs))
-            assert reward[i] == single_reward
-            assert (terminated[i], truncated[i]) == (single_term, single_trunc)
-            assert np.array_equal(flat(arm_row(info, i)), flat(single_info))
-            if single_term:
-                reasons.add(single_info["termination_reason"])
-        ended = terminated | truncated
+    reasons = step_in_lockstep(envs, singles, lambda: _actions(limit, rng), 150)
     assert reasons == {"velocity limit exceeded"}  # terminations were exercised, and truncations:
     assert envs.unwrapped.batch.steps.max() < 150
     envs.close()

@@ -14,7 +14,7 @@ import pickle
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import arm_row, flat, leaves, make_noise_free
+from helpers import arm_row, flat, leaves, make_noise_free, step_in_lockstep
 from scipy.integrate import solve_ivp
 
 import elastic_gym
@@ -56,25 +56,7 @@ def test_each_arm_equals_the_single_env_bit_for_bit(env_id):
         assert np.array_equal(flat(arm_row(obs, i)), flat(single_obs))
     rng = np.random.default_rng(0)
     limit = envs.unwrapped.torque_limit
-    ended = np.zeros(N_ARMS, dtype=bool)
-    reasons: set[str] = set()
-    for _ in range(100):
-        actions = _actions(limit, rng, N_ARMS)
-        obs, reward, terminated, truncated, info = envs.step(actions)
-        for i, env in enumerate(singles):
-            if ended[i]:  # NEXT_STEP autoreset: the single env is reset without a seed
-                expected = (*env.reset(), 0.0, False, False)
-                expected = (expected[0], expected[2], expected[3], expected[4], expected[1])
-            else:
-                expected = env.step(actions[i])
-            single_obs, single_reward, single_term, single_trunc, single_info = expected
-            assert np.array_equal(flat(arm_row(obs, i)), flat(single_obs))
-            assert reward[i] == single_reward
-            assert (terminated[i], truncated[i]) == (single_term, single_trunc)
-            assert np.array_equal(flat(arm_row(info, i)), flat(single_info))
-            if single_term:
-                reasons.add(single_info["termination_reason"])
-        ended = terminated | truncated
+    reasons = step_in_lockstep(envs, singles, lambda: _actions(limit, rng, N_ARMS), 100)
     assert reasons == {"velocity limit exceeded"}
     envs.close()
     for env in singles:
