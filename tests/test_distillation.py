@@ -14,7 +14,8 @@ from gymnasium.vector import AutoresetMode
 from helpers import policy_vec_env
 
 from elastic_gym.training import ActionConfig, ActionMap, TrainConfig, load_run, train
-from elastic_gym.training.distill import DistillConfig, check_distill, distill
+from elastic_gym.training.distill import DistillConfig, distill
+from elastic_gym.training.plan import plan_run
 from elastic_gym.training.rollouts import evaluate_arms
 
 ENV_ID = "elastic_gym/TwoLinkElastic-v0"
@@ -161,10 +162,7 @@ def test_distill_refuses_what_it_cannot_use():
         keys = {"n_envs": 4, "action": {"kind": "motor-offset"}, "distill": {}, **hyperparams}
         return TrainConfig(algo=algo, total_steps=total_steps, hyperparams=keys)
 
-    def check(config: TrainConfig) -> None:
-        check_distill(config, config.settings()[0])
-
-    check(run())
+    plan_run(run())
     cases = [
         (run(algo="ppo"), "algo recurrentppo"),
         (run(action={"kind": "torque"}), "motor-offset"),
@@ -173,7 +171,7 @@ def test_distill_refuses_what_it_cannot_use():
     ]
     for config, match in cases:
         with pytest.raises(ValueError, match=match):
-            check(config)
+            plan_run(config)
     for distill_keys in ({"iteration": 3}, {"teacher_mix": 1.5}, {"steps": 0}):
         bad = TrainConfig(algo="recurrentppo", hyperparams={"distill": distill_keys})
         with pytest.raises(ValueError, match="distill"):

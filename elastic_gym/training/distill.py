@@ -141,16 +141,16 @@ def fit(model, normalizer, episodes: Episodes, config: DistillConfig, rng) -> fl
     return float(np.mean(losses[-max(1, config.steps // 10) :]))
 
 
-def check_distill(config, settings) -> None:
+def check_distill(config, settings, action_kind: str) -> None:
     """Refuse a ``distill`` hyper-parameter the run ``config`` (a
-    [`TrainConfig`][elastic_gym.training.config.TrainConfig] with its resolved ``settings``)
-    cannot use, before anything is built: it needs RecurrentPPO, the ``motor-offset``
-    action (the teacher's) and a batch of arms, and it replaces RL training (a run's total
-    steps are refused; the hyper-parameter ``n_timesteps`` is not used)."""
+    [`TrainConfig`][elastic_gym.training.config.TrainConfig] with its resolved ``settings``
+    and its action's ``kind``) cannot use, before anything is built: it needs RecurrentPPO,
+    the ``motor-offset`` action (the teacher's) and a batch of arms, and it replaces RL
+    training (a run's total steps are refused; the hyper-parameter ``n_timesteps`` is not
+    used)."""
     if settings.distill is None:
         return
     algo, total_steps = config.algo, config.total_steps
-    action_kind = config.policy_configs(settings)[0].kind
     problems = []
     if algo != "recurrentppo":
         problems.append(f"the algo recurrentppo (the student is its LSTM actor), not {algo!r}")

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from elastic_gym.training.config import Settings, TrainConfig
+from elastic_gym.training.plan import TrainPlan
 from elastic_gym.training.rollouts import Evaluation
 from elastic_gym.training.run_folder import CURVE_FILE
 from elastic_gym.training.trained import TrainedRun, evaluate_run
@@ -47,7 +47,7 @@ class LearningCurve(BaseCallback):
     refuses a run whose evaluation episodes never end (``episode_time=None``) before it.
 
     Args:
-        config, settings: the run's config and resolved hyper-parameters.
+        plan: the run ([`TrainPlan`][elastic_gym.training.plan.TrainPlan]).
         normalizer: the training ``VecNormalize`` (its current statistics), or None.
         out_dir: the run folder.
         every: policy steps between evaluations (>= 1: ``eval_freq`` is a positive
@@ -57,18 +57,17 @@ class LearningCurve(BaseCallback):
 
     def __init__(
         self,
-        config: TrainConfig,
-        settings: Settings,
+        plan: TrainPlan,
         normalizer,
         out_dir: str | Path,
         every: int,
         seed: int,
     ) -> None:
         super().__init__()
-        self.config, self.settings, self.normalizer = config, settings, normalizer
-        self.episodes = config.eval_episodes
+        self.plan, self.normalizer = plan, normalizer
+        self.episodes = plan.config.eval_episodes
         self.out = Path(out_dir)
-        self.every, self.seed, self.decimation = every, seed, settings.decimation
+        self.every, self.seed, self.decimation = every, seed, plan.spec.decimation
         self.evaluations: list[Evaluation] = []
         self.timesteps: list[int] = []
         self._next = 0
@@ -98,7 +97,7 @@ class LearningCurve(BaseCallback):
 
     def _evaluate(self) -> None:
         began = time.perf_counter()
-        run = TrainedRun(self.model, self.normalizer, self.config, self.settings)
+        run = TrainedRun(self.model, self.normalizer, self.plan)
         result = evaluate_run(run, self.episodes, self.seed)
         self.evaluations.append(result)
         self.timesteps.append(self.num_timesteps)

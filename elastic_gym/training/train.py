@@ -31,14 +31,8 @@ from elastic_gym.observers.registry import OBSERVERS, observer_class
 from elastic_gym.observers.sensors import SENSORS
 from elastic_gym.policy.builder import build_policy_env
 from elastic_gym.runtime.parallel import DEFAULT_BACKEND
-from elastic_gym.training.config import (
-    Settings,
-    TrainConfig,
-    algorithm_class,
-    default_policy,
-    merged_hyperparams,
-)
-from elastic_gym.training.distill import check_distill
+from elastic_gym.training.config import Settings, TrainConfig, default_policy
+from elastic_gym.training.plan import TrainPlan, plan_run
 from elastic_gym.training.run_envs import training_vec_env
 from elastic_gym.training.run_folder import NewRun, RunFolder, missing_folders, remove_empty
 from elastic_gym.training.trained import episode_duration
@@ -96,39 +90,31 @@ def train(
     """
     from elastic_gym.runtime.parallel import single_threaded
 
-    settings, algo_kwargs = config.settings()  # a bad config changes nothing
-    check_distill(config, settings)
-    episode_duration(config.env_id, config.training_env_kwargs(settings))  # bounded evaluations
-    check_policy_env(config, settings)
+    plan = plan_run(config)  # a bad config changes nothing
+    episode_duration(plan.spec.env_id, plan.spec.env_kwargs)  # bounded evaluations
+    check_policy_env(plan)
     folder = RunFolder(config.out_dir)
     with folder.create(overwrite, lock) as run, single_threaded():
-        return _train(config, settings, algo_kwargs, run, progress_bar, verbose)
+        return _train(plan, run, progress_bar, verbose)
 
 
-def _train(
-    config: TrainConfig,
-    settings: Settings,
-    algo_kwargs: dict,
-    run: NewRun,
-    progress_bar: bool,
-    verbose: int,
-) -> TrainResult:
+def _train(plan: TrainPlan, run: NewRun, progress_bar: bool, verbose: int) -> TrainResult:
     from stable_baselines3.common.vec_env import VecNormalize
 
     from elastic_gym.training.learning_curve import LearningCurve
 
+    config, settings, spec = plan.config, plan.settings, plan.spec
     out = run.target.path
     total = config.total_steps or settings.n_timesteps
-    n_envs = settings.n_envs
-    spec = config.policy_spec(settings)
-    venv = training_vec_env(spec, settings, n_envs, config.seed)
+    algo_kwargs = plan.algorithm_arguments()
+    venv = training_vec_env(spec, settings, settings.n_envs, config.seed)
     try:
         normalize = settings.normalize
         gamma = float(algo_kwargs.get("gamma", 0.99))
         venv = VecNormalize(venv, norm_obs=normalize, norm_reward=normalize, gamma=gamma)
 
         policy = algo_kwargs.pop("policy", default_policy(config.algo))
-        if settings.critic_state or settings.critic_plant:
+        if spec.critic:
             from elastic_gym.training.critic import PrivilegedCriticPolicy
 
             deployed = build_policy_env(spec, spec.make_env())  # the actor's observation only
@@ -141,7 +127,7 @@ def _train(
                 **algo_kwargs.get("policy_kwargs", {}),
                 "privileged_size": privileged,
             }
-        model = algorithm_class(config.algo)(
+        model = plan.algorithm(
             policy,
             venv,
             seed=config.seed,
@@ -153,7 +139,7 @@ def _train(
         if spec.action.kind == "residual":
             zero_action_head(model)
         every = config.eval_freq or max(total // 20, 1)
-        curve = LearningCurve(config, settings, venv, out, every, config.seed + 10_000)
+        curve = LearningCurve(plan, venv, out, every, config.seed + 10_000)
         start = time.perf_counter()
         if settings.distill is None:
             model.learn(
@@ -168,21 +154,7 @@ def _train(
 
         model.save(out / "model.zip")
         venv.save(str(out / "vecnormalize.pkl"))
-        # the run folder is self-contained: the hyper-parameters used, not a pointer to a
-        # file, and every field of the action and observation configs (a later release's
-        # defaults must not change what a saved policy's actions mean)
-        run.target.write_config(
-            config.model_copy(
-                update={
-                    "hyperparams_file": None,
-                    "action": spec.action.to_dict(),
-                    "observation": spec.observation.to_dict(),
-                    "hyperparams": merged_hyperparams(
-                        config.algo, config.env_id, config.hyperparams, config.hyperparams_file
-                    ),
-                }
-            )
-        )
+        run.target.write_config(plan.record)
         final = curve.evaluations[-1]
         result = TrainResult(
             str(run.folder.path),
@@ -237,20 +209,20 @@ def check_configs(configs: list[TrainConfig], overwrite: bool = False) -> None:
     built = set()
     for config in configs:
         RunFolder(config.out_dir).check(overwrite)
-        settings, _ = config.settings()
-        check_distill(config, settings)
+        plan = plan_run(config)
         setting = config.model_copy(update={"seed": 0, "out_dir": ""}).to_dict()
         if repr(setting) not in built:
             built.add(repr(setting))
-            check_policy_env(config, settings)
+            check_policy_env(plan)
 
 
-def check_policy_env(config: TrainConfig, settings: Settings) -> None:
+def check_policy_env(plan: TrainPlan) -> None:
     """What only building a run's envs would check, checked in this process before any
     worker starts, as a ``ValueError`` naming the option: the observer's options and the
     residual's controller and options bound to their constructors, then the training
     stack built once per batch of env kwargs (their values, e.g. a task's options)."""
-    action, _ = config.policy_configs(settings)
+    config, spec = plan.config, plan.spec
+    action = spec.action
     if config.state != SENSORS:
         fixed = OBSERVERS[config.state][2]
         cls = observer_class(config.state)
@@ -261,8 +233,7 @@ def check_policy_env(config: TrainConfig, settings: Settings) -> None:
         except ValueError as exc:
             raise ValueError(f"action.residual: {exc}") from None
         check_options(base, action.residual_options, "action.residual_options")
-    spec = config.policy_spec(settings)
-    for kwargs in {repr(k): k for k in settings.batch_kwargs}.values():
+    for kwargs in {repr(k): k for k in plan.settings.batch_kwargs}.values():
         try:
             build_policy_env(spec, spec.make_env(env_kwargs=kwargs), critic=True).close()
         except Exception as exc:

@@ -10,7 +10,7 @@ period, from the reset on); its return the sum of the env's rewards over the epi
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,7 @@ from elastic_gym.policy.loading import Policy, untrusted
 from elastic_gym.policy.spec import PolicySpec
 from elastic_gym.runtime.parallel import single_threaded
 from elastic_gym.training.config import Settings, TrainConfig
+from elastic_gym.training.plan import TrainPlan, plan_run
 from elastic_gym.training.rollouts import Evaluation
 from elastic_gym.training.run_folder import RunFolder
 from elastic_gym.validation import checked_count
@@ -39,19 +40,28 @@ TRAINED_POLICY = "trained-policy"  # the controller name of a run's policy
 @dataclass
 class TrainedRun:
     """A run folder loaded back (or the run being trained): the SB3 model, its
-    normalization statistics and config; ``spec`` is the policy it trains
-    ([`PolicySpec`][elastic_gym.policy.spec.PolicySpec]) and `policy` the deployed
-    policy the comparison runs."""
+    normalization statistics and the run's [`TrainPlan`][elastic_gym.training.plan.TrainPlan]
+    (its ``config``, ``settings`` and ``spec``, the policy it trains); `policy` is the
+    deployed policy the comparison runs."""
 
     model: Any  # an SB3 algorithm (duck-typed: no SB3 import here)
     normalizer: Any  # its VecNormalize, or None
-    config: TrainConfig
-    settings: Settings
-    spec: PolicySpec = field(init=False)
+    plan: TrainPlan
 
     def __post_init__(self) -> None:
-        self.spec = self.config.policy_spec(self.settings)
         self._actor = PolicyActor(self.model, self.normalizer)
+
+    @property
+    def config(self) -> TrainConfig:
+        return self.plan.config
+
+    @property
+    def settings(self) -> Settings:
+        return self.plan.settings
+
+    @property
+    def spec(self) -> PolicySpec:
+        return self.plan.spec
 
     @property
     def decimation(self) -> int:
@@ -92,11 +102,11 @@ def load_run(run_dir: str | Path, best: bool = False, trust_pickle: bool = False
     config = folder.read_config()
     if not trust_pickle:
         raise untrusted(run_dir)
-    settings, _ = config.settings()
+    plan = plan_run(config)
     model = folder.load_model(config.algo, best)
     normalizer = folder.load_normalizer()
     _check_normalizer(model, normalizer, folder.path)
-    return TrainedRun(model, normalizer, config, settings)
+    return TrainedRun(model, normalizer, plan)
 
 
 def _check_normalizer(model: Any, normalizer: Any, path: Path) -> None:
@@ -129,9 +139,7 @@ def run_policy(run_dir: str | Path, best: bool = False) -> Policy:
 
 def run_spec(run_dir: str | Path) -> PolicySpec:
     """The policy spec of a run folder from its ``config.yaml`` alone (no pickle)."""
-    config = RunFolder(run_dir).read_config()
-    settings, _ = config.settings()
-    return config.policy_spec(settings)
+    return plan_run(RunFolder(run_dir).read_config()).spec
 
 
 def episode_duration(env_id: str, env_kwargs: dict) -> float:
