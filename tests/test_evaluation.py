@@ -8,6 +8,7 @@ import re
 import subprocess
 import sys
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
@@ -245,6 +246,46 @@ def test_controller_sees_only_public_information_and_the_perturbed_model():
     assert {keys for keys, _, _ in Spy.seen} == {frozenset({"state", "reference"})}
     assert all(info <= {"time", "reference"} for _, info, _ in Spy.seen)
     assert {mass for _, _, mass in Spy.seen} == {1.25}
+
+
+def test_open_loop_row_is_the_excitation_task_driven_by_zero_action():
+    """The ``open-loop`` controller adds nothing: its comparison row on the ``excitation``
+    task (Cristofaro & De Luca's open-loop torque, applied by the env) is the env stepped
+    with zero actions, torque and link motion bit for bit."""
+    scenario = Scenario.from_dict(
+        rigid_scenario(
+            controllers=["open-loop"],
+            state_sources=[True],
+            duration=0.05,
+            envs=[{"id": "TwoLinkRigid-v0", "kwargs": {"task": "excitation"}}],
+        )
+    )
+    spec = plan_runs(scenario)[0][0]
+    row = run_episode(spec)
+    assert row.ok and row.series is not None
+    env = gym.make(spec.env_id, **spec.env_kwargs)
+    _, info = env.reset(seed=spec.seed)
+    q, torque = [info["true_state"]["q"]], [info["torque"]]
+    for _ in range(len(row.series) - 1):
+        _, _, _, _, info = env.step(np.zeros(2))
+        q.append(info["true_state"]["q"])
+        torque.append(info["torque"])
+    env.close()
+    assert np.abs(np.array(torque)).min() > 1.0  # the task drives the arm
+    np.testing.assert_array_equal(np.array(torque), row.series.torque)
+    np.testing.assert_array_equal(np.array(q), row.series.q)
+
+
+def test_the_former_runner_module_keeps_earlier_imports_working():
+    """`elastic_gym.evaluation.runner` (deprecated, CHANGELOG) hands on the very objects
+    of the comparison's stages."""
+    import importlib
+
+    runner = importlib.import_module("elastic_gym.evaluation.runner")
+    homes = ("closed_loop", "episodes", "execute", "grid", "world")
+    modules = [importlib.import_module(f"elastic_gym.evaluation.{home}") for home in homes]
+    for name in runner.__all__:
+        assert any(getattr(m, name, None) is getattr(runner, name) for m in modules), name
 
 
 @pytest.mark.slow

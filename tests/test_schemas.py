@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import runpy
 from pathlib import Path
 
 import jsonschema
@@ -107,6 +108,16 @@ def test_cli_prints_the_schema(capsys):
     with pytest.raises(SystemExit) as info:
         main(["schema", "nope"])
     assert info.value.code == 2
+
+
+def test_python_dash_m_runs_the_same_command_line(monkeypatch, capsys):
+    """``python -m elastic_gym.cli schema scenario`` is the console script's command: the
+    same output, its exit status handed to the shell."""
+    monkeypatch.setattr("sys.argv", ["elastic_gym.cli", "schema", "scenario"])
+    with pytest.raises(SystemExit) as info:
+        runpy.run_module("elastic_gym.cli", run_name="__main__")
+    assert info.value.code == 0
+    assert json.loads(capsys.readouterr().out) == json_schema("scenario")
 
 
 def test_a_freshly_written_run_config_names_the_run_schema_and_satisfies_it(tmp_path):
