@@ -155,42 +155,35 @@ def design_excitation(
     from `seed`; `evaluations` bounds the simplex's function evaluations. BLAS runs on one
     thread (small matrices: threads only compete)."""
     with threadpool_limits(limits=1):
-        return _design(
-            model,
-            torque_limit,
-            low,
-            high,
-            period,
-            harmonics,
-            fill,
-            torque_fill,
-            dither,
-            seed,
-            starts,
-            evaluations,
-            ramp,
+        rng = np.random.default_rng(seed)
+        design = RegressorDesign(model, torque_limit, low, high, period, harmonics, fill)
+        design.find_base(rng)
+        x, start_cond = _best_coefficients(design, rng, starts, evaluations, torque_fill)
+        sine, cosine, motion, ratio = _within_torque_fill(design, x, torque_fill)
+        options = {
+            "period": float(period),
+            "offset": design.offset.tolist(),
+            "sine": sine.tolist(),
+            "cosine": cosine.tolist(),
+            "ramp": float(ramp),
+            **({"dither": dither.model_dump(mode="json")} if dither is not None else {}),
+        }
+        return ExcitationDesign(
+            task_options=options,
+            condition_number=design.condition_number(motion),
+            start_condition_number=start_cond,
+            torque_ratio=ratio,
+            base_columns=len(design.base) if design.base is not None else 0,
         )
 
 
-def _design(
-    model,
-    torque_limit,
-    low,
-    high,
-    period,
-    harmonics,
-    fill,
-    torque_fill,
-    dither,
-    seed,
-    starts,
-    evaluations,
-    ramp,
-) -> ExcitationDesign:
-    rng = np.random.default_rng(seed)
-    design = RegressorDesign(model, torque_limit, low, high, period, harmonics, fill)
-    design.find_base(rng)
-    size = 2 * harmonics * model.n
+def _best_coefficients(
+    design: RegressorDesign, rng, starts: int, evaluations: int, torque_fill: float
+) -> tuple[np.ndarray, float]:
+    """The Fourier coefficients minimising the design's objective: the best of ``starts``
+    random draws, refined by Nelder-Mead (at most ``evaluations`` evaluations) if that
+    improves it; and the condition number of the best draw."""
+    size = 2 * design.harmonics * design.n
     candidates = [rng.standard_normal(size) for _ in range(starts)]
     values = [design.objective(x, torque_fill) for x in candidates]
     best = candidates[int(np.argmin(values))]
@@ -202,12 +195,18 @@ def _design(
         method="Nelder-Mead",
         options={"maxfev": evaluations, "xatol": 1e-3, "fatol": 1e-4, "adaptive": True},
     )
-    x = result.x if result.fun <= min(values) else best
+    return (result.x if result.fun <= min(values) else best), start_cond
+
+
+def _within_torque_fill(design: RegressorDesign, x: np.ndarray, torque_fill: float) -> tuple:
+    """(sine, cosine, motion, torque ratio) of coefficients ``x`` shrunk until the motion
+    needs at most ``torque_fill`` of the torque limits (the objective's penalty is not a
+    bound); ``ValueError`` when even the workspace centre needs more."""
     sine, cosine = design.coefficients(x)
     motion = design.trajectory(sine, cosine)
     ratio = design.torque_ratio(motion)
     shrink = 1.0
-    while ratio > torque_fill and shrink > 1e-3:  # a penalty is not a bound: shrink
+    while ratio > torque_fill and shrink > 1e-3:
         shrink *= 0.9
         motion = design.trajectory(sine * shrink, cosine * shrink)
         ratio = design.torque_ratio(motion)
@@ -216,19 +215,4 @@ def _design(
             f"no reference within {torque_fill:.0%} of the torque limits: holding the "
             f"workspace centre alone takes {ratio:.0%} of them"
         )
-    sine, cosine = sine * shrink, cosine * shrink
-    options = {
-        "period": float(period),
-        "offset": design.offset.tolist(),
-        "sine": sine.tolist(),
-        "cosine": cosine.tolist(),
-        "ramp": float(ramp),
-        **({"dither": dither.model_dump(mode="json")} if dither is not None else {}),
-    }
-    return ExcitationDesign(
-        task_options=options,
-        condition_number=design.condition_number(motion),
-        start_condition_number=start_cond,
-        torque_ratio=ratio,
-        base_columns=len(design.base) if design.base is not None else 0,
-    )
+    return sine * shrink, cosine * shrink, motion, ratio
