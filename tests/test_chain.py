@@ -116,3 +116,27 @@ def test_thin_svd_of_the_accelerometer_maps_is_lapacks():
         np.testing.assert_allclose(U.T @ U, np.eye(2), rtol=0, atol=1e-14)
         np.testing.assert_allclose(V_T @ V_T.T, np.eye(2), rtol=0, atol=1e-14)
         np.testing.assert_allclose(s, np.linalg.svd(T, compute_uv=False), rtol=1e-14)
+
+
+def test_thin_svd_of_two_columns_is_dgesdd_bit_for_bit():
+    """The two-column path of `thin_svd` (dgesdd's own routines, without its queries) gives
+    dgesdd's U, s and V^T to the last bit: random, rank-deficient, zero and badly scaled
+    m x 2 maps (those dgesdd scales go to dgesdd itself), m = 3, 6, 9."""
+    from elastic_gym.model.lapack import lapack_svd, svd_workspace, thin_svd
+
+    rng = np.random.default_rng(1)
+    for m in (3, 6, 9):
+        space, reference = svd_workspace(m, 2), svd_workspace(m, 2)
+        for trial in range(300):
+            T = rng.normal(size=(m, 2)) * 10.0 ** rng.uniform(-140, 140)
+            if trial % 3 == 0:  # nearly parallel columns: sigma_min ~ 1e-9 sigma_max
+                T[:, 1] = 0.5 * T[:, 0] + 1e-9 * rng.normal(size=m)
+            if trial % 5 == 1:
+                T[:, trial % 2] = 0.0
+            if trial % 7 == 2:
+                T[:] = 0.0
+            got = [x.copy() for x in thin_svd(T, space)]
+            for g, e in zip(got, lapack_svd(T, reference), strict=True):
+                assert np.array_equal(g, e), (m, trial)
+    with pytest.raises(ValueError, match="failed to converge"):  # as dgesdd: NaN refused
+        thin_svd(np.full((6, 2), np.nan), svd_workspace(6, 2))
