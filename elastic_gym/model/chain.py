@@ -315,7 +315,7 @@ def _acceleration_from_readings_kernel(
             ddq[k, :] = np.nan
             diagnostics[k, :] = np.nan
             continue
-        Ut, s, V = thin_svd(T[k], space)  # U = Ut.T, V^T = V.T
+        Ut, s, V = thin_svd(T[k], space)  # U = Ut.T, V^T = V.T; dgesdd bit for bit
         sigma_min = s[n - 1]
         ratio = min(sigma_min / threshold, 1.0)
         damping2 = (1.0 - ratio * ratio) * damping * damping
