@@ -98,6 +98,21 @@ def single_thread_torch():
     torch.set_num_threads(threads)
 
 
+@pytest.fixture
+def jobs_in_this_process(monkeypatch):
+    """``workers=1`` runs its jobs in this process, as it does for jobs that refer to
+    ``__main__`` (`elastic_gym.runtime.parallel.for_each_result`, the comparison's and the
+    benchmark's execution): for a test whose claim is the results, not the worker process
+    (a spawned worker imports the package and torch again: seconds of CPU each)."""
+    import importlib
+
+    def here(*objects) -> bool:
+        return True
+
+    for module in ("elastic_gym.runtime.parallel", "elastic_gym.evaluation.execute"):
+        monkeypatch.setattr(importlib.import_module(module), "refers_to_main", here)
+
+
 @pytest.fixture(params=elastic_gym.ENV_IDS)
 def env_id(request) -> str:
     return request.param

@@ -158,6 +158,7 @@ def test_critic_state_run_deploys_without_the_true_state(tmp_path):
         hyperparams={
             "critic_state": True,
             "n_envs": 2,
+            "batches": 1,
             "n_steps": 32,
             "batch_size": 32,
             "n_epochs": 2,
@@ -263,6 +264,7 @@ def test_critic_plant_run_acts_as_its_actor_alone_and_deploys_without_the_plant(
             "critic_state": True,
             "critic_plant": True,
             "n_envs": 2,
+            "batches": 1,
             "n_steps": 32,
             "batch_size": 32,
             "n_epochs": 2,

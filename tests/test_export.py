@@ -32,7 +32,7 @@ pytestmark = pytest.mark.usefixtures("single_thread_torch")
 
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 RIGID = "elastic_gym/TwoLinkRigid-v0"
-TINY = {"n_envs": 2, "n_steps": 16, "batch_size": 32, "n_epochs": 1}
+TINY = {"n_envs": 2, "batches": 1, "n_steps": 16, "batch_size": 32, "n_epochs": 1}
 NETS = {
     "ppo": {"net_arch": [16, 16]},
     "recurrentppo": {"net_arch": [16], "lstm_hidden_size": 8},
@@ -51,7 +51,8 @@ SOURCES = [  # (env, state source): every source of the elastic and of the rigid
 
 
 def tiny_run(folder: Path, env_id: str, algo: str, state: str, **fields) -> Path:
-    """A training run of 32 policy steps on 2 arms (short episodes)."""
+    """A training run of 32 policy steps on 2 arms of one world in this process (short
+    episodes; ``batches: 1``, no worker processes)."""
     from elastic_gym.training import TrainConfig, train
 
     hyperparams = {**TINY, "policy_kwargs": NETS[algo], **fields.pop("hyperparams", {})}
@@ -70,6 +71,22 @@ def tiny_run(folder: Path, env_id: str, algo: str, state: str, **fields) -> Path
     )
     train(config, progress_bar=False)
     return folder
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """`tiny_run` by its arguments, each trained once for the module; a test that changes
+    a run's files changes a copy."""
+    trained: dict[str, Path] = {}
+
+    def run(env_id: str, algo: str, state: str, **fields) -> Path:
+        key = repr((env_id, algo, state, fields))
+        if key not in trained:
+            folder = tmp_path_factory.mktemp("run") / "run"
+            trained[key] = tiny_run(folder, env_id, algo, state, **fields)
+        return trained[key]
+
+    return run
 
 
 def export(run: Path, output: Path, *extra: str) -> int:
@@ -110,8 +127,8 @@ def assert_onnx_is_predict(run_folder: Path, exported: Path) -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("algo", ["ppo", "recurrentppo"])
 @pytest.mark.parametrize(("env_id", "state"), SOURCES)
-def test_the_exported_graph_acts_as_sb3_predicts(tmp_path, algo, env_id, state):
-    run = tiny_run(tmp_path / "run", env_id, algo, state)
+def test_the_exported_graph_acts_as_sb3_predicts(tmp_path, runs, algo, env_id, state):
+    run = runs(env_id, algo, state)
     assert export(run, tmp_path / "exported") == 0
     assert_onnx_is_predict(run, tmp_path / "exported")
     manifest = read_manifest(tmp_path / "exported")
@@ -122,11 +139,10 @@ def test_the_exported_graph_acts_as_sb3_predicts(tmp_path, algo, env_id, state):
 
 
 @pytest.mark.slow
-def test_a_residual_with_a_privileged_critic_exports_its_actor_only(tmp_path):
+def test_a_residual_with_a_privileged_critic_exports_its_actor_only(tmp_path, runs):
     """The critic's privileged entries are no input of the graph: the actor's m entries
     are, normalized with the first m statistics (the actor slices the rest off)."""
-    run = tiny_run(
-        tmp_path / "run",
+    run = runs(
         TWO_LINK,
         "ppo",
         "deluca",
@@ -145,8 +161,8 @@ def test_a_residual_with_a_privileged_critic_exports_its_actor_only(tmp_path):
     assert policy.actor.observation_size == trained.model.observation_space.shape[0] - privileged
 
 
-def test_the_manifest_says_what_each_input_is_and_satisfies_its_schema(tmp_path):
-    run = tiny_run(tmp_path / "run", TWO_LINK, "recurrentppo", "sensors")
+def test_the_manifest_says_what_each_input_is_and_satisfies_its_schema(tmp_path, runs):
+    run = runs(TWO_LINK, "recurrentppo", "sensors")
     assert export(run, tmp_path / "exported") == 0
     data = json.loads((tmp_path / "exported" / MANIFEST_FILE).read_text())
     jsonschema.Draft202012Validator(json_schema("policy")).validate(data)
@@ -172,8 +188,8 @@ def test_the_manifest_says_what_each_input_is_and_satisfies_its_schema(tmp_path)
 
 
 @pytest.mark.slow
-def test_a_changed_graph_or_manifest_is_refused(tmp_path):
-    run = tiny_run(tmp_path / "run", TWO_LINK, "ppo", "true")
+def test_a_changed_graph_or_manifest_is_refused(tmp_path, runs):
+    run = runs(TWO_LINK, "ppo", "true")
     exported = tmp_path / "exported"
     assert export(run, exported) == 0
     load_policy(exported)
@@ -196,11 +212,11 @@ def test_a_changed_graph_or_manifest_is_refused(tmp_path):
     assert export(run, exported, "--overwrite") == 0
 
 
-def test_the_exported_policy_runs_in_the_comparison_as_the_run_does(tmp_path):
+def test_the_exported_policy_runs_in_the_comparison_as_the_run_does(tmp_path, runs):
     """The comparison's controller on the exported policy and on the trusted run folder:
     torques within the actions' float32 rounding on the same observations; N arms of the
     exported policy's vector twin are N single controllers (per-arm LSTM memory)."""
-    run = tiny_run(tmp_path / "run", TWO_LINK, "recurrentppo", "deluca")
+    run = runs(TWO_LINK, "recurrentppo", "deluca")
     assert export(run, tmp_path / "exported") == 0
     env = ObserverWrapper(gym.make(TWO_LINK, episode_time=0.3), "deluca")
     model = env.unwrapped.model
@@ -251,8 +267,8 @@ def plant(run: Path, marker: Path) -> None:
 
 
 @pytest.mark.slow
-def test_a_planted_pickle_never_runs_without_trust_and_loads_with_it(tmp_path, capsys):
-    run = tiny_run(tmp_path / "run", TWO_LINK, "ppo", "deluca")
+def test_a_planted_pickle_never_runs_without_trust_and_loads_with_it(tmp_path, runs, capsys):
+    run = Path(shutil.copytree(runs(TWO_LINK, "ppo", "deluca"), tmp_path / "run"))
     marker = tmp_path / "marker"
     plant(run, marker)
     out = tmp_path / "out"
@@ -282,10 +298,10 @@ def test_a_planted_pickle_never_runs_without_trust_and_loads_with_it(tmp_path, c
 
 
 @pytest.mark.slow
-def test_the_export_reads_weights_only_from_the_model_zip(tmp_path, capsys):
+def test_the_export_reads_weights_only_from_the_model_zip(tmp_path, runs, capsys):
     """A model.zip whose policy.pth holds a pickled object, not tensors, is refused by
     torch's weights-only loader: nothing runs."""
-    run = tiny_run(tmp_path / "run", TWO_LINK, "ppo", "true")
+    run = Path(shutil.copytree(runs(TWO_LINK, "ppo", "true"), tmp_path / "run"))
     marker = tmp_path / "marker"
     archive = run / "model.zip"
     with zipfile.ZipFile(archive) as source:

@@ -84,7 +84,7 @@ def test_learning_curve_is_written_and_its_last_row_is_the_final_policy(tmp_path
         eval_freq=100,
         eval_episodes=2,
         seed=3,
-        hyperparams={"n_envs": 4, "n_steps": 16, "batch_size": 32, "n_epochs": 1},
+        hyperparams={"n_envs": 4, "batches": 1, "n_steps": 16, "batch_size": 32, "n_epochs": 1},
     )
     result = train(config, progress_bar=False)
     with open(Path(config.out_dir) / CURVE_FILE) as handle:

@@ -28,7 +28,7 @@ from elastic_gym.training.trained import evaluation_runs
 
 ENV_ID = "elastic_gym/TwoLinkElastic-v0"
 EPISODE = {"episode_time": 0.3}
-TINY_NETS = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
+TINY_NETS = {"batches": 1, "n_steps": 16, "batch_size": 32, "n_epochs": 1}  # one world, here
 
 pytestmark = pytest.mark.usefixtures("single_thread_torch")
 
@@ -194,7 +194,7 @@ def _scenario(runs: dict, env_kwargs: dict, duration: float, seeds: list[int]) -
 
 
 @pytest.mark.slow
-def test_sensor_policy_rows_batched_equal_one_arm_per_world(sensor_runs):
+def test_sensor_policy_rows_batched_equal_one_arm_per_world(sensor_runs, jobs_in_this_process):
     """`compare --policy RUN` of raw-sensor runs: a source 'sensors' is added for them,
     eq. (13) is not paired with it (skipped with the reason), and every metric of every
     row is the same batched and with --batch-size 1 (1e-12 relative)."""
@@ -224,7 +224,9 @@ def test_sensor_policy_rows_batched_equal_one_arm_per_world(sensor_runs):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["lstm", "stacked", "distilled"])
-def test_evaluate_run_is_the_comparison_row_of_the_same_run_seed_and_plant(sensor_runs, kind):
+def test_evaluate_run_is_the_comparison_row_of_the_same_run_seed_and_plant(
+    sensor_runs, kind, jobs_in_this_process
+):
     """evaluate_run runs on the comparison's loop: its tracking RMS of episode seed s is
     the track_rms of the comparison row of the same run, seed and plant, to 1e-12, and its
     return the sum of the env's rewards of that row's episode; one episode alone is the
@@ -282,7 +284,9 @@ def test_bad_pairings_of_raw_sensors_are_refused(sensor_runs):
 
 
 @pytest.mark.slow
-def test_benchmark_scores_a_raw_sensor_run_as_implementable(sensor_runs, tmp_path):
+def test_benchmark_scores_a_raw_sensor_run_as_implementable(
+    sensor_runs, tmp_path, jobs_in_this_process
+):
     """`elastic-gym benchmark --run RUN` of a RecurrentPPO run on raw sensors: scored,
     source 'sensors', nothing privileged, not an oracle, and the scorecard says so."""
     from helpers import tiny_suite_data

@@ -48,7 +48,7 @@ def short_deluca_run(out_dir: Path, algo: str, hyperparams: dict):
 @pytest.mark.parametrize(
     ("algo", "hyperparams"),
     [
-        ("ppo", {"n_envs": 2, "n_steps": 64, "batch_size": 64, "n_epochs": 2}),
+        ("ppo", {"n_envs": 2, "batches": 1, "n_steps": 64, "batch_size": 64, "n_epochs": 2}),
         ("sac", {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arch": [32, 32]}}),
     ],
 )
@@ -356,7 +356,7 @@ def test_a_run_trained_without_normalization_loads_and_evaluates(tmp_path):
     """``normalize: false``: the saved VecNormalize has no observation statistics; the run
     folder still loads, acts on the raw features and evaluates on the comparison's loop
     (SB3's unpickled wrapper recursed when asked for the missing statistics)."""
-    hyperparams = {"n_envs": 2, "n_steps": 64, "batch_size": 64, "normalize": False}
+    hyperparams = {"n_envs": 2, "batches": 1, "n_steps": 64, "batch_size": 64, "normalize": False}
     run = load_run(
         short_deluca_run(tmp_path / "raw", "ppo", hyperparams).out_dir, trust_pickle=True
     )
