@@ -98,6 +98,7 @@ def test_ppo_learns_to_hold_the_arm_against_gravity(tmp_path):
     }
     hyperparams = {
         "n_envs": 4,
+        "batches": 1,  # one world in this process (ppo.yaml: 2 worker processes)
         "n_steps": 25,
         "batch_size": 50,
         "n_epochs": 10,
