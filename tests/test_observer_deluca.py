@@ -368,3 +368,35 @@ def test_bad_options_and_inputs_raise_clear_errors():
     accel = DeLucaObserver(model, 1e-3)
     with pytest.raises(ValueError, match="acceleration"):
         accel.reset({"motor_position": np.zeros(2), "acceleration": np.zeros(5)})
+
+
+def test_every_arm_in_place_update_is_the_checked_path_bit_for_bit():
+    """One `update_arms` of every arm (in place, on the env's float64 rows), the same
+    periods through the checked and copying path (`arms` given) and `update_sequence` (one
+    compiled call) give the same estimates and eq. (11) diagnostics to the last bit."""
+    envs = gym.make_vec(
+        "elastic_gym/TwoLinkElastic-v0", num_envs=3, vectorization_mode="vector_entry_point"
+    )
+    obs, _ = envs.reset(seed=4)
+    model, dt = envs.unwrapped.model, envs.unwrapped.control_dt
+    rng = np.random.default_rng(0)
+    limit = envs.unwrapped.torque_limit
+    keys = ("motor_position", "acceleration")
+    steps = []
+    for _ in range(40):
+        tau = 0.1 * limit * rng.uniform(-1, 1, (3, len(limit)))
+        measured = envs.step(tau)[0]
+        steps.append(({key: measured[key].copy() for key in keys}, tau))
+    envs.close()
+    every, subset, sequence = (DeLucaObserver(model, dt) for _ in range(3))
+    for observer in (every, subset, sequence):
+        observer.reset_arms(obs, np.arange(3))
+    for measured, tau in steps:
+        fast = every.update_arms(measured, tau, dt)
+        assert np.array_equal(fast, subset.update_arms(measured, tau, dt, np.arange(3)))
+        for key, value in every.arm_diagnostics.items():
+            assert np.array_equal(value, subset.arm_diagnostics[key]), key
+    periods = {key: np.stack([m[key] for m, _ in steps]) for key in keys}
+    estimates = sequence.update_sequence(periods, np.stack([t for _, t in steps]), dt)
+    assert np.array_equal(estimates[-1], fast)
+    assert not np.array_equal(estimates[0], estimates[-1])  # the arms moved

@@ -232,6 +232,7 @@ class DeLucaObserver(BatchedObserver):
         # instance attribute: only the ideal variant needs the true q'' (Theorem 1)
         self.privileged = ("link_acceleration",) if acceleration == "ideal" else ()
         self._sensors = model.copy().chain  # own scratch buffer
+        self._readings_width = 3 * model.n_sensors
 
         K, B, D = model.K, model.B, model.D
         with errors_at("options.poles" if poles is not None else "options.bandwidth"):
@@ -254,6 +255,8 @@ class DeLucaObserver(BatchedObserver):
         self._xi = np.zeros((n_arms, 4 * n))
         self._theta = np.zeros((n_arms, n))
         self._ddq = np.zeros((n_arms, n))
+        self._period_out = np.empty((1, n_arms, 4 * n))  # one period of every arm
+        self._period_singular = np.empty((1, n_arms, 3))
         self.arm_diagnostics = {}
 
     # ------------------------------------------------------------------ design
@@ -338,8 +341,10 @@ class DeLucaObserver(BatchedObserver):
         n = self.n
         tau = self.checked_torque(torque, len(self._xi))
         if self.acceleration == "accelerometer":  # one period of the compiled loop
-            period = {key: np.asarray(obs[key])[None] for key in PERIOD_KEYS if key in obs}
-            self._periods(period, tau[None], arms)
+            every = arms is None or (isinstance(arms, slice) and arms == slice(None))
+            if not (every and self._every_arm(obs, tau)):
+                period = {key: np.asarray(obs[key])[None] for key in PERIOD_KEYS if key in obs}
+                self._periods(period, tau[None], arms)
             return self._xi.copy()
         arms = slice(None) if arms is None else arms
         theta = self.measured_positions(obs, arms)
@@ -373,6 +378,45 @@ class DeLucaObserver(BatchedObserver):
             raise ValueError(
                 f"DeLucaObserver was discretized for dt={self.dt}, update called with dt={dt}"
             )
+
+    def _every_arm(self, obs: Mapping, tau: np.ndarray) -> bool:
+        """One period of every arm by `_accelerometer_periods` on the observer's own state
+        and buffers, when the measurements are float64 rows (N, .) as the envs give them
+        (False: nothing done, `_periods` checks and copies them): the numbers of `_periods`,
+        without its copies."""
+        xi = self._xi
+        rows = []
+        for key, width in (("motor_position", self.n), ("acceleration", self._readings_width)):
+            value = obs.get(key) if isinstance(obs, dict) else None
+            if not (
+                type(value) is np.ndarray
+                and value.dtype == np.float64
+                and value.shape == (len(xi), width)
+                and value.flags.c_contiguous
+            ):
+                return False
+            rows.append(value[None])
+        saturation = np.inf if self.velocity_saturation is None else self.velocity_saturation
+        work, constants = self._sensors.readings_arguments()
+        _accelerometer_periods(
+            xi,
+            self._theta,
+            self._ddq,
+            np.ascontiguousarray(tau, dtype=float)[None],
+            rows[0],
+            rows[1],
+            self._step_rows,
+            self._ddq_rows,
+            float(saturation),
+            float(self.dls_threshold),
+            float(self.dls_damping),
+            work,
+            constants,
+            self._period_out,
+            self._period_singular,
+        )
+        self._record_singular(slice(None), self._period_singular[0])
+        return True
 
     def _periods(self, obs: Mapping, tau: np.ndarray, arms) -> np.ndarray:
         """Eq. (12) over the periods of `obs` (T, N, ...) and `tau` (T, N, n) for `arms`

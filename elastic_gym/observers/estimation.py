@@ -199,8 +199,11 @@ class Estimator:
     def _accept(self, estimates: np.ndarray, arms: np.ndarray) -> np.ndarray:
         """Store the finite rows of `estimates` (of `arms`); return the arms whose row is
         not finite (their reasons in `errors`)."""
+        if len(arms) == self.n_arms and np.isfinite(estimates).all():  # the common case
+            self.estimates[:] = estimates  # every arm (`arms` sorted, as `update` takes them)
+            return arms[:0]
         finite = np.isfinite(estimates[arms]).all(axis=1)
-        if finite.all():  # the common case
+        if finite.all():
             self.estimates[arms] = estimates[arms]
             return arms[:0]
         self.estimates[arms[finite]] = estimates[arms[finite]]
