@@ -22,6 +22,7 @@ from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.validation import option_value
 
 ARM = np.array([0])
+FLOAT64 = np.dtype(np.float64)
 
 
 def validated_actions(action, n_arms: int, n_joints: int) -> np.ndarray:
@@ -40,6 +41,23 @@ def validated_actions(action, n_arms: int, n_joints: int) -> np.ndarray:
     if not _all_finite(arr):
         raise ValueError(f"action must be finite, got {arr.reshape(shape)}")
     return arr
+
+
+def _arm_action(action, n_joints: int) -> np.ndarray:
+    """`validated_actions` of a single arm, (1, n_joints): a C-contiguous float64 array of
+    shape (n_joints,), what a policy or `action_space.sample()` gives, is checked in
+    place and given as a view (a step reads it and keeps nothing of it); anything else
+    is converted and checked by `validated_actions`, with its errors."""
+    if (
+        type(action) is np.ndarray
+        and action.dtype is FLOAT64
+        and action.shape == (n_joints,)
+        and action.flags.c_contiguous
+    ):
+        arr = action.reshape(1, n_joints)
+        if _all_finite(arr):
+            return arr
+    return validated_actions(action, 0, n_joints)
 
 
 @njit(cache=True)
@@ -143,19 +161,19 @@ class ArmEnv(gym.Env):
         except BaseException:  # nor of the env's own generator and seed
             self._np_random, self._np_random_seed = own
             raise
-        return batch.observation(0), batch.info(0)
+        return batch.arm_outputs(0)
 
     def step(self, action):
         batch = self.batch
         batch.check_open()
-        tau = validated_actions(action, 0, self.n_joints)
-        if not batch.running[0]:
+        tau = _arm_action(action, batch.n_joints)
+        if not batch.episode.running[0]:
             raise RuntimeError("call reset() before step() (and after an episode has ended)")
         reward, terminated, truncated = batch.step(tau)
-        obs, info = batch.observation(0), batch.info(0)
+        obs, info = batch.arm_outputs(0)
         if self.render_mode == "human":
             self.render()
-        return obs, float(reward[0]), bool(terminated[0]), bool(truncated[0]), info
+        return obs, reward.item(), bool(terminated[0]), bool(truncated[0]), info
 
     @property
     def time(self) -> float:

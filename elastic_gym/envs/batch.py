@@ -37,7 +37,7 @@ from elastic_gym.envs.config import EnvConfig
 from elastic_gym.envs.episode import EpisodeState
 from elastic_gym.envs.info import BatchInfo
 from elastic_gym.envs.initial_state import equilibrium_torque, initial_state, initial_state_options
-from elastic_gym.envs.kernels import control_period_kernel, post_step_kernel
+from elastic_gym.envs.kernels import control_period_kernel
 from elastic_gym.envs.measurement import Sensors
 from elastic_gym.envs.memory import check_batch_memory
 from elastic_gym.envs.packing import Fused, FusedArguments
@@ -52,6 +52,17 @@ from elastic_gym.robots.catalog import get_robot
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import joint_limits
 from elastic_gym.validation import checked_count, validated
+
+FLOAT64 = np.dtype(np.float64)
+
+
+def _float64_matrix(values: np.ndarray) -> bool:
+    """Whether ``values`` is a C-contiguous, writeable float64 matrix: the torques a
+    kernel's entry point (`Fused.period_call`) takes without numba's dispatch."""
+    if type(values) is not np.ndarray or values.dtype is not FLOAT64 or values.ndim != 2:
+        return False
+    flags = values.flags
+    return flags.c_contiguous and flags.writeable
 
 
 def _view(part: str, name: str, doc: str) -> Any:
@@ -294,13 +305,18 @@ class ArmBatch:
         stepping = self._all if stepping is None else stepping
         command = actions if every else np.where(stepping[:, None], actions, 0.0)
         plant, episode = self.plant_state, self.episode
-        command = plant.delayed(command)
-        pulse = plant.before_step(episode.time)
+        if plant.quiet:  # the common case: no delay line, payload change or pulse
+            pulse = None
+        else:
+            command = plant.delayed(command)
+            pulse = plant.before_step(episode.time)
         fused = self.fused.get() if every and pulse is None else None
         truncated = episode.truncation()
         if fused is not None and fused.period is not None:  # the period in one call
-            code, ended = control_period_kernel(command, truncated, fused.period)
-            bullet_capi.raise_for(code)
+            call = fused.period_call if _float64_matrix(command) else control_period_kernel
+            code, ended = call(command, truncated, fused.period)
+            if code != bullet_capi.OK:
+                bullet_capi.raise_for(code)
         else:
             ended = self._period_step_by_step(command, pulse, every, stepping, truncated)
         episode.next_slot()
@@ -335,7 +351,7 @@ class ArmBatch:
             reward = np.empty(self.n_arms)
             fused.refill(self.rngs)
             tau, previous, reference = episode.clipped, episode.previous_torque, episode.reference
-            if post_step_kernel(tau, previous, reference, episode.slot, reward, fused.end):
+            if fused.end_call(tau, previous, reference, episode.slot, reward, fused.end):
                 return reward, None
             reasons, forces = episode.broken(), fused.forces
         else:
@@ -384,6 +400,11 @@ class ArmBatch:
     def observation(self, arms: int | slice | np.ndarray = slice(None)) -> dict[str, np.ndarray]:
         """Copies of the current observations of `arms` (an int: one arm, no arm axis)."""
         return {key: value[arms].copy() for key, value in self.episode.obs.items()}
+
+    def arm_outputs(self, arm: int) -> tuple[dict[str, np.ndarray], dict]:
+        """(`observation`, `info`) of the one arm `arm` in one compiled copy (their arrays
+        views of one new array): what a single env's step returns."""
+        return self._info.arm_outputs(arm)
 
     def info(self, arms: int | slice | np.ndarray = slice(None)) -> dict:
         """The info of `arms` ([`BatchInfo`][elastic_gym.envs.info.BatchInfo]): arrays with

@@ -17,6 +17,8 @@ reference), so no later step changes an info already handed out.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numba import njit
 
@@ -25,25 +27,50 @@ from elastic_gym.envs.episode import EpisodeState
 from elastic_gym.envs.measurement import Sensors
 from elastic_gym.envs.plant_state import PlantState
 from elastic_gym.envs.simulator import ArmSimulator
+from elastic_gym.model.chain import NO_REFCOUNT
+from elastic_gym.model.packed import Packed, direct
+
+ROWS = 7 + len(REFERENCE_KEYS)
+"""n-vectors of one arm's info: theta, q, theta', q', q'', the reference's rows, tau, the
+torque pulse (`_arm_values`)."""
 
 
-@njit(cache=True)
-def _arm_values(k, theta, q, dtheta, dq, ddq, reference, torque, readings, limit, out):
-    """One fresh copy of arm k's info arrays, flat: theta, q, theta', q', q'', the
-    reference's rows (q_d .. q_d^(4)) and tau, n numbers each; returns whether one of its
-    accelerometer `readings` (N, 3 n_sensors) is at the range `limit` (N,)
-    (`_at_range`)."""
+@njit(cache=True, **NO_REFCOUNT)
+def _arm_values(k, arrays, pulse, out):
+    """One fresh copy of arm k's info and observation arrays, flat, into ``out``: theta, q,
+    theta', q', q'', the reference's rows (q_d .. q_d^(4)), tau and the torque pulse, n
+    numbers each, then the observed encoders, accelerometers and reference; returns
+    whether one of its observed accelerometer readings is at the range (`_at_range`).
+    ``arrays``: the batch's (theta, q, theta', q', q'', reference (N, 5, n), tau, the
+    observed encoders, accelerometers (N, 0 without) and reference, the accelerometers'
+    range (N,)); ``pulse``: the torque pulses (N, n)."""
+    theta, q, dtheta, dq, ddq, reference, torque = arrays[:7]
+    position, acceleration, observed_reference, limit = arrays[7:]
     n = q.shape[1]
+    rows = reference.shape[1]
     for j in range(n):
         out[j] = theta[k, j]
         out[n + j] = q[k, j]
         out[2 * n + j] = dtheta[k, j]
         out[3 * n + j] = dq[k, j]
         out[4 * n + j] = ddq[k, j]
-        for r in range(reference.shape[1]):
+        for r in range(rows):
             out[(5 + r) * n + j] = reference[k, r, j]
-        out[(5 + reference.shape[1]) * n + j] = torque[k, j]
-    return _at_range(readings[k], limit[k])
+        out[(5 + rows) * n + j] = torque[k, j]
+        out[(6 + rows) * n + j] = pulse[k, j]
+    start = (7 + rows) * n
+    for values in (position, acceleration, observed_reference):
+        for j in range(values.shape[1]):
+            out[start + j] = values[k, j]
+        start += values.shape[1]
+    return _at_range(acceleration[k], limit[k])
+
+
+@njit(cache=True)
+def arm_values_kernel(k, packed, pulse, out):
+    """`_arm_values` of a `Packed` of its arrays (a kernel without reference counting
+    reads them: the counting of the eleven arrays would cost a fifth of the call)."""
+    return _arm_values(k, packed.values, pulse, out)
 
 
 @njit(cache=True)
@@ -73,6 +100,10 @@ class BatchInfo:
         self.sim, self.episode, self.sensors, self.plant_state = sim, episode, sensors, plant_state
         self.n_joints = episode.ddq.shape[1]
         self._no_readings = np.zeros((episode.n_arms, 0))  # the accelerometers of none
+        self._call: Callable[..., bool] | None = None  # `arm_values_kernel`, see `_pack`
+        self._packed: Packed | None = None
+        self._observed: list[tuple[str, slice]] = []  # observation key, its part of a copy
+        self._size = 0
 
     def arms(self, arms: slice | np.ndarray = slice(None)) -> dict:
         """The info of ``arms``: arrays with a leading arm axis."""
@@ -114,45 +145,66 @@ class BatchInfo:
 
     def arm(self, k: int) -> dict:
         """The info of the one arm ``k`` (plain values; the same items, one compiled copy of
-        the state, the reference and the torque)."""
-        sim, episode, n = self.sim, self.episode, self.n_joints
-        x = np.empty((6 + len(REFERENCE_KEYS)) * n)
-        at_range = _arm_values(
-            k,
-            sim.theta,
-            sim.q,
-            sim.dtheta,
-            sim.dq,
-            episode.ddq,
-            episode.reference,
-            episode.torque,
-            episode.obs.get("acceleration", self._no_readings),
-            self.sensors.accelerometer_array.range,
-            x,
-        )
-        return {
-            "time": float(episode.time[k]),
+        the state, the reference and the torques)."""
+        return self.arm_outputs(k)[1]
+
+    def arm_outputs(self, k: int) -> tuple[dict[str, np.ndarray], dict]:
+        """(observation, info) of the one arm ``k``: the observation as
+        [`ArmBatch.observation`][elastic_gym.envs.batch.ArmBatch.observation] gives it, the
+        info as `arm`, their arrays views of one fresh copy (one compiled call)."""
+        call = self._call or self._pack()
+        episode, plant_state, n = self.episode, self.plant_state, self.n_joints
+        out = np.empty(self._size)
+        at_range = call(k, self._packed, plant_state.pulses.current, out)
+        rows = out[: ROWS * n].reshape(ROWS, n)
+        theta, q, dtheta, dq, ddq, q_d, dq_d, ddq_d, d3q_d, d4q_d, torque, pulse = rows
+        observation = {key: out[part] for key, part in self._observed}
+        plant = plant_state.arm_values(k)
+        plant["torque_pulse"] = pulse
+        plant_state.pulse_schedule(k, plant)
+        return observation, {
+            "time": episode.time.item(k),
             "true_state": {
-                "q": x[n : 2 * n],
-                "dq": x[3 * n : 4 * n],
-                "theta": x[:n],
-                "dtheta": x[2 * n : 3 * n],
-                "ddq": x[4 * n : 5 * n],
-                "x": x[: 4 * n],
+                "q": q,
+                "dq": dq,
+                "theta": theta,
+                "dtheta": dtheta,
+                "ddq": ddq,
+                "x": out[: 4 * n],
             },
-            "torque": x[10 * n :],
-            "torque_saturated": bool(episode.saturated[k]),
+            "torque": torque,
+            "torque_saturated": episode.saturated.item(k),
             "acceleration_saturated": at_range,
             "reference": {  # REFERENCE_KEYS
-                "q": x[5 * n : 6 * n],
-                "dq": x[6 * n : 7 * n],
-                "ddq": x[7 * n : 8 * n],
-                "d3q": x[8 * n : 9 * n],
-                "d4q": x[9 * n : 10 * n],
+                "q": q_d,
+                "dq": dq_d,
+                "ddq": ddq_d,
+                "d3q": d3q_d,
+                "d4q": d4q_d,
             },
             "termination_reason": episode.reasons[k],
-            "plant": self.plant_state.info(k),
+            "plant": plant,
         }
+
+    def _pack(self) -> Callable[..., bool]:
+        """The arrays `arm_values_kernel` reads (the parts' own, never rebound), packed
+        once, and the layout of its copy; returns its entry point (`direct`)."""
+        sim, episode, sensors = self.sim, self.episode, self.sensors
+        obs, n, position = episode.obs, self.n_joints, sensors.position_key
+        acceleration = obs.get("acceleration", self._no_readings)
+        observed = (obs[position], acceleration, obs["reference"])
+        state = (sim.theta, sim.q, sim.dtheta, sim.dq, episode.ddq)
+        limit = sensors.accelerometer_array.range
+        self._packed = Packed((*state, episode.reference, episode.torque, *observed, limit))
+        parts, start = {}, ROWS * n  # the copy's layout: encoders, accelerometers, reference
+        for key, values in zip((position, "acceleration", "reference"), observed, strict=True):
+            parts[key] = slice(start, start + values.shape[1])
+            start += values.shape[1]
+        self._observed = [(key, parts[key]) for key in obs]  # in the observation's order
+        self._size = start
+        pulse = self.plant_state.pulses.current
+        self._call = direct(arm_values_kernel, 0, self._packed, pulse, np.empty(start))
+        return self._call
 
     def _acceleration_saturated(self, arms) -> np.ndarray:
         """Whether an observed accelerometer reading is at the sensor's range (clipped)."""

@@ -13,16 +13,18 @@ again (new plants) or the episode length changed.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from elastic_gym.envs.episode import EpisodeState
+from elastic_gym.envs.kernels import control_period_kernel, post_step_kernel
 from elastic_gym.envs.measurement import Sensors
 from elastic_gym.envs.sensors import GaussianNoise
 from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.envs.task_base import Task
-from elastic_gym.model.packed import Packed
+from elastic_gym.model.packed import Packed, direct
 
 
 @dataclass(frozen=True)
@@ -35,21 +37,27 @@ class Fused:
             step by step measurement reads them when an arm broke).
         period: `control_period_kernel`'s `packed`, or None where the simulator cannot step
             through PyBullet's C API or the task has no compiled form.
-        noises: the noise streams the end of a period draws from, with their standard
-            deviation (a stream of std 0 draws nothing).
+        noises: the noise streams the end of a period draws from (those of a standard
+            deviation > 0: a stream of std 0 draws nothing).
+        end_call: `post_step_kernel`'s entry point for these arguments (`direct`:
+            without numba's dispatch; the batch's own arrays, an int slot, a fresh
+            float64 reward array).
+        period_call: `control_period_kernel`'s for `period` and motor torques of
+            C-contiguous, writeable float64 (N, n) (the kernel itself without `period`).
     """
 
     end: Packed
     forces: np.ndarray
     period: Packed | None
-    noises: tuple[tuple[GaussianNoise, float | None], ...]
+    noises: tuple[GaussianNoise, ...]
+    end_call: Callable[..., bool]
+    period_call: Callable[..., tuple[int, bool]]
 
     def refill(self, rngs: list[np.random.Generator]) -> None:
         """Fresh noise blocks for the arms whose block is used up (from their generators,
         in sensor order), before the end of a period draws from them."""
-        for noise, std in self.noises:
-            if std is not None and std > 0.0:
-                noise.refill(rngs)
+        for noise in self.noises:
+            noise.refill(rngs)
 
 
 class FusedArguments:
@@ -161,13 +169,19 @@ class FusedArguments:
             obs["reference"],
         )
         rewards = (self._limit_row, *self.reward_constants)
-        noises: list[tuple[GaussianNoise, float | None]] = [(encoder.noise, noise_std)]
-        if n_sensors:
-            noises.append((acc.noise, sample_std))
+        drawn = [(encoder.noise, noise_std)] + ([(acc.noise, sample_std)] if n_sensors else [])
+        noises = [noise for noise, std in drawn if std is not None and std > 0.0]
         state = (sim.theta, sim.dtheta, sim.q, sim.dq)
         coupling = sim.coupling_arguments()
         end = Packed((*state, transmission, coupling, dynamics, limits, sensor_arguments, rewards))
-        return Fused(end, forces, self.period(), tuple(noises))
+        period = self.period()
+        torque = (episode.clipped, episode.previous_torque, episode.reference)
+        end_call = direct(post_step_kernel, *torque, episode.slot, np.empty(N), end)
+        period_call: Callable[..., tuple[int, bool]] = control_period_kernel
+        if period is not None:
+            truncation = episode.truncation()
+            period_call = direct(control_period_kernel, episode.clipped, truncation, period)
+        return Fused(end, forces, period, tuple(noises), end_call, period_call)
 
     def period(self) -> Packed | None:
         """`control_period_kernel`'s `packed`, or None where the simulator cannot step

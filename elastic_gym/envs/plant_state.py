@@ -157,6 +157,13 @@ class PlantState:
             self._commands[:, arms] = torque
 
     # ------------------------------------------------------------------ steps
+    @property
+    def quiet(self) -> bool:
+        """Whether a step has nothing to do here: no actuator delay line, no payload
+        change, no torque pulse schedule (`delayed` would return the command and
+        `before_step` None)."""
+        return self._line == 1 and not self._changes and not self.pulses.start.shape[1]
+
     def delayed(self, command: np.ndarray) -> np.ndarray:
         """The torques reaching the motors now: each arm's command of actuator_delay
         control periods ago (the newest command enters the line)."""
@@ -183,29 +190,31 @@ class PlantState:
     def info(self, arms) -> dict:
         """``info["plant"]`` of ``arms`` (an int: one arm's plain values)."""
         if isinstance(arms, (int, np.integer)):
-            return self._one_arm_info(int(arms))
+            k = int(arms)
+            out = self.arm_values(k)
+            out["torque_pulse"] = self.pulses.current[k].copy()
+            self.pulse_schedule(k, out)
+            return out
         out = {path: values[arms].copy() for path, values in self.drawn.items()}
         out["actuator_delay"] = self.actuator_delay[arms].copy()
         out["payload.mass"] = self.payload_mass[arms].copy()  # the current mass
         out["torque_pulse"] = self.pulses.current[arms].copy()
-        self._pulse_schedule(arms, out)
+        self.pulse_schedule(arms, out)
         return out
 
-    def _one_arm_info(self, k: int) -> dict:
-        """`info` of arm ``k``; its plain values change only at a reset or a payload
-        change, so they are kept between steps (a dict copy costs less than reading them)."""
+    def arm_values(self, k: int) -> dict:
+        """A new dict of arm ``k``'s plain values of `info` (its draws, actuator delay and
+        payload mass: they change only at a reset or a payload change, so they are kept
+        between steps; a dict copy costs less than reading them)."""
         values = self._arm_values.get(k)
         if values is None:
             values = {path: drawn[k].item() for path, drawn in self.drawn.items()}
             values["actuator_delay"] = int(self.actuator_delay[k])
             values["payload.mass"] = float(self.payload_mass[k])  # the current mass
             self._arm_values[k] = values
-        out = values.copy()
-        out["torque_pulse"] = self.pulses.current[k].copy()
-        self._pulse_schedule(k, out)
-        return out
+        return values.copy()
 
-    def _pulse_schedule(self, arms, out: dict) -> None:
+    def pulse_schedule(self, arms, out: dict) -> None:
         """The torque pulses' times, durations and amplitudes of ``arms`` into ``out`` (NaN
         for unused slots), where the batch has pulses."""
         pulses = self.pulses

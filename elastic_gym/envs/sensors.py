@@ -82,9 +82,11 @@ class GaussianNoise:
     def __init__(self, n_arms: int, size: int) -> None:
         self.block = np.zeros((n_arms, self.BLOCK, size))
         self.next = np.full(n_arms, self.BLOCK)  # index of the next sample; BLOCK: draw
+        self.room = 0  # samples every arm has left in its block at least (0: look)
 
     def restart(self, arms: np.ndarray) -> None:
         self.next[arms] = self.BLOCK
+        self.room = 0
 
     def snapshot(self) -> tuple[np.ndarray, np.ndarray]:
         """Copies of the drawn blocks and the next sample's index of every arm."""
@@ -93,13 +95,19 @@ class GaussianNoise:
     def restore(self, snapshot: tuple[np.ndarray, np.ndarray]) -> None:
         """The blocks and indices of a `snapshot`, copied in place."""
         self.block[...], self.next[...] = snapshot
+        self.room = 0
 
     def refill(self, rngs: list[np.random.Generator]) -> None:
-        """A fresh block for every arm whose block is used up (before a sample of each)."""
+        """A fresh block for every arm whose block is used up (before a sample of each:
+        `room` counts the samples down to the next look at the arms' blocks)."""
+        if self.room > 0:
+            self.room -= 1
+            return
         if _any_equal(self.next, self.BLOCK):  # rare: once every BLOCK readings
             for arm in np.flatnonzero(self.next == self.BLOCK):
                 self.block[arm] = rngs[arm].standard_normal(self.block.shape[1:])
                 self.next[arm] = 0
+        self.room = self.BLOCK - 1 - int(self.next.max())  # after this sample
 
     def draw(self, arms: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
         """One sample per arm of ``arms`` (``rngs[k]`` is the generator of ``arms[k]``)."""
@@ -108,6 +116,7 @@ class GaussianNoise:
             sample = self.block[arms, self.next]
             self.next += 1
             return sample
+        self.room = 0  # the arms' blocks no longer advance together
         following = self.next[arms]
         empty = following == self.BLOCK
         if empty.any():
