@@ -9,6 +9,8 @@ is in ``info["true_state"]``. Action: motor torque (N m), clipped to the torque 
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -18,6 +20,7 @@ from numba import njit
 from elastic_gym.envs.batch import ArmBatch
 from elastic_gym.envs.config import RenderMode
 from elastic_gym.envs.signature import with_batch_options
+from elastic_gym.model.packed import direct
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.validation import option_value
 
@@ -44,20 +47,24 @@ def validated_actions(action, n_arms: int, n_joints: int) -> np.ndarray:
 
 
 def _arm_action(action, n_joints: int) -> np.ndarray:
-    """`validated_actions` of a single arm, (1, n_joints): a C-contiguous float64 array of
-    shape (n_joints,), what a policy or `action_space.sample()` gives, is checked in
-    place and given as a view (a step reads it and keeps nothing of it); anything else
-    is converted and checked by `validated_actions`, with its errors."""
-    if (
-        type(action) is np.ndarray
-        and action.dtype is FLOAT64
-        and action.shape == (n_joints,)
-        and action.flags.c_contiguous
-    ):
-        arr = action.reshape(1, n_joints)
-        if _all_finite(arr):
-            return arr
+    """`validated_actions` of a single arm, (1, n_joints): a C-contiguous, writeable
+    float64 array of shape (n_joints,), what a policy or `action_space.sample()` gives,
+    is checked in place and given as a view (a step reads it and keeps nothing of it);
+    anything else is converted and checked by `validated_actions`, with its errors."""
+    if type(action) is np.ndarray and action.dtype is FLOAT64 and action.shape == (n_joints,):
+        flags = action.flags
+        if flags.c_contiguous and flags.writeable:
+            arr = action.reshape(1, n_joints)
+            if _finite_row()(arr):
+                return arr
     return validated_actions(action, 0, n_joints)
+
+
+@functools.cache
+def _finite_row() -> Callable[[np.ndarray], bool]:
+    """`_all_finite` of C-contiguous float64 2-D arrays through its entry point (`direct`:
+    without numba's dispatch), found at the first call."""
+    return direct(_all_finite, np.zeros((1, 1)))
 
 
 @njit(cache=True)
@@ -173,7 +180,7 @@ class ArmEnv(gym.Env):
         obs, info = batch.arm_outputs(0)
         if self.render_mode == "human":
             self.render()
-        return obs, reward.item(), bool(terminated[0]), bool(truncated[0]), info
+        return obs, reward.item(0), terminated.item(0), truncated.item(0), info
 
     @property
     def time(self) -> float:

@@ -194,6 +194,10 @@ class ArmBatch:
             self.n_substeps,
         )
         self._info = BatchInfo(self.sim, self.episode, self.sensors, self.plant_state)
+        self.arm_outputs = self._info.arm_outputs
+        """(`observation`, `info`) of one arm in one compiled copy (their arrays views of
+        one new array): what a single env's step returns
+        ([`BatchInfo.arm_outputs`][elastic_gym.envs.info.BatchInfo.arm_outputs])."""
         self._all = np.ones(n_arms, dtype=bool)
         self._arms = every_arm(n_arms)  # (the sensors' whole-array path)
         self._minus_limit = -self.torque_limit
@@ -301,6 +305,10 @@ class ArmBatch:
         models): bit for bit the same.
         """
         self.check_open()
+        if stepping is None and self.plant_state.quiet:  # the common case
+            fused = self.fused.get()
+            if fused is not None and fused.period is not None and _float64_matrix(actions):
+                return self._fused_step(actions, fused)
         every = stepping is None or bool(stepping.all())
         stepping = self._all if stepping is None else stepping
         command = actions if every else np.where(stepping[:, None], actions, 0.0)
@@ -325,6 +333,21 @@ class ArmBatch:
             reward, reasons, truncated, ended, every, stepping, self._termination_reward
         )
 
+    def _fused_step(self, actions: np.ndarray, fused: Fused) -> tuple:
+        """`step` of every arm when a period is the two compiled calls and nothing else
+        (no delay line, payload change or pulse; the fused arguments; C-contiguous float64
+        actions): the general path's calls in its order, bit for bit the same."""
+        episode = self.episode
+        truncated = episode.truncation()
+        code, ended = fused.period_call(actions, truncated, fused.period)
+        if code != bullet_capi.OK:
+            bullet_capi.raise_for(code)
+        episode.next_slot()
+        reward, reasons = self._fused_end(fused)
+        return episode.conclude(
+            reward, reasons, truncated, ended, True, self._all, self._termination_reward
+        )
+
     def _period_step_by_step(self, command, pulse, every: bool, stepping, truncated) -> bool:
         """What `control_period_kernel` does, call by call: returns whether an arm is
         truncated."""
@@ -344,31 +367,38 @@ class ArmBatch:
         """(reward, termination reasons or None) at the end of a control period: q'' and
         the accelerometers' noise-free readings, termination, measurements, reward; in one
         compiled call (`post_step_kernel`) with the episode's `fused` arguments."""
+        if fused is not None:  # (every arm steps)
+            return self._fused_end(fused)
         sim, episode = self.sim, self.episode
         forces: np.ndarray | None
-        reasons: np.ndarray | None
-        if fused is not None:
-            reward = np.empty(self.n_arms)
-            fused.refill(self.rngs)
-            tau, previous, reference = episode.clipped, episode.previous_torque, episode.reference
-            if fused.end_call(tau, previous, reference, episode.slot, reward, fused.end):
-                return reward, None
-            reasons, forces = episode.broken(), fused.forces
+        if self.model.n_sensors:  # q'' and the accelerometers' noise-free readings at once
+            ddq, forces = sim.link_acceleration_and_forces(episode.clipped, pulse)
         else:
-            if self.model.n_sensors:  # q'' and the accelerometers' noise-free readings at once
-                ddq, forces = sim.link_acceleration_and_forces(episode.clipped, pulse)
-            else:
-                ddq, forces = sim.link_acceleration(episode.clipped, pulse), None
-            episode.set_accelerations(slice(None), ddq)
-            reasons = episode.termination_reasons(
-                sim.q, sim.dq, sim.theta, sim.dtheta, *self._joint_limits, self.max_velocity
-            )
+            ddq, forces = sim.link_acceleration(episode.clipped, pulse), None
+        episode.set_accelerations(slice(None), ddq)
+        reasons = episode.termination_reasons(
+            sim.q, sim.dq, sim.theta, sim.dtheta, *self._joint_limits, self.max_velocity
+        )
         self._observe(
             self._arms if every else np.flatnonzero(stepping),
             first=False,
             finite=reasons is None,
             forces=forces,
         )
+        return self._reward(), reasons
+
+    def _fused_end(self, fused: Fused) -> tuple[np.ndarray, np.ndarray | None]:
+        """`_end_of_period` of every arm with the episode's `fused` arguments:
+        `post_step_kernel`, or, where an arm broke its physics, the measurement with the
+        hold of non-finite readings and the reward."""
+        episode = self.episode
+        reward = np.empty(self.n_arms)
+        fused.refill(self.rngs)
+        tau, previous, reference = episode.clipped, episode.previous_torque, episode.reference
+        if fused.end_call(tau, previous, reference, episode.slot, reward, fused.end):
+            return reward, None
+        reasons = episode.broken()
+        self._observe(self._arms, first=False, finite=False, forces=fused.forces)
         return self._reward(), reasons
 
     def _observe(
@@ -400,11 +430,6 @@ class ArmBatch:
     def observation(self, arms: int | slice | np.ndarray = slice(None)) -> dict[str, np.ndarray]:
         """Copies of the current observations of `arms` (an int: one arm, no arm axis)."""
         return {key: value[arms].copy() for key, value in self.episode.obs.items()}
-
-    def arm_outputs(self, arm: int) -> tuple[dict[str, np.ndarray], dict]:
-        """(`observation`, `info`) of the one arm `arm` in one compiled copy (their arrays
-        views of one new array): what a single env's step returns."""
-        return self._info.arm_outputs(arm)
 
     def info(self, arms: int | slice | np.ndarray = slice(None)) -> dict:
         """The info of `arms` ([`BatchInfo`][elastic_gym.envs.info.BatchInfo]): arrays with

@@ -21,6 +21,7 @@ from elastic_gym.envs.reward import _reward_kernel
 from elastic_gym.envs.sensors import _shared_readings
 from elastic_gym.envs.simulator import _end_of_period_dynamics, physics_period
 from elastic_gym.envs.tasks import open_loop_torque_kernel, reference_kernel
+from elastic_gym.model.chain import specific_forces_kernel
 
 
 @njit(cache=True)
@@ -93,7 +94,10 @@ def post_step_kernel(tau, previous, reference, slot, reward, packed):
     1. q'' and the noise-free accelerometer readings (eq. (9)): the simulator's
        `_end_of_period_dynamics` (`transmission`, `dynamics`: the arguments after the
        motor torques `tau` of its `_link_dynamics_kernel`; no link-side torque;
-       `coupling`: model (2)'s);
+       `coupling`: model (2)'s); with the RK4 (`integrated`: (its q'' at the end of
+       the period, True)) that q'', which is the same q'' bit for bit (the RK4's
+       right-hand side is these kernels' operations in their order), and the readings
+       at it (`specific_forces_kernel`);
     2. the termination codes (`break_codes`, `limits`: its arguments after the state); if
        an arm broke, returns False here (the caller measures with the hold of non-finite
        readings);
@@ -108,12 +112,13 @@ def post_step_kernel(tau, previous, reference, slot, reward, packed):
     `packed`: a `Packed` (`elastic_gym.model.packed`) of what holds for the episode
     ([`FusedArguments`][elastic_gym.envs.packing.FusedArguments]): (theta, theta', q, q',
     transmission, coupling (None without model (2)), dynamics, limits, sensors, the torque
-    limit row and the reward constants after it); `sensors`: (elastic, encoder std, block,
-    next, resolution, has accelerometers, bias, std, block, next, range, resolution,
-    readings (encoders, accelerometers), delay lines (L, N, size) of both, delays (N,),
-    observation arrays (position, acceleration, reference))."""
+    limit row and the reward constants after it, integrated, scratch (3, N, n) for the
+    reward's errors and torsion); `sensors`: (elastic, encoder std, block, next,
+    resolution, has accelerometers, bias, std, block, next, range, resolution, readings
+    (encoders, accelerometers), delay lines (L, N, size) of both, delays (N,), observation
+    arrays (position, acceleration, reference))."""
     theta, dtheta, q, dq, transmission, coupling = packed.values[:6]
-    dynamics, limits, sensors, rewards = packed.values[6:]
+    dynamics, limits, sensors, rewards, integrated, scratch = packed.values[6:]
     (
         elastic,
         enc_std,
@@ -137,7 +142,15 @@ def post_step_kernel(tau, previous, reference, slot, reward, packed):
         reference_obs,
     ) = sensors
     forces = dynamics[3]
-    _end_of_period_dynamics(theta, dtheta, q, dq, tau, transmission, coupling, dynamics)
+    integrated_ddq, known = integrated
+    if known:
+        unused, w, ddq, _, constants = dynamics
+        for k in range(ddq.shape[0]):
+            for j in range(ddq.shape[1]):
+                ddq[k, j] = integrated_ddq[k, j]
+        specific_forces_kernel(q, dq, ddq, w, unused, forces, constants)
+    else:
+        _end_of_period_dynamics(theta, dtheta, q, dq, tau, transmission, coupling, dynamics)
     if break_codes(q, dq, theta, dtheta, *limits):
         return False
     _shared_readings(
@@ -175,7 +188,7 @@ def post_step_kernel(tau, previous, reference, slot, reward, packed):
         for j in range(n):
             reference_obs[k, j] = reference[k, 0, j]
             reference_obs[k, n + j] = reference[k, 1, j]
-    error, error_rate, torsion = np.empty((N, n)), np.empty((N, n)), np.empty((N, n))
+    error, error_rate, torsion = scratch[0], scratch[1], scratch[2]
     for k in range(N):
         for j in range(n):
             error[k, j] = q[k, j] - reference[k, 0, j]

@@ -57,7 +57,10 @@ class Fused:
         """Fresh noise blocks for the arms whose block is used up (from their generators,
         in sensor order), before the end of a period draws from them."""
         for noise in self.noises:
-            noise.refill(rngs)
+            if noise.room:  # `GaussianNoise.refill`'s count down, without the call
+                noise.room -= 1
+            else:
+                noise.refill(rngs)
 
 
 class FusedArguments:
@@ -173,7 +176,10 @@ class FusedArguments:
         noises = [noise for noise, std in drawn if std is not None and std > 0.0]
         state = (sim.theta, sim.dtheta, sim.q, sim.dq)
         coupling = sim.coupling_arguments()
-        end = Packed((*state, transmission, coupling, dynamics, limits, sensor_arguments, rewards))
+        # the RK4's q'' at the end of a period (PyBullet: none, an array of the same type)
+        integrated = (episode.ddq, False) if sim.rk4 is None else (sim.rk4.ddq, True)
+        ends = (dynamics, limits, sensor_arguments, rewards, integrated, np.empty((3, N, n)))
+        end = Packed((*state, transmission, coupling, *ends))
         period = self.period()
         torque = (episode.clipped, episode.previous_torque, episode.reference)
         end_call = direct(post_step_kernel, *torque, episode.slot, np.empty(N), end)
