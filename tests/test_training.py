@@ -165,7 +165,7 @@ def test_a_residual_on_link_masses_is_the_base_on_the_corrected_model():
     error of a model that knows the load (the base's own gains); one shared scale is the
     same law with one action entry."""
     kwargs = {
-        "max_episode_steps": 1000,
+        "max_episode_steps": 500,  # the first 0.5 s of the move: the load shows from the start
         "task": "tracking",
         "task_options": {"n_moves": 1, "move_time": 0.6, "dwell_time": 0.2},
         "accelerometer": "ideal",
@@ -450,7 +450,7 @@ EVERY_STATE_RESIDUAL_FEATURE = [
     "base_torque",
     "base_motor_error",
 ]
-SHORT_SAC = {"learning_starts": 50, "batch_size": 32, "policy_kwargs": {"net_arch": [32, 32]}}
+SHORT_SAC = {"learning_starts": 25, "batch_size": 16, "policy_kwargs": {"net_arch": [32, 32]}}
 
 
 @pytest.mark.slow
@@ -546,10 +546,11 @@ def test_trained_run_as_comparison_controller_matches_the_policy_env(
     config = TrainConfig(
         algo=algo,
         state="deluca",
-        total_steps=100,
+        total_steps=50,  # PPO: one update (n_steps 50); SAC: 25 gradient steps
         out_dir=str(tmp_path / "p"),
         env_kwargs=SHORT_EPISODES,
         eval_freq=10**9,
+        eval_episodes=1,
         action=action,
         hyperparams=hyperparams,
     )

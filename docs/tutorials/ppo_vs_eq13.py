@@ -7,10 +7,10 @@
 # each on the estimated and on the true state. It needs the `rl` extra
 # (`pip install ".[rl]"`).
 #
-# With `ELASTIC_GYM_TUTORIAL_QUICK=1` it trains for 2 048 policy steps (one PPO update, a
-# few seconds): the policy has barely started. Without it, 100 000 policy steps (about a
-# minute of one core), a quarter of the shipped default, whose results are on the RL
-# results page.
+# With `ELASTIC_GYM_TUTORIAL_QUICK=1` it trains for 512 policy steps (one PPO update of 8
+# arms x 64 steps, a few seconds): the policy has barely started. Without it, 100 000
+# policy steps (about a minute of one core), a quarter of the shipped default, whose
+# results are on the RL results page.
 
 # %%
 import os
@@ -25,8 +25,8 @@ from elastic_gym.training import TrainConfig, train
 from elastic_gym.training.export_run import export_run
 
 QUICK = os.environ.get("ELASTIC_GYM_TUTORIAL_QUICK") == "1"
-STEPS = 2048 if QUICK else 100_000
-DURATION = 0.5 if QUICK else 3.0
+STEPS = 512 if QUICK else 100_000
+DURATION = 0.3 if QUICK else 3.0
 work = Path(tempfile.mkdtemp(prefix="elastic-gym-tutorial-"))
 
 # %% [markdown]
@@ -50,8 +50,10 @@ config = TrainConfig(
     out_dir=str(work / "ppo-deluca"),
     eval_freq=10**9,  # no learning-curve evaluations but the first and the last
     eval_episodes=2,
-    # quick: one world of 8 arms instead of the shipped 64 in two worker processes
+    # quick: one world of 8 arms instead of the shipped 64 in two worker processes, and
+    # episodes of 1 s (the learning curve's two evaluations)
     hyperparams={"n_envs": 8, "batches": 1, "batch_size": 256} if QUICK else {},
+    env_kwargs={"episode_time": 1.0} if QUICK else {},
 )
 result = train(config, progress_bar=False)
 print(result.out_dir, result.policy_steps, "policy steps")
