@@ -139,6 +139,7 @@ class ObserverWrapper(gym.vector.VectorWrapper):
         self._estimates = self.estimator.estimates  # (N, dim), updated in place
         self._autoreset = np.zeros(N, dtype=bool)  # arms the env resets at the next step
         self._all = np.ones(N, dtype=bool)
+        self._every = np.arange(N)  # np.flatnonzero(self._all)
 
     @property
     def state_names(self) -> tuple[str, ...]:
@@ -171,7 +172,9 @@ class ObserverWrapper(gym.vector.VectorWrapper):
     def _update(self, obs: Mapping, info: Mapping, arms: np.ndarray) -> np.ndarray:
         """Advance the observer on ``arms`` (those whose state is still finite); return the
         arms whose estimate is not finite (the reasons in ``self._errors``)."""
-        arms = arms[info["termination_reason"][arms] != NON_FINITE_STATE]
+        reasons = info["termination_reason"]
+        every = len(arms) == len(reasons)  # all arms, in order (`step`'s arms are sorted)
+        arms = arms[(reasons if every else reasons[arms]) != NON_FINITE_STATE]
         measured = measurement(self.observer, obs, info) if len(arms) else obs
         return self.estimator.update(measured, info["torque"], self._base.control_dt, arms)
 
@@ -237,8 +240,11 @@ class ObserverWrapper(gym.vector.VectorWrapper):
             ended = np.flatnonzero(info["_final_obs"])
             self._final_estimates(obs, info, ended)
             restarted[ended] = True
-        self._reset_observer(obs, info, np.flatnonzero(restarted))
-        diverged = self._update(obs, info, np.flatnonzero(~restarted))
+        if restarted.any():
+            self._reset_observer(obs, info, np.flatnonzero(restarted))
+            diverged = self._update(obs, info, np.flatnonzero(~restarted))
+        else:  # the common step: every arm advances
+            diverged = self._update(obs, info, self._every)
         terminated = self._terminate(diverged, terminated, info)
         if mode is AutoresetMode.NEXT_STEP:
             self._autoreset = terminated | truncated

@@ -138,7 +138,7 @@ def numbers(
     if (
         arr is None
         or not (arr.shape in shapes or any(_fits_shape(arr.shape, shape) for shape in shapes))
-        or (finite and not np.all(np.isfinite(arr)))
+        or (finite and not np.isfinite(arr).all())
         or (minimum is not None and not np.all(arr > minimum if strict else arr >= minimum))
         or (bound is not None and np.any(np.abs(arr) > bound))
         or (stable and np.any(arr.real >= 0.0))
