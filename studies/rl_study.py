@@ -353,7 +353,7 @@ def evaluate_all(study: Study, rows, runs: Path, out: Path, start: float) -> lis
     for env_id, table in ((TWO_LINK, study.classical), (KR15, study.kr15_classical)):
         if not any(row.env_id == env_id for row in rows):
             continue
-        task = TASK if env_id == TWO_LINK else {}
+        task = study.task if env_id == TWO_LINK else {}
         names = dict.fromkeys(name for row in rows if row.env_id == env_id for name in row.plants)
         plants = {name: study.plants[name] for name in names}
         for controller, label, sources, *options in table:
@@ -726,7 +726,8 @@ class Study:
     ``plants`` (names of ``plants``), ``eval_task``, ``steps`` (None: the row's own) and
     ``config(seed, runs) -> TrainConfig`` (:class:`Row`); ``plants``: name -> env kwargs
     of an evaluation plant; ``classical``: (controller, label, state sources[, options])
-    evaluated on TwoLinkElastic (``kr15_classical`` on KR15); ``zero_offset``: also the
+    evaluated on TwoLinkElastic's ``task`` (``kr15_classical`` on KR15, its default task;
+    a row's policies on the row's ``eval_task``); ``zero_offset``: also the
     motor-offset PD with a zero action; ``report(records, out, rows, runs)`` writes the
     study's tables and returns their file names; ``command(row, seed, runs)``: the
     ``elastic-gym train`` command of a run (None: the study has none)."""
@@ -744,6 +745,7 @@ class Study:
     eval_episodes: int = EVAL_EPISODES
     eval_seed: int = EVAL_SEED
     command: Callable[[object, int, Path], str] | None = None
+    task: dict = field(default_factory=lambda: TASK)
 
 
 RL_STUDY = Study(

@@ -30,6 +30,7 @@ training, cached evaluations, learning curves); this file holds what differs:
 
 from __future__ import annotations
 
+import copy
 import csv
 import datetime
 import json
@@ -37,7 +38,7 @@ import shlex
 import subprocess
 import sys
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cache, cached_property
 from pathlib import Path
 
 import numpy as np
@@ -141,6 +142,18 @@ def hyperparams_path(name: str) -> str:
         return str(path)
 
 
+@cache
+def printed_config(argv: tuple[str, ...]) -> dict:
+    """The config ``elastic-gym train <argv> --print-config`` prints (one run's mapping of
+    `TrainConfig` fields), from one subprocess per distinct ``argv`` (the command's
+    answer depends on its arguments and the shipped hyper-parameter files only)."""
+    output = subprocess.run(
+        [*TRAIN_COMMAND, *argv, "--print-config"], capture_output=True, text=True, check=True
+    ).stdout
+    (config,) = yaml.safe_load(output)
+    return config
+
+
 @dataclass(frozen=True)
 class Row:
     """A policy row: ``elastic-gym train`` ``arguments`` with ``hyperparams_file`` on
@@ -164,14 +177,7 @@ class Row:
 
     def config(self, seed: int, runs: Path) -> TrainConfig:
         """What ``elastic-gym train <argv> --print-config`` says the command trains."""
-        output = subprocess.run(
-            [*TRAIN_COMMAND, *self.argv(seed, runs), "--print-config"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout
-        (config,) = yaml.safe_load(output)
-        return TrainConfig.from_dict(config)
+        return TrainConfig.from_dict(copy.deepcopy(printed_config(tuple(self.argv(seed, runs)))))
 
     @cached_property
     def _config(self) -> TrainConfig:

@@ -4,8 +4,11 @@ are computed from the evaluations, and a tiny study writes every report file."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
+import functools
+import io
 import json
 import shutil
 import sys
@@ -15,7 +18,9 @@ import gymnasium as gym
 import numpy as np
 import pybullet as p
 import pytest
+import yaml
 
+from elastic_gym.cli import main
 from elastic_gym.policy import build_policy_env
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "studies"))
@@ -23,6 +28,29 @@ import robust_study as rs
 
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 Q = np.array([0.3, -0.7])
+SHORT_TASK = {  # one move of 0.3 s (3 s episodes of two moves in the study)
+    "task": "tracking",
+    "task_options": {"n_moves": 1, "move_time": 0.3, "dwell_time": 0.2},
+    "episode_time": 0.5,
+}
+
+
+@functools.cache
+def _printed_in_process(argv: tuple[str, ...]) -> dict:
+    """What ``elastic-gym train <argv> --print-config`` prints, from the command's `main`
+    in this process (the study's `printed_config` starts one subprocess per argv)."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["train", *argv, "--print-config"]) == 0
+    (config,) = yaml.safe_load(out.getvalue())
+    return config
+
+
+@pytest.fixture
+def in_process(monkeypatch):
+    """The rows' configs from the train command's `main` in this process, not from one
+    subprocess per row (that the two agree is asserted once, below)."""
+    monkeypatch.setattr(rs, "printed_config", _printed_in_process)
 
 
 def _env(kwargs: dict):
@@ -82,6 +110,7 @@ def test_the_plants_change_the_simulated_plant_and_only_it():
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("in_process")
 def test_the_evaluation_plants_switch_a_randomized_run_s_randomization_off():
     (row,) = [row for row in rs.ROWS if row.key == "ppo-true-robust"]
     config = row.config(0, Path("runs"))
@@ -105,8 +134,12 @@ def test_the_evaluation_plants_switch_a_randomized_run_s_randomization_off():
             env.close()
 
 
-@pytest.mark.slow
-def test_the_rows_are_the_train_commands_they_print(tmp_path):
+@pytest.mark.slow  # one subprocess
+def test_the_rows_are_the_train_commands_they_print(tmp_path, monkeypatch):
+    (residual,) = [row for row in rs.ROWS if row.key == "residual-integral-robust"]
+    argv = tuple(residual.argv(1, tmp_path))  # the command itself, in a subprocess
+    assert rs.printed_config(argv) == _printed_in_process(argv)
+    monkeypatch.setattr(rs, "printed_config", _printed_in_process)  # the other rows
     keys = [row.key for row in rs.ROWS]
     assert len(keys) == len(set(keys)) == len(rs.TRAINING)
     seeds = {row.key: row.seeds for row in rs.ROWS}
@@ -222,6 +255,7 @@ def test_the_targets_compute_their_verdicts_from_the_numbers():
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("in_process")
 def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     runs, out = tmp_path / "runs", tmp_path / "out"
     classical = (
@@ -230,10 +264,13 @@ def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
         (rs.INTEGRAL, "integral action, load identified", ("true",), rs.LOAD_IDENTIFIED),
     )
     small = "--algo ppo --state true --hyperparams n_envs=4 batches=1 batch_size=64"
-    small += " --eval-freq 1024 --eval-episodes 1"  # two learning-curve points, not twenty
-    rows = (rs.Row("ppo-true-nominal", (0,), None, small),)  # the shipped 64 arms: too slow
-    study = dataclasses.replace(rs.ROBUST_STUDY, classical=classical, rows=rows)
-    argv = ["--rows", "ppo-true-nominal", "--steps", "2048", "--plants", "nominal", "mass1.3"]
+    small += " --eval-freq 256 --eval-episodes 1"  # two learning-curve points, not twenty
+    small += f" --env-kwargs '{json.dumps(SHORT_TASK)}'"  # training episodes of 0.5 s
+    rows = (rs.Row("ppo-true-nominal", (0,), None, small, eval_task=SHORT_TASK),)
+    study = dataclasses.replace(  # the shipped 64 arms and 2.6 s episodes: too slow
+        rs.ROBUST_STUDY, classical=classical, rows=rows, task=SHORT_TASK
+    )
+    argv = ["--rows", "ppo-true-nominal", "--steps", "512", "--plants", "nominal", "mass1.3"]
     argv += ["--episodes", "1", "--runs", str(runs), "--out", str(out)]
     rs.run(study, argv)
     assert (runs / "ppo-true-nominal" / "seed0" / "summary.json").is_file()
@@ -265,7 +302,7 @@ def test_a_tiny_study_writes_table_csv_targets_and_figure(tmp_path, capsys):
     assert (out / "learning_curves.png").is_file()
     assert "elastic-gym" in (out / "stamp.md").read_text()
     (run_line,) = [line for line in (out / "runs.md").read_text().splitlines() if "`ppo" in line]
-    assert run_line.startswith("| `ppo-true-nominal` | 0 | 2048 |") and run_line.endswith("| — |")
+    assert run_line.startswith("| `ppo-true-nominal` | 0 | 512 |") and run_line.endswith("| — |")
     before = (out / "evaluations.csv").read_text()
     capsys.readouterr()
     rs.run(study, [*argv, "--report"])  # cached: nothing evaluated again
