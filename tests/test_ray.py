@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import yaml
 from helpers import rigid_scenario
 
 from elastic_gym.evaluation import Scenario, execute, plan_runs
+from elastic_gym.evaluation.episodes import run_group
+from elastic_gym.evaluation.plan import group_runs
 from elastic_gym.runtime.parallel import SINGLE_THREAD_ENV
 
 
@@ -16,7 +19,7 @@ from elastic_gym.runtime.parallel import SINGLE_THREAD_ENV
 def test_ray_backend_gives_the_same_table_and_trains_two_seeds(tmp_path, capsys):
     """A comparison run on Ray gives the local table, bit for bit; `elastic-gym train --seeds
     0 1 --backend ray` runs both jobs on the Ray runtime and gathers them in one table;
-    `elastic-gym compare --policy RUN` adds the policy's rows."""
+    `elastic-gym compare --policy RUN` (on the same runtime) adds the policy's rows."""
     ray = pytest.importorskip("ray", reason="the 'ray' extra is not installed")
     from elastic_gym.cli import main
 
@@ -29,8 +32,23 @@ def test_ray_backend_gives_the_same_table_and_trains_two_seeds(tmp_path, capsys)
         )
     )
     runs = plan_runs(scenario)[0]
-    local = execute(runs, workers=1, progress=False)
+    groups, _ = group_runs(runs, workers=1)
+    local = [result for group in groups for result in run_group(group)]  # the job, here
     out = tmp_path / "runs"
+    small = tmp_path / "small.yaml"  # the default grid's eq. (13) row, one env and source
+    small.write_text(
+        yaml.safe_dump(
+            {
+                "name": "small",
+                "duration": 0.05,
+                "envs": [{"id": "elastic_gym/TwoLinkElastic-v0"}],
+                "controllers": [
+                    {"name": "feedforward-state-feedback", "label": "eq13-state-feedback"}
+                ],
+                "state_sources": [True],
+            }
+        )
+    )
     # what the backend starts with --workers 2 (elastic_gym.runtime.parallel._run_ray)
     ray.init(
         num_cpus=2,
@@ -67,36 +85,36 @@ def test_ray_backend_gives_the_same_table_and_trains_two_seeds(tmp_path, capsys)
                 "--no-progress",
             ]
         )
+        printed = capsys.readouterr().out
+        assert code == 0
+        compared = main(
+            [
+                "compare",
+                "--config",
+                str(small),
+                "--policy",
+                str(out / "seed0"),
+                "--trust-pickle",
+                "--backend",
+                "ray",
+                "--workers",
+                "2",
+                "--output",
+                str(tmp_path / "cmp"),
+                "--no-plots",
+                "--no-progress",
+            ]
+        )
     finally:
         ray.shutdown()
     assert remote[0].metrics["est_rms_dq"] == local[0].metrics["est_rms_dq"]
     np.testing.assert_array_equal(remote[0].series.q, local[0].series.q)
 
-    assert code == 0
-    printed = capsys.readouterr().out
     for seed in (0, 1):
         assert (out / f"seed{seed}" / "model.zip").exists()
         assert (out / f"seed{seed}" / "vecnormalize.pkl").exists()
     assert "policy steps" in printed and printed.count("seed") >= 2
 
-    code = main(
-        [
-            "compare",
-            "--policy",
-            str(out / "seed0"),
-            "--trust-pickle",
-            "--seeds",
-            "0",
-            "--duration",
-            "0.2",
-            "--workers",
-            "1",
-            "--output",
-            str(tmp_path / "cmp"),
-            "--no-plots",
-            "--no-progress",
-        ]
-    )
-    assert code == 0
+    assert compared == 0
     summary = (tmp_path / "cmp" / "summary.md").read_text()
     assert "policy:seed0" in summary and "eq13-state-feedback" in summary
