@@ -118,35 +118,37 @@ class Picky(Controller):
         return np.zeros(self.n)
 
 
-ELASTIC_CONTROLLERS = [
-    "feedforward-state-feedback",
-    "integral-state-feedback",
-    "motor-pd",
-    "link-pd",
-]
-RIGID_CONTROLLERS = [
-    "feedforward-state-feedback",
-    "integral-state-feedback",
-    "link-pd",
-    "cristofaro-tracking",
-    "feedback-linearization",
-]
+# Each built-in controller on two state sources of each arm it applies to, each source
+# under two controllers or more: every controller and every observer runs both ways (that
+# each vector controller and observer equals its single twin, arm by arm, is the claim of
+# test_vector_controllers and test_vector_observers). Name -> source labels (those of the
+# other arm are skipped).
+PAIRS = {
+    "feedforward-state-feedback": ["ekf", "nicosia-tomei", "true"],
+    "integral-state-feedback": ["deluca", "reduced-order", "finite-difference"],
+    "link-pd": ["deluca-ideal", "solsona-puleston", "true"],
+    "motor-pd": ["ekf", "finite-difference"],  # elastic arms only
+    "cristofaro-tracking": ["reduced-order", "true"],  # rigid arms only
+    "feedback-linearization": ["solsona-puleston", "finite-difference"],  # rigid arms only
+}
+RESIDUAL_SOURCES = ["deluca", "deluca-ideal", "nicosia-tomei", "reduced-order"]
 
 
 ARMS = (
     {"id": "TwoLinkElastic-v0", "label": "elastic", "kwargs": {"max_velocity": 4.0}},
-    {"id": "TwoLinkRigid-v0", "label": "rigid", "kwargs": {"max_velocity": 4.0}},
-)
+    {"id": "TwoLinkRigid-v0", "label": "rigid", "kwargs": {"max_velocity": 1.5}},
+)  # the full-torque controller trips them within 45 ms, the others keep below
 
 
 def grid(arms: tuple[dict, ...] = ARMS) -> Scenario:
-    """Every built-in controller (and a residual policy) on every state source of its arm,
-    two seeds, a plant sweep and a sensor sweep (both per-arm kwargs), an early end (the
-    full-torque controller trips the velocity limit on either arm)."""
+    """Every built-in controller (and a residual policy) on state sources of its arm
+    (`PAIRS`: every source of the arm is used), two seeds, a plant sweep and a sensor
+    sweep (both per-arm kwargs), an early end (the full-torque controller trips the
+    velocity limit on either arm) and a run that raises beside batch mates that go on."""
     return Scenario.from_dict(
         {
             "name": "both-ways",
-            "duration": 0.1,
+            "duration": 0.05,
             "physics_dt": None,
             "seeds": [0, 1],
             "envs": list(arms),
@@ -155,7 +157,7 @@ def grid(arms: tuple[dict, ...] = ARMS) -> Scenario:
                 "delay": {"parameter": "sensor_delay", "nominal": 0, "values": [2]},
             },
             "controllers": [
-                *sorted(set(ELASTIC_CONTROLLERS) | set(RIGID_CONTROLLERS)),
+                *({"name": name, "sources": sources} for name, sources in PAIRS.items()),
                 {
                     "name": "policy",
                     "label": "residual",
@@ -164,6 +166,7 @@ def grid(arms: tuple[dict, ...] = ARMS) -> Scenario:
                         "residual": "feedforward-state-feedback",
                         "residual_scale": 0.05,
                     },
+                    "sources": RESIDUAL_SOURCES,
                 },
                 {"name": "full-torque", "class": FullTorque, "sources": ["true"]},
                 {"name": "picky", "class": Picky, "sources": ["true", "ekf"]},
@@ -179,6 +182,13 @@ def test_rows_of_a_grid_batched_equal_one_arm_per_world(tmp_path, arm):
     """One arm's half of the grid per test, so the two halves run on both xdist workers."""
     scenario = grid((arm,))
     runs, _ = plan_runs(scenario)
+    sources: dict[str, set] = {}  # controller -> its sources on this arm
+    for run in runs:
+        sources.setdefault(run.labels["controller"], set()).add(run.labels["source"])
+    assert len(sources) == (7 if arm["label"] == "elastic" else 8)  # every controller
+    assert all(len(sources[name]) == 2 for name in set(sources) - {"full-torque", "picky"})
+    used = [source for labels in sources.values() for source in labels]
+    assert len(set(used)) == 5 and all(used.count(source) >= 2 for source in used)
     assert max(len(g) for g in plan_groups(runs, DEFAULT_BATCH_SIZE, 1)) > 2  # really batched
     results = {}
     for batch_size in (1, DEFAULT_BATCH_SIZE):
