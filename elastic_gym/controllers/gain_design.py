@@ -22,7 +22,6 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg as sla
 from scipy.optimize import brentq
-from scipy.signal import place_poles
 
 from elastic_gym.model import RobotModel
 from elastic_gym.model.option_checks import Needs, stable_poles
@@ -176,6 +175,8 @@ def lqr_integral_gain(
 
 def pole_placement_gain(A: np.ndarray, Bu: np.ndarray, poles) -> np.ndarray:
     """MIMO pole placement (``scipy.signal.place_poles``) of all 2 * (positions) poles."""
+    from scipy.signal import place_poles  # imported here: scipy.signal costs a second to import
+
     return place_poles(A, Bu, stable_poles(poles, (A.shape[0],))).gain_matrix
 
 

@@ -1,8 +1,8 @@
 """The pre-run check of a comparison's execution, and an estimate of its duration.
 
 Part of the execute stage, before the first run:
-[`preflight`][elastic_gym.evaluation.preflight.preflight] builds, once each and in a
-worker process, what the runs will build: every env with its kwargs and each axis value,
+[`preflight`][elastic_gym.evaluation.preflight.preflight] builds, once each and in
+worker processes, what the runs will build: every env with its kwargs and each axis value,
 its reset with the reset options, each model error's perturbed model, every controller and
 observer (trained policies loaded). A failure, or user code that ends that process while
 it is built, raises `ScenarioError` with the field path before any compute is spent;
@@ -177,24 +177,37 @@ def _check(job: _EnvCheck | _Sample) -> float | ScenarioError:
         return exc
 
 
-def _run_checks(jobs: list[_EnvCheck | _Sample], pool: WorkerPool | None = None) -> list[float]:
-    """Every job's cost, the jobs run in order in one worker process (of ``pool``, or
-    spawned for them); raises the first refusal (a job's own, or that of a job whose
-    process died: ``after_death``, which checks again in processes of its own)."""
+def _run_checks(
+    jobs: list[_EnvCheck | _Sample], pool: WorkerPool | None = None, workers: int = 1
+) -> list[float]:
+    """Every job's cost, the jobs shared by ``workers`` worker processes (of ``pool``, or
+    spawned for them); raises the refusal of the first job in job order that has one (a
+    job's own, or that of a job whose process died: ``after_death``, which checks again
+    in processes of its own) as soon as every job before it has passed, so that the same
+    scenario is always refused for the same reason."""
     costs: dict[int, float] = {}
+    refusals: dict[int, ScenarioError] = {}
 
     def deliver(index: int, outcome: float | ScenarioError | WorkerDiedError) -> None:
-        if isinstance(outcome, ScenarioError):
-            raise outcome
         if isinstance(outcome, WorkerDiedError):
-            outcome = jobs[index].after_death(outcome)
-        costs[index] = outcome
+            try:
+                outcome = jobs[index].after_death(outcome)
+            except ScenarioError as exc:
+                outcome = exc
+        if isinstance(outcome, ScenarioError):
+            refusals[index] = outcome
+        else:
+            costs[index] = outcome
+        if refusals:
+            first = min(refusals)
+            if all(i in costs for i in range(first)):
+                raise refusals[first]
 
     for_each_result(
         _check,
         jobs,
         deliver,
-        workers=1,
+        workers=workers,
         progress=False,
         describe=lambda job: f"the pre-run check {job}",
         crashed=lambda job, exc: exc,
@@ -209,8 +222,8 @@ def preflight(
     """Build everything the runs of ``groups`` need once (see the module docstring);
     raise `ScenarioError` on the first failure; return the estimated wall time.
 
-    The checks run in a worker process (`for_each_result`
-    with one worker; one of ``pool``, the runs' own workers, when given): user code that
+    The checks run in worker processes (`for_each_result`: one spawned for them, or
+    shared by the workers of ``pool``, the runs' own, when given): user code that
     ends that process (``os._exit``, a signal, a segmentation fault) while its
     controller, observer or world is built is refused naming the field; in the closed
     loop it is left to the runs (their rows say so).
@@ -234,12 +247,12 @@ def preflight(
                 )
                 keys[len(jobs)] = key
                 jobs.append(_Sample(sample, paths, f"envs[{i}].kwargs"))
-    costs = _run_checks(jobs, pool)
+    workers = min(workers, len(groups))  # the runs' processes (``pool``'s size)
+    costs = _run_checks(jobs, pool, workers if pool is not None else 1)
     cost = {key: costs[index] for index, key in keys.items()}
     # a group's runs may come from several env entries (per-arm plants): its first run's
     # sample stands for all of them
     total = sum(cost[_combo(group.first)] * len(group) for group in groups)
-    workers = min(workers, len(groups))
     return Estimate(total, workers, cpu_share(workers))
 
 
