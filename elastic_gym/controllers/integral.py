@@ -61,9 +61,8 @@ class IntegralStateFeedback(FeedforwardStateFeedback):
         feedforward, design_configuration, fd_step, load_identification: as for eq. (13).
 
     ``design`` holds the configuration, the method and the poles of the augmented
-    nominal closed loop (dimension N + dim(x)); ``integral`` is the state z. The law
-    runs as
-    [`VectorIntegralStateFeedback`][elastic_gym.controllers.integral.VectorIntegralStateFeedback]
+    nominal closed loop (dimension N + dim(x)); ``integral`` is the state z. The law runs
+    as [`VectorIntegralStateFeedback`][elastic_gym.controllers.integral.VectorIntegralStateFeedback]
     with one arm.
     """
 

@@ -204,9 +204,9 @@ def compute_metrics(series: TimeSeries, tracking: bool = True) -> dict[str, floa
 def _window_rms(x: np.ndarray, starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
     """Per arm i: sqrt(mean over k in [starts[i], stops[i]) of |x_k,i|^2) (NaN for no
     samples); x (K, N, d). The arms with the same window are summed together, each row
-    alone and contiguous, so an arm's value is the same bit for bit whatever arms share
-    its series
-    (and equal to [`rms_norm`][elastic_gym.evaluation.metrics.rms_norm] of its own samples)."""
+    alone and contiguous, so an arm's value is the same bit for bit whatever arms share its
+    series (and equal to [`rms_norm`][elastic_gym.evaluation.metrics.rms_norm] of its own
+    samples)."""
     squares = np.sum(x**2, axis=2).T  # (N, K)
     out = np.full(len(starts), np.nan)
     for start, stop in {(int(a), int(b)) for a, b in zip(starts, stops, strict=True)}:

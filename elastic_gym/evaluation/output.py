@@ -124,11 +124,10 @@ class RunsCsv:
 
     A row with a column not seen before (the diagnostics of another observer) writes
     the file anew with the wider header, beside the old one, and renames it over it
-    (`write_atomic`); [`finish`][elastic_gym.evaluation.report.Report.finish] does the same in run
-    order. So the file on
-    disk always holds complete rows. When a write fails (e.g. the disk is full), the
-    partial row is cut off again and `ResultsWriteError` says how many rows the
-    file keeps; later calls raise it again.
+    (`write_atomic`); [`finish`][elastic_gym.evaluation.report.Report.finish] does the same
+    in run order. So the file on disk always holds complete rows. When a write fails (e.g.
+    the disk is full), the partial row is cut off again and `ResultsWriteError` says how
+    many rows the file keeps; later calls raise it again.
     """
 
     def __init__(self, path: Path) -> None:

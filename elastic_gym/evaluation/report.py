@@ -99,8 +99,7 @@ class _Figures:
 
 class Report:
     """The report stage of a comparison writing into ``out`` (module docstring); the
-    execute stage delivers to it
-    ([`ResultSink`][elastic_gym.evaluation.execute.ResultSink]).
+    execute stage delivers to it ([`ResultSink`][elastic_gym.evaluation.execute.ResultSink]).
 
     Made before any run: refuses (changing nothing) a folder that holds an earlier
     comparison unless ``overwrite`` (`FileExistsError`), and with ``plots`` labels whose

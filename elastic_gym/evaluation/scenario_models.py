@@ -3,10 +3,9 @@
 Each model states its fields, types, bounds and defaults; the custom validators check only
 what a schema cannot know: registry names, env kwargs against an env's constructor (the
 package's envs: [`EnvKwargs`][elastic_gym.envs.config.EnvKwargs], the model the env validates
-them with), model errors against [`ParameterScaling`][elastic_gym.model.ParameterScaling], and
-labels
-that must be unique. [`Scenario`][elastic_gym.evaluation.scenario.Scenario] combines
-them into the grid.
+them with), model errors against [`ParameterScaling`][elastic_gym.model.ParameterScaling],
+and labels that must be unique. [`Scenario`][elastic_gym.evaluation.scenario.Scenario]
+combines them into the grid.
 """
 
 from __future__ import annotations

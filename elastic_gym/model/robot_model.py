@@ -36,14 +36,12 @@ from elastic_gym.validation import (
 class ParameterScaling(ConfigModel):
     """Multiplicative parameter changes (1.0 = nominal).
 
-    Used for the simulated plant (``env`` kwarg ``plant_scaling``) and for model
-    copies with errors
-    ([`RobotModel.perturbed`][elastic_gym.model.robot_model.RobotModel.perturbed]). ``link_mass``
-    scales the mass
-    and rotational inertia of every link together (a uniformly denser link, centre of
-    mass unchanged); ``link_inertia`` scales only the rotational inertia. Scalars or
-    one value per joint (the links moved by that joint), each > 0 (``damping`` and
-    ``friction`` >= 0).
+    Used for the simulated plant (``env`` kwarg ``plant_scaling``) and for model copies
+    with errors ([`RobotModel.perturbed`][elastic_gym.model.robot_model.RobotModel.perturbed]).
+    ``link_mass`` scales the mass and rotational inertia of every link together (a
+    uniformly denser link, centre of mass unchanged); ``link_inertia`` scales only the
+    rotational inertia. Scalars or one value per joint (the links moved by that joint),
+    each > 0 (``damping`` and ``friction`` >= 0).
     """
 
     link_mass: PositiveNumbers = 1.0

@@ -251,12 +251,11 @@ Deviation = Annotated[float, Field(strict=True, ge=0, le=MAX_STD, allow_inf_nan=
 
 class EKFOptions(StrictModel):
     """The plain-data options of
-    [`ExtendedKalmanFilter`][elastic_gym.observers.ekf.ExtendedKalmanFilter] (see its arguments);
-    the
-    forms of the covariances Q, R, P0 are checked against the robot's dimensions by
-    [`covariance_option`][elastic_gym.observers.ekf.covariance_option]; alpha (<= 1/dt) and
-    ``use_accelerometers`` against the
-    validation context (the robot ``model`` and ``dt``)."""
+    [`ExtendedKalmanFilter`][elastic_gym.observers.ekf.ExtendedKalmanFilter] (see its
+    arguments); the forms of the covariances Q, R, P0 are checked against the robot's
+    dimensions by [`covariance_option`][elastic_gym.observers.ekf.covariance_option]; alpha
+    (<= 1/dt) and ``use_accelerometers`` against the validation context (the robot
+    ``model`` and ``dt``)."""
 
     alpha: Annotated[NonNegativeFinite, PerSample(1.0, DISCOUNT)] = DEFAULT_ALPHA
     Q: CovarianceValue | None = None

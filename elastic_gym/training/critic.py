@@ -6,9 +6,9 @@ actor cannot. With ``critic_state: true`` (PPO only) the training observation is
 ``[policy observation (m), true-state features (k)]``
 ([`CriticState`][elastic_gym.policy.vector.CriticState]) and
 [`PrivilegedCriticPolicy`][elastic_gym.training.critic.PrivilegedCriticPolicy]
-gives the actor's features extractor ([`ActorSlice`][elastic_gym.training.critic.ActorSlice]) the
-first m entries only (no
-actor weight multiplies a privileged entry), the critic all m + k. Deployment builds the
+gives the actor's features extractor ([`ActorSlice`][elastic_gym.training.critic.ActorSlice])
+the first m entries only (no actor weight multiplies a privileged entry), the critic all
+m + k. Deployment builds the
 stack without ``CriticState`` and pads the k entries with NaN: the actor never reads them.
 """
 
