@@ -21,9 +21,12 @@ import numpy as np
 import pinocchio as pin
 from numba import njit
 
+from elastic_gym.model import inlining
 from elastic_gym.model.lapack import svd_workspace, thin_svd
 from elastic_gym.model.packed import Packed
 from elastic_gym.validation import shaped
+
+inlining.install()  # the helpers below are inlined: copy each callee once (same IR)
 
 NO_REFCOUNT: dict[str, Any] = {"_nrt": False}
 """numba's option of a kernel compiled without reference counting (it may allocate
