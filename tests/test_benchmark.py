@@ -19,8 +19,10 @@ from helpers import tiny_suite_data
 from elastic_gym.benchmark import load_suite, read_scorecard, rebuild_leaderboard, run_benchmark
 from elastic_gym.benchmark.card import METRICS
 from elastic_gym.benchmark.entry import Entry, describe_entry, resolve_entry
+from elastic_gym.benchmark.run import records
 from elastic_gym.benchmark.scoring import (
     Episode,
+    _number,
     compute_scores,
     episode_checks,
     precision_value,
@@ -138,6 +140,27 @@ def test_a_suite_file_with_every_weight_zero_is_refused_at_load_naming_the_file(
 
 
 # ---------------------------------------------------------------- scoring
+def test_run_records_are_the_rows_as_one_table_as_pandas_gives_them():
+    """The scoring gets every column of any row, in first-seen order, NaN where a row has
+    none: the records pandas made of the comparison's rows before (no pandas needed)."""
+    pandas = pytest.importorskip("pandas")
+    rows = [
+        {"env": "a", "seed": 1, "status": "ok", "rms": 1.5, "jumps": 3},
+        {"env": "b", "seed": 2, "status": "failed: ValueError: x", "cond": np.float64(2.0)},
+        {"env": "c", "seed": 3, "status": "ok", "rms": None, "jumps": True},
+    ]
+    ours, theirs = records(rows), pandas.DataFrame(rows).to_dict("records")
+    assert [list(r) for r in ours] == [list(r) for r in theirs]
+    assert list(ours[1]) == ["env", "seed", "status", "rms", "jumps", "cond"]
+    assert math.isnan(ours[1]["rms"]) and math.isnan(ours[0]["cond"])
+    for mine, pandas_row in zip(ours, theirs, strict=True):  # the numbers the scoring reads
+        assert str(_as_scored(mine)) == str(_as_scored(pandas_row))
+
+
+def _as_scored(row: dict) -> list:
+    return [row[k] if k in ("env", "status") else _number(row[k]) for k in row]
+
+
 def test_precision_map_is_log_linear_and_monotone():
     assert precision_value(1e-6, 1e-6, 1e-1) == 1.0
     assert precision_value(1e-9, 1e-6, 1e-1) == 1.0

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import re
 import resource
 import sys
@@ -201,9 +202,17 @@ def _run(
             progress=progress,
             plots=False,
             console=Console(file=_FirstLine(log), soft_wrap=True),  # type: ignore[arg-type]
+            dataframes=False,
         )
-    rows = comparison.runs
-    return rows.to_dict("records") if hasattr(rows, "to_dict") else list(rows)
+    return records(comparison.runs)
+
+
+def records(rows: list[dict]) -> list[dict]:
+    """The rows as the records of one table: every column any row has, in first-seen
+    order, NaN where a row has none (what pandas' ``DataFrame(rows).to_dict("records")``
+    gives, without importing pandas)."""
+    columns = list(dict.fromkeys(key for row in rows for key in row))
+    return [{key: row.get(key, math.nan) for key in columns} for row in rows]
 
 
 def _runs_of(path: Path, scenario: Scenario) -> list[dict]:

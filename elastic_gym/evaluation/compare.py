@@ -42,6 +42,7 @@ def compare(
     overwrite: bool = False,
     console: Console | None = None,
     batch_size: int = DEFAULT_BATCH_SIZE,
+    dataframes: bool = True,
 ) -> Comparison:
     """Run every applicable run of ``scenario`` and write the tables (and plots).
 
@@ -59,6 +60,8 @@ def compare(
         batch_size: most arms in one world
             ([`elastic_gym.evaluation.groups`][elastic_gym.evaluation.groups]); 1 runs every
             run in a world of its own (the same rows).
+        dataframes: return ``runs`` and ``summary`` as pandas DataFrames (when pandas is
+            installed); False: as lists of row dicts (pandas is not imported).
 
     Raises (before any run, changing nothing): ``ScenarioError`` naming the field that
     cannot work, ``NotADirectoryError`` / ``PermissionError`` / ``FileExistsError`` for
@@ -71,4 +74,4 @@ def compare(
         plan = make_plan(scenario, workers, backend, batch_size)
         report = Report(plan, out, plots, overwrite, console or Console())
         run_plan(plan, report, progress)
-        return report.finish()
+        return report.finish(dataframes)

@@ -56,7 +56,8 @@ class Comparison:
 
     ``runs`` (one row per run) and ``summary`` (per scenario, controller and source: the
     mean of each metric over the seeds and its spread ``<metric>_std``) are pandas
-    ``DataFrame`` objects when pandas is installed, lists of row dicts otherwise.
+    ``DataFrame`` objects when pandas is installed (unless ``compare`` was told
+    ``dataframes=False``), lists of row dicts otherwise.
     """
 
     scenario: Scenario
@@ -156,8 +157,9 @@ class Report:
         self._write_tables(rows, self.plan.skipped_note + f"\nInterrupted: {kept}.\n")
         return with_detail(exc, kept)
 
-    def finish(self) -> Comparison:
-        """The tables, margins and curves written, the summary printed."""
+    def finish(self, dataframes: bool = True) -> Comparison:
+        """The tables, margins and curves written, the summary printed; ``runs`` and
+        ``summary`` as pandas DataFrames when pandas is installed and ``dataframes``."""
         out, scenario, console = self.out, self.plan.scenario, self.console
         rows = self.csv.finish()
         failed = [row["status"] for row in rows if row["status"].startswith("failed")]
@@ -184,10 +186,11 @@ class Report:
         if scenario.sweeps:
             console.print(f"robustness margins: {out / 'margins.md'}", markup=False)
         console.print(f"written to {out}/")
+        table = as_table if dataframes else list
         return Comparison(
             scenario,
-            as_table(rows),
-            as_table(summary),
+            table(rows),
+            table(summary),
             list(self.plan.skipped),
             markdown,
             out,
