@@ -193,6 +193,8 @@ class ArmBatch:
             self.reward_config.kernel_constants(self.control_dt),
             self.n_substeps,
         )
+        self._quick: Fused | None = None  # see `_quick_path`
+        self._quick_known = False
         self._info = BatchInfo(self.sim, self.episode, self.sensors, self.plant_state)
         self.arm_outputs = self._info.arm_outputs
         """(`observation`, `info`) of one arm in one compiled copy (their arrays views of
@@ -242,6 +244,7 @@ class ArmBatch:
         self.episode.limit(int(steps))
         self.episode_time = int(steps) * self.control_dt
         self.fused.forget_period()  # the period's packed arguments hold the length
+        self._quick_known = False
 
     # ------------------------------------------------------------------ episodes
     def set_generator(self, arm: int, generator: np.random.Generator) -> None:
@@ -285,6 +288,7 @@ class ArmBatch:
         episode.set_reference(arms, self.task.reference(episode.time[arms], arms))
         self._observe(arms, first=True)
         self.fused.invalidate()  # the arms' sensors and plants may have changed
+        self._quick_known = False
 
     def end_episodes(self, arms: np.ndarray) -> None:
         """End the episodes of `arms` now (a wrapper terminated them)."""
@@ -305,10 +309,10 @@ class ArmBatch:
         models): bit for bit the same.
         """
         self.check_open()
-        if stepping is None and self.plant_state.quiet:  # the common case
-            fused = self.fused.get()
-            if fused is not None and fused.period is not None and _float64_matrix(actions):
-                return self._fused_step(actions, fused)
+        if stepping is None:  # the common case: every arm, nothing but the kernels to run
+            quick = self._quick if self._quick_known else self._quick_path()
+            if quick is not None and _float64_matrix(actions):
+                return self._fused_step(actions, quick)
         every = stepping is None or bool(stepping.all())
         stepping = self._all if stepping is None else stepping
         command = actions if every else np.where(stepping[:, None], actions, 0.0)
@@ -333,6 +337,16 @@ class ArmBatch:
             reward, reasons, truncated, ended, every, stepping, self._termination_reward
         )
 
+    def _quick_path(self) -> Fused | None:
+        """The fused arguments when a period of every arm is the two compiled calls and
+        nothing else (no delay line, payload change or pulse: `PlantState.quiet`; the
+        period's pack), else None; kept until the next reset (which may change both)."""
+        fused = self.fused.get()
+        if fused is None or fused.period is None or not self.plant_state.quiet:
+            fused = None
+        self._quick, self._quick_known = fused, True
+        return fused
+
     def _fused_step(self, actions: np.ndarray, fused: Fused) -> tuple:
         """`step` of every arm when a period is the two compiled calls and nothing else
         (no delay line, payload change or pulse; the fused arguments; C-contiguous float64
@@ -343,7 +357,12 @@ class ArmBatch:
         if code != bullet_capi.OK:
             bullet_capi.raise_for(code)
         episode.next_slot()
-        reward, reasons = self._fused_end(fused)
+        reward = np.empty(self.n_arms)  # `_fused_end`, its common case here
+        fused.refill(self.rngs)
+        tau, previous, reference = episode.clipped, episode.previous_torque, episode.reference
+        reasons = None
+        if not fused.end_call(tau, previous, reference, episode.slot, reward, fused.end):
+            reward, reasons = self._broken_end(fused)
         return episode.conclude(
             reward, reasons, truncated, ended, True, self._all, self._termination_reward
         )
@@ -397,7 +416,12 @@ class ArmBatch:
         tau, previous, reference = episode.clipped, episode.previous_torque, episode.reference
         if fused.end_call(tau, previous, reference, episode.slot, reward, fused.end):
             return reward, None
-        reasons = episode.broken()
+        return self._broken_end(fused)
+
+    def _broken_end(self, fused: Fused) -> tuple[np.ndarray, np.ndarray]:
+        """The end of a period where `post_step_kernel` found an arm's physics broken:
+        the measurement with the hold of non-finite readings, the reward, the reasons."""
+        reasons = self.episode.broken()
         self._observe(self._arms, first=False, finite=False, forces=fused.forces)
         return self._reward(), reasons
 
@@ -484,3 +508,4 @@ class ArmBatch:
         type(self).__init__(self, *state["init"])
         snapshot.restore(self._parts(), state["episode"])
         self.fused.forget_period()  # the task's arrays were replaced
+        self._quick_known = False
