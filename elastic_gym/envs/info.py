@@ -103,7 +103,7 @@ class BatchInfo:
         self._call: Callable[..., bool] | None = None  # `arm_values_kernel`, see `_pack`
         self._packed: Packed | None = None
         self._observed: list[tuple[str, slice]] = []  # observation key, its part of a copy
-        self._size = 0
+        self._shape = (ROWS, self.n_joints)
 
     def arms(self, arms: slice | np.ndarray = slice(None)) -> dict:
         """The info of ``arms``: arrays with a leading arm axis."""
@@ -154,10 +154,12 @@ class BatchInfo:
         info as `arm`, their arrays views of one fresh copy (one compiled call)."""
         call = self._call or self._pack()
         episode, plant_state, n = self.episode, self.plant_state, self.n_joints
-        out = np.empty(self._size)
+        rows = np.empty(self._shape)  # (the rows of n past ROWS: the observation)
+        out = rows.reshape(-1)
         at_range = call(k, self._packed, plant_state.pulses.current, out)
-        rows = out[: ROWS * n].reshape(ROWS, n)
-        theta, q, dtheta, dq, ddq, q_d, dq_d, ddq_d, d3q_d, d4q_d, torque, pulse = rows
+        theta, q, dtheta, dq, ddq = rows[0], rows[1], rows[2], rows[3], rows[4]
+        q_d, dq_d, ddq_d, d3q_d, d4q_d = rows[5], rows[6], rows[7], rows[8], rows[9]
+        torque, pulse = rows[10], rows[11]  # ROWS = 12
         observation = {key: out[part] for key, part in self._observed}
         plant = plant_state.arm_values(k)
         plant["torque_pulse"] = pulse
@@ -202,7 +204,7 @@ class BatchInfo:
             parts[key] = slice(start, start + values.shape[1])
             start += values.shape[1]
         self._observed = [(key, parts[key]) for key in obs]  # in the observation's order
-        self._size = start
+        self._shape = (-(-start // n), n)  # whole rows of n
         pulse = self.plant_state.pulses.current
         self._call = direct(arm_values_kernel, 0, self._packed, pulse, np.empty(start))
         return self._call
