@@ -14,9 +14,11 @@ time they make on 2 cores.
    millisecond: the RK4 at the 1 ms control period / PyBullet's Euler at 1/16 ms (target
    >= 8x faster), and / a bare MuJoCo step of the same arm (``mujoco_anchor.py``: one arm
    in a model and 64 arms in one model, 1 ms, its Euler and its RK4; target <= 3x);
-2. the single env step (``gym.make``, RK4) / a bare one-arm step of the same integrator
-   (`ArmIntegrator.step`; target <= 3x), per env id, and PyBullet's env step at the
-   robot's default physics step (what `gym.make` gives) / the RK4's;
+2. the single env step (``gym.make``, RK4, with the checker and order wrappers it adds:
+   what a user pays) / a bare one-arm step of the same integrator (`ArmIntegrator.step`;
+   target <= 3x), per env id, the same without the wrappers (``env.unwrapped``), and
+   PyBullet's env step at the robot's default physics step (what `gym.make` gives) / the
+   RK4's;
 3. PPO end to end (the ppo.yaml recipe of TwoLinkElastic: 32 arms in one world, decimation
    10, one process): control periods per CPU second on the RK4 / on PyBullet at the robot's
    0.5 ms (the default before the RK4; target >= 1x);
@@ -130,6 +132,10 @@ def single_env_table(block: int, repeats: int) -> None:
             name: (lambda env=env, zero=zero: seconds_per_call(env.step, [(zero,)] * block))
             for name, env in envs.items()
         }
+        unwrapped = envs["rk4"].unwrapped  # without gym.make's checker and order wrappers
+        blocks["rk4 unwrapped"] = lambda env=unwrapped, zero=zero: seconds_per_call(
+            env.step, [(zero,)] * block
+        )
         blocks["bare"] = lambda bare=bare, static=static: seconds_per_call(bare.step, static)
         cost = interleaved_best(blocks, repeats)
         for env in envs.values():
@@ -140,6 +146,7 @@ def single_env_table(block: int, repeats: int) -> None:
                 f"{cost['rk4'] * 1e6:.3g}",
                 f"{cost['bare'] * 1e6:.3g}",
                 f"{cost['rk4'] / cost['bare']:.2f}",
+                f"{cost['rk4 unwrapped'] / cost['bare']:.2f}",
                 f"{cost['pybullet'] * 1e6:.3g}",
                 f"{cost['pybullet'] / cost['rk4']:.2f}",
             ]
@@ -147,7 +154,15 @@ def single_env_table(block: int, repeats: int) -> None:
     print_table(
         "2. Single env step (gym.make, at rest, CPU time): the RK4 / a bare one-arm RK4 step; "
         "PyBullet's env at the robot's default physics step / the RK4's",
-        ["env", "RK4 env us", "bare RK4 us", "ratio (target <= 3)", "PyBullet env us", "/ RK4"],
+        [
+            "env",
+            "RK4 env us",
+            "bare RK4 us",
+            "ratio (target <= 3)",
+            "unwrapped env / bare",
+            "PyBullet env us",
+            "/ RK4",
+        ],
         rows,
     )
     print()
