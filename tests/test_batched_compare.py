@@ -177,6 +177,7 @@ def grid(arms: tuple[dict, ...] = ARMS) -> Scenario:
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the rows are the claim, not the worker
 @pytest.mark.parametrize("arm", ARMS, ids=lambda arm: arm["label"])
 def test_rows_of_a_grid_batched_equal_one_arm_per_world(tmp_path, arm):
     """One arm's half of the grid per test, so the two halves run on both xdist workers."""

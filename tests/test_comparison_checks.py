@@ -114,6 +114,11 @@ def run(scn: Scenario, out: Path, **kwargs):
     return compare(scn, output_dir=out, workers=1, progress=False, console=QUIET, **kwargs)
 
 
+# the rows and the refusals are the claims here, not the worker process: `workers=1` runs
+# the worlds (and the checks before the first run) in this process
+pytestmark = pytest.mark.usefixtures("jobs_in_this_process")
+
+
 # ------------------------------------------------------------------ the output folder
 def unwritable_folder(tmp_path: Path) -> Path:
     if os.geteuid() == 0:  # root writes anywhere but in read-only places

@@ -72,6 +72,7 @@ def track_rms(rows: list[dict]) -> dict:
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the runs here, not in a spawned worker
 def test_comparison_default_physics_is_converged_and_the_robots_default_is_not():
     """The comparisons' RK4 at the control period and PyBullet's Euler at 1/16 ms are
     converged (1/8 of the step changes no metric by 20 %) and agree; PyBullet at the

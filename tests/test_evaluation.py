@@ -289,6 +289,7 @@ def test_the_former_runner_module_keeps_earlier_imports_working():
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the results are the claim
 def test_diverging_run_is_reported_not_raised():
     scenario = Scenario.from_dict(
         rigid_scenario(
