@@ -135,6 +135,7 @@ def statuses(out: Path) -> dict[tuple[str, str], str]:
 
 # ------------------------------------------------------------ user code that exits
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the row is the claim, not the worker
 def test_sys_exit_and_a_users_keyboard_interrupt_are_that_runs_failed_row(tmp_path, user_module):
     scenario = faulty_scenario(
         {
@@ -157,6 +158,7 @@ def test_sys_exit_and_a_users_keyboard_interrupt_are_that_runs_failed_row(tmp_pa
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the row is the claim, not the worker
 def test_sys_exit_while_a_controller_is_built_is_refused_before_any_run(tmp_path, user_module):
     scenario = Scenario.from_dict(
         {
@@ -780,6 +782,7 @@ def test_an_observer_returning_the_wrong_thing_is_named(returned, error, message
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the row is the claim, not the worker
 def test_a_diverging_ekf_in_compare_is_a_terminated_row_not_a_failure(tmp_path):
     scenario = Scenario.from_dict(
         {
@@ -797,6 +800,7 @@ def test_a_diverging_ekf_in_compare_is_a_terminated_row_not_a_failure(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the row is the claim, not the worker
 def test_a_diverging_arm_of_a_batched_comparison_is_its_terminated_row_with_the_reason(
     tmp_path, user_module
 ):
@@ -906,6 +910,7 @@ def test_a_refused_reset_changes_no_random_stream():
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the row is the claim, not the worker
 def test_a_duration_below_the_control_period_is_refused(tmp_path, user_module):
     scenario = faulty_scenario({"fine": {}}, duration=0.0004)
     with pytest.raises(ScenarioError, match=r"^duration: 0\.0004 s is shorter than the control"):
@@ -988,6 +993,7 @@ def test_a_class_entry_that_cannot_be_imported_names_the_field_and_module(
 
 # ------------------------------------------------------------ run folders
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the row is the claim, not the worker
 def test_a_run_folder_whose_config_no_longer_matches_its_model_is_refused_before_any_run(
     tmp_path, single_thread_torch
 ):
