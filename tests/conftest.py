@@ -16,7 +16,7 @@ for _key in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_key, "1")
 
 import pytest  # noqa: E402
-from helpers import ELASTIC_IDS  # noqa: E402
+from helpers import ELASTIC_IDS, jobs_here  # noqa: E402
 
 import elastic_gym  # noqa: E402
 
@@ -104,13 +104,7 @@ def jobs_in_this_process(monkeypatch):
     ``__main__`` (`elastic_gym.runtime.parallel.for_each_result`, the comparison's and the
     benchmark's execution): for a test whose claim is the results, not the worker process
     (a spawned worker imports the package and torch again: seconds of CPU each)."""
-    import importlib
-
-    def here(*objects) -> bool:
-        return True
-
-    for module in ("elastic_gym.runtime.parallel", "elastic_gym.evaluation.execute"):
-        monkeypatch.setattr(importlib.import_module(module), "refers_to_main", here)
+    jobs_here(monkeypatch)
 
 
 @pytest.fixture(params=elastic_gym.ENV_IDS)

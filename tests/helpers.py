@@ -327,6 +327,19 @@ def rigid_scenario(**changes) -> dict:
     return data
 
 
+def jobs_here(monkeypatch) -> None:
+    """With ``monkeypatch`` (a fixture's, or ``pytest.MonkeyPatch.context()`` in a module
+    fixture): ``workers=1`` runs its jobs in this process, as it does for jobs that refer to
+    ``__main__`` (the ``jobs_in_this_process`` fixture of conftest)."""
+    import importlib
+
+    def here(*objects) -> bool:
+        return True
+
+    for module in ("elastic_gym.runtime.parallel", "elastic_gym.evaluation.execute"):
+        monkeypatch.setattr(importlib.import_module(module), "refers_to_main", here)
+
+
 def children(pid: int) -> list[int]:
     """Process ids whose parent is ``pid`` (Linux /proc)."""
     found = []

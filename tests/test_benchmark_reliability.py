@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from helpers import tiny_suite_data
+from helpers import jobs_here, tiny_suite_data
 
 from elastic_gym.benchmark import read_scorecard, run_benchmark
 from elastic_gym.benchmark.verify import verify_card
@@ -70,12 +70,14 @@ def snapshot(folder: Path) -> dict[str, bytes]:
 
 @pytest.fixture(scope="module")
 def scored(tmp_path_factory):
-    """The micro suite scored twice by one command, in this process."""
+    """The micro suite scored twice by one command, in this process (its runs too)."""
     root = tmp_path_factory.mktemp("scored")
     suite = micro_suite(root)
     args = ["benchmark", *ENTRY, "--suite", str(suite), "--workers", "1", "--no-progress"]
-    for name in ("a", "b"):
-        assert main([*args, "--output", str(root / name)]) == 0
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        jobs_here(monkeypatch)
+        for name in ("a", "b"):
+            assert main([*args, "--output", str(root / name)]) == 0
     return root, suite, args
 
 
@@ -118,6 +120,7 @@ def test_runs_csv_is_rescored_into_the_same_card_without_running(scored, capsys)
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the cards are the claim, not the worker
 def test_verify_reproduces_a_card_bit_for_bit_and_names_a_difference(scored, tmp_path, capsys):
     root, _, _ = scored
     card = root / "b" / "scorecard.json"
@@ -160,6 +163,7 @@ def failing_card_write(monkeypatch) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the cards are the claim, not the worker
 def test_a_card_that_cannot_be_written_keeps_the_earlier_result_or_the_runs(
     scored, tmp_path, monkeypatch
 ):
@@ -191,6 +195,7 @@ def test_a_card_that_cannot_be_written_keeps_the_earlier_result_or_the_runs(
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the cards are the claim, not the worker
 def test_an_overwrite_replaces_the_whole_result_and_drops_what_the_new_one_lacks(scored, tmp_path):
     root, suite, _ = scored
     out = tmp_path / "out"
@@ -258,6 +263,7 @@ sys.exit(main(sys.argv[2:]))
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the cards are the claim, not the worker
 def test_a_full_disk_during_benchmark_overwrite_keeps_the_earlier_result(scored, tmp_path):
     root, _, args = scored
     out = tmp_path / "out"
@@ -277,16 +283,19 @@ def test_a_full_disk_during_benchmark_overwrite_keeps_the_earlier_result(scored,
 
 
 @pytest.mark.slow
-def test_an_interrupted_overwrite_keeps_the_earlier_result_and_says_so(tmp_path):
+def test_an_interrupted_overwrite_keeps_the_earlier_result_and_says_so(
+    tmp_path, monkeypatch, jobs_in_this_process
+):
     (tmp_path / "slow.py").write_text(SLOW)
+    monkeypatch.syspath_prepend(str(tmp_path))
     suite = micro_suite(tmp_path, duration=0.2)
     out = tmp_path / "out"
     args = ["benchmark", "--class", "slow:Slow", "--source", "true", "--suite", str(suite)]
     args += ["--output", str(out), "--workers", "1", "--no-progress"]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
     command = [sys.executable, "-m", "elastic_gym.cli", *args]
-    first = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
-    assert first.returncode == 0, first.stderr
+    assert main(args) == 0  # the earlier result, made here; the overwrite is interrupted below
+    sys.modules.pop("slow", None)
     before = snapshot(out)
     second = subprocess.Popen([*command, "--overwrite"], env=env, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 300
