@@ -381,6 +381,7 @@ def test_compare_in_worker_processes_writes_tables_and_plots(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("jobs_in_this_process")  # the rows are the claim, not the workers
 def test_cli_default_preset_short_run(tmp_path, capsys):
     try:
         runs, _ = plan_runs(load_preset("default").with_overrides(seeds=[0]))
@@ -398,7 +399,7 @@ def test_cli_default_preset_short_run(tmp_path, capsys):
             "--no-progress",
             "--no-plots",
             "--workers",
-            "2",
+            "1",
         ]
     )
     assert code == 0
