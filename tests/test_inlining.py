@@ -25,9 +25,24 @@ def _helper(a, b, out):
 
 
 def test_installed_by_the_chain_module():
-    assert inlining.installed()
+    assert inlining.patchable() and inlining.installed()
     inlining.install()  # idempotent
     assert inlining.installed()
+
+
+def test_another_numba_is_left_alone(monkeypatch):
+    """A numba release outside `SUPPORTED`, or one whose inliner lacks the patched
+    internals: `install` changes nothing and raises nothing."""
+    worker, release = inline_closurecall.InlineWorker, inlining.numba.__version__
+    monkeypatch.setattr(worker, "inline_ir", worker.inline_ir.__wrapped__)
+    monkeypatch.setattr(inline_closurecall, "copy", copy)
+    monkeypatch.setattr(inlining.numba, "__version__", "0.99.0")
+    inlining.install()
+    assert not inlining.patchable() and not inlining.installed()
+    monkeypatch.setattr(inlining.numba, "__version__", release)
+    monkeypatch.delattr(worker, "inline_ir")
+    inlining.install()
+    assert not inlining.patchable() and not inlining.installed()
 
 
 def test_a_callee_copy_equals_numbas_block_by_block_copy():

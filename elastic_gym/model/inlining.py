@@ -2,18 +2,15 @@
 
 The kernels of [`SerialChain`][elastic_gym.model.SerialChain] and
 [`ArmIntegrator`][elastic_gym.model.integrator.ArmIntegrator] inline their helpers
-(`inline="always"`). numba's `InlineWorker.inline_ir` first copies the callee's IR, one
-`copy.deepcopy` per block; a variable (`ir.Var`) deep-copies its scope, the scope holds
-every variable of the function, so each block's copy copies all the function's variables
-again: blocks x variables per call site, for a callee that has inlined its own helpers
-(the Newton-Euler recursion in the RK4 right-hand side) about half of the compile time
-of its callers. `install` makes the blocks copied by one `inline_ir` call from one
-scope share one memo, which is what one `copy.deepcopy` of all the blocks together does:
-the scope and its variables are copied once per copy of the callee, the copied IR is
-equal block by block to the one copied block by block (numba's inliner renames the
-callee's variables by name and then gives every block the caller's scope), and so is
-the compiled code. Nothing changes when numba no longer copies that way: the shared
-memo is used only for `ir.Block`s deep-copied without a memo inside `inline_ir`.
+(`inline="always"`). numba's `InlineWorker.inline_ir` copies the callee's IR one
+`copy.deepcopy` per block; a variable deep-copies its scope, which holds every variable of
+the function: blocks x variables per call site, about half of the compile time of the RK4
+(the Newton-Euler recursion inlined in its right-hand side). `install` makes the blocks
+copied by one `inline_ir` call from one scope share one memo, which is what one
+`copy.deepcopy` of all the blocks together does: the copied IR is equal block by block,
+and so is the compiled code. On a numba without these internals (`SUPPORTED` versions,
+`InlineWorker.inline_ir`, the module's `copy`), `install` does nothing: compiling is
+slower, the numbers the same.
 """
 
 from __future__ import annotations
@@ -23,7 +20,16 @@ import functools
 import threading
 from typing import Any
 
-from numba.core import inline_closurecall, ir
+import numba
+
+try:  # numba's internals: absent or moved in another release, nothing is patched
+    from numba.core import inline_closurecall, ir
+except ImportError:  # pragma: no cover - depends on the numba release
+    inline_closurecall = ir = None  # type: ignore[assignment]
+
+SUPPORTED = ((0, 68), (0, 68))
+"""numba releases (major, minor), first and last, whose inliner this was checked against;
+another release compiles without the patch."""
 
 _state = threading.local()
 
@@ -64,15 +70,30 @@ def _with_block_memos(inline_ir):
 
 def installed() -> bool:
     """Whether numba's inliner copies a callee with one memo per scope."""
-    worker = inline_closurecall.InlineWorker
-    return bool(getattr(worker.inline_ir, "__elastic_gym_shared_memo__", False)) and (
-        inline_closurecall.copy is _SharedMemoCopy
+    worker = getattr(inline_closurecall, "InlineWorker", None)
+    inline_ir = getattr(worker, "inline_ir", None)
+    return bool(getattr(inline_ir, "__elastic_gym_shared_memo__", False)) and (
+        getattr(inline_closurecall, "copy", None) is _SharedMemoCopy
+    )
+
+
+def patchable() -> bool:
+    """Whether this numba is one of the `SUPPORTED` releases and has the inliner's
+    internals that `install` patches."""
+    release = tuple(int(part) for part in numba.__version__.split(".")[:2])
+    worker = getattr(inline_closurecall, "InlineWorker", None)
+    return (
+        SUPPORTED[0] <= release <= SUPPORTED[1]
+        and ir is not None
+        and callable(getattr(worker, "inline_ir", None))
+        and getattr(inline_closurecall, "copy", None) is not None
     )
 
 
 def install() -> None:
-    """Make numba's inliner copy a callee's blocks with one memo per scope (idempotent)."""
-    if installed():
+    """Make numba's inliner copy a callee's blocks with one memo per scope (idempotent; a
+    no-op where not `patchable`)."""
+    if not patchable() or installed():
         return
     worker = inline_closurecall.InlineWorker
     if not getattr(worker.inline_ir, "__elastic_gym_shared_memo__", False):
