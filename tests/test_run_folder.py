@@ -18,6 +18,23 @@ def test_a_failed_run_removes_what_it_wrote_and_the_folders_it_made(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_clearing_removes_the_temporary_file_of_a_write_a_killed_worker_left(tmp_path):
+    """A worker killed outright while writing its config leaves `atomic_file`'s temporary
+    file: clearing the unfinished run removes it with the run's files, and leaves a
+    user's own files alone."""
+    seed = tmp_path / "seed1"
+    seed.mkdir()
+    (seed / "config.yaml").write_text("env_id: x\n")
+    (seed / ".config.yaml.a392gehm.part").write_text("env_")
+    RunFolder(tmp_path).clear(keep_folder=True)
+    assert list(tmp_path.iterdir()) == []
+    seed.mkdir()
+    (seed / ".config.yaml.x.part").write_text("")
+    (seed / ".notes.part").write_text("mine")
+    RunFolder(tmp_path).clear(keep_folder=True)
+    assert [p.name for p in seed.iterdir()] == [".notes.part"]
+
+
 def test_an_earlier_run_is_refused_unless_overwrite_which_replaces_only_its_files(tmp_path):
     (tmp_path / "best_model.zip").write_bytes(b"stale")
     (tmp_path / "notes.txt").write_text("mine")

@@ -2,14 +2,16 @@
 
 A result file (a scorecard, a table, a figure, a run folder's config) is written to a
 temporary file beside its target and moved over it with `os.replace`, which POSIX makes
-atomic within one file system: a process killed or a disk that fills while writing leaves
-the earlier file (or none) and removes the temporary one. The new file gets the mode of
-the file it replaces, or that of a file `open` would create (0o666 less the umask).
+atomic within one file system: a process interrupted or a disk that fills while writing
+leaves the earlier file (or none) and removes the temporary one; a process killed outright
+(SIGKILL) cannot remove it, and `leftovers` finds it. The new file gets the mode of the
+file it replaces, or that of a file `open` would create (0o666 less the umask).
 """
 
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 import tempfile
 from collections.abc import Iterator
@@ -37,6 +39,13 @@ def atomic_file(path: str | os.PathLike, mode: str = "w", **open_kwargs: Any) ->
         with contextlib.suppress(OSError):
             os.unlink(scratch)
         raise
+
+
+def leftovers(path: str | os.PathLike) -> list[Path]:
+    """The temporary files of `atomic_file` writes of ``path`` that never finished (their
+    process was killed outright mid-write)."""
+    target = Path(path)
+    return sorted(target.parent.glob(f".{glob.escape(target.name)}.*.part"))
 
 
 def _mode_of(target: Path) -> int:

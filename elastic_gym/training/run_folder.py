@@ -26,7 +26,7 @@ from typing import Any
 
 import yaml
 
-from elastic_gym.runtime.atomic import write_text
+from elastic_gym.runtime.atomic import leftovers, write_text
 from elastic_gym.runtime.folder_lock import (
     check_free,
     check_unlocked,
@@ -216,8 +216,10 @@ class RunFolder:
         remove_empty(p for p in self.path.glob("seed*") if p.is_dir())
 
     def clear(self, keep_folder: bool = False) -> None:
-        """Remove the files of a run (and of ``seed*`` sub-runs) from the folder, and the
-        folders left empty (the folder itself too unless ``keep_folder``); nothing else."""
+        """Remove the files of a run (and of ``seed*`` sub-runs) from the folder, with the
+        temporary files of their writes that a killed worker left
+        (`elastic_gym.runtime.atomic.leftovers`), and the folders left empty
+        (the folder itself too unless ``keep_folder``); nothing else."""
         if not self.path.is_dir():
             return
         for directory in (*sorted(self.path.glob("seed*")), self.path):
@@ -229,6 +231,8 @@ class RunFolder:
                     shutil.rmtree(path)
                 elif path.exists():
                     path.unlink()
+                for scratch in leftovers(path):  # a write cut short by a killed worker
+                    scratch.unlink(missing_ok=True)
             if not (keep_folder and directory == self.path):
                 remove_empty([directory])
 
