@@ -20,8 +20,12 @@ from collections.abc import Callable
 from typing import Any
 
 from numba import njit, types
-from numba._dispatcher import compute_fingerprint
 from numba.experimental import structref
+
+try:  # numba's private C helper: absent in another release, `direct` gives the dispatcher
+    from numba._dispatcher import compute_fingerprint
+except ImportError:  # pragma: no cover - depends on the numba release
+    compute_fingerprint = None  # type: ignore[assignment]
 
 
 @structref.register
@@ -64,9 +68,9 @@ def direct(kernel: Any, *args: Any) -> Callable[..., Any]:
     dispatch. Every later call must pass arguments of exactly these types (the entry
     point does not check them: a float32 or non-contiguous array where the signature has
     a C-contiguous float64 one reads wrong memory). The kernel itself where numba's JIT
-    is disabled."""
-    if not hasattr(kernel, "compile"):
-        return kernel  # NUMBA_DISABLE_JIT: a Python function
+    is disabled or this numba lacks the fingerprint helper (dispatch as usual)."""
+    if not hasattr(kernel, "compile") or compute_fingerprint is None:
+        return kernel  # NUMBA_DISABLE_JIT (a Python function), or numba's own dispatch
     key = (kernel, *map(_signature_key, args))
     entry = _ENTRIES.get(key)
     if entry is None:
