@@ -396,15 +396,33 @@ class DeLucaObserver(BatchedObserver):
             ):
                 return False
             rows.append(value[None])
-        saturation = np.inf if self.velocity_saturation is None else self.velocity_saturation
-        work, constants = self._sensors.readings_arguments()
-        _accelerometer_periods(
-            xi,
-            self._theta,
-            self._ddq,
+        self._run_periods(
+            (xi, self._theta, self._ddq),
             np.ascontiguousarray(tau, dtype=float)[None],
             rows[0],
             rows[1],
+            (self._period_out, self._period_singular),
+        )
+        self._record_singular(slice(None), self._period_singular[0])
+        return True
+
+    def _run_periods(
+        self,
+        state: tuple[np.ndarray, np.ndarray, np.ndarray],
+        torque: np.ndarray,
+        theta: np.ndarray,
+        readings: np.ndarray,
+        outputs: tuple[np.ndarray, np.ndarray],
+    ) -> None:
+        """`_accelerometer_periods` on ``state`` (xi, theta_prev, ddq_prev), advanced in
+        place, with this observer's constants; ``outputs``: (estimates, diagnostics)."""
+        saturation = np.inf if self.velocity_saturation is None else self.velocity_saturation
+        work, constants = self._sensors.readings_arguments()
+        _accelerometer_periods(
+            *state,
+            torque,
+            theta,
+            readings,
             self._step_rows,
             self._ddq_rows,
             float(saturation),
@@ -412,11 +430,8 @@ class DeLucaObserver(BatchedObserver):
             float(self.dls_damping),
             work,
             constants,
-            self._period_out,
-            self._period_singular,
+            *outputs,
         )
-        self._record_singular(slice(None), self._period_singular[0])
-        return True
 
     def _periods(self, obs: Mapping, tau: np.ndarray, arms) -> np.ndarray:
         """Eq. (12) over the periods of `obs` (T, N, ...) and `tau` (T, N, n) for `arms`
@@ -438,25 +453,7 @@ class DeLucaObserver(BatchedObserver):
         T, count = theta.shape[:2]
         out = np.empty((T, count, 4 * n))
         singular = np.empty((T, count, 3))
-        saturation = np.inf if self.velocity_saturation is None else self.velocity_saturation
-        work, constants = self._sensors.readings_arguments()
-        _accelerometer_periods(
-            xi,
-            theta_prev,
-            ddq_prev,
-            torque,
-            theta,
-            readings,
-            self._step_rows,
-            self._ddq_rows,
-            float(saturation),
-            float(self.dls_threshold),
-            float(self.dls_damping),
-            work,
-            constants,
-            out,
-            singular,
-        )
+        self._run_periods((xi, theta_prev, ddq_prev), torque, theta, readings, (out, singular))
         self._xi[rows], self._theta[rows], self._ddq[rows] = xi, theta_prev, ddq_prev
         if T:
             self._record_singular(rows if not every else slice(None), singular[-1])
