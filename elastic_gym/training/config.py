@@ -13,6 +13,7 @@ the file's ``task_options``). ``learning_rate`` and ``clip_range`` may be
 from __future__ import annotations
 
 import contextlib
+import copy
 import functools
 import inspect
 from dataclasses import dataclass
@@ -170,8 +171,14 @@ def resolve_settings(
     algo: str, env_id: str, overrides: dict | None = None, file: str | Path | None = None
 ) -> tuple[Settings, dict]:
     """(our settings, the algorithm's keyword arguments, ready for SB3) of one run, from
-    `merged_hyperparams`."""
-    merged = merged_hyperparams(algo, env_id, overrides, file)
+    `merged_hyperparams` (`settings_from`)."""
+    return settings_from(algo, merged_hyperparams(algo, env_id, overrides, file))
+
+
+def settings_from(algo: str, hyperparams: dict) -> tuple[Settings, dict]:
+    """(our settings, the algorithm's keyword arguments, ready for SB3) from merged
+    ``hyperparams`` (`merged_hyperparams`; left as they are), each key checked."""
+    merged = copy.deepcopy(hyperparams)
     ours = {key: merged.pop(key) for key in Settings.model_fields if key in merged}
     settings = validated(Settings, ours)
     allowed = set(inspect.signature(algorithm_class(algo).__init__).parameters)

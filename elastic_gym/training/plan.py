@@ -12,7 +12,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from elastic_gym.policy.spec import PolicySpec
-from elastic_gym.training.config import Settings, TrainConfig, algorithm_class, merged_hyperparams
+from elastic_gym.training.config import (
+    Settings,
+    TrainConfig,
+    algorithm_class,
+    merged_hyperparams,
+    settings_from,
+)
 from elastic_gym.training.distill import check_distill
 
 
@@ -44,21 +50,21 @@ def plan_run(config: TrainConfig) -> TrainPlan:
     hyper-parameters ([`TrainConfig.settings`][elastic_gym.training.config.TrainConfig.settings]),
     its policy spec, and a ``distill`` entry the run cannot use
     ([`check_distill`][elastic_gym.training.distill.check_distill])."""
-    settings, algo_kwargs = config.settings()
-    spec = config.policy_spec(settings)
-    check_distill(config, settings, spec.action.kind)
-    record = recorded_config(config, spec)
-    return TrainPlan(config, settings, spec, algorithm_class(config.algo), record, algo_kwargs)
-
-
-def recorded_config(config: TrainConfig, spec: PolicySpec) -> TrainConfig:
-    """The config a run folder keeps: self-contained, the hyper-parameters used instead of
-    a pointer to their file, and every field of the action and observation configs of the
-    run's ``spec`` (a later release's defaults must not change what a saved policy's
-    actions mean)."""
     hyperparams = merged_hyperparams(
         config.algo, config.env_id, config.hyperparams, config.hyperparams_file
     )
+    settings, algo_kwargs = settings_from(config.algo, hyperparams)
+    spec = config.policy_spec(settings)
+    check_distill(config, settings, spec.action.kind)
+    record = recorded_config(config, spec, hyperparams)
+    return TrainPlan(config, settings, spec, algorithm_class(config.algo), record, algo_kwargs)
+
+
+def recorded_config(config: TrainConfig, spec: PolicySpec, hyperparams: dict) -> TrainConfig:
+    """The config a run folder keeps: self-contained, the merged ``hyperparams`` used
+    (`merged_hyperparams`) instead of a pointer to their file, and every field of the
+    action and observation configs of the run's ``spec`` (a later release's defaults must
+    not change what a saved policy's actions mean)."""
     return config.model_copy(
         update={
             "hyperparams_file": None,
