@@ -7,8 +7,9 @@ its reset with the reset options, each model error's perturbed model, every cont
 observer (trained policies loaded). A failure, or user code that ends that process while
 it is built, raises `ScenarioError` with the field path before any compute is spent;
 errors of the closed loop itself are left to the runs' statuses. The estimate times
-``SAMPLE_TIME`` of closed loop of each (env, controller, state source) in CPU time and
-divides the total by the share of a core each worker can expect (from the load average).
+``SAMPLE_TIME`` of closed loop of each (env, controller, state source) in CPU time (at
+most ``SAMPLE_WALL`` of wall time: a controller that waits spends little CPU per step)
+and divides the total by the share of a core each worker can expect (from the load average).
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ from elastic_gym.runtime.process_pool import WorkerDiedError, WorkerPool
 
 SAMPLE_TIME = 0.05  # CPU s of closed loop timed per (env, controller, source) combination
 SAMPLE_STEPS = (3, 1000)  # fewest and most steps of a sample
+SAMPLE_WALL = 0.5  # wall s after which a sample stops (a controller that sleeps or waits)
 SAMPLE_ARMS = 8  # arms of the world a combination is timed in
 
 
@@ -308,8 +310,9 @@ def _check_model_errors(env: gym.Env, scenario: Scenario) -> None:
 
 def _stages(group: RunGroup, paths: tuple[str, str], env_path: str) -> Generator[float, None, None]:
     """Build the world of ``group`` (errors name their field) and time ``SAMPLE_TIME`` of
-    its closed loop, yielding after each of `STAGES` the CPU time of one of its runs
-    so far (s): the setup's, then the whole run's."""
+    its closed loop (at most ``SAMPLE_WALL`` of wall time), yielding after each of
+    `STAGES` the CPU time of one of its runs so far (s): the setup's, then the whole
+    run's."""
     controller_path, source_path = paths
     spec, n_arms = group.first, len(group)
     start = time.process_time()
@@ -334,8 +337,10 @@ def _stages(group: RunGroup, paths: tuple[str, str], env_path: str) -> Generator
         with np.errstate(all="ignore"), _named(None):
             loop.reset_controllers()
             loop.advance()  # warms caches up
-            tick = time.process_time()
-            while steps < SAMPLE_STEPS[1] and (steps < SAMPLE_STEPS[0] or elapsed < SAMPLE_TIME):
+            tick, stop = time.process_time(), time.monotonic() + SAMPLE_WALL
+            while steps < SAMPLE_STEPS[1] and (
+                steps < SAMPLE_STEPS[0] or (elapsed < SAMPLE_TIME and time.monotonic() < stop)
+            ):
                 running = loop.advance()
                 steps += 1
                 elapsed = time.process_time() - tick
