@@ -50,3 +50,27 @@ def test_a_reused_pid_is_not_the_noted_process():
     finally:
         plain.kill()
         plain.wait()
+
+
+def test_a_worker_its_raylet_started_before_both_were_orphaned_is_ended_too():
+    """A Ray process that names a noted raylet in ``RAY_RAYLET_PID`` is ended with it
+    although it is not the raylet's child (the kernel ends a raylet with its parent; a
+    worker it had just started goes to another parent before the watcher looks). One
+    naming another raylet, or not Ray's, stays."""
+    raylet = subprocess.Popen([sys.executable, "-c", SLEEP, "/ray/raylet"])
+    env = {**os.environ, "RAY_RAYLET_PID": str(raylet.pid)}
+    worker = subprocess.Popen([sys.executable, "-c", SLEEP, "/ray/default_worker.py"], env=env)
+    plain = subprocess.Popen([sys.executable, "-c", SLEEP, "plain"], env=env)
+    other_env = {**os.environ, "RAY_RAYLET_PID": str(plain.pid)}
+    other = subprocess.Popen([sys.executable, "-c", SLEEP, "/ray/default_worker.py"], env=other_env)
+    try:
+        noted = {raylet.pid: orphan_reaper._stat(raylet.pid)[1]}
+        assert worker.pid not in orphan_reaper.ray_descendants(raylet.pid)
+        assert set(orphan_reaper.orphans(noted)) == {worker.pid}
+        orphan_reaper._end(noted)
+        assert raylet.wait(timeout=10) == -9 and worker.wait(timeout=10) == -9
+        assert plain.poll() is None and other.poll() is None
+    finally:
+        for child in (raylet, worker, plain, other):
+            child.kill()
+            child.wait()

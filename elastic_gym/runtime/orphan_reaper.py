@@ -7,9 +7,10 @@ session) that every `SNAPSHOT_PERIOD` seconds notes the parent's descendants
 whose command line is Ray's (``/ray/`` in it, or a ``ray::`` worker). When its stdin
 (a pipe only the parent holds) closes, the parent has ended; if the parent is really
 gone, the noted processes still alive (same pid and start time) are stopped with
-SIGSTOP together with every Ray process they started meanwhile, then killed with
-SIGKILL (an orphaned runtime has no one to shut down for). Linux only (it reads
-``/proc``); elsewhere `start_reaper` does nothing.
+SIGSTOP together with every Ray process they started meanwhile (a raylet's workers
+handed to another parent name it in ``RAY_RAYLET_PID``), then killed with SIGKILL (an
+orphaned runtime has no one to shut down for). Linux only (it reads ``/proc``);
+elsewhere `start_reaper` does nothing.
 """
 
 from __future__ import annotations
@@ -71,6 +72,36 @@ def ray_descendants(*roots: int) -> dict[int, int]:
     return found
 
 
+def _raylet_of(pid: int) -> int | None:
+    """The raylet a Ray worker or agent was started by (``RAY_RAYLET_PID`` in its
+    environment), ``None`` if it names none."""
+    try:
+        environ = (PROC / str(pid) / "environ").read_bytes().split(b"\0")
+    except OSError:
+        return None
+    for entry in environ:
+        if entry.startswith(b"RAY_RAYLET_PID="):
+            with contextlib.suppress(ValueError):
+                return int(entry.removeprefix(b"RAY_RAYLET_PID="))
+    return None
+
+
+def orphans(noted: dict[int, int]) -> dict[int, int]:
+    """pid -> start time of the Ray processes not in ``noted`` whose raylet is: a worker
+    that a raylet started just before both lost their parent (the kernel ends a raylet
+    with its parent; the worker, handed to another parent, is no longer its child)."""
+    _, starts = _process_table()
+    return {
+        pid: start
+        for pid, start in starts.items()
+        if pid not in noted
+        and pid != os.getpid()
+        and (raylet := _raylet_of(pid)) in noted
+        and start >= noted[raylet]  # not an older process with a reused raylet pid
+        and _is_ray(pid)
+    }
+
+
 def _alive(noted: dict[int, int]) -> list[int]:
     """The noted processes still running (same pid and start time)."""
     return [pid for pid, start in noted.items() if (stat := _stat(pid)) and stat[1] == start]
@@ -78,12 +109,13 @@ def _alive(noted: dict[int, int]) -> list[int]:
 
 def _end(noted: dict[int, int]) -> None:
     """Freeze the noted processes and every Ray process they start meanwhile (a raylet
-    respawns its workers), then kill them all."""
+    respawns its workers) or started just before (`orphans`), then kill them all."""
     for _ in range(FREEZE_ROUNDS):
         for pid in _alive(noted):
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGSTOP)
-        more = {p: t for p, t in ray_descendants(*_alive(noted)).items() if p not in noted}
+        found = {**ray_descendants(*_alive(noted)), **orphans(noted)}
+        more = {p: t for p, t in found.items() if p not in noted}
         if not more:
             break
         noted.update(more)
