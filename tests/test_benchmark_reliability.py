@@ -25,16 +25,20 @@ from elastic_gym.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 ENTRY = ["--controller", "motor-pd", "--source", "true", "--label", "pd"]
 SLOW = '''
+import os
 import time
 
 from elastic_gym.controllers.pd import MotorPD
 
 
 class Slow(MotorPD):
-    """Motor PD that takes 2 ms per call: a benchmark long enough to interrupt."""
+    """Motor PD that takes ``SLOW_DELAY`` s (environment, default 0) per call: a
+    benchmark long enough to interrupt, its numbers those of the motor PD."""
+
+    delay = float(os.environ.get("SLOW_DELAY", "0"))
 
     def __call__(self, obs, info):
-        time.sleep(0.002)
+        time.sleep(self.delay)
         return super().__call__(obs, info)
 '''
 
@@ -292,9 +296,10 @@ def test_an_interrupted_overwrite_keeps_the_earlier_result_and_says_so(
     out = tmp_path / "out"
     args = ["benchmark", "--class", "slow:Slow", "--source", "true", "--suite", str(suite)]
     args += ["--output", str(out), "--workers", "1", "--no-progress"]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
+    path = os.pathsep.join([str(ROOT), str(tmp_path)])
+    env = {**os.environ, "PYTHONPATH": path, "SLOW_DELAY": "0.002"}  # 2 ms per call
     command = [sys.executable, "-m", "elastic_gym.cli", *args]
-    assert main(args) == 0  # the earlier result, made here; the overwrite is interrupted below
+    assert main(args) == 0  # the earlier result, made here at full speed
     sys.modules.pop("slow", None)
     before = snapshot(out)
     second = subprocess.Popen([*command, "--overwrite"], env=env, stderr=subprocess.PIPE, text=True)
