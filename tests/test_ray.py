@@ -8,7 +8,7 @@ import pytest
 import yaml
 from helpers import rigid_scenario
 
-from elastic_gym.evaluation import Scenario, execute, plan_runs
+from elastic_gym.evaluation import Scenario, ScenarioError, compare, execute, plan_runs
 from elastic_gym.evaluation.episodes import run_group
 from elastic_gym.evaluation.plan import group_runs
 from elastic_gym.runtime.parallel import SINGLE_THREAD_ENV
@@ -19,7 +19,8 @@ from elastic_gym.runtime.parallel import SINGLE_THREAD_ENV
 def test_ray_backend_gives_the_same_table_and_trains_two_seeds(tmp_path, capsys):
     """A comparison run on Ray gives the local table, bit for bit; `elastic-gym train --seeds
     0 1 --backend ray` runs both jobs on the Ray runtime and gathers them in one table;
-    `elastic-gym compare --policy RUN` (on the same runtime) adds the policy's rows."""
+    `elastic-gym compare --policy RUN` (on the same runtime) adds the policy's rows; the
+    pre-run check (run on Ray) refuses an observer option no run could use, writing nothing."""
     ray = pytest.importorskip("ray", reason="the 'ray' extra is not installed")
     from elastic_gym.cli import main
 
@@ -105,6 +106,12 @@ def test_ray_backend_gives_the_same_table_and_trains_two_seeds(tmp_path, capsys)
                 "--no-progress",
             ]
         )
+        bad = rigid_scenario(
+            controllers=["open-loop"],
+            state_sources=[{"name": "finite-difference", "options": {"cutoff_hz": -5.0}}],
+        )
+        with pytest.raises(ScenarioError, match=r"^state_sources\[0\]\.options: .*cutoff_hz"):
+            compare(Scenario.from_dict(bad), tmp_path / "bad", workers=2, backend="ray")
     finally:
         ray.shutdown()
     assert remote[0].metrics["est_rms_dq"] == local[0].metrics["est_rms_dq"]
@@ -115,6 +122,6 @@ def test_ray_backend_gives_the_same_table_and_trains_two_seeds(tmp_path, capsys)
         assert (out / f"seed{seed}" / "vecnormalize.pkl").exists()
     assert "policy steps" in printed and printed.count("seed") >= 2
 
-    assert compared == 0
+    assert compared == 0 and not (tmp_path / "bad").exists()
     summary = (tmp_path / "cmp" / "summary.md").read_text()
     assert "policy:seed0" in summary and "eq13-state-feedback" in summary

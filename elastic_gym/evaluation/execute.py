@@ -140,7 +140,8 @@ class Execution:
         naming the field that cannot work; returns the estimated wall time. A real Ctrl-C
         is not taken for the sampled user code's own."""
         with interrupts_raised():
-            return preflight(self.plan.scenario, self.plan.groups, self.plan.workers, self._pool)
+            plan = self.plan
+            return preflight(plan.scenario, plan.groups, plan.workers, self._pool, plan.backend)
 
     def run(self, on_results: OnResults, progress: bool = True) -> None:
         """Run every world, calling ``on_results(index, results)`` as each ends."""

@@ -40,7 +40,7 @@ from elastic_gym.evaluation.world import (
     run_model,
 )
 from elastic_gym.model.identified import identified_robot_model, load_identified_model
-from elastic_gym.runtime.parallel import for_each_result, user_failure
+from elastic_gym.runtime.parallel import DEFAULT_BACKEND, for_each_result, user_failure
 from elastic_gym.runtime.process_pool import WorkerDiedError, WorkerPool
 
 SAMPLE_TIME = 0.05  # CPU s of closed loop timed per (env, controller, source) combination
@@ -180,13 +180,17 @@ def _check(job: _EnvCheck | _Sample) -> float | ScenarioError:
 
 
 def _run_checks(
-    jobs: list[_EnvCheck | _Sample], pool: WorkerPool | None = None, workers: int = 1
+    jobs: list[_EnvCheck | _Sample],
+    pool: WorkerPool | None = None,
+    workers: int = 1,
+    backend: str = DEFAULT_BACKEND,
 ) -> list[float]:
     """Every job's cost, the jobs shared by ``workers`` worker processes (of ``pool``, or
-    spawned for them); raises the refusal of the first job in job order that has one (a
-    job's own, or that of a job whose process died: ``after_death``, which checks again
-    in processes of its own) as soon as every job before it has passed, so that the same
-    scenario is always refused for the same reason."""
+    spawned for them; Ray's with ``backend="ray"``); raises the refusal of the first job
+    in job order that has one (a job's own, or that of a job whose process died:
+    ``after_death``, which checks again in processes of its own) as soon as every job
+    before it has passed, so that the same scenario is always refused for the same
+    reason."""
     costs: dict[int, float] = {}
     refusals: dict[int, ScenarioError] = {}
 
@@ -214,18 +218,24 @@ def _run_checks(
         describe=lambda job: f"the pre-run check {job}",
         crashed=lambda job, exc: exc,
         pool=pool,
+        backend=backend,
     )
     return [costs[i] for i in range(len(jobs))]
 
 
 def preflight(
-    scenario: Scenario, groups: Sequence[RunGroup], workers: int, pool: WorkerPool | None = None
+    scenario: Scenario,
+    groups: Sequence[RunGroup],
+    workers: int,
+    pool: WorkerPool | None = None,
+    backend: str = DEFAULT_BACKEND,
 ) -> Estimate:
     """Build everything the runs of ``groups`` need once (see the module docstring);
     raise `ScenarioError` on the first failure; return the estimated wall time.
 
     The checks run in worker processes (`for_each_result`: one spawned for them, or
-    shared by the workers of ``pool``, the runs' own, when given): user code that
+    shared by the workers of ``pool``, the runs' own, when given; with
+    ``backend="ray"``, on the Ray workers that will run the runs): user code that
     ends that process (``os._exit``, a signal, a segmentation fault) while its
     controller, observer or world is built is refused naming the field; in the closed
     loop it is left to the runs (their rows say so).
@@ -249,13 +259,16 @@ def preflight(
                 )
                 keys[len(jobs)] = key
                 jobs.append(_Sample(sample, paths, f"envs[{i}].kwargs"))
-    workers = min(workers, len(groups))  # the runs' processes (``pool``'s size)
-    costs = _run_checks(jobs, pool, workers if pool is not None else 1)
+    used = min(workers, len(groups))  # the runs' processes (``pool``'s size)
+    if backend == "ray":  # on the Ray runtime of the runs (started here, with their CPUs)
+        costs = _run_checks(jobs, workers=workers, backend=backend)
+    else:
+        costs = _run_checks(jobs, pool, used if pool is not None else 1)
     cost = {key: costs[index] for index, key in keys.items()}
     # a group's runs may come from several env entries (per-arm plants): its first run's
     # sample stands for all of them
     total = sum(cost[_combo(group.first)] * len(group) for group in groups)
-    return Estimate(total, workers, cpu_share(workers))
+    return Estimate(total, used, cpu_share(used))
 
 
 def cpu_share(workers: int) -> float:
