@@ -353,6 +353,31 @@ def children(pid: int) -> list[int]:
     return found
 
 
+def descendants(pid: int) -> list[int]:
+    """Process ids below ``pid``: its children, theirs, and so on (Linux /proc)."""
+    found, parents = [], [pid]
+    while parents:
+        below = [child for parent in parents for child in children(parent)]
+        found += below
+        parents = below
+    return found
+
+
+def is_multiprocessing_helper(pid: int) -> bool:
+    """multiprocessing's resource tracker or a fork server: helper processes that end
+    when the process that started them has ended."""
+    try:
+        command = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
+    return b"resource_tracker" in command or b"forkserver" in command
+
+
+def workers_of(pid: int) -> list[int]:
+    """The worker processes below ``pid`` (its descendants but multiprocessing's helpers)."""
+    return [p for p in descendants(pid) if not is_multiprocessing_helper(p)]
+
+
 def alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from helpers import alive, children
+from helpers import alive, descendants, workers_of
 
 ROOT = Path(__file__).resolve().parents[1]
 SLEEPY_CONTROLLER = '''
@@ -73,19 +73,12 @@ def start(args: list[str], tmp_path: Path) -> subprocess.Popen:
     )
 
 
-def is_resource_tracker(pid: int) -> bool:
-    """multiprocessing's helper process, which ends when the command itself exits."""
-    try:
-        return b"resource_tracker" in Path(f"/proc/{pid}/cmdline").read_bytes()
-    except OSError:
-        return False
-
-
 def stop(process: subprocess.Popen, signum: int) -> tuple[float, str]:
     """Send ``signum``; return the time until its worker processes are gone, and its
-    stderr once it has exited (no child process may be left behind)."""
-    children_before = children(process.pid)
-    workers = [pid for pid in children_before if not is_resource_tracker(pid)]
+    stderr once it has exited (no process it started may be left behind: workers, their
+    fork server, the resource tracker)."""
+    descendants_before = descendants(process.pid)
+    workers = workers_of(process.pid)
     assert len(workers) >= 2
     process.send_signal(signum)
     sent = time.monotonic()
@@ -94,9 +87,9 @@ def stop(process: subprocess.Popen, signum: int) -> tuple[float, str]:
     workers_gone = time.monotonic() - sent
     _, err = process.communicate(timeout=EXIT_TIME)
     deadline = time.monotonic() + 5.0
-    while any(alive(pid) for pid in children_before) and time.monotonic() < deadline:
+    while any(alive(pid) for pid in descendants_before) and time.monotonic() < deadline:
         time.sleep(0.02)
-    assert not [pid for pid in children_before if alive(pid)]
+    assert not [pid for pid in descendants_before if alive(pid)]
     return workers_gone, err
 
 

@@ -1,5 +1,6 @@
 """The worker pool: one set of processes serves several calls (the pre-run check and
-the runs of a comparison), and a call left early never hands its results to the next."""
+the runs of a comparison), a call left early never hands its results to the next, and a
+worker forked from a fork server sees what a spawned one would."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from rich.console import Console
 
 from elastic_gym.controllers.base import Controller
 from elastic_gym.evaluation import Scenario, compare
+from elastic_gym.runtime import fork_server
 from elastic_gym.runtime.parallel import worker_processes
 
 
@@ -34,6 +36,69 @@ def test_one_pool_runs_two_functions_in_the_same_processes():
     assert squares == {0: 9, 1: 1, 2: 4}
     assert len(first) == 2 and os.getpid() not in first
     assert len(second) == 1 and second <= first  # workers=1: one of the same processes
+
+
+def what_a_job_sees(job: int) -> dict:
+    from threadpoolctl import threadpool_info
+
+    print(f"job {job} in {os.getpid()}", flush=True)
+    return {
+        "pid": os.getpid(),
+        "parent": os.getppid(),
+        "mark": os.environ.get("ELASTIC_GYM_TEST_MARK"),
+        "blas": os.environ.get("OPENBLAS_NUM_THREADS"),
+        "blas threads": {pool["num_threads"] for pool in threadpool_info()},
+        "cwd": os.getcwd(),
+        "draw": np.random.random(),  # noqa: NPY002 - the global generator, never seeded
+    }
+
+
+@pytest.mark.slow
+def test_a_worker_sees_the_environment_folder_and_output_of_its_own_start(tmp_path, monkeypatch):
+    """As a spawned process would: the environment (and BLAS threads), working folder and
+    standard output of the moment the worker starts, not those of its fork server's
+    start (a later pool with the same environment reuses that server), and a NumPy
+    global seed of its own."""
+    monkeypatch.setenv("ELASTIC_GYM_TEST_MARK", "first")
+    here = os.getcwd()
+    with worker_processes(2) as pool:
+        first = [seen for _, _, seen in pool.results(what_a_job_sees, [0, 1])]
+    saved = os.dup(1)
+    try:
+        with (tmp_path / "out.txt").open("w") as out:
+            os.dup2(out.fileno(), 1)
+        with worker_processes(1) as pool:
+            [(_, _, again)] = pool.results(what_a_job_sees, [2])
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+    monkeypatch.setenv("ELASTIC_GYM_TEST_MARK", "second")
+    monkeypatch.chdir(tmp_path)
+    with worker_processes(1) as pool:
+        [(_, _, second)] = pool.results(what_a_job_sees, [3])
+    assert [seen["mark"] for seen in [*first, again, second]] == ["first"] * 3 + ["second"]
+    assert {seen["cwd"] for seen in [*first, again]} == {here} and second["cwd"] == str(tmp_path)
+    for seen in [*first, again, second]:  # single-threaded BLAS (`single_threaded`)
+        assert seen["blas"] == "1" and seen["blas threads"] == {1}
+    if fork_server.available():  # one server for both pools of the first environment
+        assert {seen["parent"] for seen in [*first, again]} == {first[0]["parent"]}
+        assert first[0]["parent"] != os.getpid()
+    assert len({seen["pid"] for seen in first}) == 2
+    assert len({seen["draw"] for seen in [*first, again, second]}) == 4
+    assert (tmp_path / "out.txt").read_text() == f"job 2 in {again['pid']}\n"
+
+
+@pytest.mark.slow
+def test_workers_and_their_fork_server_ignore_sigint():
+    """A Ctrl-C reaches the whole process group: only the owner decides what stops."""
+    with worker_processes(1) as pool:
+        [(_, _, seen)] = pool.results(what_a_job_sees, [0])
+        if seen["parent"] != os.getpid():  # the fork server
+            os.kill(seen["parent"], signal.SIGINT)
+        os.kill(seen["pid"], signal.SIGINT)
+        time.sleep(0.5)
+        [(_, ok, again)] = pool.results(what_a_job_sees, [1])
+    assert ok and (again["pid"], again["parent"]) == (seen["pid"], seen["parent"])
 
 
 @pytest.mark.slow

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import alive, children, same_metric
+from helpers import alive, descendants, same_metric, workers_of
 from rich.console import Console
 
 from elastic_gym.evaluation import Scenario, ScenarioError, compare
@@ -360,12 +360,12 @@ def test_workers_end_when_compare_is_killed(tmp_path):
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
     process = cli([*args, "--workers", "2", "--no-progress", "--no-plots"], tmp_path)
     started = time.monotonic()
-    while len(children(process.pid)) < 3:  # 2 workers + the resource tracker
+    while len(workers_of(process.pid)) < 2:
         assert process.poll() is None, process.communicate()
         assert time.monotonic() < started + STARTUP_BOUND, f"no workers after {STARTUP_BOUND} s"
         time.sleep(0.1)
     time.sleep(1.0)  # the workers run their first episodes
-    left = children(process.pid)
+    left = descendants(process.pid)  # the workers, their fork server, the resource tracker
     process.kill()
     process.communicate()
     assert not still_alive(left, ENDING_BOUND)

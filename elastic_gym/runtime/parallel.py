@@ -150,6 +150,7 @@ def for_each_result(
     crashed: Callable[[Any, WorkerDiedError], Any] | None = None,
     size: Callable[[Any], int] | None = None,
     pool: WorkerPool | None = None,
+    preload: Sequence[str] = (),
 ) -> None:
     """Compute ``function(job)`` for every job in parallel and call ``on_result(index,
     result)`` in this process as each one completes (in completion order).
@@ -157,7 +158,10 @@ def for_each_result(
     ``size(job)``: how many items of the progress bar a job counts for (default 1: a
     batch of runs counts as its runs). ``pool``: the worker processes of
     `worker_processes` to run on (``backend="process"``; at most ``workers`` of
-    them), kept for the caller's next call; default: new ones, ended on return.
+    them), kept for the caller's next call; default: new ones, ended on return, that
+    fork from a server which imported ``preload`` (modules the jobs import: this package's
+    or installed libraries, never user code) and the module of ``function`` (if it is
+    this package's), so that each worker does not import them again.
 
     A worker process that dies while running a job (``os._exit``, a segmentation
     fault): with ``crashed``, ``crashed(job, WorkerDiedError)`` is that job's result and the
@@ -165,7 +169,7 @@ def for_each_result(
     ``RuntimeError`` naming that job. Workers end when this process ends, however it
     ends (`process_pool`; Ray: `orphan_reaper`).
 
-    ``backend="process"``: spawned worker processes, one with ``workers=1``; only jobs
+    ``backend="process"``: worker processes, one with ``workers=1``; only jobs
     that refer to ``__main__`` (a class defined in a notebook or in the script; see
     `refers_to_main`) run in this process with one worker,
     where code that ends its process ends this one.
@@ -208,7 +212,7 @@ def for_each_result(
                         ok, outcome = False, exc
                     settle(index, ok, outcome)
         else:
-            _run_processes(function, jobs, workers, settle, pool)
+            _run_processes(function, jobs, workers, settle, pool, preload)
 
 
 def run_jobs(
@@ -240,7 +244,7 @@ def run_jobs(
 @contextmanager
 def single_threaded() -> Iterator[None]:
     """Single-threaded BLAS/OpenMP (and torch, if imported) in this process, and in the
-    worker processes spawned inside this block (through the environment)."""
+    worker processes started inside this block (through the environment)."""
     saved = {key: os.environ.get(key) for key in SINGLE_THREAD_ENV}
     os.environ.update(SINGLE_THREAD_ENV)
     torch = sys.modules.get("torch")
@@ -264,14 +268,16 @@ def _call(function: Callable[[Any], Any], job: Any) -> Any:
     return function(job)
 
 
-def worker_processes(workers: int) -> WorkerPool:
+def worker_processes(workers: int, preload: Sequence[str] = ()) -> WorkerPool:
     """``workers`` processes that several `for_each_result` calls can share
-    (``pool=``), so each worker starts (imports) once; a context manager that ends them."""
-    return WorkerPool(workers, spawn_env=single_threaded)
+    (``pool=``), so each worker starts (imports) once; a context manager that ends them.
+    ``preload``: as for `for_each_result`."""
+    return WorkerPool(workers, spawn_env=single_threaded, preload=preload)
 
 
-def _run_processes(function, jobs, workers, settle, pool: WorkerPool | None) -> None:
-    with contextlib.nullcontext(pool) if pool is not None else worker_processes(workers) as used:
+def _run_processes(function, jobs, workers, settle, pool: WorkerPool | None, preload) -> None:
+    own = worker_processes(workers, preload) if pool is None else contextlib.nullcontext(pool)
+    with own as used:
         for index, ok, outcome in used.results(function, list(jobs), workers):
             settle(index, ok, outcome)
 

@@ -1,23 +1,25 @@
-"""A pool of spawned worker processes that die with their parent and survive a dead worker.
+"""A pool of worker processes that die with their parent and survive a dead worker.
 
 `WorkerPool` runs one job at a time per worker, so it always knows which job a
 worker was running: a worker that dies (``os._exit``, a segmentation fault, the OOM
 killer) fails exactly that job (`WorkerDiedError`), and a fresh worker takes its
-place; the other jobs go on.
+place; the other jobs go on. Workers are forked from a server that has imported the
+modules of the pool's jobs (`fork_server`; spawned where there is none).
 
-Workers end when their parent does, however it ends (``kill -9`` included): on Linux
-the kernel sends them ``SIGKILL`` (``prctl(PR_SET_PDEATHSIG)``), and every worker also
-checks its parent's pid each `PARENT_CHECK` seconds while it waits for a job.
-Workers ignore SIGINT (a Ctrl-C in a terminal reaches the whole process group; the
-parent alone decides what to stop). A spawned worker imports the parent's ``__main__``
-module (a script runs again up to its ``__main__`` guard) only when the function or the
-jobs refer to it (`refers_to_main`).
+Workers end when their owner does, however it ends (``kill -9`` included): the
+server exits when its owner does, and on Linux the kernel then sends the workers
+``SIGKILL`` (``prctl(PR_SET_PDEATHSIG)``); an idle worker also checks its parent's pid
+each `PARENT_CHECK` seconds. Workers ignore SIGINT (a Ctrl-C in a terminal reaches the
+whole process group; the owner alone decides what to stop). A worker imports the
+owner's ``__main__`` module (a script runs again up to its ``__main__`` guard) only when
+the function or the jobs refer to it (`refers_to_main`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import io
 import multiprocessing
 import os
@@ -25,9 +27,11 @@ import pickle
 import signal
 import sys
 import types
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from multiprocessing.connection import Connection, wait
 from typing import Any
+
+from elastic_gym.runtime.fork_server import owned, start_process
 
 PARENT_CHECK = 1.0  # s between checks of the parent's pid in an idle worker
 STOP_TIMEOUT = 5.0  # s a terminated worker gets before it is killed
@@ -94,7 +98,7 @@ def refers_to_main(*objects: Any) -> bool:
 
 @contextlib.contextmanager
 def main_not_imported() -> Iterator[None]:
-    """While a worker starts: a bare ``__main__`` module, so that the spawned process does
+    """While a worker starts: a bare ``__main__`` module, so that the new process does
     not import the parent's main script (``multiprocessing`` imports it when it has a
     file or a module spec)."""
     main = sys.modules["__main__"]
@@ -114,9 +118,10 @@ def _picklable_error(exc: BaseException) -> BaseException:
     return exc
 
 
-def _worker(connection: Connection, parent_pid: int) -> None:
+def _worker(parent_pid: int, connection: Connection) -> None:
     """Worker loop: receive ``(function, job)``, send ``(True, function(job))`` or
-    ``(False, exception)``; ``None`` (or a closed pipe, or a dead parent) ends it."""
+    ``(False, exception)``; ``None`` (or a closed pipe, or a dead parent) ends it.
+    ``parent_pid``: its parent process (the fork server, or the owner)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent(parent_pid)
     while True:
@@ -140,12 +145,18 @@ def _worker(connection: Connection, parent_pid: int) -> None:
             connection.send((False, RuntimeError(f"cannot send the result back: {exc}")))
 
 
+def _module_of(function: Callable) -> str | None:
+    """The module defining ``function`` (through ``functools.partial``)."""
+    while isinstance(function, functools.partial):
+        function = function.func
+    return getattr(function, "__module__", None)
+
+
 class _Worker:
-    def __init__(self, context, spawn_env: Callable, main: bool) -> None:
-        self.connection, child = context.Pipe()
-        self.process = context.Process(target=_worker, args=(child, os.getpid()), daemon=True)
+    def __init__(self, spawn_env: Callable, main: bool, preload: tuple[str, ...]) -> None:
+        self.connection, child = multiprocessing.Pipe()
         with spawn_env(), contextlib.nullcontext() if main else main_not_imported():
-            self.process.start()
+            self.process = start_process(_worker, (child,), preload)
         child.close()
         self.job: int | None = None  # index of the job it runs
 
@@ -166,21 +177,25 @@ class _Queue:
 
 
 class WorkerPool:
-    """Up to ``workers`` spawned processes computing ``function(job)`` for the jobs of
-    each `results` call; the workers of one call stay for the next (one pool can
-    serve several functions: their imports are paid once).
+    """Up to ``workers`` processes computing ``function(job)`` for the jobs of each
+    `results` call; the workers of one call stay for the next (one pool can serve
+    several functions: their imports are paid once).
 
     ``spawn_env``: a context manager entered while a worker starts (e.g. the
-    environment variables it inherits). Use as a context manager: leaving it ends every
-    worker (terminate, then kill), whatever happened.
+    environment variables it inherits). ``preload``: modules the jobs import, imported
+    once by the fork server (besides the module of the first function, if it is this
+    package's). Use as a context manager: leaving it ends every worker (terminate, then
+    kill), whatever happened.
     """
 
     def __init__(
         self,
         workers: int,
         spawn_env: Callable[[], contextlib.AbstractContextManager] = contextlib.nullcontext,
+        preload: Sequence[str] = (),
     ) -> None:
-        self._context = multiprocessing.get_context("spawn")
+        self._preload = tuple(preload)
+        self._modules = self._preload  # what the workers' server preloads (set by _spawn)
         self._spawn_env = spawn_env
         self._size = workers
         self._workers: list[_Worker] = []
@@ -194,9 +209,9 @@ class WorkerPool:
         self.stop()
 
     def start(self, function: Callable[[Any], Any], jobs: list[Any]) -> None:
-        """Spawn the workers now, for ``function`` and ``jobs`` to come (whether they
+        """Start the workers now, for ``function`` and ``jobs`` to come (whether they
         need ``__main__``), so that their start overlaps what this process does next."""
-        self._spawn(refers_to_main(function, jobs), self._size)
+        self._spawn(function, refers_to_main(function, jobs), self._size)
 
     def results(
         self, function: Callable[[Any], Any], jobs: list[Any], workers: int | None = None
@@ -210,7 +225,7 @@ class WorkerPool:
             raise RuntimeError("a WorkerPool runs the jobs of one results() call at a time")
         queue = _Queue([(function, job) for job in jobs])
         size = min(self._size if workers is None else workers, len(jobs))
-        self._spawn(refers_to_main(function, jobs), size)
+        self._spawn(function, refers_to_main(function, jobs), size)
         self._running = True
         try:
             busy = sum(self._give(worker, queue) for worker in self._workers[:size])
@@ -240,9 +255,10 @@ class WorkerPool:
             if any(worker.job is not None for worker in self._workers):
                 self.stop()
 
-    def _spawn(self, main: bool, size: int) -> None:
+    def _spawn(self, function: Callable, main: bool, size: int) -> None:
         """At least ``size`` live workers, importing ``__main__`` if ``main`` (a worker
-        that died while idle, between two calls, is replaced)."""
+        that died while idle, between two calls, is replaced); new workers of an empty
+        pool preload the module of ``function`` if it is this package's."""
         for worker in [w for w in self._workers if not w.process.is_alive()]:
             self._workers.remove(worker)
             worker.process.join()
@@ -250,11 +266,13 @@ class WorkerPool:
             self.stop()  # workers started without __main__ cannot rebuild these jobs
         if not self._workers:
             self._main = main
+            module = _module_of(function)
+            self._modules = self._preload + ((module,) if module and owned(module) else ())
         while len(self._workers) < size:
             self._workers.append(self._new_worker())
 
     def _new_worker(self) -> _Worker:
-        return _Worker(self._context, self._spawn_env, self._main)
+        return _Worker(self._spawn_env, self._main, self._modules)
 
     @staticmethod
     def _give(worker: _Worker, queue: _Queue) -> int:

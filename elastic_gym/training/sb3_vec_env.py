@@ -22,6 +22,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env import VecEnv
 
+from elastic_gym.runtime.fork_server import start_process
 from elastic_gym.runtime.process_pool import main_not_imported, refers_to_main
 
 
@@ -120,8 +121,9 @@ class SB3VecEnv(VecEnv):
         return [None for _ in range(self.num_envs)]
 
 
-def _batch_worker(remote, parent_remote, factory) -> None:
-    """Serve one `SB3VecEnv` (a batch of arms) in a worker process."""
+def _batch_worker(parent: int, remote, parent_remote, factory) -> None:
+    """Serve one `SB3VecEnv` (a batch of arms) in a worker process (``parent``: the pid
+    of its parent process, unused: it ends when its pipe closes)."""
     parent_remote.close()
     venv = factory.var()
     try:
@@ -164,19 +166,14 @@ class ProcessBatches(VecEnv):
 
         from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper
 
-        context = multiprocessing.get_context("spawn")
         # a script without a __main__ guard must not run again in the workers
         main = refers_to_main(factories)
         self.remotes, self.processes = [], []
         for factory in factories:
-            remote, work_remote = context.Pipe()
-            process = context.Process(
-                target=_batch_worker,
-                daemon=True,
-                args=(work_remote, remote, CloudpickleWrapper(factory)),
-            )
+            remote, work_remote = multiprocessing.Pipe()
+            args = (work_remote, remote, CloudpickleWrapper(factory))
             with contextlib.nullcontext() if main else main_not_imported():
-                process.start()
+                process = start_process(_batch_worker, args)
             work_remote.close()
             self.remotes.append(remote)
             self.processes.append(process)

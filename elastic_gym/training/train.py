@@ -37,6 +37,9 @@ from elastic_gym.training.run_envs import training_vec_env
 from elastic_gym.training.run_folder import NewRun, RunFolder, missing_folders, remove_empty
 from elastic_gym.training.trained import episode_duration
 
+# what a training run imports besides this module (its worker processes' server does it once)
+TRAINING_IMPORTS = ("stable_baselines3", "elastic_gym.training.learning_curve")
+
 
 @dataclass(frozen=True)
 class TrainResult:
@@ -283,6 +286,7 @@ def _train_many_locked(
             progress=progress,
             label="training runs",
             describe=lambda c: f"training run {c.out_dir} (seed {c.seed})",
+            preload=TRAINING_IMPORTS,
         )
     except BaseException as exc:
         detail = _settle_runs(configs, results, earlier)
