@@ -374,8 +374,10 @@ def is_multiprocessing_helper(pid: int) -> bool:
 
 
 def workers_of(pid: int) -> list[int]:
-    """The worker processes below ``pid`` (its descendants but multiprocessing's helpers)."""
-    return [p for p in descendants(pid) if not is_multiprocessing_helper(p)]
+    """The worker processes below ``pid``: its descendants but multiprocessing's helpers
+    among its children (a fork server's children, forked from it, share its command)."""
+    helpers = {child for child in children(pid) if is_multiprocessing_helper(child)}
+    return [p for p in descendants(pid) if p not in helpers]
 
 
 def alive(pid: int) -> bool:

@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import alive, descendants, workers_of
 from rich.console import Console
 
 from elastic_gym.controllers.base import Controller
@@ -99,6 +102,40 @@ def test_workers_and_their_fork_server_ignore_sigint():
         time.sleep(0.5)
         [(_, ok, again)] = pool.results(what_a_job_sees, [1])
     assert ok and (again["pid"], again["parent"]) == (seen["pid"], seen["parent"])
+
+
+BUSY_OWNER = """
+import time
+from elastic_gym.runtime.parallel import worker_processes
+with worker_processes(2) as pool:
+    for _ in pool.results(time.sleep, [600.0, 600.0]):
+        pass
+"""
+ENDING_BOUND = 60.0  # s for busy workers to end once their owner is killed (their jobs: 600 s)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_busy_workers_and_their_server_end_when_the_owner_is_killed():
+    """``kill -9`` of the owner while its workers run jobs of 10 minutes: the fork server
+    sees its alive pipe close and exits, and the kernel kills the workers
+    (PR_SET_PDEATHSIG against the server); nothing the owner started is left."""
+    owner = subprocess.Popen([sys.executable, "-c", BUSY_OWNER])
+    deadline = time.monotonic() + 120.0
+    while len(workers_of(owner.pid)) < 2:
+        assert owner.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    time.sleep(0.5)  # the jobs have started
+    started = descendants(owner.pid)
+    owner.kill()
+    owner.wait()
+    deadline = time.monotonic() + ENDING_BOUND
+    while any(alive(pid) for pid in started) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = [pid for pid in started if alive(pid)]
+    for pid in left:
+        os.kill(pid, signal.SIGKILL)
+    assert not left
 
 
 @pytest.mark.slow

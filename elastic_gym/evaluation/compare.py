@@ -9,7 +9,7 @@ then every world's closed loop, with recovery of failed runs and dead workers) a
 / ``summary.md``, ``scenario.yaml``, ``plots/``; with sweeps ``margins.*`` and ``curves/``).
 An earlier comparison's folder is refused unless ``overwrite``, a folder another process
 writes into always. A run that fails (raises, calls ``sys.exit``, kills its process) is a
-row ``failed: <Type>: <message>``. Runs and checks run in spawned workers, which import a
+row ``failed: <Type>: <message>``. Runs and checks run in worker processes, which import a
 script's ``__main__`` only for classes defined there: then several workers need the
 ``__main__`` guard, and one worker runs them in this process.
 """

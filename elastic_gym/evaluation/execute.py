@@ -1,7 +1,7 @@
 """The execution of a comparison's plan: its worlds run in parallel, with recovery.
 
 The second of the comparison's three stages (plan → execute → report). Each world of the
-plan runs in [`run_group`][elastic_gym.evaluation.episodes.run_group], on spawned worker
+plan runs in [`run_group`][elastic_gym.evaluation.episodes.run_group], on worker
 processes or Ray (``backend="ray"``, the same job function) through
 `elastic_gym.runtime.parallel.for_each_result`, with a progress bar
 counting runs. A world whose worker process dies (``os._exit``, a signal, a segmentation

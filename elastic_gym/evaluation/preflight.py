@@ -186,7 +186,7 @@ def _run_checks(
     backend: str = DEFAULT_BACKEND,
 ) -> list[float]:
     """Every job's cost, the jobs shared by ``workers`` worker processes (of ``pool``, or
-    spawned for them; Ray's with ``backend="ray"``); raises the refusal of the first job
+    started for them; Ray's with ``backend="ray"``); raises the refusal of the first job
     in job order that has one (a job's own, or that of a job whose process died:
     ``after_death``, which checks again in processes of its own) as soon as every job
     before it has passed, so that the same scenario is always refused for the same
@@ -233,7 +233,7 @@ def preflight(
     """Build everything the runs of ``groups`` need once (see the module docstring);
     raise `ScenarioError` on the first failure; return the estimated wall time.
 
-    The checks run in worker processes (`for_each_result`: one spawned for them, or
+    The checks run in worker processes (`for_each_result`: one started for them, or
     shared by the workers of ``pool``, the runs' own, when given; with
     ``backend="ray"``, on the Ray workers that will run the runs): user code that
     ends that process (``os._exit``, a signal, a segmentation fault) while its

@@ -10,8 +10,7 @@ stopped), and each child takes this process's standard output and error, working
 A server ends when this process ends, however: it exits when its "alive" pipe, held by
 this process alone, closes (children close their copy at once), and a child can ask the
 kernel to kill it when the server ends (``target`` receives the pid of its parent).
-Where there is no forkserver (not POSIX, Python < 3.11, ``python -E``), or for modules
-this package does not own, nothing is preloaded: processes are then spawned.
+Elsewhere (not Linux, Python < 3.11, ``python -E``) processes are spawned.
 """
 
 from __future__ import annotations
@@ -37,7 +36,8 @@ _LAUNCH_VARIABLES = ("PYTHONPATH", "PYTHONSAFEPATH")  # set for the server's sta
 def available() -> bool:
     """Whether processes can be forked from a server here (else they are spawned)."""
     return (
-        "forkserver" in multiprocessing.get_all_start_methods()
+        sys.platform.startswith("linux")  # macOS: Accelerate and the ObjC runtime are not fork-safe
+        and "forkserver" in multiprocessing.get_all_start_methods()
         and sys.version_info >= (3, 11)  # PYTHONSAFEPATH: the server resolves imports as we do
         and not sys.flags.ignore_environment
     )
