@@ -99,12 +99,6 @@ class _Server:
         self.path = path
         self.children: list[process.BaseProcess] = []
 
-    def pid(self) -> int:
-        """The server's pid, started (again, if it died) now."""
-        with _launch_environment(self.path):
-            self.forkserver.ensure_running()
-        return self.forkserver._forkserver_pid
-
     def busy(self) -> bool:
         self.children = [child for child in self.children if child.is_alive()]
         return bool(self.children)
@@ -261,9 +255,10 @@ def start_process(
         spawned.start()
         return spawned
     server = _server(names)
-    with _lock:
-        parent = server.pid()
-        environment = {key: os.environ.get(key) for key in _LAUNCH_VARIABLES}
+    environment = {key: os.environ.get(key) for key in _LAUNCH_VARIABLES}  # ours, for the child
+    with _lock, _launch_environment(server.path):  # in case the server has to start (again)
+        server.forkserver.ensure_running()
+        parent = server.forkserver._forkserver_pid
         child = _Process(
             server.forkserver,
             target=_child,
