@@ -11,24 +11,14 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 from helpers import alive, descendants, workers_of
+from pool_jobs import PidLog, pid_of, slow_square, what_a_job_sees
 from rich.console import Console
 
-from elastic_gym.controllers.base import Controller
 from elastic_gym.evaluation import Scenario, compare
 from elastic_gym.runtime import fork_server
 from elastic_gym.runtime.parallel import worker_processes
-
-
-def pid_of(job: int) -> tuple[int, int]:
-    return job, os.getpid()
-
-
-def slow_square(job: int) -> int:
-    time.sleep(0.05 * job)
-    return job * job
 
 
 def test_one_pool_runs_two_functions_in_the_same_processes():
@@ -39,21 +29,6 @@ def test_one_pool_runs_two_functions_in_the_same_processes():
     assert squares == {0: 9, 1: 1, 2: 4}
     assert len(first) == 2 and os.getpid() not in first
     assert len(second) == 1 and second <= first  # workers=1: one of the same processes
-
-
-def what_a_job_sees(job: int) -> dict:
-    from threadpoolctl import threadpool_info
-
-    print(f"job {job} in {os.getpid()}", flush=True)
-    return {
-        "pid": os.getpid(),
-        "parent": os.getppid(),
-        "mark": os.environ.get("ELASTIC_GYM_TEST_MARK"),
-        "blas": os.environ.get("OPENBLAS_NUM_THREADS"),
-        "blas threads": {pool["num_threads"] for pool in threadpool_info()},
-        "cwd": os.getcwd(),
-        "draw": np.random.random(),  # noqa: NPY002 - the global generator, never seeded
-    }
 
 
 @pytest.mark.slow
@@ -160,20 +135,6 @@ def test_a_worker_that_died_between_two_calls_is_replaced():
             time.sleep(0.05)
         [(_, ok, (_, other))] = pool.results(pid_of, [1])
     assert ok and other != pid
-
-
-class PidLog(Controller):
-    """Zero torque; appends the pid of the process that builds it to ``log``."""
-
-    name = "pid-log"
-
-    def __init__(self, model, dt, log: str = ""):
-        super().__init__(model, dt)
-        with open(log, "a") as handle:
-            handle.write(f"{os.getpid()}\n")
-
-    def __call__(self, obs, info):
-        return np.zeros(self.n)
 
 
 @pytest.mark.slow
