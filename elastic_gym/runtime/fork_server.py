@@ -16,6 +16,7 @@ Elsewhere (not Linux, Python < 3.11, ``python -E``) processes are spawned.
 from __future__ import annotations
 
 import contextlib
+import functools
 import importlib
 import io
 import multiprocessing
@@ -33,6 +34,11 @@ SERVER_EXIT = 2.0  # s a stopped server gets to exit on its own before it is kil
 _LAUNCH_VARIABLES = ("PYTHONPATH", "PYTHONSAFEPATH")  # set for the server's start only
 
 
+# what this module uses of multiprocessing's forkserver beyond its public functions
+_INTERNALS = ("_forkserver_pid", "_forkserver_alive_fd", "_forkserver_address", "ensure_running")
+
+
+@functools.cache
 def available() -> bool:
     """Whether processes can be forked from a server here (else they are spawned)."""
     return (
@@ -40,6 +46,9 @@ def available() -> bool:
         and "forkserver" in multiprocessing.get_all_start_methods()
         and sys.version_info >= (3, 11)  # PYTHONSAFEPATH: the server resolves imports as we do
         and not sys.flags.ignore_environment
+        and all(hasattr(forkserver.ForkServer(), name) for name in _INTERNALS)
+        and hasattr(forkserver, "_forkserver")
+        and callable(getattr(popen_forkserver.Popen, "_launch", None))
     )
 
 
