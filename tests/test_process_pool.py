@@ -67,6 +67,17 @@ def test_a_worker_sees_the_environment_folder_and_output_of_its_own_start(tmp_pa
 
 
 @pytest.mark.slow
+def test_where_there_is_no_fork_server_workers_are_spawned_children(monkeypatch):
+    """Not Linux, Python < 3.11: the worker is this process's own spawned child (the same
+    worker loop, given this process's pid as its parent) and sees the environment."""
+    monkeypatch.setattr(fork_server, "available", lambda: False)
+    monkeypatch.setenv("ELASTIC_GYM_TEST_MARK", "spawned")
+    with worker_processes(1) as pool:
+        [(_, ok, seen)] = pool.results(what_a_job_sees, [0])
+    assert ok and seen["parent"] == os.getpid() and seen["mark"] == "spawned"
+
+
+@pytest.mark.slow
 def test_workers_and_their_fork_server_ignore_sigint():
     """A Ctrl-C reaches the whole process group: only the owner decides what stops."""
     with worker_processes(1) as pool:
