@@ -77,6 +77,22 @@ def test_where_there_is_no_fork_server_workers_are_spawned_children(monkeypatch)
     assert ok and seen["parent"] == os.getpid() and seen["mark"] == "spawned"
 
 
+def test_the_fork_server_follows_only_the_launch_it_was_written_for(monkeypatch):
+    """`_Popen._launch` follows multiprocessing's own: this Python's is that one (the
+    fork server is used here), and any other makes workers spawn."""
+    from multiprocessing import popen_forkserver
+
+    assert fork_server._launch_followed()
+
+    def launch(self, process_obj):  # the same but for one more step
+        process_obj.checked = True
+
+    monkeypatch.setattr(popen_forkserver.Popen, "_launch", launch)
+    assert not fork_server._launch_followed()
+    monkeypatch.delattr(popen_forkserver.Popen, "_launch")
+    assert not fork_server._launch_followed()
+
+
 @pytest.mark.slow
 def test_workers_and_their_fork_server_ignore_sigint():
     """A Ctrl-C reaches the whole process group: only the owner decides what stops."""

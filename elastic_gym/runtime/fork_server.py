@@ -10,19 +10,23 @@ stopped), and each child takes this process's standard output and error, working
 A server ends when this process ends, however: it exits when its "alive" pipe, held by
 this process alone, closes (children close their copy at once), and a child can ask the
 kernel to kill it when the server ends (``target`` receives the pid of its parent).
-Elsewhere (not Linux, Python < 3.11, ``python -E``) processes are spawned.
+Elsewhere (not Linux, Python < 3.11, ``python -E``, another forkserver launch) they spawn.
 """
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import functools
+import hashlib
 import importlib
+import inspect
 import io
 import multiprocessing
 import os
 import signal
 import sys
+import textwrap
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -36,6 +40,21 @@ _LAUNCH_VARIABLES = ("PYTHONPATH", "PYTHONSAFEPATH")  # set for the server's sta
 
 # what this module uses of multiprocessing's forkserver beyond its public functions
 _INTERNALS = ("_forkserver_pid", "_forkserver_alive_fd", "_forkserver_address", "ensure_running")
+# the syntax tree of CPython 3.11's popen_forkserver.Popen._launch, which _Popen._launch
+# follows: a Python with another one spawns
+_LAUNCH_FOLLOWED = "142bcf42d88ca53c"
+
+
+def _launch_followed() -> bool:
+    """Whether this Python's ``popen_forkserver.Popen._launch`` is the one `_Popen` follows
+    (its syntax tree, comments and layout aside)."""
+    try:
+        launch = getattr(popen_forkserver.Popen, "_launch", None)
+        source = textwrap.dedent(inspect.getsource(launch))  # type: ignore[arg-type]
+    except (OSError, TypeError):  # no such method, or no source shipped
+        return False
+    tree = ast.dump(ast.parse(source)).encode()
+    return hashlib.sha256(tree).hexdigest()[: len(_LAUNCH_FOLLOWED)] == _LAUNCH_FOLLOWED
 
 
 @functools.cache
@@ -48,7 +67,7 @@ def available() -> bool:
         and not sys.flags.ignore_environment
         and all(hasattr(forkserver.ForkServer(), name) for name in _INTERNALS)
         and hasattr(forkserver, "_forkserver")
-        and callable(getattr(popen_forkserver.Popen, "_launch", None))
+        and _launch_followed()
     )
 
 
