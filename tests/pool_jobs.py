@@ -17,6 +17,12 @@ def pid_of(job: int) -> tuple[int, int]:
     return job, os.getpid()
 
 
+def os_exit_on_two(job: int) -> int:
+    if job == 2:
+        os._exit(5)
+    return job
+
+
 def slow_square(job: int) -> int:
     time.sleep(0.05 * job)
     return job * job

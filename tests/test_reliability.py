@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers import alive, descendants, same_metric, workers_of
+from pool_jobs import os_exit_on_two
 from rich.console import Console
 
 from elastic_gym.evaluation import Scenario, ScenarioError, compare
@@ -302,12 +303,6 @@ def test_run_jobs_without_a_crash_handler_names_the_job_whose_worker_died():
 
     with pytest.raises(RuntimeError, match=r"^job 2 could not run: WorkerDiedError: .*exit code 5"):
         run_jobs(os_exit_on_two, [0, 1, 2, 3], workers=2, progress=False, describe="job {}".format)
-
-
-def os_exit_on_two(job: int) -> int:
-    if job == 2:
-        os._exit(5)
-    return job
 
 
 def cli(args: list[str], tmp_path: Path, **kwargs) -> subprocess.Popen:
