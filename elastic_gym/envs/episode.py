@@ -126,6 +126,12 @@ class EpisodeState:
         """Truncate episodes after ``max_steps`` control periods (None: never)."""
         self.max_steps = max_steps
 
+    @property
+    def length(self) -> int:
+        """`max_steps` as `advance_clock` takes it: -1 when episodes are not truncated
+        (an int either way: one compiled signature)."""
+        return -1 if self.max_steps is None else self.max_steps
+
     # ------------------------------------------------------------------ a control period
     def truncation(self) -> np.ndarray:
         """A fresh array for a period's truncation flags (the shared False one when
@@ -146,7 +152,7 @@ class EpisodeState:
         have a length), previous <- current <- the clipped torque. Returns whether an arm
         is truncated."""
         ended = advance_clock(
-            self.steps, stepping, self.control_dt, self.max_steps, self.time, truncated
+            self.steps, stepping, self.control_dt, self.length, self.time, truncated
         )
         self.previous_torque[:] = self.torque
         self.torque[:] = self.clipped

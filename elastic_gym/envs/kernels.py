@@ -72,13 +72,14 @@ def clip_torque(command, external, low, high, tau, saturated):
 def advance_clock(steps, stepping, dt, max_steps, time, truncated):
     """steps += 1 for the stepping arms (`stepping` None: every arm), time = steps dt
     (numpy's int64 by float64 product) and truncated = steps >= max_steps (not written
-    when `max_steps` is None); returns whether any arm is truncated."""
+    when `max_steps` is -1: episodes without a length); returns whether any arm is
+    truncated."""
     ended = False
     for k in range(steps.shape[0]):
         if stepping is None or stepping[k]:
             steps[k] += 1
         time[k] = steps[k] * dt
-        if max_steps is not None:
+        if max_steps >= 0:
             truncated[k] = steps[k] >= max_steps
             ended = ended or truncated[k]
     return ended

@@ -196,7 +196,7 @@ class FusedArguments:
         (outputs), the task's open-loop torque arguments, q, the simulator's
         [`period_arguments`][elastic_gym.envs.simulator.ArmSimulator.period_arguments],
         the substeps per period, the clock (steps, control period, episode length in
-        periods or None, time), the torques (current, previous), the reference and the
+        periods or -1, time), the torques (current, previous), the reference and the
         task's reference arguments
         ([`Task.compiled_arguments`][elastic_gym.envs.task_base.Task.compiled_arguments]).
 
@@ -226,7 +226,7 @@ class FusedArguments:
                 self.n_substeps,
                 episode.steps,
                 episode.control_dt,
-                episode.max_steps,
+                episode.length,
                 episode.time,
                 episode.torque,
                 episode.previous_torque,

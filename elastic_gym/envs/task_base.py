@@ -57,12 +57,13 @@ class Task(ABC):
         """Open-loop torque (n_arms, N) added to the action; None when there is none."""
         return None
 
-    def compiled_arguments(self) -> tuple[tuple | None, tuple | None] | None:
+    def compiled_arguments(self) -> tuple[tuple, tuple] | None:
         """For compiled callers (the batch's control period): the ``arguments`` of
-        `open_loop_torque_kernel` (None: no open-loop torque) and of
-        `reference_kernel` (None: the reference holds still during an episode), the
-        arrays a reset changes in place; or None for a task computed in Python only (the
-        batch then steps it call by call). A subclass that overrides
+        `open_loop_torque_kernel` and of `reference_kernel`, each (whether the task has
+        an open-loop torque / a reference that moves during an episode, the kernel's
+        arguments: of the same types either way, so that every task compiles one
+        signature), the arrays a reset changes in place; or None for a task computed in
+        Python only (the batch then steps it call by call). A subclass that overrides
         [`external_torque`][elastic_gym.envs.task_base.Task.external_torque] or
         [`reference`][elastic_gym.envs.task_base.Task.reference] overrides this too."""
         return None

@@ -128,9 +128,9 @@ class TrackingTask(Task):
     def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
         return rest_to_rest(t, self.paths[arms], self.move_time, self.dwell_time, REFERENCE_ORDER)
 
-    def compiled_arguments(self) -> tuple[None, tuple]:
-        coefficients = timing_coefficients(REFERENCE_ORDER)
-        return None, (self.paths, float(self.move_time), float(self.dwell_time), coefficients)
+    def compiled_arguments(self) -> tuple[tuple, tuple]:
+        path = (self.paths, float(self.move_time), float(self.dwell_time), _COEFFICIENTS)
+        return no_open_loop_torque(self.model), (True, path)
 
 
 @dataclass
@@ -161,19 +161,22 @@ class RegulationTask(Task):
     def reference(self, t: np.ndarray, arms: slice | np.ndarray = slice(None)) -> np.ndarray:
         return self.held(self.targets, arms)
 
-    def compiled_arguments(self) -> tuple[None, None]:
-        return None, None
+    def compiled_arguments(self) -> tuple[tuple, tuple]:
+        return no_open_loop_torque(self.model), HELD_REFERENCE
 
 
 @njit(cache=True)
-def _excitation_kernel(t, q, tau, frequency, phase, offset, amplitude, gravity):
+def _excitation_kernel(
+    t, q, tau, frequency, phase, offset, amplitude, gravity_compensation, gravity
+):
     """tau = (offset + amplitude cos(frequency t + phase)) [+ g(q)] per arm and joint
-    (``gravity`` None: no g(q); else the chain's
-    [`gravity_arguments`][elastic_gym.model.chain.SerialChain.gravity_arguments])."""
-    if gravity is None:
-        tau[:] = 0.0
-    else:
+    (g(q) where ``gravity_compensation``, from the chain's
+    [`gravity_arguments`][elastic_gym.model.chain.SerialChain.gravity_arguments]
+    ``gravity``)."""
+    if gravity_compensation:
         _gravity_kernel(q, tau, gravity)
+    else:
+        tau[:] = 0.0
     for k in range(tau.shape[0]):
         for j in range(tau.shape[1]):
             cosine = np.cos(frequency[j] * t[k] + phase[j])
@@ -182,26 +185,44 @@ def _excitation_kernel(t, q, tau, frequency, phase, offset, amplitude, gravity):
 
 @njit(cache=True)
 def open_loop_torque_kernel(t, q, out, arguments):
-    """[`Task.external_torque`][elastic_gym.envs.task_base.Task.external_torque] at times ``t`` (N,)
-    and configurations ``q`` into
-    ``out`` for compiled callers (``arguments``: the task's
-    [`compiled_arguments`][elastic_gym.envs.task_base.Task.compiled_arguments]); returns False
-    (``out`` untouched) for a
-    task without one."""
-    if arguments is None:
+    """[`Task.external_torque`][elastic_gym.envs.task_base.Task.external_torque] at times
+    ``t`` (N,) and configurations ``q`` into ``out`` for compiled callers; returns False
+    (``out`` untouched) for a task without one. ``arguments``: the first of the task's
+    [`compiled_arguments`][elastic_gym.envs.task_base.Task.compiled_arguments], (whether
+    the task has an open-loop torque, `_excitation_kernel`'s arguments after the output)."""
+    active, excitation = arguments
+    if not active:
         return False
-    _excitation_kernel(t, q, out, *arguments)
+    _excitation_kernel(t, q, out, *excitation)
     return True
 
 
 @njit(cache=True)
 def reference_kernel(t, arguments, out):
-    """[`Task.reference`][elastic_gym.envs.task_base.Task.reference] of every arm at times ``t``
-    (N,) into ``out`` (N, 5, n) for compiled callers (``arguments``: the task's
-    [`compiled_arguments`][elastic_gym.envs.task_base.Task.compiled_arguments]; None: a
-    reference that holds still, ``out`` untouched)."""
-    if arguments is not None:
-        _rest_to_rest_kernel(t, *arguments, out)
+    """[`Task.reference`][elastic_gym.envs.task_base.Task.reference] of every arm at times
+    ``t`` (N,) into ``out`` (N, 5, n) for compiled callers; ``out`` untouched for a
+    reference that holds still during an episode. ``arguments``: the second of the task's
+    [`compiled_arguments`][elastic_gym.envs.task_base.Task.compiled_arguments], (whether
+    the reference moves, `_rest_to_rest_kernel`'s arguments after t)."""
+    moving, path = arguments
+    if moving:
+        _rest_to_rest_kernel(t, *path, out)
+
+
+def no_open_loop_torque(model: RobotModel) -> tuple:
+    """`open_loop_torque_kernel`'s ``arguments`` of a task without an open-loop torque:
+    the flag False and arguments of the types an open-loop torque has (never read), so
+    that every task's control period is one compiled signature."""
+    unused = np.zeros(0)
+    return False, (unused, unused, unused, unused, False, model.chain.gravity_arguments())
+
+
+# `_rest_to_rest_kernel`'s ``coefficients`` (the timing law's rows 0 .. REFERENCE_ORDER)
+_COEFFICIENTS = timing_coefficients(REFERENCE_ORDER)
+
+# `reference_kernel`'s ``arguments`` of a reference that holds still: the flag False and a
+# path of the types a moving one has (never read), one compiled signature for every task.
+HELD_REFERENCE = (False, (np.zeros((0, 0, 0)), 0.0, 0.0, _COEFFICIENTS))
 
 
 @dataclass
@@ -252,11 +273,12 @@ class ExcitationTask(Task):
 
     def _torque_arguments(self) -> tuple:
         """`_excitation_kernel`'s arguments after t, q and the output."""
-        gravity = self.model.chain.gravity_arguments() if self.gravity_compensation else None
-        return self._frequency, self._phase, self._offset, self._amplitude, gravity
+        gravity = self.model.chain.gravity_arguments()
+        excitation = self._frequency, self._phase, self._offset, self._amplitude
+        return (*excitation, self.gravity_compensation, gravity)
 
-    def compiled_arguments(self) -> tuple[tuple, None]:
-        return self._torque_arguments(), None
+    def compiled_arguments(self) -> tuple[tuple, tuple]:
+        return (True, self._torque_arguments()), HELD_REFERENCE
 
 
 TASKS: dict[str, type[Task]] = {
