@@ -77,22 +77,39 @@ def rigid() -> None:
 
 
 def elastic() -> None:
-    """Every other env id, with and without a link torque pulse."""
+    """The other env ids of model (1) and rigid arms, and a link torque pulse."""
     import elastic_gym
 
     for env_id in elastic_gym.ENV_IDS:
-        if env_id != "elastic_gym/TwoLinkRigid-v0":
+        if env_id not in ("elastic_gym/TwoLinkRigid-v0", "elastic_gym/KR15Elastic-v0"):
             _steps(env_id)
     pulse = {"times": [0.0], "durations": [1e-3], "amplitudes": [[0.1, 0.1]]}
     _steps("elastic_gym/TwoLinkElastic-v0", torque_pulses=pulse)
 
 
+def coupled() -> None:
+    """Model (2)'s env (the KR15: its coupling is another signature of the env kernels),
+    with and without a link torque pulse."""
+    _steps("elastic_gym/KR15Elastic-v0")
+    pulse = {"times": [0.0], "durations": [1e-3], "amplitudes": [[0.1] * 3]}
+    _steps("elastic_gym/KR15Elastic-v0", torque_pulses=pulse)
+
+
+def rk4() -> None:
+    """An env on the RK4 integrator (its control period in one compiled call) and the
+    Fourier task (its reference from Python)."""
+    _steps("elastic_gym/TwoLinkElastic-v0", integrator="rk4")
+    _steps("elastic_gym/TwoLinkElastic-v0", task="fourier")
+
+
 def loops() -> None:
     """The closed loop of eq. (13) (its torsion filter) on the De Luca observer (its
-    row-stacked products) and on the EKF, a few control periods each."""
+    row-stacked products) and on the EKF, a few control periods each; the inverse
+    dynamics planned along a trajectory (the torsion filter's loop over periods)."""
     import gymnasium as gym
 
     from elastic_gym.controllers.base import public_info
+    from elastic_gym.controllers.invdyn import InverseDynamics
     from elastic_gym.controllers.registry import make_controller
     from elastic_gym.observers import ObserverWrapper
 
@@ -105,6 +122,8 @@ def loops() -> None:
         for _ in range(3):
             obs, _, _, _, info = env.step(controller(obs, public_info(info)))
         env.close()
+    times = np.arange(3) * u.control_dt
+    InverseDynamics(u.model).trajectory(times, np.zeros((3, 5, u.model.n)))
 
 
 def integrator() -> None:
@@ -123,18 +142,21 @@ def integrator() -> None:
     arms.derivative(*state, np.zeros((2, 2)))
 
 
-# The two chain kernels first, one per part; then what links them (an env step, the rigid
-# arm's kernels in b while a compiles a complex kernel, then the elastic arm's in a while b
-# compiles the other); then the kernels of observers and controllers (complex step too).
+# The two chain kernels first, one per part; then a compiles the RK4's kernels (they
+# inline the chain's recursion: nothing of the other part's) while b compiles the env
+# kernels of a rigid arm (every task shares their signature); then model (2)'s env in a
+# while b compiles the other complex kernel, the other env ids, the env on the RK4 and
+# the closed loops (both complex kernels). Balance: docs/development.md.
 PARTS = {
     "a": [
         "dynamics",
         "mark:dynamics",
         "sensors_complex",
+        "mark:sensors_complex",
+        "integrator",
+        "mark:integrator",
         "wait:rigid",
-        "elastic",
-        "wait:complex",
-        "loops",
+        "coupled",
     ],
     "b": [
         "sensors",
@@ -142,8 +164,11 @@ PARTS = {
         "rigid",
         "mark:rigid",
         "dynamics_complex",
-        "mark:complex",
-        "integrator",
+        "elastic",
+        "wait:integrator",
+        "rk4",
+        "wait:sensors_complex",
+        "loops",
     ],
 }
 
