@@ -357,12 +357,7 @@ class ArmBatch:
         if code != bullet_capi.OK:
             bullet_capi.raise_for(code)
         episode.next_slot()
-        reward = np.empty(self.n_arms)  # `_fused_end`, its common case here
-        fused.refill(self.rngs)
-        tau, previous, reference = episode.clipped, episode.previous_torque, episode.reference
-        reasons = None
-        if not fused.end_call(tau, previous, reference, episode.slot, reward, fused.end):
-            reward, reasons = self._broken_end(fused)
+        reward, reasons = self._fused_end(fused)
         return episode.conclude(
             reward, reasons, truncated, ended, True, self._all, self._termination_reward
         )

@@ -163,8 +163,7 @@ class BatchInfo:
         observation = {key: out[part] for key, part in self._observed}
         plant = plant_state.arm_values(k)
         plant["torque_pulse"] = pulse
-        if plant_state.pulses.start.shape[1]:  # a pulse schedule
-            plant_state.pulse_schedule(k, plant)
+        plant_state.pulse_schedule(k, plant)
         return observation, {
             "time": episode.time.item(k),
             "true_state": {
