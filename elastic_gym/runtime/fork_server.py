@@ -155,11 +155,6 @@ class _Server:
                 os.close(alive)
 
 
-def _close(*fds: int) -> None:
-    for fd in fds:
-        os.close(fd)
-
-
 class _Popen(popen_forkserver.Popen):
     """``multiprocessing``'s forkserver ``Popen``, with a server of ours rather than the
     module's global one."""
@@ -179,7 +174,8 @@ class _Popen(popen_forkserver.Popen):
             context.set_spawning_popen(None)
         self.sentinel, w = self._server.connect_to_new_process(self._fds)  # type: ignore[attr-defined]
         parent_w = os.dup(w)  # the child's sentinel of this process
-        self.finalizer = util.Finalize(self, _close, (parent_w, self.sentinel))
+        close = util.close_fds  # type: ignore[attr-defined]  # (not in typeshed)
+        self.finalizer = util.Finalize(self, close, (parent_w, self.sentinel))
         with open(w, "wb", closefd=True) as f:
             f.write(buf.getbuffer())
         self.pid = forkserver.read_signed(self.sentinel)
