@@ -56,6 +56,7 @@ from elastic_gym.benchmark.suite import (
     suite_scenario,
 )
 from elastic_gym.evaluation.scenario import Scenario
+from elastic_gym.evaluation.tables import columns
 from elastic_gym.runtime.folder_lock import check_writable, folder_lock
 from elastic_gym.runtime.parallel import DEFAULT_BACKEND, with_detail
 from elastic_gym.validation import validated
@@ -211,8 +212,8 @@ def records(rows: list[dict]) -> list[dict]:
     """The rows as the records of one table: every column any row has, in first-seen
     order, NaN where a row has none (what pandas' ``DataFrame(rows).to_dict("records")``
     gives, without importing pandas)."""
-    columns = list(dict.fromkeys(key for row in rows for key in row))
-    return [{key: row.get(key, math.nan) for key in columns} for row in rows]
+    keys = columns(rows)
+    return [{key: row.get(key, math.nan) for key in keys} for row in rows]
 
 
 def _runs_of(path: Path, scenario: Scenario) -> list[dict]:

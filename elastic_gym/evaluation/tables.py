@@ -102,10 +102,15 @@ def as_table(rows: Sequence[dict]):
     return pandas.DataFrame(list(rows))
 
 
+def columns(rows: Sequence[dict]) -> list[str]:
+    """The columns of a table of ``rows``: every key any row has, in first-seen order."""
+    return list(dict.fromkeys(key for row in rows for key in row))
+
+
 def write_csv(rows: Sequence[dict], path: Path) -> Path:
-    """Write rows as CSV (columns: union of the keys, first-seen order; floats in full)."""
+    """Write rows as CSV (`columns`; floats in full)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fields = list(dict.fromkeys(key for row in rows for key in row))
+    fields = columns(rows)
     with path.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=fields, restval="")
         writer.writeheader()
