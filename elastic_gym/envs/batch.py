@@ -326,7 +326,7 @@ class ArmBatch:
         truncated = episode.truncation()
         if fused is not None and fused.period is not None:  # the period in one call
             call = fused.period_call if _float64_matrix(command) else control_period_kernel
-            code, ended = call(command, truncated, fused.period)
+            code, ended = call(command, truncated, *fused.period)
             if code != bullet_capi.OK:
                 bullet_capi.raise_for(code)
         else:
@@ -353,7 +353,8 @@ class ArmBatch:
         actions): the general path's calls in its order, bit for bit the same."""
         episode = self.episode
         truncated = episode.truncation()
-        code, ended = fused.period_call(actions, truncated, fused.period)
+        period = fused.period  # not None on the quick path (`_quick_path`)
+        code, ended = fused.period_call(actions, truncated, *period)  # type: ignore[misc]
         if code != bullet_capi.OK:
             bullet_capi.raise_for(code)
         episode.next_slot()
@@ -409,7 +410,9 @@ class ArmBatch:
         reward = np.empty(self.n_arms)
         fused.refill(self.rngs)
         tau, previous, reference = episode.clipped, episode.previous_torque, episode.reference
-        if fused.end_call(tau, previous, reference, episode.slot, reward, fused.end):
+        if fused.end_call(
+            tau, previous, reference, episode.slot, reward, fused.coupling, fused.end
+        ):
             return reward, None
         return self._broken_end(fused)
 

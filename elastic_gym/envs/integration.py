@@ -7,7 +7,7 @@ semi-implicit Euler at `physics_dt` and the elastic transmission beside each ste
 [`elastic_gym.model.integrator`][elastic_gym.model.integrator] (step-size control per
 arm, `physics_dt` the largest substep), through the same plants (`PlantArray`). PyBullet
 then stays the world (URDF, rendering, GUI, link poses), its joints set to the state when
-something reads them (the simulator's `physics_period` is the compiled call of either).
+something reads them (the batch's `control_period_kernel` makes the compiled call of either).
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ class RungeKutta:
         self.integrator.step(theta, dtheta, q, dq, tau, period, link_torque, self.ddq)
 
     def period_arguments(self, period: float) -> tuple:
-        """`physics_period`'s RK4 arguments after the torques: the state, no link torque,
+        """`rk4_period_kernel`'s arguments after the torques: the state, no link torque,
         the period, the substep counts, the final q'' and the integrator's pack."""
         theta, dtheta, q, dq = self.state
         packed = self.integrator.packed

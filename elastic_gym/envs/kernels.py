@@ -3,7 +3,7 @@
 A control period of every arm in two compiled calls where it can be
 ([`ArmBatch.step`][elastic_gym.envs.batch.ArmBatch.step]): `control_period_kernel` (the
 task's open-loop torque, the clip to the torque limits, the physics substeps of
-[`elastic_gym.envs.simulator`][elastic_gym.envs.simulator], the clock, the reference) and
+[`elastic_gym.envs.simulator`][elastic_gym.envs.simulator] or the RK4, the clock, the reference) and
 `post_step_kernel` (q'' and the accelerometers' noise-free readings of eq. (9) of De Luca
 et al. 2007, the termination codes, the sensors through their delay line, the reward).
 Their arguments are packed by [`elastic_gym.envs.packing`][elastic_gym.envs.packing]; the
@@ -19,9 +19,14 @@ from numba import njit
 from elastic_gym.envs import bullet_capi
 from elastic_gym.envs.reward import _reward_kernel
 from elastic_gym.envs.sensors import _shared_readings
-from elastic_gym.envs.simulator import _end_of_period_dynamics, physics_period
+from elastic_gym.envs.simulator import (
+    _coupled_link_torque,
+    _period_kernel,
+    _transmission_kernel,
+)
 from elastic_gym.envs.tasks import open_loop_torque_kernel, reference_kernel
-from elastic_gym.model.chain import specific_forces_kernel
+from elastic_gym.model.chain import _dynamics_and_forces_kernel, specific_forces_kernel
+from elastic_gym.model.integrator import rk4_period_kernel
 
 
 @njit(cache=True)
@@ -86,19 +91,24 @@ def advance_clock(steps, stepping, dt, max_steps, time, truncated):
 
 
 @njit(cache=True)
-def post_step_kernel(tau, previous, reference, slot, reward, packed):
+def post_step_kernel(tau, previous, reference, slot, reward, coupling, packed):
     """The end of a control period of every arm in one call, the same kernels in the same
     order as the step by step path of
     [`ArmBatch.step`][elastic_gym.envs.batch.ArmBatch.step] calls them one by one (so bit
     for bit the same):
 
-    1. q'' and the noise-free accelerometer readings (eq. (9)): the simulator's
-       `_end_of_period_dynamics` (`transmission`, `dynamics`: the arguments after the
-       motor torques `tau` of its `_link_dynamics_kernel`; no link-side torque;
-       `coupling`: model (2)'s); with the RK4 (`integrated`: (its q'' at the end of
+    1. q'' and the noise-free accelerometer readings (eq. (9)), no link-side torque:
+       the simulator's `_transmission_kernel` and the chain's
+       `_dynamics_and_forces_kernel` (`transmission`, `dynamics`: their arguments after
+       the motor torques `tau` and after q, q', tau), as its `_link_dynamics_kernel`
+       calls them; for model (2) (`coupling` not None, its `Packed` arguments) q'' of
+       the simulator's `_coupled_link_torque` and the readings at it
+       (`specific_forces_kernel`); with the RK4 (`integrated`: (its q'' at the end of
        the period, True)) that q'', which is the same q'' bit for bit (the RK4's
        right-hand side is these kernels' operations in their order), and the readings
-       at it (`specific_forces_kernel`);
+       at it. `coupling` is an argument, not packed, so that numba compiles the one
+       model an arm has (a compiled layer in between would cost another optimisation
+       of all the physics below it);
     2. the termination codes (`break_codes`, `limits`: its arguments after the state); if
        an arm broke, returns False here (the caller measures with the hold of non-finite
        readings);
@@ -112,14 +122,14 @@ def post_step_kernel(tau, previous, reference, slot, reward, packed):
 
     `packed`: a `Packed` (`elastic_gym.model.packed`) of what holds for the episode
     ([`FusedArguments`][elastic_gym.envs.packing.FusedArguments]): (theta, theta', q, q',
-    transmission, coupling (None without model (2)), dynamics, limits, sensors, the torque
+    transmission, dynamics, limits, sensors, the torque
     limit row and the reward constants after it, integrated, scratch (3, N, n) for the
     reward's errors and torsion); `sensors`: (elastic, encoder std, block, next,
     resolution, has accelerometers, bias, std, block, next, range, resolution, readings
     (encoders, accelerometers), delay lines (L, N, size) of both, delays (N,), observation
     arrays (position, acceleration, reference))."""
-    theta, dtheta, q, dq, transmission, coupling = packed.values[:6]
-    dynamics, limits, sensors, rewards, integrated, scratch = packed.values[6:]
+    theta, dtheta, q, dq, transmission = packed.values[:5]
+    dynamics, limits, sensors, rewards, integrated, scratch = packed.values[5:]
     (
         elastic,
         enc_std,
@@ -142,16 +152,18 @@ def post_step_kernel(tau, previous, reference, slot, reward, packed):
         acc_obs,
         reference_obs,
     ) = sensors
-    forces = dynamics[3]
+    unused, w, ddq, forces, constants = dynamics
     integrated_ddq, known = integrated
     if known:
-        unused, w, ddq, _, constants = dynamics
-        for k in range(ddq.shape[0]):
-            for j in range(ddq.shape[1]):
-                ddq[k, j] = integrated_ddq[k, j]
-        specific_forces_kernel(q, dq, ddq, w, unused, forces, constants)
+        ddq[:] = integrated_ddq
+    elif coupling is None:
+        _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
+        _dynamics_and_forces_kernel(q, dq, transmission[10], *dynamics)
     else:
-        _end_of_period_dynamics(theta, dtheta, q, dq, tau, transmission, coupling, dynamics)
+        _coupled_link_torque(theta, dtheta, q, dq, tau, None, transmission, coupling)
+        ddq[:] = coupling.values[8]
+    if known or coupling is not None:
+        specific_forces_kernel(q, dq, ddq, w, unused, forces, constants)
     if break_codes(q, dq, theta, dtheta, *limits):
         return False
     _shared_readings(
@@ -200,15 +212,19 @@ def post_step_kernel(tau, previous, reference, slot, reward, packed):
 
 
 @njit(cache=True)
-def control_period_kernel(command, truncated, packed):
+def control_period_kernel(command, truncated, bullet, rk4, packed):
     """A control period of every arm up to its end (`post_step_kernel`) in one call, the
     kernels of the step by step path in its order (so bit for bit the same):
 
     1. the task's open-loop torque at the period's start (`open_loop_torque_kernel` of
        [`elastic_gym.envs.tasks`][elastic_gym.envs.tasks]) added to `command` and clipped
        to the torque limits (`clip_torque`);
-    2. the physics of the period (the simulator's `physics_period`: PyBullet's substeps
-       or the RK4);
+    2. the physics of the period: PyBullet's substeps (the simulator's `_period_kernel`,
+       `bullet` a `Packed` of its arguments, `rk4` None) or the RK4 (`rk4_period_kernel`,
+       `rk4` a `Packed` of its arguments after the torques, `bullet` None), as
+       [`ArmSimulator.period_arguments`][elastic_gym.envs.simulator.ArmSimulator.period_arguments]
+       gives them; arguments, not packed, so that numba compiles the one form given (a
+       compiled layer choosing it would cost another optimisation of all the physics);
     3. the clock (`advance_clock`, `truncated` written when episodes have a length) and
        the torques shifted (previous <- current <- the clipped torque);
     4. the reference at the new time (`reference_kernel` of the tasks).
@@ -219,13 +235,19 @@ def control_period_kernel(command, truncated, packed):
     other than OK nothing past step 2 has run. (The end of the period is a call of its
     own: compiled into this kernel it would cost each of its variants as much compile time
     again, for 3 us per step.)"""
-    (low, high, tau, saturated, external, task_torque, q, physics, n_substeps) = packed.values[:9]
-    (steps, dt, max_steps, time, torque, previous, reference, task_reference) = packed.values[9:]
+    (low, high, tau, saturated, external, task_torque, q, n_substeps) = packed.values[:8]
+    (steps, dt, max_steps, time, torque, previous, reference, task_reference) = packed.values[8:]
     if open_loop_torque_kernel(time, q, external, task_torque):
         clip_torque(command, external, low, high, tau, saturated)
     else:
         clip_torque(command, None, low, high, tau, saturated)
-    code = physics_period(physics, n_substeps, tau)
+    code = bullet_capi.OK
+    if bullet is not None:  # (numba prunes the test of an argument that is None)
+        slot, world, substep, coupling, states = bullet.values
+        code = _period_kernel(slot, world, n_substeps, tau, None, substep, coupling, states)
+    if rk4 is not None:
+        theta, dtheta, q, dq, no_ext, period, substeps, ddq, integrator = rk4.values
+        rk4_period_kernel(theta, dtheta, q, dq, tau, no_ext, period, substeps, ddq, integrator)
     if code != bullet_capi.OK:
         return code, False
     ended = advance_clock(steps, None, dt, max_steps, time, truncated)

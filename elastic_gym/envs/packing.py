@@ -33,9 +33,11 @@ class Fused:
 
     Attributes:
         end: `post_step_kernel`'s `packed`.
+        coupling: its `coupling` (model (2)'s arguments, None for model (1) and rigid arms).
         forces: the accelerometers' noise-free readings it writes (N, 3 n_sensors) (the
             step by step measurement reads them when an arm broke).
-        period: `control_period_kernel`'s `packed`, or None where the simulator cannot step
+        period: `control_period_kernel`'s arguments after the torques and the truncation
+            flags (`bullet`, `rk4`, `packed`), or None where the simulator cannot step
             through PyBullet's C API or the task has no compiled form.
         noises: the noise streams the end of a period draws from (those of a standard
             deviation > 0: a stream of std 0 draws nothing).
@@ -47,8 +49,9 @@ class Fused:
     """
 
     end: Packed
+    coupling: Packed | None
     forces: np.ndarray
-    period: Packed | None
+    period: tuple[Packed | None, Packed | None, Packed] | None
     noises: tuple[GaussianNoise, ...]
     end_call: Callable[..., bool]
     period_call: Callable[..., tuple[int, bool]]
@@ -179,31 +182,33 @@ class FusedArguments:
         # the RK4's q'' at the end of a period (PyBullet: none, an array of the same type)
         integrated = (episode.ddq, False) if sim.rk4 is None else (sim.rk4.ddq, True)
         ends = (dynamics, limits, sensor_arguments, rewards, integrated, np.empty((3, N, n)))
-        end = Packed((*state, transmission, coupling, *ends))
+        end = Packed((*state, transmission, *ends))
         period = self.period()
         torque = (episode.clipped, episode.previous_torque, episode.reference)
-        end_call = direct(post_step_kernel, *torque, episode.slot, np.empty(N), end)
+        end_call = direct(post_step_kernel, *torque, episode.slot, np.empty(N), coupling, end)
         period_call: Callable[..., tuple[int, bool]] = control_period_kernel
         if period is not None:
             truncation = episode.truncation()
-            period_call = direct(control_period_kernel, episode.clipped, truncation, period)
-        return Fused(end, forces, period, tuple(noises), end_call, period_call)
+            period_call = direct(control_period_kernel, episode.clipped, truncation, *period)
+        return Fused(end, coupling, forces, period, tuple(noises), end_call, period_call)
 
-    def period(self) -> Packed | None:
-        """`control_period_kernel`'s `packed`, or None where the simulator cannot step
-        through PyBullet's C API or the task has no compiled form: the torque limits
-        (low, high), the clipped torque, the saturation flags and the open-loop torque
-        (outputs), the task's open-loop torque arguments, q, the simulator's
-        [`period_arguments`][elastic_gym.envs.simulator.ArmSimulator.period_arguments],
-        the substeps per period, the clock (steps, control period, episode length in
-        periods or -1, time), the torques (current, previous), the reference and the
-        task's reference arguments
+    def period(self) -> tuple[Packed | None, Packed | None, Packed] | None:
+        """`control_period_kernel`'s arguments after the torques and the truncation flags,
+        or None where the simulator cannot step through PyBullet's C API or the task has
+        no compiled form: the simulator's
+        [`period_arguments`][elastic_gym.envs.simulator.ArmSimulator.period_arguments]
+        (PyBullet's or the RK4's, each packed, the other None) and the `packed` rest: the
+        torque limits (low, high), the clipped torque, the saturation flags and the
+        open-loop torque (outputs), the task's open-loop torque arguments, q, the
+        substeps per period, the clock (steps, control period, episode length in periods
+        or -1, time), the torques (current, previous), the reference and the task's
+        reference arguments
         ([`Task.compiled_arguments`][elastic_gym.envs.task_base.Task.compiled_arguments]).
 
-        Packing costs about 0.35 ms (numba types the nested tuple in Python), so the pack
-        is kept across resets, which change its arrays in place, and made again only when
-        the simulator packed its own arguments again (new plants) or `forget_period` was
-        called (a new episode length)."""
+        Packing costs about 0.35 ms (numba types the nested tuple in Python), so the packs
+        are kept across resets, which change their arrays in place, and made again only
+        when the simulator packed its own arguments again (new plants) or `forget_period`
+        was called (a new episode length)."""
         sim, episode = self.sim, self.episode
         physics, task = sim.period_arguments(), self.task.compiled_arguments()
         if physics is None or task is None:
@@ -222,7 +227,6 @@ class FusedArguments:
                 episode.external,
                 task_torque,
                 sim.q,
-                physics,
                 self.n_substeps,
                 episode.steps,
                 episode.control_dt,
@@ -234,5 +238,10 @@ class FusedArguments:
                 task_reference,
             )
         )
-        self._period = (key, packed)
-        return packed
+        period = (
+            None if bullet is None else Packed(bullet),
+            None if rk4 is None else Packed(rk4),
+            packed,
+        )
+        self._period = (key, period)
+        return period

@@ -36,9 +36,7 @@ from elastic_gym.model import RobotModel, SerialChain
 from elastic_gym.model.chain import (
     _dynamics_and_forces_kernel,
     forward_dynamics_kernel,
-    specific_forces_kernel,
 )
-from elastic_gym.model.integrator import rk4_period_kernel
 from elastic_gym.model.packed import Packed
 from elastic_gym.robots.spec import RobotSpec
 from elastic_gym.robots.urdf_tools import urdf_without_limits
@@ -163,28 +161,6 @@ def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, 
 
 
 @njit(cache=True)
-def _physics(bullet, rk4, n_substeps, tau):
-    """`physics_period` of one form (the other None: numba compiles the one given only)."""
-    if bullet is not None:
-        slot, world, packed, coupling, states = bullet
-        return _period_kernel(slot, world, n_substeps, tau, None, packed, coupling, states)
-    if rk4 is not None:
-        theta, dtheta, q, dq, no_ext, period, substeps, ddq, packed = rk4
-        rk4_period_kernel(theta, dtheta, q, dq, tau, no_ext, period, substeps, ddq, packed)
-    return bullet_capi.OK
-
-
-@njit(cache=True)
-def physics_period(physics, n_substeps, tau):
-    """A control period's physics of every arm under the motor torques `tau` held, no
-    link torque, in one compiled call: `physics` = (`_period_kernel`'s arguments, None)
-    (PyBullet) or (None, the RK4's arguments), as `ArmSimulator.period_arguments` gives
-    them. Returns a `bullet_capi` code."""
-    bullet, rk4 = physics
-    return _physics(bullet, rk4, n_substeps, tau)
-
-
-@njit(cache=True)
 def _rowwise_matvec_into(A, X, out):
     """[`rowwise_matvec`][elastic_gym.envs.simulator.rowwise_matvec] (A (N, n, n), X (N, n)) into
     ``out``, summed in its order."""
@@ -235,32 +211,6 @@ def _coupled_link_torque(theta, dtheta, q, dq, tau, link_torque, transmission, c
         for j in range(n):
             rhs[k, j] = link[k, j] - product[k, j]
     return rhs
-
-
-@njit(cache=True)
-def _coupled_dynamics_kernel(theta, dtheta, q, dq, tau, transmission, coupling, dynamics):
-    """Model (2)'s q'' (`_coupled_link_torque`) and the readings of eq. (9) at it
-    into ``dynamics``' q'' and forces (its layout: ``SerialChain.
-    dynamics_and_forces_arguments``):
-    [`ArmSimulator.link_acceleration`][elastic_gym.envs.simulator.ArmSimulator.link_acceleration]
-    and
-    ``SerialChain.specific_forces`` in one dispatch."""
-    _coupled_link_torque(theta, dtheta, q, dq, tau, None, transmission, coupling)
-    found = coupling.values[8]
-    unused, w, ddq, forces, constants = dynamics
-    ddq[:] = found
-    specific_forces_kernel(q, dq, ddq, w, unused, forces, constants)
-
-
-@njit(cache=True)
-def _end_of_period_dynamics(theta, dtheta, q, dq, tau, transmission, coupling, dynamics):
-    """q'' and the noise-free readings of eq. (9) at the end of a control period:
-    `_link_dynamics_kernel` (no link-side torque), or for model (2) (``coupling``
-    not None) `_coupled_dynamics_kernel`."""
-    if coupling is None:
-        _link_dynamics_kernel(theta, dtheta, q, dq, (tau, *transmission), None, *dynamics)
-    else:
-        _coupled_dynamics_kernel(theta, dtheta, q, dq, tau, transmission, coupling, dynamics)
 
 
 @njit(cache=True)
@@ -613,10 +563,11 @@ class ArmSimulator:
         return self._packed[1], self._packed[2]
 
     def period_arguments(self) -> tuple | None:
-        """`physics_period`'s `physics` for compiled callers (the batch's control
-        period): (`_period_kernel`'s arguments but the substep count, the torques and the
-        link torque, None) or (None, the RK4's arguments), or None where the period
-        cannot run in one call (PyBullet's C API out of reach; a GUI world)."""
+        """The physics of a control period for compiled callers (the batch's
+        `control_period_kernel`): (`_period_kernel`'s arguments but the substep count, the
+        torques and the link torque, None) or (None, the RK4's arguments after the
+        torques), or None where the period cannot run in one call (PyBullet's C API out of
+        reach; a GUI world)."""
         if self.rk4 is not None:
             if self.gui:
                 return None
