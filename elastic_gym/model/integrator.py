@@ -125,13 +125,14 @@ def _derivative(k, x, tau, ext, plant, arm, ws, buf, out):
 def _arm_period(k, x0, tau, ext, period, m, plant, inv_tol, arm, stages, buf, ws):
     """Integrate arm k over ``period`` in m RK4 substeps from x0 (4 n) into stages[5];
     stages[4] = f at the end. Returns the largest scaled error estimate of the substeps
-    (stops early once it exceeds 1). One call site of `_derivative` (inlined), in
+    (stops early once it exceeds 1). m = 0: f(x0) into stages[0] only, returns 0 (the
+    right-hand side of `derivative_kernel`). One call site of `_derivative` (inlined), in
     a loop over the stages: five inlined copies of the Newton-Euler recursion cost more
-    in instruction cache than the loop's branches."""
+    in instruction cache than the loop's branches, and each costs seconds of compile."""
     size = x0.shape[0]
     n = size // 4
     x, xs = stages[5], stages[6]
-    h = period / m
+    h = period / max(m, 1)
     half = 0.5 * h
     sixth = h / 6.0
     for i in range(size):
@@ -142,6 +143,8 @@ def _arm_period(k, x0, tau, ext, period, m, plant, inv_tol, arm, stages, buf, ws
     done = 0
     while True:
         _derivative(k, xs, tau, ext, plant, arm, ws, buf, stages[stage])
+        if m == 0:
+            return 0.0
         if stage == 4:  # k5 = f(x+): the error of the substep, the next one's k1
             k1, k4, k5 = stages[0], stages[3], stages[4]
             for i in range(size):
@@ -224,21 +227,26 @@ def rk4_period_kernel(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, pac
 
 @njit(cache=True, **NO_REFCOUNT)
 def _derivative_arms(theta, dtheta, q, dq, tau, ext, out, arguments):
-    plant, constants, w, _, _, _, stages, buf, x = arguments
+    """`derivative_kernel` on its unpacked arguments: `_arm_period` with no substep (the
+    right-hand side compiled once for both)."""
+    plant, constants, w, inv_tol, _, _, stages, buf, x0 = arguments
     N, n = q.shape
     stacked = constants[1].shape[0] > 1
     ws = _workspace(n, w)
     no_ext = ext.shape[1] == 0
+    no_substep, f = np.int64(0), stages[0]  # int64 as _rk4_arms passes it
     for k in range(N):
         for j in range(n):
-            x[j] = theta[k, j]
-            x[n + j] = q[k, j]
-            x[2 * n + j] = dtheta[k, j]
-            x[3 * n + j] = dq[k, j]
+            x0[j] = theta[k, j]
+            x0[n + j] = q[k, j]
+            x0[2 * n + j] = dtheta[k, j]
+            x0[3 * n + j] = dq[k, j]
         arm_ext = ext[k, :0] if no_ext else ext[k]
         chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
         arm = (chain, bodies_p, minus_gravity)
-        _derivative(k, x, tau[k], arm_ext, plant, arm, ws, buf, out[k])
+        _arm_period(k, x0, tau[k], arm_ext, 0.0, no_substep, plant, inv_tol, arm, stages, buf, ws)
+        for i in range(4 * n):
+            out[k, i] = f[i]
 
 
 @njit(cache=True)
