@@ -90,6 +90,15 @@ def advance_clock(steps, stepping, dt, max_steps, time, truncated):
     return ended
 
 
+@njit(cache=True, inline="always")
+def _copy(source, target):
+    """target[k, j] = source[k, j] (N, n): a slice assignment would compile numba's
+    broadcasting checks and their error messages (string formatting) into the kernel."""
+    for k in range(target.shape[0]):
+        for j in range(target.shape[1]):
+            target[k, j] = source[k, j]
+
+
 @njit(cache=True)
 def post_step_kernel(tau, previous, reference, slot, reward, coupling, packed):
     """The end of a control period of every arm in one call, the same kernels in the same
@@ -155,13 +164,13 @@ def post_step_kernel(tau, previous, reference, slot, reward, coupling, packed):
     unused, w, ddq, forces, constants = dynamics
     integrated_ddq, known = integrated
     if known:
-        ddq[:] = integrated_ddq
+        _copy(integrated_ddq, ddq)
     elif coupling is None:
         _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
         _dynamics_and_forces_kernel(q, dq, transmission[10], *dynamics)
     else:
         _coupled_link_torque(theta, dtheta, q, dq, tau, None, transmission, coupling)
-        ddq[:] = coupling.values[8]
+        _copy(coupling.values[8], ddq)
     if known or coupling is not None:
         specific_forces_kernel(q, dq, ddq, w, unused, forces, constants)
     if break_codes(q, dq, theta, dtheta, *limits):
