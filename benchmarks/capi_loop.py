@@ -36,11 +36,11 @@ from elastic_gym.robots.urdf_tools import urdf_without_limits
 
 
 @njit(cache=True)
-def compiled_substeps(slot, world, torques, n_substeps, states):
-    """``n_substeps`` physics steps of every arm under its torques (N, n); q, q' of the
-    last one into ``states`` (flat)."""
+def compiled_substeps(slot, world, torques, none, n_substeps, states):
+    """``n_substeps`` physics steps of every arm under its torques (N, n) (``none``: an
+    (N, 0) array, no extra torque); q, q' of the last one into ``states`` (flat)."""
     for _ in range(n_substeps):
-        bullet_capi.substep(slot[0], world, torques, None, states)
+        bullet_capi.substep(slot[0], world, torques, none, states)
 
 
 class World:
@@ -116,7 +116,7 @@ class PythonWorld(World):
 
 
 class CompiledWorld(World):
-    """Stepped through PyBullet's C API by :func:`compiled_substeps`."""
+    """Stepped through PyBullet's C API by `compiled_substeps`."""
 
     def __init__(self, robot: str, n_arms: int, physics_dt: float) -> None:
         super().__init__(robot, n_arms, physics_dt)
@@ -127,7 +127,8 @@ class CompiledWorld(World):
 
     def step(self, torques: np.ndarray, n_substeps: int) -> None:
         """``n_substeps`` physics steps under ``torques`` (N, n), in one compiled call."""
-        compiled_substeps(self.slot, self.world, torques, n_substeps, self.states)
+        none = np.zeros((torques.shape[0], 0))
+        compiled_substeps(self.slot, self.world, torques, none, n_substeps, self.states)
 
 
 def compare(robot: str, n_arms: int, physics_dt: float, block: int, repeats: int) -> dict:

@@ -176,12 +176,14 @@ def world_arrays(client: int, bodies: list[int], joints: list[int]) -> tuple:
 @njit(cache=True)
 def apply_torques(handle, bodies, dofs, torques, extra):
     """``setJointMotorControlArray(body, joints, TORQUE_CONTROL, forces=torques[k] (+
-    extra[k]))`` for every arm k: ``b3JointControlCommandInit2`` and one
-    ``b3JointControlSetDesiredForceTorque`` per joint at its velocity index ``dofs[k, j]``."""
+    extra[k]))`` for every arm k (``extra`` (N, n), or (N, 0): none):
+    ``b3JointControlCommandInit2`` and one ``b3JointControlSetDesiredForceTorque`` per
+    joint at its velocity index ``dofs[k, j]``."""
+    added = extra.shape[1] > 0
     for k in range(bodies.shape[0]):
         command = _control_command(handle, bodies[k], TORQUE_CONTROL)
         for j in range(dofs.shape[1]):
-            torque = torques[k, j] if extra is None else torques[k, j] + extra[k, j]
+            torque = torques[k, j] + extra[k, j] if added else torques[k, j]
             _set_torque(command, dofs[k, j], torque)
         _submit(handle, command)
 
@@ -213,7 +215,7 @@ def read_joint_states(handle, bodies, joints, states, sensor):
 @njit(cache=True)
 def substep(handle, world, torques, extra, states):
     """One physics step of a world under the joint torques ``torques`` (+ ``extra``, or
-    None), its joint states read into ``states``: `apply_torques`,
+    (N, 0): none), its joint states read into ``states``: `apply_torques`,
     `step_world`, `read_joint_states`. ``world``: (bodies, velocity indices
     (N, n), joint indices, sensor buffer). Returns a code."""
     bodies, dofs, joints, sensor = world

@@ -133,12 +133,13 @@ def post_step_kernel(tau, previous, reference, slot, reward, coupling, packed):
     ([`FusedArguments`][elastic_gym.envs.packing.FusedArguments]): (theta, theta', q, q',
     transmission, dynamics, limits, sensors, the torque
     limit row and the reward constants after it, integrated, scratch (3, N, n) for the
-    reward's errors and torsion); `sensors`: (elastic, encoder std, block, next,
+    reward's errors and torsion, the simulator's (N, 0) array of no link torque);
+    `sensors`: (elastic, encoder std, block, next,
     resolution, has accelerometers, bias, std, block, next, range, resolution, readings
     (encoders, accelerometers), delay lines (L, N, size) of both, delays (N,), observation
     arrays (position, acceleration, reference))."""
     theta, dtheta, q, dq, transmission = packed.values[:5]
-    dynamics, limits, sensors, rewards, integrated, scratch = packed.values[5:]
+    dynamics, limits, sensors, rewards, integrated, scratch, no_link = packed.values[5:]
     (
         elastic,
         enc_std,
@@ -169,7 +170,7 @@ def post_step_kernel(tau, previous, reference, slot, reward, coupling, packed):
         _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
         _dynamics_and_forces_kernel(q, dq, transmission[10], *dynamics)
     else:
-        _coupled_link_torque(theta, dtheta, q, dq, tau, None, transmission, coupling)
+        _coupled_link_torque(theta, dtheta, q, dq, tau, no_link, transmission, coupling)
         _copy(coupling.values[8], ddq)
     if known or coupling is not None:
         specific_forces_kernel(q, dq, ddq, w, unused, forces, constants)
@@ -252,8 +253,8 @@ def control_period_kernel(command, truncated, bullet, rk4, packed):
         clip_torque(command, None, low, high, tau, saturated)
     code = bullet_capi.OK
     if bullet is not None:  # (numba prunes the test of an argument that is None)
-        slot, world, substep, coupling, states = bullet.values
-        code = _period_kernel(slot, world, n_substeps, tau, None, substep, coupling, states)
+        slot, world, substep, coupling, states, no_link = bullet.values
+        code = _period_kernel(slot, world, n_substeps, tau, no_link, substep, coupling, states)
     if rk4 is not None:
         theta, dtheta, q, dq, no_ext, period, substeps, ddq, integrator = rk4.values
         rk4_period_kernel(theta, dtheta, q, dq, tau, no_ext, period, substeps, ddq, integrator)

@@ -181,7 +181,16 @@ class FusedArguments:
         coupling = sim.coupling_arguments()
         # the RK4's q'' at the end of a period (PyBullet: none, an array of the same type)
         integrated = (episode.ddq, False) if sim.rk4 is None else (sim.rk4.ddq, True)
-        ends = (dynamics, limits, sensor_arguments, rewards, integrated, np.empty((3, N, n)))
+        scratch = np.empty((3, N, n))
+        ends = (
+            dynamics,
+            limits,
+            sensor_arguments,
+            rewards,
+            integrated,
+            scratch,
+            sim.no_link_torque,
+        )
         end = Packed((*state, transmission, *ends))
         period = self.period()
         torque = (episode.clipped, episode.previous_torque, episode.reference)

@@ -100,14 +100,14 @@ def _transmission_kernel(
 @njit(cache=True)
 def _link_dynamics_kernel(theta, dtheta, q, dq, transmission, link_torque, *dynamics):
     """`_transmission_kernel` (its arguments after the state: ``transmission``; link
-    torque into ``transmission[11]``), plus ``link_torque`` if not None, then
+    torque into ``transmission[11]``), plus ``link_torque`` ((N, n), or (N, 0): none), then
     `_dynamics_and_forces_kernel` at that link torque
     (``dynamics``: its arguments after q, q', tau): the calls of
     [`ArmSimulator.accelerations`][elastic_gym.envs.simulator.ArmSimulator.accelerations] and the
     chain in one dispatch."""
     _transmission_kernel(theta, dtheta, q, dq, *transmission)
     link = transmission[11]
-    if link_torque is not None:
+    if link_torque.shape[1]:
         for k in range(link.shape[0]):
             for j in range(link.shape[1]):
                 link[k, j] += link_torque[k, j]
@@ -120,8 +120,8 @@ def _substep_kernel(joint_states, tau, packed):
     empty: the state is current), in place, then `_transmission_kernel` at the motor
     torques ``tau``: one dispatch per substep. ``packed``: a
     `Packed` of (theta, theta', q, q', the kernel's
-    arguments after tau)."""
-    theta, dtheta, q, dq, transmission = packed.values
+    arguments after tau, an (N, 0) array: no link torque)."""
+    theta, dtheta, q, dq, transmission, _ = packed.values
     _unpack_joint_states(joint_states, q, dq)
     _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
 
@@ -131,7 +131,8 @@ def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, 
     """``n_substeps`` physics steps through PyBullet's C API (``slot``: the client's
     handle, see `client_slot`), each under the link
     torques of the motor torques ``tau`` at the state the last one read, plus
-    ``link_torque`` (or None): the loop of
+    ``link_torque`` ((N, n), or (N, 0): none; one type, so one compiled signature): the
+    loop of
     [`ArmSimulator.step`][elastic_gym.envs.simulator.ArmSimulator.step] in one dispatch.
     Model (1) and rigid arms (``coupling`` None): `_transmission_kernel`, the motors
     advanced before the physics step; model (2): `_coupled_link_torque`, the motors
@@ -141,7 +142,7 @@ def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, 
     handle = slot[0]
     if handle == 0:
         return bullet_capi.DISCONNECTED
-    theta, dtheta, q, dq, transmission = packed.values
+    theta, dtheta, q, dq, transmission, no_link_torque = packed.values
     for substep in range(n_substeps):
         if substep > 0:
             _unpack_joint_states(states, q, dq)
@@ -152,7 +153,7 @@ def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, 
             link_tau = _coupled_link_torque(
                 theta, dtheta, q, dq, tau, link_torque, transmission, coupling
             )
-            code = bullet_capi.substep(handle, world, link_tau, None, states)
+            code = bullet_capi.substep(handle, world, link_tau, no_link_torque, states)
             _integrate_motors(theta, dtheta, transmission[12], transmission[13])
         if code != bullet_capi.OK:
             return code
@@ -180,8 +181,8 @@ def _coupled_link_torque(theta, dtheta, q, dq, tau, link_torque, transmission, c
     it
     (bit for bit): tau_J, theta'' into the transmission buffers (``transmission``: the
     transmission kernel's arguments after tau, its time step not used), q'' into
-    ``coupling``'s, the link torque tau_J - d(q') (+ ``link_torque``) - S theta''
-    returned. ``coupling``: a `Packed` of (S, S B^-1,
+    ``coupling``'s, the link torque tau_J - d(q') (+ ``link_torque``: (N, n), or (N, 0):
+    none) - S theta'' returned. ``coupling``: a `Packed` of (S, S B^-1,
     S^T, -S B^-1 S^T, the chain's forward dynamics arguments, four (N, n) buffers, the
     last q'')."""
     K, D, B_inv, viscous, c_pos, c_neg, smoothing, friction, coulomb = transmission[:9]
@@ -192,9 +193,10 @@ def _coupled_link_torque(theta, dtheta, q, dq, tau, link_torque, transmission, c
         coulomb, True, link, tau_j, ddtheta, 0.0,
     )  # fmt: skip
     N, n = q.shape
+    added = link_torque.shape[1] > 0
     for k in range(N):
         for j in range(n):
-            if link_torque is not None:
+            if added:
                 link[k, j] += link_torque[k, j]
             relative[k, j] = tau[k, j] - tau_j[k, j]
     _rowwise_matvec_into(SBinv, relative, product)
@@ -369,6 +371,7 @@ class ArmSimulator:
             (np.zeros(shape), np.zeros(shape)) if self._elastic else (self.q, self.dq)
         )
         self._no_states = np.empty(0)
+        self.no_link_torque = np.zeros((n_arms, 0))  # the kernels' link torque "none"
         self._packed: tuple | None = None  # see _substep_arguments
         self._count = 2 * n_arms * n  # numbers read from PyBullet per substep
         # PyBullet's C API (None: the Python functions step the world)
@@ -546,8 +549,9 @@ class ArmSimulator:
 
     def _substep_arguments(self) -> tuple[Packed, Packed | None]:
         """`_substep_kernel`'s packed arguments (the state, the plants' transmission
-        constants, the buffers, the physics step) and `_coupled_link_torque`'s (None
-        without model (2)), packed again when the plants change."""
+        constants, the buffers, the physics step, no link torque) and
+        `_coupled_link_torque`'s (None without model (2)), packed again when the plants
+        change."""
         plants = self.plants
         transmission = plants.transmission
         if self._packed is None or self._packed[0] is not transmission:
@@ -559,7 +563,8 @@ class ArmSimulator:
                 buffers = tuple(np.empty(self.q.shape) for _ in range(4))
                 dynamics = plants.chain.forward_dynamics_arguments()
                 coupling = Packed((*matrices, dynamics, *buffers))
-            self._packed = (transmission, Packed((*state, constants)), coupling)
+            substep = Packed((*state, constants, self.no_link_torque))
+            self._packed = (transmission, substep, coupling)
         return self._packed[1], self._packed[2]
 
     def period_arguments(self) -> tuple | None:
@@ -575,7 +580,14 @@ class ArmSimulator:
         if self._slot is None:
             return None
         packed, coupling = self._substep_arguments()
-        return (self._slot, self._world, packed, coupling, self._states), None
+        no_link_torque = self.no_link_torque
+        return (self._slot, self._world, packed, coupling, self._states, no_link_torque), None
+
+    def _link_array(self, link_torque: np.ndarray | None) -> np.ndarray:
+        """The kernels' link torque: C-contiguous float64 (N, n), or (N, 0) for none."""
+        if link_torque is None:
+            return self.no_link_torque
+        return np.ascontiguousarray(link_torque, dtype=np.float64)
 
     def coupling_arguments(self) -> Packed | None:
         """`_coupled_link_torque`'s ``coupling`` (None without model (2)), for
@@ -622,8 +634,8 @@ class ArmSimulator:
         packed, coupling = self._substep_arguments()
         if self._slot is not None:
             code = _period_kernel(
-                self._slot, self._world, n_substeps, tau, link_torque, packed, coupling,
-                self._states,
+                self._slot, self._world, n_substeps, tau, self._link_array(link_torque),
+                packed, coupling, self._states,
             )  # fmt: skip
             bullet_capi.raise_for(code)
             return
@@ -694,7 +706,7 @@ class ArmSimulator:
             self.q,
             self.dq,
             transmission,
-            link_torque,
+            self._link_array(link_torque),
             *plants.chain.dynamics_and_forces_arguments(ddq, forces),
         )
         return ddq, forces
