@@ -183,7 +183,7 @@ def _excitation_kernel(
             tau[k, j] = (offset[j] + amplitude[j] * cosine) + tau[k, j]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # a compiled layer would cost a compile of its own
 def open_loop_torque_kernel(t, q, out, arguments):
     """[`Task.external_torque`][elastic_gym.envs.task_base.Task.external_torque] at times
     ``t`` (N,) and configurations ``q`` into ``out`` for compiled callers; returns False
@@ -197,7 +197,7 @@ def open_loop_torque_kernel(t, q, out, arguments):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # a compiled layer would cost a compile of its own
 def reference_kernel(t, arguments, out):
     """[`Task.reference`][elastic_gym.envs.task_base.Task.reference] of every arm at times
     ``t`` (N,) into ``out`` (N, 5, n) for compiled callers; ``out`` untouched for a
