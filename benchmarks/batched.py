@@ -2,7 +2,7 @@
 
 * cost per arm-step of the vector env (``gym.make_vec(..., "vector_entry_point")``, the
   arms at rest under the excitation task's gravity torque) / a bare N-arm PyBullet loop
-  of the same world (:class:`BareBatch`), N = 1, 8, 64, 256 (target <= 2 at N = 64 for
+  of the same world (`BareBatch`), N = 1, 8, 64, 256 (target <= 2 at N = 64 for
   TwoLinkElastic);
 * aggregate env steps/s of the batch / one single env stepped in the same process
   (target >= 3 at N = 64);
@@ -14,7 +14,7 @@
   (target <= 2.5), the EKF loop against the De Luca loop (target <= 3), and the De Luca
   loop with eq. (13) identifying the load at the reset against it;
 * PPO policy steps/s end to end (rollouts + updates) on one batch of arms
-  (:class:`~elastic_gym.training.sb3_vec_env.SB3VecEnv`) and on SB3's ``SubprocVecEnv``
+  (`SB3VecEnv`) and on SB3's ``SubprocVecEnv``
   with one worker per core, with the same stack (true state, action repeat 10,
   flattened observation, actions in [-1, 1], VecNormalize) and the same rollout size;
 * the training stack of the distilled recipe (``recurrentppo-distilled.yaml``: raw
@@ -65,7 +65,7 @@ def vector_env(env_id: str, n_arms: int, **kwargs) -> gym.vector.VectorEnv:
 
 class BareBatch:
     """The vector env's physics work in a bare loop: the same N-arm world (an
-    :class:`ArmSimulator`), the same substeps; per substep one setJointMotorControlArray
+    `ArmSimulator`), the same substeps; per substep one setJointMotorControlArray
     (TORQUE) per arm, one stepSimulation, one getJointStates per arm."""
 
     def __init__(self, envs: gym.vector.VectorEnv) -> None:

@@ -8,7 +8,7 @@ Tables (BLAS single-threaded: "one core"; see ``timing.py`` for the method):
 
 1. env step (sensors, task, reward, info, through ``gym.make``'s wrappers; ``excitation``
    task, see ``ENV_KWARGS``) / a bare PyBullet loop doing the same physics work
-   (:class:`BarePyBullet`), per env id (target <= 2.5x);
+   (`BarePyBullet`), per env id (target <= 2.5x);
 2. observer update / env step, for every observer that applies to each arm
    (N = 2, 3, 7; target for De Luca <= 0.3x at N = 7);
 3. closed loop (env + observer + eq. (13) controller of De Luca et al.) simulated time /
@@ -121,7 +121,7 @@ def checked_step(env: gym.Env, action: np.ndarray) -> tuple:
 class BarePyBullet:
     """The env's physics work in a bare PyBullet loop.
 
-    The same URDF loaded the same way (an :class:`ArmSimulator`: limits removed, fixed
+    The same URDF loaded the same way (an `ArmSimulator`: limits removed, fixed
     base, inertia from the file, damping zeroed, default motors disabled), started in
     the env's state, with the same number of physics substeps per control period; each
     substep is setJointMotorControlArray(TORQUE) + stepSimulation + getJointStates.
@@ -181,7 +181,7 @@ def record_measurements(env_id: str, steps: int) -> tuple[dict, list[tuple], flo
     """(first measurement, [(measurement, applied torque, dt)], dt) of a probe episode.
 
     A measurement is the sensor observation plus the privileged items some observers
-    declare (true q'', true state), as :class:`ObserverWrapper` would pass them.
+    declare (true q'', true state), as `ObserverWrapper` would pass them.
     """
     env = make_env(env_id, **ENV_KWARGS)
     obs, info = env.reset(seed=0)

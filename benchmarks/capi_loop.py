@@ -6,11 +6,11 @@
 The floor of every ratio in ``bench.py`` is the bare Python loop over PyBullet's Python
 functions (per substep: ``setJointMotorControlArray(TORQUE)`` + ``stepSimulation`` +
 ``getJointStates`` per arm). The simulator steps its world through PyBullet's C API from
-compiled code instead (:mod:`elastic_gym.envs.bullet_capi`), with the same commands.
+compiled code instead (`elastic_gym.envs.bullet_capi`), with the same commands.
 
 This script measures that floor: two worlds made the same way are stepped with the same
 torques, one through the Python functions, one by
-:func:`~elastic_gym.envs.bullet_capi.substep` in a compiled loop; it checks that their
+`substep` in a compiled loop; it checks that their
 joint states stay equal bit for bit and prints the cost per arm and control period of
 each loop (CPU time, best of interleaved blocks, as ``bench.py``).
 """

@@ -8,7 +8,7 @@ Steps (each skips what an earlier invocation finished, so an interrupted study r
 where it stopped; ``--fresh`` starts over):
 
 1. Training: every run of ``ROWS`` (row x training seed; a row's first seeds first) with
-   :func:`elastic_gym.training.train`, the shipped hyper-parameters of its algorithm
+   `elastic_gym.training.train`, the shipped hyper-parameters of its algorithm
    (``elastic_gym/training/hyperparams/``) and the row's own policy steps (fewer than the
    shipped 400 k where the budget demanded: the README says which and why), one run at a
    time, into ``--runs``
@@ -724,7 +724,7 @@ class Study:
 
     ``rows``: objects with ``key``, ``label``, ``state``, ``algo``, ``env_id``, ``seeds``,
     ``plants`` (names of ``plants``), ``eval_task``, ``steps`` (None: the row's own) and
-    ``config(seed, runs) -> TrainConfig`` (:class:`Row`); ``plants``: name -> env kwargs
+    ``config(seed, runs) -> TrainConfig`` (`Row`); ``plants``: name -> env kwargs
     of an evaluation plant; ``classical``: (controller, label, state sources[, options])
     evaluated on TwoLinkElastic's ``task`` (``kr15_classical`` on KR15, its default task;
     a row's policies on the row's ``eval_task``); ``zero_offset``: also the

@@ -484,7 +484,7 @@ def differences(row: Row, seed: int, runs: Path) -> list[str]:
 
 def write_runs(rows, runs: Path, out: Path) -> None:
     """``runs.md``: every finished run evaluated, with what it was trained with beyond the
-    table's command (field names of :func:`differences`). A run whose folder is not under
+    table's command (field names of `differences`). A run whose folder is not under
     ``runs`` keeps its line of the earlier ``runs.md`` (its evaluations stay in
     ``evaluations.csv`` too), so a report on another machine adds runs without losing any."""
     earlier = {}

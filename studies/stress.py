@@ -83,7 +83,7 @@ class Job:
 
 @dataclass
 class Tally:
-    """Outcome counts of a job (or of several, see :meth:`add`)."""
+    """Outcome counts of a job (or of several, see `add`)."""
 
     episodes: int = 0
     steps: int = 0
