@@ -1,8 +1,7 @@
 """The substeps through PyBullet's C API equal the substeps through its Python functions.
 
-Where :func:`~elastic_gym.envs.bullet_capi.client_slot` finds a connection's C handle,
-:class:`~elastic_gym.envs.simulator.ArmSimulator` steps its world from compiled code
-(a control period in one call). Batches of every id, with
+Where `bullet_capi.client_slot` finds a connection's C handle, `ArmSimulator` steps its
+world from compiled code (a control period in one call). Batches of every id, with
 per-arm plants, payloads, torque pulses, sensor noise and arms breaking their physics,
 must give bit for bit the observations, rewards, terminations and info of the same batch
 stepped through PyBullet's Python functions.
