@@ -171,6 +171,22 @@ def _arm_period(k, x0, tau, ext, period, m, plant, inv_tol, arm, stages, buf, ws
                 xs[i] = x[i] + step * previous[i]
 
 
+@njit(cache=True, inline="always")
+def _arm_start(k, theta, dtheta, q, dq, ext, constants, x0):
+    """x0 = (theta, q, theta', q') of arm k, in place; returns its link torques (``ext``'s
+    row, empty for none) and its chain, bodies and -g_W (the chain's ``_arm_params``)."""
+    n = q.shape[1]
+    for j in range(n):
+        x0[j] = theta[k, j]
+        x0[n + j] = q[k, j]
+        x0[2 * n + j] = dtheta[k, j]
+        x0[3 * n + j] = dq[k, j]
+    arm_ext = ext[k, :0] if ext.shape[1] == 0 else ext[k]
+    stacked = constants[1].shape[0] > 1  # rot_p has one row per arm
+    chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
+    return arm_ext, (chain, bodies_p, minus_gravity)
+
+
 @njit(cache=True, **NO_REFCOUNT)
 def _rk4_arms(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, arguments):
     """`rk4_period_kernel` on its unpacked arguments, compiled without numba's reference
@@ -179,20 +195,11 @@ def _rk4_arms(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, arguments):
     plant) cost half the time of a 2-link arm's right-hand side."""
     plant, constants, w, inv_tol, least, most, stages, buf, x0 = arguments
     N, n = q.shape
-    stacked = constants[1].shape[0] > 1
     ws = _workspace(n, w)
     work = 0
-    no_ext = ext.shape[1] == 0
     for k in range(N):
-        for j in range(n):
-            x0[j] = theta[k, j]
-            x0[n + j] = q[k, j]
-            x0[2 * n + j] = dtheta[k, j]
-            x0[3 * n + j] = dq[k, j]
+        arm_ext, arm = _arm_start(k, theta, dtheta, q, dq, ext, constants, x0)
         m = min(max(substeps[k], least), most)
-        arm_ext = ext[k, :0] if no_ext else ext[k]
-        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
-        arm = (chain, bodies_p, minus_gravity)
         while True:
             worst = _arm_period(
                 k, x0, tau[k], arm_ext, period, m, plant, inv_tol, arm, stages, buf, ws
@@ -231,19 +238,10 @@ def _derivative_arms(theta, dtheta, q, dq, tau, ext, out, arguments):
     right-hand side compiled once for both)."""
     plant, constants, w, inv_tol, _, _, stages, buf, x0 = arguments
     N, n = q.shape
-    stacked = constants[1].shape[0] > 1
     ws = _workspace(n, w)
-    no_ext = ext.shape[1] == 0
     no_substep, f = np.int64(0), stages[0]  # int64 as _rk4_arms passes it
     for k in range(N):
-        for j in range(n):
-            x0[j] = theta[k, j]
-            x0[n + j] = q[k, j]
-            x0[2 * n + j] = dtheta[k, j]
-            x0[3 * n + j] = dq[k, j]
-        arm_ext = ext[k, :0] if no_ext else ext[k]
-        chain, bodies_p, _, _, minus_gravity = _arm_params(k if stacked else 0, constants)
-        arm = (chain, bodies_p, minus_gravity)
+        arm_ext, arm = _arm_start(k, theta, dtheta, q, dq, ext, constants, x0)
         _arm_period(k, x0, tau[k], arm_ext, 0.0, no_substep, plant, inv_tol, arm, stages, buf, ws)
         for i in range(4 * n):
             out[k, i] = f[i]
