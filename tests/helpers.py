@@ -7,6 +7,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import pytest
 import yaml
 from gymnasium.vector import AutoresetMode
 
@@ -22,6 +23,22 @@ from elastic_gym.policy import PolicySpec, build_policy_env
 GRAVITY = 9.81
 N_ARMS = 3
 STEPS = 130  # one autoreset (episodes of 0.1 s at 1 kHz)
+
+
+def fast_lane(cases, *fast) -> list:
+    """``cases`` for ``pytest.mark.parametrize`` of which only those in ``fast`` run in the
+    fast lane (``pytest -m "not slow"``); the others are marked ``slow``. A test repeated
+    over robots, observers or options checks its representative cases at every commit and
+    every case in the whole suite. A case of several arguments is a tuple."""
+    unknown = [case for case in fast if case not in cases]
+    assert not unknown, f"not among the cases: {unknown}"
+    return [
+        pytest.param(
+            *(case if isinstance(case, tuple) else (case,)),
+            marks=() if case in fast else pytest.mark.slow,
+        )
+        for case in cases
+    ]
 
 
 def synthetic_log_columns(rows: int = 1200, dt: float = 1e-3, state: bool = True) -> dict:

@@ -326,6 +326,7 @@ def test_two_control_periods_of_sensor_delay_break_the_observer_loop_not_the_ora
     assert observed.scores.categories["latency"] < oracle.scores.categories["latency"]
 
 
+@pytest.mark.slow
 def test_leaderboard_rebuilds_from_scorecards_and_refuses_other_suites(tiny_cards, tmp_path):
     root, suite_file, cards = tiny_cards
     folder = tmp_path / "scorecards"

@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 import pybullet as p
 import pytest
-from helpers import leaves
+from helpers import fast_lane, leaves
 
 import elastic_gym
 from elastic_gym.envs import bullet_capi
@@ -63,7 +63,7 @@ def test_the_c_handle_is_found_on_linux():
     assert bullet_capi.client_slot(client) is None
 
 
-@pytest.mark.parametrize("env_id", elastic_gym.ENV_IDS)
+@pytest.mark.parametrize("env_id", fast_lane(elastic_gym.ENV_IDS, "elastic_gym/TwoLinkElastic-v0"))
 def test_c_api_substeps_equal_the_python_functions(env_id, monkeypatch):
     compiled, used = _rollout(env_id, False, monkeypatch)
     python, fallback = _rollout(env_id, True, monkeypatch)

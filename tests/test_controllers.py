@@ -9,7 +9,7 @@ import pickle
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import make_noise_free, simulate
+from helpers import fast_lane, make_noise_free, simulate
 
 from elastic_gym.controllers import make_controller
 from elastic_gym.controllers.gain_design import closed_loop_poles, linearize
@@ -85,11 +85,14 @@ def test_rigid_torque_derivatives():
 
 @pytest.mark.parametrize(
     ("robot", "damping", "tolerance"),
-    [
-        ("two_link_elastic", None, 2e-8),  # model (1), visco-elastic: exact (5e-9)
-        ("two_link_elastic", 0.0, 2e-7),  # model (1), D = 0: tau_r'' central difference (3e-8)
-        ("kr15_elastic", None, 2e-8),  # model (2), S23 != 0, D > 0: exact since S^2 = 0 (1e-9)
-    ],
+    fast_lane(
+        [
+            ("two_link_elastic", None, 2e-8),  # model (1), visco-elastic: exact (5e-9)
+            ("two_link_elastic", 0.0, 2e-7),  # model (1), D = 0: tau_r'' central difference (3e-8)
+            ("kr15_elastic", None, 2e-8),  # model (2), S23 != 0, D > 0: exact since S^2 = 0 (1e-9)
+        ],
+        ("kr15_elastic", None, 2e-8),
+    ),
 )
 def test_invdyn_drives_nominal_model_along_reference(robot, damping, tolerance):
     """RK4 integration of the nominal model (1)/(2) under tau_d(t), from x_d(0), stays on

@@ -38,6 +38,7 @@ def _mean_std(policy, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return distribution.mean, distribution.stddev
 
 
+@pytest.mark.slow
 def test_actor_never_depends_on_the_privileged_entries_and_the_critic_does():
     """Changing the last k entries leaves the action distribution bit for bit the same
     (mean, std, log-probability), the action mean's gradient with respect to them is

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 from gymnasium.vector import AutoresetMode
-from helpers import policy_vec_env
+from helpers import fast_lane, policy_vec_env
 
 from elastic_gym.training import ActionConfig, ActionMap, TrainConfig, load_run, train
 from elastic_gym.training.distill import DistillConfig, distill
@@ -98,7 +98,7 @@ PLANTS = {  # plant -> (its env kwargs, whether the nominal teacher's actions fa
 }
 
 
-@pytest.mark.parametrize("plant", list(PLANTS))
+@pytest.mark.parametrize("plant", fast_lane(list(PLANTS), "nominal", "link mass x1.3"))
 def test_the_plant_teacher_tracks_every_plant_it_knows(plant):
     """Its actions held at 100 Hz through the 1 kHz motor PD track every plant to < 1e-4
     rad RMS (INVDYN of the plant's own model, with its friction and sensor delay); the
@@ -220,6 +220,7 @@ def test_a_distilled_run_loads_and_retrains_bit_for_bit(tmp_path):
     assert np.array_equal(run.normalizer.obs_rms.mean, rerun.normalizer.obs_rms.mean)
 
 
+@pytest.mark.slow
 def test_distill_lowers_the_loss_of_the_student(tmp_path):
     """DAgger on 4 arms: the fit's mean squared error to the teacher's labels ends far
     below the labels' own mean square (what a zero action scores)."""

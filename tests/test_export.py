@@ -168,6 +168,7 @@ def test_a_residual_with_a_privileged_critic_exports_its_actor_only(tmp_path, ru
     assert policy.actor.observation_size == trained.model.observation_space.shape[0] - privileged
 
 
+@pytest.mark.slow
 def test_the_manifest_says_what_each_input_is_and_satisfies_its_schema(tmp_path, runs):
     run = runs(TWO_LINK, "recurrentppo", "sensors")
     assert export(run, tmp_path / "exported") == 0

@@ -39,6 +39,7 @@ def runs() -> dict:
     }
 
 
+@pytest.mark.slow
 def test_integral_action_removes_the_static_offset_of_heavier_links(runs):
     plain = runs[("feedforward-state-feedback", 1.3)]
     integral = runs[("integral-state-feedback", 1.3)]
@@ -52,6 +53,7 @@ def test_integral_action_removes_the_static_offset_of_heavier_links(runs):
     assert integral["rms"] < 0.4 * plain["rms"]
 
 
+@pytest.mark.slow
 def test_integral_action_does_no_harm_on_the_nominal_arm(runs):
     plain = runs[("feedforward-state-feedback", 1.0)]
     integral = runs[("integral-state-feedback", 1.0)]

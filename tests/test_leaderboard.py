@@ -67,6 +67,7 @@ def outputs(folder: Path) -> list[Path]:
 
 
 # ------------------------------------------------------------------ the shipped cards
+@pytest.mark.slow
 def test_every_shipped_card_validates_and_states_the_scores_its_episodes_give(suite):
     schema = json.loads((SCHEMA_DIR / "scorecard.json").read_text())
     jsonschema.Draft202012Validator.check_schema(schema)

@@ -6,6 +6,7 @@ import gymnasium as gym
 import numpy as np
 import pinocchio as pin
 import pytest
+from helpers import fast_lane
 from scipy.integrate import quad_vec
 from scipy.linalg import expm
 
@@ -245,7 +246,10 @@ def test_absurd_options_are_refused_with_their_name(options, message):
         ExtendedKalmanFilter(model, DT, **options)
 
 
-@pytest.mark.parametrize("options", [{"alpha": 1.0 / DT}, {"P0": 1e6}, {"Q": 1e6}, {"R": 1e6}])
+BOUNDS = [{"alpha": 1.0 / DT}, {"P0": 1e6}, {"Q": 1e6}, {"R": 1e6}]
+
+
+@pytest.mark.parametrize("options", fast_lane(BOUNDS, BOUNDS[0]))
 def test_options_at_their_bounds_keep_the_estimate_finite(options):
     env = ObserverWrapper(
         gym.make("elastic_gym/TwoLinkElastic-v0", max_episode_steps=300), "ekf", **options

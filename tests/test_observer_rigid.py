@@ -342,6 +342,7 @@ def constant_speed_ramp(model: RobotModel, peak: float, duration: float):
     return position, np.array(torques), peak * np.abs(np.sin(w * t))
 
 
+@pytest.mark.slow
 def test_hybrid_jump_thresholds_and_continuity(rigid_model):
     """Jumps at |x_hat_2| = r v_bar - eta (up) and (r - 1) v_bar - eta - tolerance (down)."""
     position, torques, speed = constant_speed_ramp(rigid_model, 6.0, 6.0)
@@ -383,6 +384,7 @@ def computed_torque(env, info) -> np.ndarray:
     )
 
 
+@pytest.mark.slow
 def test_solsona_puleston_example_converges_although_g0_is_below_their_bound():
     g0, sigma = 3.0, 0.01
     run = rollout(

@@ -14,10 +14,10 @@ import dataclasses
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import make_noise_free
+from helpers import ELASTIC_IDS, make_noise_free
 from scipy.integrate import solve_ivp
 
-import elastic_gym
+import elastic_gym  # noqa: F401 (registers the env ids)
 from elastic_gym.envs import ElasticArmEnv
 from elastic_gym.envs.simulator import ArmSimulator
 from elastic_gym.model import RobotModel
@@ -82,14 +82,8 @@ def _open_loop(env_id: str, physics_dt: float | None, duration: float = 0.5):
     return u.plant_model, u.control_dt, np.array(states), np.array(torques)
 
 
-@pytest.mark.parametrize(
-    "env_id",
-    [
-        pytest.param(i, marks=[pytest.mark.slow] if "KR15" in i or "Iiwa" in i else [])
-        for i in elastic_gym.ENV_IDS
-        if "Elastic" in i
-    ],
-)
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", ELASTIC_IDS)
 def test_open_loop_matches_scipy_integration_of_the_model(env_id):
     model, dt, states, torques = _open_loop(env_id, None)
     steps, n = len(torques), model.n

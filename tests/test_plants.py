@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pybullet as p
 import pytest
-from helpers import arm_row, flat
+from helpers import arm_row, fast_lane, flat
 
 import elastic_gym
 from elastic_gym.envs.arm_config import deep_merge
@@ -88,7 +88,7 @@ def assert_arms_equal_single_envs(env_id, shared, per_arm, steps=70, seed=5, sca
     return info
 
 
-@pytest.mark.parametrize("env_id", elastic_gym.ENV_IDS)
+@pytest.mark.parametrize("env_id", fast_lane(elastic_gym.ENV_IDS, "elastic_gym/TwoLinkElastic-v0"))
 def test_heterogeneous_arms_equal_their_single_envs_bit_for_bit(env_id):
     assert_arms_equal_single_envs(env_id, SHARED, PER_ARM[env_id])
 
@@ -136,7 +136,7 @@ def _features(env_id: str) -> tuple[dict, list[dict]]:
     return shared, per_arm
 
 
-@pytest.mark.parametrize("env_id", elastic_gym.ENV_IDS)
+@pytest.mark.parametrize("env_id", fast_lane(elastic_gym.ENV_IDS, "elastic_gym/IiwaElastic-v0"))
 def test_randomized_arms_with_plant_features_equal_their_single_envs(env_id):
     shared, per_arm = _features(env_id)
     info = assert_arms_equal_single_envs(env_id, shared, per_arm, steps=80)

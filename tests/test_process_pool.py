@@ -21,6 +21,7 @@ from elastic_gym.runtime import fork_server
 from elastic_gym.runtime.parallel import worker_processes
 
 
+@pytest.mark.slow
 def test_one_pool_runs_two_functions_in_the_same_processes():
     with worker_processes(2) as pool:
         first = {pid for _, ok, (_, pid) in pool.results(pid_of, list(range(8))) if ok}

@@ -1049,6 +1049,7 @@ def test_a_run_folder_whose_config_no_longer_matches_its_model_is_refused_before
 
 
 # ------------------------------------------------------------ recording a video
+@pytest.mark.slow
 def test_record_video_writes_every_frame_of_an_episode(tmp_path):
     pytest.importorskip("moviepy")
     imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")

@@ -66,6 +66,7 @@ def test_refuses_autoreset_modes_sb3_cannot_follow():
     envs.close()
 
 
+@pytest.mark.slow
 def test_ppo_trains_on_batched_arms_with_decimation(tmp_path, monkeypatch):
     monkeypatch.setenv("SB3_LOGDIR", str(tmp_path))  # SB3's logger folder, else one in /tmp
     envs = RescaleAction(ActionRepeat(_vector(4, episode_time=0.2), 5), -1.0, 1.0)

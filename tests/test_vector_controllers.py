@@ -7,7 +7,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import N_ARMS, closed_loop_gap, relative_gap
+from helpers import N_ARMS, closed_loop_gap, fast_lane, relative_gap
 
 from elastic_gym.controllers import Controller, make_controller
 from elastic_gym.controllers.invdyn import RigidTorque
@@ -56,7 +56,10 @@ CASES = [
 ]
 
 
-@pytest.mark.parametrize(("env_id", "name", "options"), CASES)
+@pytest.mark.parametrize(
+    ("env_id", "name", "options"),
+    fast_lane(CASES, CASES[1], CASES[7], CASES[13], CASES[16]),  # KR15, integral, rigid, policy
+)
 def test_each_arm_torque_equals_the_single_controller(env_id, name, options):
     model = gym.make(env_id).unwrapped.model
     batched = make_vector_controller(name, model, 1e-3, N_ARMS, **options)
@@ -148,6 +151,7 @@ def test_batched_rigid_torque_and_its_derivatives_equal_pinocchio(robot):
         assert relative_gap(ddtau[k], central) < 1e-9  # a difference quotient: rounding / 2h
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("single_thread_torch")
 def test_trained_policy_arms_equal_the_single_controller(tmp_path):
     """A residual run on eq. (13) (tiny SAC run, on the true state): each arm of its vector
