@@ -352,6 +352,7 @@ def test_leaderboard_rebuilds_from_scorecards_and_refuses_other_suites(tiny_card
     assert cli(["benchmark", "--leaderboard", "--scorecards", str(folder)]) == 2
 
 
+@pytest.mark.slow
 def test_a_card_of_30_failed_episodes_claiming_099_is_refused(tiny_cards, tmp_path):
     """The issue's case on a real card: the tiny suite's 3 cells x 10 seeds, every episode
     edited to a failure, the scores left as stated (and overall raised to 0.99)."""

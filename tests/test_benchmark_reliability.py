@@ -19,6 +19,14 @@ import yaml
 from helpers import jobs_here, tiny_suite_data
 
 from elastic_gym.benchmark import read_scorecard, run_benchmark
+from elastic_gym.benchmark.output import (
+    OUTGOING,
+    RESULT,
+    STAGING,
+    clear_leftovers,
+    earlier_result,
+    swap_in,
+)
 from elastic_gym.benchmark.verify import verify_card
 from elastic_gym.cli import main
 
@@ -315,3 +323,30 @@ def test_an_interrupted_overwrite_keeps_the_earlier_result_and_says_so(
         f"interrupted by SIGINT: the earlier result in {out}/ is kept, the new one discarded"
     ) in err
     assert snapshot(out) == before
+
+
+def test_swap_in_replaces_the_whole_result_and_a_rerun_clears_leftovers(tmp_path):
+    """The staged result moves in (its card last) and every earlier part out, a part the
+    new result lacks (here the figure) included; a killed run's staging and outgoing
+    folders are removed by the next writer."""
+    folder = tmp_path / "bench"
+    runs, figure, markdown, card = RESULT
+    (folder / runs).mkdir(parents=True)
+    (folder / runs / "earlier.csv").write_text("earlier")
+    for name in (figure, markdown, card):
+        (folder / name).write_text(f"earlier {name}")
+    staging = folder / STAGING
+    (staging / runs).mkdir(parents=True)
+    (staging / runs / "new.csv").write_text("new")
+    for name in (markdown, card):
+        (staging / name).write_text(f"new {name}")
+    assert earlier_result(folder) == list(RESULT)
+    swap_in(folder)
+    assert earlier_result(folder) == [runs, markdown, card]
+    assert [p.name for p in (folder / runs).iterdir()] == ["new.csv"]
+    assert (folder / card).read_text() == f"new {card}"
+    assert sorted(p.name for p in folder.iterdir()) == sorted([runs, markdown, card])
+    for leftover in (STAGING, OUTGOING):
+        (folder / leftover / "part").mkdir(parents=True)
+    clear_leftovers(folder)
+    assert sorted(p.name for p in folder.iterdir()) == sorted([runs, markdown, card])
