@@ -144,9 +144,9 @@ def integrator() -> None:
 
 # The two chain kernels first, one per part; then a compiles the RK4's kernels (they
 # inline the chain's recursion: nothing of the other part's) while b compiles the env
-# kernels of a rigid arm (every task shares their signature); then model (2)'s env in a
-# while b compiles the other complex kernel, the other env ids, the env on the RK4 and
-# the closed loops (both complex kernels). Balance: docs/development.md.
+# kernels of a rigid arm (every task shares their signature); then a compiles the env on
+# the RK4 and model (2)'s env while b compiles the other complex kernel, the other env ids
+# and the closed loops (both complex kernels). Balance: docs/development.md.
 PARTS = {
     "a": [
         "dynamics",
@@ -154,8 +154,8 @@ PARTS = {
         "sensors_complex",
         "mark:sensors_complex",
         "integrator",
-        "mark:integrator",
         "wait:rigid",
+        "rk4",
         "coupled",
     ],
     "b": [
@@ -165,8 +165,6 @@ PARTS = {
         "mark:rigid",
         "dynamics_complex",
         "elastic",
-        "wait:integrator",
-        "rk4",
         "wait:sensors_complex",
         "loops",
     ],

@@ -126,9 +126,10 @@ def _arm_period(k, x0, tau, ext, period, m, plant, inv_tol, arm, stages, buf, ws
     """Integrate arm k over ``period`` in m RK4 substeps from x0 (4 n) into stages[5];
     stages[4] = f at the end. Returns the largest scaled error estimate of the substeps
     (stops early once it exceeds 1). m = 0: f(x0) into stages[0] only, returns 0 (the
-    right-hand side of `derivative_kernel`). One call site of `_derivative` (inlined), in
-    a loop over the stages: five inlined copies of the Newton-Euler recursion cost more
-    in instruction cache than the loop's branches, and each costs seconds of compile."""
+    right-hand side `rk4_period_kernel` gives at a period of 0). One call site of
+    `_derivative` (inlined), in a loop over the stages: five inlined copies of the
+    Newton-Euler recursion cost more in instruction cache than the loop's branches, and
+    each costs seconds of compile."""
     size = x0.shape[0]
     n = size // 4
     x, xs = stages[5], stages[6]
@@ -199,6 +200,12 @@ def _rk4_arms(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, arguments):
     work = 0
     for k in range(N):
         arm_ext, arm = _arm_start(k, theta, dtheta, q, dq, ext, constants, x0)
+        if period == 0.0:  # the right-hand side: `_arm_period` with no substep
+            none = np.int64(0)  # int64 as m below, one signature of `_arm_period`
+            _arm_period(k, x0, tau[k], arm_ext, period, none, plant, inv_tol, arm, stages, buf, ws)
+            for i in range(4 * n):
+                ddq[k, i] = stages[0][i]
+            continue
         m = min(max(substeps[k], least), most)
         while True:
             worst = _arm_period(
@@ -228,29 +235,10 @@ def rk4_period_kernel(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, pac
     (N, 0): none), the substep counts ``substeps`` (N,) updated, q'' at the end into
     ``ddq``. ``packed``: (plant, chain constants, the chain's scratch, 1 / tolerances,
     the fewest and the most substeps, scratch arrays). Returns the total number of
-    substeps taken (rejected ones included)."""
+    substeps taken (rejected ones included). A ``period`` of 0 advances nothing: x' of
+    every arm at its state goes into ``ddq`` (N, 4 n) instead (the right-hand side, in
+    the same compiled code as the steps)."""
     return _rk4_arms(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, packed.values)
-
-
-@njit(cache=True, **NO_REFCOUNT)
-def _derivative_arms(theta, dtheta, q, dq, tau, ext, out, arguments):
-    """`derivative_kernel` on its unpacked arguments: `_arm_period` with no substep (the
-    right-hand side compiled once for both)."""
-    plant, constants, w, inv_tol, _, _, stages, buf, x0 = arguments
-    N, n = q.shape
-    ws = _workspace(n, w)
-    no_substep, f = np.int64(0), stages[0]  # int64 as _rk4_arms passes it
-    for k in range(N):
-        arm_ext, arm = _arm_start(k, theta, dtheta, q, dq, ext, constants, x0)
-        _arm_period(k, x0, tau[k], arm_ext, 0.0, no_substep, plant, inv_tol, arm, stages, buf, ws)
-        for i in range(4 * n):
-            out[k, i] = f[i]
-
-
-@njit(cache=True)
-def derivative_kernel(theta, dtheta, q, dq, tau, ext, out, packed):
-    """x' (N, 4 n) of every arm at its state (the right-hand side the integrator steps)."""
-    _derivative_arms(theta, dtheta, q, dq, tau, ext, out, packed.values)
 
 
 class ArmIntegrator:
@@ -412,5 +400,5 @@ class ArmIntegrator:
         ext = self._no_ext if link_torque is None else link_torque
         self._arrays(theta, dtheta, q, dq, tau, ext if ext.shape[1] else tau)
         out = np.empty((self.n_arms, 4 * self.chain.n))
-        derivative_kernel(theta, dtheta, q, dq, tau, ext, out, self._packed)
+        rk4_period_kernel(theta, dtheta, q, dq, tau, ext, 0.0, self.substeps_now, out, self._packed)
         return out
