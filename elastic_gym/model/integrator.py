@@ -201,8 +201,10 @@ def _rk4_arms(theta, dtheta, q, dq, tau, ext, period, substeps, ddq, arguments):
     for k in range(N):
         arm_ext, arm = _arm_start(k, theta, dtheta, q, dq, ext, constants, x0)
         if period == 0.0:  # the right-hand side: `_arm_period` with no substep
-            none = np.int64(0)  # int64 as m below, one signature of `_arm_period`
-            _arm_period(k, x0, tau[k], arm_ext, period, none, plant, inv_tol, arm, stages, buf, ws)
+            no_substep = np.int64(0)  # int64 as m below: one signature of `_arm_period`
+            _arm_period(
+                k, x0, tau[k], arm_ext, period, no_substep, plant, inv_tol, arm, stages, buf, ws
+            )
             for i in range(4 * n):
                 ddq[k, i] = stages[0][i]
             continue
