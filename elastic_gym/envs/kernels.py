@@ -253,7 +253,8 @@ def control_period_kernel(command, truncated, bullet, rk4, packed):
         clip_torque(command, None, low, high, tau, saturated)
     code = bullet_capi.OK
     if bullet is not None:  # (numba prunes the test of an argument that is None)
-        slot, world, substep, coupling, states, no_link = bullet.values
+        slot, world, substep, coupling, states = bullet.values
+        no_link = substep.values[5]  # the substep pack's (N, 0) array: no link torque
         code = _period_kernel(slot, world, n_substeps, tau, no_link, substep, coupling, states)
     if rk4 is not None:
         theta, dtheta, q, dq, no_ext, period, substeps, ddq, integrator = rk4.values

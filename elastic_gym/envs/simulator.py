@@ -580,8 +580,7 @@ class ArmSimulator:
         if self._slot is None:
             return None
         packed, coupling = self._substep_arguments()
-        no_link_torque = self.no_link_torque
-        return (self._slot, self._world, packed, coupling, self._states, no_link_torque), None
+        return (self._slot, self._world, packed, coupling, self._states), None
 
     def _link_array(self, link_torque: np.ndarray | None) -> np.ndarray:
         """The kernels' link torque: C-contiguous float64 (N, n), or (N, 0) for none."""
