@@ -77,22 +77,15 @@ def rigid() -> None:
 
 
 def elastic() -> None:
-    """The other env ids of model (1) and rigid arms, and a link torque pulse."""
+    """The other env ids (model (2)'s KR15 shares the env kernels' signatures with
+    model (1)) and a link torque pulse."""
     import elastic_gym
 
     for env_id in elastic_gym.ENV_IDS:
-        if env_id not in ("elastic_gym/TwoLinkRigid-v0", "elastic_gym/KR15Elastic-v0"):
+        if env_id != "elastic_gym/TwoLinkRigid-v0":
             _steps(env_id)
     pulse = {"times": [0.0], "durations": [1e-3], "amplitudes": [[0.1, 0.1]]}
     _steps("elastic_gym/TwoLinkElastic-v0", torque_pulses=pulse)
-
-
-def coupled() -> None:
-    """Model (2)'s env (the KR15: its coupling is another signature of the env kernels),
-    with and without a link torque pulse."""
-    _steps("elastic_gym/KR15Elastic-v0")
-    pulse = {"times": [0.0], "durations": [1e-3], "amplitudes": [[0.1] * 3]}
-    _steps("elastic_gym/KR15Elastic-v0", torque_pulses=pulse)
 
 
 def rk4() -> None:
@@ -143,10 +136,11 @@ def integrator() -> None:
 
 
 # The two chain kernels first, one per part; then a compiles the RK4's kernels (they
-# inline the chain's recursion: nothing of the other part's) while b compiles the env
-# kernels of a rigid arm (every task shares their signature); then a compiles the env on
-# the RK4 and model (2)'s env while b compiles the other complex kernel, the other env ids
-# and the closed loops (both complex kernels). Balance: docs/development.md.
+# inline the chain's recursion: nothing of the other part's) and the complex-step
+# Newton-Euler kernel while b compiles the env kernels of a rigid arm (every task and
+# both models share their signature); then a compiles the env on the RK4 while b runs
+# the other env ids and the closed loops (both complex kernels). Balance:
+# docs/development.md.
 PARTS = {
     "a": [
         "dynamics",
@@ -154,18 +148,19 @@ PARTS = {
         "sensors_complex",
         "mark:sensors_complex",
         "integrator",
+        "dynamics_complex",
+        "mark:dynamics_complex",
         "wait:rigid",
         "rk4",
-        "coupled",
     ],
     "b": [
         "sensors",
         "wait:dynamics",
         "rigid",
         "mark:rigid",
-        "dynamics_complex",
         "elastic",
         "wait:sensors_complex",
+        "wait:dynamics_complex",
         "loops",
     ],
 }

@@ -178,7 +178,10 @@ def _torsion_kernel(t, u, du, ddu, K, D, viscous, rate, c, clock, v0, dv0, delta
 
 @njit(cache=True)
 def _torsion_trajectory_kernel(t, u, du, ddu, K, D, viscous, rate, c, clock, v0, dv0, delta, out):
-    """T successive `TorsionFilter.update` of one arm, row k at time t[k]."""
+    """T successive `TorsionFilter.update` of one arm, row k at time t[k] (each into a
+    C-contiguous row, then copied: `update`'s signature of the kernel, not a second one for
+    a strided slice of ``out``)."""
+    row = np.empty((out.shape[0], 1, out.shape[2]))
     for k in range(len(t)):
         _torsion_kernel(
             t[k : k + 1],
@@ -194,8 +197,11 @@ def _torsion_trajectory_kernel(t, u, du, ddu, K, D, viscous, rate, c, clock, v0,
             v0,
             dv0,
             delta,
-            out[:, k : k + 1],
+            row,
         )
+        for order in range(out.shape[0]):
+            for j in range(out.shape[2]):
+                out[order, k, j] = row[order, 0, j]
 
 
 class TorsionFilter:

@@ -199,7 +199,7 @@ class FourierTask(Task):
 
     def reference_at(self, t: np.ndarray) -> np.ndarray:
         """q_d .. q_d⁽⁴⁾ at the times `t`: (len(t), 5, n)."""
-        t = np.ascontiguousarray(np.atleast_1d(t), dtype=float)
+        t = np.array(t, dtype=float, ndmin=1)  # a copy: writeable, as the kernel's signature
         out = np.empty((len(t), REFERENCE_ORDER + 1, self.spec.n_joints))
         omega = 2.0 * np.pi / self.period * np.arange(1.0, len(self.sine) + 1.0)
         _reference_kernel(t, self.sine, self.cosine, omega, self.ramp, _LAW, self.offset, out)
@@ -211,7 +211,7 @@ class FourierTask(Task):
 
     def dither_at(self, t: np.ndarray) -> np.ndarray:
         """The dither torque at the times `t`: (len(t), n) (zeros without a dither)."""
-        t = np.ascontiguousarray(np.atleast_1d(t), dtype=float)
+        t = np.array(t, dtype=float, ndmin=1)  # a copy: writeable, as the kernel's signature
         out = np.zeros((len(t), self.spec.n_joints))
         if self.dither is not None:
             _dither_kernel(t, *self.dither, self.ramp, _LAW, out)

@@ -110,14 +110,13 @@ def post_step_kernel(tau, previous, reference, slot, reward, coupling, packed):
        the simulator's `_transmission_kernel` and the chain's
        `_dynamics_and_forces_kernel` (`transmission`, `dynamics`: their arguments after
        the motor torques `tau` and after q, q', tau), as its `_link_dynamics_kernel`
-       calls them; for model (2) (`coupling` not None, its `Packed` arguments) q'' of
-       the simulator's `_coupled_link_torque` and the readings at it
+       calls them; for model (2) (`coupling`'s matrices (N, n, n), not (N, 0, 0)) q''
+       of the simulator's `_coupled_link_torque` and the readings at it
        (`specific_forces_kernel`); with the RK4 (`integrated`: (its q'' at the end of
        the period, True)) that q'', which is the same q'' bit for bit (the RK4's
        right-hand side is these kernels' operations in their order), and the readings
-       at it. `coupling` is an argument, not packed, so that numba compiles the one
-       model an arm has (a compiled layer in between would cost another optimisation
-       of all the physics below it);
+       at it. `coupling` is a `Packed` of the same types for either model, so that
+       numba compiles one signature for both;
     2. the termination codes (`break_codes`, `limits`: its arguments after the state); if
        an arm broke, returns False here (the caller measures with the hold of non-finite
        readings);
@@ -164,15 +163,16 @@ def post_step_kernel(tau, previous, reference, slot, reward, coupling, packed):
     ) = sensors
     unused, w, ddq, forces, constants = dynamics
     integrated_ddq, known = integrated
+    coupled = coupling.values[0].shape[1] > 0  # model (2)
     if known:
         _copy(integrated_ddq, ddq)
-    elif coupling is None:
+    elif not coupled:
         _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
         _dynamics_and_forces_kernel(q, dq, transmission[10], *dynamics)
     else:
         _coupled_link_torque(theta, dtheta, q, dq, tau, no_link, transmission, coupling)
         _copy(coupling.values[8], ddq)
-    if known or coupling is not None:
+    if known or coupled:
         specific_forces_kernel(q, dq, ddq, w, unused, forces, constants)
     if break_codes(q, dq, theta, dtheta, *limits):
         return False

@@ -33,7 +33,8 @@ class Fused:
 
     Attributes:
         end: `post_step_kernel`'s `packed`.
-        coupling: its `coupling` (model (2)'s arguments, None for model (1) and rigid arms).
+        coupling: its `coupling` (model (2)'s arguments; matrices (N, 0, 0) for model (1)
+            and rigid arms).
         forces: the accelerometers' noise-free readings it writes (N, 3 n_sensors) (the
             step by step measurement reads them when an arm broke).
         period: `control_period_kernel`'s arguments after the torques and the truncation
@@ -49,7 +50,7 @@ class Fused:
     """
 
     end: Packed
-    coupling: Packed | None
+    coupling: Packed
     forces: np.ndarray
     period: tuple[Packed | None, Packed | None, Packed] | None
     noises: tuple[GaussianNoise, ...]

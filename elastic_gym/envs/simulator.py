@@ -129,16 +129,16 @@ def _substep_kernel(joint_states, tau, packed):
 @njit(cache=True)
 def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, states):
     """``n_substeps`` physics steps through PyBullet's C API (``slot``: the client's
-    handle, see `client_slot`), each under the link
-    torques of the motor torques ``tau`` at the state the last one read, plus
-    ``link_torque`` ((N, n), or (N, 0): none; one type, so one compiled signature): the
-    loop of
+    handle, see `client_slot`), each under the link torques of the motor torques ``tau``
+    at the state the last one read, plus ``link_torque`` ((N, n), or (N, 0): none; one
+    type, so one compiled signature): the loop of
     [`ArmSimulator.step`][elastic_gym.envs.simulator.ArmSimulator.step] in one dispatch.
-    Model (1) and rigid arms (``coupling`` None): `_transmission_kernel`, the motors
-    advanced before the physics step; model (2): `_coupled_link_torque`, the motors
-    advanced after it. ``world``: (bodies, velocity indices (N, n), joint indices, sensor
-    buffer); ``packed``: as `_substep_kernel`'s; ``states``: the flat joint states
-    buffer. Returns a `bullet_capi` code."""
+    Model (1) and rigid arms (``coupling``'s matrices (N, 0, 0): the same signature as
+    model (2)'s, compiled once): `_transmission_kernel`, the motors advanced before the
+    physics step; model (2): `_coupled_link_torque`, the motors advanced after it.
+    ``world``: (bodies, velocity indices (N, n), joint indices, sensor buffer);
+    ``packed``: as `_substep_kernel`'s; ``states``: the flat joint states buffer. Returns
+    a `bullet_capi` code."""
     handle = slot[0]
     if handle == 0:
         return bullet_capi.DISCONNECTED
@@ -146,7 +146,7 @@ def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, 
     for substep in range(n_substeps):
         if substep > 0:
             _unpack_joint_states(states, q, dq)
-        if coupling is None:
+        if coupling.values[0].shape[1] == 0:  # model (1), rigid arms
             _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
             code = bullet_capi.substep(handle, world, transmission[10], link_torque, states)
         else:
@@ -186,11 +186,13 @@ def _coupled_link_torque(theta, dtheta, q, dq, tau, link_torque, transmission, c
     S^T, -S B^-1 S^T, the chain's forward dynamics arguments, four (N, n) buffers, the
     last q'')."""
     K, D, B_inv, viscous, c_pos, c_neg, smoothing, friction, coulomb = transmission[:9]
-    link, tau_j, ddtheta = transmission[10], transmission[11], transmission[12]
+    # elastic: True for model (2), passed on as the flag (a literal True would compile a
+    # second signature of the transmission kernel)
+    elastic, link, tau_j, ddtheta = transmission[9:13]
     S, SBinv, ST, schur, dynamics, relative, product, rhs, ddq = coupling.values
     _transmission_kernel(
         theta, dtheta, q, dq, tau, K, D, B_inv, viscous, c_pos, c_neg, smoothing, friction,
-        coulomb, True, link, tau_j, ddtheta, 0.0,
+        coulomb, elastic, link, tau_j, ddtheta, 0.0,
     )  # fmt: skip
     N, n = q.shape
     added = link_torque.shape[1] > 0
@@ -547,22 +549,23 @@ class ArmSimulator:
         link, tau_j, ddtheta = np.empty(shape), np.empty(shape), np.empty(shape)
         return self._transmission(tau, link_torque, link, tau_j, ddtheta, 0.0)
 
-    def _substep_arguments(self) -> tuple[Packed, Packed | None]:
+    def _substep_arguments(self) -> tuple[Packed, Packed]:
         """`_substep_kernel`'s packed arguments (the state, the plants' transmission
         constants, the buffers, the physics step, no link torque) and
-        `_coupled_link_torque`'s (None without model (2)), packed again when the plants
-        change."""
+        `_coupled_link_torque`'s (without model (2): S and the other matrices
+        (N, 0, 0)), packed again when the plants change."""
         plants = self.plants
         transmission = plants.transmission
         if self._packed is None or self._packed[0] is not transmission:
             constants = self._transmission_arguments(self._elastic, *self._buffers, self.physics_dt)
             state = (self.theta, self.dtheta, self.q, self.dq)
-            coupling = None
             if plants.has_coupling:
                 matrices = (plants.S, plants.SBinv, plants.ST, plants.schur_inertia)
-                buffers = tuple(np.empty(self.q.shape) for _ in range(4))
-                dynamics = plants.chain.forward_dynamics_arguments()
-                coupling = Packed((*matrices, dynamics, *buffers))
+            else:  # of the same types, so that model (1) compiles the same signature
+                matrices = (np.empty((self.q.shape[0], 0, 0)),) * 4
+            buffers = tuple(np.empty(self.q.shape) for _ in range(4))
+            dynamics = plants.chain.forward_dynamics_arguments()
+            coupling = Packed((*matrices, dynamics, *buffers))
             substep = Packed((*state, constants, self.no_link_torque))
             self._packed = (transmission, substep, coupling)
         return self._packed[1], self._packed[2]
@@ -588,9 +591,9 @@ class ArmSimulator:
             return self.no_link_torque
         return np.ascontiguousarray(link_torque, dtype=np.float64)
 
-    def coupling_arguments(self) -> Packed | None:
-        """`_coupled_link_torque`'s ``coupling`` (None without model (2)), for
-        compiled callers (the batch's end of a control period)."""
+    def coupling_arguments(self) -> Packed:
+        """`_coupled_link_torque`'s ``coupling`` (its matrices (N, 0, 0) without model
+        (2)), for compiled callers (the batch's end of a control period)."""
         return self._substep_arguments()[1]
 
     def _transmission_arguments(self, elastic: bool, link, tau_j, ddtheta, dt: float):
@@ -642,16 +645,17 @@ class ArmSimulator:
         # the transmission kernel advances the motors (they do not depend on PyBullet's
         # step), with it they are advanced after PyBullet's step
         link = self._buffers[0]
+        coupled = self.plants.has_coupling
         states = self._no_states  # PyBullet's joint states not yet in q, q'
         for _ in range(n_substeps):
-            if coupling is None:  # the last substep's joint states and the transmission
+            if not coupled:  # the last substep's joint states and the transmission
                 _substep_kernel(states, tau, packed)
                 link_tau = link if link_torque is None else link + link_torque
             else:
                 _unpack_joint_states(states, self.q, self.dq)
                 link_tau, ddtheta, _ = self.accelerations(tau, link_torque)
             states = self._python_substep(link_tau)
-            if coupling is not None:
+            if coupled:
                 _integrate_motors(self.theta, self.dtheta, ddtheta, self.physics_dt)
         _unpack_joint_states(states, self.q, self.dq)
 
