@@ -18,6 +18,7 @@ import re
 import runpy
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
@@ -138,6 +139,7 @@ def test_tutorials_run_with_short_settings(tutorial, tmp_path, monkeypatch):
     if tutorial.stem == "ppo_vs_eq13":
         pytest.importorskip("stable_baselines3")
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # its work folder, removed with it
     monkeypatch.setenv("ELASTIC_GYM_TUTORIAL_QUICK", "1")
     runpy.run_path(str(tutorial), run_name="__main__")
 
