@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -20,6 +23,7 @@ from elastic_gym.model import RobotModel
 from elastic_gym.observers import vector
 from elastic_gym.policy import PolicySpec, build_policy_env
 
+ROOT = Path(__file__).resolve().parents[1]  # the checkout whose package the tests import
 GRAVITY = 9.81
 N_ARMS = 3
 STEPS = 130  # one autoreset (episodes of 0.1 s at 1 kHz)
@@ -39,6 +43,53 @@ def fast_lane(cases, *fast) -> list:
         )
         for case in cases
     ]
+
+
+def cli_exit_code(args: list[str]) -> int:
+    """The exit code of ``elastic-gym ARGS`` run in this process (usage errors exit
+    through argparse)."""
+    from elastic_gym.cli import main
+
+    try:
+        return main(args)
+    except SystemExit as exc:
+        return int(exc.code)
+
+
+def cli_process(args: list[str], tmp_path: Path, **kwargs) -> subprocess.Popen:
+    """``elastic-gym ARGS`` as a child process (its output piped, as text), importing this
+    checkout's package and the user code a test wrote into ``tmp_path``."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
+    return subprocess.Popen(
+        [sys.executable, "-m", "elastic_gym.cli", *args],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kwargs,
+    )
+
+
+def folder_holder(folder: Path, *inside: str) -> subprocess.Popen:
+    """A process that takes ``folder``'s lock (`elastic_gym.runtime.folder_lock`), runs the
+    Python lines ``inside`` in it (``out``: the folder), prints ``locked`` and holds the
+    lock for a minute (kill it when done)."""
+    code = "\n".join(
+        [
+            "import time",
+            "from elastic_gym.runtime.folder_lock import folder_lock",
+            f"with folder_lock({str(folder)!r}) as out:",
+            *(f"    {line}" for line in inside),
+            "    print('locked', flush=True)",
+            "    time.sleep(60)",
+        ]
+    )
+    return subprocess.Popen(
+        [sys.executable, "-c", code],
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        stdout=subprocess.PIPE,
+        text=True,
+    )
 
 
 def synthetic_log_columns(rows: int = 1200, dt: float = 1e-3, state: bool = True) -> dict:

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from helpers import cli_exit_code, tiny_suite_data
 from helpers import shipped_suite_data as shipped_data
-from helpers import tiny_suite_data
 
 from elastic_gym.benchmark import load_suite, read_scorecard, rebuild_leaderboard, run_benchmark
 from elastic_gym.benchmark.card import METRICS
@@ -29,20 +29,11 @@ from elastic_gym.benchmark.scoring import (
     score_episodes,
 )
 from elastic_gym.benchmark.suite import SUITE_DIR, SuiteConfig, canonical_form, suite_scenario
-from elastic_gym.cli import main
 from elastic_gym.evaluation import plan_runs, run_episode
 from elastic_gym.evaluation.metrics import TimeSeries, compute_metrics
 from elastic_gym.validation import validated
 
 SHIPPED = SUITE_DIR / "elastic-gym-v1.yaml"
-
-
-def cli(args: list[str]) -> int:
-    """The exit code of ``elastic-gym ARGS`` (usage errors exit through argparse)."""
-    try:
-        return main(args)
-    except SystemExit as exc:
-        return int(exc.code)
 
 
 # ---------------------------------------------------------------- suite
@@ -349,7 +340,7 @@ def test_leaderboard_rebuilds_from_scorecards_and_refuses_other_suites(tiny_card
     (folder / "eq13@true.json").write_text(json.dumps(data))
     with pytest.raises(ValueError, match="the suite changed"):
         rebuild_leaderboard(folder, page, suite_file)
-    assert cli(["benchmark", "--leaderboard", "--scorecards", str(folder)]) == 2
+    assert cli_exit_code(["benchmark", "--leaderboard", "--scorecards", str(folder)]) == 2
 
 
 @pytest.mark.slow
@@ -381,7 +372,7 @@ def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_p
     _, suite_file, _ = tiny_cards
     observer = "elastic_gym.observers.finite_difference:FiniteDifferenceObserver"
     args = ["benchmark", "--suite", str(suite_file), "--workers", "1", "--no-progress"]
-    code = cli(
+    code = cli_exit_code(
         [*args, "--class", observer, "--controller", "motor-pd", "--output", str(tmp_path / "a")]
     )
     assert code == 0
@@ -406,5 +397,5 @@ def test_cli_scores_a_users_class_and_refuses_bad_combinations(tiny_cards, tmp_p
         ),
         ([], "give one of --leaderboard or --verify or --upgrade or --run or --controller/"),
     ]:
-        assert cli([*args, *bad]) == 2
+        assert cli_exit_code([*args, *bad]) == 2
         assert message in capsys.readouterr().err

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from helpers import jobs_here, tiny_suite_data
+from helpers import ROOT, cli_exit_code, folder_holder, jobs_here, tiny_suite_data
 
 from elastic_gym.benchmark import read_scorecard, run_benchmark
 from elastic_gym.benchmark.output import (
@@ -30,7 +30,6 @@ from elastic_gym.benchmark.output import (
 from elastic_gym.benchmark.verify import verify_card
 from elastic_gym.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
 ENTRY = ["--controller", "motor-pd", "--source", "true", "--label", "pd"]
 SLOW = '''
 import os
@@ -59,13 +58,6 @@ def micro_suite(folder: Path, duration: float = 0.02) -> Path:
     path = folder / "micro.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
-
-
-def cli(args: list[str]) -> int:
-    try:
-        return main(args)
-    except SystemExit as exc:
-        return int(exc.code)
 
 
 def without_provenance(path: Path) -> dict:
@@ -111,7 +103,7 @@ def test_runs_csv_is_rescored_into_the_same_card_without_running(scored, capsys)
     card = root / "a" / "scorecard.json"
     before = without_provenance(card)
     runs = (root / "a" / "runs" / "runs.csv").read_bytes()
-    assert cli([*args, "--output", str(root / "a"), "--rescore"]) == 2  # a card is there
+    assert cli_exit_code([*args, "--output", str(root / "a"), "--rescore"]) == 2  # a card is there
     assert "holds an earlier result (scores.png, scorecard.md, scorecard.json)" in (
         capsys.readouterr().err
     )
@@ -125,7 +117,7 @@ def test_runs_csv_is_rescored_into_the_same_card_without_running(scored, capsys)
     partial = root / "partial"
     (partial / "runs").mkdir(parents=True)
     (partial / "runs" / "runs.csv").write_text("".join(lines[:4]))
-    assert cli([*args, "--output", str(partial), "--rescore"]) == 2
+    assert cli_exit_code([*args, "--output", str(partial), "--rescore"]) == 2
     err = capsys.readouterr().err
     assert "runs.csv: 7 of the entry's 10 runs missing (two-link/nominal/s seed 90003" in err
     assert sorted(p.name for p in partial.iterdir()) == ["runs"]
@@ -152,7 +144,10 @@ def test_verify_reproduces_a_card_bit_for_bit_and_names_a_difference(scored, tmp
         f"cells.two-link/nominal/s.torque_rms[seed 90003]: card {true_value * (1 + 2**-40)!r}, "
         f"re-run {true_value!r}"
     )
-    assert cli(["benchmark", "--verify", str(edited), "--workers", "1", "--no-progress"]) == 1
+    assert (
+        cli_exit_code(["benchmark", "--verify", str(edited), "--workers", "1", "--no-progress"])
+        == 1
+    )
     assert "NOT reproduced: 1 of " in capsys.readouterr().out
     data["command"] = None
     edited.write_text(json.dumps(data))
@@ -227,21 +222,10 @@ def test_an_overwrite_replaces_the_whole_result_and_drops_what_the_new_one_lacks
 def test_a_second_benchmark_into_a_folder_in_use_names_the_process(tmp_path, capsys):
     args = ["benchmark", *ENTRY, "--suite", str(micro_suite(tmp_path)), "--no-progress"]
     folder = tmp_path / "out"
-    holder = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            "import time\nfrom elastic_gym.runtime.folder_lock import folder_lock\n"
-            f"with folder_lock({str(folder)!r}):\n    print('locked', flush=True)\n"
-            "    time.sleep(60)",
-        ],
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    holder = folder_holder(folder)
     try:
         assert holder.stdout.readline().strip() == "locked"
-        assert cli([*args, "--output", str(folder), "--overwrite"]) == 2
+        assert cli_exit_code([*args, "--output", str(folder), "--overwrite"]) == 2
         err = capsys.readouterr().err.strip()
         assert err == (
             f"elastic-gym benchmark: error: output folder {str(folder)!r} is in use by process "
@@ -256,7 +240,9 @@ def test_a_second_benchmark_into_a_folder_in_use_names_the_process(tmp_path, cap
 
 def test_a_classical_controller_on_raw_sensors_is_refused_in_one_line(tmp_path, capsys):
     suite = micro_suite(tmp_path)
-    code = cli(["benchmark", "--source", "sensors", "--suite", str(suite), "--no-progress"])
+    code = cli_exit_code(
+        ["benchmark", "--source", "sensors", "--suite", str(suite), "--no-progress"]
+    )
     assert code == 2
     err = capsys.readouterr().err
     assert err == (

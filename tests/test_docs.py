@@ -24,13 +24,13 @@ from urllib.parse import unquote, urlsplit
 
 import pytest
 import yaml
+from helpers import ROOT
 from rich.console import Console
 
 import elastic_gym
 from elastic_gym.evaluation import Scenario, compare
 from elastic_gym.evaluation.grid import plan_runs
 
-ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 TUTORIALS = sorted((DOCS / "tutorials").glob("*.py"))
 

@@ -5,18 +5,15 @@ processes (none is left behind) and exits with 128 + the signal number."""
 from __future__ import annotations
 
 import csv
-import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 import yaml
-from helpers import alive, descendants, workers_of
+from helpers import alive, cli_process, descendants, workers_of
 
-ROOT = Path(__file__).resolve().parents[1]
 SLEEPY_CONTROLLER = '''
 import time
 
@@ -60,17 +57,6 @@ def data_rows(path: Path) -> list[dict]:
         return []
     with path.open() as handle:
         return list(csv.DictReader(handle))
-
-
-def start(args: list[str], tmp_path: Path) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
-    return subprocess.Popen(
-        [sys.executable, "-m", "elastic_gym.cli", *args],
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
 
 
 def stop(process: subprocess.Popen, signum: int) -> tuple[float, str]:
@@ -122,7 +108,7 @@ def test_interrupted_compare_keeps_finished_runs_and_ends_its_workers(tmp_path, 
         )
     )
     out = tmp_path / "out"
-    process = start(
+    process = cli_process(
         [
             "compare",
             "--config",
@@ -154,7 +140,7 @@ def test_interrupted_compare_keeps_finished_runs_and_ends_its_workers(tmp_path, 
 def test_interrupted_multi_seed_training_keeps_finished_runs_and_ends_its_workers(tmp_path):
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "runs"
-    process = start(
+    process = cli_process(
         [
             "train",
             "--algo",

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import jsonschema
 import pytest
+from helpers import ROOT
 
 from elastic_gym.benchmark import load_suite, read_scorecard, rebuild_leaderboard
 from elastic_gym.benchmark.audit import check_card
@@ -26,7 +27,6 @@ from elastic_gym.benchmark.scoring import compute_scores
 from elastic_gym.benchmark.upgrade import upgrade_card
 from elastic_gym.schemas import SCHEMA_DIR
 
-ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "docs" / "leaderboard" / "scorecards"
 
 

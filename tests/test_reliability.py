@@ -17,13 +17,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import alive, descendants, same_metric, workers_of
+from helpers import ROOT, alive, cli_process, descendants, folder_holder, same_metric, workers_of
 from pool_jobs import os_exit_on_two
 from rich.console import Console
 
 from elastic_gym.evaluation import Scenario, ScenarioError, compare
 
-ROOT = Path(__file__).resolve().parents[1]
 QUIET = Console(quiet=True)
 TWO_LINK = "elastic_gym/TwoLinkElastic-v0"
 USER_CODE = '''
@@ -305,18 +304,6 @@ def test_run_jobs_without_a_crash_handler_names_the_job_whose_worker_died():
         run_jobs(os_exit_on_two, [0, 1, 2, 3], workers=2, progress=False, describe="job {}".format)
 
 
-def cli(args: list[str], tmp_path: Path, **kwargs) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
-    return subprocess.Popen(
-        [sys.executable, "-m", "elastic_gym.cli", *args],
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        **kwargs,
-    )
-
-
 def slow_config(tmp_path: Path, runs: int = 4) -> Path:
     import yaml
 
@@ -353,7 +340,7 @@ def still_alive(pids: list[int], bound: float) -> list[str]:
 def test_workers_end_when_compare_is_killed(tmp_path):
     out = tmp_path / "out"
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
-    process = cli([*args, "--workers", "2", "--no-progress", "--no-plots"], tmp_path)
+    process = cli_process([*args, "--workers", "2", "--no-progress", "--no-plots"], tmp_path)
     started = time.monotonic()
     while len(workers_of(process.pid)) < 2:
         assert process.poll() is None, process.communicate()
@@ -374,7 +361,7 @@ def test_the_ray_runtime_ends_when_compare_is_killed(tmp_path):
 
     out = tmp_path / "out"
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
-    process = cli([*args, "--workers", "2", "--backend", "ray", "--no-progress"], tmp_path)
+    process = cli_process([*args, "--workers", "2", "--backend", "ray", "--no-progress"], tmp_path)
     deadline = time.monotonic() + STARTUP_BOUND
     agents = {b"ray::DashboardAgent", b"ray::RuntimeEnvAgent"}  # what used to stay
 
@@ -530,18 +517,7 @@ def test_a_second_writer_of_an_output_folder_is_refused_with_the_holders_pid(tmp
     from elastic_gym.runtime.folder_lock import LOCK_FILE, FolderLockedError, folder_lock
 
     folder = tmp_path / "out"
-    holder = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            "import sys, time\nfrom elastic_gym.runtime.folder_lock import folder_lock\n"
-            f"with folder_lock({str(folder)!r}):\n    print('locked', flush=True)\n"
-            "    time.sleep(60)",
-        ],
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    holder = folder_holder(folder)
     try:
         assert holder.stdout.readline().strip() == "locked"
         locked = pytest.raises(FolderLockedError, match=rf"in use by process {holder.pid} ")

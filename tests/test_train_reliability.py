@@ -7,18 +7,15 @@ from __future__ import annotations
 import errno
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from helpers import folder_holder
 
 from elastic_gym.runtime.folder_lock import LOCK_FILE
 from elastic_gym.runtime.parallel import Interrupted
 from elastic_gym.training import RunFolder, TrainConfig
 from elastic_gym.training.run_folder import INCOMING, REPLACED, REPLACING
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def earlier_run(folder: Path) -> dict[str, bytes]:
@@ -174,19 +171,7 @@ def test_a_second_train_into_a_folder_in_use_names_the_process(tmp_path, capsys,
 
     out = tmp_path / "run"
     locked = out if len(seeds) == 1 else out / "seed0"  # several seeds: a folder each
-    holder = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            "import pathlib, time\nfrom elastic_gym.runtime.folder_lock import folder_lock\n"
-            f"with folder_lock({str(locked)!r}) as out:\n"
-            "    (out / 'tb').mkdir()  # a training's first outputs\n"
-            "    print('locked', flush=True)\n    time.sleep(60)",
-        ],
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    holder = folder_holder(locked, "(out / 'tb').mkdir()")  # a training's first outputs
     try:
         assert holder.stdout.readline().strip() == "locked"
         with pytest.raises(SystemExit) as stopped:
