@@ -135,12 +135,12 @@ def integrator() -> None:
     arms.derivative(*state, np.zeros((2, 2)))
 
 
-# The two chain kernels first, one per part; then a compiles the RK4's kernels (they
-# inline the chain's recursion: nothing of the other part's) and the complex-step
-# Newton-Euler kernel while b compiles the env kernels of a rigid arm (every task and
-# both models share their signature); then a compiles the env on the RK4 while b runs
-# the other env ids and the closed loops (both complex kernels). Balance:
-# docs/development.md.
+# The two chain kernels first, one per part, and a the accelerometers' complex-step
+# kernel; then a compiles the RK4's kernels (they inline the chain's recursion: nothing
+# of the other part's) and the complex-step Newton-Euler kernel while b compiles the env
+# kernels of a rigid arm (every task and both models share their signature); then a
+# compiles the env on the RK4 while b runs the other env ids and the closed loops (both
+# complex kernels). Balance: docs/development.md.
 PARTS = {
     "a": [
         "dynamics",
