@@ -45,6 +45,13 @@ def fast_lane(cases, *fast) -> list:
     ]
 
 
+def checkout_env(*folders: Path, **variables: str) -> dict[str, str]:
+    """This process's environment for a child that imports this checkout's package (and
+    modules in ``folders``, such as user code a test wrote), plus ``variables``."""
+    path = os.pathsep.join([str(ROOT), *map(str, folders)])
+    return {**os.environ, "PYTHONPATH": path, **variables}
+
+
 def cli_exit_code(args: list[str]) -> int:
     """The exit code of ``elastic-gym ARGS`` run in this process (usage errors exit
     through argparse)."""
@@ -59,10 +66,9 @@ def cli_exit_code(args: list[str]) -> int:
 def cli_process(args: list[str], tmp_path: Path, **kwargs) -> subprocess.Popen:
     """``elastic-gym ARGS`` as a child process (its output piped, as text), importing this
     checkout's package and the user code a test wrote into ``tmp_path``."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
     return subprocess.Popen(
         [sys.executable, "-m", "elastic_gym.cli", *args],
-        env=env,
+        env=checkout_env(tmp_path),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -86,7 +92,7 @@ def folder_holder(folder: Path, *inside: str) -> subprocess.Popen:
     )
     return subprocess.Popen(
         [sys.executable, "-c", code],
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        env=checkout_env(),
         stdout=subprocess.PIPE,
         text=True,
     )

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from helpers import ROOT, cli_exit_code, folder_holder, jobs_here, tiny_suite_data
+from helpers import checkout_env, cli_exit_code, folder_holder, jobs_here, tiny_suite_data
 
 from elastic_gym.benchmark import read_scorecard, run_benchmark
 from elastic_gym.benchmark.output import (
@@ -269,7 +269,7 @@ def test_a_full_disk_during_benchmark_overwrite_keeps_the_earlier_result(scored,
     before = snapshot(out)
     done = subprocess.run(
         [sys.executable, "-c", FSIZE, "3000", *args, "--output", str(out), "--overwrite"],
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        env=checkout_env(),
         capture_output=True,
         text=True,
         timeout=600,
@@ -290,8 +290,7 @@ def test_an_interrupted_overwrite_keeps_the_earlier_result_and_says_so(
     out = tmp_path / "out"
     args = ["benchmark", "--class", "slow:Slow", "--source", "true", "--suite", str(suite)]
     args += ["--output", str(out), "--workers", "1", "--no-progress"]
-    path = os.pathsep.join([str(ROOT), str(tmp_path)])
-    env = {**os.environ, "PYTHONPATH": path, "SLOW_DELAY": "0.002"}  # 2 ms per call
+    env = checkout_env(tmp_path, SLOW_DELAY="0.002")  # 2 ms per call
     command = [sys.executable, "-m", "elastic_gym.cli", *args]
     assert main(args) == 0  # the earlier result, made here at full speed
     sys.modules.pop("slow", None)

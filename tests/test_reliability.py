@@ -17,7 +17,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import ROOT, alive, cli_process, descendants, folder_holder, same_metric, workers_of
+from helpers import (
+    alive,
+    checkout_env,
+    cli_process,
+    descendants,
+    folder_holder,
+    same_metric,
+    workers_of,
+)
 from pool_jobs import os_exit_on_two
 from rich.console import Console
 
@@ -209,7 +217,7 @@ def compare_cli(tmp_path: Path, scenario: Scenario, out: Path, *args: str):
     (tmp_path / "faulty.py").write_text(USER_CODE)
     config = tmp_path / "grid.yaml"
     config.write_text(yaml.safe_dump(scenario.to_dict()))
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
+    env = checkout_env(tmp_path)
     command = ["compare", "--config", str(config), "--output", str(out), "--no-progress"]
     return subprocess.run(
         [sys.executable, "-m", "elastic_gym.cli", *command, "--no-plots", *args],
@@ -475,10 +483,9 @@ def fine_compare_args(tmp_path: Path, out: Path, runs: int) -> list[str]:
 
 
 def compare_with_file_size_limit(tmp_path: Path, limit: int, out: Path, runs: int):
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(tmp_path)])}
     return subprocess.run(
         [sys.executable, "-c", FSIZE_LIMIT, str(limit), *fine_compare_args(tmp_path, out, runs)],
-        env=env,
+        env=checkout_env(tmp_path),
         capture_output=True,
         text=True,
         timeout=900,
