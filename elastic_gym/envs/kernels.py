@@ -21,6 +21,7 @@ from elastic_gym.envs.reward import _reward_kernel
 from elastic_gym.envs.sensors import _shared_readings
 from elastic_gym.envs.simulator import (
     _coupled_link_torque,
+    _is_coupled,
     _period_kernel,
     _transmission_kernel,
 )
@@ -163,7 +164,7 @@ def post_step_kernel(tau, previous, reference, slot, reward, coupling, packed):
     ) = sensors
     unused, w, ddq, forces, constants = dynamics
     integrated_ddq, known = integrated
-    coupled = coupling.values[0].shape[1] > 0  # model (2)
+    coupled = _is_coupled(coupling)
     if known:
         _copy(integrated_ddq, ddq)
     elif not coupled:

@@ -126,6 +126,13 @@ def _substep_kernel(joint_states, tau, packed):
     _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
 
 
+@njit(cache=True, inline="always")
+def _is_coupled(coupling):
+    """Whether ``coupling`` (`_coupled_link_torque`'s pack) is model (2)'s: S (N, n, n),
+    not the (N, 0, 0) of model (1) and rigid arms."""
+    return coupling.values[0].shape[1] > 0
+
+
 @njit(cache=True)
 def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, states):
     """``n_substeps`` physics steps through PyBullet's C API (``slot``: the client's
@@ -146,7 +153,7 @@ def _period_kernel(slot, world, n_substeps, tau, link_torque, packed, coupling, 
     for substep in range(n_substeps):
         if substep > 0:
             _unpack_joint_states(states, q, dq)
-        if coupling.values[0].shape[1] == 0:  # model (1), rigid arms
+        if not _is_coupled(coupling):
             _transmission_kernel(theta, dtheta, q, dq, tau, *transmission)
             code = bullet_capi.substep(handle, world, transmission[10], link_torque, states)
         else:
