@@ -8,6 +8,7 @@ import os
 import time
 
 import numpy as np
+from numba.core.registry import cpu_target
 from threadpoolctl import threadpool_info
 
 from elastic_gym.controllers.base import Controller
@@ -38,7 +39,14 @@ def what_a_job_sees(job: int) -> dict:
         "blas threads": {pool["num_threads"] for pool in threadpool_info()},
         "cwd": os.getcwd(),
         "draw": np.random.random(),  # noqa: NPY002 - the global generator, never seeded
+        "numba ready": numba_registries() > 0,
     }
+
+
+def numba_registries() -> int:
+    """How many registries numba's CPU target has installed in this process (none before
+    its first compile, cache load or refresh)."""
+    return len(cpu_target.target_context._registries)
 
 
 class PidLog(Controller):

@@ -4,6 +4,7 @@ worker forked from a fork server sees what a spawned one would."""
 
 from __future__ import annotations
 
+import importlib
 import os
 import signal
 import subprocess
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 from helpers import alive, descendants, workers_of
-from pool_jobs import PidLog, pid_of, slow_square, what_a_job_sees
+from pool_jobs import PidLog, numba_registries, pid_of, slow_square, what_a_job_sees
 from rich.console import Console
 
 from elastic_gym.evaluation import Scenario, compare
@@ -62,9 +63,30 @@ def test_a_worker_sees_the_environment_folder_and_output_of_its_own_start(tmp_pa
     if fork_server.available():  # one server for both pools of the first environment
         assert {seen["parent"] for seen in [*first, again]} == {first[0]["parent"]}
         assert first[0]["parent"] != os.getpid()
+        # which readied numba's compiler once for every worker (`numba_ready`)
+        assert all(seen["numba ready"] for seen in [*first, again, second])
     assert len({seen["pid"] for seen in first}) == 2
     assert len({seen["draw"] for seen in [*first, again, second]}) == 4
     assert (tmp_path / "out.txt").read_text() == f"job 2 in {again['pid']}\n"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not fork_server.available(), reason="workers are spawned here")
+def test_a_server_that_preloaded_more_serves_a_pool_that_asks_for_less():
+    """The pre-run check's own processes (after a death) fork from the runs' server, which
+    preloaded the check's module too: no second server imports the package again."""
+    with worker_processes(1, preload=["elastic_gym.evaluation.preflight"]) as runs:
+        [(_, _, run)] = runs.results(what_a_job_sees, [0])
+        with worker_processes(1) as check:
+            [(_, _, checked)] = check.results(what_a_job_sees, [1])
+    assert checked["parent"] == run["parent"] and checked["pid"] != run["pid"]
+
+
+def test_numba_ready_installs_the_registries_a_first_compile_would():
+    """What a fork server imports last (`fork_server.READY`), here in the test process;
+    that a forked worker inherits it: the pool test above."""
+    importlib.import_module(fork_server.READY)
+    assert numba_registries() > 0
 
 
 @pytest.mark.slow

@@ -95,7 +95,9 @@ def _workers(plan: Plan) -> contextlib.AbstractContextManager[WorkerPool | None]
     groups = list(plan.groups)
     if plan.backend != "process" or (plan.workers == 1 and refers_to_main(run_group, groups)):
         return contextlib.nullcontext()
-    pool = worker_processes(min(plan.workers, len(groups)))
+    # the pre-run check runs first on these workers; a check of its own after a death
+    # forks from the same server (`fork_server`: a server serves what it preloaded)
+    pool = worker_processes(min(plan.workers, len(groups)), preload=[preflight.__module__])
     pool.start(run_group, groups)
     return pool
 

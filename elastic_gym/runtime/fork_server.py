@@ -2,10 +2,11 @@
 
 A spawned process is a fresh interpreter that imports everything again (seconds for
 numba, SciPy, PyBullet, Pinocchio); `start_process` forks it instead from a server
-(``multiprocessing``'s forkserver) that imported the ``preload`` modules once. The child
-sees what a spawned one would: a server serves one environment, ``sys.path`` and preload
-list (it is started with them; another combination gets its own server, an idle one is
-stopped), and each child takes this process's standard output and error, working folder,
+(``multiprocessing``'s forkserver) that imported the ``preload`` modules once, then
+readied numba's compiler (`numba_ready`). The child sees what a spawned one would: a
+server serves one environment and ``sys.path`` (it is started with them; another
+combination gets its own server, an idle one is stopped) and any preload list it
+imported, and each child takes this process's standard output and error, working folder,
 ``sys.argv`` and ``__main__`` handling at its own start, and a fresh NumPy global seed.
 A server ends when this process ends, however: it exits when its "alive" pipe, held by
 this process alone, closes (children close their copy at once), and a child can ask the
@@ -36,6 +37,7 @@ from typing import Any
 PACKAGE = __name__.split(".")[0]
 SERVER_EXIT = 2.0  # s a stopped server gets to exit on its own before it is killed
 _LAUNCH_VARIABLES = ("PYTHONPATH", "PYTHONSAFEPATH")  # set for the server's start only
+READY = f"{PACKAGE}.runtime.numba_ready"  # imported last by every server
 
 
 # what this module uses of multiprocessing's forkserver beyond its public functions
@@ -209,16 +211,18 @@ os.register_at_fork(after_in_child=_forget_servers)
 
 
 def _server(preload: Sequence[str]) -> _Server:
-    """The server for this environment, ``sys.path`` and preload list (idle servers of
-    other combinations are stopped)."""
+    """A server for this environment and ``sys.path`` that has imported at least
+    ``preload`` (a server that imported more serves fewer), else a new one (idle servers
+    of other combinations are stopped)."""
     path = _launch_path()
-    key = (tuple(sorted(os.environ.items())), tuple(path), tuple(preload), spawn.get_executable())
+    setting = (tuple(sorted(os.environ.items())), tuple(path), spawn.get_executable())
     with _lock:
-        server = _servers.get(key)
-        if server is None:
-            for other in [k for k, s in _servers.items() if not s.busy()]:
-                _servers.pop(other).stop()
-            server = _servers[key] = _Server(list(preload), path)
+        for (other_setting, loaded), server in _servers.items():
+            if other_setting == setting and set(preload) <= set(loaded):
+                return server
+        for other in [k for k, s in _servers.items() if not s.busy()]:
+            _servers.pop(other).stop()
+        server = _servers[setting, tuple(preload)] = _Server(list(preload), path)
         return server
 
 
@@ -271,7 +275,7 @@ def start_process(
     of ``target`` (this package's or installed libraries, never user code: see `owned`).
     Started in this process's current environment (see the module docstring).
     """
-    names = list(dict.fromkeys([__name__, target.__module__, *preload]))
+    names = list(dict.fromkeys([__name__, target.__module__, *preload, READY]))
     if not available() or not owned(target.__module__):
         spawned = multiprocessing.get_context("spawn").Process(
             target=target, args=(os.getpid(), *args), daemon=True
