@@ -65,10 +65,11 @@ def cli_exit_code(args: list[str]) -> int:
 
 def cli_process(args: list[str], tmp_path: Path, **kwargs) -> subprocess.Popen:
     """``elastic-gym ARGS`` as a child process (its output piped, as text), importing this
-    checkout's package and the user code a test wrote into ``tmp_path``."""
+    checkout's package and the user code a test wrote into ``tmp_path`` (``kwargs``: of
+    ``Popen``, ``env`` replacing that environment)."""
+    kwargs.setdefault("env", checkout_env(tmp_path))
     return subprocess.Popen(
         [sys.executable, "-m", "elastic_gym.cli", *args],
-        env=checkout_env(tmp_path),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

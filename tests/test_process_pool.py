@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import alive, descendants, workers_of
+from helpers import alive, checkout_env, descendants, workers_of
 from pool_jobs import PidLog, numba_registries, pid_of, slow_square, what_a_job_sees
 from rich.console import Console
 
@@ -141,11 +141,14 @@ ENDING_BOUND = 60.0  # s for busy workers to end once their owner is killed (the
 
 @pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
-def test_busy_workers_and_their_server_end_when_the_owner_is_killed():
+def test_busy_workers_and_their_server_end_when_the_owner_is_killed(tmp_path):
     """``kill -9`` of the owner while its workers run jobs of 10 minutes: the fork server
     sees its alive pipe close and exits, and the kernel kills the workers
     (PR_SET_PDEATHSIG against the server); nothing the owner started is left."""
-    owner = subprocess.Popen([sys.executable, "-c", BUSY_OWNER])
+    # its temporary folder here: multiprocessing's pymp-* folder, which a killed process leaves
+    owner = subprocess.Popen(
+        [sys.executable, "-c", BUSY_OWNER], env=checkout_env(TMPDIR=str(tmp_path))
+    )
     deadline = time.monotonic() + 120.0
     while len(workers_of(owner.pid)) < 2:
         assert owner.poll() is None and time.monotonic() < deadline

@@ -348,7 +348,11 @@ def still_alive(pids: list[int], bound: float) -> list[str]:
 def test_workers_end_when_compare_is_killed(tmp_path):
     out = tmp_path / "out"
     args = ["compare", "--config", str(slow_config(tmp_path)), "--output", str(out)]
-    process = cli_process([*args, "--workers", "2", "--no-progress", "--no-plots"], tmp_path)
+    # its temporary folder here: multiprocessing's pymp-* folder, which a killed process leaves
+    env = checkout_env(tmp_path, TMPDIR=str(tmp_path))
+    process = cli_process(
+        [*args, "--workers", "2", "--no-progress", "--no-plots"], tmp_path, env=env
+    )
     started = time.monotonic()
     while len(workers_of(process.pid)) < 2:
         assert process.poll() is None, process.communicate()
