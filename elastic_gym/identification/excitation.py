@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import welch
 
 from elastic_gym.model import RobotModel
 
@@ -75,6 +74,8 @@ def torsion_band(
     pass_hz: float,
 ) -> TorsionBand:
     """The `TorsionBand` of a log (module docstring)."""
+    from scipy.signal import welch  # imported here: scipy.signal costs a second to import
+
     fs = 1.0 / dt
     free, _ = model.natural_frequencies(np.median(motor_position, axis=0))
     modes = np.sort(free) / (2.0 * np.pi)
