@@ -20,7 +20,6 @@ from typing import Annotated
 
 import numpy as np
 from pydantic import Field, StrictBool, StrictInt
-from scipy.stats import qmc
 
 from elastic_gym.model import RobotModel
 from elastic_gym.observers.base import Observer
@@ -94,6 +93,8 @@ def configuration_samples(
         axes = [np.linspace(lo, hi, points_per_joint) for lo, hi in zip(lower, upper, strict=True)]
         tail = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d)
     else:
+        from scipy.stats import qmc  # imported here: scipy.stats costs a second to import
+
         unit = qmc.Sobol(d, scramble=True, seed=SAMPLING_SEED).random(max_samples)
         tail = qmc.scale(unit, lower, upper)
     return np.hstack([np.zeros((len(tail), 1)), tail])
