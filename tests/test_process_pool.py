@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 from helpers import alive, checkout_env, descendants, workers_of
-from pool_jobs import PidLog, numba_registries, pid_of, slow_square, what_a_job_sees
+from pool_jobs import PidLog, pid_of, slow_square, what_a_job_sees
 from rich.console import Console
 
 from elastic_gym.evaluation import Scenario, compare
@@ -82,11 +82,18 @@ def test_a_server_that_preloaded_more_serves_a_pool_that_asks_for_less():
     assert checked["parent"] == run["parent"] and checked["pid"] != run["pid"]
 
 
-def test_numba_ready_installs_the_registries_a_first_compile_would():
-    """What a fork server imports last (`fork_server.READY`), here in the test process;
-    that a forked worker inherits it: the pool test above."""
-    importlib.import_module(fork_server.READY)
-    assert numba_registries() > 0
+def test_numba_ready_refreshes_numbas_contexts_as_a_first_compile_would(monkeypatch):
+    """What a fork server imports last (`fork_server.READY`) installs numba's registries
+    (the refresh of its CPU target's contexts); that a forked worker has them: the pool
+    test above."""
+    from numba.core.registry import cpu_target
+
+    ready = importlib.import_module(fork_server.READY)
+    refreshed = []
+    context = cpu_target.target_context
+    monkeypatch.setattr(type(context), "refresh", lambda self: refreshed.append(self))
+    importlib.reload(ready)  # its code run again
+    assert refreshed == [context]
 
 
 @pytest.mark.slow

@@ -9,5 +9,4 @@ every forked worker inherits them; a module imported later adds only its own.
 
 from numba.core.registry import cpu_target
 
-cpu_target.typing_context.refresh()
-cpu_target.target_context.refresh()
+cpu_target.target_context.refresh()  # its typing context's too
