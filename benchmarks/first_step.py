@@ -37,7 +37,8 @@ def _kernel_recorder() -> tuple[Counter, Counter, Counter]:
     from numba.core import event
 
     own, llvm, count = Counter(), Counter(), Counter()
-    stack: list[list] = []  # [name, start, time in nested compiles, LLVM time]
+    stack: list[list] = []  # [name, start, time in nested compiles]
+    locked: list[float] = []  # the starts of the LLVM lock's (re-entrant) acquisitions
 
     class Compiles(event.Listener):
         def on_start(self, ev):
@@ -53,11 +54,12 @@ def _kernel_recorder() -> tuple[Counter, Counter, Counter]:
 
     class LLVMLock(event.Listener):
         def on_start(self, ev):
-            self.start = time.process_time()
+            locked.append(time.process_time())
 
         def on_end(self, ev):
-            if stack:  # the LLVM work of the innermost kernel compiling
-                llvm[stack[-1][0]] += time.process_time() - self.start
+            start = locked.pop()
+            if stack and not locked:  # the outermost hold, charged to the innermost kernel
+                llvm[stack[-1][0]] += time.process_time() - start
 
     event.register("numba:compile", Compiles())
     event.register("numba:llvm_lock", LLVMLock())
