@@ -140,7 +140,7 @@ def integrator() -> None:
 # of the other part's) and the complex-step Newton-Euler kernel while b compiles the env
 # kernels of a rigid arm (every task and both models share their signature); then a
 # compiles the env on the RK4 while b runs the other env ids and the closed loops (both
-# complex kernels). Balance: docs/development.md.
+# complex kernels). Measured balance: studies/test_time/diary.md.
 PARTS = {
     "a": [
         "dynamics",
