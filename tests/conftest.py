@@ -1,12 +1,11 @@
 """Shared fixtures: every registered env id, and a quiet, noise-free env factory; before
-xdist starts its workers, numba's cache is filled by two processes (``warmup.py``)."""
+xdist starts its workers, numba's cache is filled by two processes
+(`elastic_gym.precompile`)."""
 
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import pytest  # noqa: E402
 from helpers import ELASTIC_IDS, jobs_here  # noqa: E402
 
 import elastic_gym  # noqa: E402
+from elastic_gym.precompile import precompile  # noqa: E402
 
 WARMUP_BOUND = 1200.0  # s for the two warm-up processes (a cold cache on a loaded machine)
 _warmup_report: list[str] = []
@@ -26,53 +26,30 @@ _warmup_report: list[str] = []
 
 def pytest_configure(config):
     """On the xdist controller (``-n`` given; not in a worker): compile the kernels into
-    numba's cache in two processes at once, before the workers start and load them.
-    ``ELASTIC_GYM_NO_WARMUP=1`` skips it. A failed warm-up fails nothing: the tests then
-    compile what they call, and fail themselves if something is wrong. Skipped when the
-    last warm-up that succeeded saw the same sources (a stamp in ``.pytest_cache``: delete
-    it with the numba cache files to measure a cold run)."""
+    numba's cache in two processes at once (`elastic_gym.precompile`), before the workers
+    start and load them. ``ELASTIC_GYM_NO_WARMUP=1`` skips it. A failed warm-up fails
+    nothing: the tests then compile what they call, and fail themselves if something is
+    wrong. Skipped when the last warm-up that succeeded saw the same sources (a stamp in
+    ``.pytest_cache``: delete it with the numba cache files to measure a cold run)."""
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
     if os.environ.get("ELASTIC_GYM_NO_WARMUP"):
         return
     package = Path(elastic_gym.__file__).resolve().parent  # what the workers import
-    script = Path(__file__).with_name("warmup.py")
-    sources = sorted([*package.rglob("*.py"), script])
+    sources = sorted(package.rglob("*.py"))
     stamp = [sys.version, *(f"{f} {f.stat().st_mtime_ns} {f.stat().st_size}" for f in sources)]
     cache = getattr(config, "cache", None)  # pytest's cache folder (none with -p no:cacheprovider)
     if cache is not None and cache.get("elastic_gym/numba-warmup", None) == stamp:
         return  # warmed up for these very sources (numba's cache keys on their mtime and size)
     started = time.monotonic()
-    package_root = str(package.parent)
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([package_root, os.environ.get("PYTHONPATH", "")]),
-    }
-    with tempfile.TemporaryDirectory() as markers:
-        logs = {part: Path(markers) / f"{part}.log" for part in ("a", "b")}
-        children, codes = {}, []
-        for part, log in logs.items():
-            with log.open("w") as handle:
-                children[part] = subprocess.Popen(
-                    [sys.executable, str(script), part, markers],
-                    env=env,
-                    stdout=handle,
-                    stderr=subprocess.STDOUT,
-                    stdin=subprocess.DEVNULL,
-                )
-        for part, child in children.items():
-            try:
-                code = child.wait(timeout=max(1.0, started + WARMUP_BOUND - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                child.kill()
-                code = child.wait()
-            lines = logs[part].read_text().splitlines()
-            steps = ", ".join(line for line in lines[-12:] if not line.startswith("pybullet"))
-            _warmup_report.append(f"part {part} (exit {code}): {steps}")
-            codes.append(code)
+    try:
+        precompile(jobs=2, bound=WARMUP_BOUND, progress=_warmup_report.append)
+    except RuntimeError as exc:
+        _warmup_report.append(str(exc))
+    else:
+        if cache is not None:
+            cache.set("elastic_gym/numba-warmup", stamp)
     _warmup_report.insert(0, f"numba warm-up: {time.monotonic() - started:.1f} s")
-    if cache is not None and codes == [0, 0]:
-        cache.set("elastic_gym/numba-warmup", stamp)
 
 
 def pytest_report_header(config):

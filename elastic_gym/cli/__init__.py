@@ -12,10 +12,20 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from elastic_gym.cli import benchmark, compare, export, identify, observe, record, schema, train
+from elastic_gym.cli import (
+    benchmark,
+    compare,
+    export,
+    identify,
+    observe,
+    precompile,
+    record,
+    schema,
+    train,
+)
 from elastic_gym.runtime.parallel import Interrupted, interrupts_raised
 
-SUBCOMMANDS = (compare, train, export, benchmark, record, identify, observe, schema)
+SUBCOMMANDS = (compare, train, export, benchmark, record, identify, observe, schema, precompile)
 
 
 def build_parser() -> argparse.ArgumentParser:
