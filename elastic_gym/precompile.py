@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 WAIT_BOUND = 900.0  # s a part waits for the other part's marker
+StepTimes = list[tuple[str, float, int]]  # (step, wall seconds, kernels compiled)
 # A part's process. Not ``python -m elastic_gym.precompile``: with this module as
 # ``__main__`` the RK4 integrator's kernels compiled 1.5 times slower (cause not found).
 CHILD = (
@@ -165,7 +166,7 @@ STEPS: dict[str, Callable[[], None]] = {
     )
 }
 
-# The two chain kernels first, one per part, and a the accelerometers' complex-step
+# The two chain kernels first, one per part, and part a the accelerometers' complex-step
 # kernel; then a compiles the RK4's kernels (they inline the chain's recursion: nothing
 # of the other part's) and the complex-step Newton-Euler kernel while b compiles the env
 # kernels of a rigid arm (every task and both models share their signature); then a
@@ -257,9 +258,6 @@ def run_part(part: str, markers: Path) -> None:
                 (markers / name).touch()
 
 
-StepTimes = list[tuple[str, float, int]]  # (step, wall seconds, kernels compiled)
-
-
 def precompile(
     jobs: int = 2, bound: float | None = None, progress: Callable[[str], None] | None = None
 ) -> StepTimes:
@@ -291,6 +289,7 @@ def precompile(
 
 
 def _format(times: StepTimes) -> str:
+    """``STEP 1.2 s (3 compiled), ...``"""
     return ", ".join(
         f"{step} {seconds:.1f} s ({compiled} compiled)" for step, seconds, compiled in times
     )
@@ -328,9 +327,9 @@ def _two_processes(bound: float | None, say: Callable[[str], None]) -> StepTimes
                 child.kill()
                 code = child.wait()
             lines = logs[part].read_text().splitlines()
-            done = [_parsed(line) for line in lines if _parsed(line) is not None]
-            times.extend(done)  # type: ignore[arg-type]
-            say(f"part {part}: {_format(done)}")  # type: ignore[arg-type]
+            done = [parsed for line in lines if (parsed := _parsed(line)) is not None]
+            times.extend(done)
+            say(f"part {part}: {_format(done)}")
             if code != 0:
                 failed.append(f"part {part} (exit {code}):\n" + "\n".join(lines[-15:]))
     if failed:

@@ -29,11 +29,16 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
 def run_precompile(args: argparse.Namespace) -> int:
     from elastic_gym.precompile import precompile
 
+    print(f"compiling the kernels into numba's cache ({args.jobs} process{_s(args.jobs)}) ...")
     started = time.monotonic()
     times = precompile(jobs=args.jobs, progress=print)
     compiled = sum(count for _, _, count in times)
     print(
         f"{compiled} kernels compiled in {time.monotonic() - started:.1f} s "
-        f"({len(times)} steps, {args.jobs} process{'es' if args.jobs > 1 else ''})"
+        f"({len(times)} steps, {args.jobs} process{_s(args.jobs)})"
     )
     return 0
+
+
+def _s(count: int) -> str:
+    return "es" if count > 1 else ""
