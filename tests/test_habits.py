@@ -1,4 +1,5 @@
-"""The project's habits that code can hold: a quiet start, short commit subjects."""
+"""The project's habits that code can hold: a quiet start, short commit subjects, a
+command that tells its version."""
 
 from __future__ import annotations
 
@@ -58,3 +59,14 @@ def test_docstrings_are_markdown_without_sphinx_roles():
         if role.search(line)
     ]
     assert not found, f"Sphinx roles (write [`name`][elastic_gym.module.name]): {found[:10]}"
+
+
+def test_the_command_tells_the_installed_version(capsys):
+    from importlib.metadata import version
+
+    from elastic_gym.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"elastic-gym {version('elastic-gym')}"

@@ -12,6 +12,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from elastic_gym import __version__
 from elastic_gym.cli import (
     benchmark,
     compare,
@@ -33,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="elastic-gym",
         description="Elastic-joint robot arms: compare observers, controllers and RL policies.",
     )
+    parser.add_argument("--version", action="version", version=f"elastic-gym {__version__}")
     subcommands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in SUBCOMMANDS:
         command.add_parser(subcommands)
