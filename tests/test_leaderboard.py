@@ -501,17 +501,68 @@ def test_a_rerun_one_ulp_off_in_one_episode_is_named_and_only_it():
     from elastic_gym.benchmark.verify import card_differences, same_bits
 
     card = read_scorecard(sorted(SHIPPED.glob("*.json"))[0])
-    compared, differences = card_differences(card, card)
-    assert compared > len(card.seeds) and differences == []
+    itself = card_differences(card, card)
+    assert itself.compared > len(card.seeds) and itself.listed == []
     data = card.model_dump(mode="json")
     cell_id, columns = next(iter(data["cells"].items()))
     value = columns["track_rms"][0]
     columns["track_rms"][0] = math.nextafter(value, math.inf)
-    again, differences = card_differences(card, type(card).model_validate(data))
-    assert again == compared
-    assert differences == [
+    found = card_differences(card, type(card).model_validate(data))
+    assert found.compared == itself.compared
+    assert found.listed == [
         f"cells.{cell_id}.track_rms[seed {card.seeds[0]}]: card {value!r}, "
         f"re-run {math.nextafter(value, math.inf)!r}"
     ]
+    assert found.only_metrics and found.score_difference == 0.0
     assert same_bits(math.nan, math.nan) and not same_bits(0.0, -0.0)
     assert not same_bits(None, 0.0) and same_bits(None, None)
+
+
+@pytest.mark.parametrize(
+    ("change", "reproduced"),
+    [
+        ("scores within the tolerance", True),
+        ("a metric null on one side", True),
+        ("a score beyond the tolerance", False),
+        ("a status", False),
+        ("a count of passed episodes", False),
+    ],
+)
+def test_another_machine_reproduces_a_card_only_within_its_scores_tolerance(change, reproduced):
+    """On another CPU the floats' last bits differ: a re-run whose statuses are the card's
+    and whose scores are within `SCORE_TOLERANCE` reproduces it, not bit for bit; a
+    status, a missing score or a score further off does not."""
+    from elastic_gym.benchmark.verify import SCORE_TOLERANCE, Verification, card_differences
+
+    card = read_scorecard(sorted(SHIPPED.glob("*.json"))[0])
+    data = card.model_dump(mode="json")
+    cell_id, columns = next(iter(data["cells"].items()))
+    columns["track_rms"][0] *= 1.1  # a sensitive episode's metric, well off
+    scores = data["scores"]
+    if change == "scores within the tolerance":
+        scores["overall"] += SCORE_TOLERANCE / 2
+    elif change == "a metric null on one side":  # settled at the window's end, or not
+        settled = columns["settling_time"]
+        settled[1] = None if settled[1] is not None else 0.5
+    elif change == "a score beyond the tolerance":
+        scores["precision"] -= 2 * SCORE_TOLERANCE
+    elif change == "a status":
+        columns["status"][0] += "-not"
+    else:
+        scores["passed"] += 1
+    found = card_differences(card, type(card).model_validate(data))
+    verdict = Verification(
+        Path("card.json"),
+        card,
+        found.compared,
+        found.listed,
+        found.only_metrics,
+        found.score_difference,
+    )
+    assert not verdict.exact and verdict.reproduced is reproduced
+    expected = (
+        "reproduced within 0.001 of every score, not bit for bit"
+        if reproduced
+        else "NOT reproduced"
+    )
+    assert verdict.text().startswith(f"card.json: {expected}")

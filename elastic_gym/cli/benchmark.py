@@ -33,8 +33,13 @@ def add_parser(subcommands: argparse._SubParsersAction) -> None:
         "--verify",
         metavar="CARD",
         help="re-run the command a scorecard records (it imports the classes it names) and "
-        "report whether it reproduces the card's episodes and scores bit for bit; exit 1 "
-        "if not",
+        "report whether it reproduces the card's episodes and scores: bit for bit, or on "
+        "another machine every status and every score within 1e-3; exit 1 if not",
+    )
+    parser.add_argument(
+        "--exact",
+        action="store_true",
+        help="with --verify: exit 1 unless bit for bit (on a machine like the card's)",
     )
     parser.add_argument(
         "--upgrade",
@@ -100,6 +105,8 @@ def run_benchmark_command(args: argparse.Namespace) -> int:
         return _leaderboard(args)
     if arguments.upgrade:
         return _upgrade(args)
+    if args.exact and not arguments.verify:
+        raise ValueError("--exact applies to --verify only")
     if arguments.verify:
         return _verify(args)
     from elastic_gym.benchmark import run_benchmark
@@ -163,4 +170,4 @@ def _verify(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
     )
     print(report.text())
-    return 0 if report.reproduced else 1
+    return 0 if (report.exact if args.exact else report.reproduced) else 1
