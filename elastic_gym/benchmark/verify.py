@@ -8,12 +8,10 @@ episode's status and metric, every score. Floats are equal when their bits are (
 and ``-0.0`` differ). The old card is first checked against the suite like any leaderboard
 card (`elastic_gym.benchmark.audit.check_card`).
 
-Bit for bit holds on a machine like the one that made the card. Elsewhere the last bits of
-the floating point differ (the CPU's math library and BLAS kernels), and the closed loops
-carry them on: a card then counts as reproduced when only episodes' metrics and scores
-differ (a metric may be null on one side: an episode that settles at the end of its window
-on one machine only), every episode's status is the card's and every score is within
-`SCORE_TOLERANCE` of the card's.
+Bit for bit holds on a machine like the card's. Elsewhere the floats' last bits differ (the
+math library's and BLAS's kernels per CPU) and the closed loops carry them on: the card is
+then reproduced when only episodes' metrics (one may be null on one side) and scores
+differ, every status is the card's and every score within `SCORE_TOLERANCE` of it.
 """
 
 from __future__ import annotations
