@@ -4,6 +4,7 @@ later process loads instead of compiling."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -59,12 +60,17 @@ def test_bad_jobs_are_refused():
 
 
 @pytest.mark.slow
-def test_two_processes_fill_a_cache_that_a_later_process_loads():
-    """Both parts run every step of theirs; then a fresh process running every step
-    compiles nothing (on a cold cache the two processes compile; on the suite's warm one
-    they load, as the later process must)."""
-    times = pc.precompile(jobs=2)
-    assert sorted(step for step, _, _ in times) == sorted(pc.STEPS)
+def test_two_processes_fill_a_cache_that_a_later_process_loads(capsys):
+    """``elastic-gym precompile``: both parts run every step of theirs; then a fresh
+    process running every step compiles nothing (on a cold cache the two processes
+    compile; on the suite's warm one they load, as the later process must)."""
+    assert main(["precompile"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "compiling the kernels into numba's cache (2 processes) ..."
+    reported = [step.split()[0] for line in lines[1:3] for step in line[8:].split(", ")]
+    assert [line[:8] for line in lines[1:3]] == ["part a: ", "part b: "]
+    assert sorted(reported) == sorted(pc.STEPS)
+    assert re.fullmatch(r"\d+ kernels compiled in [\d.]+ s \(9 steps, 2 processes\)", lines[3])
     code = (
         "import json; from elastic_gym.precompile import precompile; "
         "print(json.dumps(precompile(jobs=1)))"
