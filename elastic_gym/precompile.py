@@ -106,9 +106,11 @@ def elastic() -> None:
 
 def rk4() -> None:
     """An env on the RK4 integrator (its control period in one compiled call) and the
-    Fourier task (its reference from Python)."""
+    Fourier task (its reference from Python), with the torque dither of a recorded
+    identification excitation."""
     _steps("elastic_gym/TwoLinkElastic-v0", integrator="rk4")
     _steps("elastic_gym/TwoLinkElastic-v0", task="fourier")
+    _steps("elastic_gym/TwoLinkElastic-v0", task="fourier", task_options={"dither": {}})
 
 
 def loops() -> None:
