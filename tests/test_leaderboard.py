@@ -529,9 +529,10 @@ def test_a_rerun_one_ulp_off_in_one_episode_is_named_and_only_it():
     ],
 )
 def test_another_machine_reproduces_a_card_only_within_its_scores_tolerance(change, reproduced):
-    """On another CPU the floats' last bits differ: a re-run whose statuses are the card's
-    and whose scores are within `SCORE_TOLERANCE` reproduces it, not bit for bit; a
-    status, a missing score or a score further off does not."""
+    """On another CPU the floats' last bits differ: a re-run that differs in episodes'
+    metrics (one may be null on one side) and scores, whose statuses are the card's and
+    whose scores are within `SCORE_TOLERANCE`, reproduces it, not bit for bit; a status,
+    a count or a score further off does not."""
     from elastic_gym.benchmark.verify import SCORE_TOLERANCE, Verification, card_differences
 
     card = read_scorecard(sorted(SHIPPED.glob("*.json"))[0])

@@ -47,7 +47,7 @@ class Verification:
     """Whether every difference is an episode's metric or a score (a float), no status,
     count or record among them."""
     score_difference: float = 0.0
-    """The largest absolute difference of a score (inf: a score missing on one side)."""
+    """The largest absolute difference of a score (inf: a count of episodes differs)."""
 
     @property
     def exact(self) -> bool:
