@@ -502,14 +502,14 @@ def test_a_rerun_one_ulp_off_in_one_episode_is_named_and_only_it():
 
     card = read_scorecard(sorted(SHIPPED.glob("*.json"))[0])
     itself = card_differences(card, card)
-    assert itself.compared > len(card.seeds) and itself.listed == []
+    assert itself.compared > len(card.seeds) and itself.differences == []
     data = card.model_dump(mode="json")
     cell_id, columns = next(iter(data["cells"].items()))
     value = columns["track_rms"][0]
     columns["track_rms"][0] = math.nextafter(value, math.inf)
     found = card_differences(card, type(card).model_validate(data))
     assert found.compared == itself.compared
-    assert found.listed == [
+    assert found.differences == [
         f"cells.{cell_id}.track_rms[seed {card.seeds[0]}]: card {value!r}, "
         f"re-run {math.nextafter(value, math.inf)!r}"
     ]
@@ -552,14 +552,7 @@ def test_another_machine_reproduces_a_card_only_within_its_scores_tolerance(chan
     else:
         scores["passed"] += 1
     found = card_differences(card, type(card).model_validate(data))
-    verdict = Verification(
-        Path("card.json"),
-        card,
-        found.compared,
-        found.listed,
-        found.only_metrics,
-        found.score_difference,
-    )
+    verdict = Verification(card=Path("card.json"), rerun=card, **vars(found))
     assert not verdict.exact and verdict.reproduced is reproduced
     expected = (
         "reproduced within 0.001 of every score, not bit for bit"

@@ -36,18 +36,25 @@ tenth of the last digit the leaderboard shows."""
 
 
 @dataclass
-class Verification:
-    """The outcome: how many values were compared, and each difference found."""
+class Differences:
+    """What `card_differences` found: how many values were compared, and each that
+    differs (``field: card X, re-run Y``)."""
 
-    card: Path
-    rerun: Scorecard
-    compared: int
+    compared: int = 0
     differences: list[str] = field(default_factory=list)
     only_metrics: bool = True
     """Whether every difference is an episode's metric or a score (a float), no status,
     count or record among them."""
     score_difference: float = 0.0
     """The largest absolute difference of a score (inf: a count of episodes differs)."""
+
+
+@dataclass(kw_only=True)
+class Verification(Differences):
+    """The outcome: the differences of the re-run ``rerun`` from the card at ``card``."""
+
+    card: Path
+    rerun: Scorecard
 
     @property
     def exact(self) -> bool:
@@ -91,16 +98,6 @@ def same_bits(a: Any, b: Any) -> bool:
     return type(a) is type(b) and a == b
 
 
-@dataclass
-class Differences:
-    """What `card_differences` found."""
-
-    compared: int = 0
-    listed: list[str] = field(default_factory=list)  # ``field: card X, re-run Y``
-    only_metrics: bool = True
-    score_difference: float = 0.0
-
-
 def card_differences(card: Scorecard, rerun: Scorecard) -> Differences:
     """Every value of the two cards compared, ``provenance`` left out: how many, each that
     differs, whether all of those are episodes' metrics or scores, and the largest
@@ -111,7 +108,7 @@ def card_differences(card: Scorecard, rerun: Scorecard) -> Differences:
         found.compared += 1
         if same_bits(a, b):
             return
-        found.listed.append(f"{name}: card {a!r}, re-run {b!r}")
+        found.differences.append(f"{name}: card {a!r}, re-run {b!r}")
         floats = isinstance(a, float) and isinstance(b, float)
         if name.startswith("scores."):
             found.only_metrics &= floats
@@ -127,9 +124,9 @@ def card_differences(card: Scorecard, rerun: Scorecard) -> Differences:
     missing = [c for c in old["cells"] if c not in new["cells"]]
     extra = [c for c in new["cells"] if c not in old["cells"]]
     for cell_id in missing:
-        found.listed.append(f"cells.{cell_id}: in the card, not in the re-run")
+        found.differences.append(f"cells.{cell_id}: in the card, not in the re-run")
     for cell_id in extra:
-        found.listed.append(f"cells.{cell_id}: in the re-run, not in the card")
+        found.differences.append(f"cells.{cell_id}: in the re-run, not in the card")
     found.only_metrics &= not (missing or extra)
     for cell_id, columns in old["cells"].items():
         if cell_id not in new["cells"]:
@@ -189,7 +186,4 @@ def verify_card(
             progress=progress,
             overwrite=overwrite,
         )
-    found = card_differences(card, rerun)
-    return Verification(
-        path, rerun, found.compared, found.listed, found.only_metrics, found.score_difference
-    )
+    return Verification(card=path, rerun=rerun, **vars(card_differences(card, rerun)))
